@@ -1,0 +1,127 @@
+"""PD on the tip sensors followed by a unit-DC-gain low-pass filter (MODEL.md section 5).
+
+    e   = kp*phi_o + kd*omega_o + kx*x_o
+    F_c = -H(s) e,   H = 1 (order 0),  wc/(s + wc) (order 1),  wc^2/(s^2 + 2 zf wc s + wc^2) (order 2)
+
+optionally saturated at ``+-force_limit``. The filter's state-space form is the controllable
+canonical one with the filter output as first state; it is discretised exactly over a step ``h``
+with the input ``e`` held (zero-order hold), by the matrix exponential of the augmented matrix.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from plant_fmu.params import check_int, check_real
+
+__all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES"]
+
+#: Controller inputs, in the order of the columns of ``B`` and ``D``.
+INPUT_NAMES = ("x_o", "phi_o", "omega_o")
+
+
+@dataclass(frozen=True)
+class ControllerParams:
+    """Gains and filter of the controller. ``force_limit = inf`` means no saturation."""
+
+    kp: float = 500.0
+    kd: float = 5.0
+    kx: float = 0.0
+    filter_order: int = 2
+    cutoff: float = 150.0
+    filter_damping: float = 0.5
+    force_limit: float = math.inf
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        for name in ("kp", "kd", "kx"):
+            set_(name, check_real(name, getattr(self, name), low=-1e12, high=1e12))
+        set_("filter_order", check_int("filter_order", self.filter_order, low=0, high=2))
+        set_("cutoff", check_real("cutoff", self.cutoff, low=0.0, high=1e9))
+        set_("filter_damping", check_real("filter_damping", self.filter_damping, low=0.0,
+                                          high=100.0))
+        set_("force_limit", check_real("force_limit", self.force_limit, low=0.0, allow_inf=True))
+
+    def replace(self, **changes) -> "ControllerParams":
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise TypeError(f"unknown controller parameter(s): {', '.join(sorted(unknown))}")
+        return dataclasses.replace(self, **changes)
+
+
+class PDLowPassModel:
+    """The controller as a linear system ``xc' = A xc + B y``, ``F_c = C xc + D y`` (then saturated).
+
+    ``y = [x_o, phi_o, omega_o]``. The filter state has ``filter_order`` entries.
+    """
+
+    def __init__(self, p: ControllerParams):
+        self.params = p
+        gains = np.array([[p.kx, p.kp, p.kd]])                 # e = gains @ y
+        wc, zf = p.cutoff, p.filter_damping
+        if p.filter_order == 0:
+            Af, Bf, Cf, Df = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), np.ones((1, 1))
+        elif p.filter_order == 1:
+            Af, Bf, Cf, Df = np.array([[-wc]]), np.array([[wc]]), np.ones((1, 1)), np.zeros((1, 1))
+        else:
+            Af = np.array([[0.0, 1.0], [-wc * wc, -2.0 * zf * wc]])
+            Bf = np.array([[0.0], [wc * wc]])
+            Cf, Df = np.array([[1.0, 0.0]]), np.zeros((1, 1))
+        self.Af, self.Bf, self.Cf, self.Df = Af, Bf, Cf, Df
+        self.gains = gains
+        self.A = Af
+        self.B = Bf @ gains
+        self.C = -Cf
+        self.D = -Df @ gains
+        self.nx = p.filter_order
+
+    def state_space(self):
+        return self.A, self.B, self.C, self.D
+
+    def transfer_function(self, s: complex) -> complex:
+        """The filter ``H(s)`` (unit DC gain)."""
+        p = self.params
+        if p.filter_order == 0:
+            return 1.0 + 0j
+        if p.filter_order == 1:
+            return p.cutoff / (s + p.cutoff)
+        wc = p.cutoff
+        return wc * wc / (s * s + 2 * p.filter_damping * wc * s + wc * wc)
+
+    def initial_state(self) -> np.ndarray:
+        return np.zeros(self.nx)
+
+    def error_signal(self, y) -> float:
+        p = self.params
+        return p.kx * y[0] + p.kp * y[1] + p.kd * y[2]
+
+    def output(self, xc: np.ndarray, y) -> float:
+        """``F_c`` for filter state ``xc`` and sensors ``y = [x_o, phi_o, omega_o]``."""
+        if self.nx == 0:
+            F = -self.error_signal(y)
+        else:
+            F = -xc[0]
+        lim = self.params.force_limit
+        return min(max(F, -lim), lim)
+
+    @functools.lru_cache(maxsize=8)
+    def discretize(self, h: float):
+        """``(Ad, Bd)`` with ``xc[k+1] = Ad xc[k] + Bd e[k]``: exact for ``e`` held over ``h``."""
+        n = self.nx
+        aug = np.zeros((n + 1, n + 1))
+        aug[:n, :n] = self.Af * h
+        aug[:n, n:] = self.Bf * h
+        E = scipy.linalg.expm(aug)
+        return E[:n, :n].copy(), E[:n, n].copy()
+
+    def step(self, xc: np.ndarray, y, h: float) -> np.ndarray:
+        """Advance the filter state over ``h`` with the sensors ``y`` held."""
+        if self.nx == 0:
+            return xc
+        Ad, Bd = self.discretize(float(h))
+        return Ad @ xc + Bd * self.error_signal(y)

@@ -1,0 +1,192 @@
+"""Cantilever modes of the beam from cubic Hermite finite elements, and the FFRF invariants.
+
+The beam is clamped in its floating frame at the hinge (``s = 0``) and free at the tip. Its
+transverse deflection is ``w(s) = N(s) eta`` with ``N`` the first ``n`` mass-normalised cantilever
+modes of an Euler-Bernoulli finite-element model (consistent mass). From these modes come the
+invariants of MODEL.md section 3::
+
+    I0 = m + rhoA L     I1 = int rhoA s ds       I2 = int rhoA s^2 ds
+    I3 = int rhoA N ds  I4 = int rhoA N^T N ds   I5 = int rhoA s N ds
+
+with ``I4 = identity`` (mass normalisation), the modal stiffness ``K = diag(omega_j^2)``, the modal
+damping ``D = diag(2 zeta omega_j)``, the tip deflection ``N(L)`` and the tip slope ``N'(L)``.
+All integrals of the interpolated shapes are evaluated exactly, element by element.
+
+With ``gravity_preload`` the geometric stiffness of the self-weight compression is also formed:
+``Kg = int rhoA g (L - s) N'^T N' ds``; the potential energy then carries
+``-1/2 cos(phi) eta^T Kg eta`` (the beam's foreshortening lowers its centre of mass).
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from .params import PlantParams
+
+__all__ = ["Beam", "beam_model", "analytic_beta_L", "analytic_frequencies", "analytic_mode_shape"]
+
+
+@dataclass(frozen=True)
+class Beam:
+    """Modal data of the beam for one :class:`PlantParams` (arrays are read-only)."""
+
+    frequencies: np.ndarray   # (n,) cantilever circular frequencies, rad/s
+    I0: float
+    I1: float
+    I2: float
+    I3: np.ndarray            # (n,)
+    I4: np.ndarray            # (n, n)
+    I5: np.ndarray            # (n,)
+    K: np.ndarray             # (n, n) modal stiffness diag(omega^2)
+    D: np.ndarray             # (n, n) modal damping diag(2 zeta omega)
+    Kg: np.ndarray            # (n, n) geometric stiffness of the self-weight (zero unless preload)
+    tip_deflection: np.ndarray  # (n,) N(L)
+    tip_slope: np.ndarray       # (n,) N'(L)
+    nodes: np.ndarray           # (n_elements+1,) node positions s
+    shapes: np.ndarray          # (n_elements+1, n) mode shapes N_j at the nodes
+    slopes: np.ndarray          # (n_elements+1, n) N_j' at the nodes
+
+    @property
+    def n_modes(self) -> int:
+        return self.frequencies.size
+
+
+def _element_matrices(le: float, EI: float, rhoA: float):
+    """Stiffness and consistent mass of one Hermite element, dofs (w1, w1', w2, w2')."""
+    l2 = le * le
+    k = EI / le**3 * np.array([[12, 6 * le, -12, 6 * le],
+                               [6 * le, 4 * l2, -6 * le, 2 * l2],
+                               [-12, -6 * le, 12, -6 * le],
+                               [6 * le, 2 * l2, -6 * le, 4 * l2]])
+    m = rhoA * le / 420 * np.array([[156, 22 * le, 54, -13 * le],
+                                    [22 * le, 4 * l2, 13 * le, -3 * l2],
+                                    [54, 13 * le, 156, -22 * le],
+                                    [-13 * le, -3 * l2, -22 * le, 4 * l2]])
+    return k, m
+
+
+def _hermite_dN(xi: np.ndarray, le: float) -> np.ndarray:
+    """d/ds of the four Hermite shape functions at local coordinates ``xi`` in [0, 1]."""
+    return np.stack([(-6 * xi + 6 * xi**2) / le,
+                     1 - 4 * xi + 3 * xi**2,
+                     (6 * xi - 6 * xi**2) / le,
+                     -2 * xi + 3 * xi**2], axis=-1)
+
+
+@functools.lru_cache(maxsize=64)
+def _fe_modes(L: float, EI: float, rhoA: float, n_elements: int):
+    """Global cantilever FE model: (omega^2, mass-normalised modes over all 2*(ne+1) dofs)."""
+    ne = n_elements
+    le = L / ne
+    ndof = 2 * (ne + 1)
+    K = np.zeros((ndof, ndof))
+    M = np.zeros((ndof, ndof))
+    ke, me = _element_matrices(le, EI, rhoA)
+    for e in range(ne):
+        sl = slice(2 * e, 2 * e + 4)
+        K[sl, sl] += ke
+        M[sl, sl] += me
+    free = slice(2, ndof)  # clamp w(0) = w'(0) = 0
+    lam, vec = scipy.linalg.eigh(K[free, free], M[free, free])
+    modes = np.zeros((ndof, lam.size))
+    modes[free] = vec
+    # Sign convention: positive tip deflection.
+    modes *= np.where(modes[-2] < 0, -1.0, 1.0)
+    return lam, modes
+
+
+@functools.lru_cache(maxsize=64)
+def beam_model(p: PlantParams) -> Beam:
+    """The modal data of the beam described by ``p`` (cached per parameter record)."""
+    n, ne, L, rhoA = p.n_modes, p.n_elements, p.L, p.rhoA
+    lam, modes = _fe_modes(L, p.EI, rhoA, ne)
+    le = L / ne
+    nodes = np.linspace(0.0, L, ne + 1)
+    phi = modes[:, :n]
+    w_dofs, r_dofs = phi[0::2], phi[1::2]          # (ne+1, n) deflections and slopes at nodes
+
+    # Exact integrals of the Hermite interpolants: int H_k ds and int s H_k ds per element.
+    int_h = le * np.array([0.5, le / 12, 0.5, -le / 12])
+    int_xh = le * le * np.array([3 / 20, le / 30, 7 / 20, -le / 20])
+    I3 = np.zeros(n)
+    I5 = np.zeros(n)
+    # Geometric stiffness: P(s) = rhoA g (L - s), 3-point Gauss is exact for the degree-5 integrand.
+    gx, gw = np.polynomial.legendre.leggauss(3)
+    xi = 0.5 * (gx + 1.0)
+    gw = 0.5 * gw
+    dH = _hermite_dN(xi, le)                          # (3, 4)
+    Kg = np.zeros((n, n))
+    for e in range(ne):
+        ve = phi[2 * e:2 * e + 4]                     # (4, n)
+        s0 = nodes[e]
+        I3 += rhoA * int_h @ ve
+        I5 += rhoA * (s0 * int_h + int_xh) @ ve
+        if p.gravity_preload:
+            dw = dH @ ve                               # (3, n): N' at the Gauss points
+            load = rhoA * p.g * (L - (s0 + le * xi))   # compressive axial force
+            Kg += (dw * (gw * load * le)[:, None]).T @ dw
+    # I4 from the FE mass matrix is identity by construction of the eigenvectors.
+    I4 = np.eye(n)
+    omega = np.sqrt(lam[:n])
+    arrays = dict(
+        frequencies=omega,
+        I3=I3, I4=I4, I5=I5,
+        K=np.diag(omega**2),
+        D=np.diag(2.0 * p.zeta * omega),
+        Kg=Kg,
+        tip_deflection=w_dofs[-1].copy(),
+        tip_slope=r_dofs[-1].copy(),
+        nodes=nodes,
+        shapes=w_dofs.copy(),
+        slopes=r_dofs.copy(),
+    )
+    for a in arrays.values():
+        a.setflags(write=False)
+    return Beam(I0=p.m + rhoA * L, I1=rhoA * L**2 / 2, I2=rhoA * L**3 / 3, **arrays)
+
+
+def fe_mass_matrix_check(p: PlantParams) -> np.ndarray:
+    """``int rhoA N^T N ds`` evaluated from the FE consistent mass matrix (should be identity)."""
+    lam, modes = _fe_modes(p.L, p.EI, p.rhoA, p.n_elements)
+    ne = p.n_elements
+    _, me = _element_matrices(p.L / ne, p.EI, p.rhoA)
+    phi = modes[:, :p.n_modes]
+    out = np.zeros((p.n_modes, p.n_modes))
+    for e in range(ne):
+        ve = phi[2 * e:2 * e + 4]
+        out += ve.T @ me @ ve
+    return out
+
+
+# --------------------------------------------------------------------------- analytic cross-check
+def analytic_beta_L(n: int) -> np.ndarray:
+    """The first ``n`` roots of ``cos(bL) cosh(bL) + 1 = 0`` (clamped-free beam)."""
+    f = lambda x: np.cos(x) + 1.0 / np.cosh(x)  # same roots, no overflow  # noqa: E731
+    return np.array([scipy.optimize.brentq(f, (j - 0.5) * np.pi - 1.2, (j - 0.5) * np.pi + 0.5,
+                                           xtol=1e-15) for j in range(1, n + 1)])
+
+
+def analytic_frequencies(p: PlantParams, n: int | None = None) -> np.ndarray:
+    """``(beta_j L)^2 sqrt(EI / (rhoA L^4))`` for the first ``n`` cantilever modes."""
+    bl = analytic_beta_L(p.n_modes if n is None else n)
+    return bl**2 * np.sqrt(p.EI / (p.rhoA * p.L**4))
+
+
+def analytic_mode_shape(p: PlantParams, j: int):
+    """Mass-normalised analytic cantilever shape ``N_j(s)`` (j from 1), positive at the tip."""
+    bl = analytic_beta_L(j)[-1]
+    b = bl / p.L
+    sigma = (np.cosh(bl) + np.cos(bl)) / (np.sinh(bl) + np.sin(bl))
+
+    def raw(s):
+        s = np.asarray(s, dtype=float)
+        return np.cosh(b * s) - np.cos(b * s) - sigma * (np.sinh(b * s) - np.sin(b * s))
+
+    # int_0^L W^2 ds = L for this normalisation of W (a classical identity), times rhoA.
+    scale = 1.0 / np.sqrt(p.rhoA * p.L)
+    sign = np.sign(raw(p.L))
+    return lambda s: sign * scale * raw(s)

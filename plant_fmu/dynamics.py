@@ -1,0 +1,226 @@
+"""Equations of motion of the cart with a flexible beam (MODEL.md section 4), and their linearisation.
+
+Generalised coordinates ``q = [x, phi, eta_1..eta_n]``; the state is ``[q, qd]`` (length
+``2*(n+2)``), the input is the force on the cart ``F_c``. With ``c = cos(phi)``, ``s = sin(phi)``::
+
+    M(q) = [[ I0,              -I1 c + I3.eta s,   -I3 c ],
+            [ .,               I2 + eta.eta,        I5   ],
+            [ -I3^T c,         I5^T,                I    ]]
+
+    f_x   = F_c - (I1 s + I3.eta c) phid^2 - 2 phid s I3.etad
+    f_phi = -2 phid eta.etad + g (I1 s + I3.eta c) [- 1/2 s eta^T Kg eta]
+    f_eta = phid^2 eta + g s I3 - K eta - D etad [+ c Kg eta]
+
+and ``M(q) qdd = f``; the bracketed terms are the optional self-weight (geometric) stiffness.
+Because the modes are mass-normalised (``I4 = I``), ``M`` is solved by a 2x2 Schur complement on the
+rigid coordinates, which costs O(n).
+
+Outputs: ``x_o = x``, ``phi_o = phi + atan(N'(L) eta)``, ``omega_o = d phi_o/dt``, the tip
+deflection ``N(L) eta``, the modal coordinates and the total energy ``T + V``.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from .beam import Beam, beam_model
+from .params import PlantParams
+
+__all__ = ["PlantModel", "plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
+           "OUTPUT_NAMES"]
+
+#: Names of the sensor outputs, in the order of the rows of ``C``.
+OUTPUT_NAMES = ("x_o", "phi_o", "omega_o")
+
+
+class PlantModel:
+    """The plant for one parameter record, with everything state-independent precomputed."""
+
+    def __init__(self, p: PlantParams):
+        self.params = p
+        self.beam: Beam = beam_model(p)
+        b = self.beam
+        n = self.n = p.n_modes
+        self.nq = n + 2
+        self.nx = 2 * self.nq
+        self.g = p.g
+        self.I0, self.I1, self.I2 = b.I0, b.I1, b.I2
+        self.I3, self.I5 = b.I3, b.I5
+        self.Kdiag = np.diag(b.K).copy()
+        self.Ddiag = np.diag(b.D).copy()
+        self.Kg = b.Kg if p.gravity_preload else np.zeros((n, n))
+        self.preload = bool(p.gravity_preload) and n > 0
+        self.tip_slope = b.tip_slope
+        self.tip_defl = b.tip_deflection
+        self._I5I5 = float(self.I5 @ self.I5)
+        self._I3I3 = float(self.I3 @ self.I3)
+        self._I3I5 = float(self.I3 @ self.I5)
+
+    # ------------------------------------------------------------------ nonlinear model
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        n = self.n
+        phi, eta = q[1], q[2:]
+        c, s = math.cos(phi), math.sin(phi)
+        M = np.zeros((n + 2, n + 2))
+        M[0, 0] = self.I0
+        M[0, 1] = M[1, 0] = -self.I1 * c + s * float(self.I3 @ eta)
+        M[0, 2:] = M[2:, 0] = -c * self.I3
+        M[1, 1] = self.I2 + float(eta @ eta)
+        M[1, 2:] = M[2:, 1] = self.I5
+        M[2:, 2:] = np.eye(n)
+        return M
+
+    def forces(self, q: np.ndarray, qd: np.ndarray, u: float) -> np.ndarray:
+        """Right-hand side ``f(q, qd, u)`` of ``M(q) qdd = f``."""
+        phi, eta = q[1], q[2:]
+        phid, etad = qd[1], qd[2:]
+        c, s = math.cos(phi), math.sin(phi)
+        I3eta = float(self.I3 @ eta)
+        f = np.empty(self.nq)
+        f[0] = u - (self.I1 * s + I3eta * c) * phid * phid - 2.0 * phid * s * float(self.I3 @ etad)
+        f[1] = -2.0 * phid * float(eta @ etad) + self.g * (self.I1 * s + I3eta * c)
+        f[2:] = (phid * phid) * eta + (self.g * s) * self.I3 - self.Kdiag * eta - self.Ddiag * etad
+        if self.preload:
+            Kge = self.Kg @ eta
+            f[1] -= 0.5 * s * float(eta @ Kge)
+            f[2:] += c * Kge
+        return f
+
+    def accelerations(self, q: np.ndarray, qd: np.ndarray, u: float) -> np.ndarray:
+        """Solve ``M(q) qdd = f(q, qd, u)`` by the Schur complement on (x, phi)."""
+        f = self.forces(q, qd, u)
+        phi, eta = q[1], q[2:]
+        c, s = math.cos(phi), math.sin(phi)
+        # M = [[A, B], [B^T, I]] with A 2x2 and B = [-c I3; I5]
+        a00 = self.I0 - c * c * self._I3I3
+        m01 = -self.I1 * c + s * float(self.I3 @ eta)
+        a01 = m01 + c * self._I3I5
+        a11 = self.I2 + float(eta @ eta) - self._I5I5
+        fe = f[2:]
+        r0 = f[0] + c * float(self.I3 @ fe)
+        r1 = f[1] - float(self.I5 @ fe)
+        det = a00 * a11 - a01 * a01
+        xdd = (a11 * r0 - a01 * r1) / det
+        phidd = (a00 * r1 - a01 * r0) / det
+        qdd = np.empty(self.nq)
+        qdd[0] = xdd
+        qdd[1] = phidd
+        qdd[2:] = fe + (c * xdd) * self.I3 - phidd * self.I5
+        return qdd
+
+    def rhs(self, t: float, x: np.ndarray, u: float) -> np.ndarray:
+        """``dx/dt`` of the nonlinear model; ``x = [q, qd]``, ``u = F_c``."""
+        nq = self.nq
+        dx = np.empty(self.nx)
+        dx[:nq] = x[nq:]
+        dx[nq:] = self.accelerations(x[:nq], x[nq:], u)
+        return dx
+
+    def tip_angle(self, x: np.ndarray) -> tuple[float, float]:
+        """``(phi_o, omega_o)``: the tip tangent's angle from the vertical and its rate."""
+        nq = self.nq
+        if self.n == 0:
+            return float(x[1]), float(x[nq + 1])
+        sl = float(self.tip_slope @ x[2:nq])
+        sld = float(self.tip_slope @ x[nq + 2:])
+        return float(x[1]) + math.atan(sl), float(x[nq + 1]) + sld / (1.0 + sl * sl)
+
+    def energy(self, x: np.ndarray) -> float:
+        """Total energy ``T + V`` (kinetic, gravity, strain and, with preload, foreshortening)."""
+        nq = self.nq
+        xc, phi, eta = x[0], x[1], x[2:nq]
+        xd, phid, etad = x[nq], x[nq + 1], x[nq + 2:]
+        c, s = math.cos(phi), math.sin(phi)
+        I3eta, I3etad = float(self.I3 @ eta), float(self.I3 @ etad)
+        T = (0.5 * self.I0 * xd * xd
+             + xd * (-(self.I1 * phid + I3etad) * c + phid * s * I3eta)
+             + 0.5 * phid * phid * (self.I2 + float(eta @ eta))
+             + phid * float(self.I5 @ etad) + 0.5 * float(etad @ etad))
+        V = self.g * (self.I1 * c - s * I3eta) + 0.5 * float(self.Kdiag @ (eta * eta))
+        if self.preload:
+            V -= 0.5 * c * float(eta @ (self.Kg @ eta))
+        return float(T + V)
+
+    def outputs(self, t: float, x: np.ndarray, u: float = 0.0) -> dict:
+        """All outputs: sensors, tip deflection, modal coordinates and energy."""
+        nq = self.nq
+        phi_o, omega_o = self.tip_angle(x)
+        eta = x[2:nq]
+        return {
+            "x_o": float(x[0]),
+            "x_dot": float(x[nq]),
+            "phi_o": phi_o,
+            "omega_o": omega_o,
+            "tip_deflection": float(self.tip_defl @ eta) if self.n else 0.0,
+            "eta": np.array(eta, dtype=float),
+            "energy": self.energy(x),
+        }
+
+    def initial_state(self, phi: float = 0.0, x: float = 0.0, phi_dot: float = 0.0,
+                      x_dot: float = 0.0) -> np.ndarray:
+        """A state with the beam undeformed at angle ``phi`` (modal coordinates zero)."""
+        st = np.zeros(self.nx)
+        st[0], st[1], st[self.nq], st[self.nq + 1] = x, phi, x_dot, phi_dot
+        return st
+
+    # ------------------------------------------------------------------ linear model
+    def linearize(self):
+        """``(M0, D0, K0)`` of ``M0 qdd + D0 qd + K0 q = e_x F_c`` at the upright rest state."""
+        n, nq = self.n, self.nq
+        M0 = self.mass_matrix(np.zeros(nq))
+        D0 = np.zeros((nq, nq))
+        D0[2:, 2:] = np.diag(self.Ddiag)
+        K0 = np.zeros((nq, nq))
+        K0[1, 1] = -self.g * self.I1
+        K0[1, 2:] = K0[2:, 1] = -self.g * self.I3
+        K0[2:, 2:] = np.diag(self.Kdiag) - self.Kg
+        return M0, D0, K0
+
+    def state_space(self):
+        """``(A, B, C, D)`` of the linearised plant; outputs are ``x_o, phi_o, omega_o``."""
+        nq, nx = self.nq, self.nx
+        M0, D0, K0 = self.linearize()
+        Minv = np.linalg.inv(M0)
+        A = np.zeros((nx, nx))
+        A[:nq, nq:] = np.eye(nq)
+        A[nq:, :nq] = -Minv @ K0
+        A[nq:, nq:] = -Minv @ D0
+        B = np.zeros((nx, 1))
+        B[nq:, 0] = Minv[:, 0]
+        C = np.zeros((3, nx))
+        C[0, 0] = 1.0
+        C[1, 1] = 1.0
+        C[1, 2:nq] = self.tip_slope
+        C[2, nq + 1] = 1.0
+        C[2, nq + 2:] = self.tip_slope
+        D = np.zeros((3, 1))
+        return A, B, C, D
+
+
+@functools.lru_cache(maxsize=64)
+def plant_model(p: PlantParams) -> PlantModel:
+    """The (cached) :class:`PlantModel` of a parameter record."""
+    return PlantModel(p)
+
+
+def rhs(t: float, x: np.ndarray, u: float, p: PlantParams) -> np.ndarray:
+    """``dx/dt`` of the nonlinear plant with parameters ``p`` (see :meth:`PlantModel.rhs`)."""
+    return plant_model(p).rhs(t, x, u)
+
+
+def outputs(t: float, x: np.ndarray, u: float, p: PlantParams) -> dict:
+    return plant_model(p).outputs(t, x, u)
+
+
+def energy(x: np.ndarray, p: PlantParams) -> float:
+    return plant_model(p).energy(x)
+
+
+def linearize(p: PlantParams):
+    return plant_model(p).linearize()
+
+
+def state_space(p: PlantParams):
+    return plant_model(p).state_space()

@@ -1,0 +1,116 @@
+"""The plant's parameter record: Table 1 of Tang & Ren, validated in one place.
+
+The defaults are the paper's dimensionless sample (MODEL.md section 1). The paper gives EA and EI
+but not the cross-section; with ``E = 2.1e11`` the area is ``A = EA/E = 2e-3`` and the beam's mass
+per unit length is ``rhoA = rho*A = 15.6``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+__all__ = ["PlantParams", "MAX_ELEMENTS", "check_real", "check_int", "check_bool"]
+
+#: The finest mesh the beam model accepts (the eigenproblem is dense).
+MAX_ELEMENTS = 400
+
+
+def check_real(name: str, value, *, low=None, high=None, low_open=True, high_open=False,
+               allow_inf=False) -> float:
+    """Return ``value`` as a float, or raise naming ``name`` and the allowed range.
+
+    ``low_open``/``high_open`` exclude the bounds; ``allow_inf`` admits ``+inf`` (an "off" value).
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    value = float(value)
+    ok = not math.isnan(value) and (math.isfinite(value) or (allow_inf and value == math.inf))
+    if low is not None:
+        ok = ok and (value > low if low_open else value >= low)
+    if high is not None:
+        ok = ok and (value < high if high_open else value <= high)
+    if not ok:
+        lo = "-inf" if low is None else low
+        hi = "inf" if high is None else high
+        allowed = f"{'(' if low_open else '['}{lo}, {hi}{')' if high_open else ']'}"
+        raise ValueError(f"{name} = {value!r} is out of range; allowed: {allowed}")
+    return value
+
+
+def check_int(name: str, value, *, low: int, high: int) -> int:
+    """Return ``value`` as an int, or raise naming ``name`` and the allowed range."""
+    if isinstance(value, bool):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if not isinstance(value, int):
+        raise TypeError(f"{name} must be an integer, got {value!r}")
+    if not low <= value <= high:
+        raise ValueError(f"{name} = {value} is out of range; allowed: integers {low}..{high}")
+    return value
+
+
+def check_bool(name: str, value) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, (int, float)) and value in (0, 1):
+        return bool(value)
+    raise TypeError(f"{name} must be a boolean (true or false), got {value!r}")
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Physical and discretisation parameters of the cart with a flexible beam.
+
+    Attributes
+    ----------
+    m : cart mass.
+    L : beam length.
+    rho : beam density.
+    EA : axial stiffness (with ``E`` it fixes the cross-section area ``A = EA/E``).
+    EI : bending stiffness.
+    E : Young's modulus, used only to read the area off ``EA``.
+    zeta : modal (structural) damping ratio of every cantilever mode, ``0 <= zeta < 1``.
+    g : gravity.
+    n_modes : number of cantilever modes kept; 0 is the rigid pendulum.
+    n_elements : number of cubic Hermite beam elements of the finite-element mesh.
+    gravity_preload : add the geometric stiffness of the beam's self-weight compression.
+    """
+
+    m: float = 1.0
+    L: float = 1.0
+    rho: float = 7.8e3
+    EA: float = 4.2e8
+    EI: float = 8.75e2
+    E: float = 2.1e11
+    zeta: float = 0.001
+    g: float = 9.81
+    n_modes: int = 4
+    n_elements: int = 24
+    gravity_preload: bool = False
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
+        for name in ("m", "L", "rho", "EA", "EI", "E"):
+            set_(name, check_real(name, getattr(self, name), low=0.0, high=1e15))
+        set_("zeta", check_real("zeta", self.zeta, low=0.0, high=1.0, low_open=False, high_open=True))
+        set_("g", check_real("g", self.g, low=0.0, high=1e3, low_open=False))
+        set_("n_elements", check_int("n_elements", self.n_elements, low=1, high=MAX_ELEMENTS))
+        set_("n_modes", check_int("n_modes", self.n_modes, low=0, high=self.n_elements))
+        set_("gravity_preload", check_bool("gravity_preload", self.gravity_preload))
+
+    @property
+    def area(self) -> float:
+        return self.EA / self.E
+
+    @property
+    def rhoA(self) -> float:
+        """Mass per unit length of the beam."""
+        return self.rho * self.EA / self.E
+
+    def replace(self, **changes) -> "PlantParams":
+        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
+        if unknown:
+            raise TypeError(f"unknown plant parameter(s): {', '.join(sorted(unknown))}")
+        return dataclasses.replace(self, **changes)
