@@ -28,7 +28,7 @@ import numpy as np
 from .beam import Beam, beam_model
 from .params import PlantParams
 
-__all__ = ["PlantModel", "plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
+__all__ = ["PlantModel", "LinearPlantModel", "plant_model", "linear_plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
            "OUTPUT_NAMES"]
 
 #: Names of the sensor outputs, in the order of the rows of ``C``.
@@ -197,6 +197,78 @@ class PlantModel:
         C[2, nq + 2:] = self.tip_slope
         D = np.zeros((3, 1))
         return A, B, C, D
+
+
+class LinearPlantModel:
+    """The plant linearised at the upright rest state, with the interface of :class:`PlantModel`.
+
+    ``M0 qdd + D0 qd + K0 q = e_x F_c``; outputs use the linear tip angle ``phi + N'(L) eta``, and
+    the energy is the quadratic form ``1/2 qd.M0.qd + 1/2 q.K0.q + g I1`` (the nonlinear energy to
+    second order).
+    """
+
+    def __init__(self, p: PlantParams):
+        nl = plant_model(p)
+        self.params = p
+        self.beam = nl.beam
+        self.n, self.nq, self.nx = nl.n, nl.nq, nl.nx
+        self.M0, self.D0, self.K0 = nl.linearize()
+        self.A, self.B, self.C, self.D = nl.state_space()
+        self._b = self.B[:, 0].copy()
+        self._Minv = np.linalg.inv(self.M0)
+        self._offset = nl.g * nl.I1
+        self.tip_slope, self.tip_defl = nl.tip_slope, nl.tip_defl
+        for a in (self.M0, self.D0, self.K0, self.A, self.B, self.C, self.D):
+            a.setflags(write=False)
+
+    def mass_matrix(self, q):
+        return self.M0
+
+    def forces(self, q, qd, u):
+        f = -(self.D0 @ qd) - self.K0 @ q
+        f[0] += u
+        return f
+
+    def accelerations(self, q, qd, u):
+        return self._Minv @ self.forces(q, qd, u)
+
+    def rhs(self, t, x, u):
+        return self.A @ x + self._b * u
+
+    def jac(self, t, x, u):
+        """The exact Jacobian ``A`` (constant)."""
+        return self.A
+
+    def tip_angle(self, x):
+        nq = self.nq
+        return (float(x[1] + self.tip_slope @ x[2:nq]),
+                float(x[nq + 1] + self.tip_slope @ x[nq + 2:]))
+
+    def energy(self, x):
+        q, qd = x[:self.nq], x[self.nq:]
+        return float(0.5 * qd @ self.M0 @ qd + 0.5 * q @ self.K0 @ q + self._offset)
+
+    def outputs(self, t, x, u=0.0):
+        nq = self.nq
+        phi_o, omega_o = self.tip_angle(x)
+        eta = x[2:nq]
+        return {"x_o": float(x[0]), "x_dot": float(x[nq]), "phi_o": phi_o, "omega_o": omega_o,
+                "tip_deflection": float(self.tip_defl @ eta) if self.n else 0.0,
+                "eta": np.array(eta, dtype=float), "energy": self.energy(x)}
+
+    initial_state = PlantModel.initial_state
+
+    def linearize(self):
+        return self.M0, self.D0, self.K0
+
+    def state_space(self):
+        return self.A, self.B, self.C, self.D
+
+
+@functools.lru_cache(maxsize=64)
+def linear_plant_model(p: PlantParams) -> LinearPlantModel:
+    """The (cached) :class:`LinearPlantModel` of a parameter record."""
+    return LinearPlantModel(p)
 
 
 @functools.lru_cache(maxsize=64)
