@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import control
 import numpy as np
+import scipy.optimize
 
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.beam import beam_model
@@ -72,45 +73,71 @@ def loop_transfer(p: PlantParams, c: ControllerParams) -> control.StateSpace:
     return -control.series(G, K)
 
 
-def margins(p: PlantParams, c: ControllerParams) -> dict:
+def _crossings(f, w, v):
+    """Roots of the real function ``f`` whose values on the grid ``w`` are ``v``, refined by
+    Brent's method."""
+    idx = np.nonzero(np.sign(v[:-1]) * np.sign(v[1:]) < 0)[0]
+    return [scipy.optimize.brentq(f, w[i], w[i + 1], xtol=1e-12, rtol=1e-13) for i in idx]
+
+
+def margins(p: PlantParams, c: ControllerParams, n_grid: int = 4000) -> dict:
     """Gain and phase margins of the loop broken at the force.
 
-    ``gain_range`` is the interval of loop-gain factors around 1 for which the closed loop stays
-    stable (the open loop is unstable, so there is a lower limit too); it comes from python-control's
-    phase-crossover gains and is confirmed on the closed-loop eigenvalues.
+    python-control's ``stability_margins`` goes through transfer-function polynomials, which
+    overflow for the loops with several bending modes; the crossings are therefore found on the
+    state-space frequency response ``L(jw)`` (evaluated by python-control), on a dense logarithmic
+    grid refined by Brent's method. The open loop is unstable, so the gain margin has two sides:
+    the loop stays stable for loop-gain factors in ``(gain_margin_lower, gain_margin_upper)``.
+    A phase crossover (``L(jw)`` real and negative) at gain factor ``-1/L(jw)`` is a closed-loop
+    pole on the imaginary axis, which the tests confirm on the closed-loop eigenvalues.
     """
     L = loop_transfer(p, c)
-    gm, pm, sm, wpc, wgc, wms = control.stability_margins(L, returnall=True)
-    gm, wpc, pm, wgc = map(np.atleast_1d, (gm, wpc, pm, wgc))
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (L.A, L.B, L.C, L.D))
+    eye = np.eye(A.shape[0])
+
+    def Ls(w):  # L(jw) by one linear solve (python-control's evaluation, without its overhead)
+        return complex((C @ np.linalg.solve(1j * w * eye - A, B))[0, 0] + D[0, 0])
+
+    wmax = 5.0 * max([abs(z) for z in np.linalg.eigvals(A)] + [10.0])
+    w = np.logspace(-3, np.log10(wmax), n_grid)
+    grid = (C @ np.linalg.solve(1j * w[:, None, None] * eye - A, B))[:, 0, 0] + D[0, 0]
     nominal_stable = max_real_part(p, c) < 0
-    lower, upper = 0.0, math.inf
-    lower_w = upper_w = None
-    for g, w in zip(gm, wpc):
-        # At a phase crossover the loop passes through -1 for the gain factor g.
-        if not np.isfinite(g) or g <= 0:
+    # Phase crossovers: Im L = 0 with Re L < 0; and w = 0 (a real root crossing the origin).
+    phase_x = [(x, Ls(x).real) for x in _crossings(lambda x: Ls(x).imag, w, grid.imag)]
+    phase_x.append((0.0, complex(L(0.0)).real))
+    lower = upper = None
+    for x, re in phase_x:
+        if re >= 0:
             continue
-        if g > 1 and g < upper:
-            upper, upper_w = float(g), float(w)
-        elif g < 1 and g > lower:
-            lower, lower_w = float(g), float(w)
+        k = -1.0 / re
+        if k > 1 and (upper is None or k < upper[0]):
+            upper = (k, x)
+        elif k < 1 and (lower is None or k > lower[0]):
+            lower = (k, x)
+    gain_x = _crossings(lambda x: abs(Ls(x)) - 1.0, w, np.abs(grid) - 1.0)
+    crossings = [[float(x), float((np.degrees(np.angle(Ls(x))) + 360.0) % 360.0 - 180.0)]
+                 for x in gain_x]
     result = {
         "nominal_stable": bool(nominal_stable),
-        "gain_margin_upper": upper if nominal_stable else None,
-        "gain_margin_upper_db": 20 * math.log10(upper) if nominal_stable and upper < math.inf else None,
-        "gain_margin_upper_freq": upper_w if nominal_stable else None,
-        "gain_margin_lower": lower if nominal_stable else None,
-        "gain_margin_lower_db": 20 * math.log10(lower) if nominal_stable and lower > 0 else None,
-        "gain_margin_lower_freq": lower_w if nominal_stable else None,
-        "phase_margin_deg": None,
-        "phase_margin_freq": None,
-        "gain_crossovers": [[float(w), float(ph)] for w, ph in zip(wgc, pm) if np.isfinite(ph)],
-        "stability_margin": float(np.min(sm)) if np.size(sm) else None,
+        "gain_margin_upper": None, "gain_margin_upper_db": None, "gain_margin_upper_freq": None,
+        "gain_margin_lower": None, "gain_margin_lower_db": None, "gain_margin_lower_freq": None,
+        "phase_margin_deg": None, "phase_margin_freq": None,
+        "gain_crossovers": crossings,
     }
-    finite = [(abs(ph), ph, w) for ph, w in zip(pm, wgc) if np.isfinite(ph)]
-    if finite:
-        _, ph, w = min(finite)
-        result["phase_margin_deg"] = float(ph)
-        result["phase_margin_freq"] = float(w)
+    if nominal_stable:
+        if upper is None:
+            result["gain_margin_upper"] = math.inf
+        else:
+            result.update(gain_margin_upper=upper[0], gain_margin_upper_db=20 * math.log10(upper[0]),
+                          gain_margin_upper_freq=upper[1])
+        if lower is None:
+            result["gain_margin_lower"] = 0.0
+        else:
+            result.update(gain_margin_lower=lower[0], gain_margin_lower_db=20 * math.log10(lower[0]),
+                          gain_margin_lower_freq=lower[1])
+    if crossings:
+        x, ph = min(crossings, key=lambda r: abs(r[1]))
+        result.update(phase_margin_deg=ph, phase_margin_freq=x)
     return result
 
 

@@ -1,0 +1,96 @@
+"""Every row of MODEL.md section 6's acceptance table, computed by the project.
+
+The table's numbers come from two independent linear models outside this project; eigenvalues
+are checked to 1 %.
+"""
+import numpy as np
+import pytest
+
+from controller_fmu.pd_lowpass import ControllerParams
+from orchestration.analysis import analyze, closed_loop_matrix
+from plant_fmu.dynamics import plant_model
+from plant_fmu.params import PlantParams
+
+PD = ControllerParams(filter_order=0)
+
+
+def _upper(eigs):
+    return sorted((z for z in eigs if z.imag > 1e-9), key=lambda z: z.imag)
+
+
+def _near(eigs, target):
+    """The eigenvalue closest to ``target``, asserted within 1 % of |target|."""
+    z = min(eigs, key=lambda e: abs(e - target))
+    assert abs(z - target) <= 0.01 * abs(target), (z, target)
+    return z
+
+
+def test_cantilever_frequencies():
+    a = analyze(PlantParams(n_modes=4), PD)
+    np.testing.assert_allclose(a.cantilever_frequencies, [26.33, 165.02, 462.07, 905.47],
+                               rtol=1e-3)
+
+
+@pytest.mark.parametrize("n", range(0, 7))
+def test_open_loop_unstable_root(n):
+    A = plant_model(PlantParams(n_modes=n)).state_space()[0]
+    assert np.linalg.eigvals(A).real.max() == pytest.approx(7.065, abs=0.006)
+
+
+def test_rigid_pd():
+    a = analyze(PlantParams(n_modes=0), PD)
+    _near(a.eigenvalues, -0.765 + 10.13j)
+    # the double root at zero (cart drift)
+    assert np.sum(np.abs(a.eigenvalues) < 1e-9) == 2
+    assert a.stable and a.max_real_part == pytest.approx(-0.765, rel=0.01)
+
+
+def test_one_mode_pd_looks_stable():
+    a = analyze(PlantParams(n_modes=1), PD)
+    _near(a.eigenvalues, -0.05 + 226.7j)
+    assert a.stable
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 6])
+def test_two_or_more_modes_pd_is_unstable_near_151(n):
+    a = analyze(PlantParams(n_modes=n), PD)
+    z = _near(a.eigenvalues, 1.64 + 151.3j)
+    assert not a.stable and z.real > 0
+
+
+@pytest.mark.parametrize("n", range(0, 7))
+def test_first_order_130_is_stable(n):
+    a = analyze(PlantParams(n_modes=n), ControllerParams(filter_order=1, cutoff=130))
+    assert a.stable
+    if n >= 2:
+        assert a.max_real_part == pytest.approx(-0.18, abs=0.01)
+
+
+@pytest.mark.parametrize("n", [2, 3, 4, 6])
+def test_first_order_200_is_unstable(n):
+    assert not analyze(PlantParams(n_modes=n), ControllerParams(filter_order=1, cutoff=200)).stable
+
+
+SECOND = ControllerParams(filter_order=2, cutoff=150, filter_damping=0.5)
+
+
+@pytest.mark.parametrize("n", range(0, 9))
+def test_second_order_filter_is_stable(n):
+    a = analyze(PlantParams(n_modes=n), SECOND)
+    assert a.stable
+    if n == 0:
+        _near(a.eigenvalues, -0.255 + 10.21j)
+    else:
+        _near(a.eigenvalues, -0.263 + 10.30j) if n >= 2 else None
+    if n >= 2:
+        _near(a.eigenvalues, -1.89 + 150.5j)
+    if n >= 3:
+        _near(a.eigenvalues, -1.30 + 426.4j)
+
+
+def test_second_order_filter_needs_structural_damping():
+    """MODEL.md: with no structural damping the filtered loop's 2nd bending mode is unstable."""
+    Acl = closed_loop_matrix(PlantParams(n_modes=4, zeta=0.0), SECOND)
+    eigs = np.linalg.eigvals(Acl)
+    z = min(_upper(eigs), key=lambda e: abs(e.imag - 426.4))
+    assert z.real > 0

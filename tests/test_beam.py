@@ -1,0 +1,95 @@
+"""Cantilever finite elements against the analytic Euler-Bernoulli beam, and the invariants."""
+import numpy as np
+import pytest
+import scipy.integrate
+
+from plant_fmu.beam import (analytic_frequencies, analytic_mode_shape, beam_model,
+                            fe_mass_matrix_check)
+from plant_fmu.params import PlantParams
+
+P = PlantParams(n_modes=8)
+
+
+def test_first_four_frequencies_match_analytic_at_default_mesh():
+    fe = beam_model(P).frequencies[:4]
+    exact = analytic_frequencies(P, 4)
+    np.testing.assert_allclose(fe, exact, rtol=1e-3)
+    # and the acceptance values of MODEL.md section 6
+    np.testing.assert_allclose(fe, [26.33, 165.02, 462.07, 905.47], rtol=1e-3)
+
+
+def test_analytic_frequencies_use_the_classical_roots():
+    # beta_1 L = 1.875104, beta_2 L = 4.694091 (clamped-free beam, any textbook)
+    bl = np.sqrt(analytic_frequencies(P, 2) / np.sqrt(P.EI / (P.rhoA * P.L**4)))
+    np.testing.assert_allclose(bl, [1.8751040687, 4.6940911330], rtol=1e-9)
+
+
+@pytest.mark.parametrize("mode", [1, 2, 3, 4])
+def test_mesh_convergence_is_fourth_order(mode):
+    """Hermite cubics with consistent mass: frequency error ~ h^4 (here measured, slope >= 3.8)."""
+    exact = analytic_frequencies(P, mode)[-1]
+    meshes = np.array([8, 16, 32])
+    err = [abs(beam_model(P.replace(n_elements=int(ne), n_modes=mode)).frequencies[-1] - exact)
+           / exact for ne in meshes]
+    slopes = -np.diff(np.log(err)) / np.diff(np.log(meshes))
+    assert np.all(slopes > 3.8), (err, slopes)
+    assert err[-1] < err[0]
+
+
+def test_rigid_invariants_closed_form():
+    b = beam_model(P)
+    rA, L = P.rhoA, P.L
+    assert b.I0 == pytest.approx(P.m + rA * L, rel=1e-15)
+    assert b.I1 == pytest.approx(rA * L**2 / 2, rel=1e-15)
+    assert b.I2 == pytest.approx(rA * L**3 / 3, rel=1e-15)
+    assert rA == pytest.approx(15.6, rel=1e-12)  # MODEL.md: rho * EA / E
+
+
+def test_I4_is_identity_for_mass_normalised_modes():
+    np.testing.assert_allclose(fe_mass_matrix_check(P), np.eye(P.n_modes), atol=1e-12)
+
+
+@pytest.mark.parametrize("j", [1, 2, 3, 4])
+def test_I3_I5_tip_values_match_analytic_mode_shapes(j):
+    """The FE integrals of the modes against quadratures of the analytic shapes."""
+    b = beam_model(P)
+    shape = analytic_mode_shape(P, j)
+    norm = scipy.integrate.quad(lambda s: P.rhoA * shape(s) ** 2, 0, P.L, limit=200)[0]
+    assert norm == pytest.approx(1.0, rel=1e-10)  # the analytic shape is mass-normalised
+    I3 = scipy.integrate.quad(lambda s: P.rhoA * shape(s), 0, P.L, limit=200)[0]
+    I5 = scipy.integrate.quad(lambda s: P.rhoA * s * shape(s), 0, P.L, limit=200)[0]
+    assert b.I3[j - 1] == pytest.approx(I3, rel=2e-4)
+    assert b.I5[j - 1] == pytest.approx(I5, rel=2e-4)
+    assert b.tip_deflection[j - 1] == pytest.approx(float(shape(P.L)), rel=2e-4)
+    h = 1e-6
+    slope = (shape(P.L) - shape(P.L - h)) / h
+    assert b.tip_slope[j - 1] == pytest.approx(float(slope), rel=1e-3)
+
+
+def test_I3_first_mode_classical_value():
+    # For a mass-normalised cantilever, int W1 ds / sqrt(L int W1^2 ds) = 0.7830 (modal participation)
+    b = beam_model(P)
+    assert b.I3[0] / np.sqrt(P.rhoA * P.L) == pytest.approx(0.7830, abs=1e-4)
+
+
+def test_gravity_preload_lowers_first_mode_to_26_04():
+    from plant_fmu.dynamics import plant_model
+    pp = P.replace(gravity_preload=True, n_modes=4)
+    K0 = plant_model(pp).linearize()[2]
+    w = np.sqrt(np.linalg.eigvalsh(K0[2:, 2:]))
+    assert w[0] == pytest.approx(26.04, abs=0.01)
+    # Kg = int rhoA g (L - s) N'^T N' ds: symmetric, positive definite
+    Kg = beam_model(pp).Kg
+    np.testing.assert_allclose(Kg, Kg.T, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(Kg) > 0)
+    assert not beam_model(P).Kg.any()  # off by default
+
+
+def test_preload_matches_quadrature_of_analytic_first_mode():
+    pp = P.replace(gravity_preload=True, n_modes=1)
+    shape = analytic_mode_shape(pp, 1)
+    h = 1e-6
+    d = lambda s: (shape(s + h) - shape(s - h)) / (2 * h)  # noqa: E731
+    kg = scipy.integrate.quad(lambda s: pp.rhoA * pp.g * (pp.L - s) * d(s) ** 2, h, pp.L - h,
+                              limit=200)[0]
+    assert beam_model(pp).Kg[0, 0] == pytest.approx(kg, rel=1e-4)

@@ -1,0 +1,57 @@
+"""flexpend analyze: JSON output, overrides, one-line errors with exit code 2."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from orchestration.cli import main
+
+
+def run(*args):
+    proc = subprocess.run([sys.executable, "-m", "orchestration.cli", *args],
+                          capture_output=True, text=True, timeout=120)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def test_analyze_json_paper_pd_on_flexible_beam(capsys):
+    assert main(["analyze", "--json", "--set", "plant.n_modes=3",
+                 "--set", "controller.filter_order=0"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["stable"] is False
+    assert out["max_real_part"] == pytest.approx(1.66, abs=0.02)
+    assert len(out["cantilever_frequencies"]) == 3
+    assert out["cantilever_frequencies"][0] == pytest.approx(26.33, abs=0.01)
+    eig = [complex(*z) for z in out["eigenvalues"]]
+    assert min(abs(z - (1.64 + 151.3j)) for z in eig) < 1.6
+    assert set(out["margins"]) >= {"gain_margin_upper", "phase_margin_deg"}
+
+
+def test_analyze_json_filtered_is_stable(capsys):
+    assert main(["analyze", "--json", "--set", "controller.filter_order=1",
+                 "--set", "controller.cutoff=130", "--set", "plant.zeta=0.001",
+                 "--set", "plant.gravity_preload=false", "--set", "controller.kp=500",
+                 "--set", "controller.kd=5", "--set", "controller.filter_damping=0.7"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["stable"] is True and out["max_real_part"] == pytest.approx(-0.18, abs=0.01)
+
+
+def test_analyze_table_names_the_verdict():
+    code, out, err = run("analyze", "--set", "plant.n_modes=0")
+    assert code == 0 and "STABLE" in out and "closed-loop eigenvalue" in out
+
+
+@pytest.mark.parametrize("args,fragment", [
+    (["--set", "plant.n_mode=3"], "unknown key 'plant.n_mode'; did you mean 'plant.n_modes'?"),
+    (["--set", "plant.zeta=1.5"], "plant.zeta = 1.5 is out of range"),
+    (["--set", "controller.filter_order=3"], "controller.filter_order = 3 is out of range"),
+    (["--set", "plant.n_modes=two"], "plant.n_modes must be an integer"),
+    (["--set", "plant.fidelity=exact"], "plant.fidelity = 'exact' is not allowed"),
+    (["--set", "plant.n_modes"], "--set expects key=value"),
+    (["--bogus"], "unrecognized arguments: --bogus"),
+])
+def test_bad_input_one_line_exit_2(args, fragment):
+    code, out, err = run("analyze", *args)
+    assert code == 2
+    assert fragment in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
