@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from .beam import Beam, beam_model
+from .kernels import HAVE_NUMBA, rhs_kernel
 from .params import PlantParams
 
 __all__ = ["PlantModel", "LinearPlantModel", "plant_model", "linear_plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
@@ -57,6 +58,9 @@ class PlantModel:
         self._I5I5 = float(self.I5 @ self.I5)
         self._I3I3 = float(self.I3 @ self.I3)
         self._I3I5 = float(self.I3 @ self.I5)
+        self._consts = np.array([self.I0, self.I1, self.I2, self.g, self._I3I3, self._I3I5,
+                                 self._I5I5, float(self.preload)])
+        self._Kg = np.ascontiguousarray(self.Kg, dtype=float)
 
     # ------------------------------------------------------------------ nonlinear model
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
@@ -111,7 +115,15 @@ class PlantModel:
         return qdd
 
     def rhs(self, t: float, x: np.ndarray, u: float) -> np.ndarray:
-        """``dx/dt`` of the nonlinear model; ``x = [q, qd]``, ``u = F_c``."""
+        """``dx/dt`` of the nonlinear model; ``x = [q, qd]``, ``u = F_c``.
+
+        Runs the compiled kernel of :mod:`plant_fmu.kernels` (same equations as
+        :meth:`rhs_numpy`)."""
+        return rhs_kernel(np.asarray(x, dtype=float), float(u), self._consts, self.I3, self.I5,
+                          self.Kdiag, self.Ddiag, self._Kg, np.empty(self.nx))
+
+    def rhs_numpy(self, t: float, x: np.ndarray, u: float) -> np.ndarray:
+        """``dx/dt`` from :meth:`accelerations`: the readable version of :meth:`rhs`."""
         nq = self.nq
         dx = np.empty(self.nx)
         dx[:nq] = x[nq:]
