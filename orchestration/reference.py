@@ -1,0 +1,79 @@
+"""The monolithic reference: plant and controller as one ODE, solved by scipy at tight tolerance.
+
+It is the continuous-time closed loop that the co-simulation approaches as its communication step
+shrinks, and the yardstick of the co-simulation's error. Its results have the columns of the
+master's results (:data:`COLUMNS`), on the same output grid.
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.integrate
+
+from controller_fmu.pd_lowpass import PDLowPassModel
+from plant_fmu.dynamics import linear_plant_model, plant_model
+
+from .config import fidelity
+
+__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference"]
+
+#: Result columns, time first (a numpy structured array of float64).
+COLUMNS = ("time", "x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1", "energy")
+
+
+class ClosedLoop:
+    """The monolithic closed loop of a scene: state ``[plant state, filter state]``."""
+
+    def __init__(self, scene):
+        p, c = scene.plant, scene.controller
+        self.plant = linear_plant_model(p) if fidelity(scene.config) == "linear" else plant_model(p)
+        self.ctrl = PDLowPassModel(c)
+        self.np = self.plant.nx
+        self.x0 = np.concatenate([
+            self.plant.initial_state(phi=scene["initial.phi"], x=scene["initial.x"],
+                                     phi_dot=scene["initial.phi_dot"], x_dot=scene["initial.x_dot"]),
+            self.ctrl.initial_state()])
+        self.Af, self.bf = self.ctrl.Af, self.ctrl.Bf[:, 0]
+        # A filter starting at rest outputs F_c = 0, which is what the controller FMU does too.
+
+    def sensors(self, z):
+        phi_o, omega_o = self.plant.tip_angle(z[:self.np])
+        return (float(z[0]), phi_o, omega_o)
+
+    def force(self, z) -> float:
+        return self.ctrl.output(z[self.np:], self.sensors(z))
+
+    def rhs(self, t, z):
+        y = self.sensors(z)
+        xp, xc = z[:self.np], z[self.np:]
+        F = self.ctrl.output(xc, y)
+        dz = np.empty_like(z)
+        dz[:self.np] = self.plant.rhs(t, xp, F)
+        if xc.size:
+            dz[self.np:] = self.Af @ xc + self.bf * self.ctrl.error_signal(y)
+        return dz
+
+    def row(self, t, z) -> tuple:
+        o = self.plant.outputs(t, z[:self.np])
+        eta = o["eta"]
+        return (t, o["x_o"], o["x_dot"], o["phi_o"], o["omega_o"], self.force(z),
+                o["tip_deflection"], float(eta[0]) if eta.size else 0.0, o["energy"])
+
+
+def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853"):
+    """Solve the scene's closed loop monolithically; a structured array on the output grid.
+
+    Raises ``RuntimeError`` if the solver fails (the message is scipy's).
+    """
+    loop = ClosedLoop(scene)
+    t_end, dt = scene["stop_time"], scene["output_interval"]
+    n_out = int(round(t_end / dt))
+    t_eval = np.arange(n_out + 1) * dt
+    t_eval[-1] = min(t_eval[-1], t_end)
+    sol = scipy.integrate.solve_ivp(loop.rhs, (0.0, t_end), loop.x0, method=method, rtol=rtol,
+                                    atol=atol, t_eval=t_eval)
+    if not sol.success:
+        raise RuntimeError(f"reference solution failed: {sol.message}")
+    out = np.zeros(sol.t.size, dtype=[(c, "f8") for c in COLUMNS])
+    for i, t in enumerate(sol.t):
+        out[i] = loop.row(t, sol.y[:, i])
+    return out

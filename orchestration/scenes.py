@@ -1,0 +1,173 @@
+"""Scenes: what to run, as TOML files in ``orchestration/scenes/``.
+
+A scene is a flat mapping of dotted keys (TOML tables flatten to them: ``[plant] n_modes = 4`` is
+``plant.n_modes``), validated here. ``plant.*`` and ``controller.*`` are the FMU parameters, with
+the names of ``flexpend analyze``; the plant's solver settings are ``plant.integrator``,
+``plant.step``, ``plant.rtol`` and ``plant.atol``.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from plant_fmu.params import check_bool, check_int, check_real
+
+from .config import (ConfigError, apply_overrides, controller_params, default_config, fidelity,
+                     plant_params)
+
+__all__ = ["Scene", "SCENE_DIR", "SCENE_DEFAULTS", "load_scene", "scene_from_config",
+           "list_scenes", "PAPER_SCENES", "ALGORITHMS"]
+
+SCENE_DIR = Path(__file__).parent / "scenes"
+#: The paper's sample, in the order of its figures: rigid + PD, flexible + PD, flexible + filter.
+PAPER_SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
+ALGORITHMS = ("gauss-seidel", "jacobi")
+FIRST = ("controller", "plant")
+INTEGRATOR_DEFAULT = "dopri5"
+
+#: Scene keys beyond the plant and controller parameters, with their defaults.
+SCENE_DEFAULTS = {
+    "description": "",
+    "stop_time": 10.0,
+    "output_interval": 0.01,
+    "initial.phi": math.pi / 6,
+    "initial.x": 0.0,
+    "initial.phi_dot": 0.0,
+    "initial.x_dot": 0.0,
+    "master.algorithm": "gauss-seidel",
+    "master.first": "controller",
+    "master.step": 1e-3,
+    "master.extrapolation": 0,
+    "master.adaptive": False,
+    "master.tolerance": 1e-4,
+    "master.min_step": 1e-6,
+    "master.max_step": 2e-2,
+    "plant.integrator": INTEGRATOR_DEFAULT,
+    "plant.step": 1e-3,
+    "plant.rtol": 1e-8,
+    "plant.atol": 1e-10,
+}
+
+
+def _flatten(table: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in table.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _choice(key, value, allowed):
+    if value not in allowed:
+        raise ConfigError(f"{key} = {value!r} is not allowed; allowed: {', '.join(map(str, allowed))}")
+    return value
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene. ``config`` holds every key, defaults filled in."""
+
+    name: str
+    config: dict = field(repr=False)
+
+    def __getitem__(self, key):
+        return self.config[key]
+
+    @property
+    def plant(self):
+        return plant_params(self.config)
+
+    @property
+    def controller(self):
+        return controller_params(self.config)
+
+
+def _validate(cfg: dict) -> None:
+    def real(key, **kw):
+        try:
+            cfg[key] = check_real(key, cfg[key], **kw)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(str(exc)) from None
+
+    plant_params(cfg)
+    controller_params(cfg)
+    fidelity(cfg)
+    real("stop_time", low=0.0, high=1e6)
+    real("output_interval", low=0.0, high=1e6)
+    for k in ("initial.phi", "initial.x", "initial.phi_dot", "initial.x_dot"):
+        real(k, low=-1e6, high=1e6)
+    for k in ("master.step", "master.tolerance", "master.min_step", "master.max_step",
+              "plant.step", "plant.rtol", "plant.atol"):
+        real(k, low=0.0, high=1e6)
+    _choice("master.algorithm", cfg["master.algorithm"], ALGORITHMS)
+    _choice("master.first", cfg["master.first"], FIRST)
+    try:
+        cfg["master.extrapolation"] = check_int("master.extrapolation", cfg["master.extrapolation"],
+                                                low=0, high=2)
+        cfg["master.adaptive"] = check_bool("master.adaptive", cfg["master.adaptive"])
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+    try:
+        from plant_fmu.integrators import REGISTRY
+        _choice("plant.integrator", cfg["plant.integrator"], sorted(REGISTRY))
+    except ImportError:  # integrators not installed in this checkout: the FMU decides
+        pass
+    if not isinstance(cfg["description"], str):
+        raise ConfigError("description must be a string")
+    if cfg["master.min_step"] > cfg["master.max_step"]:
+        raise ConfigError(f"master.min_step = {cfg['master.min_step']} exceeds master.max_step = "
+                          f"{cfg['master.max_step']}")
+    if cfg["master.step"] > cfg["stop_time"]:
+        raise ConfigError(f"master.step = {cfg['master.step']} exceeds stop_time = "
+                          f"{cfg['stop_time']}")
+    ratio = cfg["output_interval"] / cfg["master.step"]
+    if not cfg["master.adaptive"] and abs(ratio - round(ratio)) > 1e-9 * ratio:
+        raise ConfigError(f"output_interval = {cfg['output_interval']} must be a multiple of "
+                          f"master.step = {cfg['master.step']}")
+
+
+def known_keys() -> dict:
+    return {**default_config(), **SCENE_DEFAULTS}
+
+
+def scene_from_config(name: str, values: dict, overrides=()) -> Scene:
+    """Validate ``values`` (dotted keys) with ``--set`` overrides on top."""
+    known = known_keys()
+    from .config import check_known
+    check_known(values, known)
+    cfg = apply_overrides({**known, **values}, overrides, known)
+    _validate(cfg)
+    return Scene(name, cfg)
+
+
+def _resolve(ref: str) -> Path:
+    path = Path(ref)
+    if path.suffix == ".toml" and path.exists():
+        return path
+    candidate = SCENE_DIR / f"{ref}.toml"
+    if candidate.exists():
+        return candidate
+    raise ConfigError(f"no scene {ref!r}; scenes: {', '.join(list_scenes())} (or a path to a "
+                      ".toml file)")
+
+
+def load_scene(ref: str, overrides=()) -> Scene:
+    """Load a scene by name (a file in ``orchestration/scenes/``) or by path."""
+    path = _resolve(ref)
+    try:
+        values = _flatten(tomllib.loads(path.read_text()))
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path.name}: not valid TOML: {exc}") from None
+    try:
+        return scene_from_config(path.stem, values, overrides)
+    except ConfigError as exc:
+        raise ConfigError(f"{path.name}: {exc}") from None
+
+
+def list_scenes() -> list[str]:
+    return sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
