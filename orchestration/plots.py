@@ -1,0 +1,87 @@
+"""Figures of a run: time histories (the paper's Figs. 3, 4, 6, 7) and beam snapshots (Figs. 5, 8)."""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["plot_time_histories", "plot_snapshots", "beam_shape", "plot_paper_overview"]
+
+
+def _pyplot():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def plot_time_histories(result, title: str, path, reference=None):
+    """Tip angle, first modal coordinate and force against time."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    t = result["time"]
+    for ax, col, label in zip(axes, ("phi_o", "eta_1", "F_c"),
+                              ("tip angle phi_o (rad)", "first modal coordinate eta_1",
+                               "force F_c")):
+        ax.plot(t, result[col], lw=0.8, label="co-simulation")
+        if reference is not None:
+            ax.plot(reference["time"], reference[col], "--", lw=0.8, label="monolithic reference")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].set_title(title, fontsize=10)
+    axes[-1].set_xlabel("time (s)")
+    if reference is not None:
+        axes[0].legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def beam_shape(beam, x, phi, eta, scale: float = 1.0):
+    """Global coordinates of the beam's nodes: ``r(s) = (x, 0) + s b1 + w(s) b2``."""
+    s = beam.nodes
+    n = min(len(eta), beam.shapes.shape[1])
+    w = beam.shapes[:, :n] @ np.asarray(eta[:n]) * scale if n else np.zeros_like(s)
+    b1 = np.array([-np.sin(phi), np.cos(phi)])
+    b2 = np.array([-np.cos(phi), -np.sin(phi)])
+    return x + s * b1[0] + w * b2[0], s * b1[1] + w * b2[1]
+
+
+def plot_snapshots(beam, frames, title: str, path):
+    """Beam shapes at several times; ``frames``: list of ``(t, x, phi, eta)``."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    cmap = plt.get_cmap("viridis")
+    for i, (t, x, phi, eta) in enumerate(frames):
+        X, Y = beam_shape(beam, x, phi, eta)
+        color = cmap(i / max(1, len(frames) - 1))
+        ax.plot(X, Y, color=color, lw=1.5, label=f"t = {t:.2f} s")
+        ax.plot([x - 0.08, x + 0.08], [0, 0], color=color, lw=4)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("height")
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=7, ncol=2, loc="best")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_paper_overview(results: dict, path):
+    """The paper's sample side by side: tip angle (Figs. 3, 4, 6) and eta_1 (Fig. 7)."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
+    for name, res in results.items():
+        axes[0].plot(res["time"], res["phi_o"], lw=0.8, label=name)
+        axes[1].plot(res["time"], res["eta_1"], lw=0.8, label=name)
+    axes[0].set_ylabel("tip angle phi_o (rad)")
+    axes[1].set_ylabel("first modal coordinate eta_1")
+    axes[1].set_xlabel("time (s)")
+    axes[0].set_ylim(-1.2, 1.2)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_title("Tang & Ren's sample from phi0 = pi/6: rigid + PD, flexible + PD, "
+                      "flexible + PD + low-pass", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

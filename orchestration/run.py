@@ -1,0 +1,179 @@
+"""Run a scene: the two FMUs on the master, then the summary, the CSV and the figures."""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .fit import dominant_oscillation
+from .master import CoSimulationError, Master, Slave, parse_connection
+from .reference import COLUMNS
+
+__all__ = ["run_scene", "SceneResult", "DEFAULT_CONNECTIONS", "plant_start_values",
+           "controller_start_values", "Progress"]
+
+DEFAULT_CONNECTIONS = (
+    "plant.x_o -> controller.x_o",
+    "plant.phi_o -> controller.phi_o",
+    "plant.omega_o -> controller.omega_o",
+    "controller.F_c -> plant.F_c",
+)
+#: column -> (FMU, variable): what the master records at every output point.
+RECORD = {
+    "x": ("plant", "x_o"), "x_dot": ("plant", "x_dot"), "phi_o": ("plant", "phi_o"),
+    "omega_o": ("plant", "omega_o"), "F_c": ("controller", "F_c"),
+    "tip_deflection": ("plant", "tip_deflection"), "eta_1": ("plant", "eta_1"),
+    "energy": ("plant", "energy"),
+}
+#: Bands (rad/s) of the rigid (slow) and the bending oscillation for the fitted rates.
+SLOW_BAND = (0.5, 60.0)
+BENDING_BAND = (60.0, 1e9)
+
+
+def plant_start_values(scene) -> dict:
+    """Scene keys -> FlexiblePendulum parameters."""
+    cfg = scene.config
+    values = {k[len("plant."):]: v for k, v in cfg.items() if k.startswith("plant.")}
+    values.update(phi0=cfg["initial.phi"], x0=cfg["initial.x"], phi_dot0=cfg["initial.phi_dot"],
+                  x_dot0=cfg["initial.x_dot"])
+    return values
+
+
+def controller_start_values(scene) -> dict:
+    return {k[len("controller."):]: v for k, v in scene.config.items()
+            if k.startswith("controller.")}
+
+
+class Progress:
+    """A progress bar on stderr, shown once a run has lasted a second.
+
+    On a terminal it redraws one line; otherwise it prints a line at each quarter."""
+
+    def __init__(self, label: str, stream=None, delay: float = 1.0):
+        self.label, self.stream, self.delay = label, stream or sys.stderr, delay
+        self.start = time.perf_counter()
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self.shown = False
+        self.last_quarter = 0
+
+    def __call__(self, fraction: float):
+        elapsed = time.perf_counter() - self.start
+        if elapsed < self.delay:
+            return
+        if self.tty:
+            if fraction < 1.0 and elapsed - getattr(self, "_last", 0.0) < 0.1:
+                return
+            self._last = elapsed
+            n = int(30 * fraction)
+            eta = elapsed * (1 - fraction) / max(fraction, 1e-9)
+            self.stream.write(f"\r{self.label} [{'#' * n}{'.' * (30 - n)}] {100 * fraction:5.1f} % "
+                              f"{elapsed:6.1f} s, ~{eta:5.1f} s left ")
+            self.shown = True
+            if fraction >= 1.0:
+                self.stream.write("\n")
+            self.stream.flush()
+        else:
+            quarter = int(fraction * 4)
+            if quarter > self.last_quarter:
+                self.last_quarter = quarter
+                self.stream.write(f"{self.label}: {25 * quarter} % after {elapsed:.1f} s\n")
+                self.stream.flush()
+
+
+@dataclass
+class SceneResult:
+    name: str
+    result: np.ndarray
+    summary: dict
+    stats: object = None
+    reference: np.ndarray | None = None
+    frames: list = field(default_factory=list)
+
+
+def _fit_window(t, y):
+    """The window to fit: the whole run, or, for a signal that grows and saturates, the part
+    before it first reaches half its largest magnitude (if that leaves at least 2 s)."""
+    a = np.abs(y - np.mean(y[-max(1, len(y) // 10):]))
+    peak = a.max()
+    if peak == 0:
+        return slice(0, len(t))
+    i = int(np.argmax(a >= 0.5 * peak))
+    if t[i] - t[0] >= 2.0 and i < len(t) - 1:
+        return slice(0, i + 1)
+    return slice(0, len(t))
+
+
+def summarize(res: np.ndarray, failure: str | None = None) -> dict:
+    """Verdict, fitted rates and frequencies of the slow and bending oscillations, max |F_c|."""
+    t = res["time"]
+    out = {"max_abs_F_c": float(np.max(np.abs(res["F_c"]))) if len(res) else None}
+    rates = []
+    for key, col, band in (("slow", "phi_o", SLOW_BAND), ("bending", "eta_1", BENDING_BAND)):
+        y = res[col]
+        osc = None
+        if len(t) > 40 and np.ptp(y) > 0:
+            w = _fit_window(t, y)
+            nyquist = math.pi / (t[1] - t[0])
+            try:
+                osc = dominant_oscillation(t[w], y[w], (band[0], min(band[1], nyquist)))
+            except (ValueError, np.linalg.LinAlgError):
+                osc = None
+        out[key] = None if osc is None else {"rate": osc.rate, "frequency": osc.frequency}
+        if osc is not None:
+            rates.append(osc.rate)
+    out["stable"] = failure is None and all(r < 0 for r in rates)
+    if failure:
+        out["failure"] = failure
+    return out
+
+
+def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = True,
+              snapshot_times=(0.0, 0.5, 1.0, 2.0, 4.0, 6.0, 8.0, 10.0)) -> SceneResult:
+    """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``)."""
+    cfg = scene.config
+    slaves = {}
+    try:
+        slaves["plant"] = Slave(fmus["plant"], "plant", plant_start_values(scene))
+        slaves["controller"] = Slave(fmus["controller"], "controller",
+                                     controller_start_values(scene))
+        master = Master(slaves, [parse_connection(c) for c in DEFAULT_CONNECTIONS], RECORD,
+                        algorithm=cfg["master.algorithm"], first=cfg["master.first"],
+                        step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
+                        adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
+                        min_step=cfg["master.min_step"], max_step=cfg["master.max_step"])
+        bar = Progress(scene.name) if progress else None
+        failure = None
+        try:
+            res, stats = master.run(0.0, cfg["stop_time"], cfg["output_interval"], progress=bar)
+        except CoSimulationError as exc:
+            failure, stats = str(exc), None
+            res = np.zeros(0, dtype=[(c, "f8") for c in COLUMNS])
+    finally:
+        for s in slaves.values():
+            s.close()
+    res = _reorder(res)
+    summary = summarize(res, failure)
+    if stats is not None:
+        summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected)
+    out = SceneResult(scene.name, res, summary, stats)
+    if reference and failure is None:
+        from .reference import simulate_reference
+        ref = simulate_reference(scene)
+        out.reference = ref
+        summary["max_error_phi_o"] = float(np.max(np.abs(res["phi_o"] - ref["phi_o"])))
+        summary["max_error_eta_1"] = float(np.max(np.abs(res["eta_1"] - ref["eta_1"])))
+    return out
+
+
+def _reorder(res):
+    """The master's columns in the order of :data:`COLUMNS`."""
+    if res.dtype.names == COLUMNS:
+        return res
+    out = np.zeros(len(res), dtype=[(c, "f8") for c in COLUMNS])
+    for c in COLUMNS:
+        out[c] = res[c]
+    return out
