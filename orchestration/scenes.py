@@ -14,7 +14,7 @@ from pathlib import Path
 
 from plant_fmu.params import check_bool, check_int, check_real
 
-from .config import (ConfigError, apply_overrides, controller_params, default_config, fidelity,
+from .config import (ConfigError, apply_overrides, check_known, controller_params, default_config, fidelity,
                      plant_params)
 
 __all__ = ["Scene", "SCENE_DIR", "SCENE_DEFAULTS", "load_scene", "scene_from_config",
@@ -138,11 +138,17 @@ def known_keys() -> dict:
 def scene_from_config(name: str, values: dict, overrides=()) -> Scene:
     """Validate ``values`` (dotted keys) with ``--set`` overrides on top."""
     known = known_keys()
-    from .config import check_known
     check_known(values, known)
-    cfg = apply_overrides({**known, **values}, overrides, known)
+    try:
+        cfg = apply_overrides({**known, **values}, overrides, known)
+    except ConfigError as exc:
+        raise OverrideError(f"--set: {exc}") from None
     _validate(cfg)
     return Scene(name, cfg)
+
+
+class OverrideError(ConfigError):
+    """A bad ``--set`` item (reported without the scene file's name)."""
 
 
 def _resolve(ref: str) -> Path:
@@ -165,6 +171,8 @@ def load_scene(ref: str, overrides=()) -> Scene:
         raise ConfigError(f"{path.name}: not valid TOML: {exc}") from None
     try:
         return scene_from_config(path.stem, values, overrides)
+    except OverrideError:
+        raise
     except ConfigError as exc:
         raise ConfigError(f"{path.name}: {exc}") from None
 
