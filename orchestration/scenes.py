@@ -143,7 +143,13 @@ def scene_from_config(name: str, values: dict, overrides=()) -> Scene:
         cfg = apply_overrides({**known, **values}, overrides, known)
     except ConfigError as exc:
         raise OverrideError(f"--set: {exc}") from None
-    _validate(cfg)
+    try:
+        _validate(cfg)
+    except ConfigError as exc:
+        from .config import parse_override
+        if any(str(exc).startswith(parse_override(o)[0] + " ") for o in overrides):
+            raise OverrideError(f"--set: {exc}") from None
+        raise
     return Scene(name, cfg)
 
 
