@@ -1,0 +1,59 @@
+"""Scene files: the paper's scenes load, bad scenes and overrides are rejected with one clear line."""
+import math
+
+import pytest
+
+from orchestration.config import ConfigError
+from orchestration.scenes import PAPER_SCENES, list_scenes, load_scene
+
+
+def test_paper_scenes_load_with_the_papers_setup():
+    rigid, flex, filt = (load_scene(n) for n in PAPER_SCENES)
+    for s in (rigid, flex, filt):
+        assert s["initial.phi"] == pytest.approx(math.pi / 6)
+        assert s["stop_time"] == 10.0
+        assert (s.controller.kp, s.controller.kd) == (500.0, 5.0)
+    assert rigid.plant.n_modes == 0 and rigid.controller.filter_order == 0
+    assert flex.plant.n_modes >= 2 and flex.controller.filter_order == 0
+    assert filt.plant.n_modes >= 2 and filt.controller.filter_order > 0
+    assert set(PAPER_SCENES) <= set(list_scenes())
+
+
+def test_overrides_apply():
+    s = load_scene("rigid_pd", ["master.step=5e-4", "plant.n_modes=2", "master.algorithm=jacobi"])
+    assert s["master.step"] == 5e-4 and s.plant.n_modes == 2 and s["master.algorithm"] == "jacobi"
+
+
+def _scene(tmp_path, text):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    return str(path)
+
+
+@pytest.mark.parametrize("text,fragment", [
+    ("[plant]\nn_mode = 3\n", "bad.toml: unknown key 'plant.n_mode'; did you mean 'plant.n_modes'?"),
+    ("[master]\nalgorithm = 'newton'\n", "master.algorithm = 'newton' is not allowed; allowed: gauss-seidel, jacobi"),
+    ("[master]\nextrapolation = 3\n", "master.extrapolation = 3 is out of range"),
+    ("stop_time = -1\n", "stop_time = -1.0 is out of range"),
+    ("[initial]\nphi = 'up'\n", "initial.phi must be a real number"),
+    ("[controller]\ncutoff = 0\n", "controller.cutoff = 0.0 is out of range"),
+    ("output_interval = 0.0015\n", "must be a multiple of master.step"),
+    ("[plant\n", "not valid TOML"),
+])
+def test_bad_scene_is_rejected_naming_the_key(tmp_path, text, fragment):
+    with pytest.raises(ConfigError, match=None) as info:
+        load_scene(_scene(tmp_path, text))
+    assert fragment in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_bad_override_names_set():
+    with pytest.raises(ConfigError, match="^--set: master.step = -1.0 is out of range"):
+        load_scene("rigid_pd", ["master.step=-1"])
+    with pytest.raises(ConfigError, match="^--set: unknown key 'master.stepp'"):
+        load_scene("rigid_pd", ["master.stepp=1"])
+
+
+def test_unknown_scene():
+    with pytest.raises(ConfigError, match="no scene 'nosuch'; scenes: "):
+        load_scene("nosuch")
