@@ -1,0 +1,178 @@
+"""``PDLowPass``: the PD + low-pass controller as an FMI 2.0 co-simulation FMU (pythonfmu).
+
+A thin adapter over :class:`controller_fmu.pd_lowpass.PDLowPassModel`: the model gives the error
+signal, the exact zero-order-hold discretisation ``(Ad, Bd)`` of the filter over the communication
+step and the saturated output; this class only holds the filter state, the time and the inputs.
+
+Over ``doStep(t, h)`` the inputs are held (zero-order hold) and the filter advances exactly:
+``xc <- Ad(h) xc + Bd(h) e``. ``F_c = -xc[0]`` (saturated) for filter orders 1 and 2; with
+``filter_order = 0`` there is no filter and ``F_c = -e`` is computed from the current inputs
+(direct feedthrough, declared in ``modelDescription.xml``).
+
+Failures never raise (see :mod:`plant_fmu.fmi_support`): a non-finite input makes ``doStep`` return
+fmi2Discard with the state unchanged, and a bad parameter is logged with status fmi2Error at
+``exitInitializationMode``, after which every ``doStep`` returns fmi2Discard. ``F_c`` is never NaN:
+it holds its last finite value.
+"""
+from __future__ import annotations
+
+import math
+
+from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Variability, Real
+
+from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from plant_fmu.fmi_support import Fmi2Status, SlaveBase
+
+__all__ = ["PDLowPass"]
+
+_DESCRIPTIONS = {
+    "kp": "proportional gain on phi_o",
+    "kd": "derivative gain (on omega_o)",
+    "kx": "gain on the cart position x_o (0: no cart feedback)",
+    "filter_order": "order of the unit-DC-gain low-pass filter: 0 (none), 1 or 2",
+    "cutoff": "filter cutoff frequency, rad/s",
+    "filter_damping": "damping ratio of the 2nd-order filter",
+    "force_limit": "saturation |F_c| <= force_limit (INF: none)",
+}
+
+
+class PDLowPass(SlaveBase):
+    """PD on the tip sensors, a low-pass filter, a saturation: ``F_c = -sat(H(s) e)``."""
+
+    description = ("PD on the tip angle and rate (plus an optional cart-position term) followed "
+                   "by a unit-DC-gain low-pass filter of order 0, 1 or 2, discretised exactly "
+                   "over each communication step with the inputs held")
+    version = "0.1.0"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+
+    INPUTS = ("phi_o", "omega_o", "x_o")
+    OUTPUTS = ("F_c",)
+    #: direct feedthrough (only when filter_order = 0, but the parameter can be set at run time)
+    OUTPUT_DEPENDENCIES = {"F_c": INPUTS}
+    INITIAL_DEPENDENCIES = {"F_c": INPUTS + ("kp", "kd", "kx", "filter_order", "force_limit")}
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.phi_o = 0.0
+        self.omega_o = 0.0
+        self.x_o = 0.0
+        for name, desc in (("phi_o", "tip tangent angle from the upward vertical, rad"),
+                           ("omega_o", "rate of phi_o, rad/s"), ("x_o", "cart position")):
+            self.register_variable(Real(name, causality=Fmi2Causality.input,
+                                        variability=Fmi2Variability.continuous,
+                                        start=0.0, description=desc))
+        self.register_variable(Real("F_c", causality=Fmi2Causality.output,
+                                    variability=Fmi2Variability.continuous,
+                                    initial=Fmi2Initial.calculated,
+                                    description="force on the cart", getter=self._force))
+        self._register_parameters(self.dataclass_defaults(ControllerParams), _DESCRIPTIONS)
+        self._t = 0.0
+        self._model: PDLowPassModel | None = None
+        self._order = 0
+        self._x0 = self._x1 = 0.0     # filter state (filter output first)
+        self._F = 0.0                 # F_c after the last step (orders 1, 2) or last finite F_c
+        self._h = None                # step of the cached discretisation
+        self._ad = self._bd = ()
+
+    # ------------------------------------------------------------------ set-up
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self._t = float(start_time)
+
+    def _parameters_changed(self):
+        self._model = None
+        self._error = None
+
+    def _prepare(self) -> bool:
+        """Build the model from the parameters; on a bad one log it and return False."""
+        try:
+            params = ControllerParams(**self._par)
+        except (TypeError, ValueError) as exc:
+            self._error = f"bad parameter: {exc}"
+            self.log(self._error, Fmi2Status.error)
+            return False
+        self._error = None
+        self._model = PDLowPassModel(params)
+        self._order = params.filter_order
+        self._lim = params.force_limit
+        self._x0 = self._x1 = 0.0
+        self._h = None
+        self._F = self._model.output(self._model.initial_state(), self._inputs()) \
+            if self._order == 0 and self._finite_inputs() else 0.0
+        return True
+
+    def exit_initialization_mode(self):
+        self._prepare()
+        self._initialized = True
+
+    # ------------------------------------------------------------------ stepping
+    def _inputs(self):
+        return (self.x_o, self.phi_o, self.omega_o)    # the model's order: x_o, phi_o, omega_o
+
+    def _finite_inputs(self) -> bool:
+        return math.isfinite(self.x_o + self.phi_o + self.omega_o)
+
+    def _bad_inputs(self) -> str:
+        bad = [f"{n} = {getattr(self, n)!r}" for n in self.INPUTS
+               if not math.isfinite(getattr(self, n))]
+        return ", ".join(bad)
+
+    def _set_step(self, h: float):
+        Ad, Bd = self._model.discretize(h)
+        self._ad = tuple(float(a) for a in Ad.ravel())
+        self._bd = tuple(float(b) for b in Bd)
+        self._h = h
+
+    def do_step(self, current_time, step_size):
+        if self._error is not None or not self._initialized:
+            return self._refuse(f"PDLowPass cannot step: "
+                                f"{self._error or 'exitInitializationMode has not been called'}")
+        why = self._check_time(current_time, self._t)
+        if why:
+            return self._refuse(why)
+        if not self._finite_inputs():
+            return self._refuse(f"non-finite input at t = {current_time!r}: {self._bad_inputs()}; "
+                                f"step rejected, state unchanged", Fmi2Status.discard)
+        order = self._order
+        if order:
+            if step_size != self._h:
+                self._set_step(step_size)
+            e = self._model.error_signal(self._inputs())
+            ad, bd = self._ad, self._bd
+            if order == 1:
+                x0 = ad[0] * self._x0 + bd[0] * e
+            else:
+                x0 = ad[0] * self._x0 + ad[1] * self._x1 + bd[0] * e
+                self._x1 = ad[2] * self._x0 + ad[3] * self._x1 + bd[1] * e
+            self._x0 = x0
+            self._F = min(max(-x0, -self._lim), self._lim)
+        self._t = current_time + step_size
+        return True
+
+    def _force(self) -> float:
+        if self._model is None and (self._error is not None or not self._prepare()):
+            return self._F
+        if self._order == 0:                    # direct feedthrough from the current inputs
+            if self._finite_inputs():
+                self._F = self._model.output((), self._inputs())
+            else:
+                self.log(f"non-finite input: {self._bad_inputs()}; F_c holds its last value",
+                         Fmi2Status.error)
+        return self._F
+
+    # ------------------------------------------------------------------ FMU state
+    def _get_fmu_state(self):
+        return {"t": self._t, "x": [self._x0, self._x1], "F": self._F, "error": self._error,
+                "initialized": self._initialized, "params": dict(self._par),
+                "inputs": [self.phi_o, self.omega_o, self.x_o]}
+
+    def _set_fmu_state(self, state):
+        if state["params"] != self._par or self._model is None:
+            self._par = dict(state["params"])
+            self._initialized = False
+            self._prepare()
+        self._initialized = state["initialized"]
+        self._t = state["t"]
+        self._x0, self._x1 = state["x"]
+        self._F = state["F"]
+        self._error = state["error"]
+        self.phi_o, self.omega_o, self.x_o = state["inputs"]

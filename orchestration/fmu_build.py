@@ -1,0 +1,366 @@
+"""Build the two FMUs with pythonfmu, only when their sources changed, and write their reference
+results (FMI cross-check layout).
+
+    build_fmus(out_dir)          -> {"FlexiblePendulum": path, "PDLowPass": path}
+    write_references(fmus)       regenerate tests/reference/<Model>/<Model>_{in,ref}.csv, _ref.opt
+
+What the build does beyond ``pythonfmu build``:
+
+* the slave module inside each FMU has the model's name (``FlexiblePendulum.py``, a one-line
+  re-export of the class): pythonfmu imports it by its bare name, so two FMUs whose modules are both
+  called ``fmu`` cannot be loaded into one process;
+* the project packages are copied as ``.py`` files only (no caches), and the FMUs can get, set and
+  serialise their state;
+* ``modelDescription.xml`` is completed: exact start values (``repr`` of the float, ``INF`` for
+  infinity), ``ModelStructure/Outputs`` with the real direct dependencies on the inputs (none for
+  the plant, ``x_o phi_o omega_o`` for the controller) and ``InitialUnknowns`` with theirs (pythonfmu
+  writes neither, which makes importers see false algebraic loops and ``fmpy validate`` fail);
+* ``resources/flexpend_build.json`` records a digest of every source file that went in; an FMU is
+  rebuilt only when that digest changes (or when asked to).
+
+The pythonfmu builder runs in a child process: it imports the slave module by its bare name and
+leaves it on ``sys.path``/``sys.modules``, which must not leak into the caller (a test session).
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["ROOT", "DEFAULT_OUT", "REFERENCE_DIR", "SPECS", "FmuSpec", "BuildError",
+           "build_fmus", "build_fmu", "is_stale", "source_digest", "reference_files",
+           "write_references", "compare_with_reference", "REFERENCE_TOLERANCE", "main"]
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_OUT = ROOT / "build" / "fmus"
+REFERENCE_DIR = ROOT / "tests" / "reference"
+STAMP = "resources/flexpend_build.json"
+#: Bump to force a rebuild when the build itself changes in a way the sources do not show.
+BUILD_FORMAT = 1
+
+
+class BuildError(RuntimeError):
+    """The FMU could not be built (the message holds the builder's output)."""
+
+
+@dataclass(frozen=True)
+class FmuSpec:
+    """One FMU: its model identifier (= class name), the module of the class, the packages it ships."""
+
+    name: str
+    module: str
+    packages: tuple
+
+
+SPECS = {
+    "FlexiblePendulum": FmuSpec("FlexiblePendulum", "plant_fmu.fmu", ("plant_fmu",)),
+    # the controller imports plant_fmu.params and plant_fmu.fmi_support; it ships the whole
+    # package, so that whichever FMU a host loads first, `plant_fmu` is complete in that process
+    "PDLowPass": FmuSpec("PDLowPass", "controller_fmu.fmu", ("controller_fmu", "plant_fmu")),
+}
+
+
+# ---------------------------------------------------------------------- sources and staleness
+def package_files(pkg: str) -> list[Path]:
+    """The ``.py`` files of a project package (recursively, caches left out)."""
+    return sorted(p for p in (ROOT / pkg).rglob("*.py") if "__pycache__" not in p.parts)
+
+
+def source_files(spec: FmuSpec) -> list[Path]:
+    return [f for pkg in spec.packages for f in package_files(pkg)]
+
+
+def source_digest(spec: FmuSpec) -> str:
+    """sha256 of the FMU's inputs: its sources, this build script and the pythonfmu version."""
+    import pythonfmu
+
+    h = hashlib.sha256(f"{BUILD_FORMAT} {spec} pythonfmu {pythonfmu.__version__}\n".encode())
+    for path in [Path(__file__).resolve(), *source_files(spec)]:
+        h.update(path.relative_to(ROOT).as_posix().encode() + b"\0")
+        h.update(path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def fmu_digest(path: Path) -> str | None:
+    """The source digest recorded in a built FMU, or None."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return json.loads(zf.read(STAMP))["digest"]
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+
+
+def is_stale(name: str, out_dir: Path = DEFAULT_OUT) -> bool:
+    path = Path(out_dir) / f"{name}.fmu"
+    return fmu_digest(path) != source_digest(SPECS[name])
+
+
+# ---------------------------------------------------------------------- build
+def build_fmu(name: str, out_dir: Path = DEFAULT_OUT, force: bool = False) -> Path:
+    """Build one FMU into ``out_dir`` unless it is up to date; return its path."""
+    spec = SPECS[name]
+    out_dir = Path(out_dir)
+    target = out_dir / f"{name}.fmu"
+    digest = source_digest(spec)
+    if not force and fmu_digest(target) == digest:
+        return target
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f"flexpend_{name}_") as tmp:
+        stage = Path(tmp) / "stage"
+        for src in source_files(spec):
+            dst = stage / src.relative_to(ROOT)
+            dst.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dst)
+        (stage / f"{name}.py").write_text(_SLAVE_MODULE.format(name=name, module=spec.module, packages=spec.packages))
+        built = Path(tmp) / f"{name}.fmu"
+        args = json.dumps({"name": name, "module": spec.module, "stage": str(stage),
+                           "packages": list(spec.packages), "dest": str(built),
+                           "digest": digest})
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        env["PYTHONPATH"] = os.pathsep.join([str(stage), str(ROOT)])
+        proc = subprocess.run([sys.executable, "-c", _WORKER_CALL, args], cwd=tmp, env=env,
+                              capture_output=True, text=True)
+        if proc.returncode != 0 or not built.is_file():
+            raise BuildError(f"building {name} failed:\n{proc.stdout}\n{proc.stderr}")
+        # atomic: a concurrent reader sees the old or the new FMU, never half of one
+        fd, part = tempfile.mkstemp(prefix=f".{name}.", suffix=".part", dir=out_dir)
+        os.close(fd)
+        shutil.copyfile(built, part)
+        os.replace(part, target)
+    return target
+
+
+def build_fmus(out_dir: Path = DEFAULT_OUT, names=None, force: bool = False) -> dict:
+    """Build (if stale) every FMU of :data:`SPECS` (or ``names``); return name -> path."""
+    names = list(SPECS) if names is None else list(names)
+    unknown = sorted(set(names) - set(SPECS))
+    if unknown:
+        raise ValueError(f"unknown FMU(s) {', '.join(unknown)}; known: {', '.join(SPECS)}")
+    return {n: build_fmu(n, out_dir, force) for n in names}
+
+
+#: The slave module pythonfmu's binary imports (resources/<name>.py). Two workarounds live here:
+#:
+#: * the project packages may already be in the host process, imported from another FMU whose
+#:   unpacked folder is gone (fmpy.simulate_fmu deletes it): their missing submodules are then
+#:   looked for in this FMU's copy as well;
+#: * the binary of pythonfmu 0.7.0 releases, at every fmi2Instantiate, one reference to this
+#:   module's __dict__ that it never took (the borrowed result of PyModule_GetDict); once the count
+#:   reaches zero the dict is freed and the process corrupts memory (a second instance fails to
+#:   instantiate, or the host crashes at exit). The list holds 2**20 references to it, enough for
+#:   about a million instances per process. The binary also executes this file again at each
+#:   instantiation (with this dict as globals), hence the guard.
+_SLAVE_MODULE = '''"""The pythonfmu slave module of {name} (generated by orchestration/fmu_build.py)."""
+import os as _os
+import sys as _sys
+
+for _pkg in {packages!r}:
+    _mod = _sys.modules.get(_pkg)
+    _dir = _os.path.join(_os.path.dirname(_os.path.abspath(__file__)), _pkg)
+    if _mod is not None and _dir not in list(getattr(_mod, "__path__", [_dir])):
+        _mod.__path__.append(_dir)
+
+from {module} import {name}  # noqa: E402,F401
+
+if "_PYTHONFMU_DICT_REFS" not in globals():
+    _PYTHONFMU_DICT_REFS = [globals()] * (1 << 20)
+'''
+
+_WORKER_CALL = "import sys; from orchestration.fmu_build import _worker; _worker(sys.argv[1])"
+
+
+def _xml_real(value) -> str:
+    value = float(value)
+    if value != value:
+        return "NaN"
+    if value in (float("inf"), float("-inf")):
+        return "INF" if value > 0 else "-INF"
+    return repr(value)
+
+
+def _worker(args_json: str):
+    """Child process: run the pythonfmu builder, then complete ``modelDescription.xml``."""
+    import importlib
+    import xml.etree.ElementTree as ET
+
+    from pythonfmu.builder import FmuBuilder
+
+    a = json.loads(args_json)
+    stage = Path(a["stage"])
+    os.chdir(stage)
+    raw = FmuBuilder.build_FMU(stage / f"{a['name']}.py", dest=Path(a["dest"]).parent / "raw.fmu",
+                               project_files=[stage / p for p in a["packages"]],
+                               canGetAndSetFMUstate=True, canSerializeFMUstate=True)
+    cls = getattr(importlib.import_module(a["module"]), a["name"])
+    slave = cls(instance_name="build", resources=str(stage))
+    with zipfile.ZipFile(raw) as zf:
+        entries = {i.filename: zf.read(i) for i in zf.infolist()}
+    root = ET.fromstring(entries["modelDescription.xml"])
+    svs = list(root.find("ModelVariables"))
+    index = {sv.get("name"): i + 1 for i, sv in enumerate(svs)}
+    by_name = {v.name: v for v in slave.vars.values()}
+    for sv in svs:                                       # exact start values
+        real = sv.find("Real")
+        if real is not None and real.get("start") is not None:
+            var = by_name[sv.get("name")]
+            real.set("start", _xml_real(var.getter()))
+    structure = root.find("ModelStructure")
+    for child in list(structure):
+        structure.remove(child)
+
+    def indices(names):
+        return " ".join(str(i) for i in sorted(index[n] for n in names))
+
+    outputs = [sv.get("name") for sv in svs if sv.get("causality") == "output"]
+    if set(outputs) != set(cls.OUTPUT_DEPENDENCIES) or set(outputs) != set(cls.INITIAL_DEPENDENCIES):
+        raise SystemExit(f"{a['name']}: OUTPUT_DEPENDENCIES/INITIAL_DEPENDENCIES must name "
+                         f"exactly the outputs {outputs}")
+    node = ET.SubElement(structure, "Outputs")
+    for n in outputs:
+        ET.SubElement(node, "Unknown", index=str(index[n]),
+                      dependencies=indices(cls.OUTPUT_DEPENDENCIES[n]))
+    node = ET.SubElement(structure, "InitialUnknowns")
+    for n in outputs:
+        ET.SubElement(node, "Unknown", index=str(index[n]),
+                      dependencies=indices(cls.INITIAL_DEPENDENCIES[n]))
+    ET.indent(root)
+    entries["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+    entries[STAMP] = json.dumps({"model": a["name"], "digest": a["digest"]}).encode()
+    with zipfile.ZipFile(a["dest"], "w", zipfile.ZIP_DEFLATED) as zf:
+        for fname, data in entries.items():
+            zf.writestr(fname, data)
+
+
+# ---------------------------------------------------------------------- reference results
+#: Comparison band of a fresh run against the committed reference: for each signal,
+#: |y - y_ref| <= REFERENCE_TOLERANCE * max|y_ref| at every sample.
+REFERENCE_TOLERANCE = 1e-6
+
+
+def _reference_cases():
+    """name -> (options of the .opt file, input columns {name: f(t)})."""
+    import numpy as np
+
+    two_pi = 2 * np.pi
+    return {
+        # the plant alone, pushed back and forth: the pendulum swings and the first bending
+        # mode rings; 1 s keeps the open-loop fall (+7/s) well inside phi_limit
+        "FlexiblePendulum": (
+            {"StartTime": 0.0, "StopTime": 1.0, "StepSize": 1e-3, "RelTol": 1e-6},
+            {"F_c": lambda t: (np.where(t < 0.1, 40.0, 0.0) - np.where((t >= 0.1) & (t < 0.2),
+                                                                        40.0, 0.0)
+                               + 3.0 * np.sin(two_pi * 24.0 * t))}),
+        # the controller alone (defaults: PD + 2nd-order filter at 150 rad/s) on sensor signals
+        # with a step, a slow swing and a bending-frequency ripple
+        "PDLowPass": (
+            {"StartTime": 0.0, "StopTime": 1.0, "StepSize": 1e-3, "RelTol": 1e-6},
+            {"phi_o": lambda t: (0.1 * np.sin(two_pi * 2.0 * t) + 0.01 * np.sin(150.0 * t)
+                                 + np.where(t >= 0.5, 0.05, 0.0)),
+             "omega_o": lambda t: (0.2 * np.pi * 2.0 * np.cos(two_pi * 2.0 * t)
+                                   + 1.5 * np.cos(150.0 * t)),
+             "x_o": lambda t: 0.5 * t * t}),
+    }
+
+
+def reference_files(name: str, ref_dir: Path = REFERENCE_DIR) -> dict:
+    d = Path(ref_dir) / name
+    return {"in": d / f"{name}_in.csv", "ref": d / f"{name}_ref.csv", "opt": d / f"{name}_ref.opt"}
+
+
+def read_opt(path) -> dict:
+    from fmpy.util import read_ref_opt_file
+
+    return read_ref_opt_file(str(path))
+
+
+def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start_values=None):
+    """Simulate ``fmu`` alone with its committed input file and options (fmpy.simulate_fmu)."""
+    from fmpy import simulate_fmu
+    from fmpy.util import read_csv
+
+    files = reference_files(name, ref_dir)
+    opt = read_opt(files["opt"])
+    outputs = {"FlexiblePendulum": ["x_o", "x_dot", "phi_o", "omega_o", "tip_deflection",
+                                    "eta_1", "energy"],
+               "PDLowPass": ["F_c"]}[name]
+    return simulate_fmu(str(fmu), start_time=opt["StartTime"], stop_time=opt["StopTime"],
+                        step_size=opt["StepSize"], output_interval=opt["StepSize"],
+                        input=read_csv(str(files["in"])), output=outputs,
+                        start_values=start_values or {})
+
+
+def compare_with_reference(result, reference, tol: float = REFERENCE_TOLERANCE) -> dict:
+    """name -> largest deviation relative to the reference's peak (fails above ``tol``)."""
+    import numpy as np
+
+    if result.shape != reference.shape or not np.allclose(result["time"], reference["time"],
+                                                          rtol=0, atol=1e-9):
+        raise ValueError("the result's time grid differs from the reference's")
+    out = {}
+    for n in reference.dtype.names[1:]:
+        peak = float(np.max(np.abs(reference[n])))
+        dev = float(np.max(np.abs(result[n] - reference[n])))
+        out[n] = dev / peak if peak > 0 else dev
+    return out
+
+
+def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
+    """Regenerate the input files, options and reference results of every FMU; return paths."""
+    import numpy as np
+    from fmpy.util import write_csv
+
+    written = {}
+    for name, (opt, inputs) in _reference_cases().items():
+        files = reference_files(name, ref_dir)
+        files["in"].parent.mkdir(parents=True, exist_ok=True)
+        n = round((opt["StopTime"] - opt["StartTime"]) / opt["StepSize"])
+        t = opt["StartTime"] + np.arange(n + 1) * opt["StepSize"]
+        arr = np.zeros(t.size, dtype=[("time", "f8")] + [(k, "f8") for k in inputs])
+        arr["time"] = t
+        for k, f in inputs.items():
+            arr[k] = f(t)
+        write_csv(str(files["in"]), arr)
+        files["opt"].write_text("".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        result = simulate_reference_case(fmus[name], name, ref_dir)
+        write_csv(str(files["ref"]), result)
+        written[name] = files
+    return written
+
+
+# ---------------------------------------------------------------------- command line
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="build_fmus.py", description=__doc__.split("\n\n")[0])
+    ap.add_argument("names", nargs="*", help=f"FMUs to build (default: all of {', '.join(SPECS)})")
+    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output folder (default: build/fmus)")
+    ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
+    ap.add_argument("--references", action="store_true",
+                    help="also regenerate the reference results under tests/reference/")
+    args = ap.parse_args(argv)
+    unknown = sorted(set(args.names) - set(SPECS))
+    if unknown:
+        print(f"error: unknown FMU(s) {', '.join(unknown)}; known: {', '.join(SPECS)}",
+              file=sys.stderr)
+        return 2
+    try:
+        stale = {n: is_stale(n, args.out) for n in (args.names or SPECS)}
+        fmus = build_fmus(args.out, args.names or None, force=args.force)
+    except BuildError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for n, p in fmus.items():
+        state = "built" if args.force or stale[n] else "up to date"
+        print(f"{n}: {p} ({state})")
+    if args.references:
+        if set(fmus) != set(SPECS):
+            fmus = build_fmus(args.out)
+        for n, files in write_references(fmus).items():
+            print(f"{n}: reference written to {files['ref'].parent}")
+    return 0

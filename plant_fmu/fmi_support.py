@@ -1,0 +1,130 @@
+"""FMI plumbing shared by the two pythonfmu slaves (``FlexiblePendulum`` and ``PDLowPass``).
+
+Nothing here knows any physics. It registers parameters from a frozen dataclass (the start values
+in ``modelDescription.xml`` are then the dataclass defaults), guards the "fixed" variability of
+parameters, logs failures and (de)serialises FMU states.
+
+pythonfmu 0.7.0 turns every Python exception into ``fmi2Fatal`` and destroys the Python instance;
+Python code has no way to return ``fmi2Error``. The slaves therefore never raise: a failure is
+logged with the status ``fmi2Error`` and a message that names its cause, and ``doStep`` returns
+``fmi2Discard`` (``do_step`` returns False) until a saved FMU state is restored.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+from pythonfmu import (Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real,
+                       String)
+from pythonfmu.enums import Fmi2Status
+
+__all__ = ["SlaveBase", "Fmi2Status", "dumps_state", "loads_state"]
+
+#: Relative tolerance on the communication point of ``doStep`` against the slave's own time.
+TIME_RTOL = 1e-9
+
+_TYPES = {bool: Boolean, int: Integer, float: Real, str: String}
+
+
+def _encode(obj):
+    if isinstance(obj, np.ndarray):
+        return {"__ndarray__": obj.tolist(), "dtype": str(obj.dtype), "shape": list(obj.shape)}
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"cannot serialise {type(obj).__name__} in an FMU state")
+
+
+def _decode(d):
+    if "__ndarray__" in d:
+        return np.array(d["__ndarray__"], dtype=d["dtype"]).reshape(d["shape"])
+    return d
+
+
+def dumps_state(state) -> bytes:
+    """JSON bytes of a state (numpy arrays tagged; floats written exactly by ``repr``)."""
+    return json.dumps(state, default=_encode, allow_nan=True).encode("utf-8")
+
+
+def loads_state(data: bytes):
+    return json.loads(data.decode("utf-8"), object_hook=_decode)
+
+
+class SlaveBase(Fmi2Slave):
+    """A pythonfmu slave with fixed parameters taken from dataclass defaults.
+
+    Subclasses call :meth:`_register_parameters` in ``__init__`` and read ``self._par`` (a dict
+    name -> value) when they initialise. Class attributes read by the build
+    (:mod:`orchestration.fmu_build`) to write ``ModelStructure``:
+
+    * ``OUTPUT_DEPENDENCIES``: output -> inputs it depends on directly at a communication point;
+    * ``INITIAL_DEPENDENCIES``: output -> inputs and parameters its initial value depends on.
+    """
+
+    OUTPUT_DEPENDENCIES: dict = {}
+    INITIAL_DEPENDENCIES: dict = {}
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self._par: dict = {}
+        self._initialized = False     # True after exitInitializationMode
+        self._error: str | None = None  # why the slave cannot step (until a state is restored)
+
+    # ------------------------------------------------------------------ variables
+    def _register_parameters(self, defaults: dict, descriptions: dict):
+        """One fixed parameter per entry of ``defaults`` (name -> default), typed by the default."""
+        for name, default in defaults.items():
+            cls = _TYPES[type(default)]
+            self._par[name] = default
+            self.register_variable(cls(
+                name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
+                description=descriptions.get(name),
+                getter=lambda n=name: self._par[n],
+                setter=lambda v, n=name: self._set_parameter(n, v)))
+
+    def _set_parameter(self, name, value):
+        if self._initialized:
+            self.log(f"parameter {name} is fixed: it can only be set before "
+                     f"exitInitializationMode; the value {value!r} is ignored", Fmi2Status.error)
+            return
+        self._par[name] = value
+        self._parameters_changed()
+
+    def _parameters_changed(self):
+        """Hook: a parameter was set before initialisation (drop what was derived from them)."""
+
+    @staticmethod
+    def dataclass_defaults(cls) -> dict:
+        return {f.name: f.default for f in dataclasses.fields(cls)}
+
+    # ------------------------------------------------------------------ failures
+    def _refuse(self, message: str, status=Fmi2Status.error) -> bool:
+        """Log ``message`` and return False (``doStep`` -> fmi2Discard)."""
+        self.log(message, status)
+        return False
+
+    def _check_time(self, current_time: float, own_time: float) -> str | None:
+        """None if ``current_time`` is the slave's own time, else the reason why not."""
+        if abs(current_time - own_time) <= TIME_RTOL * max(1.0, abs(own_time)):
+            return None
+        return (f"doStep called at t = {current_time!r} but the FMU is at t = {own_time!r}; "
+                f"restore a saved FMU state to step from another time")
+
+    # ------------------------------------------------------------------ FMU state
+    @staticmethod
+    def _fmu_state_to_bytes(state) -> bytes:
+        return dumps_state(state)
+
+    @staticmethod
+    def _fmu_state_from_bytes(state: bytes):
+        return loads_state(state)
+
+
+def finite_or_none(value) -> float | None:
+    """``float(value)`` if it is a finite real, else None."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None

@@ -1,0 +1,324 @@
+"""``FlexiblePendulum``: the cart with a flexible beam as an FMI 2.0 co-simulation FMU (pythonfmu).
+
+A thin adapter: the physics is :class:`plant_fmu.dynamics.PlantModel` (or
+:class:`~plant_fmu.dynamics.LinearPlantModel` with ``fidelity = "linear"``), the time stepping is a
+stepper of :mod:`plant_fmu.integrators` chosen by name. Over ``doStep(t, h)`` the input ``F_c`` is
+held (zero-order hold) and the stepper advances to ``t + h``. No output depends directly on
+``F_c``; the outputs are computed from the state when they are read.
+
+Failures never raise (see :mod:`plant_fmu.fmi_support`); each one is logged with a message naming
+its cause, ``doStep`` returns fmi2Discard and the outputs keep the last accepted state:
+
+* a non-finite ``F_c``: the step is rejected and the state unchanged (a retry may follow);
+* a failed integrator, a non-finite state, ``|phi| > phi_limit`` or ``|energy| > energy_limit``
+  (divergence): the slave refuses to step until a saved FMU state is restored;
+* a bad parameter (logged with status fmi2Error at ``exitInitializationMode``): every ``doStep``
+  is refused.
+
+The FMU state (``fmi2GetFMUstate``, ``fmi2SerializeFMUstate``) holds the stepper's whole state
+(time, plant state, input, substep grid, method data such as the adaptive step or the Newton
+matrices), the input, the error status and the parameters.
+"""
+from __future__ import annotations
+
+import math
+
+from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Variability, Real
+
+from plant_fmu.dynamics import linear_plant_model, plant_model
+from plant_fmu.fmi_support import Fmi2Status, SlaveBase
+try:
+    from plant_fmu.integrators import REGISTRY, make_stepper
+except ImportError:  # TEMPORARY until plant_fmu.integrators lands
+    import numpy as _np
+
+    class _RK4:
+        name = "rk4"
+
+        def __init__(self, model, t0, y0, u=0.0, h=1e-3, **_):
+            self.model, self.t, self.y, self.u, self.h = model, float(t0), _np.array(y0), u, h
+            self.status, self.nfev = "running", 0
+
+        def advance(self, t_end):
+            f, u = self.model.rhs, self.u
+            n = max(1, int(math.ceil((t_end - self.t) / self.h - 1e-9)))
+            h = (t_end - self.t) / n
+            t, y = self.t, self.y
+            for k in range(n):
+                k1 = f(t, y, u)
+                k2 = f(t, y + 0.5 * h * k1, u)
+                k3 = f(t, y + 0.5 * h * k2, u)
+                k4 = f(t, y + h * k3, u)
+                y = y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+            self.t, self.y = t_end, y
+            return True, None
+
+        def get_state(self):
+            return {"t": self.t, "y": self.y.tolist(), "u": self.u}
+
+        def set_state(self, s):
+            self.t, self.y, self.u = s["t"], _np.array(s["y"]), s["u"]
+
+    REGISTRY = {"rk4": _RK4}
+
+    def make_stepper(name, model, t0, y0, **kw):
+        return REGISTRY[name](model, t0, y0, **kw)
+from plant_fmu.params import PlantParams, check_real
+
+__all__ = ["FlexiblePendulum", "FMU_DEFAULTS", "OUTPUTS"]
+
+#: The FMU's own parameters beyond PlantParams, with their defaults.
+FMU_DEFAULTS = {
+    "fidelity": "nonlinear",
+    "integrator": "rk4",
+    "step": 1e-3,
+    "rtol": 1e-6,
+    "atol": 1e-9,
+    "phi_limit": math.pi / 2,
+    "energy_limit": 1e6,
+    "phi0": 0.0,
+    "x0": 0.0,
+    "phi_dot0": 0.0,
+    "x_dot0": 0.0,
+}
+
+FIDELITIES = ("nonlinear", "linear")
+
+#: Outputs in registration order, with their descriptions.
+OUTPUTS = {
+    "x_o": "cart position",
+    "x_dot": "cart velocity",
+    "phi_o": "angle of the beam's tip tangent from the upward vertical (counter-clockwise), rad",
+    "omega_o": "rate of phi_o, rad/s",
+    "tip_deflection": "transverse deflection of the tip in the floating frame",
+    "eta_1": "first modal coordinate (0 when n_modes = 0)",
+    "energy": "total energy T + V",
+}
+
+_DESCRIPTIONS = {
+    "m": "cart mass", "L": "beam length", "rho": "beam density", "EA": "axial stiffness",
+    "EI": "bending stiffness", "E": "Young's modulus (area = EA/E)",
+    "zeta": "modal damping ratio of every cantilever mode", "g": "gravity",
+    "n_modes": "cantilever modes kept (0: rigid pendulum)",
+    "n_elements": "finite elements of the beam mesh",
+    "gravity_preload": "geometric stiffness of the beam's self-weight",
+    "fidelity": "nonlinear or linear (linearised at the upright rest state)",
+    "integrator": "integration method: " + ", ".join(sorted(REGISTRY)),
+    "step": "internal substep of the fixed-step methods (initial step of the adaptive ones)",
+    "rtol": "relative tolerance of the adaptive and implicit methods",
+    "atol": "absolute tolerance of the adaptive and implicit methods",
+    "phi_limit": "divergence bound on |phi| (rad; INF: none)",
+    "energy_limit": "divergence bound on |energy| (INF: none)",
+    "phi0": "initial angle phi of the (undeformed) beam, rad",
+    "x0": "initial cart position",
+    "phi_dot0": "initial angular rate, rad/s",
+    "x_dot0": "initial cart velocity",
+}
+
+
+class FlexiblePendulum(SlaveBase):
+    """A cart on a rail with an elastic beam hinged on it; the input is the force on the cart."""
+
+    description = ("Cart with an elastic beam hinged on it (Tang & Ren 2009, corrected): "
+                   "floating frame of reference with n_modes cantilever modes; input: the force "
+                   "on the cart")
+    version = "0.1.0"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+
+    INPUTS = ("F_c",)
+    OUTPUTS = tuple(OUTPUTS)
+    OUTPUT_DEPENDENCIES = {name: () for name in OUTPUTS}      # no direct feedthrough
+    INITIAL_DEPENDENCIES = {
+        "x_o": ("x0",), "x_dot": ("x_dot0",), "phi_o": ("phi0",), "omega_o": ("phi_dot0",),
+        "tip_deflection": (), "eta_1": (),
+        "energy": tuple(f for f in (*SlaveBase.dataclass_defaults(PlantParams), *FMU_DEFAULTS)
+                        if f not in ("n_elements", "integrator", "step", "rtol", "atol",
+                                     "phi_limit", "energy_limit")),
+    }
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.F_c = 0.0
+        self.register_variable(Real("F_c", causality=Fmi2Causality.input,
+                                    variability=Fmi2Variability.continuous, start=0.0,
+                                    description="horizontal force on the cart"))
+        self._out = {}                     # value reference -> output value
+        for name, desc in OUTPUTS.items():
+            var = Real(name, causality=Fmi2Causality.output,
+                       variability=Fmi2Variability.continuous, initial=Fmi2Initial.calculated,
+                       description=desc, getter=lambda n=name: self._output(n))
+            self.register_variable(var)
+            self._out[var.value_reference] = 0.0
+        self._vr = {v.name: vr for vr, v in self.vars.items()}
+        self._vr_energy = self._vr["energy"]
+        self._register_parameters({**self.dataclass_defaults(PlantParams), **FMU_DEFAULTS},
+                                  _DESCRIPTIONS)
+        self._t0 = 0.0
+        self._model = None
+        self._stepper = None
+        self._y = None                     # the last accepted state
+        self._dirty = False                # outputs not yet computed from self._y
+        self._energy = None
+        self._energy_fresh = True
+        self._failed = False               # the stepper's state is no longer trustworthy
+
+    # ------------------------------------------------------------------ set-up
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self._t0 = float(start_time)
+
+    def _parameters_changed(self):
+        self._model = self._stepper = None
+        self._error = None
+
+    def _validated(self):
+        """``(PlantParams, FMU settings)`` from the parameters; raises naming the bad one."""
+        par = self._par
+        p = PlantParams(**{k: par[k] for k in self.dataclass_defaults(PlantParams)})
+        s = {k: par[k] for k in FMU_DEFAULTS}
+        if s["fidelity"] not in FIDELITIES:
+            raise ValueError(f"fidelity = {s['fidelity']!r} is not allowed; allowed: "
+                             f"{', '.join(FIDELITIES)}")
+        if s["integrator"] not in REGISTRY:
+            raise ValueError(f"integrator = {s['integrator']!r} is unknown; known: "
+                             f"{', '.join(sorted(REGISTRY))}")
+        for k in ("step", "rtol", "atol"):
+            s[k] = check_real(k, s[k], low=0.0, high=math.inf, high_open=True)
+        for k in ("phi_limit", "energy_limit"):
+            s[k] = check_real(k, s[k], low=0.0, allow_inf=True)
+        for k in ("phi0", "x0", "phi_dot0", "x_dot0"):
+            s[k] = check_real(k, s[k])
+        return p, s
+
+    def _prepare(self) -> bool:
+        """Build the model and the stepper from the parameters; log a bad one and return False."""
+        self._stepper = None
+        try:
+            p, s = self._validated()
+            model = linear_plant_model(p) if s["fidelity"] == "linear" else plant_model(p)
+            y0 = model.initial_state(phi=s["phi0"], x=s["x0"], phi_dot=s["phi_dot0"],
+                                     x_dot=s["x_dot0"])
+            stepper = make_stepper(s["integrator"], model, self._t0, y0, u=0.0, h=s["step"],
+                                   rtol=s["rtol"], atol=s["atol"])
+        except Exception as exc:         # noqa: BLE001 - any failure here is a bad parameter
+            self._model = None
+            self._error = f"bad parameter: {exc}"
+            self.log(self._error, Fmi2Status.error)
+            return False
+        self._error = None
+        self._failed = False
+        self._model, self._stepper = model, stepper
+        self._phi_limit, self._energy_limit = s["phi_limit"], s["energy_limit"]
+        self._check_energy = math.isfinite(self._energy_limit)
+        self._nq, self._n = model.nq, model.n
+        self._accept(stepper.y, None)
+        return True
+
+    def exit_initialization_mode(self):
+        self._prepare()
+        self._initialized = True
+
+    # ------------------------------------------------------------------ stepping
+    def do_step(self, current_time, step_size):
+        st = self._stepper
+        if st is None or self._error is not None or not self._initialized:
+            return self._refuse(f"FlexiblePendulum cannot step: "
+                                f"{self._error or 'exitInitializationMode has not been called'}")
+        u = self.F_c
+        if not math.isfinite(u):
+            return self._refuse(f"non-finite input F_c = {u!r} at t = {current_time!r}; step "
+                                f"rejected, state unchanged", Fmi2Status.discard)
+        why = self._check_time(current_time, st.t)
+        if why:
+            return self._refuse(why)
+        st.u = u
+        t_end = current_time + step_size
+        try:
+            ok, msg = st.advance(t_end)
+        except Exception as exc:          # noqa: BLE001 - never let an exception out (fatal)
+            ok, msg = False, f"{type(exc).__name__}: {exc}"
+        if not ok:
+            return self._diverged(f"integrator {st.name!r} failed between t = {current_time!r} "
+                                  f"and {t_end!r}: {msg}")
+        y = st.y
+        phi = float(y[1])
+        if not abs(phi) <= self._phi_limit:
+            return self._diverged(f"divergence at t = {t_end!r}: |phi| = {abs(phi)!r} exceeds "
+                                  f"phi_limit = {self._phi_limit!r}")
+        energy = None
+        if self._check_energy:
+            energy = self._model.energy(y)
+            if not abs(energy) <= self._energy_limit:
+                return self._diverged(f"divergence at t = {t_end!r}: |energy| = {abs(energy)!r} "
+                                      f"exceeds energy_limit = {self._energy_limit!r}")
+        self._accept(y, energy)
+        return True
+
+    def _diverged(self, message: str) -> bool:
+        self._error = message + "; restore a saved FMU state to continue"
+        self._failed = True
+        return self._refuse(self._error)
+
+    def _accept(self, y, energy):
+        """``y`` is the new accepted state (``energy`` its energy if already computed)."""
+        self._y = y.copy()
+        self._energy = energy
+        self._dirty = True
+        self._energy_fresh = False
+
+    # ------------------------------------------------------------------ outputs
+    def _refresh(self):
+        """Outputs (except the energy, computed on demand) from the last accepted state."""
+        m, y, out, vr = self._model, self._y, self._out, self._vr
+        nq = self._nq
+        out[vr["phi_o"]], out[vr["omega_o"]] = m.tip_angle(y)
+        out[vr["x_o"]] = float(y[0])
+        out[vr["x_dot"]] = float(y[nq])
+        if self._n:
+            out[vr["tip_deflection"]] = float(m.tip_defl @ y[2:nq])
+            out[vr["eta_1"]] = float(y[2])
+        self._dirty = False
+
+    def _refresh_energy(self):
+        energy = self._energy
+        self._out[self._vr_energy] = self._model.energy(self._y) if energy is None else energy
+        self._energy_fresh = True
+
+    def get_real(self, vrs):
+        if self._model is None and self._error is None:
+            self._prepare()                    # outputs read in initialisation mode
+        if self._dirty:
+            self._refresh()
+        if not self._energy_fresh and self._vr_energy in vrs:
+            self._refresh_energy()
+        out = self._out
+        try:
+            return [out[vr] for vr in vrs]
+        except KeyError:                       # not only outputs: pythonfmu's generic path
+            return super().get_real(vrs)
+
+    def _output(self, name):
+        return self.get_real([self._vr[name]])[0]
+
+    # ------------------------------------------------------------------ FMU state
+    def _get_fmu_state(self):
+        st = self._stepper
+        return {"params": dict(self._par), "t0": self._t0, "F_c": self.F_c,
+                "initialized": self._initialized, "error": self._error,
+                "failed": self._failed,
+                "stepper": None if st is None else st.get_state(),
+                "y": None if self._y is None else self._y.tolist()}
+
+    def _set_fmu_state(self, state):
+        import numpy as np
+        if state["params"] != self._par or state["t0"] != self._t0 or self._model is None:
+            self._par = dict(state["params"])
+            self._t0 = state["t0"]
+            self._prepare()
+        if state["stepper"] is not None and self._stepper is not None:
+            self._stepper.set_state(state["stepper"])
+        self.F_c = state["F_c"]
+        self._initialized = state["initialized"]
+        self._error = state["error"]
+        self._failed = state["failed"]
+        if state["y"] is not None:
+            self._accept(np.array(state["y"], dtype=float), None)
