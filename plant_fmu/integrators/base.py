@@ -32,7 +32,7 @@ __all__ = ["Stepper", "IntegratorError", "RUNNING", "FAILED", "numerical_jacobia
 RUNNING = "running"
 FAILED = "failed"
 
-_EPS = np.finfo(float).eps
+_EPS = float(np.finfo(float).eps)
 #: A substep that ends within this fraction of h of the requested end time lands on it.
 _SNAP = 1e-7
 
@@ -210,10 +210,12 @@ class Stepper:
         if not self._prepare_input():
             return False, self.message
         substep = self._substep
-        while self.t < t_end:
-            ok, msg = substep(t_end)
-            if not ok:
-                return False, self._fail(msg)
+        # Overflow and NaN are reported by the status, not by floating-point warnings.
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            while self.t < t_end:
+                ok, msg = substep(t_end)
+                if not ok:
+                    return False, self._fail(msg)
         return True, None
 
     def step(self, t_bound=None) -> tuple[bool, str | None]:
@@ -228,7 +230,8 @@ class Stepper:
             raise ValueError(f"t_bound = {t_bound!r} must be after the current time t = {self.t!r}")
         if not self._prepare_input():
             return False, self.message
-        ok, msg = self._substep(t_bound)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            ok, msg = self._substep(t_bound)
         if not ok:
             return False, self._fail(msg)
         return True, None
@@ -263,7 +266,7 @@ class Stepper:
         h = self.h
         k = self._k + 1
         t_grid = self._t_base + k * h
-        snap = _SNAP * h + 4 * _EPS * abs(t_bound)
+        snap = _SNAP * h + 4 * _EPS * abs(t_grid)
         rebase = False
         if t_grid < t_bound - snap:
             t_new, hs = t_grid, h

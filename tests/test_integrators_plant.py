@@ -1,0 +1,101 @@
+"""Every method on the nonlinear plant (n_modes = 4) against scipy's DOP853 at rtol = 1e-12.
+
+The force is a zero-order-hold history over five communication steps of 10 ms, as the FMU sees
+it: the steppers advance from one communication point to the next with ``u`` held constant. The
+reference integrates each interval separately with the same constant force.
+"""
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from plant_fmu.dynamics import linear_plant_model, plant_model
+from plant_fmu.integrators import make_stepper
+from plant_fmu.params import PlantParams
+
+H = 0.01
+FORCES = [2.0, -1.0, 3.0, 0.5, -2.0]
+
+
+def reference(model, x0):
+    y, out = np.array(x0, dtype=float), []
+    for k, u in enumerate(FORCES):
+        sol = solve_ivp(model.rhs, (k * H, (k + 1) * H), y, method="DOP853", rtol=1e-12,
+                        atol=1e-14, args=(u,))
+        assert sol.success
+        y = sol.y[:, -1]
+        out.append(y)
+    return np.array(out)
+
+
+@pytest.fixture(scope="module")
+def plant():
+    p = PlantParams(n_modes=4)
+    model = plant_model(p)
+    x0 = model.initial_state(phi=0.05, phi_dot=-0.2)
+    x0[2:6] = [2e-3, -4e-4, 1e-4, -3e-5]          # every mode deformed
+    return p, model, x0, reference(model, x0)
+
+
+def drive(name, model, x0, h, **kw):
+    s = make_stepper(name, model, 0.0, x0, h=h, **kw)
+    out = []
+    for k, u in enumerate(FORCES):
+        s.u = u
+        ok, msg = s.advance((k + 1) * H)
+        assert ok, msg
+        assert s.t == (k + 1) * H
+        out.append(s.y.copy())
+    return np.array(out), s
+
+
+def error(out, ref):
+    """The largest deviation over the communication points (the state's scale is ~0.2)."""
+    return float(np.abs(out - ref).max())
+
+
+# (name, options, order, substeps per communication step); the substeps put h * omega_4 (905
+# rad/s, the fourth cantilever mode) in the asymptotic range of each method.
+CASES = [
+    ("euler", {}, 1, [1600, 3200, 6400]),
+    ("symplectic_euler", {}, 1, [400, 800, 1600]),
+    ("rk4", {}, 4, [100, 200, 400]),
+    ("dopri5", {"adaptive": False}, 5, [50, 100, 200]),
+    ("radau", {"adaptive": False, "rtol": 1e-10, "atol": 1e-10}, 5, [50, 100, 200]),
+    ("genalpha", {"rho_inf": 0.8, "rtol": 1e-10, "atol": 1e-10}, 2, [200, 400, 800]),
+    ("genalpha", {"rho_inf": 0.0, "rtol": 1e-10, "atol": 1e-10}, 2, [200, 400, 800]),
+]
+
+
+@pytest.mark.parametrize("name,kw,p,nsub", CASES,
+                         ids=[c[0] + str(c[1].get("rho_inf", "")) for c in CASES])
+def test_every_method_converges_to_dop853_at_its_order(plant, name, kw, p, nsub):
+    _, model, x0, ref = plant
+    hs = [H / n for n in nsub]
+    errs = [error(drive(name, model, x0, h, **kw)[0], ref) for h in hs]
+    order = np.polyfit(np.log(hs), np.log(errs), 1)[0]
+    assert errs[-1] < errs[0] and errs[-1] > 1e-11, errs
+    assert order >= p - 0.2, (order, errs)
+
+
+@pytest.mark.parametrize("name", ["dopri5", "radau"])
+def test_adaptive_methods_on_the_plant_meet_their_tolerance(plant, name):
+    _, model, x0, ref = plant
+    errs = []
+    for rtol in (1e-5, 1e-7, 1e-9):
+        out, s = drive(name, model, x0, 1e-4, rtol=rtol, atol=rtol * 1e-2)
+        errs.append(error(out, ref))
+        assert errs[-1] < 300 * rtol, (rtol, errs)
+        assert s.nrejected < s.nsteps
+    assert errs[0] > errs[1] > errs[2]
+
+
+@pytest.mark.parametrize("nsub", [1, 7])
+def test_exponential_is_exact_on_the_linearised_plant(plant, nsub):
+    """The exponential integrates the linearised plant: exact for any substep against DOP853."""
+    p, _, x0, _ = plant
+    lin = linear_plant_model(p)
+    ref = reference(lin, x0)
+    for model in (lin, plant_model(p)):      # the nonlinear model gives its linearisation
+        out, s = drive("exponential", model, x0, H / nsub)
+        assert error(out, ref) < 1e-10 * np.abs(ref).max()
+        assert s.nfev == 0
