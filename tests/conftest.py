@@ -1,0 +1,129 @@
+"""Shared fixtures: the FMUs, built once per session (only if their sources changed), and a small
+harness that drives one FMU instance through fmpy's FMU2Slave and records its log messages."""
+from __future__ import annotations
+
+import math
+import shutil
+
+import pytest
+
+# Import the project packages from this checkout before any FMU is loaded: an FMU puts its own
+# resources folder first on sys.path, and a copy imported from an unpacked FMU would outlive it.
+import controller_fmu.pd_lowpass  # noqa: F401
+import plant_fmu.dynamics  # noqa: F401
+
+
+@pytest.fixture(scope="session")
+def fmus() -> dict:
+    """``{"FlexiblePendulum": path, "PDLowPass": path}``, built into build/fmus/ if stale."""
+    from orchestration.fmu_build import build_fmus
+
+    return {name: str(path) for name, path in build_fmus().items()}
+
+
+@pytest.fixture(scope="session")
+def fmu_dirs(fmus) -> dict:
+    """The FMUs unpacked once per session: name -> folder."""
+    from fmpy import extract
+
+    dirs = {name: extract(path) for name, path in fmus.items()}
+    yield dirs
+    for d in dirs.values():
+        shutil.rmtree(d, ignore_errors=True)
+
+
+class FmuInstance:
+    """One FMU instance driven by fmpy's FMU2Slave, addressed by variable name.
+
+    ``logs`` collects ``(status, category, message)`` of every log callback. :meth:`step` returns
+    the status of ``fmi2DoStep`` (0 ok, 2 discard, 3 error...) instead of raising.
+    """
+
+    def __init__(self, unzipdir, start_values=None, instance_name="instance", initialize=True):
+        from fmpy import read_model_description
+        from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFunctions,
+                               fmi2CallbackFreeMemoryTYPE, fmi2CallbackLoggerTYPE, calloc, free)
+
+        self.md = read_model_description(unzipdir)
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.logs = []
+
+        def logger(env, name, status, category, message):
+            self.logs.append((status, (category or b"").decode(), message.decode()))
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(logger)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        self._callbacks = cb                      # keep the ctypes callbacks alive
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=unzipdir,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier,
+                             instanceName=instance_name)
+        self.fmu.instantiate(callbacks=cb, loggingOn=True)
+        self.fmu.setupExperiment(startTime=0.0)
+        self.set(**(start_values or {}))
+        if initialize:
+            self.initialize()
+
+    def initialize(self):
+        self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+
+    def vr(self, *names):
+        return [self.vars[n].valueReference for n in names]
+
+    def set(self, **values):
+        for name, value in values.items():
+            v = self.vars[name]
+            if v.type == "Real":
+                self.fmu.setReal([v.valueReference], [float(value)])
+            elif v.type == "Integer":
+                self.fmu.setInteger([v.valueReference], [int(value)])
+            elif v.type == "Boolean":
+                self.fmu.setBoolean([v.valueReference], [bool(value)])
+            else:
+                self.fmu.setString([v.valueReference], [str(value)])
+
+    def get(self, *names) -> list:
+        return self.fmu.getReal(self.vr(*names))
+
+    def outputs(self) -> list:
+        return self.get(*[v.name for v in self.md.modelVariables if v.causality == "output"])
+
+    def step(self, t, h) -> int:
+        from fmpy.fmi1 import FMICallException
+
+        try:
+            self.fmu.doStep(t, h)
+            return 0
+        except FMICallException as exc:
+            return exc.status
+
+    def messages(self, min_status=0) -> str:
+        return "\n".join(m for s, _, m in self.logs if s >= min_status)
+
+    def close(self):
+        try:
+            self.fmu.terminate()
+        finally:
+            self.fmu.freeInstance()
+
+
+@pytest.fixture
+def open_fmu(fmu_dirs):
+    """Factory: ``open_fmu("FlexiblePendulum", n_modes=2)`` -> an initialised :class:`FmuInstance`
+    (pass ``initialize=False`` to stop before initialisation); closed after the test."""
+    opened = []
+
+    def _open(name, initialize=True, instance_name=None, **start_values):
+        inst = FmuInstance(fmu_dirs[name], start_values, instance_name or name, initialize)
+        opened.append(inst)
+        return inst
+
+    yield _open
+    for inst in opened:
+        inst.close()
+
+
+def all_finite(values) -> bool:
+    return all(math.isfinite(v) for v in values)
