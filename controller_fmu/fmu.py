@@ -96,8 +96,9 @@ class PDLowPass(SlaveBase):
         self._lim = params.force_limit
         self._x0 = self._x1 = 0.0
         self._h = None
-        self._F = self._model.output(self._model.initial_state(), self._inputs()) \
-            if self._order == 0 and self._finite_inputs() else 0.0
+        self._F = 0.0
+        if self._order == 0:
+            self._force()
         return True
 
     def exit_initialization_mode(self):
@@ -109,7 +110,8 @@ class PDLowPass(SlaveBase):
         return (self.x_o, self.phi_o, self.omega_o)    # the model's order: x_o, phi_o, omega_o
 
     def _finite_inputs(self) -> bool:
-        return math.isfinite(self.x_o + self.phi_o + self.omega_o)
+        isfinite = math.isfinite
+        return isfinite(self.x_o) and isfinite(self.phi_o) and isfinite(self.omega_o)
 
     def _bad_inputs(self) -> str:
         bad = [f"{n} = {getattr(self, n)!r}" for n in self.INPUTS
@@ -132,31 +134,47 @@ class PDLowPass(SlaveBase):
         if not self._finite_inputs():
             return self._refuse(f"non-finite input at t = {current_time!r}: {self._bad_inputs()}; "
                                 f"step rejected, state unchanged", Fmi2Status.discard)
-        order = self._order
-        if order:
-            if step_size != self._h:
-                self._set_step(step_size)
-            e = self._model.error_signal(self._inputs())
-            ad, bd = self._ad, self._bd
-            if order == 1:
-                x0 = ad[0] * self._x0 + bd[0] * e
-            else:
-                x0 = ad[0] * self._x0 + ad[1] * self._x1 + bd[0] * e
-                self._x1 = ad[2] * self._x0 + ad[3] * self._x1 + bd[1] * e
-            self._x0 = x0
-            self._F = min(max(-x0, -self._lim), self._lim)
+        try:
+            why = self._advance(step_size)
+        except Exception as exc:          # noqa: BLE001 - an exception would be fmi2Fatal
+            why = f"{type(exc).__name__}: {exc}"
+        if why:
+            return self._refuse(f"filter step rejected at t = {current_time!r}: {why}; "
+                                f"state unchanged", Fmi2Status.discard)
         self._t = current_time + step_size
         return True
+
+    def _advance(self, h: float) -> str | None:
+        """The exact zero-order-hold step of the filter over ``h`` (the model's ``Ad``, ``Bd``);
+        returns why it cannot be taken, or None."""
+        order = self._order
+        if not order:
+            return None
+        if h != self._h:
+            self._set_step(h)
+        e = self._model.error_signal(self._inputs())
+        ad, bd = self._ad, self._bd
+        if order == 1:
+            x0, x1 = ad[0] * self._x0 + bd[0] * e, 0.0
+        else:
+            x0 = ad[0] * self._x0 + ad[1] * self._x1 + bd[0] * e
+            x1 = ad[2] * self._x0 + ad[3] * self._x1 + bd[1] * e
+        if not math.isfinite(x0 + x1):
+            return f"the filter state overflows (error signal {e!r})"
+        self._x0, self._x1 = x0, x1
+        self._F = min(max(-x0, -self._lim), self._lim)
+        return None
 
     def _force(self) -> float:
         if self._model is None and (self._error is not None or not self._prepare()):
             return self._F
         if self._order == 0:                    # direct feedthrough from the current inputs
-            if self._finite_inputs():
-                self._F = self._model.output((), self._inputs())
+            F = self._model.output((), self._inputs()) if self._finite_inputs() else math.nan
+            if math.isfinite(F):
+                self._F = F
             else:
-                self.log(f"non-finite input: {self._bad_inputs()}; F_c holds its last value",
-                         Fmi2Status.error)
+                self.log(f"F_c is not finite for the inputs {self._bad_inputs() or self._inputs()}"
+                         f"; F_c holds its last value {self._F!r}", Fmi2Status.error)
         return self._F
 
     # ------------------------------------------------------------------ FMU state
