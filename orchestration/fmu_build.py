@@ -241,7 +241,9 @@ def _worker(args_json: str):
 
 # ---------------------------------------------------------------------- reference results
 #: Comparison band of a fresh run against the committed reference: for each signal,
-#: |y - y_ref| <= REFERENCE_TOLERANCE * max|y_ref| at every sample.
+#: |y - y_ref| <= REFERENCE_TOLERANCE * (max y_ref - min y_ref) at every sample. Round-off grows at
+#: most ~1e3 times over the second (the pendulum's unstable root is +7/s), so a run on another
+#: machine stays ~1e-10 inside it, while a change of the physics by 1e-3 leaves it.
 REFERENCE_TOLERANCE = 1e-6
 
 
@@ -251,12 +253,14 @@ def _reference_cases():
 
     two_pi = 2 * np.pi
     return {
-        # the plant alone, pushed back and forth: the pendulum swings and the first bending
-        # mode rings; 1 s keeps the open-loop fall (+7/s) well inside phi_limit
+        # the plant alone (defaults: 4 modes, rk4), pushed then pulled, with a ripple at the
+        # closed-loop bending frequency (24 Hz = 150 rad/s). The pull is sized so that the pair
+        # leaves the unstable pendulum mode (+7/s) almost unexcited: the pendulum stays within
+        # 0.02 rad for the whole second while the bending modes ring
         "FlexiblePendulum": (
             {"StartTime": 0.0, "StopTime": 1.0, "StepSize": 1e-3, "RelTol": 1e-6},
-            {"F_c": lambda t: (np.where(t < 0.1, 40.0, 0.0) - np.where((t >= 0.1) & (t < 0.2),
-                                                                        40.0, 0.0)
+            {"F_c": lambda t: (np.where(t < 0.05, 20.0, 0.0)
+                               - np.where((t >= 0.05) & (t < 0.1), 29.148, 0.0)
                                + 3.0 * np.sin(two_pi * 24.0 * t))}),
         # the controller alone (defaults: PD + 2nd-order filter at 150 rad/s) on sensor signals
         # with a step, a slow swing and a bending-frequency ripple
@@ -297,8 +301,9 @@ def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start
                         start_values=start_values or {})
 
 
-def compare_with_reference(result, reference, tol: float = REFERENCE_TOLERANCE) -> dict:
-    """name -> largest deviation relative to the reference's peak (fails above ``tol``)."""
+def compare_with_reference(result, reference) -> dict:
+    """name -> largest deviation of ``result`` from ``reference`` relative to the reference's
+    range (the test fails above :data:`REFERENCE_TOLERANCE`)."""
     import numpy as np
 
     if result.shape != reference.shape or not np.allclose(result["time"], reference["time"],
@@ -306,9 +311,9 @@ def compare_with_reference(result, reference, tol: float = REFERENCE_TOLERANCE) 
         raise ValueError("the result's time grid differs from the reference's")
     out = {}
     for n in reference.dtype.names[1:]:
-        peak = float(np.max(np.abs(reference[n])))
+        span = float(np.max(reference[n]) - np.min(reference[n]))
         dev = float(np.max(np.abs(result[n] - reference[n])))
-        out[n] = dev / peak if peak > 0 else dev
+        out[n] = dev / span if span > 0 else dev
     return out
 
 
