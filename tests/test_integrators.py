@@ -286,7 +286,7 @@ def test_genalpha_parameters_are_second_order_and_unconditionally_stable(rho):
     assert am <= af + 1e-15 and af <= 0.5 + 1e-15                    # unconditional stability
     assert b >= 0.25 + 0.5 * (af - am) - 1e-15
     radii = [max(abs(np.linalg.eigvals(_genalpha_matrix(p, hw)))) for hw in np.logspace(-2, 6, 17)]
-    assert max(radii) <= 1.0 + 1e-9                                  # no h w is unstable
+    assert max(radii) <= 1.0 + 1e-5      # no h w is unstable (eigvals of a near-Jordan block)
     assert abs(radii[-1] - rho) < 2e-3                               # rho(h w -> inf) = rho_inf
 
 

@@ -209,11 +209,16 @@ class Stepper:
             return True, None
         if not self._prepare_input():
             return False, self.message
-        substep = self._substep
         # Overflow and NaN are reported by the status, not by floating-point warnings.
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            while self.t < t_end:
-                ok, msg = substep(t_end)
+            if self.adaptive:
+                step = self._step_adaptive
+                while self.t < t_end:
+                    ok, msg = step(t_end)
+                    if not ok:
+                        return False, self._fail(msg)
+            else:
+                ok, msg = self._advance_fixed(t_end)
                 if not ok:
                     return False, self._fail(msg)
         return True, None
@@ -261,6 +266,44 @@ class Stepper:
     def _substep(self):
         return self._step_adaptive if self.adaptive else self._fixed_substep
 
+    def _advance_fixed(self, t_end):
+        """The loop of :meth:`advance` for fixed steps: whole substeps on the grid
+        ``t_base + k*h`` (the last one lands exactly on ``t_end`` when that is on the grid), then
+        at most one shortened substep (as :meth:`_fixed_substep`, with less bookkeeping)."""
+        h, t_base, k = self.h, self._t_base, self._k
+        n_grid = (t_end - t_base) / h
+        n_round = round(n_grid)
+        if abs(n_grid - n_round) <= _SNAP + 4 * _EPS * abs(t_end) / h:
+            n_full, short = n_round - k, False
+        else:
+            n_full, short = math.floor(n_grid) - k, True
+        step, commit = self._step_fixed, self._commit
+        t, y = self.t, self.y
+        msg = None
+        for _ in range(n_full):
+            y_new = step(t, y, h)
+            if y_new is None:
+                msg = self._fail_msg
+                break
+            s = y_new.dot(y_new)
+            if not s < math.inf and not np.all(np.isfinite(y_new)):
+                msg = f"non-finite state after the substep from t = {t!r} (h = {h!r})"
+                break
+            commit()
+            k += 1
+            y = y_new
+            t = t_base + k * h
+        else:
+            if not short:
+                t = t_end
+        self.nsteps += k - self._k
+        self.t, self.y, self._k = t, y, k
+        if msg is not None:
+            return False, msg
+        if short:
+            return self._fixed_substep(t_end)
+        return True, None
+
     def _fixed_substep(self, t_bound):
         """One substep on the grid ``t_base + k*h``, shortened to land on ``t_bound``."""
         h = self.h
@@ -279,7 +322,7 @@ class Stepper:
         if y_new is None:
             return False, self._fail_msg
         s = y_new.dot(y_new)
-        if not math.isfinite(s) and not np.all(np.isfinite(y_new)):
+        if not s < math.inf and not np.all(np.isfinite(y_new)):
             return False, f"non-finite state after the substep from t = {self.t!r} (h = {hs!r})"
         self._commit()
         self.y = y_new

@@ -44,7 +44,7 @@ import math
 import numpy as np
 
 from ..params import check_int, check_real
-from .base import LU, Stepper, numerical_jacobian
+from .base import Stepper, numerical_jacobian
 
 __all__ = ["GeneralizedAlpha", "genalpha_parameters"]
 
@@ -65,15 +65,17 @@ class GeneralizedAlpha(Stepper):
     """Generalized-alpha (Arnold & Bruls), order 2, fixed step, Newton on the accelerations.
 
     Options: ``jac`` ("auto": ``model.jac`` if the model has one, else finite differences;
-    "analytic"; "fd"), ``max_newton_iter`` (10), ``newton_tol`` (scaled by rtol/atol; default
-    ``max(10 eps/rtol, min(0.03, sqrt(rtol)))``), ``jac_update_rate`` (1e-3: refresh the
-    Jacobian when the Newton contraction rate of a step exceeds it), ``reinit_on_input_change``
+    "analytic"; "fd"), ``max_newton_iter`` (10), ``newton_tol`` (1: Newton stops when the
+    estimated remaining error of ``[q, v]``, in the RMS norm scaled by ``atol + rtol |y|``, is
+    below it), ``jac_update_rate`` (refresh the Jacobian
+    when the Newton contraction rate of a step exceeds it; 1e-3 with ``model.jac``, 0.1 with
+    finite differences, which cost ``nx + 1`` evaluations), ``reinit_on_input_change``
     (True).
     """
 
     name = "genalpha"
     order = 2
-    OPTIONS = {"jac": "auto", "max_newton_iter": 10, "newton_tol": None, "jac_update_rate": 1e-3,
+    OPTIONS = {"jac": "auto", "max_newton_iter": 10, "newton_tol": None, "jac_update_rate": None,
                "reinit_on_input_change": True}
 
     def _init_method(self):
@@ -89,29 +91,29 @@ class GeneralizedAlpha(Stepper):
             raise ValueError("jac = 'analytic' but the model has no jac(t, x, u)")
         self._analytic = has_jac and jac != "fd"
         self.max_newton_iter = check_int("max_newton_iter", o["max_newton_iter"], low=1, high=100)
-        tol = o["newton_tol"]
-        if tol is None:
-            tol = max(10 * _EPS / self.rtol, min(0.03, self.rtol ** 0.5))
+        tol = 1.0 if o["newton_tol"] is None else o["newton_tol"]
         self.newton_tol = check_real("newton_tol", tol, low=0.0, high=1e3)
-        self.jac_update_rate = check_real("jac_update_rate", o["jac_update_rate"], low=0.0,
-                                          high=1.0)
+        rate = o["jac_update_rate"]
+        if rate is None:   # a difference Jacobian costs nx + 1 evaluations, an iteration one
+            rate = 1e-3 if self._analytic else 0.1
+        self.jac_update_rate = check_real("jac_update_rate", rate, low=0.0, high=1.0)
         self.reinit_on_input_change = bool(o["reinit_on_input_change"])
         self._init_acceleration()
         self._J = None
         self._jac_current = False
-        self._lu = None
+        self._Sinv = None
         self._lu_h = None
         self._faccon = 1.0
-        self._coef_h = None
-        self._scale = np.empty(self.nx)
-        self._dy = np.empty(self.nx)
+        self._ops_h = None
+        self._atol_v = np.broadcast_to(self.atol, (self.nx,)).astype(float)
+        self._rtol_v = np.full(self.nx, self.rtol)
 
     def _init_acceleration(self):
         """``qdd = M(q)^-1 f(q, qd, u)`` at the current state, and ``a = qdd``."""
         f = self._fun(self.t, self.y, self._u)
         self.nfev += 1
-        self._acc = f[self.nq:].copy()
-        self._a = self._acc.copy()
+        acc = f[self.nq:]
+        self._aa = np.concatenate((acc, acc))      # [a, qdd]
 
     def _input_changed(self):
         if self.reinit_on_input_change:
@@ -127,42 +129,75 @@ class GeneralizedAlpha(Stepper):
         self.njev += 1
         self._J = J
         self._jac_current = True
-        self._lu = None
+        self._Sinv = None
 
     def _factor(self, h):
-        nq = self.nq
-        c = self._coefs(h)
-        J = self._J
-        S = -c["gp"] * J[nq:, nq:] - c["bp"] * J[nq:, :nq]
-        S[np.diag_indices(nq)] += 1.0
-        self._lu = LU(S)
-        self._lu_h = h
-        self.nlu += 1
+        """The inverse of the Newton matrix ``S = I - gamma' h J_v - beta' h^2 J_q``.
 
-    def _coefs(self, h):
-        if h != self._coef_h:
+        An explicit inverse (from an LU factorisation, counted in ``nlu``): it only steers the
+        modified Newton iteration, whose fixed point is set by the residual, and a matrix-vector
+        product is cheaper than a triangular solve for these small systems."""
+        nq = self.nq
+        ops = self._ops(h)
+        J = self._J
+        S = -ops[3] * J[nq:, nq:] - ops[4] * J[nq:, :nq]
+        S[np.diag_indices(nq)] += 1.0
+        self.nlu += 1
+        try:
+            self._Sinv = np.linalg.inv(S)
+        except np.linalg.LinAlgError:
+            self._Sinv = None
+            return False
+        self._lu_h = h
+        return True
+
+    def _ops(self, h):
+        """The step as matrices, for the last ``h``:
+
+        ``P``: ``[q, v, a, qdd_n] -> [q1, v1]``: positions and velocities at the predictor
+        ``qdd_{n+1} = qdd_n`` (a linear extrapolation is worse for the numerically damped high
+        frequencies, whose acceleration alternates in sign, and at large ``h w`` it loses digits);
+        ``W``: ``d[q1, v1]/d qdd_{n+1} = [beta' h^2 I; gamma' h I]``;
+        ``M``: ``[a, qdd_n, qdd_{n+1}] -> [a_{n+1}, qdd_{n+1}]``.
+        """
+        if h != self._ops_h:
             am, af, b, g = self.alpha_m, self.alpha_f, self.beta, self.gamma
+            nq = self.nq
+            I = np.eye(nq)
             ca = (1.0 - af) / (1.0 - am)
-            self._c = {
-                "ca": ca, "acc": af / (1.0 - am), "aa": -am / (1.0 - am),
-                "qv": h, "qa": h * h * (0.5 - b), "qac": h * h * b,
-                "va": h * (1.0 - g), "vac": h * g,
-                "bp": h * h * b * ca, "gp": h * g * ca,
-            }
-            w = np.empty(self.nx)
-            w[:self.nq] = self._c["bp"]
-            w[self.nq:] = self._c["gp"]
-            self._w = w
-            self._coef_h = h
-        return self._c
+            bp, gp = h * h * b * ca, h * g * ca
+            # a_{n+1} = k_a a_n + k_acc qdd_n + ca qdd_{n+1}
+            k_a, k_acc = -am / (1.0 - am), af / (1.0 - am)
+            hb, hg = h * h * b, h * g
+            blk = lambda i: slice(i * nq, (i + 1) * nq)  # noqa: E731
+            q_, v_, a_, acc_ = (blk(i) for i in range(4))
+            P = np.zeros((2 * nq, 4 * nq))
+            P[q_, q_] = I
+            P[q_, v_] = h * I
+            P[q_, a_] = (h * h * (0.5 - b) + hb * k_a) * I
+            P[q_, acc_] = (hb * k_acc + bp) * I
+            P[v_, v_] = I
+            P[v_, a_] = (h * (1.0 - g) + hg * k_a) * I
+            P[v_, acc_] = (hg * k_acc + gp) * I
+            W = np.vstack((bp * I, gp * I))
+            M = np.zeros((2 * nq, 3 * nq))               # [a, qdd_n, qdd_{n+1}] -> [a', qdd']
+            M[q_, q_] = k_a * I
+            M[q_, v_] = k_acc * I
+            M[q_, a_] = ca * I
+            M[v_, a_] = I
+            self._ops_c = (P, W, M, gp, bp)
+            self._ops_h = h
+        return self._ops_c
 
     def _step_fixed(self, t, y, h):
         if self._J is None:
             self._jacobian(t, y)
         while True:
-            if self._lu is None or self._lu_h != h:
-                self._factor(h)
-            y_new = self._newton(t, y, h)
+            if (self._Sinv is None or self._lu_h != h) and not self._factor(h):
+                y_new = None
+                self._newton_info = "singular Newton matrix"
+            else:
+                y_new = self._newton(t, y, h)
             if y_new is not None:
                 return y_new
             if self._jac_current:
@@ -172,39 +207,24 @@ class GeneralizedAlpha(Stepper):
             self._jacobian(t, y)
 
     def _newton(self, t, y, h):
-        nq = self.nq
-        c = self._coefs(h)
-        a, acc = self._a, self._acc
-        a_c = c["acc"] * acc + c["aa"] * a            # a_{n+1} = a_c + ca * qdd_{n+1}
-        q, v = y[:nq], y[nq:]
-        y1 = np.empty(self.nx)
-        y1[:nq] = q + c["qv"] * v + c["qa"] * a + c["qac"] * a_c
-        y1[nq:] = v + c["va"] * a + c["vac"] * a_c
-        x = acc.copy()                                 # predictor: qdd_{n+1} = qdd_n
-        y1 += self._w * np.concatenate((x, x))
-        scale = self._scale
-        np.abs(y, out=scale)
-        scale *= self.rtol
-        scale += self.atol
-        n = self.nx
-        tol = self.newton_tol
-        maxit = self.max_newton_iter
-        faccon = self._faccon
+        nq, n = self.nq, self.nx
+        P, W, M = self._ops(h)[:3]
+        aa = self._aa
+        y1 = P.dot(np.concatenate((y, aa)))
+        x = aa[nq:].copy()                              # the predictor of qdd_{n+1}
+        scale = self._atol_v + self._rtol_v * np.abs(y)
+        tol, maxit, faccon = self.newton_tol, self.max_newton_iter, self._faccon
+        Sinv, fun, u, t1 = self._Sinv, self._fun, self._u, t + h
         dn_old = None
         theta = 0.0
-        w, dy, lu, fun, u, t1 = self._w, self._dy, self._lu, self._fun, self._u, t + h
         converged = False
         for it in range(maxit):
             F = fun(t1, y1, u)
-            self.nfev += 1
-            r = F[nq:] - x
-            dx = lu.solve(r)
-            dy[:nq] = dx
-            dy[nq:] = dx
-            dy *= w
+            dx = Sinv.dot(F[nq:] - x)
+            dy = W.dot(dx)
             z = dy / scale
             dn = math.sqrt(z.dot(z) / n)
-            if not math.isfinite(dn):
+            if not dn < math.inf:
                 break
             if dn_old is not None:
                 theta = dn / dn_old
@@ -217,33 +237,33 @@ class GeneralizedAlpha(Stepper):
                 converged = True
                 break
             dn_old = dn
+        self.nfev += it + 1
         self._newton_info = f"{it + 1} iterations, rate {theta:.3g}"
         if not converged:
             return None
         self._faccon = max(faccon, _EPS) ** 0.8
-        self._a_new = a_c + c["ca"] * x
-        self._acc_new = x
+        self._aa_new = M.dot(np.concatenate((aa, x)))
         self._theta = theta
         return y1
 
     def _commit(self):
-        self._a = self._a_new
-        self._acc = self._acc_new
+        self._aa = self._aa_new
         if self._theta > self.jac_update_rate:
             self._J = None             # refresh at the start of the next step
         self._jac_current = False
 
     def _method_state(self):
-        return {"a": self._a, "acc": self._acc, "J": self._J, "jac_current": self._jac_current,
-                "lu_h": self._lu_h if self._lu is not None else None, "faccon": self._faccon}
+        nq = self.nq
+        return {"a": self._aa[:nq], "acc": self._aa[nq:], "J": self._J,
+                "jac_current": self._jac_current,
+                "lu_h": self._lu_h if self._Sinv is not None else None, "faccon": self._faccon}
 
     def _set_method_state(self, s):
-        self._a = np.array(s["a"], dtype=float)
-        self._acc = np.array(s["acc"], dtype=float)
+        self._aa = np.concatenate([np.array(s[k], dtype=float) for k in ("a", "acc")])
         self._J = None if s["J"] is None else np.array(s["J"], dtype=float)
         self._jac_current = bool(s["jac_current"])
         self._faccon = float(s["faccon"])
-        self._lu = None
+        self._Sinv = None
         self._lu_h = None
         if s["lu_h"] is not None and self._J is not None:
             nlu = self.nlu

@@ -61,14 +61,16 @@ class Radau5(Stepper):
     """Radau IIA, order 5, implicit; adaptive (default) or fixed step.
 
     Options: ``adaptive`` (True), ``max_step`` (inf), ``min_step`` (0), ``jac`` ("auto",
-    "analytic", "fd"), ``max_newton_iter`` (6 adaptive, 10 fixed step), ``newton_tol`` (default
-    ``max(10 eps/rtol, min(0.03, sqrt(rtol)))``), ``jac_update_rate`` (1e-3).
+    "analytic", "fd"), ``max_newton_iter`` (6 adaptive, 10 fixed step), ``newton_tol`` (the bound on the
+    estimated remaining Newton error in the RMS norm scaled by ``atol + rtol |y|``; default
+    ``max(10 eps/rtol, min(0.03, sqrt(rtol)))`` adaptive, as RADAU5 and scipy, 1 fixed step), ``jac_update_rate`` (1e-3 with ``model.jac``, as
+    scipy; 0.1 with finite differences).
     """
 
     name = "radau"
     order = 5
     OPTIONS = {"adaptive": True, "max_step": math.inf, "min_step": 0.0, "jac": "auto",
-               "max_newton_iter": None, "newton_tol": None, "jac_update_rate": 1e-3}
+               "max_newton_iter": None, "newton_tol": None, "jac_update_rate": None}
 
     def _init_method(self):
         o = self.options
@@ -88,11 +90,13 @@ class Radau5(Stepper):
             maxit = 6 if self.adaptive else 10
         self.max_newton_iter = check_int("max_newton_iter", maxit, low=1, high=100)
         tol = o["newton_tol"]
-        if tol is None:
-            tol = max(10 * _EPS / self.rtol, min(0.03, self.rtol ** 0.5))
+        if tol is None:   # adaptive: well below the controlled local error (RADAU5, scipy)
+            tol = max(10 * _EPS / self.rtol, min(0.03, self.rtol ** 0.5)) if self.adaptive else 1.0
         self.newton_tol = check_real("newton_tol", tol, low=0.0, high=1e3)
-        self.jac_update_rate = check_real("jac_update_rate", o["jac_update_rate"], low=0.0,
-                                          high=1.0)
+        rate = o["jac_update_rate"]
+        if rate is None:   # a difference Jacobian costs nx + 1 evaluations, an iteration three
+            rate = 1e-3 if self._analytic else 0.1
+        self.jac_update_rate = check_real("jac_update_rate", rate, low=0.0, high=1.0)
         n = self.nx
         self._f = self._fun(self.t, self.y, self._u)
         self.nfev += 1

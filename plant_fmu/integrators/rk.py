@@ -60,10 +60,10 @@ class ExplicitRungeKutta(Stepper):
             self.nfev += 1
 
     def _coeffs(self, h):
-        """Rows ``(i, c_i h, h A[i, :i])`` and ``h B``, cached for the last h."""
+        """Rows ``(i, c_i h, h A[i, :i], K[:i])`` and ``h B``, cached for the last h."""
         if h != self._coef_h:
-            A, C = self.A, self.C
-            self._rows = [(i, C[i] * h, h * A[i, :i]) for i in range(1, self.B.size)]
+            A, C, K = self.A, self.C, self._K
+            self._rows = [(i, C[i] * h, h * A[i, :i], K[:i]) for i in range(1, self.B.size)]
             self._hb = h * self.B
             self._coef_h = h
         return self._rows, self._hb
@@ -75,16 +75,16 @@ class ExplicitRungeKutta(Stepper):
         if self.FSAL:
             K[0] = self._f
             ys = y
-            for i, ch, a in rows:
-                ys = y + a.dot(K[:i])
+            for i, ch, a, Ki in rows:
+                ys = y + a.dot(Ki)
                 fi = fun(t + ch, ys, u)
                 K[i] = fi
             self._f_new = fi                  # f at (t + h, y_new): the next first stage
             self.nfev += len(rows)
             return ys                         # the last row of A is B: ys is y_new
         K[0] = fun(t, y, u)
-        for i, ch, a in rows:
-            K[i] = fun(t + ch, y + a.dot(K[:i]), u)
+        for i, ch, a, Ki in rows:
+            K[i] = fun(t + ch, y + a.dot(Ki), u)
         self.nfev += len(rows) + 1
         return y + hb.dot(K)
 
