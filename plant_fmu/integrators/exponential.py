@@ -52,8 +52,9 @@ class ExactExponential(Stepper):
         self._cache = {}          # h -> (Phi, gamma) for the last few substep sizes
         self._key = None
 
-    def _matrices(self, h):
-        if h != self._key:
+    def _matrices(self, h, u):
+        """``Phi(h)`` and ``Gamma(h) u``, cached for the last ``(h, u)``."""
+        if (h, u) != self._key:
             pair = self._cache.get(h)
             if pair is None:
                 Phi, Gamma = zoh_discretize(self._A, self._B, h)
@@ -61,10 +62,10 @@ class ExactExponential(Stepper):
                 if len(self._cache) >= 4:
                     self._cache.pop(next(iter(self._cache)))
                 self._cache[h] = pair
-            self._Phi, self._gamma = pair
-            self._key = h
-        return self._Phi, self._gamma
+            self._Phi, self._gu = pair[0], pair[1] * u
+            self._key = (h, u)
+        return self._Phi, self._gu
 
     def _step_fixed(self, t, y, h):
-        Phi, gamma = self._matrices(h)
-        return Phi.dot(y) + gamma * self._u
+        Phi, gu = self._matrices(h, self._u)
+        return Phi.dot(y) + gu

@@ -64,8 +64,12 @@ def genalpha_parameters(rho_inf: float) -> dict:
 class GeneralizedAlpha(Stepper):
     """Generalized-alpha (Arnold & Bruls), order 2, fixed step, Newton on the accelerations.
 
-    Options: ``jac`` ("auto": ``model.jac`` if the model has one, else finite differences;
-    "analytic"; "fd"), ``max_newton_iter`` (10), ``newton_tol`` (1: Newton stops when the
+    Options: ``residual`` ("accelerations": ``qdd - M(q)^-1 f`` from ``model.rhs``, the fast
+    path for models that solve ``M`` themselves; "mass": ``M(q) qdd - f(q, qd, u)`` from
+    ``model.mass_matrix`` and ``model.forces``, the multibody form, with the Newton matrix
+    ``M + gamma' h C_t + beta' h^2 K_t`` from finite differences of the residual), ``jac``
+    ("auto": ``model.jac`` if the model has one, else finite differences; "analytic"; "fd"),
+    ``max_newton_iter`` (10), ``newton_tol`` (1: Newton stops when the
     estimated remaining error of ``[q, v]``, in the RMS norm scaled by ``atol + rtol |y|``, is
     below it), ``jac_update_rate`` (refresh the Jacobian
     when the Newton contraction rate of a step exceeds it; 1e-3 with ``model.jac``, 0.1 with
@@ -75,7 +79,7 @@ class GeneralizedAlpha(Stepper):
 
     name = "genalpha"
     order = 2
-    OPTIONS = {"jac": "auto", "max_newton_iter": 10, "newton_tol": None, "jac_update_rate": None,
+    OPTIONS = {"residual": "accelerations", "jac": "auto", "max_newton_iter": 10, "newton_tol": None, "jac_update_rate": None,
                "reinit_on_input_change": True}
 
     def _init_method(self):
@@ -83,12 +87,22 @@ class GeneralizedAlpha(Stepper):
         p = genalpha_parameters(self.rho_inf)
         self.alpha_m, self.alpha_f = p["alpha_m"], p["alpha_f"]
         self.beta, self.gamma = p["beta"], p["gamma"]
+        residual = o["residual"]
+        if residual not in ("accelerations", "mass"):
+            raise ValueError(f"residual = {residual!r} is not allowed; allowed: 'accelerations', "
+                             f"'mass'")
+        self._mass_form = residual == "mass"
+        if self._mass_form and not (callable(getattr(self.model, "mass_matrix", None))
+                                    and callable(getattr(self.model, "forces", None))):
+            raise ValueError("residual = 'mass' needs model.mass_matrix(q) and "
+                             "model.forces(q, qd, u)")
         jac = o["jac"]
         if jac not in ("auto", "analytic", "fd"):
             raise ValueError(f"jac = {jac!r} is not allowed; allowed: 'auto', 'analytic', 'fd'")
-        has_jac = callable(getattr(self.model, "jac", None))
+        has_jac = callable(getattr(self.model, "jac", None)) and not self._mass_form
         if jac == "analytic" and not has_jac:
-            raise ValueError("jac = 'analytic' but the model has no jac(t, x, u)")
+            raise ValueError("jac = 'analytic' but the model has no jac(t, x, u) (or residual = "
+                             "'mass', whose Newton matrix is always by finite differences)")
         self._analytic = has_jac and jac != "fd"
         self.max_newton_iter = check_int("max_newton_iter", o["max_newton_iter"], low=1, high=100)
         tol = 1.0 if o["newton_tol"] is None else o["newton_tol"]
@@ -105,27 +119,77 @@ class GeneralizedAlpha(Stepper):
         self._lu_h = None
         self._faccon = 1.0
         self._ops_h = None
+        self._residual = self._residual_function()
         self._atol_v = np.broadcast_to(self.atol, (self.nx,)).astype(float)
         self._rtol_v = np.full(self.nx, self.rtol)
 
     def _init_acceleration(self):
-        """``qdd = M(q)^-1 f(q, qd, u)`` at the current state, and ``a = qdd``."""
-        f = self._fun(self.t, self.y, self._u)
+        """``qdd`` from ``M(q) qdd = f(q, qd, u)`` at the current state, and ``a = qdd``."""
+        nq = self.nq
+        if self._mass_form:
+            q, v = self.y[:nq], self.y[nq:]
+            acc = np.linalg.solve(self.model.mass_matrix(q), self.model.forces(q, v, self._u))
+        else:
+            acc = self._fun(self.t, self.y, self._u)[nq:]
         self.nfev += 1
-        acc = f[self.nq:]
         self._aa = np.concatenate((acc, acc))      # [a, qdd]
+
+    def _residual_function(self):
+        """``r(t, y1, x, u)`` whose root in ``x = qdd_{n+1}`` the Newton iteration seeks, with
+        the sign for ``dx = S^-1 r``."""
+        nq = self.nq
+        if self._mass_form:
+            mass, forces = self.model.mass_matrix, self.model.forces
+
+            def res(t, y1, x, u):
+                q1 = y1[:nq]
+                return forces(q1, y1[nq:], u) - mass(q1).dot(x)
+        else:
+            fun = self._fun
+
+            def res(t, y1, x, u):
+                return fun(t, y1, u)[nq:] - x
+        return res
 
     def _input_changed(self):
         if self.reinit_on_input_change:
             self._init_acceleration()
 
     def _jacobian(self, t, y):
+        if self._mass_form:
+            self._jacobian_mass(y)
+            return
         if self._analytic:
             J = np.array(self.model.jac(t, y, self._u), dtype=float)
         else:
             f0 = self._fun(t, y, self._u)
             J = numerical_jacobian(self._fun, t, y, self._u, f0)
             self.nfev += self.nx + 1
+        self.njev += 1
+        self._J = J
+        self._jac_current = True
+        self._Sinv = None
+
+    def _jacobian_mass(self, y):
+        """``[M(q), K_t, C_t]`` with ``K_t = d(M(q) x - f)/dq``, ``C_t = -df/dv`` at the start of
+        the step (``x = qdd_n``), by forward differences: ``2 nq + 1`` residual evaluations."""
+        nq = self.nq
+        q, v = y[:nq].copy(), y[nq:].copy()
+        x = self._aa[nq:]
+        mass, forces, u = self.model.mass_matrix, self.model.forces, self._u
+        M0 = np.array(mass(q), dtype=float)
+        g0 = M0.dot(x) - forces(q, v, u)
+        J = np.empty((3, nq, nq))
+        J[0] = M0
+        for j in range(nq):
+            for k, z in ((1, q), (2, v)):
+                zj = z[j]
+                d = math.sqrt(_EPS) * max(abs(zj), 1.0)
+                z[j] = zj + d
+                d = z[j] - zj
+                J[k][:, j] = (mass(q).dot(x) - forces(q, v, u) - g0) / d
+                z[j] = zj
+        self.nfev += 2 * nq + 1
         self.njev += 1
         self._J = J
         self._jac_current = True
@@ -140,8 +204,11 @@ class GeneralizedAlpha(Stepper):
         nq = self.nq
         ops = self._ops(h)
         J = self._J
-        S = -ops[3] * J[nq:, nq:] - ops[4] * J[nq:, :nq]
-        S[np.diag_indices(nq)] += 1.0
+        if self._mass_form:       # S = M + gamma' h C_t + beta' h^2 K_t
+            S = J[0] + ops[3] * J[2] + ops[4] * J[1]
+        else:
+            S = -ops[3] * J[nq:, nq:] - ops[4] * J[nq:, :nq]
+            S[np.diag_indices(nq)] += 1.0
         self.nlu += 1
         try:
             self._Sinv = np.linalg.inv(S)
@@ -214,13 +281,12 @@ class GeneralizedAlpha(Stepper):
         x = aa[nq:].copy()                              # the predictor of qdd_{n+1}
         scale = self._atol_v + self._rtol_v * np.abs(y)
         tol, maxit, faccon = self.newton_tol, self.max_newton_iter, self._faccon
-        Sinv, fun, u, t1 = self._Sinv, self._fun, self._u, t + h
+        Sinv, res, u, t1 = self._Sinv, self._residual, self._u, t + h
         dn_old = None
         theta = 0.0
         converged = False
         for it in range(maxit):
-            F = fun(t1, y1, u)
-            dx = Sinv.dot(F[nq:] - x)
+            dx = Sinv.dot(res(t1, y1, x, u))
             dy = W.dot(dx)
             z = dy / scale
             dn = math.sqrt(z.dot(z) / n)

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from ..params import check_int, check_real
-from .base import LU, Stepper, numerical_jacobian
+from .base import Stepper, numerical_jacobian
 
 __all__ = ["Radau5"]
 
@@ -53,6 +53,7 @@ A_RADAU = np.array([
     [(16 - S6) / 36, (16 + S6) / 36, 1 / 9]])
 B_RADAU = A_RADAU[2].copy()
 
+_C_LIST = [float(c) for c in C]
 _MIN_FACTOR = 0.2
 _MAX_FACTOR = 10.0
 
@@ -103,7 +104,7 @@ class Radau5(Stepper):
         self._J = None
         self._jac_current = False
         self._lu_h = None
-        self._lu_r = self._lu_c = None
+        self._Binv = None
         self._faccon = 1.0
         self._h_abs = min(self.h, self.max_step)
         self._h_abs_old = None
@@ -111,11 +112,11 @@ class Radau5(Stepper):
         self._sol = None            # (t_old, h, y_old, Q) of the last step's collocation polynomial
         self._I = np.eye(n)
         self._F = np.empty((3, n))
-        self._dW = np.empty((3, n))
 
     def _input_changed(self):
-        self._f = self._fun(self.t, self.y, self._u)
-        self.nfev += 1
+        if self.adaptive:          # f(t, y) enters the error estimate (fixed steps have none)
+            self._f = self._fun(self.t, self.y, self._u)
+            self.nfev += 1
 
     # ------------------------------------------------------------------ linear algebra
     def _jacobian(self, t, y, f=None):
@@ -129,14 +130,37 @@ class Radau5(Stepper):
         self.njev += 1
         self._J = J
         self._jac_current = True
-        self._lu_r = self._lu_c = None
+        self._Binv = None
 
     def _factor(self, h):
-        J = self._J
-        self._lu_r = LU(MU_REAL / h * self._I - J)
-        self._lu_c = LU(MU_COMPLEX / h * self._I - J)
-        self._lu_h = h
+        """Invert the Newton matrix of the transformed collocation system for step ``h``.
+
+        The real system ``(MU_REAL/h I - J) dW0 = R0`` and the complex one
+        ``((mr + i mi)/h I - J)(dW1 + i dW2) = R1 + i R2`` are written as one real block-diagonal
+        system ``B dW = R`` of size 3n, and ``B`` is inverted block by block (two factorisations,
+        counted in ``nlu``): each Newton iteration is then one matrix-vector product. The inverse
+        only steers the simplified Newton iteration and filters the error estimate."""
+        J, n, I = self._J, self.nx, self._I
+        mr, mi = MU_COMPLEX.real / h, MU_COMPLEX.imag / h
+        B = np.zeros((3 * n, 3 * n))
+        C2 = np.empty((2 * n, 2 * n))
+        C2[:n, :n] = C2[n:, n:] = mr * I - J
+        C2[:n, n:] = -mi * I
+        C2[n:, :n] = mi * I
         self.nlu += 2
+        try:
+            B[:n, :n] = np.linalg.inv(MU_REAL / h * I - J)
+            B[n:, n:] = np.linalg.inv(C2)
+        except np.linalg.LinAlgError:
+            self._Binv = None
+            return False
+        self._Binv = B
+        self._Binv_real = np.ascontiguousarray(B[:n, :n])
+        self._Lam = np.array([[MU_REAL, 0.0, 0.0], [0.0, MU_COMPLEX.real, -MU_COMPLEX.imag],
+                              [0.0, MU_COMPLEX.imag, MU_COMPLEX.real]]) / h
+        self._E_h = E / h
+        self._lu_h = h
+        return True
 
     def _predict(self, t, y, h, f=None):
         """Initial guess of the stage increments ``Z``: the last collocation polynomial, or at the
@@ -146,20 +170,18 @@ class Radau5(Stepper):
                 f = self._fun_at(t, y)
             return np.outer(h * C, f)
         t_old, h_old, y_old, Q = self._sol
-        x = (t + h * C - t_old) / h_old                   # (3,)
-        p = np.cumprod(np.tile(x, (3, 1)), axis=0)         # x, x^2, x^3 rows
-        return (Q.dot(p) + y_old[:, None]).T - y
+        x0, x1, x2 = ((t + h * c - t_old) / h_old for c in _C_LIST)
+        p = np.array([[x0, x1, x2], [x0 * x0, x1 * x1, x2 * x2],
+                      [x0 * x0 * x0, x1 * x1 * x1, x2 * x2 * x2]])
+        return Q.dot(p).T + (y_old - y)
 
     def _solve_collocation(self, t, y, h, Z0, scale):
         """Simplified Newton on the collocation system; returns (converged, n_iter, Z, rate)."""
-        M_real = MU_REAL / h
-        M_complex = MU_COMPLEX / h
         W = TI.dot(Z0)
         Z = Z0
-        F, dW = self._F, self._dW
-        ch = h * C
+        F, Binv, Lam = self._F, self._Binv, self._Lam
+        t0, t1, t2 = (t + h * c for c in _C_LIST)
         fun, u = self._fun, self._u
-        lu_r, lu_c = self._lu_r, self._lu_c
         tol = self.newton_tol
         maxit = self.max_newton_iter
         faccon = self._faccon
@@ -167,19 +189,15 @@ class Radau5(Stepper):
         rate = 0.0
         n = self.nx
         for k in range(maxit):
-            F[0] = fun(t + ch[0], y + Z[0], u)
-            F[1] = fun(t + ch[1], y + Z[1], u)
-            F[2] = fun(t + ch[2], y + Z[2], u)
+            F[0] = fun(t0, y + Z[0], u)
+            F[1] = fun(t1, y + Z[1], u)
+            F[2] = fun(t2, y + Z[2], u)
             self.nfev += 3
-            f_real = F.T.dot(TI_REAL) - M_real * W[0]
-            f_complex = F.T.dot(TI_COMPLEX) - M_complex * (W[1] + 1j * W[2])
-            dW[0] = lu_r.solve(f_real)
-            dW_c = lu_c.solve(f_complex)
-            dW[1] = dW_c.real
-            dW[2] = dW_c.imag
-            z = dW / scale
-            dn = math.sqrt(float(np.vdot(z, z)) / (3 * n))
-            if not math.isfinite(dn):
+            R = TI.dot(F) - Lam.dot(W)
+            dW = Binv.dot(R.reshape(-1)).reshape(3, n)
+            z = (dW / scale).reshape(-1)
+            dn = math.sqrt(z.dot(z) / (3 * n))
+            if not dn < math.inf:
                 break
             if dn_old is not None:
                 rate = dn / dn_old
@@ -202,9 +220,10 @@ class Radau5(Stepper):
         Z0 = self._predict(t, y, h)
         scale = self.atol + np.abs(y) * self.rtol
         while True:
-            if self._lu_r is None or self._lu_h != h:
-                self._factor(h)
-            ok, n_iter, Z, rate = self._solve_collocation(t, y, h, Z0, scale)
+            if (self._Binv is None or self._lu_h != h) and not self._factor(h):
+                ok, n_iter, rate = False, 0, math.nan
+            else:
+                ok, n_iter, Z, rate = self._solve_collocation(t, y, h, Z0, scale)
             if ok:
                 break
             if self._jac_current:
@@ -251,9 +270,10 @@ class Radau5(Stepper):
             Z0 = self._predict(t, y, h, f)
             scale = atol + np.abs(y) * rtol
             while True:
-                if self._lu_r is None or self._lu_h != h:
-                    self._factor(h)
-                converged, n_iter, Z, rate = self._solve_collocation(t, y, h, Z0, scale)
+                if (self._Binv is None or self._lu_h != h) and not self._factor(h):
+                    converged = False
+                else:
+                    converged, n_iter, Z, rate = self._solve_collocation(t, y, h, Z0, scale)
                 if converged or self._jac_current:
                     break
                 self._jacobian(t, y, f)
@@ -263,14 +283,14 @@ class Radau5(Stepper):
                 self.nrejected += 1
                 continue
             y_new = y + Z[-1]
-            ZE = Z.T.dot(E) / h
-            error = self._lu_r.solve(f + ZE)
+            ZE = self._E_h.dot(Z)
+            error = self._Binv_real.dot(f + ZE)
             scale = atol + np.maximum(np.abs(y), np.abs(y_new)) * rtol
             z = error / scale
             err = math.sqrt(z.dot(z) / self.nx)
             safety = 0.9 * (2 * self.max_newton_iter + 1) / (2 * self.max_newton_iter + n_iter)
             if rejected and err > 1:
-                error = self._lu_r.solve(self._fun_at(t, y + error) + ZE)
+                error = self._Binv_real.dot(self._fun_at(t, y + error) + ZE)
                 z = error / scale
                 err = math.sqrt(z.dot(z) / self.nx)
             if not math.isfinite(err):
@@ -324,7 +344,7 @@ class Radau5(Stepper):
             t_old, h_old, y_old, Q = self._sol
             sol = [t_old, h_old, y_old.tolist(), Q.tolist()]
         return {"f": self._f, "J": self._J, "jac_current": self._jac_current,
-                "lu_h": self._lu_h if self._lu_r is not None else None, "faccon": self._faccon,
+                "lu_h": self._lu_h if self._Binv is not None else None, "faccon": self._faccon,
                 "h_abs": self._h_abs, "h_abs_old": self._h_abs_old, "err_old": self._err_old,
                 "sol": sol}
 
@@ -340,7 +360,7 @@ class Radau5(Stepper):
         self._sol = None if sol is None else (float(sol[0]), float(sol[1]),
                                               np.array(sol[2], dtype=float),
                                               np.array(sol[3], dtype=float))
-        self._lu_r = self._lu_c = None
+        self._Binv = None
         self._lu_h = None
         if s["lu_h"] is not None and self._J is not None:
             nlu = self.nlu
