@@ -130,7 +130,7 @@ def cmd_run(args) -> int:
     from .run import run_scene
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = build_fmus(quiet=args.json)
+    paths = build_fmus()
     fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
     summaries, results = {}, {}
     for scene in scenes:
@@ -161,8 +161,11 @@ def scene_beam(scene):
 
 
 def cmd_build(args) -> int:
+    from pathlib import Path
+
     from .fmu_build import build_fmus
-    paths = build_fmus(out_dir=args.out, force=args.force)
+    paths = build_fmus(force=args.force) if args.out is None else \
+        build_fmus(out_dir=Path(args.out), force=args.force)
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0

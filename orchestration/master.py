@@ -111,7 +111,8 @@ class Slave:
         try:
             self.fmu.instantiate(visible=False, callbacks=cb, loggingOn=True)
         except Exception as exc:
-            raise CoSimulationError(f"{self.name}: instantiate failed: {exc}") from None
+            log = "; ".join(self.messages[-3:]) or "no log message"
+            raise CoSimulationError(f"{self.name}: instantiate failed: {exc}: {log}") from None
 
     def _call(self, what: str, fun, *args, t=None):
         """Run one FMI call; a status above warning becomes :class:`CoSimulationError`."""
