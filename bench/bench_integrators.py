@@ -136,6 +136,59 @@ def bench(n_modes, n_steps, repeat, configs):
     return out
 
 
+def rhs_anatomy(n_modes=4, n=20000, repeat=7):
+    """Where the time of one ``rhs`` call goes (medians, us): the numba kernel does ~100 flops,
+    the rest is call overhead. Variants compiled here from the same Python source
+    (``plant_fmu.kernels._rhs``) show what a change of ``dynamics.py``/``kernels.py`` would save.
+    """
+    import numba
+
+    from plant_fmu import kernels
+
+    m = plant_model(PlantParams(n_modes=n_modes))
+    x = initial_state(m)
+    out = np.empty(m.nx)
+    args = (x, 1.0, m._consts, m.I3, m.I5, m.Kdiag, m.Ddiag, m._Kg, out)
+    inner = numba.njit(kernels._rhs)
+
+    @numba.njit
+    def no_return(x, u, consts, I3, I5, Kd, Dd, Kg, out):
+        inner(x, u, consts, I3, I5, Kd, Dd, Kg, out)
+
+    @numba.njit
+    def noop9(x, u, consts, I3, I5, Kd, Dd, Kg, out):
+        pass
+
+    packed = np.concatenate((m._consts, m.I3, m.I5, m.Kdiag, m.Ddiag))
+    nn = m.n
+
+    @numba.njit
+    def packed_no_return(x, u, p, Kg, out):
+        inner(x, u, p[:8], p[8:8 + nn], p[8 + nn:8 + 2 * nn], p[8 + 2 * nn:8 + 3 * nn],
+              p[8 + 3 * nn:], Kg, out)
+
+    cases = {
+        "model.rhs(t, x, u) as it is": lambda: m.rhs(0.0, x, 1.0),
+        "rhs_kernel(...) called directly, out preallocated": lambda: kernels.rhs_kernel(*args),
+        "same kernel, returning None instead of out": lambda: no_return(*args),
+        "same, constants packed in one array (5 arguments)":
+            lambda: packed_no_return(x, 1.0, packed, m._Kg, out),
+        "an empty numba function of 9 arguments": lambda: noop9(*args),
+    }
+    for f in cases.values():
+        f()
+    res = {}
+    for name, f in cases.items():
+        ts = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            for _ in range(n):
+                f()
+            ts.append((time.perf_counter() - t0) / n * 1e6)
+        res[name] = statistics.median(ts)
+    return res
+
+
 def print_table(results):
     modes = [r["n_modes"] for r in results]
     labels = list(results[0]["methods"])
@@ -167,14 +220,22 @@ def main(argv=None):
     ap.add_argument("--repeat", type=int, default=7, help="timed repetitions after the warm-up")
     ap.add_argument("--methods", nargs="+", help="only these labels' methods (registry names)")
     ap.add_argument("--json", type=Path, help="also store the results here")
+    ap.add_argument("--no-anatomy", action="store_true", help="skip the rhs call anatomy")
     a = ap.parse_args(argv)
     configs = [c for c in CONFIGS if not a.methods or c[1] in a.methods]
     results = [bench(n, a.steps, a.repeat, configs) for n in a.modes]
     print_table(results)
+    anatomy = None
+    if not a.no_anatomy:
+        anatomy = rhs_anatomy()
+        print("\nanatomy of one rhs call (n_modes = 4), median us")
+        for name, us in anatomy.items():
+            print(f"| {name} | {us:.2f} |")
     if a.json:
         meta = {"python": platform.python_version(), "numpy": np.__version__,
                 "machine": platform.machine(), "H": H, "steps": a.steps, "repeat": a.repeat}
-        a.json.write_text(json.dumps({"meta": meta, "results": results}, indent=1))
+        a.json.write_text(json.dumps({"meta": meta, "results": results, "rhs_anatomy": anatomy},
+                                     indent=1))
 
 
 if __name__ == "__main__":

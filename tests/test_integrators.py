@@ -1,4 +1,4 @@
-"""The integrators on problems with exact answers: order, stability, tableaus, cost, the contract."""
+"""The integrators on problems with exact answers: order, stability, tableaus, cost, contract."""
 import json
 import math
 
@@ -211,6 +211,17 @@ def test_symplectic_euler_bounded_iff_hw_below_2(rel, bounded):
         assert peak < 2.0 / math.sqrt(1 - (hw / 2) ** 2)  # the ellipse's major semi-axis bound
     else:
         assert peak > 1e6
+
+
+@pytest.mark.parametrize("hw,bounded", [(0.99, True), (1.5, False)], ids=["inside", "outside"])
+def test_dopri5_fixed_step_bounded_iff_hw_below_about_1(hw, bounded):
+    """|R(iy)| <= 1 only for |y| <= 0.9972 on the imaginary axis (R = exp to 5th order + z^6/600);
+    just outside, the growth is slow (|R(1.5i)| = 1.003)."""
+    peak, final = max_growth("dopri5", hw, 3000, adaptive=False)
+    if bounded:
+        assert peak <= 1.0 + 1e-12
+    else:
+        assert final > 1e3
 
 
 @pytest.mark.parametrize("rho_inf", [0.0, 0.5, 0.8, 1.0])
@@ -552,6 +563,14 @@ def test_fixed_step_result_does_not_depend_on_the_communication_grid(name):
         many.advance(k * 0.01)
     np.testing.assert_array_equal(one.y, many.y)
     assert one.t == many.t == 0.1
+
+
+@pytest.mark.parametrize("name", sorted(REGISTRY))
+def test_a_rounding_remainder_of_an_interval_does_not_fail(name):
+    s = make_stepper(name, Oscillator(), 0.0, [1.0, 0.0], h=1e-3)
+    assert s.advance(0.01) == (True, None)
+    assert s.advance(0.01 + 4e-18) == (True, None) and s.t == 0.01 + 4e-18
+    assert s.advance(0.02) == (True, None)
 
 
 def test_advance_to_the_current_time_is_a_no_op_and_backwards_raises():

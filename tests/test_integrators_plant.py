@@ -112,3 +112,19 @@ def test_exponential_is_exact_on_the_linearised_plant(plant, nsub):
         out, s = drive("exponential", model, x0, H / nsub)
         assert error(out, ref) < 1e-10 * np.abs(ref).max()
         assert s.nfev == 0
+
+
+@pytest.mark.parametrize("max_halvings,ok", [(0, False), (3, True)])
+def test_genalpha_halves_a_substep_whose_newton_iteration_fails(max_halvings, ok):
+    """n_modes = 8 at h = 1 ms (h omega ~ 9 for the highest coupled mode) from a state with every
+    mode deformed: the first Newton iteration diverges from the predictor; two half substeps
+    converge, and the stepper carries on on its 1 ms grid."""
+    model = plant_model(PlantParams(n_modes=8))
+    x0 = model.initial_state(phi=0.05, phi_dot=-0.2)
+    x0[2:model.nq] = 1e-3 * (-0.3) ** np.arange(8)
+    s = make_stepper("genalpha", model, 0.0, x0, h=1e-3, max_halvings=max_halvings)
+    res = s.advance(0.02)
+    if ok:
+        assert res == (True, None) and s.nrejected >= 1 and s.nsteps == 20 and s.t == 0.02
+    else:
+        assert not res[0] and "Newton" in res[1] and np.all(np.isfinite(s.y))

@@ -38,7 +38,7 @@ _SNAP = 1e-7
 
 
 class IntegratorError(RuntimeError):
-    """Raised by :meth:`Stepper.step` on a failed stepper and by :meth:`Stepper.raise_for_status`."""
+    """Raised by :meth:`Stepper.step` on a failed stepper and by ``raise_for_status``."""
 
 
 def _check_tol(name, value, n):
@@ -83,7 +83,7 @@ class LU:
 
 
 def numerical_jacobian(fun, t, y, u, f0, out=None):
-    """Forward-difference Jacobian of ``fun(t, y, u)`` at ``y`` (``f0 = fun(t, y, u)``); nx calls."""
+    """Forward-difference Jacobian of ``fun(t, y, u)`` at ``y``, given ``f0 = fun(t, y, u)``."""
     n = y.size
     J = np.empty((n, n)) if out is None else out
     yp = y.copy()
@@ -102,13 +102,13 @@ class Stepper:
 
     Parameters
     ----------
-    model : object with ``rhs(t, x, u)``, ``nq``, ``nx`` (and, per method, ``jac``, ``state_space``).
+    model : object with ``rhs(t, x, u)``, ``nq``, ``nx`` (per method ``jac``, ``state_space``...).
     t0, y0 : initial time and state ``[q, qd]`` (length ``model.nx``).
     u : input held constant over the next :meth:`advance` (zero-order hold).
     h : the fixed substep (fixed-step methods) or the initial step (adaptive methods).
-    rtol, atol : error tolerances of the adaptive methods and Newton tolerances of the implicit ones.
+    rtol, atol : error tolerances of the adaptive methods, Newton tolerances of the implicit ones.
     rho_inf : spectral radius at infinity of the generalized-alpha method (accepted by all).
-    **options : method-specific options (see each class's ``OPTIONS``); unknown ones raise TypeError.
+    **options : method-specific options (each class's ``OPTIONS``); unknown ones raise TypeError.
     """
 
     #: registry name, set by each subclass
@@ -174,6 +174,35 @@ class Stepper:
 
     def _commit(self):
         """Called after a fixed substep's new state passed the checks (commit auxiliary data)."""
+
+    # ------------------------------------------------------------------ implicit fixed steps
+    def _solve_fixed(self, t, y, h):  # pragma: no cover - abstract
+        """One implicit substep: ``y_new``, or None (and ``_fail_msg``) if Newton fails."""
+        raise NotImplementedError
+
+    def _save_aux(self):
+        """The auxiliary data a substep changes on commit (restored if a halving fails)."""
+
+    def _restore_aux(self, saved):
+        pass
+
+    def _step_fixed_halving(self, t, y, h, depth):
+        """An implicit substep; if its Newton iteration fails even with a fresh Jacobian, it is
+        retried as two half substeps, recursively ``depth`` more times (the grid is kept: the
+        caller sees one substep of ``h``). Each retry counts in ``nrejected``."""
+        y_new = self._solve_fixed(t, y, h)
+        if y_new is not None or depth == 0:
+            return y_new
+        self.nrejected += 1
+        saved = self._save_aux()
+        hh = 0.5 * h
+        y_mid = self._step_fixed_halving(t, y, hh, depth - 1)
+        if y_mid is not None:
+            self._commit()
+            y_new = self._step_fixed_halving(t + hh, y_mid, hh, depth - 1)
+        if y_new is None:
+            self._restore_aux(saved)
+        return y_new
 
     def _method_state(self) -> dict:
         return {}

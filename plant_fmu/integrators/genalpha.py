@@ -43,7 +43,7 @@ import math
 
 import numpy as np
 
-from ..params import check_int, check_real
+from ..params import check_bool, check_int, check_real
 from .base import Stepper, numerical_jacobian
 
 __all__ = ["GeneralizedAlpha", "genalpha_parameters"]
@@ -74,12 +74,14 @@ class GeneralizedAlpha(Stepper):
     below it), ``jac_update_rate`` (refresh the Jacobian
     when the Newton contraction rate of a step exceeds it; 1e-3 with ``model.jac``, 0.1 with
     finite differences, which cost ``nx + 1`` evaluations), ``reinit_on_input_change``
-    (True).
+    (True), ``max_halvings`` (3: a substep whose Newton iteration fails even with a fresh
+    Jacobian is retried as two half substeps, recursively, before the stepper fails).
     """
 
     name = "genalpha"
     order = 2
-    OPTIONS = {"residual": "accelerations", "jac": "auto", "max_newton_iter": 10, "newton_tol": None, "jac_update_rate": None,
+    OPTIONS = {"residual": "accelerations", "jac": "auto", "max_newton_iter": 10,
+               "newton_tol": None, "jac_update_rate": None, "max_halvings": 3,
                "reinit_on_input_change": True}
 
     def _init_method(self):
@@ -105,13 +107,15 @@ class GeneralizedAlpha(Stepper):
                              "'mass', whose Newton matrix is always by finite differences)")
         self._analytic = has_jac and jac != "fd"
         self.max_newton_iter = check_int("max_newton_iter", o["max_newton_iter"], low=1, high=100)
+        self.max_halvings = check_int("max_halvings", o["max_halvings"], low=0, high=30)
         tol = 1.0 if o["newton_tol"] is None else o["newton_tol"]
         self.newton_tol = check_real("newton_tol", tol, low=0.0, high=1e3)
         rate = o["jac_update_rate"]
         if rate is None:   # a difference Jacobian costs nx + 1 evaluations, an iteration one
             rate = 1e-3 if self._analytic else 0.1
         self.jac_update_rate = check_real("jac_update_rate", rate, low=0.0, high=1.0)
-        self.reinit_on_input_change = bool(o["reinit_on_input_change"])
+        self.reinit_on_input_change = check_bool("reinit_on_input_change",
+                                                 o["reinit_on_input_change"])
         self._init_acceleration()
         self._J = None
         self._jac_current = False
@@ -257,6 +261,9 @@ class GeneralizedAlpha(Stepper):
         return self._ops_c
 
     def _step_fixed(self, t, y, h):
+        return self._step_fixed_halving(t, y, h, self.max_halvings)
+
+    def _solve_fixed(self, t, y, h):
         if self._J is None:
             self._jacobian(t, y)
         while True:
@@ -311,6 +318,12 @@ class GeneralizedAlpha(Stepper):
         self._aa_new = M.dot(np.concatenate((aa, x)))
         self._theta = theta
         return y1
+
+    def _save_aux(self):
+        return self._aa
+
+    def _restore_aux(self, saved):
+        self._aa = saved
 
     def _commit(self):
         self._aa = self._aa_new

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from ..params import check_int, check_real
+from ..params import check_bool, check_int, check_real
 from .base import Stepper, numerical_jacobian
 
 __all__ = ["Radau5"]
@@ -61,21 +61,26 @@ _MAX_FACTOR = 10.0
 class Radau5(Stepper):
     """Radau IIA, order 5, implicit; adaptive (default) or fixed step.
 
-    Options: ``adaptive`` (True), ``max_step`` (inf), ``min_step`` (0), ``jac`` ("auto",
-    "analytic", "fd"), ``max_newton_iter`` (6 adaptive, 10 fixed step), ``newton_tol`` (the bound on the
-    estimated remaining Newton error in the RMS norm scaled by ``atol + rtol |y|``; default
-    ``max(10 eps/rtol, min(0.03, sqrt(rtol)))`` adaptive, as RADAU5 and scipy, 1 fixed step), ``jac_update_rate`` (1e-3 with ``model.jac``, as
-    scipy; 0.1 with finite differences).
+    Options: ``adaptive`` (True), ``max_step`` (inf), ``min_step`` (0), ``jac`` ("auto":
+    ``model.jac`` if the model has one, else forward differences; "analytic"; "fd"),
+    ``max_newton_iter`` (6 adaptive, 10 fixed step), ``newton_tol`` (the bound on the estimated
+    remaining Newton error in the RMS norm scaled by ``atol + rtol |y|``; adaptive: ``max(10
+    eps/rtol, min(0.03, sqrt(rtol)))`` as RADAU5 and scipy, fixed step: 1),
+    ``jac_update_rate`` (refresh the Jacobian when the contraction rate exceeds it: 1e-3 with
+    ``model.jac``, as scipy, 0.1 with finite differences), ``max_halvings`` (3, fixed step only:
+    a substep whose Newton iteration fails even with a fresh Jacobian is retried as two half
+    substeps, recursively, before the stepper fails; the adaptive mode shrinks h instead).
     """
 
     name = "radau"
     order = 5
     OPTIONS = {"adaptive": True, "max_step": math.inf, "min_step": 0.0, "jac": "auto",
-               "max_newton_iter": None, "newton_tol": None, "jac_update_rate": None}
+               "max_newton_iter": None, "newton_tol": None, "jac_update_rate": None,
+               "max_halvings": 3}
 
     def _init_method(self):
         o = self.options
-        self.adaptive = bool(o["adaptive"])
+        self.adaptive = check_bool("adaptive", o["adaptive"])
         self.max_step = check_real("max_step", o["max_step"], low=0.0, allow_inf=True)
         self.min_step = check_real("min_step", o["min_step"], low=0.0, low_open=False,
                                    high=math.inf, high_open=True)
@@ -90,6 +95,7 @@ class Radau5(Stepper):
         if maxit is None:   # adaptive: give up early and shrink h; fixed: h cannot shrink
             maxit = 6 if self.adaptive else 10
         self.max_newton_iter = check_int("max_newton_iter", maxit, low=1, high=100)
+        self.max_halvings = check_int("max_halvings", o["max_halvings"], low=0, high=30)
         tol = o["newton_tol"]
         if tol is None:   # adaptive: well below the controlled local error (RADAU5, scipy)
             tol = max(10 * _EPS / self.rtol, min(0.03, self.rtol ** 0.5)) if self.adaptive else 1.0
@@ -215,6 +221,9 @@ class Radau5(Stepper):
 
     # ------------------------------------------------------------------ steps
     def _step_fixed(self, t, y, h):
+        return self._step_fixed_halving(t, y, h, self.max_halvings)
+
+    def _solve_fixed(self, t, y, h):
         if self._J is None:
             self._jacobian(t, y)
         Z0 = self._predict(t, y, h)
@@ -238,6 +247,12 @@ class Radau5(Stepper):
         self.nfev += 1
         return self._fun(t, y, self._u)
 
+    def _save_aux(self):
+        return self._sol
+
+    def _restore_aux(self, saved):
+        self._sol = saved
+
     def _commit(self):
         t, h, y, Z, rate = self._pending
         self._sol = (t, h, y, Z.T.dot(P))
@@ -252,6 +267,9 @@ class Radau5(Stepper):
         if h_abs < min_step:
             h_abs, h_abs_old, err_old = min_step, None, None
         atol, rtol = self.atol, self.rtol
+        if t_bound - t <= min_step:               # a rounding remainder: nothing to integrate
+            self.t = t_bound
+            return True, None
         if self._J is None:
             self._jacobian(t, y, f)
         rejected = False

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from ..params import check_real
+from ..params import check_bool, check_real
 from .base import Stepper
 
 __all__ = ["ExplicitRungeKutta", "ExplicitEuler", "RK4", "DormandPrince54", "SymplecticEuler"]
@@ -41,7 +41,7 @@ class ExplicitRungeKutta(Stepper):
         self._K = np.empty((s, self.nx))
         self._coef_h = None
         if self.E is not None:
-            self.adaptive = bool(self.options["adaptive"])
+            self.adaptive = check_bool("adaptive", self.options["adaptive"])
             self.max_step = check_real("max_step", self.options["max_step"], low=0.0,
                                        allow_inf=True)
             self.min_step = check_real("min_step", self.options["min_step"], low=0.0,
@@ -103,6 +103,9 @@ class ExplicitRungeKutta(Stepper):
         n = self.nx
         atol, rtol, E = self.atol, self.rtol, self.E
         scale = self._scale_buf
+        if t_bound - t <= min_step:               # a rounding remainder: nothing to integrate
+            self.t = t_bound
+            return True, None
         while True:
             if h_abs < min_step:
                 return False, (f"step size underflow at t = {t!r}: h = {h_abs!r} is below the "
@@ -212,7 +215,7 @@ class DormandPrince54(ExplicitRungeKutta):
 
 
 class SymplecticEuler(Stepper):
-    """Symplectic (semi-implicit) Euler on ``[q, qd]``: ``qd+ = qd + h qdd(q, qd)``, ``q+ = q + h qd+``.
+    """Symplectic (semi-implicit) Euler: ``qd+ = qd + h qdd(q, qd)``, then ``q+ = q + h qd+``.
 
     Order 1, one evaluation per step; on ``x'' = -w^2 x`` bounded iff ``h w < 2`` (it conserves a
     modified energy). Velocity-dependent forces are taken explicitly at the old velocity.
