@@ -2,7 +2,7 @@
 
 A :class:`Stepper` owns the time ``t``, the state ``y``, the input ``u`` held constant over an
 advance (zero-order hold), the status and the counters ``nfev`` (right-hand side evaluations),
-``njev`` (Jacobian evaluations), ``nlu`` (LU factorisations), ``nsteps`` (accepted substeps) and
+``njev`` (Jacobian evaluations), ``nlu`` (LU factorisations or inversions), ``nsteps`` (accepted substeps) and
 ``nrejected`` (rejected substeps of the adaptive methods). Each method implements one substep:
 
 * fixed-step methods implement ``_step_fixed(t, y, h) -> y_new`` (or ``None`` after setting
@@ -23,11 +23,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.linalg import lapack
 
 from ..params import check_real
 
-__all__ = ["Stepper", "IntegratorError", "RUNNING", "FAILED", "numerical_jacobian", "LU"]
+__all__ = ["Stepper", "IntegratorError", "RUNNING", "FAILED", "numerical_jacobian"]
 
 RUNNING = "running"
 FAILED = "failed"
@@ -59,27 +58,6 @@ def _to_json(value):
     if isinstance(value, np.generic):
         return value.item()
     return value
-
-
-class LU:
-    """LU factorisation and solves by LAPACK (``getrf``/``getrs``) without scipy's checks.
-
-    ``scipy.linalg.lu_solve`` costs ~10 us on a 12 x 12 system, the raw ``getrs`` ~1 us.
-    """
-
-    __slots__ = ("lu", "piv", "_getrs")
-
-    def __init__(self, a: np.ndarray):
-        if np.iscomplexobj(a):
-            getrf, self._getrs = lapack.zgetrf, lapack.zgetrs
-        else:
-            getrf, self._getrs = lapack.dgetrf, lapack.dgetrs
-        self.lu, self.piv, info = getrf(a)
-        if info > 0:
-            raise np.linalg.LinAlgError("singular iteration matrix")
-
-    def solve(self, b: np.ndarray) -> np.ndarray:
-        return self._getrs(self.lu, self.piv, b)[0]
 
 
 def numerical_jacobian(fun, t, y, u, f0, out=None):

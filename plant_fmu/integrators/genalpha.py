@@ -12,14 +12,17 @@ motion enforced at the end of the step. With ``qdd_n`` the true acceleration and
     v_{n+1} = v_n + h (1 - gamma) a_n + h gamma a_{n+1}
 
 The unknown is ``qdd_{n+1}``; Newton iterates on it. The model's ``rhs`` returns ``[qd, qdd]`` with
-``qdd = M(q)^-1 f`` (the plant solves ``M`` in O(n) itself), so the residual is
+``qdd = M(q)^-1 f`` (the plant solves ``M`` in O(n) itself), so by default the residual is
 ``r(qdd) = qdd - M^-1 f(q(qdd), v(qdd))`` -- the same root as ``M qdd - f`` -- and the Newton
 matrix is ``S = I - gamma' h J_v - beta' h^2 J_q`` with ``J_q, J_v`` the blocks ``d qdd/dq`` and
 ``d qdd/dv`` of the model's Jacobian (analytic ``model.jac`` if present, else forward differences),
-``beta' = beta (1-alpha_f)/(1-alpha_m)``, ``gamma' = gamma (1-alpha_f)/(1-alpha_m)``. The Newton is
-"modified": ``S`` is factored once and kept while it converges; it is refreshed after a failed
-iteration or a slow one, as in Hairer & Wanner's RADAU5 (whose convergence test, with the rate of
-the previous step, ends a linear problem after one iteration).
+``beta' = beta (1-alpha_f)/(1-alpha_m)``, ``gamma' = gamma (1-alpha_f)/(1-alpha_m)``. With
+``residual="mass"`` it iterates on ``M(q) qdd - f(q, qd, u)`` itself (``model.mass_matrix`` and
+``model.forces``), with ``S = M + gamma' h C_t + beta' h^2 K_t`` by differences. The Newton is
+"modified": ``S`` is inverted once and kept while the iteration converges; it is refreshed after
+a failed iteration or a slow one, as in Hairer & Wanner's RADAU5 (whose convergence test, with the
+rate of the previous step, ends a linear problem after one iteration). A substep whose iteration
+fails even with a fresh Jacobian is retried as two half substeps (``max_halvings`` times).
 
 Parameters from the spectral radius at infinity ``rho_inf`` in [0, 1] (Chung & Hulbert)::
 

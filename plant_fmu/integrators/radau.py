@@ -2,12 +2,15 @@
 
 The algorithm is that of Hairer & Wanner's RADAU5 ("Solving ODEs II", section IV.8) as written in
 ``scipy.integrate._ivp.radau``: the collocation system is transformed by the eigenvectors of the
-method's matrix into one real and one complex linear system, which simplified Newton iterations
-solve with the LU factorisations of ``MU_REAL/h I - J`` and ``MU_COMPLEX/h I - J``. The Jacobian
-``J`` is ``model.jac`` where the model has one, otherwise forward differences of ``rhs``; it is
-kept across steps while Newton converges fast. As in RADAU5 (and unlike scipy) the Newton
+method's matrix into one real and one complex linear system of size ``nx``, for
+``MU_REAL/h I - J`` and ``MU_COMPLEX/h I - J``. Here the complex one is written as a real system
+of size ``2 nx`` and both are inverted once per step size and Jacobian, so that each simplified
+Newton iteration is one matrix-vector product (numpy calls, not flops, cost at this size). The
+Jacobian ``J`` is ``model.jac`` where the model has one, otherwise forward differences of ``rhs``;
+it is kept across steps while Newton converges fast. As in RADAU5 (and unlike scipy) the Newton
 convergence test carries the contraction rate over from the previous step, so a linear problem
-needs one iteration per step.
+needs about one iteration per step. A fixed substep whose iteration fails even with a fresh
+Jacobian is retried as two half substeps (``max_halvings`` times).
 
 Adaptive by default (the embedded error estimate of RADAU5, predictive step control); with
 ``adaptive=False`` it takes fixed steps of ``h`` (no error estimate: one evaluation less per step).
@@ -39,8 +42,6 @@ TI = np.array([
     [4.17871859155190428, 0.32768282076106237, 0.52337644549944951],
     [-4.17871859155190428, -0.32768282076106237, 0.47662355450055044],
     [0.50287263494578682, -2.57192694985560522, 0.59603920482822492]])
-TI_REAL = TI[0]
-TI_COMPLEX = TI[1] + 1j * TI[2]
 # Interpolator coefficients (collocation polynomial, for the Newton predictor).
 P = np.array([
     [13 / 3 + 7 * S6 / 3, -23 / 3 - 22 * S6 / 3, 10 / 3 + 5 * S6],
