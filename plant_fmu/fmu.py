@@ -36,8 +36,8 @@ __all__ = ["FlexiblePendulum", "FMU_DEFAULTS", "OUTPUTS"]
 #: with four substeps per millisecond: at n_modes = 4 (largest |eigenvalue| 2512 rad/s) h|lambda| =
 #: 0.63, far inside RK4's stability bound 2.83 (stable up to n_modes = 8 at the default parameters);
 #: over a 1 ms communication step the sensors are within ~1e-5 (omega_o) and ~4e-8 (phi_o) of a
-#: tight reference, at 4 x 4 right-hand sides per millisecond. dopri5 (rtol 1e-6) is ~3.6 times
-#: costlier here: the bending modes limit its step by stability, not accuracy.
+#: tight reference, at 4 x 4 right-hand sides per millisecond. dopri5 (rtol 1e-6) costs about twice
+#: as much here: the bending modes limit its step by stability, not accuracy.
 FMU_DEFAULTS = {
     "fidelity": "nonlinear",
     "integrator": "rk4",
