@@ -39,7 +39,8 @@ class FmuInstance:
     the status of ``fmi2DoStep`` (0 ok, 2 discard, 3 error...) instead of raising.
     """
 
-    def __init__(self, unzipdir, start_values=None, instance_name="instance", initialize=True):
+    def __init__(self, unzipdir, start_values=None, instance_name="instance", initialize=True,
+                 start_time=0.0):
         from fmpy import read_model_description
         from fmpy.fmi2 import (FMU2Slave, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFunctions,
                                fmi2CallbackFreeMemoryTYPE, fmi2CallbackLoggerTYPE, calloc, free)
@@ -60,7 +61,7 @@ class FmuInstance:
                              modelIdentifier=self.md.coSimulation.modelIdentifier,
                              instanceName=instance_name)
         self.fmu.instantiate(callbacks=cb, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.setupExperiment(startTime=start_time)
         self.set(**(start_values or {}))
         if initialize:
             self.initialize()
@@ -112,11 +113,13 @@ class FmuInstance:
 @pytest.fixture
 def open_fmu(fmu_dirs):
     """Factory: ``open_fmu("FlexiblePendulum", n_modes=2)`` -> an initialised :class:`FmuInstance`
-    (pass ``initialize=False`` to stop before initialisation); closed after the test."""
+    (pass ``initialize=False`` to stop before initialisation, ``start_time`` for
+    fmi2SetupExperiment); closed after the test."""
     opened = []
 
-    def _open(name, initialize=True, instance_name=None, **start_values):
-        inst = FmuInstance(fmu_dirs[name], start_values, instance_name or name, initialize)
+    def _open(name, initialize=True, instance_name=None, start_time=0.0, **start_values):
+        inst = FmuInstance(fmu_dirs[name], start_values, instance_name or name, initialize,
+                           start_time)
         opened.append(inst)
         return inst
 

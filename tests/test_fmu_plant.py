@@ -78,6 +78,13 @@ def test_a_step_from_another_time_is_refused(open_fmu):
     assert plant.step(H, H) == 0                            # the right time still works
 
 
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+def test_the_start_time_of_setup_experiment_is_the_fmu_time(open_fmu, name):
+    inst = open_fmu(name, start_time=2.5)
+    assert inst.step(2.5, H) == 0 and inst.step(2.5 + H, H) == 0
+    assert inst.step(0.0, H) == 2
+
+
 def test_variable_communication_steps(open_fmu):
     plant = open_fmu("FlexiblePendulum", phi0=0.01)
     t = 0.0
