@@ -180,17 +180,22 @@ class PDLowPass(SlaveBase):
     # ------------------------------------------------------------------ FMU state
     def _get_fmu_state(self):
         return {"t": self._t, "x": [self._x0, self._x1], "F": self._F, "error": self._error,
-                "initialized": self._initialized, "params": dict(self._par),
+                "initialized": self._initialized, "params": self._params_snapshot(),
                 "inputs": [self.phi_o, self.omega_o, self.x_o]}
 
     def _set_fmu_state(self, state):
-        if state["params"] != self._par or self._model is None:
-            self._par = dict(state["params"])
-            self._initialized = False
-            self._prepare()
-        self._initialized = state["initialized"]
-        self._t = state["t"]
-        self._x0, self._x1 = state["x"]
-        self._F = state["F"]
-        self._error = state["error"]
-        self.phi_o, self.omega_o, self.x_o = state["inputs"]
+        try:
+            self._check_state(state)
+            if not self._same_params(state["params"]) or self._model is None:
+                self._restore_params(state["params"])
+                self._initialized = False
+                self._prepare()
+            self._initialized = state["initialized"]
+            self._t = state["t"]
+            self._x0, self._x1 = state["x"]
+            self._F = state["F"]
+            self._error = state["error"]
+            self.phi_o, self.omega_o, self.x_o = state["inputs"]
+        except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
+            self._error = f"the FMU state could not be restored: {type(exc).__name__}: {exc}"
+            self.log(self._error, Fmi2Status.error)

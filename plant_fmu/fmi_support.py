@@ -68,6 +68,7 @@ class SlaveBase(Fmi2Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self._par: dict = {}
+        self._par_snap: dict | None = None  # an unshared copy of _par, reused by FMU states
         self._initialized = False     # True after exitInitializationMode
         self._error: str | None = None  # why the slave cannot step (until a state is restored)
 
@@ -89,6 +90,7 @@ class SlaveBase(Fmi2Slave):
                      f"exitInitializationMode; the value {value!r} is ignored", Fmi2Status.error)
             return
         self._par[name] = value
+        self._par_snap = None
         self._parameters_changed()
 
     def _parameters_changed(self):
@@ -112,13 +114,36 @@ class SlaveBase(Fmi2Slave):
                 f"restore a saved FMU state to step from another time")
 
     # ------------------------------------------------------------------ FMU state
+    def _params_snapshot(self) -> dict:
+        """The parameters as a dict that is never mutated (shared by the saved states)."""
+        if self._par_snap is None:
+            self._par_snap = dict(self._par)
+        return self._par_snap
+
+    def _same_params(self, params: dict) -> bool:
+        return params is self._par_snap or params == self._par
+
+    def _restore_params(self, params: dict):
+        self._par = dict(params)
+        self._par_snap = None
+
     @staticmethod
     def _fmu_state_to_bytes(state) -> bytes:
         return dumps_state(state)
 
     @staticmethod
     def _fmu_state_from_bytes(state: bytes):
-        return loads_state(state)
+        try:
+            return loads_state(state)
+        except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
+            return {"invalid": f"not a serialised FMU state ({type(exc).__name__}: {exc})"}
+
+    @staticmethod
+    def _check_state(state):
+        """Raise if ``state`` is not a state of this kind of slave (caught by the caller)."""
+        if not isinstance(state, dict) or "invalid" in state:
+            raise ValueError(state.get("invalid") if isinstance(state, dict) else
+                             f"not an FMU state: {type(state).__name__}")
 
 
 def finite_or_none(value) -> float | None:

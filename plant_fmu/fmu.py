@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Variability, Real
 
 from plant_fmu.dynamics import linear_plant_model, plant_model
@@ -133,7 +134,6 @@ class FlexiblePendulum(SlaveBase):
         self._dirty = False                # outputs not yet computed from self._y
         self._energy = None
         self._energy_fresh = True
-        self._failed = False               # the stepper's state is no longer trustworthy
 
     # ------------------------------------------------------------------ set-up
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
@@ -181,7 +181,6 @@ class FlexiblePendulum(SlaveBase):
             self.log(self._error, Fmi2Status.error)
             return False
         self._error = None
-        self._failed = False
         self._model, self._stepper = model, stepper
         self._phi_limit, self._energy_limit = s["phi_limit"], s["energy_limit"]
         self._check_energy = math.isfinite(self._energy_limit)
@@ -239,7 +238,6 @@ class FlexiblePendulum(SlaveBase):
 
     def _diverged(self, message: str) -> bool:
         self._error = message + "; restore a saved FMU state to continue"
-        self._failed = True
         return self._refuse(self._error)
 
     def _accept(self, y, energy):
@@ -286,23 +284,26 @@ class FlexiblePendulum(SlaveBase):
     # ------------------------------------------------------------------ FMU state
     def _get_fmu_state(self):
         st = self._stepper
-        return {"params": dict(self._par), "t0": self._t0, "F_c": self.F_c,
+        return {"params": self._params_snapshot(), "t0": self._t0, "F_c": self.F_c,
                 "initialized": self._initialized, "error": self._error,
-                "failed": self._failed,
                 "stepper": None if st is None else st.get_state(),
                 "y": None if self._y is None else self._y.tolist()}
 
     def _set_fmu_state(self, state):
-        import numpy as np
-        if state["params"] != self._par or state["t0"] != self._t0 or self._model is None:
-            self._par = dict(state["params"])
-            self._t0 = state["t0"]
-            self._prepare()
-        if state["stepper"] is not None and self._stepper is not None:
-            self._stepper.set_state(state["stepper"])
-        self.F_c = state["F_c"]
-        self._initialized = state["initialized"]
-        self._error = state["error"]
-        self._failed = state["failed"]
-        if state["y"] is not None:
-            self._accept(np.array(state["y"], dtype=float), None)
+        try:
+            self._check_state(state)
+            if (not self._same_params(state["params"]) or state["t0"] != self._t0
+                    or self._model is None):
+                self._restore_params(state["params"])
+                self._t0 = state["t0"]
+                self._prepare()
+            if state["stepper"] is not None and self._stepper is not None:
+                self._stepper.set_state(state["stepper"])
+            self.F_c = state["F_c"]
+            self._initialized = state["initialized"]
+            self._error = state["error"]
+            if state["y"] is not None:
+                self._accept(np.array(state["y"], dtype=float), None)
+        except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
+            self._error = f"the FMU state could not be restored: {type(exc).__name__}: {exc}"
+            self.log(self._error, Fmi2Status.error)

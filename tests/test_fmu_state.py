@@ -118,3 +118,15 @@ def test_state_keeps_the_controller_filter_and_time(open_fmu):
     assert ctrl.step(11 * H, H) == 2                 # its time went back to 10 ms too
     assert ctrl.step(10 * H, H) == 0
     ctrl.fmu.freeFMUstate(saved)
+
+
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+def test_a_corrupt_serialised_state_is_an_error_not_a_crash(open_fmu, name):
+    inst = open_fmu(name)
+    state = inst.fmu.deSerializeFMUstate(b"{not json")
+    inst.fmu.setFMUstate(state)
+    inst.fmu.freeFMUstate(state)
+    assert "the FMU state could not be restored: ValueError: not a serialised FMU state" in \
+        inst.messages(3)
+    assert inst.step(0.0, H) == 2
+    assert all(np.isfinite(inst.outputs()))
