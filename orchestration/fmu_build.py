@@ -6,9 +6,10 @@ results (FMI cross-check layout).
 
 What the build does beyond ``pythonfmu build``:
 
-* the slave module inside each FMU has the model's name (``FlexiblePendulum.py``, a one-line
-  re-export of the class): pythonfmu imports it by its bare name, so two FMUs whose modules are both
-  called ``fmu`` cannot be loaded into one process;
+* the slave module inside each FMU has the model's name (``FlexiblePendulum.py``, a re-export of
+  the class, see :data:`_SLAVE_MODULE`): pythonfmu imports it by its bare name, so two FMUs whose
+  modules are both called ``fmu`` cannot be loaded into one process; it also works around two
+  pythonfmu 0.7.0 problems (a reference-count bug and packages left by deleted unpack folders);
 * the project packages are copied as ``.py`` files only (no caches), and the FMUs can get, set and
   serialise their state;
 * ``modelDescription.xml`` is completed: exact start values (``repr`` of the float, ``INF`` for
