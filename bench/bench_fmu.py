@@ -140,6 +140,10 @@ def main(argv=None) -> int:
               {"n_modes": 4}), force),
         (Case("FlexiblePendulum n_modes=4, all 7 outputs", plant, ["F_c"], all_outputs,
               {"n_modes": 4}), force),
+        (Case("FlexiblePendulum n_modes=4, energy_limit=INF", plant, ["F_c"], plant_sensors,
+              {"n_modes": 4, "energy_limit": math.inf}), force),
+        (Case("FlexiblePendulum n_modes=4, step=1e-3", plant, ["F_c"], plant_sensors,
+              {"n_modes": 4, "step": 1e-3}), force),
         (Case("FlexiblePendulum n_modes=4, dopri5", plant, ["F_c"], plant_sensors,
               {"n_modes": 4, "integrator": "dopri5"}), force),
     ]
