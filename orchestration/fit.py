@@ -3,7 +3,7 @@
 The matrix-pencil method (Hua & Sarkar, IEEE Trans. ASSP 38(5), 1990) fits ``y_k = sum_i a_i
 z_i^k`` to uniformly sampled data; each pole ``z_i = exp(s_i dt)`` gives a rate ``Re s_i`` (negative
 = decay) and a frequency ``|Im s_i|``. The dominant pole of a frequency band is the one with the
-largest contribution to the signal over the window.
+largest contribution to the signal at the end of the window.
 """
 from __future__ import annotations
 
@@ -60,8 +60,9 @@ def dominant_oscillation(t, y, band, order: int = 12):
         w = abs(si.imag)
         if not lo <= w < hi or si.imag < 0 and w > 0:
             continue
-        # largest |a z^k| over the window (growth shows at the end, decay at the start)
-        size = abs(ai) * max(1.0, np.exp(si.real * dur)) * (2.0 if w > 0 else 1.0)
+        # its contribution at the end of the window: what the oscillation settles to (a fast
+        # transient that is large at the start does not dominate the response)
+        size = abs(ai) * np.exp(si.real * dur) * (2.0 if w > 0 else 1.0)
         if best is None or size > best.amplitude:
             best = Oscillation(float(si.real), float(w), float(size))
     return best

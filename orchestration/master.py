@@ -91,6 +91,12 @@ class Slave:
                              instanceName=name)
         self._instantiate()
         self._start_values = dict(start_values or {})
+        inputs = {v.name for v in self.md.modelVariables if v.causality == "input"}
+        #: True when an output may depend directly on an input (no dependencies declared
+        #: counts as "all"): its outputs at t_k+1 then need the inputs at t_k+1.
+        self.feedthrough = any(o.dependencies is None or
+                               any(d.name in inputs for d in o.dependencies)
+                               for o in self.md.outputs)
 
     # ------------------------------------------------------------------ plumbing
     def _instantiate(self):
@@ -331,6 +337,27 @@ class Master:
             vals.append(float(sum(wi * u[i] for wi, u in zip(w, us[-k:]))))
         return vals
 
+    def _point_inputs(self, dst, hist, t1):
+        """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there)."""
+        vals = []
+        for c in self.inputs[dst]:
+            ts, us = hist[c.src].t, hist[c.src].u
+            k = min(self.p + 1, len(ts))
+            w = _point_weights(ts[-k:], t1, max(t1 - ts[-1], self.h, 1e-300))
+            i = self._out_index[c.src][c.src_var]
+            vals.append(float(sum(wi * u[i] for wi, u in zip(w, us[-k:]))))
+        return vals
+
+    def _outputs_after_step(self, n, hist, t1):
+        """Outputs of slave ``n`` at ``t1``. A feedthrough slave's output read right after
+        ``doStep`` reflects the held (step-average) input, i.e. the middle of the step; its
+        inputs are first moved to their values at ``t1``, so that every sample of the history
+        belongs to its time stamp."""
+        s = self.slaves[n]
+        if s.feedthrough and self.inputs[n]:
+            s.set_inputs(self._point_inputs(n, hist, t1), t1)
+        return s.get_outputs(t1)
+
     def _predict(self, src, hist, t, n_back):
         """The extrapolation polynomial of ``src``'s outputs (excluding the newest ``n_back``
         samples) evaluated at ``t``."""
@@ -349,13 +376,13 @@ class Master:
             for n in self.order:
                 self.slaves[n].do_step(t0, h)
             for n in self.order:
-                new[n] = self.slaves[n].get_outputs(t1)
+                new[n] = self._outputs_after_step(n, hist, t1)
         else:
             pushed = []
             for n in self.order:
                 self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1, bool(pushed)), t0)
                 self.slaves[n].do_step(t0, h)
-                new[n] = self.slaves[n].get_outputs(t1)
+                new[n] = self._outputs_after_step(n, hist, t1)
                 hist[n].push(t1, new[n])    # later slaves interpolate between t0 and t1
                 pushed.append(n)
             for n in pushed:                # undo: the caller pushes all at once
@@ -376,6 +403,20 @@ class Master:
             err = max(err, abs(pred - actual) / scale)
         return err
 
+    def _initial_outputs(self, t0):
+        """Consistent outputs at ``t0``: the sources' initial outputs are passed to the inputs
+        (in coupling order, twice, which settles any chain without an algebraic loop) before a
+        feedthrough output is read."""
+        cur = {n: s.get_outputs(t0) for n, s in self.slaves.items()}
+        for _ in range(2):
+            for n in self.order:
+                if self.inputs[n]:
+                    vals = [float(cur[c.src][self._out_index[c.src][c.src_var]])
+                            for c in self.inputs[n]]
+                    self.slaves[n].set_inputs(vals, t0)
+                    cur[n] = self.slaves[n].get_outputs(t0)
+        return cur
+
     def run(self, t0: float, stop_time: float, output_interval: float, progress=None):
         """Run from ``t0`` to ``stop_time``; a structured array (time first) and :class:`RunStats`."""
         wall = _time.perf_counter()
@@ -386,7 +427,7 @@ class Master:
         cols = ["time"] + list(self.record)
         out = np.zeros(n_out + 1, dtype=[(c, "f8") for c in cols])
         hist = {n: _History(len(self.outputs[n]), 3) for n in self.slaves}
-        cur = {n: s.get_outputs(t0) for n, s in self.slaves.items()}
+        cur = self._initial_outputs(t0)
         for n in self.slaves:
             hist[n].push(t0, cur[n])
         self._store(out, 0, t0, cur)
@@ -414,7 +455,6 @@ class Master:
 
     def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress):
         h = min(self.h, self.max_step)
-        expo = -1.0 / (self.p + 1)    # the coupling error is O(h^(p+1)) per step
         t = t0
         for j in range(1, n_out + 1):
             t_target = t0 + j * dt_out
@@ -426,7 +466,7 @@ class Master:
                 snaps = {n: hist[n].snapshot() for n in self.slaves}
                 try:
                     new = self._macro_step(hist, t, t1)
-                    err = self._coupling_error(hist, new, t1) if len(hist[self.order[0]].t) > self.p else 0.0
+                    err = self._coupling_error(hist, new, t1)
                     discarded = False
                 except CoSimulationError as exc:
                     if exc.status != 2:   # only Discard is retried
@@ -435,6 +475,8 @@ class Master:
                         raise
                     err, discarded = math.inf, True
                 step = t1 - t
+                # the coupling error is O(h^(k)) per step with k samples in the polynomial
+                expo = -1.0 / min(self.p + 1, len(hist[self.order[0]].t))
                 if err > 1.0 and step > self.min_step * (1 + 1e-9):
                     stats.rejected += 1
                     stats.rejected_times.append(t)

@@ -96,12 +96,13 @@ class SceneResult:
 
 def _fit_window(t, y):
     """The window to fit: the whole run, or, for a signal that grows and saturates, the part
-    before it first reaches half its largest magnitude (if that leaves at least 2 s)."""
+    before it first reaches a tenth of its largest magnitude (if that leaves at least 2 s), while
+    the oscillation is still small enough to be linear."""
     a = np.abs(y - np.mean(y[-max(1, len(y) // 10):]))
     peak = a.max()
     if peak == 0:
         return slice(0, len(t))
-    i = int(np.argmax(a >= 0.5 * peak))
+    i = int(np.argmax(a >= 0.1 * peak))
     if t[i] - t[0] >= 2.0 and i < len(t) - 1:
         return slice(0, i + 1)
     return slice(0, len(t))
