@@ -11,6 +11,7 @@ and the exit code is 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 import sys
@@ -57,12 +58,15 @@ def _fmt(v, spec=".4g"):
 def cmd_analyze(args) -> int:
     from .analysis import analyze
 
-    cfg = apply_overrides(default_config(), args.set)
+    from .scenes import known_keys
+
+    # every scene key is accepted; those that do not change the linear loop are ignored
+    cfg = apply_overrides(default_config(), args.set, known=known_keys())
     fidelity(cfg)
     p, c = plant_params(cfg), controller_params(cfg)
     a = analyze(p, c)
     if args.json:
-        out = {"plant": {k[6:]: v for k, v in cfg.items() if k.startswith("plant.")},
+        out = {"plant": {f.name: getattr(p, f.name) for f in dataclasses.fields(p)},
                "controller": {k: getattr(c, k) for k in CONTROLLER_KEYS}, **a.to_json()}
         print(json.dumps(_json_safe(out), indent=2))
         return 0

@@ -46,21 +46,26 @@ def beam_shape(beam, x, phi, eta, scale: float = 1.0):
 
 
 def plot_snapshots(beam, frames, title: str, path):
-    """Beam shapes at several times; ``frames``: list of ``(t, x, phi, eta)``."""
+    """Beam shapes at several times, one panel per time centred on the cart (the cart drifts
+    when its position is not fed back); ``frames``: list of ``(t, x, phi, eta)``."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.5))
-    cmap = plt.get_cmap("viridis")
-    for i, (t, x, phi, eta) in enumerate(frames):
-        X, Y = beam_shape(beam, x, phi, eta)
-        color = cmap(i / max(1, len(frames) - 1))
-        ax.plot(X, Y, color=color, lw=1.5, label=f"t = {t:.2f} s")
-        ax.plot([x - 0.08, x + 0.08], [0, 0], color=color, lw=4)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x")
-    ax.set_ylabel("height")
-    ax.set_title(title, fontsize=10)
-    ax.legend(fontsize=7, ncol=2, loc="best")
-    ax.grid(alpha=0.3)
+    n = len(frames)
+    fig, axes = plt.subplots(1, n, figsize=(1.6 * n + 0.6, 3.2), sharey=True, squeeze=False)
+    L = beam.nodes[-1]
+    for ax, (t, x, phi, eta) in zip(axes[0], frames):
+        X, Y = beam_shape(beam, 0.0, phi, eta)              # relative to the cart
+        rigid = beam_shape(beam, 0.0, phi, [])               # the floating frame's axis
+        ax.plot(rigid[0], rigid[1], ":", color="0.6", lw=1)
+        ax.plot(X, Y, color="C0", lw=2)
+        ax.plot([-0.15 * L, 0.15 * L], [0, 0], color="C1", lw=5, solid_capstyle="butt")
+        ax.set_xlim(-0.9 * L, 0.9 * L)
+        ax.set_ylim(-0.15 * L, 1.1 * L)
+        ax.set_aspect("equal")
+        ax.set_title(f"t = {t:.2f} s\nx = {x:+.2f}", fontsize=8)
+        ax.set_xticks([])
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("height")
+    fig.suptitle(title + " (dotted: floating frame; deflection to scale)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

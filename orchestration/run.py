@@ -27,7 +27,8 @@ RECORD = {
     "x": ("plant", "x_o"), "x_dot": ("plant", "x_dot"), "phi_o": ("plant", "phi_o"),
     "omega_o": ("plant", "omega_o"), "F_c": ("controller", "F_c"),
     "tip_deflection": ("plant", "tip_deflection"), "eta_1": ("plant", "eta_1"),
-    "energy": ("plant", "energy"),
+    "energy": ("plant", "energy"), "phi": ("plant", "phi"),
+    **{f"eta_{j}": ("plant", f"eta_{j}") for j in range(2, 9)},
 }
 #: Bands (rad/s) of the rigid (slow) and the bending oscillation for the fitted rates.
 SLOW_BAND = (0.5, 60.0)
@@ -156,11 +157,13 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     finally:
         for s in slaves.values():
             s.close()
-    res = _reorder(res)
+    n_eta = min(scene.plant.n_modes, 8)
+    frames = _frames(res, n_eta, snapshot_times)
+    res = _reorder(res, n_eta)
     summary = summarize(res, failure)
     if stats is not None:
         summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected)
-    out = SceneResult(scene.name, res, summary, stats)
+    out = SceneResult(scene.name, res, summary, stats, frames=frames)
     if reference and failure is None:
         from .reference import simulate_reference
         ref = simulate_reference(scene)
@@ -170,11 +173,26 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     return out
 
 
-def _reorder(res):
-    """The master's columns in the order of :data:`COLUMNS`."""
-    if res.dtype.names == COLUMNS:
-        return res
-    out = np.zeros(len(res), dtype=[(c, "f8") for c in COLUMNS])
-    for c in COLUMNS:
-        out[c] = res[c]
+def _reorder(res, n_eta):
+    """:data:`COLUMNS`, then ``phi`` and the modal coordinates the model has (``eta_2``...)."""
+    cols = [*COLUMNS, *(["phi"] if "phi" in (res.dtype.names or ()) else []),
+            *(f"eta_{j}" for j in range(2, n_eta + 1))]
+    out = np.zeros(len(res), dtype=[(c, "f8") for c in cols])
+    for c in cols:
+        if c in res.dtype.names:
+            out[c] = res[c]
     return out
+
+
+def _frames(res, n_eta, times):
+    """``(t, x, phi, eta)`` at the output points nearest to ``times`` (for shape snapshots)."""
+    if len(res) == 0 or "phi" not in res.dtype.names:
+        return []
+    frames = []
+    for t in times:
+        if t > res["time"][-1] + 1e-9:
+            continue
+        i = int(np.argmin(np.abs(res["time"] - t)))
+        eta = [res[f"eta_{j}"][i] for j in range(1, n_eta + 1)]
+        frames.append((float(res["time"][i]), float(res["x"][i]), float(res["phi"][i]), eta))
+    return frames

@@ -12,6 +12,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from plant_fmu.fmu import FMU_DEFAULTS
 from plant_fmu.params import check_bool, check_int, check_real
 
 from .config import (ConfigError, apply_overrides, check_known, controller_params, default_config, fidelity,
@@ -25,7 +26,6 @@ SCENE_DIR = Path(__file__).parent / "scenes"
 PAPER_SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
 ALGORITHMS = ("gauss-seidel", "jacobi")
 FIRST = ("controller", "plant")
-INTEGRATOR_DEFAULT = "dopri5"
 
 #: Scene keys beyond the plant and controller parameters, with their defaults.
 SCENE_DEFAULTS = {
@@ -44,10 +44,9 @@ SCENE_DEFAULTS = {
     "master.tolerance": 1e-4,
     "master.min_step": 1e-6,
     "master.max_step": 2e-2,
-    "plant.integrator": INTEGRATOR_DEFAULT,
-    "plant.step": 1e-3,
-    "plant.rtol": 1e-8,
-    "plant.atol": 1e-10,
+    # the plant FMU's solver settings and divergence bounds, with the FMU's own defaults
+    **{f"plant.{k}": v for k, v in FMU_DEFAULTS.items()
+       if k not in ("fidelity", "phi0", "x0", "phi_dot0", "x_dot0")},
 }
 
 
@@ -104,6 +103,8 @@ def _validate(cfg: dict) -> None:
     for k in ("master.step", "master.tolerance", "master.min_step", "master.max_step",
               "plant.step", "plant.rtol", "plant.atol"):
         real(k, low=0.0, high=1e6)
+    for k in ("plant.phi_limit", "plant.energy_limit"):
+        real(k, low=0.0, allow_inf=True)
     _choice("master.algorithm", cfg["master.algorithm"], ALGORITHMS)
     _choice("master.first", cfg["master.first"], FIRST)
     try:
@@ -112,11 +113,11 @@ def _validate(cfg: dict) -> None:
         cfg["master.adaptive"] = check_bool("master.adaptive", cfg["master.adaptive"])
     except (TypeError, ValueError) as exc:
         raise ConfigError(str(exc)) from None
-    try:
-        from plant_fmu.integrators import REGISTRY
-        _choice("plant.integrator", cfg["plant.integrator"], sorted(REGISTRY))
-    except ImportError:  # integrators not installed in this checkout: the FMU decides
-        pass
+    from plant_fmu.integrators import REGISTRY
+    _choice("plant.integrator", cfg["plant.integrator"], sorted(REGISTRY))
+    if cfg["plant.integrator"] == "exponential" and cfg["plant.fidelity"] != "linear":
+        raise ConfigError("plant.integrator = 'exponential' integrates the linearised plant; it "
+                          "needs plant.fidelity = 'linear'")
     if not isinstance(cfg["description"], str):
         raise ConfigError("description must be a string")
     if cfg["master.min_step"] > cfg["master.max_step"]:

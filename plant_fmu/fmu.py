@@ -67,7 +67,12 @@ OUTPUTS = {
     "tip_deflection": "transverse deflection of the tip in the floating frame",
     "eta_1": "first modal coordinate (0 when n_modes = 0)",
     "energy": "total energy T + V",
+    "phi": "rotation of the floating frame (the beam at the hinge) from the upward vertical, rad",
+    **{f"eta_{j}": f"modal coordinate {j} (0 when n_modes < {j})"
+       for j in range(2, 9)},
 }
+#: Modal coordinates exposed as outputs (enough to draw the beam's shape).
+N_ETA_OUTPUTS = 8
 
 _DESCRIPTIONS = {
     "m": "cart mass", "L": "beam length", "rho": "beam density", "EA": "axial stiffness",
@@ -104,7 +109,8 @@ class FlexiblePendulum(SlaveBase):
     OUTPUT_DEPENDENCIES = {name: () for name in OUTPUTS}      # no direct feedthrough
     INITIAL_DEPENDENCIES = {
         "x_o": ("x0",), "x_dot": ("x_dot0",), "phi_o": ("phi0",), "omega_o": ("phi_dot0",),
-        "tip_deflection": (), "eta_1": (),
+        "tip_deflection": (), "eta_1": (), "phi": ("phi0",),
+        **{f"eta_{j}": () for j in range(2, N_ETA_OUTPUTS + 1)},
         "energy": tuple(f for f in (*SlaveBase.dataclass_defaults(PlantParams), *FMU_DEFAULTS)
                         if f not in ("n_elements", "integrator", "step", "rtol", "atol",
                                      "phi_limit", "energy_limit")),
@@ -125,6 +131,7 @@ class FlexiblePendulum(SlaveBase):
             self._out[var.value_reference] = 0.0
         self._vr = {v.name: vr for vr, v in self.vars.items()}
         self._vr_energy = self._vr["energy"]
+        self._vr_eta = [self._vr[f"eta_{j}"] for j in range(1, N_ETA_OUTPUTS + 1)]
         self._register_parameters({**self.dataclass_defaults(PlantParams), **FMU_DEFAULTS},
                                   _DESCRIPTIONS)
         self._t0 = 0.0
@@ -255,9 +262,11 @@ class FlexiblePendulum(SlaveBase):
         out[vr["phi_o"]], out[vr["omega_o"]] = m.tip_angle(y)
         out[vr["x_o"]] = float(y[0])
         out[vr["x_dot"]] = float(y[nq])
+        out[vr["phi"]] = float(y[1])
         if self._n:
             out[vr["tip_deflection"]] = float(m.tip_defl @ y[2:nq])
-            out[vr["eta_1"]] = float(y[2])
+            for j, vr_j in enumerate(self._vr_eta[:self._n]):
+                out[vr_j] = float(y[2 + j])
         self._dirty = False
 
     def _refresh_energy(self):

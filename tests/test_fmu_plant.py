@@ -55,8 +55,9 @@ def test_initial_outputs_follow_the_initial_values(open_fmu):
     # readable in initialisation mode (InitialUnknowns), before exitInitializationMode
     assert plant.get("phi_o", "x_o", "omega_o", "x_dot") == [0.2, 0.3, -0.5, 0.7]
     plant.fmu.exitInitializationMode()
-    x_o, x_dot, phi_o, omega_o, tip, eta_1, energy = plant.outputs()
-    assert (x_o, x_dot, phi_o, omega_o, tip, eta_1) == (0.3, 0.7, 0.2, -0.5, 0.0, 0.0)
+    x_o, x_dot, phi_o, omega_o, tip, eta_1, energy, phi, *etas = plant.outputs()
+    assert (x_o, x_dot, phi_o, omega_o, tip, eta_1, phi) == (0.3, 0.7, 0.2, -0.5, 0.0, 0.0, 0.2)
+    assert etas == [0.0] * 7
     m = plant_model(PlantParams())
     assert energy == m.energy(m.initial_state(phi=0.2, x=0.3, phi_dot=-0.5, x_dot=0.7))
 
@@ -66,8 +67,22 @@ def test_rigid_pendulum_has_zero_modal_outputs(open_fmu):
     for k in range(50):
         plant.set(F_c=force(k * H))
         assert plant.step(k * H, H) == 0
-    assert plant.get("tip_deflection", "eta_1") == [0.0, 0.0]
+    assert plant.get("tip_deflection", "eta_1", "eta_2") == [0.0, 0.0, 0.0]
     assert plant.get("phi_o")[0] > 0.1                      # it falls (open loop)
+    assert plant.get("phi") == plant.get("phi_o")           # rigid: frame angle = tip angle
+
+
+def test_modal_and_frame_outputs_are_the_state(open_fmu):
+    """phi and eta_1..eta_8 are the state's entries; the tip angle follows from them (MODEL.md:
+    phi_o = phi + atan(N'(L) eta))."""
+    plant = open_fmu("FlexiblePendulum", n_modes=3, phi0=0.1)
+    for k in range(40):
+        plant.set(F_c=force(k * H))
+        assert plant.step(k * H, H) == 0
+    phi, e1, e2, e3, e4, phi_o = plant.get("phi", "eta_1", "eta_2", "eta_3", "eta_4", "phi_o")
+    slope = plant_model(PlantParams(n_modes=3)).tip_slope
+    assert e4 == 0.0 and e1 != 0.0 and e3 != 0.0
+    assert phi_o == pytest.approx(phi + math.atan(slope @ [e1, e2, e3]), rel=1e-14)
 
 
 def test_a_step_from_another_time_is_refused(open_fmu):

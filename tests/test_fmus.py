@@ -12,7 +12,8 @@ from plant_fmu.params import PlantParams
 
 MODELS = ["FlexiblePendulum", "PDLowPass"]
 
-PLANT_OUTPUTS = ["x_o", "x_dot", "phi_o", "omega_o", "tip_deflection", "eta_1", "energy"]
+PLANT_OUTPUTS = ["x_o", "x_dot", "phi_o", "omega_o", "tip_deflection", "eta_1", "energy", "phi",
+                 "eta_2", "eta_3", "eta_4", "eta_5", "eta_6", "eta_7", "eta_8"]
 PLANT_SETTINGS = {"fidelity": "nonlinear", "integrator": "rk4", "step": 2.5e-4, "rtol": 1e-6,
                   "atol": 1e-9, "phi_limit": math.pi / 2, "energy_limit": 1e6, "phi0": 0.0,
                   "x0": 0.0, "phi_dot0": 0.0, "x_dot0": 0.0}
