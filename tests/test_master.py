@@ -149,7 +149,6 @@ def test_paper_scenes_verdicts_and_rates_at_small_amplitude(paths, scene, verdic
 def test_master_jacobi_agrees_with_libcosim(paths, fmus, tmp_path):
     """libcosim's fixed-step algorithm is Jacobi with a zero-order hold: outputs of step k feed the
     inputs of step k + 1. The master with the same settings must give the same numbers."""
-    pytest.importorskip("libcosimpy")
     from test_fmu_libcosim import H, PLANT_OUT, PLANT_START, STEPS, run_libcosim
 
     cosim = run_libcosim(fmus, tmp_path)
