@@ -9,7 +9,6 @@ with the input ``e`` held (zero-order hold), by the matrix exponential of the au
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -17,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from plant_fmu.params import check_int, check_real
+from plant_fmu.params import check_int, check_real, replace_checked
 
 __all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES"]
 
@@ -48,10 +47,8 @@ class ControllerParams:
         set_("force_limit", check_real("force_limit", self.force_limit, low=0.0, allow_inf=True))
 
     def replace(self, **changes) -> "ControllerParams":
-        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
-        if unknown:
-            raise TypeError(f"unknown controller parameter(s): {', '.join(sorted(unknown))}")
-        return dataclasses.replace(self, **changes)
+        """A copy with ``changes`` applied and validated; unknown names raise TypeError."""
+        return replace_checked(self, "controller", changes)
 
 
 class PDLowPassModel:

@@ -10,7 +10,8 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-__all__ = ["PlantParams", "MAX_ELEMENTS", "check_real", "check_int", "check_bool"]
+__all__ = ["PlantParams", "MAX_ELEMENTS", "check_real", "check_int", "check_bool",
+           "replace_checked"]
 
 #: The finest mesh the beam model accepts (the eigenproblem is dense).
 MAX_ELEMENTS = 400
@@ -57,6 +58,14 @@ def check_bool(name: str, value) -> bool:
     if isinstance(value, (int, float)) and value in (0, 1):
         return bool(value)
     raise TypeError(f"{name} must be a boolean (true or false), got {value!r}")
+
+
+def replace_checked(record, kind: str, changes: dict):
+    """``dataclasses.replace`` that names unknown fields (``kind``: "plant", "controller")."""
+    unknown = set(changes) - {f.name for f in dataclasses.fields(record)}
+    if unknown:
+        raise TypeError(f"unknown {kind} parameter(s): {', '.join(sorted(unknown))}")
+    return dataclasses.replace(record, **changes)
 
 
 @dataclass(frozen=True)
@@ -110,7 +119,5 @@ class PlantParams:
         return self.rho * self.EA / self.E
 
     def replace(self, **changes) -> "PlantParams":
-        unknown = set(changes) - {f.name for f in dataclasses.fields(self)}
-        if unknown:
-            raise TypeError(f"unknown plant parameter(s): {', '.join(sorted(unknown))}")
-        return dataclasses.replace(self, **changes)
+        """A copy with ``changes`` applied and validated; unknown names raise TypeError."""
+        return replace_checked(self, "plant", changes)
