@@ -138,7 +138,8 @@ def cmd_run(args) -> int:
     fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
     summaries, results = {}, {}
     for scene in scenes:
-        r = run_scene(scene, fmus, reference=args.reference, progress=True)
+        r = run_scene(scene, fmus, reference=args.reference, progress=True,
+                      connections_out=sys.stderr if args.connections else None)
         write_csv(str(out_dir / f"{scene.name}.csv"), r.result)
         title = f"{scene.name}: {scene['description']}" if scene["description"] else scene.name
         plots.plot_time_histories(r.result, title, out_dir / f"{scene.name}.png", r.reference)
@@ -202,6 +203,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a scene key, e.g. master.step=5e-4")
     pr.add_argument("--out", default="out", help="output folder (default: out)")
     pr.add_argument("--json", action="store_true", help="print the summary as JSON")
+    pr.add_argument("--connections", action="store_true",
+                    help="print each scene's connection table (wiring by variable name)")
     pr.add_argument("--reference", action="store_true",
                     help="also solve the monolithic reference and report the error against it")
     pr.set_defaults(func=cmd_run)

@@ -9,19 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
+from .config import ConfigError
 from .fit import dominant_oscillation
 from .master import CoSimulationError, Master, Slave, parse_connection
 from .reference import COLUMNS
+from .scenes import SCENE_DEFAULTS
 
 __all__ = ["run_scene", "SceneResult", "DEFAULT_CONNECTIONS", "plant_start_values",
            "controller_start_values", "Progress"]
 
-DEFAULT_CONNECTIONS = (
-    "plant.x_o -> controller.x_o",
-    "plant.phi_o -> controller.phi_o",
-    "plant.omega_o -> controller.omega_o",
-    "controller.F_c -> plant.F_c",
-)
+DEFAULT_CONNECTIONS = tuple(SCENE_DEFAULTS["connections"])
 #: column -> (FMU, variable): what the master records at every output point.
 RECORD = {
     "x": ("plant", "x_o"), "x_dot": ("plant", "x_dot"), "phi_o": ("plant", "phi_o"),
@@ -134,6 +131,7 @@ def summarize(res: np.ndarray, failure: str | None = None) -> dict:
 
 
 def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = True,
+              connections_out=None,
               snapshot_times=(0.0, 0.5, 1.0, 2.0, 4.0, 6.0, 8.0, 10.0)) -> SceneResult:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``)."""
     cfg = scene.config
@@ -142,11 +140,16 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
         slaves["plant"] = Slave(fmus["plant"], "plant", plant_start_values(scene))
         slaves["controller"] = Slave(fmus["controller"], "controller",
                                      controller_start_values(scene))
-        master = Master(slaves, [parse_connection(c) for c in DEFAULT_CONNECTIONS], RECORD,
-                        algorithm=cfg["master.algorithm"], first=cfg["master.first"],
-                        step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
-                        adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
-                        min_step=cfg["master.min_step"], max_step=cfg["master.max_step"])
+        try:
+            master = Master(slaves, [parse_connection(c) for c in cfg["connections"]], RECORD,
+                            algorithm=cfg["master.algorithm"], first=cfg["master.first"],
+                            step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
+                            adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
+                            min_step=cfg["master.min_step"], max_step=cfg["master.max_step"])
+        except ValueError as exc:       # a variable the FMUs do not have
+            raise ConfigError(f"{scene.name}: {exc}") from None
+        if connections_out is not None:
+            connections_out.write(f"{scene.name}: connections\n{master.connection_table()}\n")
         bar = Progress(scene.name) if progress else None
         failure = None
         try:

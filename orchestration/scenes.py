@@ -44,6 +44,13 @@ SCENE_DEFAULTS = {
     "master.tolerance": 1e-4,
     "master.min_step": 1e-6,
     "master.max_step": 2e-2,
+    # wiring by variable name: "fmu.variable -> fmu.variable", FMUs "plant" and "controller"
+    "connections": [
+        "plant.x_o -> controller.x_o",
+        "plant.phi_o -> controller.phi_o",
+        "plant.omega_o -> controller.omega_o",
+        "controller.F_c -> plant.F_c",
+    ],
     # the plant FMU's solver settings and divergence bounds, with the FMU's own defaults
     **{f"plant.{k}": v for k, v in FMU_DEFAULTS.items()
        if k not in ("fidelity", "phi0", "x0", "phi_dot0", "x_dot0")},
@@ -118,6 +125,20 @@ def _validate(cfg: dict) -> None:
     if cfg["plant.integrator"] == "exponential" and cfg["plant.fidelity"] != "linear":
         raise ConfigError("plant.integrator = 'exponential' integrates the linearised plant; it "
                           "needs plant.fidelity = 'linear'")
+    conns = cfg["connections"]
+    if not isinstance(conns, list) or not conns or not all(isinstance(c, str) for c in conns):
+        raise ConfigError("connections must be a non-empty list of strings "
+                          "'fmu.variable -> fmu.variable'")
+    from .master import parse_connection
+    for c in conns:
+        try:
+            conn = parse_connection(c)
+        except ValueError as exc:
+            raise ConfigError(f"connections {exc}") from None
+        for fmu in (conn.src, conn.dst):
+            if fmu not in ("plant", "controller"):
+                raise ConfigError(f"connections {c!r} names FMU {fmu!r}; allowed: plant, "
+                                  "controller")
     if not isinstance(cfg["description"], str):
         raise ConfigError("description must be a string")
     if cfg["master.min_step"] > cfg["master.max_step"]:

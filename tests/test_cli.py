@@ -3,6 +3,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from orchestration.cli import main
@@ -55,3 +56,28 @@ def test_bad_input_one_line_exit_2(args, fragment):
     assert code == 2
     assert fragment in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_run_writes_csv_plots_and_summary(fmus, tmp_path):
+    from fmpy.util import read_csv
+    code, out, err = run("run", "rigid_pd", "flexible_pd_lowpass", "--set", "stop_time=1.0",
+                         "--out", str(tmp_path), "--json", "--connections")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert set(summary) == {"rigid_pd", "flexible_pd_lowpass"}
+    assert summary["rigid_pd"]["stable"] is True and summary["rigid_pd"]["steps"] == 1000
+    assert "plant.phi_o     ->  controller.phi_o" in err
+    res = read_csv(str(tmp_path / "flexible_pd_lowpass.csv"))
+    assert list(res.dtype.names[:9]) == ["time", "x", "x_dot", "phi_o", "omega_o", "F_c",
+                                         "tip_deflection", "eta_1", "energy"]
+    assert res["time"][-1] == pytest.approx(1.0) and res["phi_o"][0] == pytest.approx(np.pi / 6)
+    assert summary["flexible_pd_lowpass"]["max_abs_F_c"] == pytest.approx(np.max(np.abs(res["F_c"])))
+    for name in ("rigid_pd.png", "rigid_pd_shapes.png", "flexible_pd_lowpass_shapes.png"):
+        assert (tmp_path / name).stat().st_size > 10_000
+
+
+def test_run_bad_wiring_one_line_exit_2(fmus, tmp_path):
+    code, out, err = run("run", "rigid_pd", "--out", str(tmp_path),
+                         "--set", 'connections=["plant.phi_oo -> controller.phi_o"]')
+    assert code == 2 and "plant has no variable 'phi_oo'" in err
+    assert len(err.strip().splitlines()) == 1

@@ -57,3 +57,12 @@ def test_bad_override_names_set():
 def test_unknown_scene():
     with pytest.raises(ConfigError, match="no scene 'nosuch'; scenes: "):
         load_scene("nosuch")
+
+
+def test_connections_are_validated():
+    s = load_scene("rigid_pd")
+    assert "controller.F_c -> plant.F_c" in s["connections"]
+    with pytest.raises(ConfigError, match="names FMU 'controler'; allowed: plant, controller"):
+        load_scene("rigid_pd", ['connections=["plant.phi_o -> controler.phi_o"]'])
+    with pytest.raises(ConfigError, match="is not of the form 'fmu.var -> fmu.var'"):
+        load_scene("rigid_pd", ['connections=["plant.phi_o controller.phi_o"]'])
