@@ -181,9 +181,6 @@ class Slave:
                    self._n_out, self._out_val, t=t)
         return self._out_np.copy()
 
-    def get_reals(self, names) -> list:
-        return self._call("getReal", self.fmu.getReal, [self.vr(n) for n in names])
-
     def do_step(self, t: float, h: float):
         self._call("doStep", self.fmu.fmi2DoStep, self.fmu.component, t, h, fmi2True, t=t)
 
@@ -246,7 +243,7 @@ def _point_weights(times, t: float, scale: float) -> np.ndarray:
 class _History:
     """The last few communication-point values of every connection source."""
 
-    def __init__(self, n_signals: int, depth: int):
+    def __init__(self, depth: int):
         self.t: list[float] = []
         self.u: list[np.ndarray] = []
         self.depth = depth
@@ -324,29 +321,27 @@ class Master:
                          for i, (a, b) in enumerate(rows))
 
     # ------------------------------------------------------------------ stepping
-    def _held_inputs(self, dst, hist, t0, t1, interpolate):
-        """Input values for ``dst`` over ``[t0, t1]`` from the sources' histories."""
-        vals = []
-        for c in self.inputs[dst]:
-            h = hist[c.src]
-            ts, us = h.t, h.u
-            k = min(self.p + 1, len(ts))
-            times = ts[-k:]
-            w = extrapolation_weights(times, t0, t1)
-            i = self._out_index[c.src][c.src_var]
-            vals.append(float(sum(wi * u[i] for wi, u in zip(w, us[-k:]))))
-        return vals
+    def _polynomial(self, h: "_History", weights):
+        """``sum_i w_i u_i`` over the newest ``p + 1`` samples of ``h`` (fewer at the start),
+        ``w = weights(times)``: the extrapolation polynomial, averaged or evaluated."""
+        k = min(self.p + 1, len(h.t))
+        w = weights(h.t[-k:])
+        return sum(wi * u for wi, u in zip(w, h.u[-k:]))
+
+    def _inputs(self, dst, hist, weights):
+        return [float(self._polynomial(hist[c.src], weights)[self._out_index[c.src][c.src_var]])
+                for c in self.inputs[dst]]
+
+    def _held_inputs(self, dst, hist, t0, t1):
+        """Input values for ``dst`` held over ``[t0, t1]``: the polynomials' step averages."""
+        return self._inputs(dst, hist, lambda ts: extrapolation_weights(ts, t0, t1))
+
+    def _point_weights_at(self, t):
+        return lambda ts: _point_weights(ts, t, (t - ts[-1]) or self.h)
 
     def _point_inputs(self, dst, hist, t1):
         """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there)."""
-        vals = []
-        for c in self.inputs[dst]:
-            ts, us = hist[c.src].t, hist[c.src].u
-            k = min(self.p + 1, len(ts))
-            w = _point_weights(ts[-k:], t1, max(t1 - ts[-1], self.h, 1e-300))
-            i = self._out_index[c.src][c.src_var]
-            vals.append(float(sum(wi * u[i] for wi, u in zip(w, us[-k:]))))
-        return vals
+        return self._inputs(dst, hist, self._point_weights_at(t1))
 
     def _outputs_after_step(self, n, hist, t1):
         """Outputs of slave ``n`` at ``t1``. A feedthrough slave's output read right after
@@ -358,21 +353,13 @@ class Master:
             s.set_inputs(self._point_inputs(n, hist, t1), t1)
         return s.get_outputs(t1)
 
-    def _predict(self, src, hist, t, n_back):
-        """The extrapolation polynomial of ``src``'s outputs (excluding the newest ``n_back``
-        samples) evaluated at ``t``."""
-        ts, us = hist[src].t[:len(hist[src].t) - n_back], hist[src].u[:len(hist[src].u) - n_back]
-        k = min(self.p + 1, len(ts))
-        w = _point_weights(ts[-k:], t, max(self.h, 1e-300))
-        return sum(wi * u for wi, u in zip(w, us[-k:]))
-
     def _macro_step(self, hist, t0, t1):
         """One communication step; returns the new outputs of every slave."""
         h = t1 - t0
         new = {}
         if self.algorithm == "jacobi":
             for n in self.order:
-                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1, False), t0)
+                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), t0)
             for n in self.order:
                 self.slaves[n].do_step(t0, h)
             for n in self.order:
@@ -380,7 +367,7 @@ class Master:
         else:
             pushed = []
             for n in self.order:
-                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1, bool(pushed)), t0)
+                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), t0)
                 self.slaves[n].do_step(t0, h)
                 new[n] = self._outputs_after_step(n, hist, t1)
                 hist[n].push(t1, new[n])    # later slaves interpolate between t0 and t1
@@ -397,7 +384,7 @@ class Master:
             i = self._out_index[c.src][c.src_var]
             if len(hist[c.src].t) == 0:
                 continue
-            pred = self._predict(c.src, hist, t1, 0)[i]
+            pred = self._polynomial(hist[c.src], self._point_weights_at(t1))[i]
             actual = new[c.src][i]
             scale = self.tol * max(1.0, abs(actual))
             err = max(err, abs(pred - actual) / scale)
@@ -426,7 +413,7 @@ class Master:
         n_out = int(round((stop_time - t0) / output_interval))
         cols = ["time"] + list(self.record)
         out = np.zeros(n_out + 1, dtype=[(c, "f8") for c in cols])
-        hist = {n: _History(len(self.outputs[n]), 3) for n in self.slaves}
+        hist = {n: _History(3) for n in self.slaves}
         cur = self._initial_outputs(t0)
         for n in self.slaves:
             hist[n].push(t0, cur[n])

@@ -88,7 +88,7 @@ def test_rollback_restores_state_exactly(paths):
         m = Master(slaves, [parse_connection(c) for c in DEFAULT_CONNECTIONS], RECORD, step=1e-3)
         for s in slaves.values():
             s.initialize(0.0, 1.0)
-        hist = {n: _History(0, 3) for n in slaves}
+        hist = {n: _History(3) for n in slaves}
         for n, s in slaves.items():
             hist[n].push(0.0, s.get_outputs())
         for k in range(50):
