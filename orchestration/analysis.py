@@ -27,7 +27,20 @@ from plant_fmu.beam import beam_model
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
-__all__ = ["closed_loop_matrix", "loop_transfer", "analyze", "Analysis", "margins"]
+__all__ = ["closed_loop_matrix", "assemble_closed_loop", "loop_transfer", "frequency_response",
+           "analyze", "Analysis", "margins", "max_real_part"]
+
+
+def assemble_closed_loop(A, B, C, controller_ss, gain: float = 1.0) -> np.ndarray:
+    """``[[A + B Dc C, B Cc], [Bc C, Ac]]`` for the plant ``(A, B, C)`` and the controller
+    ``(Ac, Bc, Cc, Dc)``; ``A, B, C`` may be stacks (leading axes) of plants of one size."""
+    Ac, Bc, Cc, Dc = controller_ss
+    Cc, Dc = gain * Cc, gain * Dc
+    top = np.concatenate([A + B @ Dc @ C, np.broadcast_to(B @ Cc, (*A.shape[:-1], Ac.shape[0]))],
+                         axis=-1)
+    bc = np.broadcast_to(Bc @ C, (*A.shape[:-2], Ac.shape[0], A.shape[-1]))
+    bottom = np.concatenate([bc, np.broadcast_to(Ac, (*A.shape[:-2], *Ac.shape))], axis=-1)
+    return np.concatenate([top, bottom], axis=-2)
 
 
 def closed_loop_matrix(p: PlantParams, c: ControllerParams, gain: float = 1.0) -> np.ndarray:
@@ -36,21 +49,18 @@ def closed_loop_matrix(p: PlantParams, c: ControllerParams, gain: float = 1.0) -
     ``gain`` multiplies the controller's output (for margin scans); 1 is the nominal loop.
     """
     A, B, C, _ = plant_model(p).state_space()
-    Ac, Bc, Cc, Dc = PDLowPassModel(c).state_space()
-    Cc, Dc = gain * Cc, gain * Dc
-    top = np.hstack([A + B @ Dc @ C, B @ Cc])
-    bottom = np.hstack([Bc @ C, Ac])
-    return np.vstack([top, bottom])
+    return assemble_closed_loop(A, B, C, PDLowPassModel(c).state_space(), gain)
 
 
 def _drift_free(Acl: np.ndarray, p: PlantParams) -> np.ndarray:
-    """``Acl`` without the cart position and velocity, when no other state depends on them."""
+    """``Acl`` without the cart position and velocity, when no other state depends on them
+    (``Acl`` may be a stack of closed loops of plants with ``p.n_modes`` modes)."""
     nq = p.n_modes + 2
     drift = [0, nq]
-    keep = [i for i in range(Acl.shape[0]) if i not in drift]
-    if np.any(Acl[np.ix_(keep, drift)] != 0.0):
+    keep = [i for i in range(Acl.shape[-1]) if i not in drift]
+    if np.any(Acl[..., keep, :][..., drift] != 0.0):
         return Acl  # the cart is fed back: its roots are part of the verdict
-    return Acl[np.ix_(keep, keep)]
+    return Acl[..., keep, :][..., keep]
 
 
 def max_real_part(p: PlantParams, c: ControllerParams, gain: float = 1.0) -> float:
@@ -73,6 +83,20 @@ def loop_transfer(p: PlantParams, c: ControllerParams) -> control.StateSpace:
     return -control.series(G, K)
 
 
+def _response(L: control.StateSpace, w: np.ndarray) -> np.ndarray:
+    """``L(jw)`` of a single-input single-output state-space system on the grid ``w``, by one
+    linear solve per frequency (python-control's evaluation, without its overhead)."""
+    A, B, C, D = (np.asarray(m, dtype=float) for m in (L.A, L.B, L.C, L.D))
+    eye = np.eye(A.shape[0])
+    return (C @ np.linalg.solve(1j * w[:, None, None] * eye - A, B))[:, 0, 0] + D[0, 0]
+
+
+def frequency_response(p: PlantParams, c: ControllerParams, w) -> np.ndarray:
+    """``L(jw)``, the loop broken at the force (:func:`loop_transfer`), at the frequencies ``w``
+    (rad/s)."""
+    return _response(loop_transfer(p, c), np.asarray(w, dtype=float))
+
+
 def _crossings(f, w, v):
     """Roots of the real function ``f`` whose values on the grid ``w`` are ``v``, refined by
     Brent's method."""
@@ -92,15 +116,13 @@ def margins(p: PlantParams, c: ControllerParams, n_grid: int = 4000) -> dict:
     pole on the imaginary axis, which the tests confirm on the closed-loop eigenvalues.
     """
     L = loop_transfer(p, c)
-    A, B, C, D = (np.asarray(m, dtype=float) for m in (L.A, L.B, L.C, L.D))
-    eye = np.eye(A.shape[0])
 
-    def Ls(w):  # L(jw) by one linear solve (python-control's evaluation, without its overhead)
-        return complex((C @ np.linalg.solve(1j * w * eye - A, B))[0, 0] + D[0, 0])
+    def Ls(w):
+        return complex(_response(L, np.array([w]))[0])
 
-    wmax = 5.0 * max([abs(z) for z in np.linalg.eigvals(A)] + [10.0])
+    wmax = 5.0 * max([abs(z) for z in np.linalg.eigvals(np.asarray(L.A))] + [10.0])
     w = np.logspace(-3, np.log10(wmax), n_grid)
-    grid = (C @ np.linalg.solve(1j * w[:, None, None] * eye - A, B))[:, 0, 0] + D[0, 0]
+    grid = _response(L, w)
     nominal_stable = max_real_part(p, c) < 0
     # Phase crossovers: Im L = 0 with Re L < 0; and w = 0 (a real root crossing the origin).
     phase_x = [(x, Ls(x).real) for x in _crossings(lambda x: Ls(x).imag, w, grid.imag)]
