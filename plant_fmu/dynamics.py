@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from .beam import Beam, beam_model
-from .kernels import HAVE_NUMBA, rhs_kernel
+from .kernels import HAVE_NUMBA, energy_kernel, erk_steps_kernel, rhs_kernel
 from .params import PlantParams
 
 __all__ = ["PlantModel", "LinearPlantModel", "plant_model", "linear_plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
@@ -139,7 +139,20 @@ class PlantModel:
         sld = float(self.tip_slope @ x[nq + 2:])
         return float(x[1]) + math.atan(sl), float(x[nq + 1]) + sld / (1.0 + sl * sl)
 
+    def erk_steps(self, y: np.ndarray, u: float, h: float, n: int, A, B, K) -> int:
+        """``n`` substeps of the explicit Runge-Kutta tableau ``(A, B)`` in place on ``y`` (the
+        compiled loop of :mod:`plant_fmu.kernels`; ``K`` is a stages x states work array).
+        Returns the number of substeps taken: fewer than ``n`` if a state became non-finite."""
+        return erk_steps_kernel(y, float(u), float(h), int(n), A, B, self._consts, self.I3,
+                                self.I5, self.Kdiag, self.Ddiag, self._Kg, K,
+                                np.empty(self.nx))
+
     def energy(self, x: np.ndarray) -> float:
+        """Total energy ``T + V`` (the compiled kernel; same terms as :meth:`energy_numpy`)."""
+        return float(energy_kernel(np.asarray(x, dtype=float), self._consts, self.I3, self.I5,
+                                   self.Kdiag, self._Kg))
+
+    def energy_numpy(self, x: np.ndarray) -> float:
         """Total energy ``T + V`` (kinetic, gravity, strain and, with preload, foreshortening)."""
         nq = self.nq
         xc, phi, eta = x[0], x[1], x[2:nq]

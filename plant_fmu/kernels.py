@@ -13,7 +13,7 @@ try:
 except ImportError:  # pragma: no cover - numba is a declared dependency
     numba = None
 
-__all__ = ["rhs_kernel", "HAVE_NUMBA"]
+__all__ = ["rhs_kernel", "erk_steps_kernel", "energy_kernel", "HAVE_NUMBA"]
 
 HAVE_NUMBA = numba is not None
 
@@ -73,4 +73,79 @@ def _rhs(x, u, consts, I3, I5, Kd, Dd, Kg, out):
     return out
 
 
-rhs_kernel = numba.njit(cache=True)(_rhs) if HAVE_NUMBA else _rhs
+def _energy(x, consts, I3, I5, Kd, Kg):
+    """Total energy ``T + V``: what :meth:`PlantModel.energy_numpy` computes."""
+    n = I3.size
+    nq = n + 2
+    I0, I1, I2, g, preload = consts[0], consts[1], consts[2], consts[3], consts[7]
+    phi, xd, phid = x[1], x[nq], x[nq + 1]
+    c = math.cos(phi)
+    s = math.sin(phi)
+    I3eta = 0.0
+    I3etad = 0.0
+    ee = 0.0
+    I5etad = 0.0
+    etadetad = 0.0
+    strain = 0.0
+    for j in range(n):
+        e = x[2 + j]
+        ed = x[nq + 2 + j]
+        I3eta += I3[j] * e
+        I3etad += I3[j] * ed
+        ee += e * e
+        I5etad += I5[j] * ed
+        etadetad += ed * ed
+        strain += Kd[j] * e * e
+    T = (0.5 * I0 * xd * xd + xd * (-(I1 * phid + I3etad) * c + phid * s * I3eta)
+         + 0.5 * phid * phid * (I2 + ee) + phid * I5etad + 0.5 * etadetad)
+    V = g * (I1 * c - s * I3eta) + 0.5 * strain
+    if preload != 0.0:
+        ekge = 0.0
+        for j in range(n):
+            for k in range(n):
+                ekge += x[2 + j] * Kg[j, k] * x[2 + k]
+        V -= 0.5 * c * ekge
+    return T + V
+
+
+def _erk_steps(y, u, h, n_steps, A, B, consts, I3, I5, Kd, Dd, Kg, K, ys):
+    """``n_steps`` substeps of length ``h`` of the explicit Runge-Kutta tableau ``(A, B)`` on
+    the plant, in place on ``y``, with the input ``u`` held; ``K`` (stages x states) and ``ys``
+    are work arrays. Stops after a substep whose state is not finite (``y`` keeps the last
+    finite state) and returns the number of substeps taken. The arithmetic is that of
+    :meth:`plant_fmu.integrators.rk.ExplicitRungeKutta._rk_step` (the tableau is autonomous:
+    the plant does not depend on ``t``)."""
+    s = B.size
+    nx = y.size
+    for k in range(n_steps):
+        for i in range(s):
+            for m in range(nx):
+                acc = 0.0
+                for j in range(i):
+                    acc += (h * A[i, j]) * K[j, m]
+                ys[m] = y[m] + acc
+            _rhs_c(ys, u, consts, I3, I5, Kd, Dd, Kg, K[i])
+        norm2 = 0.0
+        for m in range(nx):
+            acc = 0.0
+            for i in range(s):
+                acc += (h * B[i]) * K[i, m]
+            ys[m] = y[m] + acc
+            norm2 += ys[m] * ys[m]
+        if not norm2 < math.inf:            # overflow or NaN: fail if an entry is not finite
+            for m in range(nx):
+                if not abs(ys[m]) < math.inf:
+                    return k
+        for m in range(nx):
+            y[m] = ys[m]
+    return n_steps
+
+
+if HAVE_NUMBA:
+    rhs_kernel = _rhs_c = numba.njit(cache=True)(_rhs)
+    energy_kernel = numba.njit(cache=True)(_energy)
+    erk_steps_kernel = numba.njit(cache=True)(_erk_steps)
+else:  # pragma: no cover - numba is a declared dependency
+    rhs_kernel = _rhs_c = _rhs
+    energy_kernel = _energy
+    erk_steps_kernel = _erk_steps

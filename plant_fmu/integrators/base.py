@@ -284,25 +284,9 @@ class Stepper:
             n_full, short = n_round - k, False
         else:
             n_full, short = math.floor(n_grid) - k, True
-        step, commit = self._step_fixed, self._commit
-        t, y = self.t, self.y
-        msg = None
-        for _ in range(n_full):
-            y_new = step(t, y, h)
-            if y_new is None:
-                msg = self._fail_msg
-                break
-            s = y_new.dot(y_new)
-            if not s < math.inf and not np.all(np.isfinite(y_new)):
-                msg = f"non-finite state after the substep from t = {t!r} (h = {h!r})"
-                break
-            commit()
-            k += 1
-            y = y_new
-            t = t_base + k * h
-        else:
-            if not short:
-                t = t_end
+        t, y, k, msg = self._full_substeps(self.t, self.y, h, t_base, k, n_full)
+        if msg is None and not short:
+            t = t_end
         self.nsteps += k - self._k
         self.t, self.y, self._k = t, y, k
         if msg is not None:
@@ -310,6 +294,23 @@ class Stepper:
         if short:
             return self._fixed_substep(t_end)
         return True, None
+
+    def _full_substeps(self, t, y, h, t_base, k, n):
+        """``n`` substeps of ``h`` from grid point ``k``; ``(t, y, k, failure message or None)``
+        after the last good substep. Methods may replace this loop by a compiled one."""
+        step, commit = self._step_fixed, self._commit
+        for _ in range(n):
+            y_new = step(t, y, h)
+            if y_new is None:
+                return t, y, k, self._fail_msg
+            s = y_new.dot(y_new)
+            if not s < math.inf and not np.all(np.isfinite(y_new)):
+                return t, y, k, f"non-finite state after the substep from t = {t!r} (h = {h!r})"
+            commit()
+            k += 1
+            y = y_new
+            t = t_base + k * h
+        return t, y, k, None
 
     def _fixed_substep(self, t_bound):
         """One substep on the grid ``t_base + k*h``, shortened to land on ``t_bound``."""

@@ -90,6 +90,22 @@ class ExplicitRungeKutta(Stepper):
 
     _step_fixed = _rk_step
 
+    def _full_substeps(self, t, y, h, t_base, k, n):
+        """The fixed substeps in one compiled call when the model offers one (``erk_steps``,
+        the nonlinear plant): the same tableau and arithmetic, without Python per stage."""
+        erk = getattr(self.model, "erk_steps", None)
+        if erk is None or self.FSAL or n < 1:
+            return super()._full_substeps(t, y, h, t_base, k, n)
+        y = y.copy()
+        done = erk(y, self._u, h, n, self.A, self.B, self._K)
+        self.nfev += done * self.B.size
+        k += done
+        t = t_base + k * h
+        if done < n:
+            self.nfev += self.B.size
+            return t, y, k, f"non-finite state after the substep from t = {t!r} (h = {h!r})"
+        return t, y, k, None
+
     def _commit(self):
         if self.FSAL:
             self._f = self._f_new
