@@ -2,6 +2,7 @@
 
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
+    flexpend design [--set key=value ...] [--json] [--out DIR]   robust low-pass filter design
     flexpend build [--force] [--out DIR]                build the two FMUs
     flexpend scenes                                     list the scenes
 
@@ -70,8 +71,7 @@ def cmd_analyze(args) -> int:
                "controller": {k: getattr(c, k) for k in CONTROLLER_KEYS}, **a.to_json()}
         print(json.dumps(_json_safe(out), indent=2))
         return 0
-    filt = {0: "none", 1: f"1st order, wc = {c.cutoff:g} rad/s",
-            2: f"2nd order, wc = {c.cutoff:g} rad/s, zf = {c.filter_damping:g}"}[c.filter_order]
+    filt = _filter_text(c.filter_order, c.cutoff, c.filter_damping)
     print(f"plant: n_modes = {p.n_modes}, zeta = {p.zeta:g}, gravity_preload = "
           f"{str(p.gravity_preload).lower()}  (linearised at the upright rest state)")
     print(f"controller: kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}, filter: {filt}")
@@ -94,6 +94,109 @@ def cmd_analyze(args) -> int:
               f"downward (at {_fmt(m['gain_margin_lower_freq'])} rad/s)")
     print(f"phase margin: {_fmt(m['phase_margin_deg'])} deg at {_fmt(m['phase_margin_freq'])} "
           "rad/s (smallest of all gain crossovers)")
+    return 0
+
+
+def _filter_text(order, cutoff, damping) -> str:
+    return {0: "none", 1: f"1st order, wc = {cutoff:g} rad/s",
+            2: f"2nd order, wc = {cutoff:g} rad/s, zf = {damping:g}"}[order]
+
+
+def cmd_design(args) -> int:
+    from pathlib import Path
+
+    import numpy as np
+
+    from . import plots
+    from .analysis import frequency_response
+    from .design import DESIGN_DEFAULTS, design_filter, design_settings, root_locus
+    from .run import Progress
+    from .scenes import known_keys
+
+    known = {**known_keys(), **DESIGN_DEFAULTS}
+    cfg = apply_overrides(known, args.set, known=known)
+    fidelity(cfg)
+    settings = design_settings(cfg)
+    p, c = plant_params(cfg), controller_params(cfg)
+    r = design_filter(p, c, settings, progress=Progress("design"))
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    crit = r.criterion
+    ylabel = ("worst-case decay rate -max Re(lambda) (1/s)" if crit == "decay"
+              else "worst-case damping ratio")
+    # the worst case against cutoff, as CSV and plot
+    labels = list(r.sweep)
+    cutoffs = r.sweep[labels[0]][0]
+    rows = np.column_stack([cutoffs] + [r.sweep[k][1] for k in labels])
+    header = "cutoff," + ",".join(k.replace(",", ";") for k in labels)
+    np.savetxt(out_dir / "design_sweep.csv", rows, delimiter=",", header=header, comments="")
+    ch = r.chosen
+    chosen_label = f"chosen: {_filter_text(ch.filter_order, ch.cutoff, ch.filter_damping)}"
+    uset = r.uncertainty.describe()
+    plots.plot_worst_case(
+        r.sweep, (ch.cutoff, r.worst.score(crit), chosen_label), ylabel,
+        f"worst case over n_modes {uset['n_modes'][0]}..{uset['n_modes'][1]}, zeta "
+        f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g}, EI +-{100 * r.uncertainty.EI_spread:g} %, "
+        f"m +-{100 * r.uncertainty.m_spread:g} % (PD kp = {c.kp:g}, kd = {c.kd:g})",
+        out_dir / "design_worst_case.png")
+    # Bode of the loop without and with the filter, and the root locus, on the nominal beam
+    w = np.logspace(0, np.log10(max(20.0 * ch.cutoff, 5e3)), 3000)
+    loops = {"PD, no filter": frequency_response(p, c.replace(filter_order=0), w),
+             chosen_label.replace("chosen: ", "PD + "): frequency_response(p, ch, w)}
+    if (c.filter_order, c.cutoff, c.filter_damping) != (ch.filter_order, ch.cutoff, ch.filter_damping) \
+            and c.filter_order:
+        loops[f"PD + given {_filter_text(c.filter_order, c.cutoff, c.filter_damping)}"] = \
+            frequency_response(p, c, w)
+    marks = [(ch.cutoff, "cutoff")]
+    plots.plot_loop_bode(w, loops, f"loop broken at the force, L = -K G (nominal beam, "
+                                   f"{p.n_modes} modes)", out_dir / "design_bode.png", marks)
+    wcs, roots = root_locus(p, ch, np.union1d(np.geomspace(settings["design.cutoff_min"],
+                                                            settings["design.cutoff_max"], 300),
+                                               [ch.cutoff]))
+    plots.plot_root_locus(wcs, roots, ch.cutoff,
+                          f"closed-loop roots as the cutoff varies ({_filter_text(ch.filter_order, 0, ch.filter_damping).replace(', wc = 0 rad/s', '')}"
+                          f"; nominal beam, {p.n_modes} modes)", out_dir / "design_root_locus.png")
+    result = r.to_json()
+    result["plots"] = [str(out_dir / f) for f in ("design_bode.png", "design_root_locus.png",
+                                                 "design_worst_case.png")]
+    result["sweep_csv"] = str(out_dir / "design_sweep.csv")
+    (out_dir / "design.json").write_text(json.dumps(_json_safe(result), indent=2))
+    if args.json:
+        print(json.dumps(_json_safe(result), indent=2))
+        return 0
+
+    def where(pl):
+        return f"n_modes = {pl.n_modes}, zeta = {pl.zeta:g}, EI = {pl.EI:.4g}, m = {pl.m:.3g}"
+
+    def root(z):
+        return f"{z.real:+.4f} +- {abs(z.imag):.2f}j" if z.imag else f"{z.real:+.4f}"
+
+    print(f"robust low-pass design for the PD kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}")
+    print(f"uncertainty: n_modes {uset['n_modes'][0]}..{uset['n_modes'][1]}, zeta "
+          f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g}, EI {uset['EI'][0]:.4g}..{uset['EI'][1]:.4g}, "
+          f"m {uset['m'][0]:.3g}..{uset['m'][1]:.3g}; searched on {r.levels} levels, checked on "
+          f"{r.check_levels} levels ({r.worst.n_plants} plants)")
+    print(f"criterion: the smallest closed-loop {'decay rate' if crit == 'decay' else 'damping ratio'}"
+          " over the set, maximised")
+    print()
+    print(f"chosen filter: {_filter_text(ch.filter_order, ch.cutoff, ch.filter_damping)}")
+    print("  " + " ".join(f"--set {k}={v:g}" for k, v in r.filter_keys().items()))
+    wc_ = r.worst
+    print(f"  worst-case decay rate {wc_.decay:+.4f} 1/s: root {root(wc_.decay_root)} at "
+          f"{where(wc_.decay_plant)}")
+    print(f"  worst-case damping ratio {wc_.damping:+.5f}: root {root(wc_.damping_root)} at "
+          f"{where(wc_.damping_plant)}")
+    print(f"  {'STABLE' if wc_.stable else 'UNSTABLE'} over the whole set")
+    print()
+    print(f"{'filter':<56}  {'worst decay 1/s':>15}  {'worst damping':>13}")
+    rows = [(f"best {o}{'st' if o == 1 else 'nd'} order", cc, ww) for o, (cc, ww) in r.per_order.items()]
+    rows += [(k, cc, ww) for k, (cc, ww) in r.baseline.items()]
+    for label, cc, ww in rows:
+        text = f"{label}: {_filter_text(cc.filter_order, cc.cutoff, cc.filter_damping)}"
+        print(f"{text:<56}  {ww.decay:+15.4f}  {ww.damping:+13.5f}")
+    print()
+    print(f"wrote {out_dir / 'design.json'}, {out_dir / 'design_sweep.csv'}, "
+          + ", ".join(result["plots"]))
     return 0
 
 
@@ -193,6 +296,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a parameter, e.g. plant.n_modes=4 or controller.cutoff=150")
     pa.add_argument("--json", action="store_true", help="print the result as JSON")
     pa.set_defaults(func=cmd_analyze)
+
+    pd = sub.add_parser("design", help="robust design of the low-pass filter",
+                        description="Search the filter order, cutoff and damping for the largest "
+                                    "worst-case closed-loop decay rate (or damping ratio) over an "
+                                    "uncertainty set of beams; write <out>/design.json, "
+                                    "design_sweep.csv and three plots.")
+    pd.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a key, e.g. controller.kd=6 or design.criterion=damping")
+    pd.add_argument("--out", default="out", help="output folder (default: out)")
+    pd.add_argument("--json", action="store_true", help="print the result as JSON")
+    pd.set_defaults(func=cmd_design)
 
     pr = sub.add_parser("run", help="co-simulate scenes (default: the paper's three)",
                         description="Co-simulate the plant and controller FMUs for each scene; "

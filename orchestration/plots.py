@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plot_time_histories", "plot_snapshots", "beam_shape", "plot_paper_overview"]
+__all__ = ["plot_time_histories", "plot_snapshots", "beam_shape", "plot_paper_overview",
+           "plot_loop_bode", "plot_root_locus", "plot_worst_case"]
 
 
 def _pyplot():
@@ -89,4 +90,81 @@ def plot_paper_overview(results: dict, path):
                       "flexible + PD + low-pass", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_loop_bode(w, loops: dict, title: str, path, marks=()):
+    """Magnitude and phase of loop transfer functions ``{label: L(jw)}`` on ``w`` (rad/s);
+    ``marks``: ``(frequency, label)`` drawn as vertical lines."""
+    plt = _pyplot()
+    fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    for label, L in loops.items():
+        am.loglog(w, np.abs(L), lw=0.9, label=label)
+        ap.semilogx(w, np.degrees(np.unwrap(np.angle(L))), lw=0.9, label=label)
+    am.axhline(1.0, color="0.5", lw=0.6)
+    for ph in (-180.0, 180.0):
+        ap.axhline(ph, color="0.5", lw=0.6)
+    for f, label in marks:
+        for ax in (am, ap):
+            ax.axvline(f, color="0.4", ls=":", lw=0.8)
+        am.annotate(label, (f, am.get_ylim()[1]), fontsize=7, rotation=90, va="top", ha="right")
+    am.set_ylabel("|L(jw)|")
+    ap.set_ylabel("phase of L(jw) (deg)")
+    ap.set_xlabel("frequency (rad/s)")
+    am.set_title(title, fontsize=10)
+    am.legend(fontsize=8)
+    for ax in (am, ap):
+        ax.grid(alpha=0.3, which="both")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def plot_root_locus(cutoffs, roots, chosen_cutoff: float, title: str, path,
+                    zoom=((-12.0, 2.0), (0.0, 500.0))):
+    """Closed-loop roots (upper half-plane) as the cutoff varies, coloured by the cutoff; the
+    chosen cutoff's roots as stars. Left: all roots; right: the part near the imaginary axis."""
+    from matplotlib.colors import LogNorm
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.6))
+    cut = np.repeat(np.asarray(cutoffs)[:, None], roots.shape[1], axis=1)
+    up = roots.imag >= 0
+    i = int(np.argmin(np.abs(np.asarray(cutoffs) - chosen_cutoff)))
+    for ax in axes:
+        sc = ax.scatter(roots.real[up], roots.imag[up], c=cut[up], s=3, cmap="viridis",
+                        norm=LogNorm(vmin=min(cutoffs), vmax=max(cutoffs)))
+        r = roots[i][roots[i].imag >= 0]
+        ax.plot(r.real, r.imag, "*", color="C3", ms=8, label=f"cutoff {cutoffs[i]:.4g} rad/s")
+        ax.axvline(0.0, color="0.3", lw=0.7)
+        ax.set_xlabel("real part (1/s)")
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("imaginary part (rad/s)")
+    axes[0].set_xscale("symlog", linthresh=10.0)
+    axes[1].set_xlim(*zoom[0])
+    axes[1].set_ylim(*zoom[1])
+    axes[1].legend(fontsize=8, loc="upper left")
+    fig.colorbar(sc, ax=axes, label="cutoff (rad/s)")
+    fig.suptitle(title, fontsize=10)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def plot_worst_case(sweeps: dict, chosen: tuple, ylabel: str, title: str, path):
+    """Worst-case score against cutoff, one line per ``{label: (cutoffs, scores)}``;
+    ``chosen = (cutoff, score, label)`` is marked."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(8, 4.6))
+    for label, (wc, v) in sweeps.items():
+        ax.semilogx(wc, v, "-o", ms=2.5, lw=0.9, label=label)
+    ax.axhline(0.0, color="0.3", lw=0.7)
+    ax.plot([chosen[0]], [chosen[1]], "*", color="C3", ms=12, label=chosen[2])
+    lo = min(min(v) for _, v in sweeps.values())
+    ax.set_ylim(max(lo, -3.0 * abs(chosen[1])) * 1.05, abs(chosen[1]) * 1.3)
+    ax.set_xlabel("cutoff (rad/s)")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
     plt.close(fig)

@@ -1,0 +1,321 @@
+"""Robust design of the low-pass filter: the filter that keeps the largest worst-case stability
+margin over an uncertainty set of beams.
+
+The PD gains are given; the search runs over the filter order (1 and 2), the cutoff and, for the
+second order, the filter damping. A candidate is scored by its worst case over the uncertainty set
+(by default: ``n_modes`` 2..8, structural damping 0.05 %..0.2 %, ``EI`` +-10 %, cart mass +-20 %):
+
+- ``decay``: the smallest closed-loop decay rate ``-max Re(lambda)`` (1/s), the cart's drift roots
+  left aside as in :mod:`orchestration.analysis`;
+- ``damping``: the smallest damping ratio ``-Re(lambda)/|lambda|`` of any closed-loop root.
+
+The search evaluates a grid of candidates on a coarse grid of the uncertainty set (``levels``
+values of each continuous parameter, every ``n_modes``), refines the best candidate of each order
+by Nelder-Mead, rounds it (three significant digits of the cutoff, two decimals of the damping)
+and reports its worst case on a finer grid (``check_levels``), which the search did not see.
+All closed loops of one size are built and solved as one stack (``numpy.linalg.eigvals`` on a
+3-d array), so one candidate over the 189 plants of the default set costs a few milliseconds.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.optimize
+
+from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from plant_fmu.dynamics import plant_model
+from plant_fmu.params import PlantParams, check_int, check_real
+
+from .analysis import _drift_free, assemble_closed_loop
+from .config import ConfigError
+
+__all__ = ["DESIGN_DEFAULTS", "CRITERIA", "UncertaintySet", "RobustLoop", "WorstCase",
+           "DesignResult", "design_settings", "design_filter", "root_locus", "FILTER_KEYS"]
+
+#: Scores of a candidate filter: the worst-case decay rate or the worst-case damping ratio.
+CRITERIA = ("decay", "damping")
+#: The filter's scene keys, as the design reports them.
+FILTER_KEYS = ("controller.filter_order", "controller.cutoff", "controller.filter_damping")
+
+#: ``design.*`` keys of ``flexpend design`` with their defaults.
+DESIGN_DEFAULTS = {
+    "design.criterion": "decay",
+    "design.n_modes_min": 2,
+    "design.n_modes_max": 8,
+    "design.zeta_min": 5e-4,
+    "design.zeta_max": 2e-3,
+    "design.EI_spread": 0.1,
+    "design.m_spread": 0.2,
+    "design.levels": 3,
+    "design.check_levels": 5,
+    "design.cutoff_min": 20.0,
+    "design.cutoff_max": 1000.0,
+    "design.n_cutoffs": 41,
+    "design.damping_min": 0.1,
+    "design.damping_max": 2.0,
+    "design.n_dampings": 20,
+}
+
+
+def design_settings(cfg: dict) -> dict:
+    """The validated ``design.*`` keys of a configuration (a :class:`ConfigError` names a bad
+    one)."""
+    out = {k: cfg.get(k, v) for k, v in DESIGN_DEFAULTS.items()}
+    try:
+        if out["design.criterion"] not in CRITERIA:
+            raise ValueError(f"design.criterion = {out['design.criterion']!r} is not allowed; "
+                             f"allowed: {', '.join(CRITERIA)}")
+        for k, lo, hi in (("design.n_modes_min", 1, 40), ("design.n_modes_max", 1, 40),
+                          ("design.levels", 2, 11), ("design.check_levels", 2, 21),
+                          ("design.n_cutoffs", 3, 1000), ("design.n_dampings", 2, 1000)):
+            out[k] = check_int(k, out[k], low=lo, high=hi)
+        for k in ("design.zeta_min", "design.zeta_max"):
+            out[k] = check_real(k, out[k], low=0.0, high=1.0, high_open=True)
+        for k in ("design.EI_spread", "design.m_spread"):
+            out[k] = check_real(k, out[k], low=0.0, high=1.0, low_open=False, high_open=True)
+        for k in ("design.cutoff_min", "design.cutoff_max"):
+            out[k] = check_real(k, out[k], low=0.0, high=1e7)
+        for k in ("design.damping_min", "design.damping_max"):
+            out[k] = check_real(k, out[k], low=0.0, high=100.0)
+        for lo, hi in (("n_modes_min", "n_modes_max"), ("zeta_min", "zeta_max"),
+                       ("cutoff_min", "cutoff_max"), ("damping_min", "damping_max")):
+            if out[f"design.{lo}"] > out[f"design.{hi}"]:
+                raise ValueError(f"design.{lo} = {out[f'design.{lo}']} exceeds design.{hi} = "
+                                 f"{out[f'design.{hi}']}")
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+    return out
+
+
+@dataclass(frozen=True)
+class UncertaintySet:
+    """Beams around ``nominal``: every ``n_modes`` in ``n_modes``, structural damping in
+    ``zeta`` (absolute), ``EI`` and cart mass ``m`` within ``+-EI_spread`` and ``+-m_spread``
+    (relative to the nominal)."""
+
+    nominal: PlantParams
+    n_modes: tuple = (2, 8)
+    zeta: tuple = (5e-4, 2e-3)
+    EI_spread: float = 0.1
+    m_spread: float = 0.2
+
+    @classmethod
+    def from_settings(cls, nominal: PlantParams, s: dict) -> "UncertaintySet":
+        return cls(nominal, (s["design.n_modes_min"], s["design.n_modes_max"]),
+                   (s["design.zeta_min"], s["design.zeta_max"]), s["design.EI_spread"],
+                   s["design.m_spread"])
+
+    def axes(self, levels: int) -> dict:
+        """The grid's values per parameter: ``levels`` values of each continuous one, ends
+        included (damping spaced geometrically, EI and m linearly)."""
+        p = self.nominal
+        return {
+            "n_modes": list(range(self.n_modes[0], self.n_modes[1] + 1)),
+            "zeta": [float(z) for z in np.geomspace(*self.zeta, levels)],
+            "EI": [float(p.EI * f) for f in np.linspace(1 - self.EI_spread, 1 + self.EI_spread, levels)],
+            "m": [float(p.m * f) for f in np.linspace(1 - self.m_spread, 1 + self.m_spread, levels)],
+        }
+
+    def plants(self, levels: int) -> list[PlantParams]:
+        """Every combination of :meth:`axes` (the ends of each range included)."""
+        ax = self.axes(levels)
+        return [self.nominal.replace(n_modes=n, zeta=z, EI=e, m=m)
+                for n, z, e, m in itertools.product(*ax.values())]
+
+    def describe(self) -> dict:
+        return {"n_modes": list(self.n_modes), "zeta": list(self.zeta),
+                "EI": [self.nominal.EI * (1 - self.EI_spread), self.nominal.EI * (1 + self.EI_spread)],
+                "m": [self.nominal.m * (1 - self.m_spread), self.nominal.m * (1 + self.m_spread)]}
+
+
+@dataclass
+class WorstCase:
+    """The worst closed loop of a controller over a set of plants."""
+
+    decay: float                 # smallest decay rate -max Re(lambda), 1/s (negative: unstable)
+    damping: float               # smallest damping ratio of any root
+    decay_plant: PlantParams     # where they occur
+    damping_plant: PlantParams
+    decay_root: complex          # the root with the smallest decay rate
+    damping_root: complex
+    n_plants: int
+
+    def score(self, criterion: str) -> float:
+        return self.decay if criterion == "decay" else self.damping
+
+    @property
+    def stable(self) -> bool:
+        return self.decay > 0
+
+    def to_json(self) -> dict:
+        def plant(p):
+            return {"n_modes": p.n_modes, "zeta": p.zeta, "EI": p.EI, "m": p.m}
+        return {"stable": self.stable, "decay_rate": self.decay, "damping_ratio": self.damping,
+                "decay_rate_at": plant(self.decay_plant),
+                "decay_rate_root": [self.decay_root.real, self.decay_root.imag],
+                "damping_ratio_at": plant(self.damping_plant),
+                "damping_ratio_root": [self.damping_root.real, self.damping_root.imag],
+                "plants": self.n_plants}
+
+
+class RobustLoop:
+    """Closed loops of one controller with many plants, grouped by size and solved as stacks."""
+
+    def __init__(self, plants):
+        groups: dict[int, list[PlantParams]] = {}
+        for p in plants:
+            groups.setdefault(p.n_modes, []).append(p)
+        self.groups = []
+        for n, ps in sorted(groups.items()):
+            ss = [plant_model(p).state_space() for p in ps]
+            A, B, C = (np.stack([s[i] for s in ss]) for i in range(3))
+            self.groups.append((ps, A, B, C))
+        self.n_plants = sum(len(g[0]) for g in self.groups)
+
+    def eigenvalues(self, c: ControllerParams):
+        """``(plants, roots)`` per group; ``roots[k]`` are the closed-loop roots with
+        ``plants[k]``, the cart's drift roots left aside when the cart is not fed back."""
+        ctrl = PDLowPassModel(c).state_space()
+        for ps, A, B, C in self.groups:
+            yield ps, np.linalg.eigvals(_drift_free(assemble_closed_loop(A, B, C, ctrl), ps[0]))
+
+    def worst(self, c: ControllerParams) -> WorstCase:
+        best = {"decay": (math.inf, None, None), "damping": (math.inf, None, None)}
+        for ps, lam in self.eigenvalues(c):
+            decay = -lam.real                                   # (k, m)
+            mag = np.abs(lam)
+            zeta = np.where(mag > 0, -lam.real / np.where(mag > 0, mag, 1.0), 1.0)
+            for key, vals in (("decay", decay), ("damping", zeta)):
+                k, j = np.unravel_index(np.argmin(vals), vals.shape)
+                if vals[k, j] < best[key][0]:
+                    best[key] = (float(vals[k, j]), ps[k], complex(lam[k, j]))
+        (d, dp, dr), (z, zp, zr) = best["decay"], best["damping"]
+        return WorstCase(d, z, dp, zp, dr, zr, self.n_plants)
+
+
+def _filter(base: ControllerParams, order: int, cutoff: float, damping: float) -> ControllerParams:
+    return base.replace(filter_order=order, cutoff=float(cutoff), filter_damping=float(damping))
+
+
+def _round(order: int, cutoff: float, damping: float) -> tuple:
+    """Three significant digits of the cutoff, two decimals of the damping (what a scene holds)."""
+    digits = 2 - int(math.floor(math.log10(cutoff)))
+    return order, round(cutoff, digits), (round(damping, 2) if order == 2 else damping)
+
+
+@dataclass
+class DesignResult:
+    criterion: str
+    uncertainty: UncertaintySet
+    chosen: ControllerParams
+    worst: WorstCase                       # of the chosen filter, on the check grid
+    per_order: dict                        # order -> (ControllerParams, WorstCase on check grid)
+    baseline: dict                         # label -> (ControllerParams, WorstCase on check grid)
+    grid: list = field(default_factory=list)    # rows: order, cutoff, filter_damping, decay, damping
+    sweep: dict = field(default_factory=dict)   # label -> (cutoffs, worst-case score)
+    levels: int = 3
+    check_levels: int = 5
+
+    def filter_keys(self) -> dict:
+        c = self.chosen
+        return {"controller.filter_order": c.filter_order, "controller.cutoff": c.cutoff,
+                "controller.filter_damping": c.filter_damping}
+
+    def to_json(self) -> dict:
+        def ctrl(c):
+            return {"controller.filter_order": c.filter_order, "controller.cutoff": c.cutoff,
+                    "controller.filter_damping": c.filter_damping}
+        return {
+            "criterion": self.criterion,
+            "filter": self.filter_keys(),
+            "worst_case": self.worst.to_json(),
+            "uncertainty": {**self.uncertainty.describe(),
+                            "search_levels": self.levels, "check_levels": self.check_levels,
+                            "check_plants": self.worst.n_plants},
+            "best_per_order": {str(o): {"filter": ctrl(c), "worst_case": w.to_json()}
+                               for o, (c, w) in self.per_order.items()},
+            "baselines": {k: {"filter": ctrl(c), "worst_case": w.to_json()}
+                          for k, (c, w) in self.baseline.items()},
+        }
+
+
+def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
+                  progress=None) -> DesignResult:
+    """Search the filter with the largest worst-case score (see the module's docstring).
+
+    ``nominal`` fixes the beam around which ``EI`` and ``m`` vary (its ``n_modes`` and ``zeta``
+    are replaced by the uncertainty set's); ``base`` holds the PD gains; ``settings`` are the
+    validated ``design.*`` keys (:func:`design_settings`); ``progress(fraction)`` is called as the
+    grid is evaluated.
+    """
+    s = settings
+    crit = s["design.criterion"]
+    uset = UncertaintySet.from_settings(nominal, s)
+    search = RobustLoop(uset.plants(s["design.levels"]))
+    cutoffs = np.geomspace(s["design.cutoff_min"], s["design.cutoff_max"], s["design.n_cutoffs"])
+    dampings = np.linspace(s["design.damping_min"], s["design.damping_max"], s["design.n_dampings"])
+    cands = [(1, wc, base.filter_damping) for wc in cutoffs]
+    cands += [(2, wc, zf) for wc in cutoffs for zf in dampings]
+    grid = []
+    for i, (order, wc, zf) in enumerate(cands):
+        w = search.worst(_filter(base, order, wc, zf))
+        grid.append((order, float(wc), float(zf), w.decay, w.damping))
+        if progress is not None:
+            progress(0.9 * (i + 1) / len(cands))
+    score = 3 if crit == "decay" else 4
+
+    def neg_score(order, x):
+        wc, zf = math.exp(x[0]), (x[1] if order == 2 else base.filter_damping)
+        if not (s["design.cutoff_min"] <= wc <= s["design.cutoff_max"]) or not (
+                s["design.damping_min"] <= zf <= s["design.damping_max"]):
+            return math.inf
+        return -search.worst(_filter(base, order, wc, zf)).score(crit)
+
+    check = RobustLoop(uset.plants(s["design.check_levels"]))
+    per_order = {}
+    for order in (1, 2):
+        rows = [r for r in grid if r[0] == order]
+        _, wc, zf, *_ = max(rows, key=lambda r: r[score])
+        x0 = [math.log(wc), zf][:order]
+        opt = scipy.optimize.minimize(lambda x: neg_score(order, x), x0, method="Nelder-Mead",
+                                      options={"xatol": 1e-3, "fatol": 1e-6, "maxiter": 200,
+                                               "initial_simplex": _simplex(x0)})
+        x = opt.x if opt.fun <= neg_score(order, x0) else np.asarray(x0)
+        c = _filter(base, *_round(order, math.exp(x[0]), x[1] if order == 2 else zf))
+        per_order[order] = (c, check.worst(c))
+    if progress is not None:
+        progress(0.95)
+    chosen_order = max(per_order, key=lambda o: per_order[o][1].score(crit))
+    chosen, worst = per_order[chosen_order]
+    baseline = {"no filter": (base.replace(filter_order=0), check.worst(base.replace(filter_order=0))),
+                "given": (base, check.worst(base))}
+    # worst case against cutoff: 1st order, 2nd order at the chosen damping and at the best one
+    sweep = {"1st order": (cutoffs, [r[score] for r in grid if r[0] == 1])}
+    best_zf = [max((r for r in grid if r[0] == 2 and r[1] == wc), key=lambda r: r[score])[score]
+               for wc in cutoffs]
+    sweep["2nd order, best damping per cutoff"] = (cutoffs, best_zf)
+    zf = per_order[2][0].filter_damping
+    sweep[f"2nd order, zf = {zf:g}"] = (
+        cutoffs, [search.worst(_filter(base, 2, wc, zf)).score(crit) for wc in cutoffs])
+    if progress is not None:
+        progress(1.0)
+    return DesignResult(crit, uset, chosen, worst, per_order, baseline, grid, sweep,
+                        s["design.levels"], s["design.check_levels"])
+
+
+def _simplex(x0):
+    """Initial Nelder-Mead simplex: 10 % in cutoff, 0.05 in damping."""
+    steps = [0.1, 0.05][:len(x0)]
+    return [list(x0)] + [[v + (steps[i] if i == j else 0.0) for i, v in enumerate(x0)]
+                         for j in range(len(x0))]
+
+
+def root_locus(p: PlantParams, c: ControllerParams, cutoffs) -> tuple[np.ndarray, np.ndarray]:
+    """``(cutoffs, roots)``: the closed-loop roots (cart drift left aside) of ``p`` with ``c``
+    as its cutoff varies; ``roots[i]`` belongs to ``cutoffs[i]``."""
+    loop = RobustLoop([p])
+    roots = [next(loop.eigenvalues(c.replace(cutoff=float(wc))))[1][0] for wc in cutoffs]
+    return np.asarray(cutoffs, dtype=float), np.array(roots)
