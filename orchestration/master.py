@@ -25,7 +25,7 @@ integers.
 """
 from __future__ import annotations
 
-import ctypes
+import functools
 import math
 import sys
 import time as _time
@@ -125,10 +125,13 @@ class Slave:
         try:
             return fun(*args)
         except FMICallException as exc:
-            log = "; ".join(self.messages[-3:]) or "no log message"
-            at = f" at t = {t:.6g}" if t is not None else ""
-            raise CoSimulationError(f"{self.name}: {what}{at} returned {_STATUS[exc.status]}: {log}",
-                                    status=exc.status, time=t) from None
+            self._raise(what, exc.status, t)
+
+    def _raise(self, what, status, t):
+        log = "; ".join(self.messages[-3:]) or "no log message"
+        at = f" at t = {t:.6g}" if t is not None else ""
+        raise CoSimulationError(f"{self.name}: {what}{at} returned {_STATUS[status]}: {log}",
+                                status=status, time=t) from None
 
     def vr(self, name: str) -> int:
         try:
@@ -159,30 +162,65 @@ class Slave:
         self._call("enterInitializationMode", self.fmu.enterInitializationMode)
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
 
-    def bind(self, inputs, outputs):
-        """Preallocate ctypes buffers for the real inputs and outputs used every step."""
-        self._in_vr = (fmi2ValueReference * len(inputs))(*[self.vr(n) for n in inputs])
-        self._in_val = (fmi2Real * len(inputs))()
-        self._n_in = len(inputs)
-        self._out_vr = (fmi2ValueReference * len(outputs))(*[self.vr(n) for n in outputs])
-        self._out_val = (fmi2Real * len(outputs))()
-        self._n_out = len(outputs)
-        self._out_np = np.ctypeslib.as_array(self._out_val)
+    def bind(self, inputs, outputs, record=()):
+        """Preallocate the buffers of the real inputs and outputs exchanged every step, and of
+        the outputs only recorded at output points. The hot calls go straight to the FMU's
+        ctypes functions (as loaded by fmpy), without fmpy's per-call wrapper; their status is
+        checked here."""
+        def buffers(names):
+            vr = (fmi2ValueReference * len(names))(*[self.vr(n) for n in names])
+            val = (fmi2Real * len(names))()
+            return vr, val, len(names), np.ctypeslib.as_array(val) if names else np.zeros(0)
+
+        self._in_vr, self._in_val, self._n_in, self._in_np = buffers(list(inputs))
+        self._out_vr, self._out_val, self._n_out, self._out_np = buffers(list(outputs))
+        self._rec_vr, self._rec_val, self._n_rec, self._rec_np = buffers(list(record))
+        fun = getattr(self.fmu, "_functions", {})
+        c = self.fmu.component
+        raw = {name: fun.get(f"fmi2{name}") for name in ("SetReal", "GetReal", "DoStep")}
+        if all(raw.values()) and getattr(self.fmu, "fmiCallLogger", None) is None:
+            set_real, get_real, do_step = raw["SetReal"], raw["GetReal"], raw["DoStep"]
+            self._set_inputs_raw = lambda: set_real(c, self._in_vr, self._n_in, self._in_val)
+            self._get_outputs_raw = lambda: get_real(c, self._out_vr, self._n_out, self._out_val)
+            self._get_record_raw = lambda: get_real(c, self._rec_vr, self._n_rec, self._rec_val)
+            self._do_step_raw = lambda t, h: do_step(c, t, h, fmi2True)
+        else:                                    # fmpy's checked wrappers (they raise)
+            f = self.fmu
+            self._set_inputs_raw = lambda: f.fmi2SetReal(c, self._in_vr, self._n_in, self._in_val)
+            self._get_outputs_raw = lambda: f.fmi2GetReal(c, self._out_vr, self._n_out,
+                                                          self._out_val)
+            self._get_record_raw = lambda: f.fmi2GetReal(c, self._rec_vr, self._n_rec,
+                                                         self._rec_val)
+            self._do_step_raw = lambda t, h: f.fmi2DoStep(c, t, h, fmi2True)
+
+    def _checked(self, what, fun, *args, t=None):
+        try:
+            status = fun(*args)
+        except FMICallException as exc:
+            status = exc.status
+        if status is not None and status > 1:
+            self._raise(what, status, t)
 
     def set_inputs(self, values, t=None):
+        """Set the bound inputs to ``values`` (a sequence in the order of :meth:`bind`)."""
         if self._n_in:
-            for i, v in enumerate(values):
-                self._in_val[i] = v
-            self._call("setReal", self.fmu.fmi2SetReal, self.fmu.component, self._in_vr,
-                       self._n_in, self._in_val, t=t)
+            self._in_np[:] = values
+            self._checked("setReal", self._set_inputs_raw, t=t)
 
     def get_outputs(self, t=None) -> np.ndarray:
-        self._call("getReal", self.fmu.fmi2GetReal, self.fmu.component, self._out_vr,
-                   self._n_out, self._out_val, t=t)
+        """The bound outputs (a new array)."""
+        if self._n_out:
+            self._checked("getReal", self._get_outputs_raw, t=t)
         return self._out_np.copy()
 
+    def get_recorded(self, t=None) -> np.ndarray:
+        """The outputs bound as recorded only (a view, overwritten by the next call)."""
+        if self._n_rec:
+            self._checked("getReal", self._get_record_raw, t=t)
+        return self._rec_np
+
     def do_step(self, t: float, h: float):
-        self._call("doStep", self.fmu.fmi2DoStep, self.fmu.component, t, h, fmi2True, t=t)
+        self._checked("doStep", self._do_step_raw, t, h, t=t)
 
     def get_state(self):
         return self._call("getFMUstate", self.fmu.getFMUstate)
@@ -215,29 +253,34 @@ class Slave:
 def extrapolation_weights(times, t0: float, t1: float) -> np.ndarray:
     """Weights ``w`` with ``sum(w_i u_i)`` = the average over ``[t0, t1]`` of the polynomial
     through the samples ``(times_i, u_i)`` (degree ``len(times) - 1``)."""
-    times = np.asarray(times, dtype=float)
-    n = times.size
-    if n == 1:
-        return np.ones(1)
-    # Lagrange basis in a scaled variable for conditioning: tau = (t - t0) / (t1 - t0)
     h = t1 - t0
-    tau = (times - t0) / h
-    V = np.vander(tau, n, increasing=True)            # V[i, j] = tau_i^j
-    avg_monomials = 1.0 / np.arange(1, n + 1)          # average of tau^j over [0, 1]
-    return np.linalg.solve(V.T, avg_monomials)
+    # Lagrange basis in a scaled variable for conditioning: tau = (t - t0) / (t1 - t0)
+    return _weights(tuple(_key((ti - t0) / h) for ti in times), True)
 
 
 def _point_weights(times, t: float, scale: float) -> np.ndarray:
     """Weights evaluating the polynomial through the samples at ``t``."""
-    times = np.asarray(times, dtype=float)
-    n = times.size
+    return _weights(tuple(_key((ti - t) / scale) for ti in times), False)
+
+
+def _key(tau: float) -> float:
+    """``tau`` to 12 significant digits: a fixed communication step gives the same few node
+    patterns over and over, whose weights are then computed once."""
+    return float(f"{tau:.12g}")
+
+
+@functools.lru_cache(maxsize=4096)
+def _weights(tau: tuple, average: bool) -> np.ndarray:
+    """Weights of the polynomial through nodes ``tau``: its average over ``[0, 1]``
+    (``average``) or its value at 0."""
+    n = len(tau)
     if n == 1:
         return np.ones(1)
-    tau = (times - t) / scale
-    V = np.vander(tau, n, increasing=True)
-    e0 = np.zeros(n)
-    e0[0] = 1.0
-    return np.linalg.solve(V.T, e0)
+    V = np.vander(np.array(tau), n, increasing=True)       # V[i, j] = tau_i^j
+    rhs = 1.0 / np.arange(1, n + 1) if average else np.eye(n)[0]  # average of tau^j / value at 0
+    w = np.linalg.solve(V.T, rhs)
+    w.flags.writeable = False
+    return w
 
 
 class _History:
@@ -253,6 +296,10 @@ class _History:
         self.u.append(np.asarray(u, dtype=float))
         if len(self.t) > self.depth:
             del self.t[0], self.u[0]
+
+    def pop(self):
+        self.t.pop()
+        self.u.pop()
 
     def snapshot(self):
         return list(self.t), list(self.u)
@@ -307,11 +354,22 @@ class Master:
         self.min_step, self.max_step = float(min_step), float(max_step)
         # per-slave input connections (in order) and the outputs each slave must provide
         self.inputs = {n: [c for c in self.connections if c.dst == n] for n in names}
-        self.outputs = {n: sorted({c.src_var for c in self.connections if c.src == n}
-                                  | {v for s, v in self.record.values() if s == n}) for n in names}
+        #: outputs exchanged every step (connection sources), and outputs only recorded
+        self.outputs = {n: sorted({c.src_var for c in self.connections if c.src == n})
+                        for n in names}
+        self.recorded = {n: sorted({v for s, v in self.record.values() if s == n}
+                                   - set(self.outputs[n])) for n in names}
         for n, s in slaves.items():
-            s.bind([c.dst_var for c in self.inputs[n]], self.outputs[n])
+            s.bind([c.dst_var for c in self.inputs[n]], self.outputs[n], self.recorded[n])
         self._out_index = {n: {v: i for i, v in enumerate(self.outputs[n])} for n in names}
+        # each slave's inputs gathered from its sources: (source, input positions, output indices)
+        self._gather = {n: [(src, np.array([i for i, c in enumerate(self.inputs[n])
+                                            if c.src == src]),
+                             np.array([self._out_index[src][c.src_var]
+                                       for c in self.inputs[n] if c.src == src]))
+                            for src in dict.fromkeys(c.src for c in self.inputs[n])]
+                        for n in names}
+        self._in_buf = {n: np.zeros(len(self.inputs[n])) for n in names}
 
     def connection_table(self) -> str:
         rows = [("from", "to")] + [(f"{c.src}.{c.src_var}", f"{c.dst}.{c.dst_var}")
@@ -325,12 +383,20 @@ class Master:
         """``sum_i w_i u_i`` over the newest ``p + 1`` samples of ``h`` (fewer at the start),
         ``w = weights(times)``: the extrapolation polynomial, averaged or evaluated."""
         k = min(self.p + 1, len(h.t))
+        us = h.u
+        if k == 1:
+            return us[-1]
         w = weights(h.t[-k:])
-        return sum(wi * u for wi, u in zip(w, h.u[-k:]))
+        acc = w[0] * us[-k]
+        for i in range(1, k):
+            acc += w[i] * us[i - k]
+        return acc
 
     def _inputs(self, dst, hist, weights):
-        return [float(self._polynomial(hist[c.src], weights)[self._out_index[c.src][c.src_var]])
-                for c in self.inputs[dst]]
+        buf = self._in_buf[dst]
+        for src, pos, idx in self._gather[dst]:
+            buf[pos] = self._polynomial(hist[src], weights)[idx]
+        return buf
 
     def _held_inputs(self, dst, hist, t0, t1):
         """Input values for ``dst`` held over ``[t0, t1]``: the polynomials' step averages."""
@@ -373,21 +439,20 @@ class Master:
                 hist[n].push(t1, new[n])    # later slaves interpolate between t0 and t1
                 pushed.append(n)
             for n in pushed:                # undo: the caller pushes all at once
-                hist[n].t.pop()
-                hist[n].u.pop()
+                hist[n].pop()
         return new
 
     def _coupling_error(self, hist, new, t1):
         """Weighted max difference between the predicted and the actual source outputs."""
         err = 0.0
-        for c in self.connections:
-            i = self._out_index[c.src][c.src_var]
-            if len(hist[c.src].t) == 0:
+        weights = self._point_weights_at(t1)
+        for src in dict.fromkeys(c.src for c in self.connections):
+            if len(hist[src].t) == 0:
                 continue
-            pred = self._polynomial(hist[c.src], self._point_weights_at(t1))[i]
-            actual = new[c.src][i]
-            scale = self.tol * max(1.0, abs(actual))
-            err = max(err, abs(pred - actual) / scale)
+            pred = self._polynomial(hist[src], weights)
+            actual = new[src]
+            scale = self.tol * np.maximum(1.0, np.abs(actual))
+            err = max(err, float(np.max(np.abs(pred - actual) / scale)))
         return err
 
     def _initial_outputs(self, t0):
@@ -496,9 +561,13 @@ class Master:
                 progress(j / n_out)
 
     def _store(self, out, i, t, cur):
+        """Row ``i``: time, then the recorded outputs (the slaves are at ``t``)."""
+        rec = {n: (dict(zip(self.recorded[n], s.get_recorded(t).tolist()))
+                   if self.recorded[n] else {}) for n, s in self.slaves.items()}
         row = [t]
         for col, (s, v) in self.record.items():
-            row.append(cur[s][self._out_index[s][v]])
+            i_out = self._out_index[s].get(v)
+            row.append(cur[s][i_out] if i_out is not None else rec[s][v])
         out[i] = tuple(row)
 
     def close(self):
