@@ -56,6 +56,13 @@ def _fmt(v, spec=".4g"):
     return format(v, spec)
 
 
+def _no_auto(cfg, command):
+    for key in ("plant.n_modes", "plant.fidelity"):
+        if cfg.get(key) == "auto":
+            raise ConfigError(f"{key} = 'auto' is chosen by a run (flexpend run); flexpend "
+                              f"{command} needs a value")
+
+
 def cmd_analyze(args) -> int:
     from .analysis import analyze
 
@@ -63,6 +70,7 @@ def cmd_analyze(args) -> int:
 
     # every scene key is accepted; those that do not change the linear loop are ignored
     cfg = apply_overrides(default_config(), args.set, known=known_keys())
+    _no_auto(cfg, "analyze")
     fidelity(cfg)
     p, c = plant_params(cfg), controller_params(cfg)
     a = analyze(p, c)
@@ -115,6 +123,7 @@ def cmd_design(args) -> int:
 
     known = {**known_keys(), **DESIGN_DEFAULTS}
     cfg = apply_overrides(known, args.set, known=known)
+    _no_auto(cfg, "design")
     fidelity(cfg)
     settings = design_settings(cfg)
     p, c = plant_params(cfg), controller_params(cfg)
@@ -205,6 +214,14 @@ def _print_summary(name, s, out_dir):
         return "-" if o is None else f"rate {o['rate']:+.3f} 1/s at {o['frequency']:.2f} rad/s"
     verdict = "stable" if s["stable"] else "UNSTABLE"
     print(f"{name}: {verdict}")
+    if s.get("model"):
+        m = s["model"]
+        auto = " and ".join(k for k, on in (("plant.n_modes", m["n_modes_auto"]),
+                                               ("plant.fidelity", m["fidelity_auto"])) if on)
+        print(f"  model: {m['n_modes']} modes, {m['fidelity']} ({auto} = auto, tolerance "
+              f"{100 * m['tolerance']:g} % on {', '.join(m['outputs'])})")
+        for part in m["reason"].split("; "):
+            print(f"    {part}")
     if s.get("failure"):
         print(f"  stopped: {s['failure']}")
     print(f"  slow (rigid) oscillation: {osc(s.get('slow'))}")
@@ -247,7 +264,7 @@ def cmd_run(args) -> int:
         title = f"{scene.name}: {scene['description']}" if scene["description"] else scene.name
         plots.plot_time_histories(r.result, title, out_dir / f"{scene.name}.png", r.reference)
         if r.frames:
-            plots.plot_snapshots(scene_beam(scene), r.frames, f"{scene.name}: beam shapes",
+            plots.plot_snapshots(scene_beam(r.scene), r.frames, f"{scene.name}: beam shapes",
                                  out_dir / f"{scene.name}_shapes.png")
         summaries[scene.name] = r.summary
         results[scene.name] = r.result

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import ConfigError
+from .fidelity import needs_selection, select_model
 from .fit import dominant_oscillation
 from .master import CoSimulationError, Master, Slave, parse_connection
 from .reference import COLUMNS
@@ -90,6 +91,7 @@ class SceneResult:
     stats: object = None
     reference: np.ndarray | None = None
     frames: list = field(default_factory=list)
+    scene: object = None          # the scene that ran (its model chosen when it was "auto")
 
 
 def _fit_window(t, y):
@@ -133,7 +135,15 @@ def summarize(res: np.ndarray, failure: str | None = None) -> dict:
 def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = True,
               connections_out=None,
               snapshot_times=(0.0, 0.5, 1.0, 2.0, 4.0, 6.0, 8.0, 10.0)) -> SceneResult:
-    """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``)."""
+    """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
+
+    A scene with ``plant.n_modes`` or ``plant.fidelity`` ``"auto"`` gets its model chosen first
+    (:func:`orchestration.fidelity.select_model`); the summary's ``model`` entry says which and why,
+    and the result's ``scene`` is the resolved scene."""
+    model = None
+    if needs_selection(scene):
+        scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
+                                    if progress else None)
     cfg = scene.config
     slaves = {}
     try:
@@ -166,7 +176,9 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     summary = summarize(res, failure)
     if stats is not None:
         summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected)
-    out = SceneResult(scene.name, res, summary, stats, frames=frames)
+    if model is not None:
+        summary["model"] = model
+    out = SceneResult(scene.name, res, summary, stats, frames=frames, scene=scene)
     if reference and failure is None:
         from .reference import simulate_reference
         ref = simulate_reference(scene)

@@ -15,11 +15,12 @@ from pathlib import Path
 from plant_fmu.fmu import FMU_DEFAULTS
 from plant_fmu.params import check_bool, check_int, check_real
 
-from .config import (ConfigError, apply_overrides, check_known, controller_params, default_config, fidelity,
-                     plant_params)
+from .config import (FIDELITIES, ConfigError, apply_overrides, check_known, controller_params,
+                     default_config, plant_params)
+from .fidelity import AUTO, FIDELITY_DEFAULTS, validate_fidelity_keys
 
 __all__ = ["Scene", "SCENE_DIR", "SCENE_DEFAULTS", "load_scene", "scene_from_config",
-           "list_scenes", "PAPER_SCENES", "ALGORITHMS"]
+           "list_scenes", "PAPER_SCENES", "ALGORITHMS", "validate_config"]
 
 SCENE_DIR = Path(__file__).parent / "scenes"
 #: The paper's sample, in the order of its figures: rigid + PD, flexible + PD, flexible + filter.
@@ -54,6 +55,8 @@ SCENE_DEFAULTS = {
     # the plant FMU's solver settings and divergence bounds, with the FMU's own defaults
     **{f"plant.{k}": v for k, v in FMU_DEFAULTS.items()
        if k not in ("fidelity", "phi0", "x0", "phi_dot0", "x_dot0")},
+    # the choice of plant.n_modes = "auto" / plant.fidelity = "auto" (orchestration/fidelity.py)
+    **FIDELITY_DEFAULTS,
 }
 
 
@@ -100,9 +103,14 @@ def _validate(cfg: dict) -> None:
         except (TypeError, ValueError) as exc:
             raise ConfigError(str(exc)) from None
 
-    plant_params(cfg)
+    n_modes = cfg["plant.n_modes"]
+    if isinstance(n_modes, str) and n_modes != AUTO:
+        raise ConfigError(f"plant.n_modes = {n_modes!r} is not allowed; allowed: an integer "
+                          f"0..plant.n_elements or {AUTO!r}")
+    plant_params({**cfg, "plant.n_modes": 0} if n_modes == AUTO else cfg)
     controller_params(cfg)
-    fidelity(cfg)
+    _choice("plant.fidelity", cfg["plant.fidelity"], (*FIDELITIES, AUTO))
+    validate_fidelity_keys(cfg)
     real("stop_time", low=0.0, high=1e6)
     real("output_interval", low=0.0, high=1e6)
     for k in ("initial.phi", "initial.x", "initial.phi_dot", "initial.x_dot"):
@@ -151,6 +159,10 @@ def _validate(cfg: dict) -> None:
     if not cfg["master.adaptive"] and abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise ConfigError(f"output_interval = {cfg['output_interval']} must be a multiple of "
                           f"master.step = {cfg['master.step']}")
+
+
+#: Validates a scene's configuration in place (a :class:`ConfigError` names the bad key).
+validate_config = _validate
 
 
 def known_keys() -> dict:
