@@ -1,0 +1,88 @@
+"""Fidelity selection (plant.n_modes = "auto", plant.fidelity = "auto"), each choice checked by a
+measurement of its own: the time responses fitted by the matrix pencil, or the co-simulated FMUs."""
+import numpy as np
+import pytest
+
+from orchestration.config import ConfigError
+from orchestration.fidelity import output_difference, select_model
+from orchestration.reference import simulate_reference
+from orchestration.run import run_scene, summarize
+from orchestration.scenes import Scene, load_scene
+
+OUTPUTS = ["x", "phi_o", "omega_o", "F_c"]
+
+
+def _with(scene, **values):
+    return Scene(scene.name, {**scene.config, **{k.replace("__", "."): v for k, v in values.items()}})
+
+
+def test_rigid_scene_needs_no_mode():
+    scene = load_scene("rigid_pd", ["plant.n_modes=auto", "stop_time=3"])
+    resolved, report = select_model(scene)
+    assert resolved.plant.n_modes == 0 and report["n_modes"] == 0
+    # measured: the rigid run agrees with a two-mode beam to the tolerance
+    rigid = simulate_reference(_with(resolved, plant__n_modes=0), rtol=1e-8, atol=1e-10)
+    beam = simulate_reference(_with(resolved, plant__n_modes=2), rtol=1e-8, atol=1e-10)
+    assert max(output_difference(rigid, beam, OUTPUTS).values()) <= report["tolerance"]
+
+
+def test_flexible_pd_needs_at_least_two_modes():
+    scene = load_scene("flexible_pd", ["plant.n_modes=auto", "stop_time=2",
+                                       "fidelity.max_modes=4"])
+    resolved, report = select_model(scene)
+    assert resolved.plant.n_modes >= 2
+    assert "predict stability wrongly" in report["reason"]
+    # measured on the time response: one mode lets the bending oscillation decay, two let it grow
+    rates = {}
+    for n in (1, 2):
+        run = simulate_reference(_with(scene, plant__n_modes=n, plant__fidelity="nonlinear",
+                                       initial__phi=0.05, stop_time=4.0), rtol=1e-8, atol=1e-10)
+        rates[n] = summarize(run)["bending"]["rate"]
+    assert rates[1] < 0 < rates[2]
+
+
+def _cosim_difference(fmus, scene):
+    """Co-simulate the scene with both fidelities: the largest relative difference of the outputs."""
+    paths = {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
+    runs = {f: run_scene(_with(scene, plant__fidelity=f), paths, progress=False).result
+            for f in ("linear", "nonlinear")}
+    return max(output_difference(runs["linear"], runs["nonlinear"], OUTPUTS).values())
+
+
+@pytest.mark.slow
+def test_filtered_scene_small_angle_is_served_by_the_linear_model(fmus):
+    scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", "initial.phi=0.05"])
+    paths = {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
+    r = run_scene(scene, paths, progress=False)
+    assert r.summary["model"]["fidelity"] == "linear" and r.scene["plant.fidelity"] == "linear"
+    assert r.summary["model"]["n_modes"] == 4
+    # measured by the co-simulated FMUs: linear and nonlinear plants agree to the tolerance
+    assert _cosim_difference(fmus, r.scene) <= r.summary["model"]["tolerance"]
+
+
+@pytest.mark.slow
+def test_filtered_scene_from_pi_over_6_needs_the_nonlinear_model(fmus):
+    scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto"])
+    resolved, report = select_model(scene)
+    assert resolved["plant.fidelity"] == "nonlinear"
+    assert _cosim_difference(fmus, resolved) > report["tolerance"]
+
+
+@pytest.mark.parametrize("item,fragment", [
+    ("plant.n_modes=many", "plant.n_modes = 'many' is not allowed; allowed: an integer"),
+    ("plant.fidelity=exact", "plant.fidelity = 'exact' is not allowed; allowed: nonlinear, "
+                             "linear, auto"),
+    ("fidelity.tolerance=0", "fidelity.tolerance = 0.0 is out of range"),
+    ("fidelity.max_modes=0", "fidelity.max_modes = 0 is out of range"),
+    ('fidelity.outputs=["phi"]', "fidelity.outputs = ['phi'] is not allowed"),
+])
+def test_bad_fidelity_keys_are_named(item, fragment):
+    with pytest.raises(ConfigError, match=fragment.replace("[", r"\[").replace("]", r"\]")
+                       .replace("(", r"\(")):
+        load_scene("flexible_pd", [item])
+
+
+def test_analyze_refuses_auto(capsys):
+    from orchestration.cli import main
+    assert main(["analyze", "--set", "plant.n_modes=auto"]) == 2
+    assert "plant.n_modes = 'auto' is chosen by a run" in capsys.readouterr().err
