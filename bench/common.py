@@ -1,0 +1,206 @@
+"""What the benchmarks share: the trivial FMUs (the FMI overhead floor), the co-simulation and
+monolithic runs of a scene, the error measure and the timing discipline.
+
+* **Error**: the largest absolute error of ``phi_o`` over the run, on the scene's output grid,
+  against the monolithic reference (:func:`orchestration.reference.simulate_reference`, DOP853 at
+  rtol = atol = 1e-12).
+* **Time**: the median of ``runs`` timed repetitions after one untimed warm-up (JIT compilation,
+  caches, page faults), with ``time.perf_counter``. Co-simulation times are the master's
+  ``RunStats.wall_time`` (initialisation and stepping; FMU loading excluded, as for a loop that
+  runs many times), monolithic times the ``solve_ivp`` call.
+* **One core**: BLAS threads are limited to one before numpy is imported.
+"""
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import statistics  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from orchestration.fmu_build import build_fmus  # noqa: E402
+from orchestration.master import Master, Slave, parse_connection  # noqa: E402
+from orchestration.reference import ClosedLoop, simulate_reference  # noqa: E402
+from orchestration.run import (DEFAULT_CONNECTIONS, controller_start_values,  # noqa: E402
+                               plant_start_values)
+from orchestration.scenes import load_scene  # noqa: E402
+
+__all__ = ["ROOT", "RESULTS", "product_fmus", "trivial_fmus", "CoSim", "monolithic",
+           "reference", "median_time", "COUPLING_RECORD", "load_scene"]
+
+RESULTS = ROOT / "bench" / "results"
+
+#: What every timed loop records: the coupling signals only, so that the real and the trivial
+#: loops do the same master work.
+COUPLING_RECORD = {"phi_o": ("plant", "phi_o"), "omega_o": ("plant", "omega_o"),
+                   "x": ("plant", "x_o"), "F_c": ("controller", "F_c")}
+
+_TRIVIAL = '''from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real
+
+
+class {name}(Fmi2Slave):
+    """{doc}"""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+{init}
+
+    def do_step(self, current_time, step_size):
+{step}
+        return True
+
+
+if "_PYTHONFMU_DICT_REFS" not in globals():   # see orchestration/fmu_build.py
+    _PYTHONFMU_DICT_REFS = [globals()] * 1024
+'''
+
+
+def _variables(inputs, outputs):
+    lines = []
+    for n in (*inputs, *outputs):
+        lines.append(f"        self.{n} = 0.0")
+    for n in inputs:
+        lines.append(f"        self.register_variable(Real({n!r}, causality=Fmi2Causality.input, "
+                     f"variability=Fmi2Variability.continuous, start=0.0))")
+    for n in outputs:
+        lines.append(f"        self.register_variable(Real({n!r}, causality=Fmi2Causality.output, "
+                     f"variability=Fmi2Variability.continuous, initial=Fmi2Initial.exact, "
+                     f"start=0.0))")
+    return "\n".join(lines)
+
+
+def trivial_fmus(folder: Path | None = None) -> dict:
+    """Two pythonfmu FMUs with the interfaces of the product's (same variable names, so the same
+    connections), whose ``doStep`` only copies a scaled input: ``{"plant": path, "controller":
+    path}``. The loop over them costs what FMI, ctypes, pythonfmu and the master cost."""
+    folder = Path(folder or tempfile.mkdtemp(prefix="flexpend_trivial_"))
+    specs = {
+        "plant": ("TrivialPlant", "F_c -> x_o, phi_o, omega_o: the plant's interface, no model.",
+                  ("F_c",), ("x_o", "phi_o", "omega_o"),
+                  "        self.x_o = self.phi_o = self.omega_o = 1e-3 * self.F_c"),
+        "controller": ("TrivialController", "phi_o, omega_o, x_o -> F_c: the controller's "
+                       "interface, no model.", ("phi_o", "omega_o", "x_o"), ("F_c",),
+                       "        self.F_c = -0.5 * (self.phi_o + self.omega_o + self.x_o)"),
+    }
+    paths = {}
+    for key, (name, doc, inputs, outputs, step) in specs.items():
+        src = folder / f"{name}.py"
+        src.write_text(_TRIVIAL.format(name=name, doc=doc, init=_variables(inputs, outputs),
+                                       step=step))
+        subprocess.run([sys.executable, "-m", "pythonfmu", "build", "-f", str(src), "-d",
+                        str(folder)], check=True, capture_output=True, cwd=folder)
+        paths[key] = folder / f"{name}.fmu"
+    return paths
+
+
+def product_fmus() -> dict:
+    """The product's FMUs (built if missing or stale): ``{"plant": path, "controller": path}``."""
+    f = build_fmus()
+    return {"plant": f["FlexiblePendulum"], "controller": f["PDLowPass"]}
+
+
+class CoSim:
+    """The master over two FMUs for one scene, reusable for repeated timed runs (the FMUs are
+    loaded once; every run re-initialises them from the scene's parameters)."""
+
+    def __init__(self, scene, fmus: dict, *, trivial: bool = False, record=None):
+        self.scene = scene
+        cfg = scene.config
+        self.trivial = trivial
+        starts = ({}, {}) if trivial else (plant_start_values(scene),
+                                           controller_start_values(scene))
+        self.fmus = fmus
+        self._starts = starts
+        self._record = dict(record or COUPLING_RECORD)
+        self._master_kw = dict(algorithm=cfg["master.algorithm"], first=cfg["master.first"],
+                               step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
+                               adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
+                               min_step=cfg["master.min_step"], max_step=cfg["master.max_step"])
+        self._connections = [parse_connection(c) for c in
+                             (DEFAULT_CONNECTIONS if trivial else cfg["connections"])]
+
+    def run(self):
+        """One run from t = 0: ``(result, stats)``; FMUs instantiated fresh (not timed)."""
+        cfg = self.scene.config
+        slaves = {}
+        try:
+            slaves["plant"] = Slave(self.fmus["plant"], "plant", self._starts[0],
+                                    unzipdir=self._unzip("plant"))
+            slaves["controller"] = Slave(self.fmus["controller"], "controller", self._starts[1],
+                                         unzipdir=self._unzip("controller"))
+            if self.trivial:       # the product's dependency structure: the same master work
+                slaves["plant"].feedthrough = False
+                slaves["controller"].feedthrough = True
+            master = Master(slaves, self._connections, self._record, **self._master_kw)
+            return master.run(0.0, cfg["stop_time"], cfg["output_interval"])
+        finally:
+            for s in slaves.values():
+                s.close()
+
+    _unzipped: dict = {}
+
+    def _unzip(self, key):
+        from fmpy import extract
+        path = str(self.fmus[key])
+        if path not in CoSim._unzipped:
+            CoSim._unzipped[path] = extract(path)
+        return CoSim._unzipped[path]
+
+
+def reference(scene) -> np.ndarray:
+    """The monolithic reference of ``scene`` (structured array on the output grid)."""
+    return simulate_reference(scene)
+
+
+def phi_error(result, ref) -> float:
+    """Largest |phi_o - phi_o_ref| over the output grid (inf if the run failed or diverged)."""
+    if len(result) != len(ref):
+        return float("inf")
+    e = np.abs(result["phi_o"] - ref["phi_o"])
+    return float(np.max(e)) if np.all(np.isfinite(e)) else float("inf")
+
+
+def monolithic(scene, method: str, rtol: float, atol: float | None = None):
+    """``solve_ivp`` on the scene's monolithic closed loop (the compiled plant right-hand side):
+    ``(seconds, phi_o on the output grid or None if it failed, nfev)``."""
+    import scipy.integrate
+    loop = ClosedLoop(scene)
+    t_end, dt = scene["stop_time"], scene["output_interval"]
+    t_eval = np.arange(int(round(t_end / dt)) + 1) * dt
+    t_eval[-1] = min(t_eval[-1], t_end)
+    t0 = time.perf_counter()
+    with np.errstate(all="ignore"):
+        try:
+            sol = scipy.integrate.solve_ivp(loop.rhs, (0.0, t_end), loop.x0, method=method,
+                                            rtol=rtol, atol=rtol * 1e-3 if atol is None else atol,
+                                            t_eval=t_eval)
+        except (ValueError, np.linalg.LinAlgError):
+            return time.perf_counter() - t0, None, 0
+    wall = time.perf_counter() - t0
+    if not sol.success or sol.t.size != t_eval.size:
+        return wall, None, sol.nfev
+    phi = np.array([loop.plant.tip_angle(sol.y[:loop.np, i])[0] for i in range(sol.t.size)])
+    return wall, phi, sol.nfev
+
+
+def median_time(fn, runs: int):
+    """``(median seconds, all seconds, last value)`` of ``fn() -> (seconds, value)``, after one
+    untimed warm-up call."""
+    fn()
+    times, value = [], None
+    for _ in range(runs):
+        dt, value = fn()
+        times.append(dt)
+    return statistics.median(times), times, value
