@@ -1,0 +1,505 @@
+"""Linear stability of the co-simulation: the transition matrix of one communication step.
+
+At small amplitude the plant is its linearisation ``x' = A x + B F_c``, ``y = C x`` (sensors
+``y = [x_o, phi_o, omega_o]``) and the controller is linear, so one communication step of the
+master (:mod:`orchestration.master`) is a linear map ``z_{k+1} = Phi z_k`` of an augmented state
+
+    z = [x, xc, y_k, y_{k-1} .. y_{k-p}, F_k, F_{k-1} .. F_{k-p}]
+
+(plant state, filter state, the sensor and force samples the extrapolation of order ``p`` uses).
+``Phi`` models what the master does, step by step:
+
+* each FMU's input is held over ``doStep``: the step average of the polynomial through the last
+  ``p + 1`` samples of its source (:func:`orchestration.master.extrapolation_weights`), fewer at
+  the start;
+* Gauss-Seidel: the second FMU gets the polynomial through the newest samples *including* the first
+  FMU's output at ``t_k+1`` (an interpolation);
+* the controller declares direct feedthrough, so before its output is read its inputs are set to
+  the sources' polynomials evaluated at ``t_k+1`` (extrapolated from the samples up to ``t_k``,
+  except after the plant stepped first in Gauss-Seidel, when they are the new samples themselves);
+  only with ``filter_order = 0`` does ``F_c`` depend on them;
+* the controller advances its filter exactly (zero-order hold, ``PDLowPassModel.discretize``);
+* the plant FMU advances with its internal method on the substep grid of
+  :class:`plant_fmu.integrators.base.Stepper` (whole substeps ``h``, then one shortened substep
+  when ``H`` is not a multiple of ``h``), the input held: for a linear method on a linear plant one
+  substep is a matrix, e.g. RK4's ``R(hA) = I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24`` with its
+  input term (:func:`substep_matrix`).
+
+The spectral radius ``rho(Phi)`` decides: the co-simulation of the linearised loop decays iff
+``rho < 1``. With ``kx = 0`` the cart's position and velocity are neither fed back nor felt by the
+other states; they are left out structurally (``drift_free``), as in
+:mod:`orchestration.analysis`, because their double root at zero (one at 1 per step) would hide
+the verdict.
+
+:func:`integrator_step_limit` gives where a plant method fails on the plant's highest mode (its
+stability function on the plant's eigenvalues); :func:`observed_spectral_radius` measures the
+growth per step of a co-simulation's output samples (an eigensystem realisation of the sampled
+outputs), which is what the tests and ``bench/stability_map.py`` compare with ``rho(Phi)``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from plant_fmu.dynamics import plant_model
+from plant_fmu.params import PlantParams
+
+from .master import extrapolation_weights
+
+__all__ = ["METHODS", "FIXED_STEP_METHODS", "ALGORITHMS", "substep_matrix", "plant_step_map",
+           "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
+           "first_crossing", "critical_value", "highest_mode", "sdof_matrix",
+           "substep_spectral_radius", "integrator_step_limit", "observed_spectral_radius",
+           "hankel_poles", "LinearPlant", "SCHEMES"]
+
+#: plant methods whose substep is a fixed linear map on a linear plant
+METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau", "exponential")
+#: the methods the plant FMU runs with fixed substeps (dopri5 and radau are adaptive in the FMU)
+FIXED_STEP_METHODS = ("euler", "symplectic_euler", "rk4", "genalpha", "exponential")
+ALGORITHMS = ("jacobi", "gauss-seidel")
+#: the coupling schemes of the stability map: (label, algorithm, first FMU)
+SCHEMES = (("jacobi", "jacobi", "controller"),
+           ("gs-controller-first", "gauss-seidel", "controller"),
+           ("gs-plant-first", "gauss-seidel", "plant"))
+
+_SNAP = 1e-7          # as plant_fmu.integrators.base: a substep ending this close lands on the end
+_EPS = float(np.finfo(float).eps)
+
+
+# ---------------------------------------------------------------------- explicit tableaus
+def _tableau(method):
+    """Butcher tableau ``(A, b)`` of the explicit methods (the published coefficients)."""
+    if method == "euler":
+        return np.zeros((1, 1)), np.ones(1)
+    if method == "rk4":
+        A = np.zeros((4, 4))
+        A[1, 0] = A[2, 1] = 0.5
+        A[3, 2] = 1.0
+        return A, np.array([1, 2, 2, 1]) / 6.0
+    if method == "dopri5":   # Dormand & Prince (1980), 5th-order weights (local extrapolation)
+        A = np.zeros((7, 7))
+        A[1, :1] = [1 / 5]
+        A[2, :2] = [3 / 40, 9 / 40]
+        A[3, :3] = [44 / 45, -56 / 15, 32 / 9]
+        A[4, :4] = [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729]
+        A[5, :5] = [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656]
+        b = np.array([35 / 384, 0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84, 0])
+        A[6, :6] = b[:6]
+        return A, b
+    raise ValueError(method)
+
+
+_S6 = math.sqrt(6.0)
+#: Radau IIA (3 stages, order 5), Hairer & Wanner II, Table IV.5.6
+_A_RADAU = np.array([
+    [(88 - 7 * _S6) / 360, (296 - 169 * _S6) / 1800, (-2 + 3 * _S6) / 225],
+    [(296 + 169 * _S6) / 1800, (88 + 7 * _S6) / 360, (-2 - 3 * _S6) / 225],
+    [(16 - _S6) / 36, (16 + _S6) / 36, 1 / 9]])
+
+
+def _check_method(method):
+    if method not in METHODS:
+        raise ValueError(f"method = {method!r} is not a linear fixed-step method; allowed: "
+                         f"{', '.join(METHODS)}")
+
+
+def _augmented(A, B):
+    """``[[A, B], [0, 0]]``: the input as a state with zero derivative (held over the step)."""
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A
+    M[:n, n:] = B
+    return M
+
+
+def substep_matrix(method: str, A, B, nq: int, h: float, rho_inf: float = 0.8) -> np.ndarray:
+    """One substep ``h`` of ``method`` on ``x' = A x + B u`` (``u`` held), as a matrix on
+    ``[x, u]`` (on ``[x, a, qdd, u]`` for ``genalpha``, whose auxiliary acceleration ``a`` and
+    acceleration ``qdd`` are carried from substep to substep).
+
+    ``x = [q, qd]`` with ``nq`` positions (the partitioned methods ``symplectic_euler`` and
+    ``genalpha`` need it; ``A[:nq] = [0, I]``). ``rho_inf`` is genalpha's spectral radius at
+    infinity. Explicit Runge-Kutta methods give the polynomial ``R(hA)`` and its input term.
+    """
+    _check_method(method)
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float).reshape(A.shape[0], -1)
+    if not (isinstance(h, (int, float)) and h > 0 and math.isfinite(h)):
+        raise ValueError(f"h = {h!r}; allowed: a finite number > 0")
+    n = A.shape[0]
+    M = _augmented(A, B)
+    N = M.shape[0]
+    I = np.eye(N)
+    if method in ("euler", "rk4", "dopri5"):
+        a, b = _tableau(method)
+        K = []
+        for i in range(b.size):
+            K.append(M @ (I + h * sum((a[i, j] * K[j] for j in range(i) if a[i, j]),
+                                      np.zeros((N, N)))))
+        return I + h * sum(bi * Ki for bi, Ki in zip(b, K))
+    if method == "exponential":
+        return scipy.linalg.expm(M * h)
+    if method == "symplectic_euler":
+        # qd+ = qd + h qdd(q, qd, u), then q+ = q + h qd+
+        S = I + h * M
+        S[:nq] = I[:nq] + h * S[nq:n]
+        return S
+    if method == "radau":
+        # collocation: Z_i = h sum_j a_ij M (z + Z_j); z+ = z + Z_3 (stiffly accurate)
+        s = 3
+        Ms = np.kron(_A_RADAU, h * M)
+        Z = np.linalg.solve(np.eye(s * N) - Ms, Ms @ np.tile(I, (s, 1)))
+        return I + Z[(s - 1) * N:]
+    # genalpha (Arnold & Bruls 2007) on [q, v, a, qdd, u], with the equation of motion
+    # qdd_{n+1} = A2 [q_{n+1}; v_{n+1}] + B2 u at the end of the substep
+    from plant_fmu.integrators.genalpha import genalpha_parameters  # the (alpha, beta, gamma) formulas
+    g = genalpha_parameters(rho_inf)
+    am, af, beta, gamma = g["alpha_m"], g["alpha_f"], g["beta"], g["gamma"]
+    A2, B2 = A[nq:], B[nq:]
+    nv = n - nq
+    q, v = slice(0, nq), slice(nq, n)
+    ia, iacc, iu = slice(n, n + nv), slice(n + nv, n + 2 * nv), slice(n + 2 * nv, n + 2 * nv + B.shape[1])
+    W = n + 2 * nv + B.shape[1]
+    Iw = np.eye(W)
+    # a_{n+1} = ka a_n + kacc qdd_n + ca qdd_{n+1}
+    ka, kacc, ca = -am / (1 - am), af / (1 - am), (1 - af) / (1 - am)
+    # [q1; v1] = P w + Wx qdd_{n+1}
+    P = np.zeros((n, W))
+    P[q] = Iw[q] + h * Iw[v] + (h * h * (0.5 - beta) + h * h * beta * ka) * Iw[ia] \
+        + h * h * beta * kacc * Iw[iacc]
+    P[v] = Iw[v] + (h * (1 - gamma) + h * gamma * ka) * Iw[ia] + h * gamma * kacc * Iw[iacc]
+    Wx = np.zeros((n, nv))
+    Wx[q] = h * h * beta * ca * np.eye(nv)
+    Wx[v] = h * gamma * ca * np.eye(nv)
+    # qdd_{n+1} = A2 (P w + Wx qdd_{n+1}) + B2 u
+    X = np.linalg.solve(np.eye(nv) - A2 @ Wx, A2 @ P + B2 @ Iw[iu])
+    S = np.zeros((W, W))
+    S[:n] = P + Wx @ X
+    S[ia] = ka * Iw[ia] + kacc * Iw[iacc] + ca * X
+    S[iacc] = X
+    S[iu] = Iw[iu]
+    return S
+
+
+def _substeps(H: float, h: float):
+    """The substeps the plant's fixed-step stepper takes over one communication step ``H``:
+    ``[(count, size), ...]`` (whole substeps ``h``, then the shortened one off the grid)."""
+    n_grid = H / h
+    n_round = round(n_grid)
+    if n_round >= 1 and abs(n_grid - n_round) <= _SNAP + 4 * _EPS * H / h:
+        return [(n_round, h)]
+    m = math.floor(n_grid)
+    out = [(m, h)] if m else []
+    return out + [(1, H - m * h)]
+
+
+def plant_step_map(method: str, A, B, nq: int, H: float, h: float, rho_inf: float = 0.8):
+    """``(Phi, Gamma)``: the plant's state after one communication step ``H`` with the input
+    held, ``x(t + H) = Phi x(t) + Gamma u``, as the plant FMU's stepper takes it (substeps ``h``,
+    the last one shortened when ``H`` is off the grid). For ``genalpha`` the auxiliary
+    accelerations are re-initialised from the equation of motion at the start of the step (the
+    stepper's ``reinit_on_input_change``, as the input changes every step)."""
+    _check_method(method)
+    for name, val in (("H", H), ("h", h)):
+        if not (isinstance(val, (int, float)) and val > 0 and math.isfinite(val)):
+            raise ValueError(f"{name} = {val!r}; allowed: a finite number > 0")
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float).reshape(A.shape[0], -1)
+    n, m = B.shape
+    if method == "genalpha":
+        nv = n - nq
+        W = n + 2 * nv + m
+        # [x, u] -> [x, a, qdd, u] with a = qdd = A2 x + B2 u
+        E = np.zeros((W, n + m))
+        E[:n, :n] = np.eye(n)
+        acc = np.hstack([A[nq:], B[nq:]])
+        E[n:n + nv] = acc
+        E[n + nv:n + 2 * nv] = acc
+        E[n + 2 * nv:, n:] = np.eye(m)
+        T = E
+        keep = np.r_[0:n, n + 2 * nv:W]
+    else:
+        T = np.eye(n + m)
+        keep = None
+    for count, size in _substeps(H, h):
+        S = substep_matrix(method, A, B, nq, size, rho_inf)
+        T = np.linalg.matrix_power(S, count) @ T
+    if keep is not None:
+        T = T[keep]
+    return T[:n, :n], T[:n, n:]
+
+
+# ---------------------------------------------------------------------- the plant, drift-free
+@dataclass(frozen=True)
+class LinearPlant:
+    """The linearised plant ``(A, B, C)`` (sensors ``x_o, phi_o, omega_o``) with ``nq``
+    positions; ``keep`` are the indices of the full state it retains."""
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    nq: int
+    keep: np.ndarray
+
+
+def linear_plant(p: PlantParams, drift_free: bool = True) -> LinearPlant:
+    """The plant linearised at the upright rest state; with ``drift_free`` the cart's position
+    and velocity are removed when no other state depends on them (always, at the upright state),
+    and then ``C``'s ``x_o`` row is zero."""
+    if not isinstance(p, PlantParams):
+        raise TypeError(f"p must be a PlantParams, got {type(p).__name__}")
+    A, B, C, _ = plant_model(p).state_space()
+    nq = p.n_modes + 2
+    keep = np.arange(A.shape[0])
+    if drift_free:
+        drift = [0, nq]
+        rest = np.array([i for i in keep if i not in drift])
+        if not np.any(A[np.ix_(rest, drift)] != 0.0):
+            A, B, C = A[np.ix_(rest, rest)], B[rest], C[:, rest]
+            keep, nq = rest, nq - 1
+    return LinearPlant(A, B, C, nq, keep)
+
+
+# ---------------------------------------------------------------------- the macro step
+def _point_weights(s: int) -> np.ndarray:
+    """Weights (newest sample first) of the polynomial through ``s`` samples at
+    ``t_k, t_k-1, ...`` evaluated one step ahead, at ``t_k+1`` (Lagrange)."""
+    nodes = -np.arange(s, dtype=float)          # in steps, newest first
+    w = np.ones(s)
+    for i in range(s):
+        for j in range(s):
+            if j != i:
+                w[i] *= (1.0 - nodes[j]) / (nodes[i] - nodes[j])
+    return w
+
+
+def _avg_weights(s: int, shift: int) -> np.ndarray:
+    """Weights (newest first) of the step average over ``[t_k, t_k+1]`` of the polynomial through
+    ``s`` samples ending at ``t_k+shift`` (the master's :func:`extrapolation_weights`)."""
+    times = np.arange(shift - s + 1, shift + 1, dtype=float)   # oldest first, in steps
+    return extrapolation_weights(times, 0.0, 1.0)[::-1]
+
+
+def _check_scheme(algorithm, first, extrapolation):
+    if algorithm not in ALGORITHMS:
+        raise ValueError(f"algorithm = {algorithm!r}; allowed: {', '.join(ALGORITHMS)}")
+    if first not in ("controller", "plant"):
+        raise ValueError(f"first = {first!r}; allowed: controller, plant")
+    if extrapolation not in (0, 1, 2) or isinstance(extrapolation, bool):
+        raise ValueError(f"extrapolation = {extrapolation!r}; allowed: 0, 1, 2")
+
+
+def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
+                      algorithm: str = "gauss-seidel", first: str = "controller",
+                      extrapolation: int = 0, integrator: str = "rk4", substep: float = 2.5e-4,
+                      drift_free: bool = True, step_index: int | None = None,
+                      plant_map=None) -> np.ndarray:
+    """``Phi`` with ``z_{k+1} = Phi z_k`` for one communication step ``H`` of the master.
+
+    ``z = [x, xc, y_k .. y_k-p, F_k .. F_k-p]`` (``x`` without the cart's position and velocity
+    when ``drift_free`` and ``kx = 0``). ``step_index = k`` gives the map of the ``k``-th step,
+    when fewer than ``p + 1`` samples exist (``None``: the steady map). ``plant_map`` may pass a
+    precomputed :func:`plant_step_map` ``(Phi_p, Gamma_p)`` for the same plant and ``H``.
+    """
+    if not isinstance(c, ControllerParams):
+        raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
+    _check_scheme(algorithm, first, extrapolation)
+    if integrator not in FIXED_STEP_METHODS:
+        raise ValueError(f"integrator = {integrator!r}: the plant FMU's substeps are a fixed "
+                         f"linear map only for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau "
+                         f"run adaptively in the FMU)")
+    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
+        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+    if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
+        raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
+    plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
+    if plant_map is None:
+        plant_map = plant_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
+    Pp, Gp = plant_map
+    ctrl = PDLowPassModel(c)
+    Ad, Bd = ctrl.discretize(float(H))
+    Bd = Bd.reshape(-1, 1) @ ctrl.gains                  # xc' = Ad xc + Bd y (y held)
+    Cc, Dc = ctrl.C, ctrl.D                              # F = Cc xc + Dc y
+    C = plant.C
+    nx, nc, ny, P = Pp.shape[0], ctrl.nx, C.shape[0], extrapolation + 1
+    # state layout
+    ix = slice(0, nx)
+    ic = slice(nx, nx + nc)
+    iy = [slice(nx + nc + j * ny, nx + nc + (j + 1) * ny) for j in range(P)]
+    o = nx + nc + P * ny
+    iF = [slice(o + j, o + j + 1) for j in range(P)]
+    N = o + P
+    I = np.eye(N)
+    k = math.inf if step_index is None else step_index
+    s_old = int(min(P, k + 1))      # samples up to t_k
+    s_new = int(min(P, k + 2))      # samples up to t_k+1 (the second FMU of Gauss-Seidel)
+
+    def comb(weights, rows, newest=None):
+        """sum_j w_j rows[j] (newest first); ``newest`` replaces rows[0] and shifts the rest."""
+        rows = rows if newest is None else [newest] + rows[:-1]
+        return sum(w * r for w, r in zip(weights, rows))
+
+    Y = [I[s] for s in iy]          # rows selecting y_k, y_k-1, ...
+    F = [I[s] for s in iF]
+    x, xc = I[ix], I[ic]
+    wE = _avg_weights(s_old, 0)     # extrapolation over [t_k, t_k+1] from samples up to t_k
+    wI = _avg_weights(s_new, 1)     # interpolation with the sample at t_k+1
+    wP = _point_weights(s_old)      # point value at t_k+1 from samples up to t_k
+
+    def plant_step(u):
+        return Pp @ x + Gp @ u
+
+    def ctrl_step(ybar):
+        return Ad @ xc + Bd @ ybar
+
+    if algorithm == "jacobi":
+        x1 = plant_step(comb(wE, F))
+        xc1 = ctrl_step(comb(wE, Y))
+        y1 = C @ x1
+        F1 = Cc @ xc1 + Dc @ comb(wP, Y)
+    elif first == "controller":
+        xc1 = ctrl_step(comb(wE, Y))
+        F1 = Cc @ xc1 + Dc @ comb(wP, Y)
+        x1 = plant_step(comb(wI, F, newest=F1))
+        y1 = C @ x1
+    else:
+        x1 = plant_step(comb(wE, F))
+        y1 = C @ x1
+        xc1 = ctrl_step(comb(wI, Y, newest=y1))
+        F1 = Cc @ xc1 + Dc @ y1     # the polynomial at its own node t_k+1: the sample itself
+    Phi = np.zeros((N, N))
+    Phi[ix] = x1
+    Phi[ic] = xc1
+    Phi[iy[0]] = y1
+    Phi[iF[0]] = F1
+    for j in range(1, P):
+        Phi[iy[j]] = Y[j - 1]
+        Phi[iF[j]] = F[j - 1]
+    return Phi
+
+
+def spectral_radius(M: np.ndarray) -> float:
+    """``max |eig(M)|``."""
+    return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
+
+
+def scene_transition_matrix(scene, H: float | None = None, step_index=None, drift_free=True):
+    """:func:`transition_matrix` for a scene's plant, controller and master keys
+    (``master.step``, ``master.algorithm``, ``master.first``, ``master.extrapolation``,
+    ``plant.integrator``, ``plant.step``)."""
+    cfg = scene.config
+    if cfg["master.adaptive"]:
+        raise ValueError("master.adaptive = true: an adaptive master has no fixed transition "
+                         "matrix; allowed: false")
+    return transition_matrix(scene.plant, scene.controller,
+                             cfg["master.step"] if H is None else H,
+                             algorithm=cfg["master.algorithm"], first=cfg["master.first"],
+                             extrapolation=cfg["master.extrapolation"],
+                             integrator=cfg["plant.integrator"], substep=cfg["plant.step"],
+                             drift_free=drift_free, step_index=step_index)
+
+
+# ---------------------------------------------------------------------- boundaries
+def first_crossing(f, grid, level: float = 1.0, xtol_rel: float = 1e-6):
+    """The first ``x`` of the increasing ``grid`` where ``f(x) - level`` changes sign from
+    negative to positive, refined by Brent's method; ``None`` if it never does on the grid."""
+    grid = np.asarray(grid, dtype=float)
+    prev = None
+    for xv in grid:
+        v = f(float(xv)) - level
+        if prev is not None and prev[1] < 0 <= v:
+            a, b = prev[0], float(xv)
+            return float(scipy.optimize.brentq(lambda s: f(s) - level, a, b,
+                                               xtol=xtol_rel * a, rtol=4 * _EPS))
+        prev = (float(xv), v)
+    return None
+
+
+def critical_value(f, lo: float, hi: float, n: int = 60, level: float = 1.0):
+    """The first crossing of ``f = level`` (from below) on a log grid of ``n`` points in
+    ``[lo, hi]``, refined; ``None`` if none."""
+    if not (0 < lo < hi):
+        raise ValueError(f"need 0 < lo < hi, got lo = {lo!r}, hi = {hi!r}")
+    return first_crossing(f, np.geomspace(lo, hi, n), level)
+
+
+# ---------------------------------------------------------------------- integrator limits
+def highest_mode(p: PlantParams) -> complex:
+    """The eigenvalue (upper half-plane) of the linearised plant with the largest modulus."""
+    A = plant_model(p).state_space()[0]
+    lam = np.linalg.eigvals(A)
+    lam = lam[lam.imag >= 0]
+    return complex(lam[np.argmax(np.abs(lam))])
+
+
+def sdof_matrix(lam: complex):
+    """``(A, B, nq)`` of the single oscillator ``q'' + 2 zeta w q' + w^2 q = u`` whose
+    eigenvalues are ``lam`` and its conjugate (``w = |lam|``, ``zeta = -Re lam / |lam|``)."""
+    w = abs(lam)
+    zeta = -lam.real / w
+    A = np.array([[0.0, 1.0], [-w * w, -2.0 * zeta * w]])
+    return A, np.array([[0.0], [1.0]]), 1
+
+
+def substep_spectral_radius(method: str, lam: complex, h: float, rho_inf: float = 0.8) -> float:
+    """The spectral radius of one substep of ``method`` on the oscillator with eigenvalues
+    ``lam``, ``conj(lam)`` and the input held at zero: the method's stability function there
+    (``|R(h lam)|`` for a Runge-Kutta method)."""
+    A, B, nq = sdof_matrix(lam)
+    S = substep_matrix(method, A, B, nq, h, rho_inf)
+    return spectral_radius(S[:-1, :-1])      # without the (held) input
+
+
+def integrator_step_limit(method: str, lam: complex, h_max: float = 10.0, rho_inf: float = 0.8):
+    """The largest substep for which ``method`` is stable on the mode ``lam`` (the first ``h``
+    where :func:`substep_spectral_radius` exceeds 1, on a grid ``h |lam|`` in ``[1e-4, h_max]``,
+    refined); ``None`` when it is stable on the whole range (A-stable methods), 0 when it is
+    unstable already at ``h |lam| = 1e-4``."""
+    w = abs(lam)
+    f = lambda h: substep_spectral_radius(method, lam, h, rho_inf)  # noqa: E731
+    level = 1.0 + 1e-12    # |R| = 1 to rounding on an undamped mode is marginal, not unstable
+    if f(1e-4 / w) > level:
+        return 0.0          # unstable at every step (explicit Euler on an undamped mode)
+    return critical_value(f, 1e-4 / w, h_max / w, n=200, level=level)
+
+
+# ---------------------------------------------------------------------- observation
+def hankel_poles(signals, rows: int | None = None, rtol: float = 1e-8):
+    """Poles per sample of the multichannel signal ``signals`` (shape ``(N, m)``), by the
+    eigensystem realisation of its block-Hankel matrix (Kung's method): the order is the number
+    of singular values above ``rtol`` times the largest, the poles the eigenvalues of the
+    shift-invariant observability matrix. Exact for the samples of a linear system whose order is
+    below ``rows * m``. Each channel is scaled by its RMS first."""
+    Y = np.asarray(signals, dtype=float)
+    if Y.ndim == 1:
+        Y = Y[:, None]
+    N, m = Y.shape
+    scale = np.sqrt(np.mean(Y * Y, axis=0))
+    Y = Y[:, scale > 0] / scale[scale > 0]
+    m = Y.shape[1]
+    if m == 0:
+        raise ValueError("signals are all zero: nothing to observe")
+    if rows is None:
+        rows = max(2, N // 3)
+    cols = N - rows + 1
+    if cols < 2 or rows < 2:
+        raise ValueError(f"{N} samples are too few for {rows} block rows")
+    Hk = np.empty((rows * m, cols))
+    for i in range(rows):
+        Hk[i * m:(i + 1) * m] = Y[i:i + cols].T
+    U, sv, _ = np.linalg.svd(Hk, full_matrices=False)
+    r = int(np.sum(sv > rtol * sv[0]))
+    r = min(r, (rows - 1) * m)
+    O = U[:, :r] * np.sqrt(sv[:r])
+    Ad = np.linalg.lstsq(O[:-m], O[m:], rcond=None)[0]
+    return np.linalg.eigvals(Ad)
+
+
+def observed_spectral_radius(signals, rows: int | None = None, rtol: float = 1e-8) -> float:
+    """``max |pole|`` of :func:`hankel_poles`: the growth factor per sample of the slowest
+    decaying (or fastest growing) mode the samples show."""
+    return float(np.max(np.abs(hankel_poles(signals, rows, rtol))))

@@ -1,0 +1,261 @@
+"""The co-simulation's stability boundaries: the transition matrix of one communication step
+(orchestration/stability.py) against independent computations, and the real FMUs on the master
+at three points just inside and three just outside each predicted boundary.
+
+Observation: the co-simulation's output samples (one per communication step) of a small motion
+(initial.phi = 1e-3) are realised as a linear system (block-Hankel matrix, Kung's method); its
+largest pole is the observed growth factor per step. With ``plant.fidelity = linear`` the samples
+are exactly those of a linear system, so the observed factor must equal the predicted spectral
+radius to rounding, and the verdict (grow or decay) must be the predicted one at every point. The
+points are 0.9, 0.95, 0.98 and 1.02, 1.05, 1.1 times the critical value; there the predicted
+spectral radius differs from 1 by at least 1.7e-5 per step (the weakest boundary, Jacobi with the
+zero-order hold, where the rigid mode crosses), far above what rounding moves it (< 1e-9 in these
+runs). The nonlinear plant is used at one boundary where the crossing mode grows fast: the
+nonlinear terms at phi ~ 1e-3 are ~1e-6 of the motion, so only the verdict is compared there.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from orchestration.analysis import max_real_part
+from orchestration.run import run_scene
+from orchestration.scenes import scene_from_config
+from orchestration.stability import (METHODS, critical_value, highest_mode, integrator_step_limit,
+                                     linear_plant, observed_spectral_radius, plant_step_map,
+                                     scene_transition_matrix, spectral_radius, transition_matrix)
+from plant_fmu.dynamics import linear_plant_model
+from plant_fmu.integrators import make_stepper
+from plant_fmu.params import PlantParams
+
+FACTORS = (0.9, 0.95, 0.98, 1.02, 1.05, 1.1)
+#: the paper's flexible plant (4 modes) and the controller's default filter (2nd order, 150 rad/s)
+BASE = {"plant.n_modes": 4, "controller.filter_order": 2, "controller.cutoff": 150.0,
+        "controller.filter_damping": 0.5, "controller.kp": 500.0, "controller.kd": 5.0,
+        "initial.phi": 1e-3, "plant.phi_limit": math.inf, "plant.energy_limit": math.inf}
+OBSERVED = ["phi_o", "omega_o", "F_c", "phi", "eta_1", "eta_2", "eta_3", "eta_4"]
+N_STEPS = 60
+
+
+@pytest.fixture(scope="module")
+def paths(fmus):
+    return {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
+
+
+def _scene(**values):
+    H = values["master.step"]
+    n = values.pop("n_steps", N_STEPS)
+    return scene_from_config("stability", {**BASE, "output_interval": H, "stop_time": n * H,
+                                           **values})
+
+
+def _observe(scene, paths):
+    """Observed growth factor per communication step (the start-up steps, whose map differs,
+    left out); ``inf`` if the co-simulation diverged."""
+    r = run_scene(scene, paths, progress=False)
+    if "failure" in r.summary:
+        return math.inf
+    skip = scene["master.extrapolation"] + 2
+    Y = np.column_stack([r.result[c] for c in OBSERVED])[skip:]
+    rtol = 1e-8 if scene["plant.fidelity"] == "linear" else 1e-6
+    return observed_spectral_radius(Y, rtol=rtol)
+
+
+# ---------------------------------------------------------------------- the matrix itself
+@pytest.mark.parametrize("method", METHODS)
+def test_plant_step_map_is_the_steppers_map(method):
+    """The plant's map over one communication step (off the substep grid: 4 substeps and a
+    shortened one) equals the real stepper's, probed column by column on the linear plant."""
+    p = PlantParams(n_modes=2)
+    m = linear_plant_model(p)
+    H, h = 1.1e-3, 2.5e-4
+    Phi, Gamma = plant_step_map(method, m.A, m.B, m.nq, H, h)
+    opts = {"adaptive": False} if method in ("dopri5", "radau") else {}
+    cols = []
+    for i in range(m.nx + 1):
+        y0, u = np.zeros(m.nx), 0.0
+        if i < m.nx:
+            y0[i] = 1.0
+        else:
+            u = 1.0
+        st = make_stepper(method, m, 0.0, y0, u=u, h=h, **opts)
+        assert st.advance(H) == (True, None)
+        cols.append(st.y)
+    probed = np.array(cols).T
+    np.testing.assert_allclose(np.hstack([Phi, Gamma]), probed, rtol=0,
+                               atol=1e-12 * np.abs(probed).max())
+
+
+def test_stability_functions_at_known_limits():
+    """Textbook limits on the imaginary axis and for a damped mode."""
+    assert integrator_step_limit("rk4", 1j) == pytest.approx(2 * math.sqrt(2), rel=1e-6)
+    assert integrator_step_limit("symplectic_euler", 1j) == pytest.approx(2.0, rel=1e-6)
+    zeta = 0.01     # |1 + h lam| = 1 at h = 2 zeta / w for explicit Euler
+    assert integrator_step_limit("euler", complex(-zeta, math.sqrt(1 - zeta ** 2))) == \
+        pytest.approx(2 * zeta, rel=1e-6)
+    assert integrator_step_limit("euler", 1j) == 0.0
+    for method in ("genalpha", "radau", "exponential"):        # A-stable
+        assert integrator_step_limit(method, complex(-0.001, 1.0)) is None
+
+
+@pytest.mark.parametrize("filter_order", [2, 0])
+@pytest.mark.parametrize("algorithm,first", [("jacobi", "controller"),
+                                             ("gauss-seidel", "controller"),
+                                             ("gauss-seidel", "plant")])
+@pytest.mark.parametrize("p_extra", [0, 2])
+def test_small_step_limit_is_the_continuous_loop(filter_order, algorithm, first, p_extra):
+    """log(rho)/H tends to the largest real part of the continuous closed loop (analysis.py),
+    the error falling with H (the filtered loop: -0.263; the PD alone: +1.64, unstable)."""
+    p, c = PlantParams(n_modes=4), ControllerParams(filter_order=filter_order)
+    exact = max_real_part(p, c)
+    errs = []
+    for H in (1e-4, 5e-5):
+        rho = spectral_radius(transition_matrix(p, c, H, algorithm=algorithm, first=first,
+                                                extrapolation=p_extra))
+        errs.append(abs(math.log(rho) / H - exact))
+    assert errs[1] < 0.02 * abs(exact), (exact, errs)
+    assert errs[1] < 0.6 * errs[0] or errs[1] < 1e-6 * abs(exact), errs
+
+
+@pytest.mark.parametrize("p_extra", [0, 1, 2])
+def test_gauss_seidel_orders_have_one_spectrum(p_extra):
+    """Controller-first and plant-first compose the same two maps in the two cyclic orders, so
+    their characteristic polynomials agree (the loop is a product of commuting scalar weights and
+    the two FMUs' maps): the same eigenvalues, up to the zeros of the sample registers (defective,
+    so rounding scatters them to ~1e-2; only those above 0.2 are compared)."""
+    p, c = PlantParams(n_modes=3), ControllerParams()
+    for H in (2e-3, 2.3e-2):
+        ev = [np.sort_complex(np.linalg.eigvals(transition_matrix(
+            p, c, H, algorithm="gauss-seidel", first=f, extrapolation=p_extra)))
+            for f in ("controller", "plant")]
+        big = [e[np.abs(e) > 0.2] for e in ev]
+        np.testing.assert_allclose(big[0], big[1], atol=1e-9)
+
+
+@pytest.mark.parametrize("filter_order", [2, 0])
+@pytest.mark.parametrize("algorithm,first", [("jacobi", "controller"),
+                                             ("gauss-seidel", "controller"),
+                                             ("gauss-seidel", "plant")])
+@pytest.mark.parametrize("p_extra", [0, 2])
+def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, algorithm, first,
+                                                           p_extra):
+    """The linear map stepped by hand (start-up steps with fewer samples included) against the
+    master with the real FMUs and the linear plant: every sample of phi_o, omega_o, x and F_c, at
+    a step off the plant's substep grid (4 substeps of 2.5e-4 and one of 1e-4)."""
+    H = 1.1e-3
+    scene = _scene(**{"master.step": H, "master.algorithm": algorithm, "master.first": first,
+                      "master.extrapolation": p_extra, "plant.fidelity": "linear",
+                      "plant.n_modes": 2, "controller.filter_order": filter_order,
+                      "controller.kx": 3.0, "n_steps": 25})
+    res = run_scene(scene, paths, progress=False).result
+    plant = linear_plant(scene.plant, drift_free=False)
+    ctrl = PDLowPassModel(scene.controller)
+    x0 = linear_plant_model(scene.plant).initial_state(phi=1e-3)
+    nx, nc, P = len(x0), ctrl.nx, p_extra + 1
+    # z = [x, xc, y_k..y_k-p, F_k..F_k-p]; the consistent initial outputs, no older samples
+    z = np.zeros(nx + nc + 3 * P + P)
+    z[:nx] = x0
+    z[nx + nc:nx + nc + 3] = plant.C @ x0
+    iF = nx + nc + 3 * P
+    z[iF] = (ctrl.D @ plant.C @ x0)[0]           # F_c(0): -e(0) without filter, else 0
+    rows = []
+    for k in range(len(res)):
+        x_o, phi_o, omega_o = plant.C @ z[:nx]
+        rows.append((phi_o, omega_o, x_o, z[iF]))
+        z = transition_matrix(scene.plant, scene.controller, H, algorithm=algorithm, first=first,
+                              extrapolation=p_extra, drift_free=False, step_index=k) @ z
+    hand = np.array(rows)
+    for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
+        scale = np.abs(res[col]).max()
+        np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
+                                   err_msg=col)
+
+
+# ---------------------------------------------------------------------- co-simulation step limits
+#: (algorithm, first, extrapolation, plant fidelity): boundaries in H at the default cutoff
+STEP_LIMITS = [("jacobi", "controller", 0, "linear"),        # the rigid mode crosses, ~3.3 ms
+               ("jacobi", "controller", 1, "linear"),        # the 1st bending mode, ~18 ms
+               ("gauss-seidel", "plant", 2, "linear"),       # the 1st bending mode, ~20 ms
+               ("jacobi", "controller", 1, "nonlinear")]
+
+
+@pytest.fixture(scope="module")
+def step_limits():
+    out = {}
+    p, c = PlantParams(n_modes=4), ControllerParams(cutoff=150.0, filter_damping=0.5)
+    for alg, first, e, _ in STEP_LIMITS:
+        f = lambda H, a=alg, fi=first, x=e: spectral_radius(  # noqa: E731
+            transition_matrix(p, c, H, algorithm=a, first=fi, extrapolation=x))
+        out[alg, first, e] = critical_value(f, 1e-3, 4e-2, n=60)
+    return out
+
+
+@pytest.mark.parametrize("factor", FACTORS)
+@pytest.mark.parametrize("alg,first,e,fidelity", STEP_LIMITS,
+                         ids=["jacobi-zoh", "jacobi-linear", "gs-plant-first-quadratic",
+                              "jacobi-linear-nonlinear-plant"])
+def test_cosimulation_step_limit(paths, step_limits, alg, first, e, fidelity, factor):
+    Hc = step_limits[alg, first, e]
+    assert Hc is not None
+    scene = _scene(**{"master.step": factor * Hc, "master.algorithm": alg, "master.first": first,
+                      "master.extrapolation": e, "plant.fidelity": fidelity})
+    predicted = spectral_radius(scene_transition_matrix(scene))
+    assert (predicted < 1) == (factor < 1), predicted      # a clean boundary at this margin
+    observed = _observe(scene, paths)
+    assert (observed < 1) == (predicted < 1), (predicted, observed)
+    if fidelity == "linear":
+        assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
+            (predicted, observed)
+
+
+# ---------------------------------------------------------------------- the plant's substep limit
+@pytest.fixture(scope="module")
+def substep_limits():
+    """The plant's critical substep with 4 substeps per communication step (Gauss-Seidel,
+    zero-order hold: the coupling is stable there) on the paper's 4-mode plant."""
+    p, c = PlantParams(n_modes=4), ControllerParams()
+    out = {}
+    for method in ("rk4", "symplectic_euler"):
+        f = lambda h, m=method: spectral_radius(  # noqa: E731
+            transition_matrix(p, c, 4 * h, integrator=m, substep=h))
+        out[method] = critical_value(f, 1e-5, 3e-3, n=60)
+    return out
+
+
+@pytest.mark.parametrize("method", ["rk4", "symplectic_euler"])
+def test_substep_limit_is_the_stability_function_on_the_highest_mode(substep_limits, method):
+    """The co-simulation's critical substep is the method's limit on the plant's highest mode
+    (2511 rad/s at n_modes = 4), the coupling barely moving it."""
+    lam = highest_mode(PlantParams(n_modes=4))
+    assert substep_limits[method] == pytest.approx(integrator_step_limit(method, lam), rel=1e-3)
+
+
+@pytest.mark.parametrize("factor", FACTORS)
+@pytest.mark.parametrize("method", ["rk4", "symplectic_euler"])
+def test_plant_substep_limit(paths, substep_limits, method, factor):
+    h = factor * substep_limits[method]
+    scene = _scene(**{"master.step": 4 * h, "plant.step": h, "plant.integrator": method,
+                      "plant.fidelity": "linear"})
+    predicted = spectral_radius(scene_transition_matrix(scene))
+    assert (predicted < 1) == (factor < 1), predicted
+    observed = _observe(scene, paths)
+    assert (observed < 1) == (predicted < 1), (predicted, observed)
+    assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
+        (predicted, observed)
+
+
+def test_bad_arguments_name_the_input():
+    p, c = PlantParams(n_modes=1), ControllerParams()
+    with pytest.raises(ValueError, match="algorithm"):
+        transition_matrix(p, c, 1e-3, algorithm="seidel")
+    with pytest.raises(ValueError, match="extrapolation"):
+        transition_matrix(p, c, 1e-3, extrapolation=3)
+    with pytest.raises(ValueError, match="integrator = 'dopri5'"):
+        transition_matrix(p, c, 1e-3, integrator="dopri5")
+    with pytest.raises(ValueError, match="H = "):
+        transition_matrix(p, c, -1e-3)
+    with pytest.raises(TypeError, match="ControllerParams"):
+        transition_matrix(p, {"kp": 1}, 1e-3)
+    with pytest.raises(ValueError, match="method"):
+        plant_step_map("heun", np.eye(2), np.ones((2, 1)), 1, 1e-3, 1e-4)
