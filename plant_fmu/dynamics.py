@@ -139,13 +139,16 @@ class PlantModel:
         sld = float(self.tip_slope @ x[nq + 2:])
         return float(x[1]) + math.atan(sl), float(x[nq + 1]) + sld / (1.0 + sl * sl)
 
-    def erk_steps(self, y: np.ndarray, u: float, h: float, n: int, A, B, K) -> int:
-        """``n`` substeps of the explicit Runge-Kutta tableau ``(A, B)`` in place on ``y`` (the
-        compiled loop of :mod:`plant_fmu.kernels`; ``K`` is a stages x states work array).
-        Returns the number of substeps taken: fewer than ``n`` if a state became non-finite."""
-        return erk_steps_kernel(y, float(u), float(h), int(n), A, B, self._consts, self.I3,
-                                self.I5, self.Kdiag, self.Ddiag, self._Kg, K,
-                                np.empty(self.nx))
+    def erk_steps(self, y: np.ndarray, u, h: float, n: int, A, B, C, K) -> int:
+        """``n`` substeps of the explicit Runge-Kutta tableau ``(A, B, C)`` in place on ``y`` (the
+        compiled loop of :mod:`plant_fmu.kernels`; ``K`` is a stages x states work array). The
+        input is ``u = (u0, du, d2u, s0)``: ``u0 + du s + d2u s^2 / 2`` at ``s = s0`` at the
+        start. Returns the number of substeps taken: fewer than ``n`` if a state became
+        non-finite."""
+        u0, du, d2u, s0 = u
+        return erk_steps_kernel(y, float(u0), float(du), float(d2u), float(s0), float(h), int(n),
+                                A, B, C, self._consts, self.I3, self.I5, self.Kdiag, self.Ddiag,
+                                self._Kg, K, np.empty(self.nx))
 
     def energy(self, x: np.ndarray) -> float:
         """Total energy ``T + V`` (the compiled kernel; same terms as :meth:`energy_numpy`)."""

@@ -108,13 +108,13 @@ def _energy(x, consts, I3, I5, Kd, Kg):
     return T + V
 
 
-def _erk_steps(y, u, h, n_steps, A, B, consts, I3, I5, Kd, Dd, Kg, K, ys):
-    """``n_steps`` substeps of length ``h`` of the explicit Runge-Kutta tableau ``(A, B)`` on
-    the plant, in place on ``y``, with the input ``u`` held; ``K`` (stages x states) and ``ys``
-    are work arrays. Stops after a substep whose state is not finite (``y`` keeps the last
-    finite state) and returns the number of substeps taken. The arithmetic is that of
-    :meth:`plant_fmu.integrators.rk.ExplicitRungeKutta._rk_step` (the tableau is autonomous:
-    the plant does not depend on ``t``)."""
+def _erk_steps(y, u0, du, d2u, s0, h, n_steps, A, B, C, consts, I3, I5, Kd, Dd, Kg, K, ys):
+    """``n_steps`` substeps of length ``h`` of the explicit Runge-Kutta tableau ``(A, B, C)`` on
+    the plant, in place on ``y``, with the input ``u0 + du s + d2u s^2 / 2``, ``s = s0`` at the
+    start (``du = d2u = 0``: held); ``K`` (stages x states) and ``ys`` are work arrays. Stops
+    after a substep whose state is not finite (``y`` keeps the last finite state) and returns
+    the number of substeps taken. The arithmetic is that of
+    :meth:`plant_fmu.integrators.rk.ExplicitRungeKutta._rk_step`."""
     s = B.size
     nx = y.size
     for k in range(n_steps):
@@ -124,6 +124,8 @@ def _erk_steps(y, u, h, n_steps, A, B, consts, I3, I5, Kd, Dd, Kg, K, ys):
                 for j in range(i):
                     acc += (h * A[i, j]) * K[j, m]
                 ys[m] = y[m] + acc
+            st = s0 + k * h + C[i] * h
+            u = u0 + st * (du + 0.5 * st * d2u)
             _rhs_c(ys, u, consts, I3, I5, Kd, Dd, Kg, K[i])
         norm2 = 0.0
         for m in range(nx):

@@ -128,3 +128,66 @@ def test_genalpha_halves_a_substep_whose_newton_iteration_fails(max_halvings, ok
         assert res == (True, None) and s.nrejected >= 1 and s.nsteps == 20 and s.t == 0.02
     else:
         assert not res[0] and "Newton" in res[1] and np.all(np.isfinite(s.y))
+
+
+# ---------------------------------------------------------------------- polynomial inputs
+#: u(t) = a + b (t - t_k) + c (t - t_k)^2 / 2 over each communication step [t_k, t_k + H]
+POLY = [(2.0, 300.0, -4e4), (-1.0, -150.0, 2e4), (3.0, 0.0, 1e5)]
+
+
+def poly_reference(model, x0):
+    y, out = np.array(x0, dtype=float), []
+    for k, (a, b, c) in enumerate(POLY):
+        tk = k * H
+        sol = solve_ivp(lambda t, x: model.rhs(t, x, a + (t - tk) * (b + 0.5 * (t - tk) * c)),
+                        (tk, tk + H), y, method="DOP853", rtol=1e-12, atol=1e-14)
+        assert sol.success
+        y = sol.y[:, -1]
+        out.append(y)
+    return np.array(out)
+
+
+def _drive_poly(model, x0, name, h, held=False):
+    s = make_stepper(name, model, 0.0, x0, h=h, rtol=1e-11, atol=1e-13)
+    out = []
+    for k, (a, b, c) in enumerate(POLY):
+        if held:
+            s.u = a + b * H / 2 + c * H * H / 6              # the polynomial's step average
+        else:
+            s.set_input(a, b, c)
+        assert s.advance((k + 1) * H) == (True, None)
+        out.append(s.y.copy())
+    return np.array(out)
+
+
+@pytest.mark.parametrize("name,order,steps", [("rk4", 4, (2.5e-4, 1.25e-4, 6.25e-5))])
+def test_polynomial_input_converges_at_the_method_order(plant, name, order, steps):
+    """set_input(u, du, d2u): driven by the polynomial, the method converges to the reference
+    driven by the same polynomial at its own order; holding the step average instead leaves an
+    error that does not fall with the substep (a different input)."""
+    _, model, x0, _ = plant
+    ref = poly_reference(model, x0)
+    scale = np.abs(ref).max()
+    errs = [np.abs(_drive_poly(model, x0, name, h) - ref).max() / scale for h in steps]
+    held = np.abs(_drive_poly(model, x0, name, steps[-1], held=True) - ref).max() / scale
+    slopes = np.diff(np.log(errs)) / np.diff(np.log(steps))
+    assert np.all(slopes > order - 0.2), (errs, slopes)
+    assert errs[-1] < held / 10, (errs, held)
+
+
+def test_adaptive_dopri5_meets_its_tolerance_with_a_polynomial_input(plant):
+    _, model, x0, _ = plant
+    ref = poly_reference(model, x0)
+    scale = np.abs(ref).max()
+    err = np.abs(_drive_poly(model, x0, "dopri5", 1e-3) - ref).max() / scale
+    held = np.abs(_drive_poly(model, x0, "dopri5", 1e-3, held=True) - ref).max() / scale
+    assert err < 1e-8 < held / 100, (err, held)
+
+
+def test_held_only_methods_refuse_a_polynomial_input(plant):
+    _, model, x0, _ = plant
+    s = make_stepper("genalpha", model, 0.0, x0, h=1e-3)
+    with pytest.raises(ValueError, match="held input only"):
+        s.set_input(1.0, 2.0)
+    s.set_input(1.0)                    # a constant is fine
+    assert s.advance(1e-3) == (True, None)

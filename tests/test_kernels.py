@@ -70,3 +70,18 @@ def test_compiled_substeps_stop_at_a_non_finite_state():
     assert not ok_a and not ok_b and "non-finite state" in msg_a
     assert np.all(np.isfinite(a.y))
     assert a.t == b.t and a.nsteps == b.nsteps
+
+
+def test_compiled_substeps_with_a_polynomial_input():
+    """The compiled loop evaluates the polynomial input at the stage times as the Python one."""
+    from plant_fmu.integrators import make_stepper
+    m = plant_model(PlantParams(n_modes=4))
+    y0 = m.initial_state(phi=0.4)
+    a = make_stepper("rk4", m, 0.0, y0, h=2.5e-4)
+    b = make_stepper("rk4", _PythonOnly(m), 0.0, y0, h=2.5e-4)
+    for k, t_end in enumerate((1e-3, 2e-3, 2.6e-3, 3.7e-3)):
+        t0 = a.t
+        for s in (a, b):
+            s.set_input(3.0 - k, 400.0 * (-1) ** k, 3e4 * k, t=t0)
+        assert a.advance(t_end) == b.advance(t_end) == (True, None)
+        np.testing.assert_allclose(a.y, b.y, rtol=1e-12, atol=1e-14)

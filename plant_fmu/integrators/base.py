@@ -97,6 +97,9 @@ class Stepper:
     adaptive: bool = False
     #: method-specific options and their defaults
     OPTIONS: dict = {}
+    #: whether the method evaluates a polynomial input (:meth:`set_input`) at its stage times;
+    #: the others need a held input
+    POLYNOMIAL_INPUT: bool = False
 
     def __init__(self, model, t0, y0, u=0.0, h=1e-3, rtol=1e-6, atol=1e-9, rho_inf=0.8,
                  **options):
@@ -120,6 +123,9 @@ class Stepper:
             raise ValueError("y0 must be finite")
         self.y = y0
         self._u = check_real("u", float(u))
+        # polynomial input u(t) = u + du (t - tu) + d2u (t - tu)^2 / 2 (set_input); 0: held
+        self._du = self._d2u = 0.0
+        self._tu = self.t
         self.h = check_real("h", h, low=0.0, high=math.inf, high_open=True)
         self.rtol = check_real("rtol", rtol, low=0.0, high=1.0)
         self.atol = _check_tol("atol", atol, self.nx)
@@ -135,7 +141,7 @@ class Stepper:
         self._k = 0
         self._fail_msg = None
         self._init_method()
-        self._u_prev = self._u        # the input the method's cached data were computed with
+        self._u_prev = self._input_key()  # the input the method's cached data were computed with
 
     # ------------------------------------------------------------------ hooks for the methods
     def _init_method(self):
@@ -195,7 +201,32 @@ class Stepper:
 
     @u.setter
     def u(self, value):
+        """A held input (zero-order hold)."""
         self._u = float(value)
+        self._du = self._d2u = 0.0
+
+    def set_input(self, u, du=0.0, d2u=0.0, t=None):
+        """The input over the next advance as the polynomial
+        ``u(s) = u + du (s - t) + d2u (s - t)^2 / 2`` (``t``: the current time by default), as the
+        input derivatives of FMI's ``fmi2SetRealInputDerivatives``. Methods with
+        ``POLYNOMIAL_INPUT`` evaluate it at their stage times; for the others ``du`` and ``d2u``
+        must be 0 (``ValueError``): hold the average over the step instead."""
+        du, d2u = float(du), float(d2u)
+        if (du or d2u) and not self.POLYNOMIAL_INPUT:
+            raise ValueError(f"{self.name} takes a held input only (du = d2u = 0), got "
+                             f"du = {du!r}, d2u = {d2u!r}")
+        self._u, self._du, self._d2u = float(u), du, d2u
+        self._tu = self.t if t is None else float(t)
+
+    def _u_at(self, t):
+        """The input at time ``t``."""
+        if self._du or self._d2u:
+            s = t - self._tu
+            return self._u + s * (self._du + 0.5 * s * self._d2u)
+        return self._u
+
+    def _input_key(self):
+        return (self._u, self._du, self._d2u, self._tu) if (self._du or self._d2u) else self._u
 
     # ------------------------------------------------------------------ public driving API
     def advance(self, t_end) -> tuple[bool, str | None]:
@@ -255,13 +286,14 @@ class Stepper:
 
     # ------------------------------------------------------------------ internals
     def _prepare_input(self) -> bool:
-        u = self._u
-        if u != self._u_prev:
-            if not math.isfinite(u):
-                self._fail(f"non-finite input u = {u!r} at t = {self.t!r}")
+        key = self._input_key()
+        if key != self._u_prev:
+            if not math.isfinite(self._u + self._du + self._d2u):
+                self._fail(f"non-finite input u = {self._u!r} (du = {self._du!r}, d2u = "
+                           f"{self._d2u!r}) at t = {self.t!r}")
                 return False
             self._input_changed()
-            self._u_prev = u
+            self._u_prev = key
         return True
 
     def _fail(self, msg):
@@ -343,8 +375,8 @@ class Stepper:
         return True, None
 
     # ------------------------------------------------------------------ snapshots
-    _STATE_KEYS = ("t", "y", "_u", "h", "status", "message", "nfev", "njev", "nlu", "nsteps",
-                   "nrejected", "_t_base", "_k", "_u_prev")
+    _STATE_KEYS = ("t", "y", "_u", "_du", "_d2u", "_tu", "h", "status", "message", "nfev",
+                   "njev", "nlu", "nsteps", "nrejected", "_t_base", "_k", "_u_prev")
 
     def get_state(self) -> dict:
         """A JSON-able snapshot of all internal state (restore it with :meth:`set_state`)."""
@@ -367,7 +399,10 @@ class Stepper:
             setattr(self, key, value)
         self.y = y
         self.t, self._t_base, self.h = float(self.t), float(self._t_base), float(self.h)
-        self._u = float(self._u)
+        self._u, self._du, self._d2u, self._tu = (float(self._u), float(self._du),
+                                                  float(self._d2u), float(self._tu))
+        if isinstance(self._u_prev, list):          # JSON turned the polynomial key to a list
+            self._u_prev = tuple(self._u_prev)
         self._set_method_state(snap["method_state"])
 
     def __repr__(self):

@@ -35,6 +35,7 @@ class ExplicitRungeKutta(Stepper):
     #: order of the embedded (error estimating) solution
     error_order: int = 0
     FSAL: bool = False
+    POLYNOMIAL_INPUT = True
 
     def _init_method(self):
         s = self.B.size
@@ -50,13 +51,13 @@ class ExplicitRungeKutta(Stepper):
             self._err_exp = -1.0 / (self.error_order + 1)
             self._scale_buf = np.empty(self.nx)
         if self.FSAL:
-            self._f = self._fun(self.t, self.y, self._u)
+            self._f = self._fun(self.t, self.y, self._u_at(self.t))
             self.nfev += 1
             self._f_new = None
 
     def _input_changed(self):
         if self.FSAL:
-            self._f = self._fun(self.t, self.y, self._u)
+            self._f = self._fun(self.t, self.y, self._u_at(self.t))
             self.nfev += 1
 
     def _coeffs(self, h):
@@ -71,20 +72,20 @@ class ExplicitRungeKutta(Stepper):
     def _rk_step(self, t, y, h):
         """The generic Runge-Kutta step: fills the stage derivatives ``K``, returns ``y_new``."""
         rows, hb = self._coeffs(h)
-        K, fun, u = self._K, self._fun, self._u
+        K, fun, u_at = self._K, self._fun, self._u_at
         if self.FSAL:
             K[0] = self._f
             ys = y
             for i, ch, a, Ki in rows:
                 ys = y + a.dot(Ki)
-                fi = fun(t + ch, ys, u)
+                fi = fun(t + ch, ys, u_at(t + ch))
                 K[i] = fi
             self._f_new = fi                  # f at (t + h, y_new): the next first stage
             self.nfev += len(rows)
             return ys                         # the last row of A is B: ys is y_new
-        K[0] = fun(t, y, u)
+        K[0] = fun(t, y, u_at(t))
         for i, ch, a, Ki in rows:
-            K[i] = fun(t + ch, y + a.dot(Ki), u)
+            K[i] = fun(t + ch, y + a.dot(Ki), u_at(t + ch))
         self.nfev += len(rows) + 1
         return y + hb.dot(K)
 
@@ -97,7 +98,8 @@ class ExplicitRungeKutta(Stepper):
         if erk is None or self.FSAL or n < 1:
             return super()._full_substeps(t, y, h, t_base, k, n)
         y = y.copy()
-        done = erk(y, self._u, h, n, self.A, self.B, self._K)
+        done = erk(y, (self._u, self._du, self._d2u, t - self._tu), h, n, self.A, self.B, self.C,
+                   self._K)
         self.nfev += done * self.B.size
         k += done
         t = t_base + k * h
@@ -239,10 +241,11 @@ class SymplecticEuler(Stepper):
 
     name = "symplectic_euler"
     order = 1
+    POLYNOMIAL_INPUT = True
 
     def _step_fixed(self, t, y, h):
         nq = self.nq
-        y_new = y + h * self._fun(t, y, self._u)   # q + h qd_n (replaced below), qd + h qdd
+        y_new = y + h * self._fun(t, y, self._u_at(t))   # q + h qd_n (replaced below), qd + h qdd
         self.nfev += 1
         y_new[:nq] = y[:nq] + h * y_new[nq:]
         return y_new
