@@ -4,8 +4,11 @@ A thin adapter over :class:`controller_fmu.pd_lowpass.PDLowPassModel`: the model
 signal, the exact zero-order-hold discretisation ``(Ad, Bd)`` of the filter over the communication
 step and the saturated output; this class only holds the filter state, the time and the inputs.
 
-Over ``doStep(t, h)`` the inputs are held (zero-order hold) and the filter advances exactly:
-``xc <- Ad(h) xc + Bd(h) e``. ``F_c = -xc[0]`` (saturated) for filter orders 1 and 2; with
+Over ``doStep(t, h)`` the filter advances exactly: ``xc <- Ad(h) xc + Bd(h) e`` with the inputs
+held (zero-order hold), or, when the sensors' time derivatives are given (inputs ``dphi_o``...,
+``d2phi_o``..., FMI's input derivatives as variables: pythonfmu has no
+``fmi2SetRealInputDerivatives``), exactly for the polynomial inputs
+``y + dy (s - t) + d2y (s - t)^2 / 2``: ``xc <- Ad xc + G [e, de, d2e]``. ``F_c = -xc[0]`` (saturated) for filter orders 1 and 2; with
 ``filter_order = 0`` there is no filter and ``F_c = -e`` is computed from the current inputs
 (direct feedthrough, declared in ``modelDescription.xml``).
 
@@ -45,19 +48,25 @@ class PDLowPass(SlaveBase):
     version = "0.1.0"
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
 
-    INPUTS = ("phi_o", "omega_o", "x_o")
+    SENSORS = ("phi_o", "omega_o", "x_o")
+    #: the sensors, then their first and second time derivatives at the start of a step
+    INPUTS = SENSORS + tuple(f"d{n}" for n in SENSORS) + tuple(f"d2{n}" for n in SENSORS)
     OUTPUTS = ("F_c",)
     #: direct feedthrough (only when filter_order = 0, but the parameter can be set at run time)
-    OUTPUT_DEPENDENCIES = {"F_c": INPUTS}
-    INITIAL_DEPENDENCIES = {"F_c": INPUTS + ("kp", "kd", "kx", "filter_order", "force_limit")}
+    OUTPUT_DEPENDENCIES = {"F_c": SENSORS}
+    INITIAL_DEPENDENCIES = {"F_c": SENSORS + ("kp", "kd", "kx", "filter_order", "force_limit")}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.phi_o = 0.0
-        self.omega_o = 0.0
-        self.x_o = 0.0
-        for name, desc in (("phi_o", "tip tangent angle from the upward vertical, rad"),
-                           ("omega_o", "rate of phi_o, rad/s"), ("x_o", "cart position")):
+        sensors = (("phi_o", "tip tangent angle from the upward vertical, rad"),
+                   ("omega_o", "rate of phi_o, rad/s"), ("x_o", "cart position"))
+        inputs = [*sensors,
+                  *((f"d{n}", f"time derivative of {n} at the start of the step (polynomial "
+                              f"input; 0: held)") for n, _ in sensors),
+                  *((f"d2{n}", f"second time derivative of {n} at the start of the step")
+                    for n, _ in sensors)]
+        for name, desc in inputs:
+            setattr(self, name, 0.0)
             self.register_variable(Real(name, causality=Fmi2Causality.input,
                                         variability=Fmi2Variability.continuous,
                                         start=0.0, description=desc))
@@ -109,9 +118,14 @@ class PDLowPass(SlaveBase):
     def _inputs(self):
         return (self.x_o, self.phi_o, self.omega_o)    # the model's order: x_o, phi_o, omega_o
 
+    def _rates(self):
+        """The sensors' first and second derivatives, in the model's order."""
+        return ((self.dx_o, self.dphi_o, self.domega_o),
+                (self.d2x_o, self.d2phi_o, self.d2omega_o))
+
     def _finite_inputs(self) -> bool:
-        isfinite = math.isfinite
-        return isfinite(self.x_o) and isfinite(self.phi_o) and isfinite(self.omega_o)
+        return math.isfinite(self.x_o + self.phi_o + self.omega_o + self.dx_o + self.dphi_o
+                             + self.domega_o + self.d2x_o + self.d2phi_o + self.d2omega_o)
 
     def _bad_inputs(self) -> str:
         bad = [f"{n} = {getattr(self, n)!r}" for n in self.INPUTS
@@ -119,9 +133,10 @@ class PDLowPass(SlaveBase):
         return ", ".join(bad)
 
     def _set_step(self, h: float):
-        Ad, Bd = self._model.discretize(h)
+        Ad, G = self._model.discretize_polynomial(h)
         self._ad = tuple(float(a) for a in Ad.ravel())
-        self._bd = tuple(float(b) for b in Bd)
+        self._bd = tuple(float(b) for b in G[:, 0])
+        self._g = tuple(tuple(float(g) for g in row) for row in G[:, 1:])  # per state: e1, e2
         self._h = h
 
     def do_step(self, current_time, step_size):
@@ -152,13 +167,16 @@ class PDLowPass(SlaveBase):
             return None
         if h != self._h:
             self._set_step(h)
-        e = self._model.error_signal(self._inputs())
-        ad, bd = self._ad, self._bd
+        model = self._model
+        e = model.error_signal(self._inputs())
+        d1, d2 = self._rates()
+        e1, e2 = model.error_signal(d1), model.error_signal(d2)
+        ad, bd, g = self._ad, self._bd, self._g
         if order == 1:
-            x0, x1 = ad[0] * self._x0 + bd[0] * e, 0.0
+            x0, x1 = ad[0] * self._x0 + bd[0] * e + g[0][0] * e1 + g[0][1] * e2, 0.0
         else:
-            x0 = ad[0] * self._x0 + ad[1] * self._x1 + bd[0] * e
-            x1 = ad[2] * self._x0 + ad[3] * self._x1 + bd[1] * e
+            x0 = ad[0] * self._x0 + ad[1] * self._x1 + bd[0] * e + g[0][0] * e1 + g[0][1] * e2
+            x1 = ad[2] * self._x0 + ad[3] * self._x1 + bd[1] * e + g[1][0] * e1 + g[1][1] * e2
         if not math.isfinite(x0 + x1):
             return f"the filter state overflows (error signal {e!r})"
         self._x0, self._x1 = x0, x1
@@ -181,7 +199,7 @@ class PDLowPass(SlaveBase):
     def _get_fmu_state(self):
         return {"t": self._t, "x": [self._x0, self._x1], "F": self._F, "error": self._error,
                 "initialized": self._initialized, "params": self._params_snapshot(),
-                "inputs": [self.phi_o, self.omega_o, self.x_o]}
+                "inputs": [getattr(self, n) for n in self.INPUTS]}
 
     def _set_fmu_state(self, state):
         try:
@@ -195,7 +213,8 @@ class PDLowPass(SlaveBase):
             self._x0, self._x1 = state["x"]
             self._F = state["F"]
             self._error = state["error"]
-            self.phi_o, self.omega_o, self.x_o = state["inputs"]
+            for n, v in zip(self.INPUTS, state["inputs"], strict=True):
+                setattr(self, n, v)
         except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
             self._error = f"the FMU state could not be restored: {type(exc).__name__}: {exc}"
             self.log(self._error, Fmi2Status.error)

@@ -116,6 +116,20 @@ class PDLowPassModel:
         E = scipy.linalg.expm(aug)
         return E[:n, :n].copy(), E[:n, n].copy()
 
+    @functools.lru_cache(maxsize=8)
+    def discretize_polynomial(self, h: float):
+        """``(Ad, G)`` with ``xc(t + h) = Ad xc(t) + G @ [e0, e1, e2]``: exact for the error
+        signal ``e(t + s) = e0 + e1 s + e2 s^2 / 2`` over ``[0, h]`` (``G[:, 0]`` is the
+        zero-order-hold ``Bd``). From one matrix exponential of the filter driven by a chain of
+        three integrators."""
+        n = self.nx
+        aug = np.zeros((n + 3, n + 3))
+        aug[:n, :n] = self.Af * h
+        aug[:n, n] = self.Bf[:, 0] * h
+        aug[n, n + 1] = aug[n + 1, n + 2] = h        # e' = e1 + e2 s, e'' = e2
+        E = scipy.linalg.expm(aug)
+        return E[:n, :n].copy(), E[:n, n:].copy()
+
     def step(self, xc: np.ndarray, y, h: float) -> np.ndarray:
         """Advance the filter state over ``h`` with the sensors ``y`` held."""
         if self.nx == 0:

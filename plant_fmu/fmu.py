@@ -58,6 +58,17 @@ FIDELITIES = ("nonlinear", "linear")
 #: A state whose squared norm exceeds this has blown up; below it every output is finite.
 STATE_NORM2_LIMIT = 1e200
 
+#: Inputs: the force, and its first and second time derivatives at the start of a step (FMI's
+#: input derivatives as variables, since pythonfmu has no fmi2SetRealInputDerivatives). Over
+#: ``doStep(t, h)`` the force is ``F_c + dF_c (s - t) + d2F_c (s - t)^2 / 2``: integrated at the
+#: stage times by the explicit RK methods and symplectic Euler, held at its step average by the
+#: others. Left at 0 they give the zero-order hold.
+INPUTS = {
+    "F_c": "horizontal force on the cart (at the start of the step)",
+    "dF_c": "time derivative of F_c at the start of the step (polynomial input; 0: held)",
+    "d2F_c": "second time derivative of F_c at the start of the step (polynomial input)",
+}
+
 #: Outputs in registration order, with their descriptions.
 OUTPUTS = {
     "x_o": "cart position",
@@ -104,7 +115,7 @@ class FlexiblePendulum(SlaveBase):
     version = "0.1.0"
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
 
-    INPUTS = ("F_c",)
+    INPUTS = ("F_c", "dF_c", "d2F_c")
     OUTPUTS = tuple(OUTPUTS)
     OUTPUT_DEPENDENCIES = {name: () for name in OUTPUTS}      # no direct feedthrough
     INITIAL_DEPENDENCIES = {
@@ -118,10 +129,11 @@ class FlexiblePendulum(SlaveBase):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.F_c = 0.0
-        self.register_variable(Real("F_c", causality=Fmi2Causality.input,
-                                    variability=Fmi2Variability.continuous, start=0.0,
-                                    description="horizontal force on the cart"))
+        self.F_c = self.dF_c = self.d2F_c = 0.0
+        for name, desc in INPUTS.items():
+            self.register_variable(Real(name, causality=Fmi2Causality.input,
+                                        variability=Fmi2Variability.continuous, start=0.0,
+                                        description=desc))
         self._out = {}                     # value reference -> output value
         for name, desc in OUTPUTS.items():
             var = Real(name, causality=Fmi2Causality.output,
@@ -205,14 +217,22 @@ class FlexiblePendulum(SlaveBase):
         if st is None or self._error is not None or not self._initialized:
             return self._refuse(f"FlexiblePendulum cannot step: "
                                 f"{self._error or 'exitInitializationMode has not been called'}")
-        u = self.F_c
-        if not math.isfinite(u):
-            return self._refuse(f"non-finite input F_c = {u!r} at t = {current_time!r}; step "
+        u, du, d2u = self.F_c, self.dF_c, self.d2F_c
+        if not math.isfinite(u + du + d2u):
+            bad = ", ".join(f"{n} = {v!r}" for n, v in zip(INPUTS, (u, du, d2u))
+                            if not math.isfinite(v))
+            return self._refuse(f"non-finite input {bad or 'sum'} at t = {current_time!r}; step "
                                 f"rejected, state unchanged", Fmi2Status.discard)
         why = self._check_time(current_time, st.t)
         if why:
             return self._refuse(why)
-        st.u = u
+        if not (du or d2u):
+            st.u = u
+        elif st.POLYNOMIAL_INPUT:
+            st.set_input(u, du, d2u, t=current_time)
+        else:                                 # a held-input method: the polynomial's average
+            h = step_size
+            st.u = u + h * (0.5 * du + h * d2u / 6.0)
         t_end = current_time + step_size
         try:
             ok, msg = st.advance(t_end)
@@ -293,7 +313,8 @@ class FlexiblePendulum(SlaveBase):
     # ------------------------------------------------------------------ FMU state
     def _get_fmu_state(self):
         st = self._stepper
-        return {"params": self._params_snapshot(), "t0": self._t0, "F_c": self.F_c,
+        return {"params": self._params_snapshot(), "t0": self._t0,
+                "inputs": [self.F_c, self.dF_c, self.d2F_c],
                 "initialized": self._initialized, "error": self._error,
                 "stepper": None if st is None else st.get_state(),
                 "y": None if self._y is None else self._y.tolist()}
@@ -308,7 +329,7 @@ class FlexiblePendulum(SlaveBase):
                 self._prepare()
             if state["stepper"] is not None and self._stepper is not None:
                 self._stepper.set_state(state["stepper"])
-            self.F_c = state["F_c"]
+            self.F_c, self.dF_c, self.d2F_c = state["inputs"]
             self._initialized = state["initialized"]
             self._error = state["error"]
             if state["y"] is not None:

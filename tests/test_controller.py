@@ -66,3 +66,19 @@ def test_order0_is_direct_feedthrough_and_saturation():
     assert m.output(m.initial_state(), [0, 0.01, 0.0]) == pytest.approx(-5.0)
     assert m.output(m.initial_state(), [0, 1.0, 0.0]) == -20.0
     assert m.output(m.initial_state(), [0, -1.0, 0.0]) == 20.0
+
+
+@pytest.mark.parametrize("c", FILTERS[1:], ids=IDS[1:])
+def test_polynomial_discretisation_against_ode_solution(c):
+    """discretize_polynomial(h) is exact for e(s) = e0 + e1 s + e2 s^2 / 2: against a tight ODE
+    solution of the filter driven by that signal; its first column is the zero-order hold."""
+    m = PDLowPassModel(c)
+    h, e0, e1, e2 = 2e-3, 0.7, -300.0, 4e4
+    xc0 = np.array([0.3, -20.0])[:m.nx]
+    Ad, G = m.discretize_polynomial(h)
+    got = Ad @ xc0 + G @ [e0, e1, e2]
+    sol = scipy.integrate.solve_ivp(
+        lambda s, x: m.Af @ x + m.Bf[:, 0] * (e0 + e1 * s + 0.5 * e2 * s * s), (0.0, h), xc0,
+        method="DOP853", rtol=1e-13, atol=1e-14)
+    np.testing.assert_allclose(got, sol.y[:, -1], rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(G[:, 0], m.discretize(h)[1], rtol=1e-14, atol=1e-16)

@@ -98,3 +98,27 @@ def test_bad_parameter_is_an_error_naming_it(open_fmu, name, value, words):
     assert errors and errors[0].startswith(f"bad parameter: {words}")   # status fmi2Error
     assert ctrl.step(0.0, H) == 2 and words in ctrl.logs[-1][2]
     assert ctrl.get("F_c") == [0.0]
+
+
+def test_polynomial_sensor_inputs_are_integrated_exactly(open_fmu):
+    """With the sensors' derivatives given (dphi_o, d2phi_o, ...), each doStep is the model's
+    exact step for polynomial inputs (discretize_polynomial), not the held one."""
+    params = {"kx": 2.0, "filter_damping": 0.7, "cutoff": 90.0}
+    ctrl = open_fmu("PDLowPass", **params)
+    model = PDLowPassModel(ControllerParams(**params))
+    xc = model.initial_state()
+    Ad, G = model.discretize_polynomial(H)
+    for k in range(100):
+        y = np.array(sensors(k * H))
+        dy = np.array([0.3, 1.2 * math.cos(12 * k * H), -14.4 * math.sin(12 * k * H)])
+        d2y = np.array([0.0, -14.4 * math.sin(12 * k * H), -172.8 * math.cos(12 * k * H)])
+        ctrl.set(x_o=y[0], phi_o=y[1], omega_o=y[2], dx_o=dy[0], dphi_o=dy[1], domega_o=dy[2],
+                 d2x_o=d2y[0], d2phi_o=d2y[1], d2omega_o=d2y[2])
+        assert ctrl.step(k * H, H) == 0
+        e = [model.error_signal(v) for v in (y, dy, d2y)]
+        xc = Ad @ xc + G @ e
+        assert ctrl.get("F_c")[0] == pytest.approx(model.output(xc, y), rel=1e-12, abs=1e-12)
+    held = model.output(model.step(model.initial_state(), sensors(0.0), H), sensors(0.0))
+    assert held != pytest.approx(model.output(Ad @ model.initial_state() + G @ [
+        model.error_signal(v) for v in (sensors(0.0), [0.3, 1.2, 0.0], [0.0, 0.0, -172.8])],
+        sensors(0.0)))                              # the derivatives do change the step

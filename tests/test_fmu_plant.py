@@ -198,3 +198,13 @@ def test_parameters_are_fixed_after_initialisation(open_fmu):
     plant.set(n_modes=2)
     assert "parameter n_modes is fixed" in plant.messages(3)
     assert plant.step(0.0, H) == 0
+
+
+def test_nonfinite_input_derivative_is_discarded(open_fmu):
+    plant = open_fmu("FlexiblePendulum", phi0=0.05)
+    assert plant.step(0.0, H) == 0
+    before = plant.outputs()
+    plant.set(F_c=1.0, dF_c=math.nan)
+    assert plant.step(H, H) == 2
+    assert plant.outputs() == before
+    assert "non-finite input dF_c = nan" in plant.messages(2)

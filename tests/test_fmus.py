@@ -49,7 +49,8 @@ def test_plant_interface(fmus):
     md = read_model_description(fmus["FlexiblePendulum"])
     by = {c: [v.name for v in md.modelVariables if v.causality == c]
           for c in ("input", "output", "parameter")}
-    assert by["input"] == ["F_c"]
+    # the force, then its time derivatives (FMI input derivatives as variables)
+    assert by["input"] == ["F_c", "dF_c", "d2F_c"]
     assert by["output"] == PLANT_OUTPUTS
     assert set(by["parameter"]) == {f.name for f in dataclasses.fields(PlantParams)} | set(
         PLANT_SETTINGS)
@@ -59,7 +60,8 @@ def test_controller_interface(fmus):
     md = read_model_description(fmus["PDLowPass"])
     by = {c: [v.name for v in md.modelVariables if v.causality == c]
           for c in ("input", "output", "parameter")}
-    assert by["input"] == ["phi_o", "omega_o", "x_o"]
+    sensors = ["phi_o", "omega_o", "x_o"]
+    assert by["input"] == sensors + [f"d{n}" for n in sensors] + [f"d2{n}" for n in sensors]
     assert by["output"] == ["F_c"]
     assert by["parameter"] == [f.name for f in dataclasses.fields(ControllerParams)]
 
