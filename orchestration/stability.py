@@ -157,14 +157,15 @@ def substep_matrix(method: str, A, B, nq: int, h: float, rho_inf: float = 0.8) -
         return I + Z[(s - 1) * N:]
     # genalpha (Arnold & Bruls 2007) on [q, v, a, qdd, u], with the equation of motion
     # qdd_{n+1} = A2 [q_{n+1}; v_{n+1}] + B2 u at the end of the substep
-    from plant_fmu.integrators.genalpha import genalpha_parameters  # the (alpha, beta, gamma) formulas
+    # Chung & Hulbert's alpha_m, alpha_f, beta, gamma from rho_inf
+    from plant_fmu.integrators.genalpha import genalpha_parameters
     g = genalpha_parameters(rho_inf)
     am, af, beta, gamma = g["alpha_m"], g["alpha_f"], g["beta"], g["gamma"]
     A2, B2 = A[nq:], B[nq:]
     nv = n - nq
     q, v = slice(0, nq), slice(nq, n)
-    ia, iacc, iu = slice(n, n + nv), slice(n + nv, n + 2 * nv), slice(n + 2 * nv, n + 2 * nv + B.shape[1])
     W = n + 2 * nv + B.shape[1]
+    ia, iacc, iu = slice(n, n + nv), slice(n + nv, n + 2 * nv), slice(n + 2 * nv, W)
     Iw = np.eye(W)
     # a_{n+1} = ka a_n + kacc qdd_n + ca qdd_{n+1}
     ka, kacc, ca = -am / (1 - am), af / (1 - am), (1 - af) / (1 - am)
