@@ -127,7 +127,8 @@ class CoSim:
         self._master_kw = dict(algorithm=cfg["master.algorithm"], first=cfg["master.first"],
                                step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
                                adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
-                               min_step=cfg["master.min_step"], max_step=cfg["master.max_step"])
+                               min_step=cfg["master.min_step"], max_step=cfg["master.max_step"],
+                               input_derivatives=cfg["master.input_derivatives"])
         self._connections = [parse_connection(c) for c in
                              (DEFAULT_CONNECTIONS if trivial else cfg["connections"])]
 

@@ -255,12 +255,14 @@ def extrapolation_weights(times, t0: float, t1: float) -> np.ndarray:
     through the samples ``(times_i, u_i)`` (degree ``len(times) - 1``)."""
     h = t1 - t0
     # Lagrange basis in a scaled variable for conditioning: tau = (t - t0) / (t1 - t0)
-    return _weights(tuple(_key((ti - t0) / h) for ti in times), True)
+    return _weights(tuple(_key((ti - t0) / h) for ti in times), "average")
 
 
-def _point_weights(times, t: float, scale: float) -> np.ndarray:
-    """Weights evaluating the polynomial through the samples at ``t``."""
-    return _weights(tuple(_key((ti - t) / scale) for ti in times), False)
+def _point_weights(times, t: float, scale: float, derivative: int = 0) -> np.ndarray:
+    """Weights evaluating the polynomial through the samples at ``t`` (or its ``derivative``-th
+    time derivative there, ``scale`` being the time unit of the weights' construction)."""
+    w = _weights(tuple(_key((ti - t) / scale) for ti in times), derivative)
+    return w if derivative == 0 else w / scale ** derivative
 
 
 def _key(tau: float) -> float:
@@ -270,14 +272,20 @@ def _key(tau: float) -> float:
 
 
 @functools.lru_cache(maxsize=4096)
-def _weights(tau: tuple, average: bool) -> np.ndarray:
+def _weights(tau: tuple, kind) -> np.ndarray:
     """Weights of the polynomial through nodes ``tau``: its average over ``[0, 1]``
-    (``average``) or its value at 0."""
+    (``kind = "average"``) or its ``kind``-th derivative at 0 (``kind`` = 0, 1, 2)."""
     n = len(tau)
+    if kind != "average" and n <= kind:             # too few samples: that derivative is 0
+        return np.zeros(n)
     if n == 1:
         return np.ones(1)
     V = np.vander(np.array(tau), n, increasing=True)       # V[i, j] = tau_i^j
-    rhs = 1.0 / np.arange(1, n + 1) if average else np.eye(n)[0]  # average of tau^j / value at 0
+    if kind == "average":
+        rhs = 1.0 / np.arange(1, n + 1)                    # the average of tau^j over [0, 1]
+    else:
+        rhs = np.zeros(n)
+        rhs[kind] = math.factorial(kind)                   # d^k/dtau^k of tau^j at 0
     w = np.linalg.solve(V.T, rhs)
     w.flags.writeable = False
     return w
@@ -328,7 +336,7 @@ class Master:
 
     def __init__(self, slaves: dict, connections, record: dict, *, algorithm="gauss-seidel",
                  first=None, step=1e-3, extrapolation=0, adaptive=False, tolerance=1e-4,
-                 min_step=1e-6, max_step=2e-2):
+                 min_step=1e-6, max_step=2e-2, input_derivatives=False):
         if algorithm not in ("gauss-seidel", "jacobi"):
             raise ValueError(f"algorithm = {algorithm!r}; allowed: gauss-seidel, jacobi")
         if extrapolation not in (0, 1, 2):
@@ -369,7 +377,28 @@ class Master:
                                        for c in self.inputs[n] if c.src == src]))
                             for src in dict.fromkeys(c.src for c in self.inputs[n])]
                         for n in names}
-        self._in_buf = {n: np.zeros(len(self.inputs[n])) for n in names}
+        # input derivatives (FMI's, as the input variables d<u> and d2<u>; pythonfmu FMUs cannot
+        # take fmi2SetRealInputDerivatives): how many orders each slave takes, 0 to 2
+        self.input_derivatives = bool(input_derivatives)
+        self._n_der = {n: 0 for n in names}
+        if self.input_derivatives and self.p >= 1:
+            for n in names:
+                dst_vars = [c.dst_var for c in self.inputs[n]]
+                has = [all(f"{'d' if k == 1 else 'd2'}{v}" in slaves[n].variables and
+                           slaves[n].variables[f"{'d' if k == 1 else 'd2'}{v}"].causality
+                           == "input" for v in dst_vars) for k in (1, 2)]
+                self._n_der[n] = 0 if not (dst_vars and has[0]) else (
+                    2 if has[1] and self.p >= 2 else 1)
+        for n, s in slaves.items():
+            extra = [f"{'d' if k == 1 else 'd2'}{c.dst_var}" for k in range(1, self._n_der[n] + 1)
+                     for c in self.inputs[n]]
+            if extra:
+                s.bind([c.dst_var for c in self.inputs[n]] + extra, self.outputs[n],
+                       self.recorded[n])
+        self._in_buf = {n: np.zeros(len(self.inputs[n]) * (1 + self._n_der[n])) for n in names}
+        #: predict and correct the first step (needs every FMU's state; see _startup_step)
+        self._correct_startup = self.p >= 1 and all(
+            s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values())
 
     def connection_table(self) -> str:
         rows = [("from", "to")] + [(f"{c.src}.{c.src_var}", f"{c.dst}.{c.dst_var}")
@@ -392,14 +421,25 @@ class Master:
             acc += w[i] * us[i - k]
         return acc
 
-    def _inputs(self, dst, hist, weights):
+    def _inputs(self, dst, hist, weights, offset=0):
         buf = self._in_buf[dst]
         for src, pos, idx in self._gather[dst]:
-            buf[pos] = self._polynomial(hist[src], weights)[idx]
+            buf[pos + offset] = self._polynomial(hist[src], weights)[idx]
+        return buf
+
+    def _polynomial_inputs(self, dst, hist, t, scale):
+        """The sources' polynomials at ``t`` and their time derivatives (as many orders as
+        ``dst`` takes): the FMU integrates them over its step instead of a held value."""
+        n_in = len(self.inputs[dst])
+        for k in range(self._n_der[dst] + 1):
+            buf = self._inputs(dst, hist, lambda ts: _point_weights(ts, t, scale, k), k * n_in)
         return buf
 
     def _held_inputs(self, dst, hist, t0, t1):
-        """Input values for ``dst`` held over ``[t0, t1]``: the polynomials' step averages."""
+        """Input values for ``dst`` over ``[t0, t1]``: the polynomials' step averages, held; or,
+        for a slave taking input derivatives, the polynomials at ``t0`` and their derivatives."""
+        if self._n_der[dst]:
+            return self._polynomial_inputs(dst, hist, t0, t1 - t0)
         return self._inputs(dst, hist, lambda ts: extrapolation_weights(ts, t0, t1))
 
     def _point_weights_at(self, t):
@@ -407,6 +447,9 @@ class Master:
 
     def _point_inputs(self, dst, hist, t1):
         """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there)."""
+        if self._n_der[dst]:
+            return self._polynomial_inputs(dst, hist, t1, (t1 - hist[self._gather[dst][0][0]].t[-1])
+                                           or self.h)
         return self._inputs(dst, hist, self._point_weights_at(t1))
 
     def _outputs_after_step(self, n, hist, t1):
@@ -431,16 +474,49 @@ class Master:
             for n in self.order:
                 new[n] = self._outputs_after_step(n, hist, t1)
         else:
-            pushed = []
+            pushed, replaced = [], []
             for n in self.order:
                 self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), t0)
                 self.slaves[n].do_step(t0, h)
                 new[n] = self._outputs_after_step(n, hist, t1)
-                hist[n].push(t1, new[n])    # later slaves interpolate between t0 and t1
-                pushed.append(n)
+                # later slaves interpolate between t0 and t1
+                if hist[n].t and hist[n].t[-1] == t1:   # a predicted sample (_startup_step)
+                    replaced.append((n, hist[n].u[-1]))
+                    hist[n].u[-1] = new[n]
+                else:
+                    hist[n].push(t1, new[n])
+                    pushed.append(n)
             for n in pushed:                # undo: the caller pushes all at once
                 hist[n].pop()
+            for n, u in replaced:
+                hist[n].u[-1] = u
         return new
+
+    def _startup_step(self, hist, t0, t1):
+        """The first step with extrapolation: with one sample per signal the inputs would be
+        held at their initial values, an O(h) error over one step that leaves an O(h^2)
+        global error, and caps higher-order couplings at order 2. So the step is predicted
+        (held inputs), rolled back through the FMU states, and taken again with inputs
+        interpolated between the samples at ``t0`` and the predicted ones at ``t1``."""
+        states = {n: s.get_state() for n, s in self.slaves.items()}
+        try:
+            predicted = self._macro_step(hist, t0, t1)
+            for n in self.slaves:
+                hist[n].push(t1, predicted[n])
+            for n, s in self.slaves.items():
+                s.set_state(states[n])
+            new = self._macro_step(hist, t0, t1)
+            for n in self.slaves:
+                hist[n].pop()
+        finally:
+            for n, s in self.slaves.items():
+                s.free_state(states[n])
+        return new
+
+    def _step(self, hist, t0, t1):
+        if self._correct_startup and len(hist[self.order[0]].t) == 1:
+            return self._startup_step(hist, t0, t1)
+        return self._macro_step(hist, t0, t1)
 
     def _coupling_error(self, hist, new, t1):
         """Weighted max difference between the predicted and the actual source outputs."""
@@ -463,8 +539,9 @@ class Master:
         for _ in range(2):
             for n in self.order:
                 if self.inputs[n]:
-                    vals = [float(cur[c.src][self._out_index[c.src][c.src_var]])
-                            for c in self.inputs[n]]
+                    vals = np.zeros(self._in_buf[n].size)     # input derivatives 0
+                    vals[:len(self.inputs[n])] = [cur[c.src][self._out_index[c.src][c.src_var]]
+                                                  for c in self.inputs[n]]
                     self.slaves[n].set_inputs(vals, t0)
                     cur[n] = self.slaves[n].get_outputs(t0)
         return cur
@@ -493,7 +570,7 @@ class Master:
             total = n_out * m
             for k in range(total):
                 ta, tb = t0 + k * self.h, t0 + (k + 1) * self.h
-                cur = self._macro_step(hist, ta, tb)
+                cur = self._step(hist, ta, tb)
                 for n in self.slaves:
                     hist[n].push(tb, cur[n])
                 stats.steps += 1
@@ -517,7 +594,7 @@ class Master:
                 states = {n: s.get_state() for n, s in self.slaves.items()}
                 snaps = {n: hist[n].snapshot() for n in self.slaves}
                 try:
-                    new = self._macro_step(hist, t, t1)
+                    new = self._step(hist, t, t1)
                     err = self._coupling_error(hist, new, t1)
                     discarded = False
                 except CoSimulationError as exc:

@@ -155,7 +155,8 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
                             algorithm=cfg["master.algorithm"], first=cfg["master.first"],
                             step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
                             adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
-                            min_step=cfg["master.min_step"], max_step=cfg["master.max_step"])
+                            min_step=cfg["master.min_step"], max_step=cfg["master.max_step"],
+                            input_derivatives=cfg["master.input_derivatives"])
         except ValueError as exc:       # a variable the FMUs do not have
             raise ConfigError(f"{scene.name}: {exc}") from None
         if connections_out is not None:

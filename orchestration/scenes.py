@@ -45,6 +45,7 @@ SCENE_DEFAULTS = {
     "master.tolerance": 1e-4,
     "master.min_step": 1e-6,
     "master.max_step": 2e-2,
+    "master.input_derivatives": False,
     # wiring by variable name: "fmu.variable -> fmu.variable", FMUs "plant" and "controller"
     "connections": [
         "plant.x_o -> controller.x_o",
@@ -126,6 +127,8 @@ def _validate(cfg: dict) -> None:
         cfg["master.extrapolation"] = check_int("master.extrapolation", cfg["master.extrapolation"],
                                                 low=0, high=2)
         cfg["master.adaptive"] = check_bool("master.adaptive", cfg["master.adaptive"])
+        cfg["master.input_derivatives"] = check_bool("master.input_derivatives",
+                                                     cfg["master.input_derivatives"])
     except (TypeError, ValueError) as exc:
         raise ConfigError(str(exc)) from None
     from plant_fmu.integrators import REGISTRY

@@ -54,6 +54,21 @@ def test_convergence_order_to_monolithic_reference(paths, scene, p, expected):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("algorithm", ["gauss-seidel", "jacobi"])
+def test_input_derivatives_raise_the_order_to_three(paths, algorithm):
+    """With the extrapolation polynomial passed as input derivatives (the FMUs integrate it over
+    the step instead of holding its average), quadratic extrapolation gives a third-order
+    coupling error; held, it stays second order."""
+    errs, slopes = _order(paths, "flexible_pd_lowpass", [
+        "master.extrapolation=2", "master.input_derivatives=true",
+        f"master.algorithm={algorithm}"])
+    assert np.all(slopes > 3.0 - 0.25) and np.all(slopes < 3.5), (errs, slopes)
+    held, held_slopes = _order(paths, "flexible_pd_lowpass", [
+        "master.extrapolation=2", f"master.algorithm={algorithm}"])
+    assert np.all(held_slopes < 2.5) and errs[-1] < held[-1] / 4, (errs, held)
+
+
+@pytest.mark.slow
 @pytest.mark.parametrize("algorithm", ["jacobi", "gauss-seidel"])
 def test_jacobi_and_gauss_seidel_converge(paths, algorithm):
     errs, slopes = _order(paths, "flexible_pd_lowpass", [f"master.algorithm={algorithm}",
