@@ -80,8 +80,10 @@ class PDLowPass(SlaveBase):
         self._order = 0
         self._x0 = self._x1 = 0.0     # filter state (filter output first)
         self._F = 0.0                 # F_c after the last step (orders 1, 2) or last finite F_c
-        self._h = None                # step of the cached discretisation
+        self._h = None                # step of the current discretisation
         self._ad = self._bd = ()
+        self._disc = {}               # step -> discretisation (a master's steps t1 - t0 differ
+                                      # in the last bits: a few entries)
 
     # ------------------------------------------------------------------ set-up
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
@@ -105,6 +107,8 @@ class PDLowPass(SlaveBase):
         self._lim = params.force_limit
         self._x0 = self._x1 = 0.0
         self._h = None
+        self._disc = {}
+        self._gains = (params.kx, params.kp, params.kd)
         self._F = 0.0
         if self._order == 0:
             self._force()
@@ -118,11 +122,6 @@ class PDLowPass(SlaveBase):
     def _inputs(self):
         return (self.x_o, self.phi_o, self.omega_o)    # the model's order: x_o, phi_o, omega_o
 
-    def _rates(self):
-        """The sensors' first and second derivatives, in the model's order."""
-        return ((self.dx_o, self.dphi_o, self.domega_o),
-                (self.d2x_o, self.d2phi_o, self.d2omega_o))
-
     def _finite_inputs(self) -> bool:
         return math.isfinite(self.x_o + self.phi_o + self.omega_o + self.dx_o + self.dphi_o
                              + self.domega_o + self.d2x_o + self.d2phi_o + self.d2omega_o)
@@ -133,10 +132,15 @@ class PDLowPass(SlaveBase):
         return ", ".join(bad)
 
     def _set_step(self, h: float):
-        Ad, G = self._model.discretize_polynomial(h)
-        self._ad = tuple(float(a) for a in Ad.ravel())
-        self._bd = tuple(float(b) for b in G[:, 0])
-        self._g = tuple(tuple(float(g) for g in row) for row in G[:, 1:])  # per state: e1, e2
+        disc = self._disc.get(h)
+        if disc is None:
+            Ad, G = self._model.discretize_polynomial(h)
+            disc = (tuple(float(a) for a in Ad.ravel()), tuple(float(b) for b in G[:, 0]),
+                    tuple(tuple(float(g) for g in row) for row in G[:, 1:]))  # per state: e1, e2
+            if len(self._disc) >= 8:
+                self._disc.clear()
+            self._disc[h] = disc
+        self._ad, self._bd, self._g = disc
         self._h = h
 
     def do_step(self, current_time, step_size):
@@ -167,10 +171,10 @@ class PDLowPass(SlaveBase):
             return None
         if h != self._h:
             self._set_step(h)
-        model = self._model
-        e = model.error_signal(self._inputs())
-        d1, d2 = self._rates()
-        e1, e2 = model.error_signal(d1), model.error_signal(d2)
+        kx, kp, kd = self._gains                 # the model's error_signal, inlined
+        e = kx * self.x_o + kp * self.phi_o + kd * self.omega_o
+        e1 = kx * self.dx_o + kp * self.dphi_o + kd * self.domega_o
+        e2 = kx * self.d2x_o + kp * self.d2phi_o + kd * self.d2omega_o
         ad, bd, g = self._ad, self._bd, self._g
         if order == 1:
             x0, x1 = ad[0] * self._x0 + bd[0] * e + g[0][0] * e1 + g[0][1] * e2, 0.0

@@ -180,13 +180,13 @@ class Slave:
         raw = {name: fun.get(f"fmi2{name}") for name in ("SetReal", "GetReal", "DoStep")}
         if all(raw.values()) and getattr(self.fmu, "fmiCallLogger", None) is None:
             set_real, get_real, do_step = raw["SetReal"], raw["GetReal"], raw["DoStep"]
-            self._set_inputs_raw = lambda: set_real(c, self._in_vr, self._n_in, self._in_val)
+            self._set_inputs_raw = lambda n: set_real(c, self._in_vr, n, self._in_val)
             self._get_outputs_raw = lambda: get_real(c, self._out_vr, self._n_out, self._out_val)
             self._get_record_raw = lambda: get_real(c, self._rec_vr, self._n_rec, self._rec_val)
             self._do_step_raw = lambda t, h: do_step(c, t, h, fmi2True)
         else:                                    # fmpy's checked wrappers (they raise)
             f = self.fmu
-            self._set_inputs_raw = lambda: f.fmi2SetReal(c, self._in_vr, self._n_in, self._in_val)
+            self._set_inputs_raw = lambda n: f.fmi2SetReal(c, self._in_vr, n, self._in_val)
             self._get_outputs_raw = lambda: f.fmi2GetReal(c, self._out_vr, self._n_out,
                                                           self._out_val)
             self._get_record_raw = lambda: f.fmi2GetReal(c, self._rec_vr, self._n_rec,
@@ -201,11 +201,13 @@ class Slave:
         if status is not None and status > 1:
             self._raise(what, status, t)
 
-    def set_inputs(self, values, t=None):
-        """Set the bound inputs to ``values`` (a sequence in the order of :meth:`bind`)."""
-        if self._n_in:
-            self._in_np[:] = values
-            self._checked("setReal", self._set_inputs_raw, t=t)
+    def set_inputs(self, values, t=None, n=None):
+        """Set the bound inputs to ``values`` (a sequence in the order of :meth:`bind`), or only
+        the first ``n`` of them."""
+        n = self._n_in if n is None else n
+        if n:
+            self._in_np[:n] = values[:n]
+            self._checked("setReal", self._set_inputs_raw, n, t=t)
 
     def get_outputs(self, t=None) -> np.ndarray:
         """The bound outputs (a new array)."""
@@ -289,6 +291,17 @@ def _weights(tau: tuple, kind) -> np.ndarray:
     w = np.linalg.solve(V.T, rhs)
     w.flags.writeable = False
     return w
+
+
+@functools.lru_cache(maxsize=4096)
+def _weight_rows(tau: tuple, kinds: tuple, scale: float) -> np.ndarray:
+    """Rows of weights on the samples at nodes ``tau`` (times in units of ``scale`` from the
+    origin): per ``kind``, the polynomial's average over ``[0, 1]`` (``"average"``) or its
+    ``kind``-th time derivative at 0 (``scale ** -kind`` included)."""
+    W = np.array([_weights(tau, kd) if kd == "average" or kd == 0
+                  else _weights(tau, kd) / scale ** kd for kd in kinds])
+    W.flags.writeable = False
+    return W
 
 
 class _History:
@@ -396,6 +409,9 @@ class Master:
                 s.bind([c.dst_var for c in self.inputs[n]] + extra, self.outputs[n],
                        self.recorded[n])
         self._in_buf = {n: np.zeros(len(self.inputs[n]) * (1 + self._n_der[n])) for n in names}
+        #: what each slave's inputs are: held step averages, or values and derivatives
+        self._kinds = {n: tuple(range(self._n_der[n] + 1)) if self._n_der[n] else ("average",)
+                       for n in names}
         #: predict and correct the first step (needs every FMU's state; see _startup_step)
         self._correct_startup = self.p >= 1 and all(
             s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values())
@@ -408,49 +424,44 @@ class Master:
                          for i, (a, b) in enumerate(rows))
 
     # ------------------------------------------------------------------ stepping
-    def _polynomial(self, h: "_History", weights):
-        """``sum_i w_i u_i`` over the newest ``p + 1`` samples of ``h`` (fewer at the start),
-        ``w = weights(times)``: the extrapolation polynomial, averaged or evaluated."""
+    def _combination(self, h: "_History", t: float, scale: float, kinds: tuple):
+        """Rows ``kinds`` (``"average"`` over ``[t, t + scale]``, or the ``j``-th derivative at
+        ``t``) of the polynomial through the newest ``p + 1`` samples of ``h`` (fewer at the
+        start): an array ``len(kinds) x outputs``, derivatives in time units."""
         k = min(self.p + 1, len(h.t))
-        us = h.u
+        ts = h.t
         if k == 1:
-            return us[-1]
-        w = weights(h.t[-k:])
-        acc = w[0] * us[-k]
-        for i in range(1, k):
-            acc += w[i] * us[i - k]
-        return acc
+            tau = (round((ts[-1] - t) / scale, 9),)
+        elif k == 2:
+            tau = (round((ts[-2] - t) / scale, 9), round((ts[-1] - t) / scale, 9))
+        else:
+            tau = tuple(round((ti - t) / scale, 9) for ti in ts[-k:])
+        W = _weight_rows(tau, kinds, scale)
+        if k == 1:
+            return W * h.u[-1]
+        return W @ np.array(h.u[-k:])
 
-    def _inputs(self, dst, hist, weights, offset=0):
+    def _fill(self, dst, hist, t, scale, kinds):
+        """The inputs of ``dst`` from the sources' polynomials: value rows, then derivative
+        rows, as bound (``kinds[j]`` fills the ``j``-th block of ``len(inputs)`` entries)."""
+        n_in = len(self.inputs[dst])
         buf = self._in_buf[dst]
         for src, pos, idx in self._gather[dst]:
-            buf[pos + offset] = self._polynomial(hist[src], weights)[idx]
-        return buf
-
-    def _polynomial_inputs(self, dst, hist, t, scale):
-        """The sources' polynomials at ``t`` and their time derivatives (as many orders as
-        ``dst`` takes): the FMU integrates them over its step instead of a held value."""
-        n_in = len(self.inputs[dst])
-        for k in range(self._n_der[dst] + 1):
-            buf = self._inputs(dst, hist, lambda ts: _point_weights(ts, t, scale, k), k * n_in)
+            R = self._combination(hist[src], t, scale, kinds)
+            for j in range(len(kinds)):
+                buf[pos + j * n_in] = R[j, idx]
         return buf
 
     def _held_inputs(self, dst, hist, t0, t1):
         """Input values for ``dst`` over ``[t0, t1]``: the polynomials' step averages, held; or,
-        for a slave taking input derivatives, the polynomials at ``t0`` and their derivatives."""
-        if self._n_der[dst]:
-            return self._polynomial_inputs(dst, hist, t0, t1 - t0)
-        return self._inputs(dst, hist, lambda ts: extrapolation_weights(ts, t0, t1))
-
-    def _point_weights_at(self, t):
-        return lambda ts: _point_weights(ts, t, (t - ts[-1]) or self.h)
+        for a slave taking input derivatives, the polynomials at ``t0`` and their derivatives
+        (the FMU integrates the polynomial over its step)."""
+        return self._fill(dst, hist, t0, t1 - t0, self._kinds[dst])
 
     def _point_inputs(self, dst, hist, t1):
-        """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there)."""
-        if self._n_der[dst]:
-            return self._polynomial_inputs(dst, hist, t1, (t1 - hist[self._gather[dst][0][0]].t[-1])
-                                           or self.h)
-        return self._inputs(dst, hist, self._point_weights_at(t1))
+        """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there; only
+        the first ``len(self.inputs[dst])`` entries, the values, are meant)."""
+        return self._fill(dst, hist, t1, self.h, (0,))
 
     def _outputs_after_step(self, n, hist, t1):
         """Outputs of slave ``n`` at ``t1``. A feedthrough slave's output read right after
@@ -459,7 +470,7 @@ class Master:
         belongs to its time stamp."""
         s = self.slaves[n]
         if s.feedthrough and self.inputs[n]:
-            s.set_inputs(self._point_inputs(n, hist, t1), t1)
+            s.set_inputs(self._point_inputs(n, hist, t1), t1, n=len(self.inputs[n]))
         return s.get_outputs(t1)
 
     def _macro_step(self, hist, t0, t1):
@@ -521,11 +532,10 @@ class Master:
     def _coupling_error(self, hist, new, t1):
         """Weighted max difference between the predicted and the actual source outputs."""
         err = 0.0
-        weights = self._point_weights_at(t1)
         for src in dict.fromkeys(c.src for c in self.connections):
             if len(hist[src].t) == 0:
                 continue
-            pred = self._polynomial(hist[src], weights)
+            pred = self._combination(hist[src], t1, self.h, (0,))[0]
             actual = new[src]
             scale = self.tol * np.maximum(1.0, np.abs(actual))
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))

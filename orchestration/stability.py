@@ -298,13 +298,18 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
                       algorithm: str = "gauss-seidel", first: str = "controller",
                       extrapolation: int = 0, integrator: str = "rk4", substep: float = 2.5e-4,
                       drift_free: bool = True, step_index: int | None = None,
-                      plant_map=None) -> np.ndarray:
+                      plant_map=None, _predictor: bool = False) -> np.ndarray:
     """``Phi`` with ``z_{k+1} = Phi z_k`` for one communication step ``H`` of the master.
 
     ``z = [x, xc, y_k .. y_k-p, F_k .. F_k-p]`` (``x`` without the cart's position and velocity
     when ``drift_free`` and ``kx = 0``). ``step_index = k`` gives the map of the ``k``-th step,
     when fewer than ``p + 1`` samples exist (``None``: the steady map). ``plant_map`` may pass a
     precomputed :func:`plant_step_map` ``(Phi_p, Gamma_p)`` for the same plant and ``H``.
+
+    With extrapolation (``p >= 1``) the master predicts the first step with held inputs, rolls
+    it back and takes it again with the inputs interpolated between ``t_0`` and the predicted
+    samples at ``t_1`` (:meth:`orchestration.master.Master._startup_step`); ``step_index = 0``
+    gives that corrected map.
     """
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
@@ -357,6 +362,22 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     def ctrl_step(ybar):
         return Ad @ xc + Bd @ ybar
 
+    if step_index == 0 and P >= 2 and not _predictor:
+        # the corrected first step: the predicted samples at t_1 (the map of the held step) stand
+        # in for the newest samples; the first FMU interpolates through them and t_0
+        Mp = transition_matrix(p, c, H, algorithm=algorithm, first=first,
+                               extrapolation=extrapolation, integrator=integrator,
+                               substep=substep, drift_free=drift_free, step_index=0,
+                               plant_map=plant_map, _predictor=True)
+        yP, FP = Mp[iy[0]], Mp[iF[0]]
+        w2 = _avg_weights(2, 1)
+        Y = [yP] + Y[:P - 1]        # sample registers as the master sees them: t_1 (predicted),
+        F = [FP] + F[:P - 1]        # t_0, ...
+        wE, wI, wP = w2, w2, np.array([1.0])
+        s_corr = True
+    else:
+        s_corr = False
+
     if algorithm == "jacobi":
         x1 = plant_step(comb(wE, F))
         xc1 = ctrl_step(comb(wE, Y))
@@ -365,13 +386,16 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     elif first == "controller":
         xc1 = ctrl_step(comb(wE, Y))
         F1 = Cc @ xc1 + Dc @ comb(wP, Y)
-        x1 = plant_step(comb(wI, F, newest=F1))
+        # the second FMU: through the first FMU's new sample at t_1 (which replaces a predicted one)
+        x1 = plant_step(comb(wI, [F1, I[iF[0]]]) if s_corr else comb(wI, F, newest=F1))
         y1 = C @ x1
     else:
         x1 = plant_step(comb(wE, F))
         y1 = C @ x1
-        xc1 = ctrl_step(comb(wI, Y, newest=y1))
+        xc1 = ctrl_step(comb(wI, [y1, I[iy[0]]]) if s_corr else comb(wI, Y, newest=y1))
         F1 = Cc @ xc1 + Dc @ y1     # the polynomial at its own node t_k+1: the sample itself
+    if s_corr:                      # the registers hold the true samples again
+        Y, F = [I[s] for s in iy], [I[s] for s in iF]
     Phi = np.zeros((N, N))
     Phi[ix] = x1
     Phi[ic] = xc1

@@ -137,7 +137,7 @@ def test_gauss_seidel_orders_have_one_spectrum(p_extra):
 @pytest.mark.parametrize("algorithm,first", [("jacobi", "controller"),
                                              ("gauss-seidel", "controller"),
                                              ("gauss-seidel", "plant")])
-@pytest.mark.parametrize("p_extra", [0, 2])
+@pytest.mark.parametrize("p_extra", [0, 1, 2])
 def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, algorithm, first,
                                                            p_extra):
     """The linear map stepped by hand (start-up steps with fewer samples included) against the
