@@ -409,6 +409,9 @@ class Master:
                 s.bind([c.dst_var for c in self.inputs[n]] + extra, self.outputs[n],
                        self.recorded[n])
         self._in_buf = {n: np.zeros(len(self.inputs[n]) * (1 + self._n_der[n])) for n in names}
+        # where the rows of each source's polynomial go in the input buffer (per number of rows)
+        self._targets = {(n, src, nk): pos[None, :] + len(self.inputs[n]) * np.arange(nk)[:, None]
+                         for n in names for src, pos, _ in self._gather[n] for nk in (1, 2, 3)}
         #: what each slave's inputs are: held step averages, or values and derivatives
         self._kinds = {n: tuple(range(self._n_der[n] + 1)) if self._n_der[n] else ("average",)
                        for n in names}
@@ -435,7 +438,8 @@ class Master:
         elif k == 2:
             tau = (round((ts[-2] - t) / scale, 9), round((ts[-1] - t) / scale, 9))
         else:
-            tau = tuple(round((ti - t) / scale, 9) for ti in ts[-k:])
+            tau = (round((ts[-3] - t) / scale, 9), round((ts[-2] - t) / scale, 9),
+                   round((ts[-1] - t) / scale, 9))
         W = _weight_rows(tau, kinds, scale)
         if k == 1:
             return W * h.u[-1]
@@ -444,12 +448,10 @@ class Master:
     def _fill(self, dst, hist, t, scale, kinds):
         """The inputs of ``dst`` from the sources' polynomials: value rows, then derivative
         rows, as bound (``kinds[j]`` fills the ``j``-th block of ``len(inputs)`` entries)."""
-        n_in = len(self.inputs[dst])
         buf = self._in_buf[dst]
+        nk = len(kinds)
         for src, pos, idx in self._gather[dst]:
-            R = self._combination(hist[src], t, scale, kinds)
-            for j in range(len(kinds)):
-                buf[pos + j * n_in] = R[j, idx]
+            buf[self._targets[dst, src, nk]] = self._combination(hist[src], t, scale, kinds)[:, idx]
         return buf
 
     def _held_inputs(self, dst, hist, t0, t1):
