@@ -196,10 +196,13 @@ def monolithic(scene, method: str, rtol: float, atol: float | None = None):
     return wall, phi, sol.nfev
 
 
-def median_time(fn, runs: int):
+def median_time(fn, runs: int, max_seconds: float | None = None):
     """``(median seconds, all seconds, last value)`` of ``fn() -> (seconds, value)``, after one
-    untimed warm-up call."""
-    fn()
+    untimed warm-up call. With ``max_seconds``, a point whose warm-up shows that ``runs`` runs
+    would take longer gets fewer runs (at least one): ``len(all seconds)`` says how many."""
+    warm, _ = fn()
+    if max_seconds is not None and warm * runs > max_seconds:
+        runs = max(1, int(max_seconds // max(warm, 1e-12)))
     times, value = [], None
     for _ in range(runs):
         dt, value = fn()
