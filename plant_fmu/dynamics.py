@@ -26,7 +26,7 @@ import math
 import numpy as np
 
 from .beam import Beam, beam_model
-from .kernels import HAVE_NUMBA, energy_kernel, erk_steps_kernel, rhs_kernel
+from .kernels import HAVE_NUMBA, energy_kernel, erk_steps_kernel, rhs_kernel, tip_kernel
 from .params import PlantParams
 
 __all__ = ["PlantModel", "LinearPlantModel", "plant_model", "linear_plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
@@ -61,6 +61,7 @@ class PlantModel:
         self._consts = np.array([self.I0, self.I1, self.I2, self.g, self._I3I3, self._I3I5,
                                  self._I5I5, float(self.preload)])
         self._Kg = np.ascontiguousarray(self.Kg, dtype=float)
+        self._tip_slope = np.ascontiguousarray(self.tip_slope, dtype=float)
 
     # ------------------------------------------------------------------ nonlinear model
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
@@ -131,6 +132,11 @@ class PlantModel:
         return dx
 
     def tip_angle(self, x: np.ndarray) -> tuple[float, float]:
+        """``(phi_o, omega_o)``: the tip tangent's angle from the vertical and its rate (the
+        compiled kernel; the same formula as :meth:`tip_angle_numpy`)."""
+        return tip_kernel(np.asarray(x, dtype=float), self._tip_slope)
+
+    def tip_angle_numpy(self, x: np.ndarray) -> tuple[float, float]:
         """``(phi_o, omega_o)``: the tip tangent's angle from the vertical and its rate."""
         nq = self.nq
         if self.n == 0:

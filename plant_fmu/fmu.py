@@ -144,6 +144,8 @@ class FlexiblePendulum(SlaveBase):
         self._vr = {v.name: vr for vr, v in self.vars.items()}
         self._vr_energy = self._vr["energy"]
         self._vr_eta = [self._vr[f"eta_{j}"] for j in range(1, N_ETA_OUTPUTS + 1)]
+        self._shape_vrs = frozenset([self._vr["tip_deflection"], *self._vr_eta])
+        self._shape_dirty = False
         self._register_parameters({**self.dataclass_defaults(PlantParams), **FMU_DEFAULTS},
                                   _DESCRIPTIONS)
         self._t0 = 0.0
@@ -271,23 +273,28 @@ class FlexiblePendulum(SlaveBase):
         """``y`` is the new accepted state (``energy`` its energy if already computed)."""
         self._y = y.copy()
         self._energy = energy
-        self._dirty = True
+        self._dirty = self._shape_dirty = True
         self._energy_fresh = False
 
     # ------------------------------------------------------------------ outputs
     def _refresh(self):
-        """Outputs (except the energy, computed on demand) from the last accepted state."""
+        """The sensor outputs from the last accepted state (the shape outputs and the energy
+        are computed when they are read)."""
         m, y, out, vr = self._model, self._y, self._out, self._vr
-        nq = self._nq
         out[vr["phi_o"]], out[vr["omega_o"]] = m.tip_angle(y)
         out[vr["x_o"]] = float(y[0])
-        out[vr["x_dot"]] = float(y[nq])
+        out[vr["x_dot"]] = float(y[self._nq])
         out[vr["phi"]] = float(y[1])
+        self._dirty = False
+
+    def _refresh_shape(self):
+        """Tip deflection and modal coordinates from the last accepted state."""
+        y, out = self._y, self._out
         if self._n:
-            out[vr["tip_deflection"]] = float(m.tip_defl @ y[2:nq])
+            out[self._vr["tip_deflection"]] = float(self._model.tip_defl @ y[2:self._nq])
             for j, vr_j in enumerate(self._vr_eta[:self._n]):
                 out[vr_j] = float(y[2 + j])
-        self._dirty = False
+        self._shape_dirty = False
 
     def _refresh_energy(self):
         energy = self._energy
@@ -299,6 +306,8 @@ class FlexiblePendulum(SlaveBase):
             self._prepare()                    # outputs read in initialisation mode
         if self._dirty:
             self._refresh()
+        if self._shape_dirty and not self._shape_vrs.isdisjoint(vrs):
+            self._refresh_shape()
         if not self._energy_fresh and self._vr_energy in vrs:
             self._refresh_energy()
         out = self._out

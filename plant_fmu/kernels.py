@@ -13,7 +13,7 @@ try:
 except ImportError:  # pragma: no cover - numba is a declared dependency
     numba = None
 
-__all__ = ["rhs_kernel", "erk_steps_kernel", "energy_kernel", "HAVE_NUMBA"]
+__all__ = ["rhs_kernel", "erk_steps_kernel", "energy_kernel", "tip_kernel", "HAVE_NUMBA"]
 
 HAVE_NUMBA = numba is not None
 
@@ -108,6 +108,18 @@ def _energy(x, consts, I3, I5, Kd, Kg):
     return T + V
 
 
+def _tip(x, slope):
+    """``(phi_o, omega_o)``: what :meth:`PlantModel.tip_angle` computes."""
+    n = slope.size
+    nq = n + 2
+    sl = 0.0
+    sld = 0.0
+    for j in range(n):
+        sl += slope[j] * x[2 + j]
+        sld += slope[j] * x[nq + 2 + j]
+    return x[1] + math.atan(sl), x[nq + 1] + sld / (1.0 + sl * sl)
+
+
 def _erk_steps(y, u0, du, d2u, s0, h, n_steps, A, B, C, consts, I3, I5, Kd, Dd, Kg, K, ys):
     """``n_steps`` substeps of length ``h`` of the explicit Runge-Kutta tableau ``(A, B, C)`` on
     the plant, in place on ``y``, with the input ``u0 + du s + d2u s^2 / 2``, ``s = s0`` at the
@@ -146,8 +158,10 @@ def _erk_steps(y, u0, du, d2u, s0, h, n_steps, A, B, C, consts, I3, I5, Kd, Dd, 
 if HAVE_NUMBA:
     rhs_kernel = _rhs_c = numba.njit(cache=True)(_rhs)
     energy_kernel = numba.njit(cache=True)(_energy)
+    tip_kernel = numba.njit(cache=True)(_tip)
     erk_steps_kernel = numba.njit(cache=True)(_erk_steps)
 else:  # pragma: no cover - numba is a declared dependency
     rhs_kernel = _rhs_c = _rhs
     energy_kernel = _energy
+    tip_kernel = _tip
     erk_steps_kernel = _erk_steps

@@ -85,3 +85,12 @@ def test_compiled_substeps_with_a_polynomial_input():
             s.set_input(3.0 - k, 400.0 * (-1) ** k, 3e4 * k, t=t0)
         assert a.advance(t_end) == b.advance(t_end) == (True, None)
         np.testing.assert_allclose(a.y, b.y, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("n", [0, 1, 4, 8])
+def test_tip_kernel_equals_numpy(n):
+    m = plant_model(PlantParams(n_modes=n))
+    rng = np.random.default_rng(20 + n)
+    for _ in range(20):
+        x = rng.standard_normal(m.nx) * np.r_[1, 2, 0.05 * np.ones(n), 1, 3, 5 * np.ones(n)]
+        np.testing.assert_allclose(m.tip_angle(x), m.tip_angle_numpy(x), rtol=1e-13, atol=1e-15)
