@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 
 import controller_fmu.pd_lowpass  # noqa: E402,F401  (the project's packages first, see conftest)
 import plant_fmu.dynamics  # noqa: E402,F401
-from orchestration.fmu_build import build_fmus  # noqa: E402
+from orchestration.export import build_fmus  # noqa: E402
 
 H = 1e-3
 
@@ -52,7 +52,7 @@ class Trivial(Fmi2Slave):
         return True
 
 
-if "_PYTHONFMU_DICT_REFS" not in globals():   # see orchestration/fmu_build.py
+if "_PYTHONFMU_DICT_REFS" not in globals():   # see orchestration/export/python_fmus.py
     _PYTHONFMU_DICT_REFS = [globals()] * 1024
 '''
 

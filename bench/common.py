@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from orchestration.fmu_build import build_fmus  # noqa: E402
+from orchestration.export import build_fmus  # noqa: E402
 from orchestration.master import Master, Slave, parse_connection  # noqa: E402
 from orchestration.reference import ClosedLoop, simulate_reference  # noqa: E402
 from orchestration.run import (DEFAULT_CONNECTIONS, controller_start_values,  # noqa: E402
@@ -62,7 +62,7 @@ class {name}(Fmi2Slave):
         return True
 
 
-if "_PYTHONFMU_DICT_REFS" not in globals():   # see orchestration/fmu_build.py
+if "_PYTHONFMU_DICT_REFS" not in globals():   # see orchestration/export/python_fmus.py
     _PYTHONFMU_DICT_REFS = [globals()] * 1024
 '''
 

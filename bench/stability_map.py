@@ -123,7 +123,7 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
 
 
 def observed_map(p, Hs, cutoffs, substep, n_steps):
-    from orchestration.fmu_build import build_fmus
+    from orchestration.export import build_fmus
     f = build_fmus()
     paths = {"plant": str(f["FlexiblePendulum"]), "controller": str(f["PDLowPass"])}
     rows = []

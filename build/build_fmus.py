@@ -4,14 +4,14 @@
 
 ``--references`` also regenerates the reference results under tests/reference/ (do it on purpose,
 after a deliberate change of the physics or of the FMUs' defaults). The logic lives in
-:mod:`orchestration.fmu_build`, which ``flexpend build`` calls too.
+:mod:`orchestration.export`, which ``flexpend build`` calls too.
 """
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from orchestration.fmu_build import main  # noqa: E402
+from orchestration.export.python_fmus import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -250,7 +250,7 @@ def cmd_run(args) -> int:
     scenes = [load_scene(n, args.set) for n in names]          # validate all before running
 
     from . import plots
-    from .fmu_build import build_fmus
+    from .export import build_fmus
     from .run import run_scene
     out_dir = Path(args.out)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -288,7 +288,7 @@ def scene_beam(scene):
 def cmd_build(args) -> int:
     from pathlib import Path
 
-    from .fmu_build import build_fmus
+    from .export import build_fmus
     paths = build_fmus(force=args.force) if args.out is None else \
         build_fmus(out_dir=Path(args.out), force=args.force)
     for name, path in paths.items():

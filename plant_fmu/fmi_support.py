@@ -56,7 +56,7 @@ class SlaveBase(Fmi2Slave):
 
     Subclasses call :meth:`_register_parameters` in ``__init__`` and read ``self._par`` (a dict
     name -> value) when they initialise. Class attributes read by the build
-    (:mod:`orchestration.fmu_build`) to write ``ModelStructure``:
+    (:mod:`orchestration.export.python_fmus`) to write ``ModelStructure``:
 
     * ``OUTPUT_DEPENDENCIES``: output -> inputs it depends on directly at a communication point;
     * ``INITIAL_DEPENDENCIES``: output -> inputs and parameters its initial value depends on.

@@ -16,7 +16,7 @@ import plant_fmu.dynamics  # noqa: F401
 @pytest.fixture(scope="session")
 def fmus() -> dict:
     """``{"FlexiblePendulum": path, "PDLowPass": path}``, built into build/fmus/ if stale."""
-    from orchestration.fmu_build import build_fmus
+    from orchestration.export import build_fmus
 
     return {name: str(path) for name, path in build_fmus().items()}
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from fmpy.util import read_csv, read_ref_opt_file, validate_result
 
-from orchestration.fmu_build import (REFERENCE_TOLERANCE, compare_with_reference, reference_files,
+from orchestration.export.references import (REFERENCE_TOLERANCE, compare_with_reference, reference_files,
                                      simulate_reference_case, write_references)
 
 MODELS = ["FlexiblePendulum", "PDLowPass"]

@@ -108,7 +108,7 @@ def test_output_dependencies_are_declared_as_they_are(fmus):
 
 
 def test_build_is_skipped_when_up_to_date(fmus):
-    from orchestration.fmu_build import build_fmus, fmu_digest, is_stale, source_digest, SPECS
+    from orchestration.export.python_fmus import build_fmus, fmu_digest, is_stale, source_digest, SPECS
 
     mtimes = {n: os.stat(p).st_mtime_ns for n, p in fmus.items()}
     again = build_fmus()
@@ -120,7 +120,7 @@ def test_build_is_skipped_when_up_to_date(fmus):
 
 def test_build_reruns_when_the_sources_change(tmp_path, monkeypatch):
     """A changed digest of the sources (as after an edit) makes the next build rebuild."""
-    from orchestration import fmu_build
+    from orchestration.export import python_fmus as fmu_build
 
     path = fmu_build.build_fmu("PDLowPass", tmp_path)
     first = path.stat().st_mtime_ns
@@ -135,7 +135,7 @@ def test_build_reruns_when_the_sources_change(tmp_path, monkeypatch):
 
 
 def test_digest_covers_every_shipped_source():
-    from orchestration.fmu_build import SPECS, source_files
+    from orchestration.export.python_fmus import SPECS, source_files
 
     names = {p.name for p in source_files(SPECS["FlexiblePendulum"])}
     assert {"fmu.py", "dynamics.py", "beam.py", "params.py", "kernels.py", "rk.py"} <= names
@@ -147,7 +147,7 @@ def test_digest_covers_every_shipped_source():
 def test_fmus_hold_no_absolute_path_of_the_build_machine(fmus):
     import zipfile
 
-    from orchestration.fmu_build import ROOT
+    from orchestration.export.python_fmus import ROOT
 
     for path in fmus.values():
         with zipfile.ZipFile(path) as zf:
