@@ -21,60 +21,30 @@ from __future__ import annotations
 
 import math
 
-from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Variability, Real
+from pythonfmu import DefaultExperiment
 
+from controller_fmu.interface import MODEL, SENSORS, VARIABLES
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.fmi_support import Fmi2Status, SlaveBase
 
 __all__ = ["PDLowPass"]
 
-_DESCRIPTIONS = {
-    "kp": "proportional gain on phi_o",
-    "kd": "derivative gain (on omega_o)",
-    "kx": "gain on the cart position x_o (0: no cart feedback)",
-    "filter_order": "order of the unit-DC-gain low-pass filter: 0 (none), 1 or 2",
-    "cutoff": "filter cutoff frequency, rad/s",
-    "filter_damping": "damping ratio of the 2nd-order filter",
-    "force_limit": "saturation |F_c| <= force_limit (INF: none)",
-}
-
 
 class PDLowPass(SlaveBase):
     """PD on the tip sensors, a low-pass filter, a saturation: ``F_c = -sat(H(s) e)``."""
 
-    description = ("PD on the tip angle and rate (plus an optional cart-position term) followed "
-                   "by a unit-DC-gain low-pass filter of order 0, 1 or 2, discretised exactly "
-                   "over each communication step with the inputs held")
-    version = "0.1.0"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
+    description = MODEL.description
+    version = MODEL.version
+    default_experiment = DefaultExperiment(start_time=MODEL.start_time,
+                                           stop_time=MODEL.stop_time, step_size=MODEL.step_size)
 
-    SENSORS = ("phi_o", "omega_o", "x_o")
+    SENSORS = tuple(SENSORS)
     #: the sensors, then their first and second time derivatives at the start of a step
-    INPUTS = SENSORS + tuple(f"d{n}" for n in SENSORS) + tuple(f"d2{n}" for n in SENSORS)
-    OUTPUTS = ("F_c",)
-    #: direct feedthrough (only when filter_order = 0, but the parameter can be set at run time)
-    OUTPUT_DEPENDENCIES = {"F_c": SENSORS}
-    INITIAL_DEPENDENCIES = {"F_c": SENSORS + ("kp", "kd", "kx", "filter_order", "force_limit")}
+    INPUTS = tuple(v.name for v in VARIABLES if v.causality == "input")
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        sensors = (("phi_o", "tip tangent angle from the upward vertical, rad"),
-                   ("omega_o", "rate of phi_o, rad/s"), ("x_o", "cart position"))
-        inputs = [*sensors,
-                  *((f"d{n}", f"time derivative of {n} at the start of the step (polynomial "
-                              f"input; 0: held)") for n, _ in sensors),
-                  *((f"d2{n}", f"second time derivative of {n} at the start of the step")
-                    for n, _ in sensors)]
-        for name, desc in inputs:
-            setattr(self, name, 0.0)
-            self.register_variable(Real(name, causality=Fmi2Causality.input,
-                                        variability=Fmi2Variability.continuous,
-                                        start=0.0, description=desc))
-        self.register_variable(Real("F_c", causality=Fmi2Causality.output,
-                                    variability=Fmi2Variability.continuous,
-                                    initial=Fmi2Initial.calculated,
-                                    description="force on the cart", getter=self._force))
-        self._register_parameters(self.dataclass_defaults(ControllerParams), _DESCRIPTIONS)
+        self._register_table(VARIABLES, lambda n: self._force)
         self._t = 0.0
         self._model: PDLowPassModel | None = None
         self._order = 0

@@ -9,6 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from controller_fmu import interface as controller_interface
+from plant_fmu import interface as plant_interface
+
 from .config import ConfigError
 from .fidelity import needs_selection, select_model
 from .fit import dominant_oscillation
@@ -34,17 +37,13 @@ BENDING_BAND = (60.0, 1e9)
 
 
 def plant_start_values(scene) -> dict:
-    """Scene keys -> FlexiblePendulum parameters."""
-    cfg = scene.config
-    values = {k[len("plant."):]: v for k, v in cfg.items() if k.startswith("plant.")}
-    values.update(phi0=cfg["initial.phi"], x0=cfg["initial.x"], phi_dot0=cfg["initial.phi_dot"],
-                  x_dot0=cfg["initial.x_dot"])
-    return values
+    """Scene keys -> FlexiblePendulum parameters (the table of :mod:`plant_fmu.interface`)."""
+    return plant_interface.start_values(scene.config)
 
 
 def controller_start_values(scene) -> dict:
-    return {k[len("controller."):]: v for k, v in scene.config.items()
-            if k.startswith("controller.")}
+    """Scene keys -> PDLowPass parameters (the table of :mod:`controller_fmu.interface`)."""
+    return plant_interface.start_values(scene.config, controller_interface.VARIABLES)
 
 
 class Progress:

@@ -12,7 +12,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plant_fmu.fmu import FMU_DEFAULTS
+from plant_fmu.interface import FMU_SETTINGS
 from plant_fmu.params import check_bool, check_int, check_real
 
 from .config import (FIDELITIES, ConfigError, apply_overrides, check_known, controller_params,
@@ -54,8 +54,7 @@ SCENE_DEFAULTS = {
         "controller.F_c -> plant.F_c",
     ],
     # the plant FMU's solver settings and divergence bounds, with the FMU's own defaults
-    **{f"plant.{k}": v for k, v in FMU_DEFAULTS.items()
-       if k not in ("fidelity", "phi0", "x0", "phi_dot0", "x_dot0")},
+    **{f"plant.{k}": v for k, v in FMU_SETTINGS.items() if k != "fidelity"},
     # the choice of plant.n_modes = "auto" / plant.fidelity = "auto" (orchestration/fidelity.py)
     **FIDELITY_DEFAULTS,
 }

@@ -16,8 +16,8 @@ import json
 import math
 
 import numpy as np
-from pythonfmu import (Boolean, Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real,
-                       String)
+from pythonfmu import (Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer,
+                       Real, String)
 from pythonfmu.enums import Fmi2Status
 
 __all__ = ["SlaveBase", "Fmi2Status", "dumps_state", "loads_state"]
@@ -25,7 +25,7 @@ __all__ = ["SlaveBase", "Fmi2Status", "dumps_state", "loads_state"]
 #: Relative tolerance on the communication point of ``doStep`` against the slave's own time.
 TIME_RTOL = 1e-9
 
-_TYPES = {bool: Boolean, int: Integer, float: Real, str: String}
+_TYPES = {"Boolean": Boolean, "Integer": Integer, "Real": Real, "String": String}
 
 
 def _encode(obj):
@@ -52,18 +52,11 @@ def loads_state(data: bytes):
 
 
 class SlaveBase(Fmi2Slave):
-    """A pythonfmu slave with fixed parameters taken from dataclass defaults.
+    """A pythonfmu slave whose variables come from a table (:mod:`plant_fmu.interface`).
 
-    Subclasses call :meth:`_register_parameters` in ``__init__`` and read ``self._par`` (a dict
-    name -> value) when they initialise. Class attributes read by the build
-    (:mod:`orchestration.export.python_fmus`) to write ``ModelStructure``:
-
-    * ``OUTPUT_DEPENDENCIES``: output -> inputs it depends on directly at a communication point;
-    * ``INITIAL_DEPENDENCIES``: output -> inputs and parameters its initial value depends on.
+    Subclasses call :meth:`_register_table` in ``__init__`` and read ``self._par`` (a dict
+    name -> value) when they initialise.
     """
-
-    OUTPUT_DEPENDENCIES: dict = {}
-    INITIAL_DEPENDENCIES: dict = {}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -73,16 +66,32 @@ class SlaveBase(Fmi2Slave):
         self._error: str | None = None  # why the slave cannot step (until a state is restored)
 
     # ------------------------------------------------------------------ variables
-    def _register_parameters(self, defaults: dict, descriptions: dict):
-        """One fixed parameter per entry of ``defaults`` (name -> default), typed by the default."""
-        for name, default in defaults.items():
-            cls = _TYPES[type(default)]
-            self._par[name] = default
-            self.register_variable(cls(
-                name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-                description=descriptions.get(name),
-                getter=lambda n=name: self._par[n],
-                setter=lambda v, n=name: self._set_parameter(n, v)))
+    def _register_table(self, table, output_getter):
+        """Register the variables of ``table`` (:mod:`plant_fmu.interface`), in its order, so that
+        a variable's value reference is its position in the table: parameters are fixed and
+        kept in ``self._par``, inputs are attributes of the slave, outputs are read through
+        ``output_getter(name)``."""
+        for index, v in enumerate(table):
+            cls = _TYPES[v.type]
+            if v.causality == "parameter":
+                self._par[v.name] = v.start
+                var = cls(v.name, causality=Fmi2Causality.parameter,
+                          variability=Fmi2Variability.fixed, description=v.description,
+                          getter=lambda n=v.name: self._par[n],
+                          setter=lambda value, n=v.name: self._set_parameter(n, value))
+            elif v.causality == "input":
+                setattr(self, v.name, v.start)
+                var = cls(v.name, causality=Fmi2Causality.input,
+                          variability=Fmi2Variability.continuous, start=v.start,
+                          description=v.description)
+            else:
+                var = cls(v.name, causality=Fmi2Causality.output,
+                          variability=Fmi2Variability.continuous, initial=Fmi2Initial.calculated,
+                          description=v.description, getter=output_getter(v.name))
+            self.register_variable(var)
+            if var.value_reference != index:  # pragma: no cover - pythonfmu numbers in order
+                raise RuntimeError(f"{v.name}: value reference {var.value_reference}, expected "
+                                   f"{index} (the position in the table)")
 
     def set_real(self, vrs, values):
         """pythonfmu's ``set_real``, with a fast path for the real inputs (set every step): one

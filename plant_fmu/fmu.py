@@ -24,36 +24,19 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Variability, Real
+from pythonfmu import DefaultExperiment
 
 from plant_fmu.dynamics import linear_plant_model, plant_model
 from plant_fmu.fmi_support import Fmi2Status, SlaveBase
 from plant_fmu.integrators import REGISTRY, make_stepper
+from plant_fmu.interface import (FIDELITIES, FMU_SETTINGS, INITIAL_STATE, MODEL, N_ETA_OUTPUTS,
+                                 OUTPUTS, VARIABLES)
 from plant_fmu.params import PlantParams, check_real
 
 __all__ = ["FlexiblePendulum", "FMU_DEFAULTS", "OUTPUTS"]
 
-#: The FMU's own parameters beyond PlantParams, with their defaults. The default integrator is RK4
-#: with four substeps per millisecond: at n_modes = 4 (largest |eigenvalue| 2512 rad/s) h|lambda| =
-#: 0.63, far inside RK4's stability bound 2.83 (stable up to n_modes = 8 at the default parameters);
-#: over a 1 ms communication step the sensors are within ~1e-5 (omega_o) and ~4e-8 (phi_o) of a
-#: tight reference, at 4 x 4 right-hand sides per millisecond. dopri5 (rtol 1e-6) costs about twice
-#: as much here: the bending modes limit its step by stability, not accuracy.
-FMU_DEFAULTS = {
-    "fidelity": "nonlinear",
-    "integrator": "rk4",
-    "step": 2.5e-4,
-    "rtol": 1e-6,
-    "atol": 1e-9,
-    "phi_limit": math.pi / 2,
-    "energy_limit": 1e6,
-    "phi0": 0.0,
-    "x0": 0.0,
-    "phi_dot0": 0.0,
-    "x_dot0": 0.0,
-}
-
-FIDELITIES = ("nonlinear", "linear")
+#: The FMU's settings and initial state beyond PlantParams, with their defaults.
+FMU_DEFAULTS = {**FMU_SETTINGS, **{k: v for k, (_, v) in INITIAL_STATE.items()}}
 
 #: A state whose squared norm exceeds this has blown up; below it every output is finite.
 STATE_NORM2_LIMIT = 1e200
@@ -63,91 +46,26 @@ STATE_NORM2_LIMIT = 1e200
 #: ``doStep(t, h)`` the force is ``F_c + dF_c (s - t) + d2F_c (s - t)^2 / 2``: integrated at the
 #: stage times by the explicit RK methods and symplectic Euler, held at its step average by the
 #: others. Left at 0 they give the zero-order hold.
-INPUTS = {
-    "F_c": "horizontal force on the cart (at the start of the step)",
-    "dF_c": "time derivative of F_c at the start of the step (polynomial input; 0: held)",
-    "d2F_c": "second time derivative of F_c at the start of the step (polynomial input)",
-}
-
-#: Outputs in registration order, with their descriptions.
-OUTPUTS = {
-    "x_o": "cart position",
-    "x_dot": "cart velocity",
-    "phi_o": "angle of the beam's tip tangent from the upward vertical (counter-clockwise), rad",
-    "omega_o": "rate of phi_o, rad/s",
-    "tip_deflection": "transverse deflection of the tip in the floating frame",
-    "eta_1": "first modal coordinate (0 when n_modes = 0)",
-    "energy": "total energy T + V",
-    "phi": "rotation of the floating frame (the beam at the hinge) from the upward vertical, rad",
-    **{f"eta_{j}": f"modal coordinate {j} (0 when n_modes < {j})"
-       for j in range(2, 9)},
-}
-#: Modal coordinates exposed as outputs (enough to draw the beam's shape).
-N_ETA_OUTPUTS = 8
-
-_DESCRIPTIONS = {
-    "m": "cart mass", "L": "beam length", "rho": "beam density", "EA": "axial stiffness",
-    "EI": "bending stiffness", "E": "Young's modulus (area = EA/E)",
-    "zeta": "modal damping ratio of every cantilever mode", "g": "gravity",
-    "n_modes": "cantilever modes kept (0: rigid pendulum)",
-    "n_elements": "finite elements of the beam mesh",
-    "gravity_preload": "geometric stiffness of the beam's self-weight",
-    "fidelity": "nonlinear or linear (linearised at the upright rest state)",
-    "integrator": "integration method: " + ", ".join(sorted(REGISTRY)),
-    "step": "internal substep of the fixed-step methods (initial step of the adaptive ones)",
-    "rtol": "relative tolerance of the adaptive and implicit methods",
-    "atol": "absolute tolerance of the adaptive and implicit methods",
-    "phi_limit": "divergence bound on |phi| (rad; INF: none)",
-    "energy_limit": "divergence bound on |energy| (INF: none)",
-    "phi0": "initial angle phi of the (undeformed) beam, rad",
-    "x0": "initial cart position",
-    "phi_dot0": "initial angular rate, rad/s",
-    "x_dot0": "initial cart velocity",
-}
+INPUTS = ("F_c", "dF_c", "d2F_c")
 
 
 class FlexiblePendulum(SlaveBase):
     """A cart on a rail with an elastic beam hinged on it; the input is the force on the cart."""
 
-    description = ("Cart with an elastic beam hinged on it (Tang & Ren 2009, corrected): "
-                   "floating frame of reference with n_modes cantilever modes; input: the force "
-                   "on the cart")
-    version = "0.1.0"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=1e-3)
-
-    INPUTS = ("F_c", "dF_c", "d2F_c")
-    OUTPUTS = tuple(OUTPUTS)
-    OUTPUT_DEPENDENCIES = {name: () for name in OUTPUTS}      # no direct feedthrough
-    INITIAL_DEPENDENCIES = {
-        "x_o": ("x0",), "x_dot": ("x_dot0",), "phi_o": ("phi0",), "omega_o": ("phi_dot0",),
-        "tip_deflection": (), "eta_1": (), "phi": ("phi0",),
-        **{f"eta_{j}": () for j in range(2, N_ETA_OUTPUTS + 1)},
-        "energy": tuple(f for f in (*SlaveBase.dataclass_defaults(PlantParams), *FMU_DEFAULTS)
-                        if f not in ("n_elements", "integrator", "step", "rtol", "atol",
-                                     "phi_limit", "energy_limit")),
-    }
+    description = MODEL.description
+    version = MODEL.version
+    default_experiment = DefaultExperiment(start_time=MODEL.start_time,
+                                           stop_time=MODEL.stop_time, step_size=MODEL.step_size)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.F_c = self.dF_c = self.d2F_c = 0.0
-        for name, desc in INPUTS.items():
-            self.register_variable(Real(name, causality=Fmi2Causality.input,
-                                        variability=Fmi2Variability.continuous, start=0.0,
-                                        description=desc))
-        self._out = {}                     # value reference -> output value
-        for name, desc in OUTPUTS.items():
-            var = Real(name, causality=Fmi2Causality.output,
-                       variability=Fmi2Variability.continuous, initial=Fmi2Initial.calculated,
-                       description=desc, getter=lambda n=name: self._output(n))
-            self.register_variable(var)
-            self._out[var.value_reference] = 0.0
+        self._register_table(VARIABLES, lambda n: (lambda: self._output(n)))
         self._vr = {v.name: vr for vr, v in self.vars.items()}
+        self._out = {self._vr[n]: 0.0 for n in OUTPUTS}   # value reference -> output value
         self._vr_energy = self._vr["energy"]
         self._vr_eta = [self._vr[f"eta_{j}"] for j in range(1, N_ETA_OUTPUTS + 1)]
         self._shape_vrs = frozenset([self._vr["tip_deflection"], *self._vr_eta])
         self._shape_dirty = False
-        self._register_parameters({**self.dataclass_defaults(PlantParams), **FMU_DEFAULTS},
-                                  _DESCRIPTIONS)
         self._t0 = 0.0
         self._model = None
         self._stepper = None

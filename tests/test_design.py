@@ -67,8 +67,10 @@ def test_coarse_design_is_at_least_as_good_as_its_grid():
 
 @pytest.mark.slow
 def test_scene_default_is_the_design_choice(tmp_path):
-    """flexpend design with its defaults chooses the filter the filtered scene holds."""
+    """flexpend design with its defaults chooses the filter the filtered scene holds (and the
+    controller's default); given the scene's previous filter (150, 0.5), it beats it."""
     proc = subprocess.run([sys.executable, "-m", "orchestration.cli", "design", "--json",
+                           "--set", "controller.cutoff=150", "--set", "controller.filter_damping=0.5",
                            "--out", str(tmp_path)], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout)

@@ -12,10 +12,10 @@ What the build does beyond ``pythonfmu build``:
   pythonfmu 0.7.0 problems (a reference-count bug and packages left by deleted unpack folders);
 * the project packages are copied as ``.py`` files only (no caches), and the FMUs can get, set and
   serialise their state;
-* ``modelDescription.xml`` is completed: exact start values (``repr`` of the float, ``INF`` for
-  infinity), ``ModelStructure/Outputs`` with the real direct dependencies on the inputs (none for
-  the plant, ``x_o phi_o omega_o`` for the controller) and ``InitialUnknowns`` with theirs (pythonfmu
-  writes neither, which makes importers see false algebraic loops and ``fmpy validate`` fail);
+* ``modelDescription.xml`` is written from the model's table of variables
+  (:mod:`orchestration.export.model_description`): units, exact start values, the real output
+  dependencies (pythonfmu writes none, which makes importers see false algebraic loops and
+  ``fmpy validate`` fail), a schema-valid ``generationDateAndTime``;
 * ``resources/flexpend_build.json`` records a digest of every source file that went in; an FMU is
   rebuilt only when that digest changes (or when asked to).
 
@@ -43,7 +43,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUT = ROOT / "build" / "fmus"
 STAMP = "resources/flexpend_build.json"
 #: Bump to force a rebuild when the build itself changes in a way the sources do not show.
-BUILD_FORMAT = 1
+BUILD_FORMAT = 2
 
 
 class BuildError(RuntimeError):
@@ -82,7 +82,8 @@ def source_digest(spec: FmuSpec) -> str:
     import pythonfmu
 
     h = hashlib.sha256(f"{BUILD_FORMAT} {spec} pythonfmu {pythonfmu.__version__}\n".encode())
-    for path in [Path(__file__).resolve(), *source_files(spec)]:
+    for path in [Path(__file__).resolve(), ROOT / "orchestration" / "export" / "model_description.py",
+                 *source_files(spec)]:
         h.update(path.relative_to(ROOT).as_posix().encode() + b"\0")
         h.update(path.read_bytes() + b"\0")
     return h.hexdigest()
@@ -133,6 +134,7 @@ def build_fmu(name: str, out_dir: Path = DEFAULT_OUT, force: bool = False) -> Pa
         fd, part = tempfile.mkstemp(prefix=f".{name}.", suffix=".part", dir=out_dir)
         os.close(fd)
         shutil.copyfile(built, part)
+        os.chmod(part, 0o644)      # mkstemp makes 0600; an FMU is meant to be shared
         os.replace(part, target)
     return target
 
@@ -176,21 +178,17 @@ if "_PYTHONFMU_DICT_REFS" not in globals():
 _WORKER_CALL = "import sys; from orchestration.export.python_fmus import _worker; _worker(sys.argv[1])"
 
 
-def _xml_real(value) -> str:
-    value = float(value)
-    if value != value:
-        return "NaN"
-    if value in (float("inf"), float("-inf")):
-        return "INF" if value > 0 else "-INF"
-    return repr(value)
-
-
 def _worker(args_json: str):
-    """Child process: run the pythonfmu builder, then complete ``modelDescription.xml``."""
+    """Child process: run the pythonfmu builder, then replace its ``modelDescription.xml`` by the
+    one written from the model's table of variables (with pythonfmu's GUID, capabilities and log
+    categories), after checking that the slave registered exactly the table's variables."""
     import importlib
     import xml.etree.ElementTree as ET
 
+    import pythonfmu
     from pythonfmu.builder import FmuBuilder
+
+    from orchestration.export.model_description import TABLES, fmi2_model_description
 
     a = json.loads(args_json)
     stage = Path(a["stage"])
@@ -200,38 +198,21 @@ def _worker(args_json: str):
                                canGetAndSetFMUstate=True, canSerializeFMUstate=True)
     cls = getattr(importlib.import_module(a["module"]), a["name"])
     slave = cls(instance_name="build", resources=str(stage))
+    _, table = TABLES[a["name"]]
+    registered = [(v.name, v.value_reference) for v in slave.vars.values()]
+    expected = [(v.name, i) for i, v in enumerate(table)]
+    if registered != expected:
+        raise SystemExit(f"{a['name']}: the slave registered {registered}, the table says "
+                         f"{expected}")
     with zipfile.ZipFile(raw) as zf:
         entries = {i.filename: zf.read(i) for i in zf.infolist()}
     root = ET.fromstring(entries["modelDescription.xml"])
-    svs = list(root.find("ModelVariables"))
-    index = {sv.get("name"): i + 1 for i, sv in enumerate(svs)}
-    by_name = {v.name: v for v in slave.vars.values()}
-    for sv in svs:                                       # exact start values
-        real = sv.find("Real")
-        if real is not None and real.get("start") is not None:
-            var = by_name[sv.get("name")]
-            real.set("start", _xml_real(var.getter()))
-    structure = root.find("ModelStructure")
-    for child in list(structure):
-        structure.remove(child)
-
-    def indices(names):
-        return " ".join(str(i) for i in sorted(index[n] for n in names))
-
-    outputs = [sv.get("name") for sv in svs if sv.get("causality") == "output"]
-    if set(outputs) != set(cls.OUTPUT_DEPENDENCIES) or set(outputs) != set(cls.INITIAL_DEPENDENCIES):
-        raise SystemExit(f"{a['name']}: OUTPUT_DEPENDENCIES/INITIAL_DEPENDENCIES must name "
-                         f"exactly the outputs {outputs}")
-    node = ET.SubElement(structure, "Outputs")
-    for n in outputs:
-        ET.SubElement(node, "Unknown", index=str(index[n]),
-                      dependencies=indices(cls.OUTPUT_DEPENDENCIES[n]))
-    node = ET.SubElement(structure, "InitialUnknowns")
-    for n in outputs:
-        ET.SubElement(node, "Unknown", index=str(index[n]),
-                      dependencies=indices(cls.INITIAL_DEPENDENCIES[n]))
-    ET.indent(root)
-    entries["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+    cats = root.find("LogCategories")
+    entries["modelDescription.xml"] = fmi2_model_description(
+        a["name"], root.get("guid"),
+        generation_tool=f"flexpend (pythonfmu {pythonfmu.__version__})",
+        co_simulation=dict(root.find("CoSimulation").attrib),
+        log_categories={c.get("name"): c.get("description") for c in cats} if cats else None)
     entries[STAMP] = json.dumps({"model": a["name"], "digest": a["digest"]}).encode()
     with zipfile.ZipFile(a["dest"], "w", zipfile.ZIP_DEFLATED) as zf:
         for fname, data in entries.items():

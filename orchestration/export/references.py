@@ -30,6 +30,12 @@ def _reference_cases():
     import numpy as np
 
     two_pi = 2 * np.pi
+
+    def held(*names):
+        """The input-derivative columns, all 0: fmpy holds each input over a step (zero-order
+        hold), and an input file that names every input keeps fmpy from warning."""
+        return {n: (lambda t: np.zeros_like(t)) for n in names}
+
     return {
         # the plant alone (defaults: 4 modes, rk4), pushed then pulled, with a ripple at the
         # closed-loop bending frequency (24 Hz = 150 rad/s). The pull is sized so that the pair
@@ -39,16 +45,18 @@ def _reference_cases():
             {"StartTime": 0.0, "StopTime": 1.0, "StepSize": 1e-3, "RelTol": 1e-6},
             {"F_c": lambda t: (np.where(t < 0.05, 20.0, 0.0)
                                - np.where((t >= 0.05) & (t < 0.1), 29.148, 0.0)
-                               + 3.0 * np.sin(two_pi * 24.0 * t))}),
-        # the controller alone (defaults: PD + 2nd-order filter at 150 rad/s) on sensor signals
-        # with a step, a slow swing and a bending-frequency ripple
+                               + 3.0 * np.sin(two_pi * 24.0 * t)),
+             **held("dF_c", "d2F_c")}),
+        # the controller alone (defaults: PD + the designed 2nd-order filter, 97.3 rad/s, damping
+        # 0.1) on sensor signals with a step, a slow swing and a bending-frequency ripple
         "PDLowPass": (
             {"StartTime": 0.0, "StopTime": 1.0, "StepSize": 1e-3, "RelTol": 1e-6},
             {"phi_o": lambda t: (0.1 * np.sin(two_pi * 2.0 * t) + 0.01 * np.sin(150.0 * t)
                                  + np.where(t >= 0.5, 0.05, 0.0)),
              "omega_o": lambda t: (0.2 * np.pi * 2.0 * np.cos(two_pi * 2.0 * t)
                                    + 1.5 * np.cos(150.0 * t)),
-             "x_o": lambda t: 0.5 * t * t}),
+             "x_o": lambda t: 0.5 * t * t,
+             **held(*(f"{d}{n}" for d in ("d", "d2") for n in ("phi_o", "omega_o", "x_o")))}),
     }
 
 

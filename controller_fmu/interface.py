@@ -1,0 +1,56 @@
+"""The FMU interface of the controller, ``PDLowPass``: one table of its variables.
+
+The counterpart of :mod:`plant_fmu.interface` (see there for what the table feeds). The
+parameters are the fields of :class:`~controller_fmu.pd_lowpass.ControllerParams`, whose defaults
+(the PD of the paper and the robust low-pass filter chosen by ``flexpend design``) are the start
+values.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+from plant_fmu.interface import ModelInfo, Variable, parameter, real_input, real_output
+
+from .pd_lowpass import ControllerParams
+
+__all__ = ["VARIABLES", "MODEL", "SENSORS"]
+
+#: The sensors the controller reads: name -> (description, unit, unit of the 1st and 2nd time
+#: derivative).
+SENSORS = {
+    "phi_o": ("tip tangent angle from the upward vertical", "rad", "rad/s", "rad/s2"),
+    "omega_o": ("rate of phi_o", "rad/s", "rad/s2", "rad/s3"),
+    "x_o": ("cart position", "m", "m/s", "m/s2"),
+}
+
+_PARAMS = {
+    "kp": ("proportional gain on phi_o", "N/rad"),
+    "kd": ("derivative gain (on omega_o)", "N.s/rad"),
+    "kx": ("gain on the cart position x_o (0: no cart feedback)", "N/m"),
+    "filter_order": ("order of the unit-DC-gain low-pass filter: 0 (none), 1 or 2", None),
+    "cutoff": ("filter cutoff frequency", "rad/s"),
+    "filter_damping": ("damping ratio of the 2nd-order filter", None),
+    "force_limit": ("saturation |F_c| <= force_limit (INF: none)", "N"),
+}
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(ControllerParams)}
+
+#: The table, in value-reference order: the sensors, their first and second time derivatives
+#: (FMI's input derivatives as variables), the force, the parameters.
+VARIABLES: tuple[Variable, ...] = (
+    *(real_input(n, d, u) for n, (d, u, _, _) in SENSORS.items()),
+    *(real_input(f"d{n}", f"time derivative of {n} at the start of the step (polynomial input; "
+                          f"0: held)", du) for n, (_, _, du, _) in SENSORS.items()),
+    *(real_input(f"d2{n}", f"second time derivative of {n} at the start of the step", d2u)
+      for n, (_, _, _, d2u) in SENSORS.items()),
+    # direct feedthrough (only with filter_order = 0, but the parameter is set at run time)
+    real_output("F_c", "force on the cart", "N", depends_on=tuple(SENSORS),
+                initial_depends_on=(*SENSORS, "kp", "kd", "kx", "filter_order", "force_limit")),
+    *(parameter(n, _DEFAULTS[n], d, u, f"controller.{n}") for n, (d, u) in _PARAMS.items()),
+)
+
+MODEL = ModelInfo(
+    name="PDLowPass",
+    description=("PD on the tip angle and rate (plus an optional cart-position term) followed by "
+                 "a unit-DC-gain low-pass filter of order 0, 1 or 2, discretised exactly over "
+                 "each communication step"),
+    version="0.2.0", start_time=0.0, stop_time=10.0, step_size=1e-3)

@@ -1,0 +1,216 @@
+"""The FMU interface of the plant, ``FlexiblePendulum``: one table of its variables.
+
+This table is the one place where the FMU's variables are described: name, causality,
+variability, type, start value, unit, description, and which scene key sets it. From it
+
+* the pythonfmu slave (:mod:`plant_fmu.fmu`) registers its variables (the value reference of a
+  variable is its position in the table, as pythonfmu numbers them in registration order);
+* every ``modelDescription.xml`` is written (:mod:`orchestration.export.model_description`);
+* the master maps a scene's keys to the FMU's start values (:func:`start_values`).
+
+:class:`Variable` is shared with the controller's table (:mod:`controller_fmu.interface`). The
+module needs nothing beyond the standard library and the parameter records, so that it ships in
+the FMUs and serves the build alike.
+
+Units are SI. The modal coordinates ``eta_j`` belong to mass-normalised modes
+(``integral rhoA N_j^2 ds = 1``): ``N_j`` is in ``1/sqrt(kg)`` and ``eta_j`` in ``m sqrt(kg)``, so
+that the deflection ``w = N eta`` is in metres.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+from .params import PlantParams
+
+__all__ = ["Variable", "ModelInfo", "VARIABLES", "MODEL", "FMU_SETTINGS", "FIDELITIES",
+           "OUTPUTS", "N_ETA_OUTPUTS", "INITIAL_STATE", "start_values", "by_name",
+           "value_references", "parameter_defaults"]
+
+CAUSALITIES = ("parameter", "input", "output")
+TYPES = {float: "Real", int: "Integer", bool: "Boolean", str: "String"}
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One FMU variable.
+
+    ``start`` is the start value of parameters and inputs (None for outputs, which are
+    calculated). ``scene_key`` is the scene key whose value sets the variable (None: no key).
+    ``depends_on`` lists, for an output, the inputs it depends on directly; ``initial_depends_on``
+    the inputs and parameters its initial value depends on.
+    """
+
+    name: str
+    causality: str
+    type: str
+    description: str
+    unit: str | None = None
+    start: object = None
+    variability: str = "continuous"
+    scene_key: str | None = None
+    depends_on: tuple = ()
+    initial_depends_on: tuple = ()
+
+    def __post_init__(self):
+        if self.causality not in CAUSALITIES:
+            raise ValueError(f"{self.name}: causality {self.causality!r}; allowed: {CAUSALITIES}")
+        if self.type not in TYPES.values():
+            raise ValueError(f"{self.name}: type {self.type!r}; allowed: {list(TYPES.values())}")
+        if (self.start is None) != (self.causality == "output"):
+            raise ValueError(f"{self.name}: parameters and inputs have a start value, outputs none")
+
+    @property
+    def initial(self) -> str | None:
+        """FMI's ``initial`` attribute: outputs are calculated, parameters exact."""
+        return {"output": "calculated", "parameter": "exact"}.get(self.causality)
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """What a ``modelDescription.xml`` says of the model besides its variables."""
+
+    name: str
+    description: str
+    version: str
+    start_time: float
+    stop_time: float
+    step_size: float
+
+
+def parameter(name, default, description, unit=None, scene_key=None) -> Variable:
+    """A fixed parameter typed by its default."""
+    return Variable(name, "parameter", TYPES[type(default)], description, unit, default,
+                    variability="fixed", scene_key=scene_key)
+
+
+def real_input(name, description, unit) -> Variable:
+    return Variable(name, "input", "Real", description, unit, 0.0)
+
+
+def real_output(name, description, unit, depends_on=(), initial_depends_on=()) -> Variable:
+    return Variable(name, "output", "Real", description, unit, None, depends_on=depends_on,
+                    initial_depends_on=initial_depends_on)
+
+
+FIDELITIES = ("nonlinear", "linear")
+
+#: The FMU's settings beyond :class:`PlantParams`, with their defaults. The default integrator is
+#: RK4 with four substeps per millisecond: at n_modes = 4 (largest |eigenvalue| 2512 rad/s)
+#: h|lambda| = 0.63, far inside RK4's stability bound 2.83 (stable up to n_modes = 8 at the
+#: default parameters); over a 1 ms communication step the sensors are within ~1e-5 (omega_o) and
+#: ~4e-8 (phi_o) of a tight reference, at 4 x 4 right-hand sides per millisecond.
+FMU_SETTINGS = {
+    "fidelity": "nonlinear",
+    "integrator": "rk4",
+    "step": 2.5e-4,
+    "rtol": 1e-6,
+    "atol": 1e-9,
+    "phi_limit": math.pi / 2,
+    "energy_limit": 1e6,
+}
+#: The initial state (the beam undeformed): FMU parameter -> (scene key, default). The FMU alone
+#: starts at the upright rest state (an equilibrium); a scene (or an SSP export of it) sets the
+#: paper's pi/6.
+INITIAL_STATE = {
+    "phi0": ("initial.phi", 0.0),
+    "x0": ("initial.x", 0.0),
+    "phi_dot0": ("initial.phi_dot", 0.0),
+    "x_dot0": ("initial.x_dot", 0.0),
+}
+
+_PARAMS = {  # PlantParams field -> (description, unit)
+    "m": ("cart mass", "kg"),
+    "L": ("beam length", "m"),
+    "rho": ("beam density", "kg/m3"),
+    "EA": ("axial stiffness", "N"),
+    "EI": ("bending stiffness", "N.m2"),
+    "E": ("Young's modulus (cross-section area = EA/E)", "Pa"),
+    "zeta": ("modal damping ratio of every cantilever mode", None),
+    "g": ("gravity", "m/s2"),
+    "n_modes": ("cantilever modes kept (0: rigid pendulum)", None),
+    "n_elements": ("finite elements of the beam mesh", None),
+    "gravity_preload": ("geometric stiffness of the beam's self-weight", None),
+}
+_SETTINGS = {
+    "fidelity": ("nonlinear or linear (linearised at the upright rest state)", None),
+    "integrator": ("integration method: dopri5, euler, exponential, genalpha, radau, rk4, "
+                   "symplectic_euler", None),
+    "step": ("internal substep of the fixed-step methods (initial step of the adaptive ones)", "s"),
+    "rtol": ("relative tolerance of the adaptive and implicit methods", None),
+    "atol": ("absolute tolerance of the adaptive and implicit methods", None),
+    "phi_limit": ("divergence bound on |phi| (INF: none)", "rad"),
+    "energy_limit": ("divergence bound on |energy| (INF: none)", "J"),
+}
+_INITIAL = {
+    "phi0": ("initial angle phi of the (undeformed) beam from the upward vertical", "rad"),
+    "x0": ("initial cart position", "m"),
+    "phi_dot0": ("initial angular rate", "rad/s"),
+    "x_dot0": ("initial cart velocity", "m/s"),
+}
+
+#: Modal coordinates exposed as outputs (enough to draw the beam's shape).
+N_ETA_OUTPUTS = 8
+ETA_UNIT = "m.kg0.5"
+
+#: Outputs, in registration order: name -> (description, unit, initial value depends on).
+_ENERGY_DEPS = tuple(f for f in (*(f.name for f in dataclasses.fields(PlantParams)), "fidelity",
+                                 *INITIAL_STATE) if f != "n_elements")
+OUTPUTS = {
+    "x_o": ("cart position", "m", ("x0",)),
+    "x_dot": ("cart velocity", "m/s", ("x_dot0",)),
+    "phi_o": ("angle of the beam's tip tangent from the upward vertical (counter-clockwise)",
+              "rad", ("phi0",)),
+    "omega_o": ("rate of phi_o", "rad/s", ("phi_dot0",)),
+    "tip_deflection": ("transverse deflection of the tip in the floating frame", "m", ()),
+    "eta_1": ("first modal coordinate (mass-normalised modes; 0 when n_modes = 0)", ETA_UNIT, ()),
+    "energy": ("total energy T + V", "J", _ENERGY_DEPS),
+    "phi": ("rotation of the floating frame (the beam at the hinge) from the upward vertical",
+            "rad", ("phi0",)),
+    **{f"eta_{j}": (f"modal coordinate {j} (0 when n_modes < {j})", ETA_UNIT, ())
+       for j in range(2, N_ETA_OUTPUTS + 1)},
+}
+
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlantParams)}
+
+#: The table, in value-reference order: inputs, outputs, parameters.
+VARIABLES: tuple[Variable, ...] = (
+    real_input("F_c", "horizontal force on the cart (at the start of the step)", "N"),
+    real_input("dF_c", "time derivative of F_c at the start of the step (polynomial input; "
+                       "0: held)", "N/s"),
+    real_input("d2F_c", "second time derivative of F_c at the start of the step (polynomial "
+                        "input)", "N/s2"),
+    *(real_output(n, d, u, (), deps) for n, (d, u, deps) in OUTPUTS.items()),
+    *(parameter(n, _DEFAULTS[n], d, u, f"plant.{n}") for n, (d, u) in _PARAMS.items()),
+    *(parameter(n, FMU_SETTINGS[n], d, u, f"plant.{n}") for n, (d, u) in _SETTINGS.items()),
+    *(parameter(n, INITIAL_STATE[n][1], d, u, INITIAL_STATE[n][0])
+      for n, (d, u) in _INITIAL.items()),
+)
+
+MODEL = ModelInfo(
+    name="FlexiblePendulum",
+    description=("Cart with an elastic beam hinged on it (Tang & Ren 2009, corrected): floating "
+                 "frame of reference with n_modes cantilever modes; input: the force on the cart"),
+    version="0.2.0", start_time=0.0, stop_time=10.0, step_size=1e-3)
+
+
+def by_name(table=VARIABLES) -> dict:
+    return {v.name: v for v in table}
+
+
+def value_references(table=VARIABLES) -> dict:
+    """name -> value reference (the position in the table)."""
+    return {v.name: i for i, v in enumerate(table)}
+
+
+def parameter_defaults(table=VARIABLES) -> dict:
+    """name -> default of every parameter."""
+    return {v.name: v.start for v in table if v.causality == "parameter"}
+
+
+def start_values(config: dict, table=VARIABLES) -> dict:
+    """FMU start values from a scene configuration (dotted keys): every parameter whose scene
+    key is in ``config``."""
+    return {v.name: config[v.scene_key] for v in table
+            if v.causality == "parameter" and v.scene_key in config}
