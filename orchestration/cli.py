@@ -6,8 +6,11 @@
     flexpend build [--force] [--out DIR]                build the two FMUs
     flexpend scenes                                     list the scenes
 
-Every error in the user's input (an unknown key, a bad value) is printed as one line naming it,
-and the exit code is 2.
+Every error in the user's input (an unknown key, a bad value, an output folder that cannot be
+written) is printed as one line naming it, and the exit code is 2. ``flexpend run`` exits with 0
+when every scene ran to its stop time (stable or not), 3 when a scene stopped early (an FMU
+refused to go on; its data up to there is written), 130 when interrupted by Ctrl-C (the data so
+far is written, the FMUs are terminated and freed).
 """
 from __future__ import annotations
 
@@ -127,9 +130,8 @@ def cmd_design(args) -> int:
     fidelity(cfg)
     settings = design_settings(cfg)
     p, c = plant_params(cfg), controller_params(cfg)
+    out_dir = _output_dir(args.out)
     r = design_filter(p, c, settings, progress=Progress("design"))
-    out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
     crit = r.criterion
     ylabel = ("worst-case decay rate -max Re(lambda) (1/s)" if crit == "decay"
               else "worst-case damping ratio")
@@ -209,11 +211,26 @@ def cmd_design(args) -> int:
     return 0
 
 
-def _print_summary(name, s, out_dir):
-    def osc(o):
-        return "-" if o is None else f"rate {o['rate']:+.3f} 1/s at {o['frequency']:.2f} rad/s"
-    verdict = "stable" if s["stable"] else "UNSTABLE"
+def _mode_text(m) -> str:
+    """One fitted mode, with the linear prediction beside it."""
+    if m is None:
+        return "-"
+    lin = m.get("linear")
+    lin_text = (f"   (linear: {lin['rate']:+.3f} +- {lin['frequency']:.2f}j)" if lin else "")
+    if m["reliable"]:
+        return f"rate {m['rate']:+.3f} 1/s at {m['frequency']:.2f} rad/s{lin_text}"
+    return f"{m['note']}{lin_text}"
+
+
+def _print_summary(name, s, written):
+    if s["stopped"] is not None:
+        verdict = f"STOPPED at t = {s['stopped']['time']:.6g} s"
+    else:
+        verdict = {True: "stable", False: "UNSTABLE", None: "no verdict (no reliable fit)"}[
+            s["stable"]]
     print(f"{name}: {verdict}")
+    if s["stopped"] is not None:
+        print(f"  stopped: {s['stopped']['reason']}")
     if s.get("model"):
         m = s["model"]
         auto = " and ".join(k for k, on in (("plant.n_modes", m["n_modes_auto"]),
@@ -222,62 +239,158 @@ def _print_summary(name, s, out_dir):
               f"{100 * m['tolerance']:g} % on {', '.join(m['outputs'])})")
         for part in m["reason"].split("; "):
             print(f"    {part}")
-    if s.get("failure"):
-        print(f"  stopped: {s['failure']}")
-    print(f"  slow (rigid) oscillation: {osc(s.get('slow'))}")
-    print(f"  bending oscillation:      {osc(s.get('bending'))}")
+    print(f"  slow (rigid) oscillation: {_mode_text(s.get('slow'))}")
+    print(f"  bending oscillation:      {_mode_text(s.get('bending'))}")
+    v = s.get("validity")
+    if v and v["warnings"]:
+        for w in v["warnings"]:
+            print(f"  WARNING, outside the model's range: {w}")
+    elif v and v["max_abs_tip_deflection"] is not None:
+        print(f"  within the model's range (tip deflection at most {v['max_abs_tip_deflection']:.3g}"
+              f" m, |phi| at most {v['max_abs_phi']:.3g} rad)")
     if s.get("max_abs_F_c") is not None:
-        print(f"  max |F_c|: {s['max_abs_F_c']:.4g}")
+        print(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
     if "wall_time" in s:
         print(f"  wall time: {s['wall_time']:.2f} s ({s['steps']} communication steps, "
               f"{s['rejected_steps']} rejected)")
     if "max_error_phi_o" in s:
         print(f"  max error against the monolithic reference: phi_o {s['max_error_phi_o']:.3e} rad, "
-              f"eta_1 {s['max_error_eta_1']:.3e}")
-    if out_dir is not None:
-        print(f"  wrote {out_dir / (name + '.csv')}, {out_dir / (name + '.png')}, "
-              f"{out_dir / (name + '_shapes.png')}")
+              f"eta_1 {s['max_error_eta_1']:.3e} m kg^0.5")
+    if written:
+        print(f"  wrote {', '.join(str(w) for w in written)}")
+
+
+def _output_dir(text: str):
+    """The output folder, created; a path that is a file or cannot be written is a UsageError."""
+    import tempfile
+    from pathlib import Path
+
+    out = Path(text)
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {text}: exists and is not a folder")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=out):
+            pass
+    except OSError as exc:
+        raise UsageError(f"--out {text}: cannot write there ({exc.strerror or exc})") from None
+    return out
+
+
+class _Interrupts:
+    """Ctrl-C during a run: the first SIGINT asks the master to stop after its current step (an
+    exception raised inside a pythonfmu FMU's Python code would kill the FMU and can crash the
+    process), the data so far is written, the FMUs are terminated and freed, and the exit code
+    is 130. Outside the co-simulation (choosing a model, the reference solution) and at a
+    third SIGINT, the usual KeyboardInterrupt."""
+
+    def __init__(self):
+        self.count = 0
+        self.deferred = False
+
+    def __call__(self, signum, frame):
+        self.count += 1
+        if not self.deferred or self.count >= 3:
+            raise KeyboardInterrupt
+
+    def requested(self) -> bool:
+        return self.count > 0
+
+    def install(self):
+        import signal
+
+        self._previous = signal.signal(signal.SIGINT, self)
+        return self
+
+    def restore(self):
+        import signal
+
+        signal.signal(signal.SIGINT, self._previous)
+
+
+#: Exit codes of ``flexpend run``.
+EXIT_STOPPED = 3
+EXIT_INTERRUPTED = 130
 
 
 def cmd_run(args) -> int:
-    from pathlib import Path
-
-    from fmpy.util import write_csv
-
     from .scenes import PAPER_SCENES, load_scene
 
     names = args.scenes or list(PAPER_SCENES)
     scenes = [load_scene(n, args.set) for n in names]          # validate all before running
+    out_dir = _output_dir(args.out)
+
+    from .export import build_fmus
+    interrupts = _Interrupts().install()
+    try:
+        paths = build_fmus()
+        fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+        return _run_scenes(args, scenes, fmus, out_dir, interrupts)
+    except KeyboardInterrupt:
+        print("flexpend: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        interrupts.restore()
+
+
+def _run_scenes(args, scenes, fmus, out_dir, interrupts) -> int:
+    from fmpy.util import write_csv
 
     from . import plots
-    from .export import build_fmus
     from .run import run_scene
-    out_dir = Path(args.out)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    paths = build_fmus()
-    fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+
     summaries, results = {}, {}
-    for scene in scenes:
-        r = run_scene(scene, fmus, reference=args.reference, progress=True,
-                      connections_out=sys.stderr if args.connections else None)
-        write_csv(str(out_dir / f"{scene.name}.csv"), r.result)
-        title = f"{scene.name}: {scene['description']}" if scene["description"] else scene.name
-        plots.plot_time_histories(r.result, title, out_dir / f"{scene.name}.png", r.reference)
-        if r.frames:
-            plots.plot_snapshots(scene_beam(r.scene), r.frames, f"{scene.name}: beam shapes",
-                                 out_dir / f"{scene.name}_shapes.png")
-        summaries[scene.name] = r.summary
-        results[scene.name] = r.result
-        if not args.json:
-            _print_summary(scene.name, r.summary, out_dir)
-    if not args.scenes:
-        plots.plot_paper_overview(results, out_dir / "paper_overview.png")
-        if not args.json:
-            print(f"paper overview: {out_dir / 'paper_overview.png'}")
-    (out_dir / "summary.json").write_text(json.dumps(_json_safe(summaries), indent=2))
+    code = 0
+    try:
+        for scene in scenes:
+            interrupts.deferred = True
+            try:
+                r = run_scene(scene, fmus, reference=args.reference, progress=True,
+                              connections_out=sys.stderr if args.connections else None,
+                              stop=interrupts.requested)
+            finally:
+                interrupts.deferred = False
+            written = _write_scene(r, scene, out_dir, write_csv, plots)
+            summaries[scene.name] = r.summary
+            results[scene.name] = r.result
+            if not args.json:
+                _print_summary(scene.name, r.summary, written)
+            if r.interrupted:
+                code = EXIT_INTERRUPTED
+                break
+            if r.summary["stopped"] is not None:
+                code = EXIT_STOPPED
+        if not args.scenes and code != EXIT_INTERRUPTED and len(results) == len(scenes):
+            plots.plot_paper_overview(results, out_dir / "paper_overview.png")
+            if not args.json:
+                print(f"paper overview: {out_dir / 'paper_overview.png'}")
+    finally:
+        (out_dir / "summary.json").write_text(json.dumps(_json_safe(summaries), indent=2))
     if args.json:
         print(json.dumps(_json_safe(summaries), indent=2))
-    return 0
+    if code == EXIT_INTERRUPTED:
+        print(f"flexpend: interrupted; the data so far is in {out_dir}", file=sys.stderr)
+    elif code == EXIT_STOPPED:
+        stopped = [n for n, s in summaries.items() if s["stopped"] is not None]
+        print(f"flexpend: {', '.join(stopped)} stopped early (exit code {EXIT_STOPPED})",
+              file=sys.stderr)
+    return code
+
+
+def _write_scene(r, scene, out_dir, write_csv, plots) -> list:
+    """The CSV and the figures of one run (whatever it reached); the paths written."""
+    written = [out_dir / f"{scene.name}.csv"]
+    write_csv(str(written[0]), r.result)
+    title = scene["description"] or scene.name
+    if len(r.result) >= 2:
+        written.append(out_dir / f"{scene.name}.png")
+        plots.plot_time_histories(r.result, scene.name, title, written[-1], r.reference,
+                                  r.summary)
+    if r.frames:
+        written.append(out_dir / f"{scene.name}_shapes.png")
+        plots.plot_snapshots(scene_beam(r.scene), r.frames, f"{scene.name}: beam shapes",
+                             written[-1])
+    return written
 
 
 def scene_beam(scene):
@@ -360,6 +473,9 @@ def main(argv=None) -> int:
     except BrokenPipeError:  # e.g. piped into head
         sys.stderr.close()
         return 0
+    except KeyboardInterrupt:
+        print("flexpend: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

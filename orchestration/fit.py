@@ -7,11 +7,12 @@ largest contribution to the signal at the end of the window.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["matrix_pencil", "Oscillation", "dominant_oscillation"]
+__all__ = ["matrix_pencil", "Oscillation", "dominant_oscillation", "ModeFit", "fit_mode"]
 
 
 def matrix_pencil(y, dt: float, order: int, pencil: float = 0.33):
@@ -66,3 +67,78 @@ def dominant_oscillation(t, y, band, order: int = 12):
         if best is None or size > best.amplitude:
             best = Oscillation(float(si.real), float(w), float(size))
     return best
+
+
+@dataclass(frozen=True)
+class ModeFit:
+    """The fit of one oscillation: its rate (1/s) and frequency (rad/s), its RMS contribution
+    over the window, the model order used, the relative RMS residual of the whole fit and the
+    window (s)."""
+
+    rate: float
+    frequency: float
+    amplitude: float
+    order: int
+    residual: float
+    window: tuple
+
+
+def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
+             max_samples: int = 1500) -> ModeFit | None:
+    """The largest oscillation of ``y`` with frequency in ``band`` (rad/s), or None.
+
+    A band with a finite upper edge (the slow oscillation) is first rid of faster content by a
+    zero-phase low-pass (4th-order Butterworth at the edge, ``sosfiltfilt``), then
+    subsampled to about 10 samples per period of that frequency; the window is cut to
+    ``max_samples`` samples (its start is kept). The matrix pencil of the lowest order (2, 4, ...
+    ``max_order``) that reproduces it to ``residual`` (relative RMS) is kept; if none does, that
+    of ``max_order`` (judge the fit by its ``residual``). The largest oscillation is the pole
+    with the largest RMS contribution over the window.
+    """
+    import scipy.signal
+
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    if y.size < 8:
+        return None
+    dt = float(t[1] - t[0])
+    fs = 2 * np.pi / dt                      # rad/s
+    lo, hi = band
+    nyq = 0.5 * fs
+    y = y - y.mean()
+    if math.isfinite(hi) and hi < 0.9 * nyq:
+        y = scipy.signal.sosfiltfilt(scipy.signal.butter(4, hi, fs=fs, output="sos"), y)
+    if math.isfinite(hi):
+        q = max(1, int(fs / (10 * hi)))
+        t, y = t[::q], y[::q]
+        dt = float(t[1] - t[0])
+    t, y = t[:max_samples], y[:max_samples]
+    scale = float(np.sqrt(np.mean(y * y)))
+    if scale == 0.0 or y.size < 8:
+        return None
+    N = y.size
+    Lp = max(max_order + 1, N // 3)
+    Y = np.lib.stride_tricks.sliding_window_view(y, Lp + 1)
+    _, sv, Vh = np.linalg.svd(Y, full_matrices=False)
+    rank = int(np.sum(sv > sv[0] * 1e-10))
+    k = np.arange(N)[:, None]
+    for order in range(2, max_order + 1, 2):
+        m = min(order, rank)
+        V = Vh[:m].conj().T
+        z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+        z = z[np.abs(z) > 0]
+        Z = np.exp(k * np.log(z)[None, :])
+        amp = np.linalg.lstsq(Z, y.astype(complex), rcond=None)[0]
+        res = float(np.sqrt(np.mean(np.abs(Z @ amp - y) ** 2)) / scale)
+        if res <= residual or m == rank:
+            break
+    s = np.log(z) / dt
+    contrib = np.abs(amp) * np.sqrt(np.mean(np.abs(Z) ** 2, axis=0))
+    pick = None
+    for si, ci in zip(s, contrib):
+        if lo <= si.imag < hi and (pick is None or ci > pick[1]):
+            pick = (si, ci)
+    if pick is None:
+        return None
+    return ModeFit(float(pick[0].real), float(pick[0].imag), float(2.0 * pick[1]), m, res,
+                   (float(t[0]), float(t[-1])))

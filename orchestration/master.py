@@ -36,19 +36,35 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2Real, fmi2True, fmi2ValueReference
 
-__all__ = ["CoSimulationError", "Slave", "Connection", "Master", "parse_connection",
+__all__ = ["CoSimulationError", "RunInterrupted", "Slave", "Connection", "Master", "parse_connection",
            "extrapolation_weights", "RunStats"]
 
 _STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
 
 
 class CoSimulationError(RuntimeError):
-    """An FMU call failed; the message names the FMU, the call, the status and the FMU's log."""
+    """An FMU call failed; the message names the FMU, the call, the status and the FMU's log.
+
+    Raised by :meth:`Master.run`, it also carries what was computed before the failure:
+    ``result`` (the output rows up to the last output point reached) and ``stats``."""
 
     def __init__(self, message, status=None, time=None):
         super().__init__(message)
         self.status = status
         self.time = time
+        self.result = None
+        self.stats = None
+
+
+class RunInterrupted(Exception):
+    """:meth:`Master.run` stopped because its ``stop`` callback asked it to (Ctrl-C); ``result``
+    holds the output rows up to the last output point reached, ``time`` the time reached."""
+
+    def __init__(self, time, result=None, stats=None):
+        super().__init__(f"interrupted at t = {time:.6g}")
+        self.time = time
+        self.result = result
+        self.stats = stats
 
 
 @dataclass(frozen=True)
@@ -84,12 +100,18 @@ class Slave:
         self.variables = {v.name: v for v in self.md.modelVariables}
         self.messages: list[str] = []
         self._log_level = log_level
+        self._own_unzipdir = unzipdir is None      # extracted here: removed by close()
         self._unzipdir = unzipdir or extract(self.path)
         self.fmu = None
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier,
-                             instanceName=name)
-        self._instantiate()
+        try:
+            self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
+                                 modelIdentifier=self.md.coSimulation.modelIdentifier,
+                                 instanceName=name)
+            self._instantiate()
+        except BaseException:
+            self.fmu = None
+            self._remove_unzipdir()
+            raise
         self._start_values = dict(start_values or {})
         inputs = {v.name for v in self.md.modelVariables if v.causality == "input"}
         #: True when an output may depend directly on an input (no dependencies declared
@@ -234,8 +256,10 @@ class Slave:
         self._call("freeFMUstate", self.fmu.freeFMUstate, state)
 
     def close(self):
-        """``terminate`` and ``freeInstance``; safe to call twice and after a failure."""
+        """``terminate`` and ``freeInstance``, then remove the folder the FMU was extracted to
+        (when this slave extracted it); safe to call twice and after a failure."""
         if self.fmu is None:
+            self._remove_unzipdir()
             return
         fmu, self.fmu = self.fmu, None
         try:
@@ -249,6 +273,13 @@ class Slave:
                 fmu.freeLibrary()
             except Exception:  # noqa: BLE001
                 pass
+            self._remove_unzipdir()
+
+    def _remove_unzipdir(self):
+        if getattr(self, "_own_unzipdir", False) and self._unzipdir:
+            import shutil
+            shutil.rmtree(self._unzipdir, ignore_errors=True)
+            self._unzipdir = None
 
 
 # ---------------------------------------------------------------------- extrapolation
@@ -558,43 +589,63 @@ class Master:
                     cur[n] = self.slaves[n].get_outputs(t0)
         return cur
 
-    def run(self, t0: float, stop_time: float, output_interval: float, progress=None):
-        """Run from ``t0`` to ``stop_time``; a structured array (time first) and :class:`RunStats`."""
+    def run(self, t0: float, stop_time: float, output_interval: float, progress=None, stop=None):
+        """Run from ``t0`` to ``stop_time``; a structured array (time first) and :class:`RunStats`.
+
+        ``stop``: a callable asked after every communication step; when it returns True the run
+        ends with :class:`RunInterrupted`. On a failed FMU call the :class:`CoSimulationError`
+        (and a :class:`RunInterrupted`) carries the rows of the output points reached so far."""
         wall = _time.perf_counter()
         stats = RunStats()
-        for s in self.slaves.values():
-            s.initialize(t0, stop_time)
         n_out = int(round((stop_time - t0) / output_interval))
+        if n_out < 1:
+            raise ValueError(f"stop_time - t0 = {stop_time - t0!r} is shorter than one "
+                             f"output_interval = {output_interval!r}")
         cols = ["time"] + list(self.record)
         out = np.zeros(n_out + 1, dtype=[(c, "f8") for c in cols])
-        hist = {n: _History(3) for n in self.slaves}
-        cur = self._initial_outputs(t0)
-        for n in self.slaves:
-            hist[n].push(t0, cur[n])
-        self._store(out, 0, t0, cur)
-        if self.adaptive:
-            self._run_adaptive(t0, output_interval, n_out, out, hist, cur, stats, progress)
-        else:
-            m = int(round(output_interval / self.h))
-            if abs(m * self.h - output_interval) > 1e-9 * output_interval:
-                raise ValueError(f"output_interval = {output_interval} is not a multiple of "
-                                 f"step = {self.h}")
-            total = n_out * m
-            for k in range(total):
-                ta, tb = t0 + k * self.h, t0 + (k + 1) * self.h
-                cur = self._step(hist, ta, tb)
-                for n in self.slaves:
-                    hist[n].push(tb, cur[n])
-                stats.steps += 1
-                if (k + 1) % m == 0:
-                    self._store(out, (k + 1) // m, tb, cur)
-                    if progress is not None:
-                        progress((k + 1) / total)
-            stats.min_step_used = stats.max_step_used = self.h
+        self._rows = 0
+        self._t_reached = t0
+        try:
+            for s in self.slaves.values():
+                s.initialize(t0, stop_time)
+            hist = {n: _History(3) for n in self.slaves}
+            cur = self._initial_outputs(t0)
+            for n in self.slaves:
+                hist[n].push(t0, cur[n])
+            self._store(out, 0, t0, cur)
+            if self.adaptive:
+                self._run_adaptive(t0, output_interval, n_out, out, hist, cur, stats, progress,
+                                   stop)
+            else:
+                m = int(round(output_interval / self.h))
+                if abs(m * self.h - output_interval) > 1e-9 * output_interval:
+                    raise ValueError(f"output_interval = {output_interval} is not a multiple of "
+                                     f"step = {self.h}")
+                total = n_out * m
+                for k in range(total):
+                    ta, tb = t0 + k * self.h, t0 + (k + 1) * self.h
+                    cur = self._step(hist, ta, tb)
+                    for n in self.slaves:
+                        hist[n].push(tb, cur[n])
+                    stats.steps += 1
+                    self._t_reached = tb
+                    if (k + 1) % m == 0:
+                        self._store(out, (k + 1) // m, tb, cur)
+                        if progress is not None:
+                            progress((k + 1) / total)
+                    if stop is not None and stop():
+                        raise RunInterrupted(tb)
+                stats.min_step_used = stats.max_step_used = self.h
+        except (CoSimulationError, RunInterrupted) as exc:
+            stats.wall_time = _time.perf_counter() - wall
+            exc.result, exc.stats = out[:self._rows].copy(), stats
+            if exc.time is None:
+                exc.time = self._t_reached
+            raise
         stats.wall_time = _time.perf_counter() - wall
         return out, stats
 
-    def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress):
+    def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress, stop=None):
         h = min(self.h, self.max_step)
         t = t0
         for j in range(1, n_out + 1):
@@ -641,6 +692,11 @@ class Master:
                 stats.min_step_used = min(stats.min_step_used, step)
                 stats.max_step_used = max(stats.max_step_used, step)
                 t = t1
+                self._t_reached = t1
+                if stop is not None and stop():
+                    if abs(t1 - t_target) <= 1e-12 * dt_out:
+                        self._store(out, j, t_target, cur)
+                    raise RunInterrupted(t1)
                 grow = 2.0 if err == 0 else min(2.0, 0.9 * err ** expo)
                 if not last:
                     h = min(self.max_step, max(self.min_step, step * max(grow, 0.2)))
@@ -658,6 +714,7 @@ class Master:
             i_out = self._out_index[s].get(v)
             row.append(cur[s][i_out] if i_out is not None else rec[s][v])
         out[i] = tuple(row)
+        self._rows = max(self._rows, i + 1)
 
     def close(self):
         for s in self.slaves.values():

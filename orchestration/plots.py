@@ -14,24 +14,65 @@ def _pyplot():
     return plt
 
 
-def plot_time_histories(result, title: str, path, reference=None):
-    """Tip angle, first modal coordinate and force against time."""
+def _wrapped(text: str, width: int = 95) -> str:
+    import textwrap
+    return "\n".join(textwrap.wrap(text, width)) if text else ""
+
+
+#: Time-history panels: column -> axis label (SI units; eta_j belong to mass-normalised modes).
+PANELS = {
+    "phi_o": "tip angle $\\varphi_o$ (rad)",
+    "eta_1": "1st modal coordinate $\\eta_1$ (m kg$^{1/2}$)",
+    "tip_deflection": "tip deflection (m)",
+    "F_c": "force $F_c$ (N)",
+    "x": "cart position $x$ (m)",
+}
+
+
+def plot_time_histories(result, name: str, description: str, path, reference=None,
+                        summary=None):
+    """The paper's time histories (Figs. 3, 4, 6, 7): tip angle, first modal coordinate, tip
+    deflection, force and cart position against time. The bending panels are left out for a
+    rigid model. With a ``summary`` the fit windows are shaded, the validity bound of the tip
+    deflection drawn and an early stop marked."""
     plt = _pyplot()
-    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     t = result["time"]
-    for ax, col, label in zip(axes, ("phi_o", "eta_1", "F_c"),
-                              ("tip angle phi_o (rad)", "first modal coordinate eta_1",
-                               "force F_c")):
-        ax.plot(t, result[col], lw=0.8, label="co-simulation")
-        if reference is not None:
-            ax.plot(reference["time"], reference[col], "--", lw=0.8, label="monolithic reference")
-        ax.set_ylabel(label)
+    cols = [c for c in PANELS if not (c in ("eta_1", "tip_deflection") and not np.any(result[c]))]
+    fig, axes = plt.subplots(len(cols), 1, figsize=(9, 1.9 * len(cols) + 1.2), sharex=True,
+                             layout="constrained")
+    axes = np.atleast_1d(axes)
+    for ax, col in zip(axes, cols):
+        ax.plot(t, result[col], lw=0.7, color="C0", label="co-simulation")
+        if reference is not None and col in reference.dtype.names:
+            ax.plot(reference["time"], reference[col], "--", lw=0.7, color="C1",
+                    label="monolithic reference")
+        ax.set_ylabel(PANELS[col], fontsize=9)
         ax.grid(alpha=0.3)
-    axes[0].set_title(title, fontsize=10)
-    axes[-1].set_xlabel("time (s)")
+    if summary is not None:
+        for key, col in (("slow", "phi_o"), ("bending", "eta_1")):
+            m = summary.get(key)
+            if m and m.get("fit") and col in cols:
+                ax = axes[cols.index(col)]
+                lo, hi = m["fit"]["window"]
+                ax.axvspan(lo, hi, color="C2", alpha=0.12, lw=0,
+                           label=f"fit window ({key})" + ("" if m["reliable"] else ", unreliable"))
+                ax.legend(loc="upper right", fontsize=7)
+        v = summary.get("validity")
+        if v and "tip_deflection" in cols:
+            ax = axes[cols.index("tip_deflection")]
+            for sign in (1, -1):
+                ax.axhline(sign * v["tip_deflection_limit"], color="C3", ls=":", lw=0.8)
+            ax.text(t[0], v["tip_deflection_limit"], " model's range", color="C3", fontsize=7,
+                    va="bottom")
+        if summary.get("stopped"):
+            for ax in axes:
+                ax.axvline(summary["stopped"]["time"], color="C3", lw=0.8)
+            axes[0].text(summary["stopped"]["time"], axes[0].get_ylim()[1], " stopped",
+                         color="C3", fontsize=8, va="top")
     if reference is not None:
-        axes[0].legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+        axes[0].legend(loc="upper right", fontsize=7)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(f"{name}\n{_wrapped(description)}", fontsize=9)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -47,48 +88,78 @@ def beam_shape(beam, x, phi, eta, scale: float = 1.0):
 
 
 def plot_snapshots(beam, frames, title: str, path):
-    """Beam shapes at several times, one panel per time centred on the cart (the cart drifts
-    when its position is not fed back); ``frames``: list of ``(t, x, phi, eta)``."""
+    """Beam shapes at several times (the paper's Figs. 5 and 8), two rows of panels; each
+    panel's horizontal axis is the rail in metres, centred on the cart, which is drawn at its
+    position. ``frames``: list of ``(t, x, phi, eta)``. A deflection that would not show (below
+    2 % of L everywhere) is magnified, and the title says by how much."""
+    import math
+
     plt = _pyplot()
+    from matplotlib.patches import Rectangle
+
     n = len(frames)
-    fig, axes = plt.subplots(1, n, figsize=(1.6 * n + 0.6, 3.2), sharey=True, squeeze=False)
     L = beam.nodes[-1]
-    for ax, (t, x, phi, eta) in zip(axes[0], frames):
-        X, Y = beam_shape(beam, 0.0, phi, eta)              # relative to the cart
-        rigid = beam_shape(beam, 0.0, phi, [])               # the floating frame's axis
-        ax.plot(rigid[0], rigid[1], ":", color="0.6", lw=1)
+    defl = max((float(np.max(np.abs(beam_shape(beam, 0.0, 0.0, eta)[0]))) for *_, eta in frames),
+               default=0.0)
+    scale = 1.0
+    if 0 < defl < 0.02 * L:
+        scale = 10 ** math.floor(math.log10(0.1 * L / defl))
+    ncol = min(n, 4)
+    nrow = math.ceil(n / ncol)
+    fig, axes = plt.subplots(nrow, ncol, figsize=(2.45 * ncol + 0.4, 1.95 * nrow + 0.5),
+                             squeeze=False, layout="constrained")
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    for ax, (t, x, phi, eta) in zip(axes.flat, frames):
+        X, Y = beam_shape(beam, x, phi, eta, scale)
+        rigid = beam_shape(beam, x, phi, [])                 # the floating frame's axis
+        ax.axhline(0.0, color="0.3", lw=0.8)                 # the rail
+        ax.add_patch(Rectangle((x - 0.15 * L, -0.1 * L), 0.3 * L, 0.1 * L, color="C1"))
+        ax.plot(rigid[0], rigid[1], ":", color="0.5", lw=1)
         ax.plot(X, Y, color="C0", lw=2)
-        ax.plot([-0.15 * L, 0.15 * L], [0, 0], color="C1", lw=5, solid_capstyle="butt")
-        ax.set_xlim(-0.9 * L, 0.9 * L)
+        ax.plot([x], [0.0], "o", color="k", ms=3)            # the hinge
+        ax.set_xlim(x - 1.05 * L, x + 1.05 * L)
         ax.set_ylim(-0.15 * L, 1.1 * L)
         ax.set_aspect("equal")
-        ax.set_title(f"t = {t:.2f} s\nx = {x:+.2f}", fontsize=8)
-        ax.set_xticks([])
+        ax.set_title(f"t = {t:.2f} s, x = {x:+.3f} m", fontsize=8)
+        ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("height")
-    fig.suptitle(title + " (dotted: floating frame; deflection to scale)", fontsize=9)
-    fig.tight_layout()
+    for ax in axes[:, 0]:
+        ax.set_ylabel("height (m)", fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("rail position (m)", fontsize=8)
+    magnified = f"deflection x {scale:g}" if scale != 1 else "deflection to scale"
+    fig.suptitle(f"{title} (dotted: floating frame; {magnified}; cart and rail to scale)",
+                 fontsize=9)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def plot_paper_overview(results: dict, path):
-    """The paper's sample side by side: tip angle (Figs. 3, 4, 6) and eta_1 (Fig. 7)."""
+    """The paper's sample side by side, one row per scene: tip angle (Figs. 3, 4, 6) and first
+    modal coordinate (Fig. 7), so that no curve hides another."""
     plt = _pyplot()
-    fig, axes = plt.subplots(2, 1, figsize=(9, 7), sharex=True)
-    for name, res in results.items():
-        axes[0].plot(res["time"], res["phi_o"], lw=0.8, label=name)
-        axes[1].plot(res["time"], res["eta_1"], lw=0.8, label=name)
-    axes[0].set_ylabel("tip angle phi_o (rad)")
-    axes[1].set_ylabel("first modal coordinate eta_1")
-    axes[1].set_xlabel("time (s)")
-    axes[0].set_ylim(-1.2, 1.2)
-    for ax in axes:
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    axes[0].set_title("Tang & Ren's sample from phi0 = pi/6: rigid + PD, flexible + PD, "
-                      "flexible + PD + low-pass", fontsize=10)
-    fig.tight_layout()
+    n = len(results)
+    fig, axes = plt.subplots(n, 2, figsize=(11, 2.3 * n + 0.8), sharex=True, squeeze=False,
+                             layout="constrained")
+    for row, (name, res) in zip(axes, results.items()):
+        row[0].plot(res["time"], res["phi_o"], lw=0.7, color="C0")
+        row[0].set_ylabel("$\\varphi_o$ (rad)", fontsize=9)
+        row[0].set_title(name, fontsize=9, loc="left")
+        if np.any(res["eta_1"]):
+            row[1].plot(res["time"], res["eta_1"], lw=0.7, color="C2")
+        else:
+            row[1].text(0.5, 0.5, "rigid model: no bending", transform=row[1].transAxes,
+                        ha="center", va="center", fontsize=9, color="0.4")
+            row[1].set_yticks([])
+        row[1].set_ylabel("$\\eta_1$ (m kg$^{1/2}$)", fontsize=9)
+        row[1].set_title(name, fontsize=9, loc="left")
+        for ax in row:
+            ax.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    fig.suptitle("Tang & Ren's sample from phi0 = pi/6: rigid + PD, flexible + PD, flexible + PD "
+                 "+ low-pass", fontsize=10)
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

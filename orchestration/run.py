@@ -1,11 +1,9 @@
 """Run a scene: the two FMUs on the master, then the summary, the CSV and the figures."""
 from __future__ import annotations
 
-import math
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -14,13 +12,13 @@ from plant_fmu import interface as plant_interface
 
 from .config import ConfigError
 from .fidelity import needs_selection, select_model
-from .fit import dominant_oscillation
-from .master import CoSimulationError, Master, Slave, parse_connection
+from .master import CoSimulationError, Master, RunInterrupted, Slave, parse_connection
 from .reference import COLUMNS
 from .scenes import SCENE_DEFAULTS
+from .summary import summarize
 
 __all__ = ["run_scene", "SceneResult", "DEFAULT_CONNECTIONS", "plant_start_values",
-           "controller_start_values", "Progress"]
+           "controller_start_values", "Progress", "summarize"]
 
 DEFAULT_CONNECTIONS = tuple(SCENE_DEFAULTS["connections"])
 #: column -> (FMU, variable): what the master records at every output point.
@@ -31,11 +29,6 @@ RECORD = {
     "energy": ("plant", "energy"), "phi": ("plant", "phi"),
     **{f"eta_{j}": ("plant", f"eta_{j}") for j in range(2, 9)},
 }
-#: Bands (rad/s) of the rigid (slow) and the bending oscillation for the fitted rates.
-SLOW_BAND = (0.5, 60.0)
-BENDING_BAND = (60.0, 1e9)
-
-
 def plant_start_values(scene) -> dict:
     """Scene keys -> FlexiblePendulum parameters (the table of :mod:`plant_fmu.interface`)."""
     return plant_interface.start_values(scene.config)
@@ -58,6 +51,13 @@ class Progress:
         self.shown = False
         self.last_quarter = 0
 
+    def close(self):
+        """End the bar's line early (a run that stopped before the end)."""
+        if self.tty and self.shown:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.shown = False
+
     def __call__(self, fraction: float):
         elapsed = time.perf_counter() - self.start
         if elapsed < self.delay:
@@ -73,6 +73,7 @@ class Progress:
             self.shown = True
             if fraction >= 1.0:
                 self.stream.write("\n")
+                self.shown = False
             self.stream.flush()
         else:
             quarter = int(fraction * 4)
@@ -91,60 +92,30 @@ class SceneResult:
     reference: np.ndarray | None = None
     frames: list = field(default_factory=list)
     scene: object = None          # the scene that ran (its model chosen when it was "auto")
-
-
-def _fit_window(t, y):
-    """The window to fit: the whole run, or, for a signal that grows and saturates, the part
-    before it first reaches a tenth of its largest magnitude (if that leaves at least 2 s), while
-    the oscillation is still small enough to be linear."""
-    a = np.abs(y - np.mean(y[-max(1, len(y) // 10):]))
-    peak = a.max()
-    if peak == 0:
-        return slice(0, len(t))
-    i = int(np.argmax(a >= 0.1 * peak))
-    if t[i] - t[0] >= 2.0 and i < len(t) - 1:
-        return slice(0, i + 1)
-    return slice(0, len(t))
-
-
-def summarize(res: np.ndarray, failure: str | None = None) -> dict:
-    """Verdict, fitted rates and frequencies of the slow and bending oscillations, max |F_c|."""
-    t = res["time"]
-    out = {"max_abs_F_c": float(np.max(np.abs(res["F_c"]))) if len(res) else None}
-    rates = []
-    for key, col, band in (("slow", "phi_o", SLOW_BAND), ("bending", "eta_1", BENDING_BAND)):
-        y = res[col]
-        osc = None
-        if len(t) > 40 and np.ptp(y) > 0:
-            w = _fit_window(t, y)
-            nyquist = math.pi / (t[1] - t[0])
-            try:
-                osc = dominant_oscillation(t[w], y[w], (band[0], min(band[1], nyquist)))
-            except (ValueError, np.linalg.LinAlgError):
-                osc = None
-        out[key] = None if osc is None else {"rate": osc.rate, "frequency": osc.frequency}
-        if osc is not None:
-            rates.append(osc.rate)
-    out["stable"] = failure is None and all(r < 0 for r in rates)
-    if failure:
-        out["failure"] = failure
-    return out
+    interrupted: bool = False     # stopped by the ``stop`` callback (Ctrl-C)
 
 
 def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = True,
-              connections_out=None,
-              snapshot_times=(0.0, 0.5, 1.0, 2.0, 4.0, 6.0, 8.0, 10.0)) -> SceneResult:
+              connections_out=None, stop=None,
+              snapshot_times=None) -> SceneResult:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
 
     A scene with ``plant.n_modes`` or ``plant.fidelity`` ``"auto"`` gets its model chosen first
     (:func:`orchestration.fidelity.select_model`); the summary's ``model`` entry says which and why,
-    and the result's ``scene`` is the resolved scene."""
+    and the result's ``scene`` is the resolved scene.
+
+    A run whose FMU refuses to go on (a divergence, a failed integrator) keeps the output points
+    reached; the summary's ``stopped`` says when and why. ``stop``: a callable asked after every
+    communication step (Ctrl-C); when it returns True the run ends the same way and the result's
+    ``interrupted`` is True. The FMUs are terminated and freed, and their unpacked folders
+    removed, however the run ends."""
     model = None
     if needs_selection(scene):
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
     cfg = scene.config
     slaves = {}
+    stopped, interrupted, stats, res = None, False, None, None
     try:
         slaves["plant"] = Slave(fmus["plant"], "plant", plant_start_values(scene))
         slaves["controller"] = Slave(fmus["controller"], "controller",
@@ -161,25 +132,35 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
         if connections_out is not None:
             connections_out.write(f"{scene.name}: connections\n{master.connection_table()}\n")
         bar = Progress(scene.name) if progress else None
-        failure = None
         try:
-            res, stats = master.run(0.0, cfg["stop_time"], cfg["output_interval"], progress=bar)
+            res, stats = master.run(0.0, cfg["stop_time"], cfg["output_interval"], progress=bar,
+                                    stop=stop)
         except CoSimulationError as exc:
-            failure, stats = str(exc), None
-            res = np.zeros(0, dtype=[(c, "f8") for c in COLUMNS])
+            res, stats = exc.result, exc.stats
+            stopped = {"time": exc.time, "reason": str(exc)}
+        except RunInterrupted as exc:
+            res, stats, interrupted = exc.result, exc.stats, True
+            stopped = {"time": exc.time, "reason": "interrupted (Ctrl-C)"}
+        if bar is not None and stopped is not None:
+            bar.close()
     finally:
         for s in slaves.values():
             s.close()
+    if res is None:
+        res = np.zeros(0, dtype=[(c, "f8") for c in ("time", *RECORD)])
     n_eta = min(scene.plant.n_modes, 8)
+    if snapshot_times is None:             # eight times over the run, as the paper's Figs. 5, 8
+        snapshot_times = np.linspace(0.0, cfg["stop_time"], 8)
     frames = _frames(res, n_eta, snapshot_times)
     res = _reorder(res, n_eta)
-    summary = summarize(res, failure)
+    summary = summarize(res, scene, stopped)
     if stats is not None:
         summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected)
     if model is not None:
         summary["model"] = model
-    out = SceneResult(scene.name, res, summary, stats, frames=frames, scene=scene)
-    if reference and failure is None:
+    out = SceneResult(scene.name, res, summary, stats, frames=frames, scene=scene,
+                      interrupted=interrupted)
+    if reference and stopped is None:
         from .reference import simulate_reference
         ref = simulate_reference(scene)
         out.reference = ref

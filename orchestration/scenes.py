@@ -32,20 +32,20 @@ FIRST = ("controller", "plant")
 SCENE_DEFAULTS = {
     "description": "",
     "stop_time": 10.0,
-    "output_interval": 0.01,
+    "output_interval": 0.002,
     "initial.phi": math.pi / 6,
     "initial.x": 0.0,
     "initial.phi_dot": 0.0,
     "initial.x_dot": 0.0,
     "master.algorithm": "gauss-seidel",
     "master.first": "controller",
-    "master.step": 1e-3,
-    "master.extrapolation": 0,
+    "master.step": 2e-3,
+    "master.extrapolation": 2,
     "master.adaptive": False,
     "master.tolerance": 1e-4,
     "master.min_step": 1e-6,
     "master.max_step": 2e-2,
-    "master.input_derivatives": False,
+    "master.input_derivatives": True,
     # wiring by variable name: "fmu.variable -> fmu.variable", FMUs "plant" and "controller"
     "connections": [
         "plant.x_o -> controller.x_o",
@@ -157,6 +157,10 @@ def _validate(cfg: dict) -> None:
     if cfg["master.step"] > cfg["stop_time"]:
         raise ConfigError(f"master.step = {cfg['master.step']} exceeds stop_time = "
                           f"{cfg['stop_time']}")
+    n_out = cfg["stop_time"] / cfg["output_interval"]
+    if n_out < 1 - 1e-9 or abs(n_out - round(n_out)) > 1e-9 * n_out:
+        raise ConfigError(f"stop_time = {cfg['stop_time']} must be a positive multiple of "
+                          f"output_interval = {cfg['output_interval']}")
     ratio = cfg["output_interval"] / cfg["master.step"]
     if not cfg["master.adaptive"] and abs(ratio - round(ratio)) > 1e-9 * ratio:
         raise ConfigError(f"output_interval = {cfg['output_interval']} must be a multiple of "

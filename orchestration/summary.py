@@ -1,0 +1,178 @@
+"""What a run's summary says: the fitted modes beside the linear prediction, the verdict, and
+whether the run left the model's range of validity.
+
+**Modes.** Two oscillations are fitted (:func:`orchestration.fit.fit_mode`, matrix pencil): the
+slow, rigid-pendulum one on ``phi_o`` (0.5 to 60 rad/s) and the bending one on ``eta_1`` (above
+60 rad/s). Both are fitted only over the part of the run where the linearisation at the upright
+rest state holds: the longest stretch with ``|phi| <= LINEAR_PHI`` (the frame's rotation; ``sin``
+and ``cos`` within 0.7 % and 2 % of their linear values) and the tip deflection within the
+validity bound below. A fit is reported as a number only when it is reliable:
+
+* the stretch holds at least ``MIN_PERIODS`` periods of the oscillation;
+* the fitted exponentials reproduce the signal over it to ``FIT_RESIDUAL`` (relative RMS): a
+  saturated, beating or otherwise nonlinear signal does not;
+* the linearised loop has a mode within ``FREQUENCY_MATCH`` of the fitted frequency (no mode is
+  reported that the loop does not have); that mode is printed beside the fit.
+
+Otherwise the summary says why instead of printing a number.
+
+**Validity.** The plant is a floating frame of reference with linear cantilever modes: the axial
+shortening of the bent beam, ``u(L) = 1/2 integral w'(s)^2 ds``, and the geometric terms of the
+curvature, ``1.5 w'^2``, are neglected. For the first cantilever mode (tip slope ``1.377 d/L``
+for a tip deflection ``d``) ``u(L) = 0.58 d^2/L``. At ``d = 0.05 L`` the neglected shortening is
+3 % of the deflection and the curvature correction 0.7 %: that is where the run is flagged as
+out of the model's range (``TIP_DEFLECTION_LIMIT``). A beam turned past the horizontal
+(``|phi| > pi/2``), or past the plant's own ``phi_limit``, is flagged too.
+
+**Verdict.** ``stable`` is False when a reliable fit grows, True when every reliable fit decays,
+None when no fit is reliable (the run says nothing either way); a run that stopped early has no
+verdict either.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .fit import fit_mode
+
+__all__ = ["SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT", "FIT_RESIDUAL",
+           "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window", "fit_modes",
+           "validity", "summarize"]
+
+#: Bands (rad/s) of the rigid (slow) and the bending oscillation.
+SLOW_BAND = (0.5, 60.0)
+BENDING_BAND = (60.0, math.inf)
+#: Largest |phi| (rad) at which the fits treat the loop as linear.
+LINEAR_PHI = 0.2
+#: Tip deflection, as a fraction of L, beyond which the run leaves the model's range.
+TIP_DEFLECTION_LIMIT = 0.05
+#: Largest relative RMS residual of a fit that is reported as a number.
+FIT_RESIDUAL = 0.02
+#: Largest relative distance between a fitted and a linear mode's frequency.
+FREQUENCY_MATCH = 0.1
+#: Fewest periods of an oscillation in the window for a fit.
+MIN_PERIODS = 3.0
+
+_SIGNALS = {"slow": ("phi_o", SLOW_BAND), "bending": ("eta_1", BENDING_BAND)}
+
+
+def linear_modes(scene) -> np.ndarray:
+    """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop."""
+    from .analysis import closed_loop_matrix
+
+    lam = np.linalg.eigvals(closed_loop_matrix(scene.plant, scene.controller))
+    return lam[lam.imag > 1e-9]
+
+
+def linear_window(res: np.ndarray, L: float | None) -> slice:
+    """The longest stretch of output points where the loop is in its linear range."""
+    phi = res["phi"] if "phi" in res.dtype.names else res["phi_o"]
+    ok = np.abs(phi) <= LINEAR_PHI
+    if L is not None and "tip_deflection" in res.dtype.names:
+        ok &= np.abs(res["tip_deflection"]) <= TIP_DEFLECTION_LIMIT * L
+    best, start = (0, 0), None
+    for i, v in enumerate(np.append(ok, False)):
+        if v and start is None:
+            start = i
+        elif not v and start is not None:
+            if i - start > best[1] - best[0]:
+                best = (start, i)
+            start = None
+    return slice(*best)
+
+
+def _fit(t, y, key, modes):
+    """One entry of the summary's ``modes``: the fit, the nearest linear mode, and whether the
+    fit is reliable (``note`` says why not)."""
+    band = _SIGNALS[key][1]
+    entry = {"signal": _SIGNALS[key][0], "rate": None, "frequency": None, "reliable": False,
+             "linear": None, "note": None, "fit": None}
+    if len(t) < 8 or np.ptp(y) == 0:
+        entry["note"] = "no oscillation in the linear range of the run"
+        return entry
+    nyquist = math.pi / (t[1] - t[0])
+    try:
+        f = fit_mode(t, y, (band[0], min(band[1], nyquist)))
+    except (ValueError, np.linalg.LinAlgError):
+        f = None
+    if f is None:
+        entry["note"] = "no oscillation in the band"
+        return entry
+    entry["fit"] = {"rate": f.rate, "frequency": f.frequency, "residual": f.residual,
+                    "window": list(f.window), "order": f.order}
+    if modes is not None and len(modes):
+        near = modes[np.argmin(np.abs(modes.imag - f.frequency))]
+        if abs(near.imag - f.frequency) <= FREQUENCY_MATCH * near.imag:
+            entry["linear"] = {"rate": float(near.real), "frequency": float(near.imag)}
+    span = t[-1] - t[0]
+    periods = span * f.frequency / (2 * math.pi)
+    if periods < MIN_PERIODS:
+        entry["note"] = (f"unreliable fit: only {periods:.1f} periods in the linear range "
+                         f"(t = {t[0]:.2f} .. {t[-1]:.2f} s)")
+    elif f.residual > FIT_RESIDUAL:
+        entry["note"] = (f"unreliable fit: exponentials reproduce the signal to "
+                         f"{100 * f.residual:.1f} % only (nonlinear, saturating or beating)")
+    elif modes is not None and entry["linear"] is None:
+        entry["note"] = (f"unreliable fit: the linearised loop has no mode near "
+                         f"{f.frequency:.1f} rad/s")
+    else:
+        entry.update(rate=f.rate, frequency=f.frequency, reliable=True)
+    return entry
+
+
+def fit_modes(res: np.ndarray, scene=None) -> dict:
+    """``{"slow": entry, "bending": entry}`` (see :func:`_fit`)."""
+    L = scene.plant.L if scene is not None else None
+    w = linear_window(res, L)
+    modes = linear_modes(scene) if scene is not None else None
+    t = res["time"][w]
+    out = {key: _fit(t, res[col][w], key, modes) for key, (col, _) in _SIGNALS.items()}
+    if scene is not None and scene.plant.n_modes == 0:
+        out["bending"]["note"] = "none: rigid model (plant.n_modes = 0)"
+    return out
+
+
+def validity(res: np.ndarray, scene) -> dict:
+    """Where the run leaves the model's range (see the module docstring)."""
+    L = scene.plant.L
+    phi_max = min(math.pi / 2, scene["plant.phi_limit"])
+    out = {"tip_deflection_limit": TIP_DEFLECTION_LIMIT * L, "phi_limit": phi_max,
+           "max_abs_tip_deflection": None, "max_abs_phi": None, "warnings": []}
+    if len(res) == 0:
+        return out
+    t = res["time"]
+    d = np.abs(res["tip_deflection"])
+    out["max_abs_tip_deflection"] = float(d.max())
+    over = np.nonzero(d > TIP_DEFLECTION_LIMIT * L)[0]
+    if over.size:
+        out["warnings"].append(
+            f"the tip deflection reaches {d.max():.3g} m = {100 * d.max() / L:.1f} % of L "
+            f"(from t = {t[over[0]]:.3g} s beyond {100 * TIP_DEFLECTION_LIMIT:g} % of L, the "
+            f"small-deformation range of the linear modes)")
+    phi = np.abs(res["phi"] if "phi" in res.dtype.names else res["phi_o"])
+    out["max_abs_phi"] = float(phi.max())
+    over = np.nonzero(phi > phi_max)[0]
+    if over.size:
+        out["warnings"].append(f"|phi| reaches {phi.max():.3g} rad (beyond {phi_max:.3g} rad "
+                               f"from t = {t[over[0]]:.3g} s)")
+    return out
+
+
+def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
+    """Verdict, fitted modes beside the linear ones, validity, largest force and cart travel.
+
+    ``stopped``: ``{"time": t, "reason": text}`` when the run ended early."""
+    out = {"completed": stopped is None, "stopped": stopped,
+           "max_abs_F_c": float(np.max(np.abs(res["F_c"]))) if len(res) else None,
+           "max_abs_x": float(np.max(np.abs(res["x"]))) if len(res) else None}
+    modes = fit_modes(res, scene) if len(res) else {k: None for k in _SIGNALS}
+    out.update(modes)
+    rates = [m["rate"] for m in modes.values() if m and m["reliable"]]
+    if stopped is not None or not rates:
+        out["stable"] = None
+    else:
+        out["stable"] = all(r < 0 for r in rates)
+    if scene is not None:
+        out["validity"] = validity(res, scene)
+    return out
