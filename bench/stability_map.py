@@ -114,10 +114,11 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
         "plant.n_modes": n_modes, "controller.filter_order": 2, "controller.cutoff": float(wc),
         "controller.filter_damping": 0.5, "initial.phi": 1e-3, "master.step": float(H),
         "output_interval": float(H), "stop_time": n_steps * float(H), "master.algorithm": alg,
-        "master.first": first, "master.extrapolation": e, "plant.fidelity": "nonlinear"})
+        "master.first": first, "master.extrapolation": e, "plant.fidelity": "nonlinear",
+        "master.input_derivatives": False})
     r = run_scene(scene, paths, progress=False)
-    if "failure" in r.summary:       # diverged (phi beyond pi/2 or energy beyond 1e6): grows
-        return math.inf, r.summary["failure"]
+    if r.summary["stopped"] is not None:   # diverged (phi beyond pi/2, energy beyond 1e6): grows
+        return math.inf, r.summary["stopped"]["reason"]
     Y = np.column_stack([r.result[c] for c in OBSERVED[:4 + min(n_modes, 4)]])[e + 2:]
     return observed_spectral_radius(Y, rtol=1e-6), ""
 

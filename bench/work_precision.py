@@ -78,7 +78,8 @@ COUPLINGS = [(alg, p, False) for alg in ("gauss-seidel", "jacobi") for p in (0, 
 
 #: the coupling at which the plant integrators are compared (the best-order coupling that every
 #: integrator takes, at the scenes' 1 ms step); its coupling error is the floor under their curves
-INTEGRATOR_MASTER = ["master.algorithm=gauss-seidel", "master.extrapolation=2", "master.step=1e-3"]
+INTEGRATOR_MASTER = ["master.algorithm=gauss-seidel", "master.extrapolation=2", "master.step=1e-3",
+                     "master.input_derivatives=false"]
 
 EXTRAPOLATION = {0: "ZOH", 1: "linear", 2: "quadratic"}
 ALGORITHM = {"gauss-seidel": "GS", "jacobi": "Jacobi"}
@@ -104,9 +105,8 @@ class Family:
 def coupling_families():
     out = []
     for alg, p, du in COUPLINGS:
-        ov = [f"master.algorithm={alg}", f"master.extrapolation={p}"]
-        if du:
-            ov.append("master.input_derivatives=true")
+        ov = [f"master.algorithm={alg}", f"master.extrapolation={p}",
+              f"master.input_derivatives={'true' if du else 'false'}"]
         out.append(Family(f"{ALGORITHM[alg]} {EXTRAPOLATION[p]}" + (" + du/dt" if du else ""),
                           "coupling", "cosim", [("master.step", 1.0)], COMM_STEPS, ov,
                           method=alg))
@@ -116,7 +116,8 @@ def coupling_families():
 def adaptive_families():
     return [Family("adaptive GS linear", "adaptive master", "cosim", [("master.tolerance", 1.0)],
                    TOLERANCES, ["master.adaptive=true", "master.algorithm=gauss-seidel",
-                                "master.extrapolation=1"], method="gauss-seidel")]
+                                "master.extrapolation=1", "master.input_derivatives=false"],
+                   method="gauss-seidel")]
 
 
 def integrator_families():
@@ -145,8 +146,8 @@ def ivp_families():
 
 def floor_families():
     return [Family("trivial FMUs (FMI floor)", "FMI floor", "trivial", [("master.step", 1.0)],
-                   COMM_STEPS, ["master.algorithm=gauss-seidel", "master.extrapolation=0"],
-                   method="gauss-seidel")]
+                   COMM_STEPS, ["master.algorithm=gauss-seidel", "master.extrapolation=0",
+                                "master.input_derivatives=false"], method="gauss-seidel")]
 
 
 def all_families():

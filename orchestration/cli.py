@@ -320,17 +320,48 @@ def cmd_run(args) -> int:
     scenes = [load_scene(n, args.set) for n in names]          # validate all before running
     out_dir = _output_dir(args.out)
 
-    from .export import build_fmus
+    # Ctrl-C is ours from here; while the run's modules are imported it is only noted (a
+    # KeyboardInterrupt raised inside a library's import machinery can be caught and printed)
     interrupts = _Interrupts().install()
     try:
+        interrupts.deferred = True
+        from fmpy.util import write_csv  # noqa: F401
+
+        from . import plots
+        from .export import build_fmus
+        from .run import run_scene  # noqa: F401
+        plots._pyplot()
+        interrupts.deferred = False
+        if interrupts.requested():
+            raise KeyboardInterrupt
         paths = build_fmus()
         fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+        _check_wiring(scenes, fmus)                       # before any scene runs
         return _run_scenes(args, scenes, fmus, out_dir, interrupts)
     except KeyboardInterrupt:
+        if not (out_dir / "summary.json").exists():     # interrupted before any scene ran
+            (out_dir / "summary.json").write_text("{}")
         print("flexpend: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     finally:
         interrupts.restore()
+
+
+def _check_wiring(scenes, fmus):
+    """Every connection of every scene names variables the FMUs have (ConfigError otherwise)."""
+    from fmpy import read_model_description
+
+    from .master import parse_connection
+
+    variables = {k: [v.name for v in read_model_description(str(p)).modelVariables]
+                 for k, p in fmus.items()}
+    for scene in scenes:
+        for text in scene["connections"]:
+            c = parse_connection(text)
+            for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
+                if var not in variables[fmu]:
+                    raise ConfigError(f"{scene.name}: {fmu} has no variable {var!r}; it has: "
+                                      f"{', '.join(variables[fmu])}")
 
 
 def _run_scenes(args, scenes, fmus, out_dir, interrupts) -> int:
@@ -343,6 +374,8 @@ def _run_scenes(args, scenes, fmus, out_dir, interrupts) -> int:
     code = 0
     try:
         for scene in scenes:
+            print(f"{scene.name}: running {scene['stop_time']:g} s (communication step "
+                  f"{scene['master.step']:g} s)", file=sys.stderr, flush=True)
             interrupts.deferred = True
             try:
                 r = run_scene(scene, fmus, reference=args.reference, progress=True,
@@ -478,5 +511,20 @@ def main(argv=None) -> int:
         return EXIT_INTERRUPTED
 
 
+def entry():
+    """The ``flexpend`` command. After Ctrl-C the process ends at once with 130 (its output
+    flushed): a KeyboardInterrupt that reached code run by an FMU's embedded Python makes the
+    interpreter kill itself with SIGINT at finalisation, and pythonfmu's finalisation can
+    abort (see docs/fmus.md); the data is already written and the FMUs freed."""
+    code = main()
+    if code == EXIT_INTERRUPTED:
+        import os
+
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    entry()

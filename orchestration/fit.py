@@ -84,8 +84,9 @@ class ModeFit:
 
 
 def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
-             max_samples: int = 1500) -> ModeFit | None:
-    """The largest oscillation of ``y`` with frequency in ``band`` (rad/s), or None.
+             max_samples: int = 1500, near: float | None = None) -> ModeFit | None:
+    """The largest oscillation of ``y`` with frequency in ``band`` (rad/s), or None; with
+    ``near``, the largest within 30 % of that frequency.
 
     A band with a finite upper edge (the slow oscillation) is first rid of faster content by a
     zero-phase low-pass (4th-order Butterworth at the edge, ``sosfiltfilt``), then
@@ -127,7 +128,10 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
         V = Vh[:m].conj().T
         z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
         z = z[np.abs(z) > 0]
-        Z = np.exp(k * np.log(z)[None, :])
+        # each exponential scaled to a largest magnitude of 1 over the window: a growing pole
+        # would otherwise dwarf the others and wreck the least squares
+        logz = np.log(z)
+        Z = np.exp(k * logz[None, :] - np.maximum(0.0, (N - 1) * logz.real)[None, :])
         amp = np.linalg.lstsq(Z, y.astype(complex), rcond=None)[0]
         res = float(np.sqrt(np.mean(np.abs(Z @ amp - y) ** 2)) / scale)
         if res <= residual or m == rank:
@@ -136,7 +140,9 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
     contrib = np.abs(amp) * np.sqrt(np.mean(np.abs(Z) ** 2, axis=0))
     pick = None
     for si, ci in zip(s, contrib):
-        if lo <= si.imag < hi and (pick is None or ci > pick[1]):
+        if not lo <= si.imag < hi or (near is not None and abs(si.imag - near) > 0.3 * near):
+            continue
+        if pick is None or ci > pick[1]:
             pick = (si, ci)
     if pick is None:
         return None
