@@ -49,11 +49,10 @@ class PDLowPass(SlaveBase):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        try:
-            kernel.library()
-        except kernel.KernelError as exc:      # no silent fallback: refuse to instantiate
-            self.log(f"PDLowPass cannot be instantiated: {exc}", Fmi2Status.fatal)
-            raise
+        # No silent fallback: without its compiled kernel the slave cannot be built, and the
+        # KernelError (naming the missing file and the platform) makes fmi2Instantiate fail;
+        # pythonfmu logs its message (the instance's own logger does not exist yet).
+        kernel.library()
         self._register_table(VARIABLES, lambda n: self._force)
         self._t = 0.0
         self._model: PDLowPassModel | None = None

@@ -151,16 +151,19 @@ def _load(kernel: str, native: Path) -> ctypes.CDLL:
 
 
 def _rebuild(kernel: str, platform: str, path: Path, native: Path):
-    """Rebuild a stale or missing library in a source checkout (the build module is part of the
-    checkout, not of an FMU)."""
+    """Rebuild a stale or missing library, only in the source checkout (or installation) that
+    the build module belongs to: never inside an unpacked FMU, which must load what it ships."""
+    state = "out of date (its C sources changed)" if path.is_file() else "missing"
     try:
         from orchestration.export import kernel_build
     except ImportError:
-        state = "stale" if path.is_file() else "missing"
-        raise KernelError(f"the compiled kernel {path} is {state} (its C sources changed) and "
-                          f"cannot be rebuilt here: reinstall flexpend (pip install -e .)") from None
+        kernel_build = None
+    if kernel_build is None or native.resolve() != kernel_build.native_dir(kernel).resolve():
+        raise KernelError(f"the compiled kernel {kernel} for this platform ({platform}) is "
+                          f"{state}: {path} (reinstall flexpend, or rebuild the FMU, on a "
+                          f"machine with a C compiler)")
     try:
         kernel_build.build_kernel(kernel, platform, path, native)
     except kernel_build.KernelBuildError as exc:
-        raise KernelError(f"the compiled kernel {path} is out of date and rebuilding it "
-                          f"failed: {exc}") from None
+        raise KernelError(f"the compiled kernel {path} is {state} and building it failed: "
+                          f"{exc}") from None

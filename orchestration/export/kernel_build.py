@@ -34,9 +34,18 @@ except ImportError:  # pragma: no cover - setup.py puts the project root on sys.
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
     from plant_fmu import _native
 
-__all__ = ["CFLAGS", "CROSS_COMPILERS", "KernelBuildError", "CompilerNotFound", "find_compiler",
+__all__ = ["ROOT", "native_dir", "CFLAGS", "CROSS_COMPILERS", "KernelBuildError", "CompilerNotFound", "find_compiler",
            "available_platforms", "build_kernel", "ensure_kernel", "ensure_kernels",
            "build_host_kernels", "compile_command"]
+
+#: The checkout (or installation) this module belongs to: the packages are folders of it.
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def native_dir(kernel: str) -> Path:
+    """The folder of ``kernel``'s C sources in :data:`ROOT`."""
+    return _native.native_dir(kernel, ROOT)
+
 
 #: Compiler flags of every build (besides the platform's: -fPIC on Linux).
 CFLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-fvisibility=hidden", "-Wall", "-Wextra",
@@ -117,7 +126,7 @@ def build_kernel(kernel: str, platform: str | None = None, out: Path | None = No
     """Compile ``kernel`` for ``platform`` from the sources in ``native`` (default: this
     checkout's) into ``out`` (default: ``native/lib/<platform>/<library>``), atomically."""
     platform = platform or _native.host_platform()
-    native = _native.native_dir(kernel) if native is None else Path(native)
+    native = native_dir(kernel) if native is None else Path(native)
     out = _native.library_path(kernel, platform, native) if out is None else Path(out)
     cc = find_compiler(platform)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -140,7 +149,7 @@ def ensure_kernel(kernel: str, platform: str | None = None, native: Path | None 
     """``kernel``'s library for ``platform`` in ``native/lib/<platform>/``, built if missing or
     stale (the digest it embeds is not that of the sources)."""
     platform = platform or _native.host_platform()
-    native = _native.native_dir(kernel) if native is None else Path(native)
+    native = native_dir(kernel) if native is None else Path(native)
     path = _native.library_path(kernel, platform, native)
     digest = _native.source_digest(kernel, native)
     if digest is None or not _native.embedded_digest(path, digest):
