@@ -26,10 +26,14 @@ from plant_fmu.params import PlantParams
 
 #: A child process: unpack the FMU into a new folder, instantiate it, take one 1 ms step with
 #: F_c = 3 from phi0 = 0.2 and print, as JSON, the outputs, where the project package and the
-#: kernel were loaded from, and every log message.
+#: kernel were loaded from, and every log message. scipy is made unimportable in it: the FMUs
+#: need numpy only (and their kernel).
 _CHILD = textwrap.dedent('''
     import json, sys, tempfile
     from fmpy import extract, read_model_description
+    for name in [m for m in sys.modules if m == "scipy" or m.startswith("scipy.")]:
+        del sys.modules[name]
+    sys.modules["scipy"] = None      # the FMUs start and step with numpy alone
     from fmpy.fmi2 import (FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE,
                            fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, calloc, free)
     fmu, pkg, kernel_module, output = sys.argv[1:5]
