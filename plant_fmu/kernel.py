@@ -148,6 +148,7 @@ class PlantKernel:
         self._pinput = ctypes.byref(self._input)
         self._done = ctypes.c_long()
         self._pdone = ctypes.byref(self._done)
+        self._t, self._h, self._n = _D(), _D(), ctypes.c_long()    # scalars passed by value
         self._work = {}
         self._f_rhs, self._f_energy, self._f_tip = lib.fp_rhs, lib.fp_energy, lib.fp_tip
         self._f_outputs, self._f_fixed = lib.fp_outputs, lib.fp_fixed_steps
@@ -208,12 +209,14 @@ class PlantKernel:
         ``code = FP_NONFINITE`` when a substep produced a non-finite state (``y_new``: the last
         finite one)."""
         self._x[:] = y
-        self._set_input(u)
+        inp = self._input
+        inp.u0, inp.du, inp.d2u, inp.tu = u
+        self._t.value, self._h.value, self._n.value = t, h, n
         if method == "symplectic_euler":
-            code, tab, stages = METHODS[method], None, 1
+            code, tab, stages = 3, None, 1
         else:
             code, tab, stages = -1, tableau.ref, tableau.stages
-        rc = self._f_fixed(self._p, code, tab, self._pinput, _D(t), _D(h), ctypes.c_long(n),
+        rc = self._f_fixed(self._p, code, tab, self._pinput, self._t, self._h, self._n,
                            self._px, self._work_for(stages), self._pdone)
         if rc == FP_BADARG:
             raise ValueError(f"fixed_steps: bad argument (h = {h!r}, n = {n!r})")
