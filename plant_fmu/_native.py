@@ -6,11 +6,15 @@ into ``<package>/native/lib/<platform>/`` (FMI's platform names: ``linux64``, ``
 ``darwin64``), by ``pip install`` for the host and by :mod:`orchestration.export.kernel_build`
 for the FMUs, which ship them and load them without compiling.
 
-Every library embeds the sha256 of the C sources it was built from (:func:`source_digest`). A
-library whose digest is not that of the sources beside it is stale: in a source checkout (where
-the build module is importable) it is rebuilt; anywhere else loading it fails. A missing library
-fails too, with a :class:`KernelError` that names the file and the platform: there is no silent
-fallback to a slower implementation.
+Every library embeds the sha256 of the C sources it was built from (:func:`source_digest`). In a
+checkout or installation (the kernel build, ``orchestration/export/kernel_build.py``, sits beside
+the package), a library whose digest is not that of the sources beside it is stale and is
+rebuilt. Elsewhere, that is inside an unpacked FMU, the library is loaded as shipped (its build
+checked it against its sources) and only its interface version is checked: hashing there would
+import ``hashlib``, and OpenSSL's exit handlers then corrupt the heap when pythonfmu finalises
+its interpreter at the exit of a non-Python host (a C host aborted with "free(): corrupted
+unsorted chunks"). A missing library fails with a :class:`KernelError` that names the file and
+the platform: there is no silent fallback to a slower implementation.
 
 This module is also loaded by ``setup.py`` and :mod:`orchestration.export.kernel_build`, so it
 imports nothing beyond the standard library.
@@ -18,14 +22,13 @@ imports nothing beyond the standard library.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import struct
 import sys
 import threading
 from pathlib import Path
 
 __all__ = ["KernelError", "KERNELS", "host_platform", "library_name", "library_path",
-           "source_files", "source_digest", "embedded_digest", "load"]
+           "source_files", "source_digest", "embedded_digest", "in_checkout", "load"]
 
 
 class KernelError(RuntimeError):
@@ -86,6 +89,8 @@ def source_files(kernel: str, native: Path | None = None) -> list[Path]:
 
 def source_digest(kernel: str, native: Path | None = None) -> str | None:
     """sha256 (hex) of ``kernel``'s C sources (names and bytes), or None if they are absent."""
+    import hashlib      # here: not imported inside an FMU (see the module's docstring)
+
     h = hashlib.sha256(f"{kernel}\n".encode())
     for path in source_files(kernel, native):
         try:
@@ -121,10 +126,16 @@ def load(kernel: str, native: Path) -> ctypes.CDLL:
         return lib
 
 
+def in_checkout(native: Path) -> bool:
+    """Whether the folder ``native`` belongs to a checkout or installation that has the kernel
+    build beside its packages (not to an unpacked FMU)."""
+    return (Path(native).parent.parent / "orchestration" / "export" / "kernel_build.py").is_file()
+
+
 def _load(kernel: str, native: Path) -> ctypes.CDLL:
     platform = host_platform()
     path = library_path(kernel, platform, native)
-    digest = source_digest(kernel, native)
+    digest = source_digest(kernel, native) if in_checkout(native) else None
     if digest is not None and not embedded_digest(path, digest):
         _rebuild(kernel, platform, path, native)
     if not path.is_file():
@@ -152,7 +163,7 @@ def _load(kernel: str, native: Path) -> ctypes.CDLL:
 
 def _rebuild(kernel: str, platform: str, path: Path, native: Path):
     """Rebuild a stale or missing library, only in the source checkout (or installation) that
-    the build module belongs to: never inside an unpacked FMU, which must load what it ships."""
+    the build module belongs to."""
     state = "out of date (its C sources changed)" if path.is_file() else "missing"
     try:
         from orchestration.export import kernel_build

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -152,40 +153,40 @@ class PlantKernel:
         self._pdone = ctypes.byref(self._done)
         self._t, self._h, self._n = _D(), _D(), ctypes.c_long()    # scalars passed by value
         self._work = {}
+        self._lock = threading.Lock()
         self._f_rhs, self._f_energy, self._f_tip = lib.fp_rhs, lib.fp_energy, lib.fp_tip
         self._f_outputs, self._f_fixed = lib.fp_outputs, lib.fp_fixed_steps
         self._f_dopri = lib.fp_dopri_advance
 
-    @property
-    def invariants(self) -> dict:
-        """The derived fields ``I3.I3, I3.I5, I5.I5`` the kernel computed."""
-        s = self._struct
-        return {"I3I3": s.I3I3, "I3I5": s.I3I5, "I5I5": s.I5I5}
-
     # ------------------------------------------------------------------ evaluations
     def rhs(self, x, u: float) -> np.ndarray:
         """``dx/dt`` at ``x`` with the force ``u`` (a new array)."""
-        self._x[:] = x
-        self._f_rhs(self._p, self._px, _D(u), self._pdx)
-        return self._dx.copy()
+        with self._lock:
+            self._x[:] = x
+            self._f_rhs(self._p, self._px, _D(u), self._pdx)
+            return self._dx.copy()
 
     def energy(self, x) -> float:
-        self._x[:] = x
-        return self._f_energy(self._p, self._px)
+        with self._lock:
+            self._x[:] = x
+            return self._f_energy(self._p, self._px)
 
     def tip(self, x) -> tuple[float, float]:
         """``(phi_o, omega_o)``."""
-        self._x[:] = x
-        self._f_tip(self._p, self._px, self._ptip)
-        t = self._tip
-        return float(t[0]), float(t[1])
+        with self._lock:
+            self._x[:] = x
+            self._f_tip(self._p, self._px, self._ptip)
+            t = self._tip
+            return float(t[0]), float(t[1])
 
     def outputs(self, x, energy: bool = True) -> np.ndarray:
-        """Every output at ``x`` in the layout :data:`OUT` (a view of an internal buffer,
-        overwritten by the next call; the energy entry is stale unless ``energy``)."""
-        self._x[:] = x
-        self._f_outputs(self._p, self._px, int(bool(energy)), self._pout)
-        return self._out
+        """Every output at ``x`` in the layout :data:`OUT` (a new array; the energy entry is NaN
+        unless ``energy``)."""
+        with self._lock:
+            self._x[:] = x
+            self._out[OUT["energy"]] = math.nan
+            self._f_outputs(self._p, self._px, int(bool(energy)), self._pout)
+            return self._out.copy()
 
     # ------------------------------------------------------------------ loops
     def tableau(self, A, B, C, E=None, fsal=False) -> _TableauData:
@@ -210,19 +211,21 @@ class PlantKernel:
         :meth:`tableau`); ``u = (u0, du, d2u, tu)`` is the input polynomial. ``done < n`` with
         ``code = FP_NONFINITE`` when a substep produced a non-finite state (``y_new``: the last
         finite one)."""
-        self._x[:] = y
-        inp = self._input
-        inp.u0, inp.du, inp.d2u, inp.tu = u
-        self._t.value, self._h.value, self._n.value = t, h, n
         if method == "symplectic_euler":
             code, tab, stages = 3, None, 1
         else:
             code, tab, stages = -1, tableau.ref, tableau.stages
-        rc = self._f_fixed(self._p, code, tab, self._pinput, self._t, self._h, self._n,
-                           self._px, self._work_for(stages), self._pdone)
+        with self._lock:
+            self._x[:] = y
+            inp = self._input
+            inp.u0, inp.du, inp.d2u, inp.tu = u
+            self._t.value, self._h.value, self._n.value = t, h, n
+            rc = self._f_fixed(self._p, code, tab, self._pinput, self._t, self._h, self._n,
+                               self._px, self._work_for(stages), self._pdone)
+            y_new, done = self._x.copy(), self._done.value
         if rc == FP_BADARG:
             raise ValueError(f"fixed_steps: bad argument (h = {h!r}, n = {n!r})")
-        return self._x.copy(), self._done.value, rc
+        return y_new, done, rc
 
     def dopri_advance(self, tableau, y, f, t: float, t_end: float, u, *, rtol, atol, max_step,
                       min_step, h_abs, max_steps=100_000):
@@ -238,10 +241,12 @@ class PlantKernel:
             raise ValueError(f"atol must be a scalar or have {nx} entries")
         a = _Adaptive(float(rtol), _addr(atol_arr), atol_arr.size, float(max_step),
                       float(min_step), int(max_steps), float(h_abs), 0, 0, 0, math.nan, math.nan)
-        self._set_input(u)
         tt = _D(t)
-        rc = self._f_dopri(self._p, tableau.ref, self._pinput, ctypes.byref(tt), _D(t_end),
-                           _addr(y), _addr(f), ctypes.byref(a), self._work_for(tableau.stages))
+        with self._lock:
+            self._set_input(u)
+            rc = self._f_dopri(self._p, tableau.ref, self._pinput, ctypes.byref(tt), _D(t_end),
+                               _addr(y), _addr(f), ctypes.byref(a),
+                               self._work_for(tableau.stages))
         if rc == FP_BADARG:
             raise ValueError("dopri_advance: bad argument (tableau, tolerances or steps)")
         return (rc, tt.value, y, f, a.h_abs, a.nfev, a.nsteps, a.nrejected, a.fail_h,

@@ -69,6 +69,7 @@ _CHILD = textwrap.dedent('''
     result["output"] = s.getReal([vr[output]])[0]
     result["package"] = sys.modules[pkg].__file__
     result["kernel"] = sys.modules[kernel_module]._lib._name
+    result["hashlib"] = "_hashlib" in sys.modules
     s.terminate()
     s.freeInstance()
     print(json.dumps(result))
@@ -105,6 +106,7 @@ def test_plant_fmu_unpacked_twice_instantiates_each_time_from_its_own_kernel(fmu
             _native.host_platform() / _native.library_name("flexpend_plant",
                                                            _native.host_platform())
         assert r["output"] == pytest.approx(expected, rel=1e-12)
+        assert not r["hashlib"]          # OpenSSL in an FMU breaks a C host's exit
         seen.add(r["unpacked"])
     assert len(seen) == 2
 
@@ -202,22 +204,43 @@ def test_win64_kernels_export_the_interface(fmus, tmp_path):
         assert len(declared) >= 7 and all(f in table for f in declared), (kernel, declared)
 
 
-def test_a_stale_kernel_is_rebuilt_only_in_its_checkout(tmp_path):
-    """In the checkout the build module belongs to, a library whose sources changed is rebuilt
-    when loaded; a copy of the package elsewhere (as in an unpacked FMU) refuses instead."""
-    native = tmp_path / "plant_fmu" / "native"
+def _package_copy(root: Path) -> Path:
+    native = root / "plant_fmu" / "native"
     native.mkdir(parents=True)
     for f in _native.source_files("flexpend_plant", kernel_build.native_dir("flexpend_plant")):
         (native / f.name).write_bytes(f.read_bytes())
-    with pytest.raises(_native.KernelError, match=r"missing.*reinstall"):
+    return native
+
+
+def test_a_stale_kernel_is_rebuilt_in_its_checkout_and_loaded_as_shipped_elsewhere(
+        tmp_path, monkeypatch):
+    """Outside a checkout (a package without the kernel build beside it, as in an unpacked FMU)
+    a missing kernel is an error and a present one is loaded as shipped, without hashing the
+    sources. In a checkout, a library whose sources changed is rebuilt when loaded, by the
+    checkout's own kernel build only."""
+    native = _package_copy(tmp_path / "fmu")
+    with pytest.raises(_native.KernelError, match=r"is missing.*reinstall"):
         _native._load("flexpend_plant", native)
-    lib = _native.library_path("flexpend_plant", native=native)
-    kernel_build.build_kernel("flexpend_plant", out=lib, native=native)
-    assert _native._load("flexpend_plant", native) is not None
+    kernel_build.build_kernel("flexpend_plant", out=_native.library_path(
+        "flexpend_plant", native=native), native=native)
     with open(native / "fp_plant.c", "a") as f:
         f.write("/* an edit */\n")
-    with pytest.raises(_native.KernelError, match="out of date"):
+    assert _native._load("flexpend_plant", native) is not None
+
+    root = tmp_path / "checkout"
+    native = _package_copy(root)
+    lib = _native.library_path("flexpend_plant", native=native)
+    kernel_build.build_kernel("flexpend_plant", out=lib, native=native)
+    with open(native / "fp_plant.c", "a") as f:
+        f.write("/* an edit */\n")
+    (root / "orchestration" / "export").mkdir(parents=True)
+    (root / "orchestration" / "export" / "kernel_build.py").write_text("")
+    assert _native.in_checkout(native)
+    with pytest.raises(_native.KernelError, match="out of date"):   # another checkout's build
         _native._load("flexpend_plant", native)
+    monkeypatch.setattr(kernel_build, "ROOT", root)
+    assert _native._load("flexpend_plant", native) is not None
+    assert _native.embedded_digest(lib, _native.source_digest("flexpend_plant", native))
 
 
 def test_install_without_a_compiler_names_it(tmp_path):

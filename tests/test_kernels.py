@@ -382,3 +382,29 @@ def test_filter_step_refuses_a_non_finite_result():
     assert kern.step(prep, math.inf) is None
     assert kern.step(prep, 0.0, math.nan) is None
     assert list(kern.x) == before
+
+
+def test_one_kernel_serves_several_threads():
+    """One kernel (and its buffers) serves every user of a cached model, and ctypes releases the
+    GIL during a call: threads stepping FMU instances of one plant must not mix their states."""
+    import threading
+
+    m = PlantModel(PlantParams(n_modes=4))
+    rng = np.random.default_rng(5)
+    xs = [random_state(rng, m) for _ in range(4)]
+    expected = [m.rhs_numpy(0.0, x, float(i)) for i, x in enumerate(xs)]
+    bad = []
+
+    def worker(i):
+        for _ in range(3000):
+            r = m.rhs(0.0, xs[i], float(i))
+            if not np.allclose(r, expected[i], rtol=1e-12, atol=1e-12 * np.abs(expected[i]).max()):
+                bad.append(i)
+                return
+
+    threads = [threading.Thread(target=worker, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not bad
