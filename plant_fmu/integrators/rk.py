@@ -23,6 +23,8 @@ import numpy as np
 from ..params import check_bool, check_real
 from .base import Stepper
 
+__all__ = ["ExplicitRungeKutta", "ExplicitEuler", "RK4", "DormandPrince54", "SymplecticEuler"]
+
 # return codes of the compiled loops (plant_fmu.kernel; not imported here: other models need no
 # compiled kernel)
 _FP_OK, _FP_CAP, _FP_UNDERFLOW = 0, 3, 4
@@ -35,7 +37,6 @@ def _model_kernel(model):
     plant whose kernel is missing must not fall back silently)."""
     return getattr(model, "kernel", None)
 
-__all__ = ["ExplicitRungeKutta", "ExplicitEuler", "RK4", "DormandPrince54", "SymplecticEuler"]
 
 _SAFETY = 0.9
 _MIN_FACTOR = 0.2
@@ -62,6 +63,9 @@ class ExplicitRungeKutta(Stepper):
         self._kernel = _model_kernel(self.model)
         if self._kernel is not None:
             self._ktab = self._kernel.tableau(self.A, self.B, self.C, self.E, self.FSAL)
+        # the compiled adaptive loop is Dormand-Prince's: an FSAL pair with an order-4 estimate
+        self._compiled_error_control = (self._kernel is not None and self.FSAL
+                                        and self.E is not None and self.error_order == 4)
         if self.E is not None:
             self.adaptive = check_bool("adaptive", self.options["adaptive"])
             self.max_step = check_real("max_step", self.options["max_step"], low=0.0,
@@ -124,7 +128,7 @@ class ExplicitRungeKutta(Stepper):
             self._f = self._f_new
 
     def _advance_adaptive(self, t_end):
-        if self._kernel is None:
+        if not self._compiled_error_control:
             return super()._advance_adaptive(t_end)
         return self._compiled_adaptive(t_end, single=False)
 
@@ -149,7 +153,7 @@ class ExplicitRungeKutta(Stepper):
 
     def _step_adaptive(self, t_bound):
         """One accepted step with error control (the logic of scipy's ``RungeKutta``)."""
-        if self._kernel is not None:
+        if self._compiled_error_control:
             return self._compiled_adaptive(t_bound, single=True)
         t, y = self.t, self.y
         min_step = max(self.min_step, 10.0 * (np.nextafter(t, math.inf) - t))
