@@ -138,53 +138,32 @@ def bench(n_modes, n_steps, repeat, configs):
 
 
 def rhs_anatomy(n_modes=4, n=20000, repeat=7):
-    """Where the time of one ``rhs`` call goes (medians, us): the numba kernel does ~100 flops,
-    the rest is call overhead. Variants compiled here from the same Python source
-    (``plant_fmu.kernels._rhs``) show what a change of ``dynamics.py``/``kernels.py`` would save.
-    """
-    import numba
-
-    from plant_fmu import kernels
+    """Where the time of one ``rhs`` call goes (medians, us): the C kernel does ~100 flops, the
+    rest is the Python-to-C call (ctypes) and the arrays in and out."""
+    import ctypes
 
     m = plant_model(PlantParams(n_modes=n_modes))
+    kern = m.kernel
     x = initial_state(m)
-    out = np.empty(m.nx)
-    args = (x, 1.0, m._consts, m.I3, m.I5, m.Kdiag, m.Ddiag, m._Kg, out)
-    inner = numba.njit(kernels._rhs)
-
-    @numba.njit
-    def no_return(x, u, consts, I3, I5, Kd, Dd, Kg, out):
-        inner(x, u, consts, I3, I5, Kd, Dd, Kg, out)
-
-    @numba.njit
-    def noop9(x, u, consts, I3, I5, Kd, Dd, Kg, out):
-        pass
-
-    packed = np.concatenate((m._consts, m.I3, m.I5, m.Kdiag, m.Ddiag))
-    nn = m.n
-
-    @numba.njit
-    def packed_no_return(x, u, p, Kg, out):
-        inner(x, u, p[:8], p[8:8 + nn], p[8 + nn:8 + 2 * nn], p[8 + 2 * nn:8 + 3 * nn],
-              p[8 + 3 * nn:], Kg, out)
-
+    buf, out = np.zeros(m.nx), np.zeros(m.nx)
+    px, pout = ctypes.c_void_p(buf.ctypes.data), ctypes.c_void_p(out.ctypes.data)
+    f, p, u = kern._lib.fp_rhs, kern._p, ctypes.c_double(1.0)
     cases = {
         "model.rhs(t, x, u) as it is": lambda: m.rhs(0.0, x, 1.0),
-        "rhs_kernel(...) called directly, out preallocated": lambda: kernels.rhs_kernel(*args),
-        "same kernel, returning None instead of out": lambda: no_return(*args),
-        "same, constants packed in one array (5 arguments)":
-            lambda: packed_no_return(x, 1.0, packed, m._Kg, out),
-        "an empty numba function of 9 arguments": lambda: noop9(*args),
+        "fp_rhs by ctypes, prebuilt arguments, no copies": lambda: f(p, px, u, pout),
+        "the copies alone (state in, new array out)": lambda: (buf.__setitem__(slice(None), x),
+                                                              out.copy()),
+        "a ctypes call with no argument": kern._lib.fp_plant_abi,
     }
-    for f in cases.values():
-        f()
+    for fn in cases.values():
+        fn()
     res = {}
-    for name, f in cases.items():
+    for name, fn in cases.items():
         ts = []
         for _ in range(repeat):
             t0 = time.perf_counter()
             for _ in range(n):
-                f()
+                fn()
             ts.append((time.perf_counter() - t0) / n * 1e6)
         res[name] = statistics.median(ts)
     return res

@@ -1,8 +1,12 @@
 """``PDLowPass``: the PD + low-pass controller as an FMI 2.0 co-simulation FMU (pythonfmu).
 
-A thin adapter over :class:`controller_fmu.pd_lowpass.PDLowPassModel`: the model gives the error
-signal, the exact zero-order-hold discretisation ``(Ad, Bd)`` of the filter over the communication
-step and the saturated output; this class only holds the filter state, the time and the inputs.
+A thin adapter over the controller's compiled kernel (:class:`controller_fmu.kernel.FilterKernel`,
+``native/fp_filter.c``, the same C the native FMUs link): it discretises the filter exactly over the
+communication step and advances it; :class:`controller_fmu.pd_lowpass.PDLowPassModel` (numpy and
+scipy, the specification) gives the parameters' checks and the direct feedthrough of order 0. This
+class only holds the time and the inputs. The FMU ships the kernel for linux64 (and win64 when it
+was built with the cross-compiler); if the host platform's is missing, instantiation fails with a
+log message naming it.
 
 Over ``doStep(t, h)`` the filter advances exactly: ``xc <- Ad(h) xc + Bd(h) e`` with the inputs
 held (zero-order hold), or, when the sensors' time derivatives are given (inputs ``dphi_o``...,
@@ -23,6 +27,7 @@ import math
 
 from pythonfmu import DefaultExperiment
 
+from controller_fmu import kernel
 from controller_fmu.interface import MODEL, SENSORS, VARIABLES
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.fmi_support import Fmi2Status, SlaveBase
@@ -44,14 +49,18 @@ class PDLowPass(SlaveBase):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
+        # No silent fallback: without its compiled kernel the slave cannot be built, and the
+        # KernelError (naming the missing file and the platform) makes fmi2Instantiate fail;
+        # pythonfmu logs its message (the instance's own logger does not exist yet).
+        kernel.library()
         self._register_table(VARIABLES, lambda n: self._force)
         self._t = 0.0
         self._model: PDLowPassModel | None = None
+        self._kern: kernel.FilterKernel | None = None   # holds the filter state (output first)
         self._order = 0
-        self._x0 = self._x1 = 0.0     # filter state (filter output first)
         self._F = 0.0                 # F_c after the last step (orders 1, 2) or last finite F_c
         self._h = None                # step of the current discretisation
-        self._ad = self._bd = ()
+        self._prep = None             # the kernel's discretisation over the current step
         self._disc = {}               # step -> discretisation (a master's steps t1 - t0 differ
                                       # in the last bits: a few entries)
 
@@ -73,9 +82,9 @@ class PDLowPass(SlaveBase):
             return False
         self._error = None
         self._model = PDLowPassModel(params)
+        self._kern = kernel.FilterKernel(params)
         self._order = params.filter_order
         self._lim = params.force_limit
-        self._x0 = self._x1 = 0.0
         self._h = None
         self._disc = {}
         self._gains = (params.kx, params.kp, params.kd)
@@ -104,13 +113,11 @@ class PDLowPass(SlaveBase):
     def _set_step(self, h: float):
         disc = self._disc.get(h)
         if disc is None:
-            Ad, G = self._model.discretize_polynomial(h)
-            disc = (tuple(float(a) for a in Ad.ravel()), tuple(float(b) for b in G[:, 0]),
-                    tuple(tuple(float(g) for g in row) for row in G[:, 1:]))  # per state: e1, e2
+            disc = self._kern.prepared(h)
             if len(self._disc) >= 8:
                 self._disc.clear()
             self._disc[h] = disc
-        self._ad, self._bd, self._g = disc
+        self._prep = disc
         self._h = h
 
     def do_step(self, current_time, step_size):
@@ -134,10 +141,9 @@ class PDLowPass(SlaveBase):
         return True
 
     def _advance(self, h: float) -> str | None:
-        """The exact zero-order-hold step of the filter over ``h`` (the model's ``Ad``, ``Bd``);
-        returns why it cannot be taken, or None."""
-        order = self._order
-        if not order:
+        """The exact step of the filter over ``h`` (the kernel's discretisation, with the inputs
+        held or, given their derivatives, polynomial); returns why it cannot be taken, or None."""
+        if not self._order:
             return None
         if h != self._h:
             self._set_step(h)
@@ -145,16 +151,10 @@ class PDLowPass(SlaveBase):
         e = kx * self.x_o + kp * self.phi_o + kd * self.omega_o
         e1 = kx * self.dx_o + kp * self.dphi_o + kd * self.domega_o
         e2 = kx * self.d2x_o + kp * self.d2phi_o + kd * self.d2omega_o
-        ad, bd, g = self._ad, self._bd, self._g
-        if order == 1:
-            x0, x1 = ad[0] * self._x0 + bd[0] * e + g[0][0] * e1 + g[0][1] * e2, 0.0
-        else:
-            x0 = ad[0] * self._x0 + ad[1] * self._x1 + bd[0] * e + g[0][0] * e1 + g[0][1] * e2
-            x1 = ad[2] * self._x0 + ad[3] * self._x1 + bd[1] * e + g[1][0] * e1 + g[1][1] * e2
-        if not math.isfinite(x0 + x1):
+        F = self._kern.step(self._prep, e, e1, e2)
+        if F is None:
             return f"the filter state overflows (error signal {e!r})"
-        self._x0, self._x1 = x0, x1
-        self._F = min(max(-x0, -self._lim), self._lim)
+        self._F = F
         return None
 
     def _force(self) -> float:
@@ -171,7 +171,8 @@ class PDLowPass(SlaveBase):
 
     # ------------------------------------------------------------------ FMU state
     def _get_fmu_state(self):
-        return {"t": self._t, "x": [self._x0, self._x1], "F": self._F, "error": self._error,
+        x = [0.0, 0.0] if self._kern is None else list(self._kern.x)
+        return {"t": self._t, "x": x, "F": self._F, "error": self._error,
                 "initialized": self._initialized, "params": self._params_snapshot(),
                 "inputs": [getattr(self, n) for n in self.INPUTS]}
 
@@ -184,7 +185,8 @@ class PDLowPass(SlaveBase):
                 self._prepare()
             self._initialized = state["initialized"]
             self._t = state["t"]
-            self._x0, self._x1 = state["x"]
+            if self._kern is not None:
+                self._kern.x[0], self._kern.x[1] = state["x"]
             self._F = state["F"]
             self._error = state["error"]
             for n, v in zip(self.INPUTS, state["inputs"], strict=True):

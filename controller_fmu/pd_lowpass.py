@@ -14,7 +14,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 
 from plant_fmu.params import check_int, check_real, replace_checked
 
@@ -118,7 +117,7 @@ class PDLowPassModel:
         aug = np.zeros((n + 1, n + 1))
         aug[:n, :n] = self.Af * h
         aug[:n, n:] = self.Bf * h
-        E = scipy.linalg.expm(aug)
+        E = _expm(aug)
         return E[:n, :n].copy(), E[:n, n].copy()
 
     @functools.lru_cache(maxsize=8)
@@ -132,7 +131,7 @@ class PDLowPassModel:
         aug[:n, :n] = self.Af * h
         aug[:n, n] = self.Bf[:, 0] * h
         aug[n, n + 1] = aug[n + 1, n + 2] = h        # e' = e1 + e2 s, e'' = e2
-        E = scipy.linalg.expm(aug)
+        E = _expm(aug)
         return E[:n, :n].copy(), E[:n, n:].copy()
 
     def step(self, xc: np.ndarray, y, h: float) -> np.ndarray:
@@ -141,3 +140,10 @@ class PDLowPassModel:
             return xc
         Ad, Bd = self.discretize(float(h))
         return Ad @ xc + Bd * self.error_signal(y)
+
+
+def _expm(M):
+    """scipy's matrix exponential (imported on first use: an FMU's start does not need it)."""
+    import scipy.linalg
+
+    return scipy.linalg.expm(M)

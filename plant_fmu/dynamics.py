@@ -17,6 +17,10 @@ rigid coordinates, which costs O(n).
 
 Outputs: ``x_o = x``, ``phi_o = phi + atan(N'(L) eta)``, ``omega_o = d phi_o/dt``, the tip
 deflection ``N(L) eta``, the modal coordinates and the total energy ``T + V``.
+
+The hot paths (``rhs``, ``tip_angle``, ``energy`` and the steppers' loops) run the compiled C
+kernel (:mod:`plant_fmu.kernel`, ``native/fp_plant.c``), which receives the invariants computed
+here; the ``*_numpy`` methods are the readable specification it is tested against.
 """
 from __future__ import annotations
 
@@ -26,7 +30,6 @@ import math
 import numpy as np
 
 from .beam import Beam, beam_model
-from .kernels import HAVE_NUMBA, energy_kernel, erk_steps_kernel, rhs_kernel, tip_kernel
 from .params import PlantParams
 
 __all__ = ["PlantModel", "LinearPlantModel", "plant_model", "linear_plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
@@ -58,10 +61,15 @@ class PlantModel:
         self._I5I5 = float(self.I5 @ self.I5)
         self._I3I3 = float(self.I3 @ self.I3)
         self._I3I5 = float(self.I3 @ self.I5)
-        self._consts = np.array([self.I0, self.I1, self.I2, self.g, self._I3I3, self._I3I5,
-                                 self._I5I5, float(self.preload)])
-        self._Kg = np.ascontiguousarray(self.Kg, dtype=float)
-        self._tip_slope = np.ascontiguousarray(self.tip_slope, dtype=float)
+        self._kernel = None
+
+    @property
+    def kernel(self):
+        """The compiled kernel with this plant's data (:class:`plant_fmu.kernel.PlantKernel`),
+        built on first use; :class:`plant_fmu.kernel.KernelError` if it cannot be loaded."""
+        if self._kernel is None:
+            self._kernel = _make_kernel(self, linear=False)
+        return self._kernel
 
     # ------------------------------------------------------------------ nonlinear model
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
@@ -118,10 +126,8 @@ class PlantModel:
     def rhs(self, t: float, x: np.ndarray, u: float) -> np.ndarray:
         """``dx/dt`` of the nonlinear model; ``x = [q, qd]``, ``u = F_c``.
 
-        Runs the compiled kernel of :mod:`plant_fmu.kernels` (same equations as
-        :meth:`rhs_numpy`)."""
-        return rhs_kernel(np.asarray(x, dtype=float), float(u), self._consts, self.I3, self.I5,
-                          self.Kdiag, self.Ddiag, self._Kg, np.empty(self.nx))
+        Runs the compiled kernel (same equations as :meth:`rhs_numpy`)."""
+        return self.kernel.rhs(x, u)
 
     def rhs_numpy(self, t: float, x: np.ndarray, u: float) -> np.ndarray:
         """``dx/dt`` from :meth:`accelerations`: the readable version of :meth:`rhs`."""
@@ -134,7 +140,7 @@ class PlantModel:
     def tip_angle(self, x: np.ndarray) -> tuple[float, float]:
         """``(phi_o, omega_o)``: the tip tangent's angle from the vertical and its rate (the
         compiled kernel; the same formula as :meth:`tip_angle_numpy`)."""
-        return tip_kernel(np.asarray(x, dtype=float), self._tip_slope)
+        return self.kernel.tip(x)
 
     def tip_angle_numpy(self, x: np.ndarray) -> tuple[float, float]:
         """``(phi_o, omega_o)``: the tip tangent's angle from the vertical and its rate."""
@@ -145,21 +151,9 @@ class PlantModel:
         sld = float(self.tip_slope @ x[nq + 2:])
         return float(x[1]) + math.atan(sl), float(x[nq + 1]) + sld / (1.0 + sl * sl)
 
-    def erk_steps(self, y: np.ndarray, u, h: float, n: int, A, B, C, K) -> int:
-        """``n`` substeps of the explicit Runge-Kutta tableau ``(A, B, C)`` in place on ``y`` (the
-        compiled loop of :mod:`plant_fmu.kernels`; ``K`` is a stages x states work array). The
-        input is ``u = (u0, du, d2u, s0)``: ``u0 + du s + d2u s^2 / 2`` at ``s = s0`` at the
-        start. Returns the number of substeps taken: fewer than ``n`` if a state became
-        non-finite."""
-        u0, du, d2u, s0 = u
-        return erk_steps_kernel(y, float(u0), float(du), float(d2u), float(s0), float(h), int(n),
-                                A, B, C, self._consts, self.I3, self.I5, self.Kdiag, self.Ddiag,
-                                self._Kg, K, np.empty(self.nx))
-
     def energy(self, x: np.ndarray) -> float:
         """Total energy ``T + V`` (the compiled kernel; same terms as :meth:`energy_numpy`)."""
-        return float(energy_kernel(np.asarray(x, dtype=float), self._consts, self.I3, self.I5,
-                                   self.Kdiag, self._Kg))
+        return self.kernel.energy(x)
 
     def energy_numpy(self, x: np.ndarray) -> float:
         """Total energy ``T + V`` (kinetic, gravity, strain and, with preload, foreshortening)."""
@@ -243,6 +237,7 @@ class LinearPlantModel:
 
     def __init__(self, p: PlantParams):
         nl = plant_model(p)
+        self._nl = nl
         self.params = p
         self.beam = nl.beam
         self.n, self.nq, self.nx = nl.n, nl.nq, nl.nx
@@ -254,6 +249,14 @@ class LinearPlantModel:
         self.tip_slope, self.tip_defl = nl.tip_slope, nl.tip_defl
         for a in (self.M0, self.D0, self.K0, self.A, self.B, self.C, self.D):
             a.setflags(write=False)
+        self._kernel = None
+
+    @property
+    def kernel(self):
+        """The compiled kernel of the linearised plant (built on first use)."""
+        if self._kernel is None:
+            self._kernel = _make_kernel(self._nl, linear=True)
+        return self._kernel
 
     def mass_matrix(self, q):
         return self.M0
@@ -267,18 +270,48 @@ class LinearPlantModel:
         return self._Minv @ self.forces(q, qd, u)
 
     def rhs(self, t, x, u):
-        return self.A @ x + self._b * u
+        """``A x + B u`` by the compiled kernel (the same Schur complement as the nonlinear
+        model, at the rest state; :meth:`rhs_numpy` is the specification)."""
+        return self.kernel.rhs(x, u)
+
+    def rhs_numpy(self, t, x, u):
+        """``A x + B u`` as ``M0 qdd = f`` solved by the Schur complement on (x, phi), as
+        :meth:`PlantModel.accelerations` does at the rest state (the product with ``A``, through
+        the inverse of ``M0``, loses about ``cond(M0) eps``, ~1e-12 relative at n_modes = 8)."""
+        nl, nq = self._nl, self.nq
+        f = self.forces(x[:nq], x[nq:], u)
+        a00 = nl.I0 - nl._I3I3
+        a01 = -nl.I1 + nl._I3I5
+        a11 = nl.I2 - nl._I5I5
+        fe = f[2:]
+        r0 = f[0] + float(nl.I3 @ fe)
+        r1 = f[1] - float(nl.I5 @ fe)
+        det = a00 * a11 - a01 * a01
+        xdd = (a11 * r0 - a01 * r1) / det
+        phidd = (a00 * r1 - a01 * r0) / det
+        dx = np.empty(self.nx)
+        dx[:nq] = x[nq:]
+        dx[nq] = xdd
+        dx[nq + 1] = phidd
+        dx[nq + 2:] = fe + xdd * nl.I3 - phidd * nl.I5
+        return dx
 
     def jac(self, t, x, u):
         """The exact Jacobian ``A`` (constant)."""
         return self.A
 
     def tip_angle(self, x):
+        return self.kernel.tip(x)
+
+    def tip_angle_numpy(self, x):
         nq = self.nq
         return (float(x[1] + self.tip_slope @ x[2:nq]),
                 float(x[nq + 1] + self.tip_slope @ x[nq + 2:]))
 
     def energy(self, x):
+        return self.kernel.energy(x)
+
+    def energy_numpy(self, x):
         q, qd = x[:self.nq], x[self.nq:]
         return float(0.5 * qd @ self.M0 @ qd + 0.5 * q @ self.K0 @ q + self._offset)
 
@@ -297,6 +330,16 @@ class LinearPlantModel:
 
     def state_space(self):
         return self.A, self.B, self.C, self.D
+
+
+def _make_kernel(m: PlantModel, linear: bool):
+    """The compiled kernel with the data of the nonlinear model ``m`` (its linearisation if
+    ``linear``)."""
+    from .kernel import PlantKernel
+
+    return PlantKernel(n=m.n, linear=linear, preload=m.preload, I0=m.I0, I1=m.I1, I2=m.I2, g=m.g,
+                       I3=m.I3, I5=m.I5, K=m.Kdiag, D=m.Ddiag, Kg=m.Kg, tip_slope=m.tip_slope,
+                       tip_defl=m.tip_defl)
 
 
 @functools.lru_cache(maxsize=64)

@@ -2,7 +2,10 @@
 
 A thin adapter: the physics is :class:`plant_fmu.dynamics.PlantModel` (or
 :class:`~plant_fmu.dynamics.LinearPlantModel` with ``fidelity = "linear"``), the time stepping is a
-stepper of :mod:`plant_fmu.integrators` chosen by name. Over ``doStep(t, h)`` the input ``F_c`` is
+stepper of :mod:`plant_fmu.integrators` chosen by name; both run the compiled kernel
+(:mod:`plant_fmu.kernel`), which the FMU ships for linux64 (and win64 when it was built with the
+cross-compiler). If the host platform's kernel is missing, instantiation fails with a log message
+naming it: there is no slower fallback. Over ``doStep(t, h)`` the input ``F_c`` is
 held (zero-order hold) and the stepper advances to ``t + h``. No output depends directly on
 ``F_c``; the outputs are computed from the state when they are read.
 
@@ -26,6 +29,7 @@ import math
 import numpy as np
 from pythonfmu import DefaultExperiment
 
+from plant_fmu import kernel
 from plant_fmu.dynamics import linear_plant_model, plant_model
 from plant_fmu.fmi_support import Fmi2Status, SlaveBase
 from plant_fmu.integrators import REGISTRY, make_stepper
@@ -59,6 +63,10 @@ class FlexiblePendulum(SlaveBase):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
+        # No silent fallback: without its compiled kernel the slave cannot be built, and the
+        # KernelError (naming the missing file and the platform) makes fmi2Instantiate fail;
+        # pythonfmu logs its message (the instance's own logger does not exist yet).
+        kernel.library()
         self._register_table(VARIABLES, lambda n: (lambda: self._output(n)))
         self._vr = {v.name: vr for vr, v in self.vars.items()}
         self._out = {self._vr[n]: 0.0 for n in OUTPUTS}   # value reference -> output value

@@ -16,8 +16,13 @@ What the build does beyond ``pythonfmu build``:
   (:mod:`orchestration.export.model_description`): units, exact start values, the real output
   dependencies (pythonfmu writes none, which makes importers see false algebraic loops and
   ``fmpy validate`` fail), a schema-valid ``generationDateAndTime``;
-* ``resources/flexpend_build.json`` records a digest of every source file that went in; an FMU is
-  rebuilt only when that digest changes (or when asked to).
+* the compiled kernels of the packages it ships (:mod:`.kernel_build`: the plant's and, in the
+  controller, the filter's) for linux64 and, when the mingw-w64 cross-compiler is installed, win64,
+  under ``resources/<package>/native/lib/<platform>/``, beside their C sources: the FMU loads them
+  without compiling, and refuses to instantiate on a platform it has no kernel for;
+* ``resources/flexpend_build.json`` records a digest of every source file that went in (Python and
+  C), of the build scripts and of the platforms built; an FMU is rebuilt only when that digest
+  changes (or when asked to).
 
 The pythonfmu builder runs in a child process: it imports the slave module by its bare name and
 leaves it on ``sys.path``/``sys.modules``, which must not leak into the caller (a test session).
@@ -36,14 +41,18 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from plant_fmu import _native
+
+from . import kernel_build
+
 __all__ = ["ROOT", "DEFAULT_OUT", "SPECS", "FmuSpec", "BuildError", "build_fmus", "build_fmu",
-           "is_stale", "source_digest", "fmu_digest", "main"]
+           "is_stale", "source_digest", "fmu_digest", "spec_kernels", "main"]
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUT = ROOT / "build" / "fmus"
 STAMP = "resources/flexpend_build.json"
 #: Bump to force a rebuild when the build itself changes in a way the sources do not show.
-BUILD_FORMAT = 2
+BUILD_FORMAT = 3
 
 
 class BuildError(RuntimeError):
@@ -69,20 +78,34 @@ SPECS = {
 
 # ---------------------------------------------------------------------- sources and staleness
 def package_files(pkg: str) -> list[Path]:
-    """The ``.py`` files of a project package (recursively, caches left out)."""
-    return sorted(p for p in (ROOT / pkg).rglob("*.py") if "__pycache__" not in p.parts)
+    """The ``.py`` files of a project package (recursively, caches left out) and the C sources of
+    its kernel (``native/*.c``, ``native/*.h``)."""
+    py = [p for p in (ROOT / pkg).rglob("*.py") if "__pycache__" not in p.parts]
+    native = ROOT / pkg / "native"
+    c = [p for p in native.glob("*") if p.suffix in (".c", ".h")] if native.is_dir() else []
+    return sorted(py + c)
+
+
+def spec_kernels(spec: FmuSpec) -> list[str]:
+    """The compiled kernels of the packages an FMU ships."""
+    return [k for k, v in _native.KERNELS.items() if v[0] in spec.packages]
 
 
 def source_files(spec: FmuSpec) -> list[Path]:
     return [f for pkg in spec.packages for f in package_files(pkg)]
 
 
-def source_digest(spec: FmuSpec) -> str:
-    """sha256 of the FMU's inputs: its sources, this build script and the pythonfmu version."""
+def source_digest(spec: FmuSpec, platforms=None) -> str:
+    """sha256 of the FMU's inputs: its sources (Python and C), the build scripts (this one and
+    the kernels'), the platforms its kernels are built for (default: those this machine can
+    build) and the pythonfmu version."""
     import pythonfmu
 
-    h = hashlib.sha256(f"{BUILD_FORMAT} {spec} pythonfmu {pythonfmu.__version__}\n".encode())
+    platforms = kernel_build.available_platforms() if platforms is None else list(platforms)
+    h = hashlib.sha256(f"{BUILD_FORMAT} {spec} pythonfmu {pythonfmu.__version__} kernels "
+                       f"{' '.join(platforms)}\n".encode())
     for path in [Path(__file__).resolve(), ROOT / "orchestration" / "export" / "model_description.py",
+                 Path(kernel_build.__file__).resolve(),
                  *source_files(spec)]:
         h.update(path.relative_to(ROOT).as_posix().encode() + b"\0")
         h.update(path.read_bytes() + b"\0")
@@ -109,13 +132,18 @@ def build_fmu(name: str, out_dir: Path = DEFAULT_OUT, force: bool = False) -> Pa
     spec = SPECS[name]
     out_dir = Path(out_dir)
     target = out_dir / f"{name}.fmu"
+    platforms = kernel_build.available_platforms()
     digest = source_digest(spec)
     if not force and fmu_digest(target) == digest:
         return target
     out_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        libs = kernel_build.ensure_kernels(platforms, spec_kernels(spec))
+    except kernel_build.KernelBuildError as exc:
+        raise BuildError(f"building {name} failed: {exc}") from None
     with tempfile.TemporaryDirectory(prefix=f"flexpend_{name}_") as tmp:
         stage = Path(tmp) / "stage"
-        for src in source_files(spec):
+        for src in [*source_files(spec), *libs.values()]:
             dst = stage / src.relative_to(ROOT)
             dst.parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, dst)

@@ -156,6 +156,16 @@ class Stepper:
     def _step_adaptive(self, t_bound):  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def _advance_adaptive(self, t_end):
+        """Adaptive steps up to ``t_end``: ``(ok, message)``. Methods may replace this loop by a
+        compiled one."""
+        step = self._step_adaptive
+        while self.t < t_end:
+            ok, msg = step(t_end)
+            if not ok:
+                return False, msg
+        return True, None
+
     def _commit(self):
         """Called after a fixed substep's new state passed the checks (commit auxiliary data)."""
 
@@ -250,11 +260,9 @@ class Stepper:
         # Overflow and NaN are reported by the status, not by floating-point warnings.
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             if self.adaptive:
-                step = self._step_adaptive
-                while self.t < t_end:
-                    ok, msg = step(t_end)
-                    if not ok:
-                        return False, self._fail(msg)
+                ok, msg = self._advance_adaptive(t_end)
+                if not ok:
+                    return False, self._fail(msg)
             else:
                 ok, msg = self._advance_fixed(t_end)
                 if not ok:

@@ -16,7 +16,6 @@ calls ``rhs``: ``nfev`` stays 0.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from .base import Stepper
 
@@ -29,7 +28,7 @@ def zoh_discretize(A: np.ndarray, B: np.ndarray, h: float):
     M = np.zeros((nx + m, nx + m))
     M[:nx, :nx] = A * h
     M[:nx, nx:] = B * h
-    E = scipy.linalg.expm(M)
+    E = _expm(M)
     return np.ascontiguousarray(E[:nx, :nx]), np.ascontiguousarray(E[:nx, nx:])
 
 
@@ -69,3 +68,10 @@ class ExactExponential(Stepper):
     def _step_fixed(self, t, y, h):
         Phi, gu = self._matrices(h, self._u)
         return Phi.dot(y) + gu
+
+
+def _expm(M):
+    """scipy's matrix exponential (imported on first use: an FMU's start does not need it)."""
+    import scipy.linalg
+
+    return scipy.linalg.expm(M)

@@ -7,6 +7,12 @@ the new state and reuse it as the first stage of the next step.
 
 Symplectic Euler is a partitioned method (velocity first, then position with the new velocity);
 it is not a Runge-Kutta tableau on ``[q, qd]`` and has its own step.
+
+When the model has the compiled kernel (``model.kernel``, :class:`plant_fmu.kernel.PlantKernel`:
+the plant, nonlinear or linearised), the fixed substeps of a communication step run in one call
+of its loop and the adaptive Dormand-Prince steps in one call of its adaptive loop: the same
+tableaus, error control and arithmetic as the Python code here, which runs for any other model
+and is what the compiled loops are tested against.
 """
 from __future__ import annotations
 
@@ -18,6 +24,19 @@ from ..params import check_bool, check_real
 from .base import Stepper
 
 __all__ = ["ExplicitRungeKutta", "ExplicitEuler", "RK4", "DormandPrince54", "SymplecticEuler"]
+
+# return codes of the compiled loops (plant_fmu.kernel; not imported here: other models need no
+# compiled kernel)
+_FP_OK, _FP_CAP, _FP_UNDERFLOW = 0, 3, 4
+#: accepted steps per call of the compiled adaptive loop (the loop continues with further calls)
+_ADAPTIVE_CHUNK = 100_000
+
+
+def _model_kernel(model):
+    """The compiled kernel of ``model``, or None if it has none (a KernelError propagates: a
+    plant whose kernel is missing must not fall back silently)."""
+    return getattr(model, "kernel", None)
+
 
 _SAFETY = 0.9
 _MIN_FACTOR = 0.2
@@ -41,6 +60,12 @@ class ExplicitRungeKutta(Stepper):
         s = self.B.size
         self._K = np.empty((s, self.nx))
         self._coef_h = None
+        self._kernel = _model_kernel(self.model)
+        if self._kernel is not None:
+            self._ktab = self._kernel.tableau(self.A, self.B, self.C, self.E, self.FSAL)
+        # the compiled adaptive loop is Dormand-Prince's: an FSAL pair with an order-4 estimate
+        self._compiled_error_control = (self._kernel is not None and self.FSAL
+                                        and self.E is not None and self.error_order == 4)
         if self.E is not None:
             self.adaptive = check_bool("adaptive", self.options["adaptive"])
             self.max_step = check_real("max_step", self.options["max_step"], low=0.0,
@@ -92,28 +117,44 @@ class ExplicitRungeKutta(Stepper):
     _step_fixed = _rk_step
 
     def _full_substeps(self, t, y, h, t_base, k, n):
-        """The fixed substeps in one compiled call when the model offers one (``erk_steps``,
-        the nonlinear plant): the same tableau and arithmetic, without Python per stage."""
-        erk = getattr(self.model, "erk_steps", None)
-        if erk is None or self.FSAL or n < 1:
+        """The fixed substeps in one compiled call when the model has the kernel: the same
+        tableau and arithmetic, without Python per stage."""
+        if self._kernel is None or self.FSAL or n < 1:
             return super()._full_substeps(t, y, h, t_base, k, n)
-        y = y.copy()
-        done = erk(y, (self._u, self._du, self._d2u, t - self._tu), h, n, self.A, self.B, self.C,
-                   self._K)
-        self.nfev += done * self.B.size
-        k += done
-        t = t_base + k * h
-        if done < n:
-            self.nfev += self.B.size
-            return t, y, k, f"non-finite state after the substep from t = {t!r} (h = {h!r})"
-        return t, y, k, None
+        return _compiled_substeps(self, self.name, self._ktab, self.B.size, t, y, h, t_base, k, n)
 
     def _commit(self):
         if self.FSAL:
             self._f = self._f_new
 
+    def _advance_adaptive(self, t_end):
+        if not self._compiled_error_control:
+            return super()._advance_adaptive(t_end)
+        return self._compiled_adaptive(t_end, single=False)
+
+    def _compiled_adaptive(self, t_bound, single):
+        """Adaptive steps towards ``t_bound`` (one if ``single``) in the compiled loop, which
+        runs the error control of :meth:`_step_adaptive` below."""
+        kern, u = self._kernel, (self._u, self._du, self._d2u, self._tu)
+        while True:
+            rc, t, y, f, h_abs, nfev, nsteps, nrej, fail_h, fail_min = kern.dopri_advance(
+                self._ktab, self.y, self._f, self.t, t_bound, u, rtol=self.rtol, atol=self.atol,
+                max_step=self.max_step, min_step=self.min_step, h_abs=self._h_abs,
+                max_steps=1 if single else _ADAPTIVE_CHUNK)
+            self.t, self.y, self._f, self._h_abs = t, y, f, h_abs
+            self.nfev += nfev
+            self.nsteps += nsteps
+            self.nrejected += nrej
+            if rc == _FP_UNDERFLOW:
+                return False, (f"step size underflow at t = {t!r}: h = {fail_h!r} is below the "
+                               f"minimum {fail_min!r}")
+            if rc == _FP_OK or single:
+                return True, None
+
     def _step_adaptive(self, t_bound):
         """One accepted step with error control (the logic of scipy's ``RungeKutta``)."""
+        if self._compiled_error_control:
+            return self._compiled_adaptive(t_bound, single=True)
         t, y = self.t, self.y
         min_step = max(self.min_step, 10.0 * (np.nextafter(t, math.inf) - t))
         h_abs = self._h_abs
@@ -243,9 +284,32 @@ class SymplecticEuler(Stepper):
     order = 1
     POLYNOMIAL_INPUT = True
 
+    def _init_method(self):
+        self._kernel = _model_kernel(self.model)
+
     def _step_fixed(self, t, y, h):
         nq = self.nq
         y_new = y + h * self._fun(t, y, self._u_at(t))   # q + h qd_n (replaced below), qd + h qdd
         self.nfev += 1
         y_new[:nq] = y[:nq] + h * y_new[nq:]
         return y_new
+
+    def _full_substeps(self, t, y, h, t_base, k, n):
+        """The fixed substeps in one compiled call when the model has the kernel."""
+        if self._kernel is None or n < 1:
+            return super()._full_substeps(t, y, h, t_base, k, n)
+        return _compiled_substeps(self, self.name, None, 1, t, y, h, t_base, k, n)
+
+
+def _compiled_substeps(st, method, tableau, stages, t, y, h, t_base, k, n):
+    """``n`` substeps of ``h`` of ``st`` in the kernel's fixed-step loop; the return value of
+    :meth:`Stepper._full_substeps`."""
+    y, done, _ = st._kernel.fixed_steps(method, tableau, y, (st._u, st._du, st._d2u, st._tu), t,
+                                        h, n)
+    st.nfev += done * stages
+    k += done
+    t = t_base + k * h
+    if done < n:
+        st.nfev += stages
+        return t, y, k, f"non-finite state after the substep from t = {t!r} (h = {h!r})"
+    return t, y, k, None

@@ -1,0 +1,86 @@
+/*
+ * fp_filter.h - the compiled kernel of the controller: PD on the tip sensors, then a unit-DC-gain
+ * low-pass filter of order 0, 1 or 2, discretised exactly over a step (controller_fmu/pd_lowpass.py
+ * is the readable specification; MODEL.md section 5):
+ *
+ *     e   = kx x_o + kp phi_o + kd omega_o
+ *     F_c = -sat(H(s) e),  H = 1, wc / (s + wc) or wc^2 / (s^2 + 2 zf wc s + wc^2)
+ *
+ * The filter state xc (order doubles, the filter output first) follows xc' = Af xc + Bf e
+ * (controllable canonical form). Over a step h with the error signal the polynomial
+ * e(t + s) = e0 + e1 s + e2 s^2 / 2, the exact step is xc(t + h) = Ad xc(t) + G [e0, e1, e2],
+ * with Ad and G blocks of the matrix exponential of the filter driven by a chain of three
+ * integrators (with a held input, e1 = e2 = 0 and only G's first column counts).
+ *
+ * Contract: portable C99 plus libm; no global state, no allocation (the matrix exponential works
+ * in a buffer of the caller, fpf_expm_work_size() doubles); SI units (rad, rad/s, s, N); matrices
+ * row-major; every function that can fail returns an FPF_* code and leaves its outputs untouched
+ * on failure.
+ */
+#ifndef FP_FILTER_H
+#define FP_FILTER_H
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#if defined(_WIN32)
+#define FPF_API __declspec(dllexport)
+#else
+#define FPF_API __attribute__((visibility("default")))
+#endif
+
+#define FPF_ABI 1
+
+#define FPF_OK 0
+#define FPF_BADARG 1      /* an argument is out of range (nothing was done) */
+#define FPF_NONFINITE 2   /* the result would not be finite (state left unchanged) */
+
+/* Largest matrix fpf_discretize() builds: order 2 plus the chain of three integrators. */
+#define FPF_MAX_AUG 5
+
+/* The controller's parameters (ControllerParams). */
+typedef struct fpf_filter {
+    int order;             /* 0 (no filter), 1 or 2 */
+    double kp, kd, kx;     /* gains on phi_o (N/rad), omega_o (N s/rad), x_o (N/m) */
+    double cutoff;         /* wc, rad/s, > 0 */
+    double damping;        /* zf of the 2nd-order filter, >= 0 */
+    double force_limit;    /* |F_c| <= force_limit, > 0 (may be +inf) */
+} fpf_filter;
+
+/* The ABI version FPF_ABI and the sha256 (hex) of the sources the library was built from. */
+FPF_API int fpf_abi(void);
+FPF_API const char *fpf_source_digest(void);
+
+/* FPF_OK if the parameters are in range, else FPF_BADARG. */
+FPF_API int fpf_check(const fpf_filter *f);
+
+/* Doubles of work fpf_expm() needs for an n x n matrix. */
+FPF_API long fpf_expm_work_size(int n);
+
+/* E = expm(A) for the n x n matrix A (1 <= n): scaling and squaring with a diagonal Pade
+ * approximant of degree 3, 5, 7, 9 or 13 chosen from the 1-norm (Higham 2005). A and E may not
+ * overlap; work: fpf_expm_work_size(n) doubles. FPF_OK, FPF_BADARG (n < 1, a non-finite entry)
+ * or FPF_NONFINITE (the result overflows or the Pade denominator is singular). */
+FPF_API int fpf_expm(int n, const double *A, double *E, double *work);
+
+/* The exact discretisation over h > 0: Ad (order x order) and G (order x 3: e0, e1, e2) when
+ * poly is nonzero; with poly = 0 only the held-input column, G (order x 1), from the smaller
+ * matrix [[Af h, Bf h], [0, 0]]. Nothing to do for order 0. */
+FPF_API int fpf_discretize(const fpf_filter *f, double h, int poly, double *Ad, double *G);
+
+/* The error polynomial's coefficients from the sensors and their time derivatives:
+ * y = [x_o, phi_o, omega_o, dx_o, dphi_o, domega_o, d2x_o, d2phi_o, d2omega_o] -> e[3]. */
+FPF_API void fpf_error(const fpf_filter *f, const double *y, double *e);
+
+/* One step: xc <- Ad xc + G e (G: order x 3, e: 3 coefficients), then *F = the saturated force
+ * -sat(xc[0]). For order 0 there is no state and *F = -sat(e[0]). FPF_OK, or FPF_NONFINITE with
+ * xc and *F unchanged. */
+FPF_API int fpf_step(const fpf_filter *f, const double *Ad, const double *G, const double *e,
+                     double *xc, double *F);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* FP_FILTER_H */

@@ -1,0 +1,253 @@
+"""The plant's compiled kernel (``native/fp_plant.c``) bound to Python by ctypes.
+
+:class:`PlantKernel` holds one plant's data (the invariants of :mod:`plant_fmu.beam`, passed in
+``fp_plant``) and offers what the hot paths need: the right-hand side, the tip angle, the outputs
+and energy, the fixed-substep loop of the explicit methods and the adaptive Dormand-Prince loop.
+:class:`plant_fmu.dynamics.PlantModel` and ``LinearPlantModel`` build one (their ``kernel``); the
+numpy code there stays the specification, and ``tests/test_kernels.py`` holds the two to 1e-12.
+
+Why ctypes. The kernel is a plain C library, not a Python extension, so that one binary serves
+every consumer: this package under any CPython 3 (no rebuild per Python version), the pythonfmu
+FMUs that ship it and load it under whatever Python their host has, and the native FMUs that link
+the same sources. That rules out a CPython extension (tied to one Python ABI, and a win64 build
+would need that Python's import library). Between ctypes and cffi's ABI mode, ctypes is in the
+standard library, so an FMU needs nothing more in its host's Python, and the two cost the same
+per call: measured side by side (``bench/bench_kernel.py``, one loaded 2-core machine), a call
+with no argument 0.09 us by ctypes and 0.10 us by cffi, with three pointer arguments 0.22 and
+0.25 us (an empty numba function of three arrays: 0.22 us). What costs is converting arguments:
+numpy's ``.ctypes`` attribute alone takes ~0.8 us and ``argtypes`` conversions a few tenths per
+argument, so the arguments here are built once (the struct passed ``byref``, ``c_void_p`` to
+preallocated buffers, scalars set in place) and the state is copied in and out of the buffers.
+``PlantModel.rhs`` then costs 1.05 us against 1.27 us for the numba kernel it replaced; the loops
+of a communication step are one call each.
+"""
+from __future__ import annotations
+
+import ctypes
+import math
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from . import _native
+from ._native import KernelError
+
+__all__ = ["PlantKernel", "KernelError", "library", "FP_OK", "FP_BADARG", "FP_NONFINITE",
+           "FP_CAP", "FP_UNDERFLOW", "METHODS", "OUT"]
+
+FP_OK, FP_BADARG, FP_NONFINITE, FP_CAP, FP_UNDERFLOW = 0, 1, 2, 3, 4
+
+#: the built-in methods of the fixed-step loop (fp_plant.h)
+METHODS = {"euler": 0, "rk4": 1, "dopri5": 2, "symplectic_euler": 3}
+
+#: layout of :meth:`PlantKernel.outputs` (FP_OUT_* of fp_plant.h); eta_j at OUT["eta"] + j - 1
+OUT = {"x_o": 0, "x_dot": 1, "phi_o": 2, "omega_o": 3, "phi": 4, "tip_deflection": 5,
+       "energy": 6, "eta": 7}
+
+_NATIVE = Path(__file__).resolve().parent / "native"
+_P = ctypes.c_void_p
+_D = ctypes.c_double
+
+
+class _Plant(ctypes.Structure):
+    _fields_ = [("n", ctypes.c_int), ("linear", ctypes.c_int), ("preload", ctypes.c_int),
+                ("I0", _D), ("I1", _D), ("I2", _D), ("g", _D),
+                ("I3", _P), ("I5", _P), ("K", _P), ("D", _P), ("Kg", _P), ("tip_slope", _P),
+                ("tip_defl", _P), ("nx", ctypes.c_int), ("I3I3", _D), ("I3I5", _D), ("I5I5", _D)]
+
+
+class _Tableau(ctypes.Structure):
+    _fields_ = [("stages", ctypes.c_int), ("A", _P), ("B", _P), ("C", _P), ("E", _P),
+                ("fsal", ctypes.c_int)]
+
+
+class _Input(ctypes.Structure):
+    _fields_ = [("u0", _D), ("du", _D), ("d2u", _D), ("tu", _D)]
+
+
+class _Adaptive(ctypes.Structure):
+    _fields_ = [("rtol", _D), ("atol", _P), ("n_atol", ctypes.c_int), ("max_step", _D),
+                ("min_step", _D), ("max_steps", ctypes.c_long), ("h_abs", _D),
+                ("nfev", ctypes.c_long), ("nsteps", ctypes.c_long), ("nrejected", ctypes.c_long),
+                ("fail_h", _D), ("fail_min_step", _D)]
+
+
+_lib = None
+
+
+def library() -> ctypes.CDLL:
+    """The plant kernel's library for this platform (loaded once; :class:`KernelError` if it is
+    missing or does not match its sources)."""
+    global _lib
+    if _lib is None:
+        lib = _native.load("flexpend_plant", _NATIVE)
+        lib.fp_energy.restype = ctypes.c_double
+        lib.fp_work_size.restype = ctypes.c_long
+        for name in ("fp_rhs", "fp_tip", "fp_outputs"):
+            getattr(lib, name).restype = None
+        _lib = lib
+    return _lib
+
+
+def _addr(a: np.ndarray) -> _P:
+    return _P(a.ctypes.data)
+
+
+def _f64(a, shape=None) -> np.ndarray:
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    if shape is not None:
+        a = a.reshape(shape)
+    return a
+
+
+class _TableauData:
+    """A Butcher tableau as the kernel reads it (arrays kept alive with the struct)."""
+
+    def __init__(self, A, B, C, E=None, fsal=False):
+        s = np.asarray(B).size
+        self.arrays = [_f64(A, (s, s)), _f64(B, (s,)), _f64(C, (s,))]
+        self.arrays.append(None if E is None else _f64(E, (s,)))
+        ptr = [None if a is None else _addr(a) for a in self.arrays]
+        self.struct = _Tableau(s, *ptr, int(bool(fsal)))
+        self.ref = ctypes.byref(self.struct)
+        self.stages = s
+
+
+class PlantKernel:
+    """The compiled kernel bound to one plant's data.
+
+    Parameters (the fields of ``fp_plant``): ``n`` modes, ``linear`` (the model linearised at the
+    upright rest state), ``preload`` (the geometric stiffness ``Kg``), the invariants ``I0, I1,
+    I2`` and ``g``, and the arrays ``I3, I5, K`` (diagonal), ``D`` (diagonal), ``Kg`` (n x n),
+    ``tip_slope``, ``tip_defl``. The arrays are copied.
+    """
+
+    def __init__(self, *, n, linear, preload, I0, I1, I2, g, I3, I5, K, D, Kg, tip_slope,
+                 tip_defl):
+        lib = self._lib = library()
+        n = int(n)
+        self._arrays = arrays = {k: _f64(v, (n,)) for k, v in (
+            ("I3", I3), ("I5", I5), ("K", K), ("D", D), ("tip_slope", tip_slope),
+            ("tip_defl", tip_defl))}
+        arrays["Kg"] = _f64(Kg, (n, n)) if n else np.zeros(1)
+        self._struct = _Plant(n, int(bool(linear)), int(bool(preload)), float(I0), float(I1),
+                              float(I2), float(g), *(_addr(arrays[k]) for k in (
+                                  "I3", "I5", "K", "D", "Kg", "tip_slope", "tip_defl")))
+        self._p = ctypes.byref(self._struct)
+        if lib.fp_plant_prepare(self._p) != FP_OK:
+            raise ValueError("the plant data are out of range (a size is negative or an "
+                             "invariant is not finite)")
+        self.n, self.nx = n, self._struct.nx
+        self.linear = bool(linear)
+        # buffers and argument objects built once: a call then converts only the floats
+        self._x = np.zeros(self.nx)
+        self._dx = np.zeros(self.nx)
+        self._out = np.zeros(OUT["eta"] + n)
+        self._tip = np.zeros(2)
+        self._px, self._pdx = _addr(self._x), _addr(self._dx)
+        self._pout, self._ptip = _addr(self._out), _addr(self._tip)
+        self._input = _Input()
+        self._pinput = ctypes.byref(self._input)
+        self._done = ctypes.c_long()
+        self._pdone = ctypes.byref(self._done)
+        self._t, self._h, self._n = _D(), _D(), ctypes.c_long()    # scalars passed by value
+        self._work = {}
+        self._lock = threading.Lock()
+        self._f_rhs, self._f_energy, self._f_tip = lib.fp_rhs, lib.fp_energy, lib.fp_tip
+        self._f_outputs, self._f_fixed = lib.fp_outputs, lib.fp_fixed_steps
+        self._f_dopri = lib.fp_dopri_advance
+
+    # ------------------------------------------------------------------ evaluations
+    def rhs(self, x, u: float) -> np.ndarray:
+        """``dx/dt`` at ``x`` with the force ``u`` (a new array)."""
+        with self._lock:
+            self._x[:] = x
+            self._f_rhs(self._p, self._px, _D(u), self._pdx)
+            return self._dx.copy()
+
+    def energy(self, x) -> float:
+        with self._lock:
+            self._x[:] = x
+            return self._f_energy(self._p, self._px)
+
+    def tip(self, x) -> tuple[float, float]:
+        """``(phi_o, omega_o)``."""
+        with self._lock:
+            self._x[:] = x
+            self._f_tip(self._p, self._px, self._ptip)
+            t = self._tip
+            return float(t[0]), float(t[1])
+
+    def outputs(self, x, energy: bool = True) -> np.ndarray:
+        """Every output at ``x`` in the layout :data:`OUT` (a new array; the energy entry is NaN
+        unless ``energy``)."""
+        with self._lock:
+            self._x[:] = x
+            self._out[OUT["energy"]] = math.nan
+            self._f_outputs(self._p, self._px, int(bool(energy)), self._pout)
+            return self._out.copy()
+
+    # ------------------------------------------------------------------ loops
+    def tableau(self, A, B, C, E=None, fsal=False) -> _TableauData:
+        """A tableau for :meth:`fixed_steps` and :meth:`dopri_advance` (build it once)."""
+        return _TableauData(A, B, C, E, fsal)
+
+    def _work_for(self, stages: int):
+        w = self._work.get(stages)
+        if w is None:
+            buf = np.zeros((stages + 2) * self.nx)
+            w = self._work[stages] = (buf, _addr(buf))
+        return w[1]
+
+    def _set_input(self, u):
+        inp = self._input
+        inp.u0, inp.du, inp.d2u, inp.tu = u
+
+    def fixed_steps(self, method: str, tableau, y, u, t: float, h: float, n: int):
+        """``n`` substeps of ``h`` from time ``t`` on a copy of ``y``: ``(y_new, done, code)``.
+
+        ``method`` is ``"symplectic_euler"`` or any other name with ``tableau`` (from
+        :meth:`tableau`); ``u = (u0, du, d2u, tu)`` is the input polynomial. ``done < n`` with
+        ``code = FP_NONFINITE`` when a substep produced a non-finite state (``y_new``: the last
+        finite one)."""
+        if method == "symplectic_euler":
+            code, tab, stages = 3, None, 1
+        else:
+            code, tab, stages = -1, tableau.ref, tableau.stages
+        with self._lock:
+            self._x[:] = y
+            inp = self._input
+            inp.u0, inp.du, inp.d2u, inp.tu = u
+            self._t.value, self._h.value, self._n.value = t, h, n
+            rc = self._f_fixed(self._p, code, tab, self._pinput, self._t, self._h, self._n,
+                               self._px, self._work_for(stages), self._pdone)
+            y_new, done = self._x.copy(), self._done.value
+        if rc == FP_BADARG:
+            raise ValueError(f"fixed_steps: bad argument (h = {h!r}, n = {n!r})")
+        return y_new, done, rc
+
+    def dopri_advance(self, tableau, y, f, t: float, t_end: float, u, *, rtol, atol, max_step,
+                      min_step, h_abs, max_steps=100_000):
+        """The adaptive Dormand-Prince loop from ``t`` towards ``t_end`` on copies of ``y`` and
+        ``f`` (= f(t, y, u(t))). Returns ``(code, t, y, f, h_abs, nfev, nsteps, nrejected,
+        fail_h, fail_min_step)``; ``code`` is FP_OK (t_end reached), FP_CAP (``max_steps`` steps
+        taken: call again) or FP_UNDERFLOW."""
+        nx = self.nx
+        y = np.array(y, dtype=float)
+        f = np.array(f, dtype=float)
+        atol_arr = np.ascontiguousarray(np.atleast_1d(np.asarray(atol, dtype=float)))
+        if atol_arr.size not in (1, nx):
+            raise ValueError(f"atol must be a scalar or have {nx} entries")
+        a = _Adaptive(float(rtol), _addr(atol_arr), atol_arr.size, float(max_step),
+                      float(min_step), int(max_steps), float(h_abs), 0, 0, 0, math.nan, math.nan)
+        tt = _D(t)
+        with self._lock:
+            self._set_input(u)
+            rc = self._f_dopri(self._p, tableau.ref, self._pinput, ctypes.byref(tt), _D(t_end),
+                               _addr(y), _addr(f), ctypes.byref(a),
+                               self._work_for(tableau.stages))
+        if rc == FP_BADARG:
+            raise ValueError("dopri_advance: bad argument (tableau, tolerances or steps)")
+        return (rc, tt.value, y, f, a.h_abs, a.nfev, a.nsteps, a.nrejected, a.fail_h,
+                a.fail_min_step)

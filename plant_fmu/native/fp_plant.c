@@ -1,0 +1,462 @@
+/*
+ * fp_plant.c - the compiled kernel of the plant (see fp_plant.h for the contract).
+ *
+ * Each function computes exactly what its numpy counterpart in plant_fmu/dynamics.py computes,
+ * and the loops do what plant_fmu/integrators/rk.py does, in the same order of operations where
+ * that order decides the result (tests/test_kernels.py holds them to 1e-12).
+ */
+#include "fp_plant.h"
+
+#include <math.h>
+#include <stddef.h>
+
+#ifndef FP_SOURCE_DIGEST
+#define FP_SOURCE_DIGEST "unknown"
+#endif
+
+/* The step-size control of rk.py (scipy's constants). */
+#define SAFETY 0.9
+#define MIN_FACTOR 0.2
+#define MAX_FACTOR 10.0
+
+int fp_plant_abi(void) { return FP_PLANT_ABI; }
+
+const char *fp_plant_source_digest(void) { return FP_SOURCE_DIGEST; }
+
+static int finite_array(const double *a, long n)
+{
+    long i;
+    if (n > 0 && a == NULL) return 0;
+    for (i = 0; i < n; i++)
+        if (!isfinite(a[i])) return 0;
+    return 1;
+}
+
+int fp_plant_prepare(fp_plant *p)
+{
+    int j, n;
+    if (p == NULL || p->n < 0 || p->n > 100000) return FP_BADARG;
+    n = p->n;
+    if (!(isfinite(p->I0) && isfinite(p->I1) && isfinite(p->I2) && isfinite(p->g)))
+        return FP_BADARG;
+    if (!finite_array(p->I3, n) || !finite_array(p->I5, n) || !finite_array(p->K, n)
+        || !finite_array(p->D, n) || !finite_array(p->tip_slope, n)
+        || !finite_array(p->tip_defl, n))
+        return FP_BADARG;
+    if (p->preload && !finite_array(p->Kg, (long)n * n)) return FP_BADARG;
+    p->preload = (p->preload != 0) && n > 0;
+    p->linear = p->linear != 0;
+    p->nx = 2 * (n + 2);
+    p->I3I3 = p->I3I5 = p->I5I5 = 0.0;
+    for (j = 0; j < n; j++) {
+        p->I3I3 += p->I3[j] * p->I3[j];
+        p->I3I5 += p->I3[j] * p->I5[j];
+        p->I5I5 += p->I5[j] * p->I5[j];
+    }
+    return FP_OK;
+}
+
+long fp_work_size(const fp_plant *p, int stages)
+{
+    if (p == NULL || stages < 1) return 0;
+    return (long)(stages + 2) * p->nx;
+}
+
+/* ------------------------------------------------------------------ built-in tableaus */
+static const double EULER_A[1] = {0.0};
+static const double EULER_B[1] = {1.0};
+static const double EULER_C[1] = {0.0};
+
+static const double RK4_A[16] = {0.0, 0.0, 0.0, 0.0,
+                                 0.5, 0.0, 0.0, 0.0,
+                                 0.0, 0.5, 0.0, 0.0,
+                                 0.0, 0.0, 1.0, 0.0};
+static const double RK4_B[4] = {1.0 / 6, 1.0 / 3, 1.0 / 3, 1.0 / 6};
+static const double RK4_C[4] = {0.0, 0.5, 0.5, 1.0};
+
+static const double DP_A[49] = {
+    0, 0, 0, 0, 0, 0, 0,
+    1.0 / 5, 0, 0, 0, 0, 0, 0,
+    3.0 / 40, 9.0 / 40, 0, 0, 0, 0, 0,
+    44.0 / 45, -56.0 / 15, 32.0 / 9, 0, 0, 0, 0,
+    19372.0 / 6561, -25360.0 / 2187, 64448.0 / 6561, -212.0 / 729, 0, 0, 0,
+    9017.0 / 3168, -355.0 / 33, 46732.0 / 5247, 49.0 / 176, -5103.0 / 18656, 0, 0,
+    35.0 / 384, 0, 500.0 / 1113, 125.0 / 192, -2187.0 / 6784, 11.0 / 84, 0};
+static const double DP_B[7] = {35.0 / 384, 0, 500.0 / 1113, 125.0 / 192, -2187.0 / 6784,
+                               11.0 / 84, 0};
+static const double DP_C[7] = {0, 1.0 / 5, 3.0 / 10, 4.0 / 5, 8.0 / 9, 1, 1};
+/* E = B - B_hat, each entry rounded once from the two rounded weights, as numpy does */
+#define DP_E(b, bh) ((double)(b) - (double)(bh))
+static const double DP_E_[7] = {
+    DP_E(35.0 / 384, 5179.0 / 57600), DP_E(0, 0), DP_E(500.0 / 1113, 7571.0 / 16695),
+    DP_E(125.0 / 192, 393.0 / 640), DP_E(-2187.0 / 6784, -92097.0 / 339200),
+    DP_E(11.0 / 84, 187.0 / 2100), DP_E(0, 1.0 / 40)};
+
+static const fp_tableau TABLEAUS[3] = {
+    {1, EULER_A, EULER_B, EULER_C, NULL, 0},
+    {4, RK4_A, RK4_B, RK4_C, NULL, 0},
+    {7, DP_A, DP_B, DP_C, DP_E_, 1},
+};
+
+const fp_tableau *fp_builtin_tableau(int method)
+{
+    if (method < FP_EULER || method > FP_DOPRI5) return NULL;
+    return &TABLEAUS[method];
+}
+
+/* ------------------------------------------------------------------ right-hand side */
+/* The nonlinear model: dynamics.py, PlantModel.forces and .accelerations (Schur complement of the
+ * identity block of the mass-normalised modes, O(n), or O(n^2) with the preload). */
+static void rhs_nonlinear(const fp_plant *p, const double *x, double u, double *out)
+{
+    const int n = p->n, nq = n + 2;
+    const double *I3 = p->I3, *I5 = p->I5;
+    const double phi = x[1], phid = x[nq + 1];
+    const double c = cos(phi), s = sin(phi);
+    double I3eta = 0.0, I3etad = 0.0, ee = 0.0, eed = 0.0;
+    double f0, f1, I3fe = 0.0, I5fe = 0.0, a00, a01, a11, r0, r1, det, xdd, phidd;
+    int i, j, k;
+    for (j = 0; j < n; j++) {
+        const double e = x[2 + j], ed = x[nq + 2 + j];
+        I3eta += I3[j] * e;
+        I3etad += I3[j] * ed;
+        ee += e * e;
+        eed += e * ed;
+    }
+    f0 = u - (p->I1 * s + I3eta * c) * phid * phid - 2.0 * phid * s * I3etad;
+    f1 = -2.0 * phid * eed + p->g * (p->I1 * s + I3eta * c);
+    for (j = 0; j < n; j++) {
+        const double e = x[2 + j];
+        double fe = phid * phid * e + p->g * s * I3[j] - p->K[j] * e - p->D[j] * x[nq + 2 + j];
+        if (p->preload) {
+            double kge = 0.0;
+            const double *row = p->Kg + (size_t)j * n;
+            for (k = 0; k < n; k++) kge += row[k] * x[2 + k];
+            fe += c * kge;
+            f1 -= 0.5 * s * e * kge;
+        }
+        out[nq + 2 + j] = fe;
+        I3fe += I3[j] * fe;
+        I5fe += I5[j] * fe;
+    }
+    a00 = p->I0 - c * c * p->I3I3;
+    a01 = -p->I1 * c + s * I3eta + c * p->I3I5;
+    a11 = p->I2 + ee - p->I5I5;
+    r0 = f0 + c * I3fe;
+    r1 = f1 - I5fe;
+    det = a00 * a11 - a01 * a01;
+    xdd = (a11 * r0 - a01 * r1) / det;
+    phidd = (a00 * r1 - a01 * r0) / det;
+    for (i = 0; i < nq; i++) out[i] = x[nq + i];
+    out[nq] = xdd;
+    out[nq + 1] = phidd;
+    for (j = 0; j < n; j++) out[nq + 2 + j] += c * xdd * I3[j] - phidd * I5[j];
+}
+
+/* The linearised model M0 qdd + D0 qd + K0 q = e_x u (dynamics.py, PlantModel.linearize), solved
+ * by the same Schur complement at phi = 0, eta = 0. */
+static void rhs_linear(const fp_plant *p, const double *x, double u, double *out)
+{
+    const int n = p->n, nq = n + 2;
+    const double *I3 = p->I3, *I5 = p->I5;
+    const double phi = x[1];
+    double I3eta = 0.0, f1, I3fe = 0.0, I5fe = 0.0, a00, a01, a11, r0, r1, det, xdd, phidd;
+    int i, j, k;
+    for (j = 0; j < n; j++) I3eta += I3[j] * x[2 + j];
+    f1 = p->g * (p->I1 * phi + I3eta);
+    for (j = 0; j < n; j++) {
+        const double e = x[2 + j];
+        double fe = p->g * phi * I3[j] - p->K[j] * e - p->D[j] * x[nq + 2 + j];
+        if (p->preload) {
+            double kge = 0.0;
+            const double *row = p->Kg + (size_t)j * n;
+            for (k = 0; k < n; k++) kge += row[k] * x[2 + k];
+            fe += kge;
+        }
+        out[nq + 2 + j] = fe;
+        I3fe += I3[j] * fe;
+        I5fe += I5[j] * fe;
+    }
+    a00 = p->I0 - p->I3I3;
+    a01 = -p->I1 + p->I3I5;
+    a11 = p->I2 - p->I5I5;
+    r0 = u + I3fe;
+    r1 = f1 - I5fe;
+    det = a00 * a11 - a01 * a01;
+    xdd = (a11 * r0 - a01 * r1) / det;
+    phidd = (a00 * r1 - a01 * r0) / det;
+    for (i = 0; i < nq; i++) out[i] = x[nq + i];
+    out[nq] = xdd;
+    out[nq + 1] = phidd;
+    for (j = 0; j < n; j++) out[nq + 2 + j] += xdd * I3[j] - phidd * I5[j];
+}
+
+void fp_rhs(const fp_plant *p, const double *x, double u, double *dx)
+{
+    if (p->linear)
+        rhs_linear(p, x, u, dx);
+    else
+        rhs_nonlinear(p, x, u, dx);
+}
+
+/* ------------------------------------------------------------------ outputs */
+double fp_energy(const fp_plant *p, const double *x)
+{
+    const int n = p->n, nq = n + 2;
+    const double *I3 = p->I3, *I5 = p->I5;
+    const double phi = x[1], xd = x[nq], phid = x[nq + 1];
+    double I3eta = 0.0, I3etad = 0.0, ee = 0.0, I5etad = 0.0, etadetad = 0.0, strain = 0.0;
+    double T, V, ekge = 0.0;
+    int j, k;
+    for (j = 0; j < n; j++) {
+        const double e = x[2 + j], ed = x[nq + 2 + j];
+        I3eta += I3[j] * e;
+        I3etad += I3[j] * ed;
+        ee += e * e;
+        I5etad += I5[j] * ed;
+        etadetad += ed * ed;
+        strain += p->K[j] * e * e;
+    }
+    if (p->preload)
+        for (j = 0; j < n; j++) {
+            const double *row = p->Kg + (size_t)j * n;
+            for (k = 0; k < n; k++) ekge += x[2 + j] * row[k] * x[2 + k];
+        }
+    if (p->linear) {
+        /* 1/2 qd.M0.qd + 1/2 q.K0.q + g I1 (LinearPlantModel.energy) */
+        T = 0.5 * (p->I0 * xd * xd - 2.0 * p->I1 * xd * phid - 2.0 * xd * I3etad
+                   + p->I2 * phid * phid + 2.0 * phid * I5etad + etadetad);
+        V = 0.5 * (-p->g * p->I1 * phi * phi - 2.0 * p->g * phi * I3eta + strain - ekge)
+            + p->g * p->I1;
+        return T + V;
+    }
+    {
+        const double c = cos(phi), s = sin(phi);
+        T = (0.5 * p->I0 * xd * xd + xd * (-(p->I1 * phid + I3etad) * c + phid * s * I3eta)
+             + 0.5 * phid * phid * (p->I2 + ee) + phid * I5etad + 0.5 * etadetad);
+        V = p->g * (p->I1 * c - s * I3eta) + 0.5 * strain;
+        if (p->preload) V -= 0.5 * c * ekge;
+        return T + V;
+    }
+}
+
+void fp_tip(const fp_plant *p, const double *x, double *tip)
+{
+    const int n = p->n, nq = n + 2;
+    double sl = 0.0, sld = 0.0;
+    int j;
+    for (j = 0; j < n; j++) {
+        sl += p->tip_slope[j] * x[2 + j];
+        sld += p->tip_slope[j] * x[nq + 2 + j];
+    }
+    if (p->linear) {
+        tip[0] = x[1] + sl;
+        tip[1] = x[nq + 1] + sld;
+    } else if (n == 0) {
+        tip[0] = x[1];
+        tip[1] = x[nq + 1];
+    } else {
+        tip[0] = x[1] + atan(sl);
+        tip[1] = x[nq + 1] + sld / (1.0 + sl * sl);
+    }
+}
+
+void fp_outputs(const fp_plant *p, const double *x, int want_energy, double *out)
+{
+    const int n = p->n, nq = n + 2;
+    double tip = 0.0;
+    int j;
+    fp_tip(p, x, out + FP_OUT_PHI_O);
+    out[FP_OUT_X] = x[0];
+    out[FP_OUT_XDOT] = x[nq];
+    out[FP_OUT_PHI] = x[1];
+    for (j = 0; j < n; j++) {
+        tip += p->tip_defl[j] * x[2 + j];
+        out[FP_OUT_ETA + j] = x[2 + j];
+    }
+    out[FP_OUT_TIP] = tip;
+    if (want_energy) out[FP_OUT_ENERGY] = fp_energy(p, x);
+}
+
+/* ------------------------------------------------------------------ the loops */
+/* The input at the time offset st from tu (plant_fmu.integrators.base.Stepper._u_at). */
+static double input_at(const fp_input *u, double st)
+{
+    if (u->du != 0.0 || u->d2u != 0.0) return u->u0 + st * (u->du + 0.5 * st * u->d2u);
+    return u->u0;
+}
+
+/* 1 if every entry of y is finite. As the Python loop: a sum of squares that is finite settles it
+ * at once; otherwise (overflow or NaN) each entry is looked at. */
+static int all_finite(const double *y, int nx)
+{
+    double norm2 = 0.0;
+    int m;
+    for (m = 0; m < nx; m++) norm2 += y[m] * y[m];
+    if (norm2 < HUGE_VAL) return 1;
+    for (m = 0; m < nx; m++)
+        if (!(fabs(y[m]) < HUGE_VAL)) return 0;
+    return 1;
+}
+
+static int check_tableau(const fp_tableau *tab)
+{
+    return tab != NULL && tab->stages >= 1 && tab->stages <= 64 && tab->A != NULL
+           && tab->B != NULL && tab->C != NULL;
+}
+
+int fp_fixed_steps(const fp_plant *p, int method, const fp_tableau *tab, const fp_input *u,
+                   double t, double h, long n_steps, double *y, double *work, long *done)
+{
+    const int nx = p->nx, nq = p->nx / 2;
+    const double s0 = t - u->tu;
+    double *ys = work, *K = work + nx;
+    long k;
+    int i, j, m;
+    *done = 0;
+    if (n_steps < 0 || !(h > 0.0) || !isfinite(h) || y == NULL || work == NULL) return FP_BADARG;
+    if (method == FP_SYMPLECTIC_EULER) {
+        for (k = 0; k < n_steps; k++) {
+            fp_rhs(p, y, input_at(u, s0 + k * h), K);
+            for (m = nq; m < nx; m++) ys[m] = y[m] + h * K[m];      /* qd + h qdd */
+            for (m = 0; m < nq; m++) ys[m] = y[m] + h * ys[nq + m];  /* q + h qd_new */
+            if (!all_finite(ys, nx)) return FP_NONFINITE;
+            for (m = 0; m < nx; m++) y[m] = ys[m];
+            *done = k + 1;
+        }
+        return FP_OK;
+    }
+    if (!check_tableau(tab)) return FP_BADARG;
+    for (k = 0; k < n_steps; k++) {
+        const int s = tab->stages;
+        for (i = 0; i < s; i++) {
+            double st, acc;
+            for (m = 0; m < nx; m++) {
+                acc = 0.0;
+                for (j = 0; j < i; j++) acc += (h * tab->A[i * s + j]) * K[(size_t)j * nx + m];
+                ys[m] = y[m] + acc;
+            }
+            st = s0 + k * h + tab->C[i] * h;
+            fp_rhs(p, ys, input_at(u, st), K + (size_t)i * nx);
+        }
+        for (m = 0; m < nx; m++) {
+            double acc = 0.0;
+            for (i = 0; i < s; i++) acc += (h * tab->B[i]) * K[(size_t)i * nx + m];
+            ys[m] = y[m] + acc;
+        }
+        if (!all_finite(ys, nx)) return FP_NONFINITE;
+        for (m = 0; m < nx; m++) y[m] = ys[m];
+        *done = k + 1;
+    }
+    return FP_OK;
+}
+
+/* One FSAL step of the tableau from (t, y) over h: K[0] = f; the stages K[1..s-1]; y_new = the
+ * last stage's argument (the last row of A is B); f_new = K[s-1] = f(t + h, y_new). */
+static void fsal_step(const fp_plant *p, const fp_tableau *tab, const fp_input *u, double t,
+                      const double *y, double h, const double *f, double *K, double *ys)
+{
+    const int nx = p->nx, s = tab->stages;
+    int i, j, m;
+    for (m = 0; m < nx; m++) K[m] = f[m];
+    for (i = 1; i < s; i++) {
+        const double ch = tab->C[i] * h;
+        for (m = 0; m < nx; m++) {
+            double acc = 0.0;
+            for (j = 0; j < i; j++) acc += (h * tab->A[i * s + j]) * K[(size_t)j * nx + m];
+            ys[m] = y[m] + acc;
+        }
+        fp_rhs(p, ys, input_at(u, (t + ch) - u->tu), K + (size_t)i * nx);
+    }
+}
+
+int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u, double *t,
+                     double t_end, double *y, double *f, fp_adaptive *a, double *work)
+{
+    const int nx = p->nx;
+    const double err_exp = -1.0 / 5.0;    /* -1 / (error order 4 + 1) */
+    double *ys = work, *K;
+    long taken = 0;
+    int i, m;
+    if (!check_tableau(tab) || tab->E == NULL || !tab->fsal || a == NULL || t == NULL
+        || y == NULL || f == NULL || work == NULL || !(a->rtol >= 0.0)
+        || !(a->n_atol == 1 || a->n_atol == nx) || a->atol == NULL || !(a->max_step > 0.0)
+        || !(a->min_step >= 0.0) || a->max_steps < 1 || !(a->h_abs > 0.0) || isnan(t_end))
+        return FP_BADARG;
+    K = work + nx;                         /* the last stage's argument ys is y_new */
+    while (*t < t_end) {
+        const double t0 = *t;
+        const int s = tab->stages;
+        double min_step = 10.0 * (nextafter(t0, HUGE_VAL) - t0);
+        double h_abs = a->h_abs, h, t_new;
+        int rejected = 0;
+        if (taken >= a->max_steps) return FP_CAP;
+        if (a->min_step > min_step) min_step = a->min_step;
+        if (t_end - t0 <= min_step) {          /* a rounding remainder: nothing to integrate */
+            *t = t_end;
+            return FP_OK;
+        }
+        for (;;) {
+            double remaining, err2, error_norm, factor;
+            if (h_abs < min_step) {
+                a->fail_h = h_abs;
+                a->fail_min_step = min_step;
+                return FP_UNDERFLOW;
+            }
+            remaining = t_end - t0;
+            if (h_abs >= remaining) {
+                h = remaining;
+                t_new = t_end;
+            } else if (2.0 * h_abs > remaining) {   /* avoid a tiny last step: split the rest */
+                h = 0.5 * remaining;
+                t_new = t0 + h;
+            } else {
+                h = h_abs;
+                t_new = t0 + h_abs;
+            }
+            fsal_step(p, tab, u, t0, y, h, f, K, ys);
+            a->nfev += s - 1;
+            err2 = 0.0;
+            for (m = 0; m < nx; m++) {
+                double e = 0.0, sc = fabs(y[m]);
+                for (i = 0; i < s; i++) e += K[(size_t)i * nx + m] * tab->E[i];
+                if (fabs(ys[m]) > sc || isnan(ys[m])) sc = fabs(ys[m]);
+                sc = sc * a->rtol + a->atol[a->n_atol == 1 ? 0 : m];
+                e /= sc;
+                err2 += e * e;
+            }
+            error_norm = h * sqrt(err2 / nx);
+            if (error_norm < 1.0) {
+                double h_next;
+                if (error_norm == 0.0)
+                    factor = MAX_FACTOR;
+                else {
+                    factor = SAFETY * pow(error_norm, err_exp);
+                    if (factor > MAX_FACTOR) factor = MAX_FACTOR;
+                }
+                if (rejected && factor > 1.0) factor = 1.0;
+                h_next = h * factor;
+                if (h < h_abs && !rejected && h_next < h_abs) h_next = h_abs;
+                a->h_abs = h_next < a->max_step ? h_next : a->max_step;
+                for (m = 0; m < nx; m++) {
+                    y[m] = ys[m];
+                    f[m] = K[(size_t)(s - 1) * nx + m];
+                }
+                *t = t_new;
+                a->nsteps++;
+                taken++;
+                break;
+            }
+            if (isnan(error_norm) || error_norm == HUGE_VAL)
+                factor = MIN_FACTOR;
+            else {
+                factor = SAFETY * pow(error_norm, err_exp);
+                if (factor < MIN_FACTOR) factor = MIN_FACTOR;
+            }
+            h_abs = h * factor;
+            rejected = 1;
+            a->nrejected++;
+        }
+    }
+    return FP_OK;
+}

@@ -1,0 +1,168 @@
+/*
+ * fp_plant.h - the compiled kernel of the flexible inverted pendulum (the plant).
+ *
+ * The same equations as plant_fmu/dynamics.py (the readable numpy specification; MODEL.md
+ * section 4): a cart of position x with an elastic beam hinged on it, floating frame of reference,
+ * n cantilever modes. Generalised coordinates q = [x, phi, eta_1..eta_n]; the state is
+ * x = [q, qd] (2 (n + 2) doubles); the input is the force on the cart F_c.
+ *
+ * Contract
+ * --------
+ * - Portable C99 plus libm. No global state, no allocation, no I/O: every function works on the
+ *   data it is given, so any number of plants can be stepped concurrently from any threads.
+ * - The model data (sizes and invariants) come in an fp_plant filled by the caller (in Python
+ *   from plant_fmu/beam.py, the one source of the modes and invariants) and checked once by
+ *   fp_plant_prepare(). Arrays it points to are owned by the caller and must outlive its use.
+ * - Units are SI: m, rad, s, kg, N. Angles from the upward vertical, counter-clockwise.
+ * - Arrays are contiguous doubles; matrices are row-major.
+ * - Work buffers are passed in by the caller; their sizes are given by fp_work_size().
+ * - Every function that can fail returns an FP_* code (FP_OK = 0). The loops never run
+ *   unbounded: the fixed-step loop does exactly the substeps it is asked for and the adaptive loop
+ *   stops at a cap on its accepted steps (FP_CAP), leaving a consistent state to continue from.
+ * - A state that becomes non-finite stops a loop (FP_NONFINITE) with y left at the last finite
+ *   state; no loop ever hands back NaN silently.
+ */
+#ifndef FP_PLANT_H
+#define FP_PLANT_H
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#if defined(_WIN32)
+#define FP_API __declspec(dllexport)
+#else
+#define FP_API __attribute__((visibility("default")))
+#endif
+
+/* Version of the binary interface below (structs, signatures, codes). Bump on any change. */
+#define FP_PLANT_ABI 1
+
+/* Return codes. */
+#define FP_OK 0
+#define FP_BADARG 1        /* an argument is out of its documented range (nothing was done) */
+#define FP_NONFINITE 2     /* a substep produced a non-finite state: y is the last finite one */
+#define FP_CAP 3           /* the adaptive loop reached its cap on steps before t_end */
+#define FP_UNDERFLOW 4     /* the adaptive step fell below the minimum step */
+
+/* Built-in methods of the fixed-step loop and of fp_builtin_tableau(). */
+#define FP_EULER 0             /* explicit Euler (tableau) */
+#define FP_RK4 1               /* classical Runge-Kutta (tableau) */
+#define FP_DOPRI5 2            /* Dormand-Prince 5(4) (tableau with error weights, FSAL) */
+#define FP_SYMPLECTIC_EULER 3  /* qd+ = qd + h qdd(q, qd), then q+ = q + h qd+ (no tableau) */
+
+/* Layout of fp_outputs(): out[FP_OUT_*], then the n modal coordinates from FP_OUT_ETA on. */
+#define FP_OUT_X 0             /* cart position x_o, m */
+#define FP_OUT_XDOT 1          /* cart velocity, m/s */
+#define FP_OUT_PHI_O 2         /* angle of the tip tangent phi_o, rad */
+#define FP_OUT_OMEGA_O 3       /* its rate omega_o, rad/s */
+#define FP_OUT_PHI 4           /* rotation of the floating frame phi, rad */
+#define FP_OUT_TIP 5           /* transverse tip deflection N(L) eta, m */
+#define FP_OUT_ENERGY 6        /* total energy T + V, J */
+#define FP_OUT_ETA 7           /* first modal coordinate; FP_OUT_ETA + n doubles in all */
+
+/* The plant: sizes, invariants (beam.py) and the model variant. Fill every field marked "in",
+ * then call fp_plant_prepare() once; the fields marked "derived" are filled by it. */
+typedef struct fp_plant {
+    int n;                       /* in: cantilever modes kept, n >= 0 (0: rigid pendulum) */
+    int linear;                  /* in: 0 nonlinear model, 1 linearised at the upright rest state */
+    int preload;                 /* in: 1 adds the geometric stiffness Kg of the self-weight */
+    double I0;                   /* in: total mass m + rhoA L, kg */
+    double I1;                   /* in: int rhoA s ds, kg m */
+    double I2;                   /* in: int rhoA s^2 ds, kg m^2 */
+    double g;                    /* in: gravity, m/s^2 */
+    const double *I3;            /* in: (n) int rhoA N ds */
+    const double *I5;            /* in: (n) int rhoA s N ds */
+    const double *K;             /* in: (n) modal stiffness omega_j^2 (the diagonal), 1/s^2 */
+    const double *D;             /* in: (n) modal damping 2 zeta omega_j (the diagonal), 1/s */
+    const double *Kg;            /* in: (n x n) geometric stiffness; may be NULL if preload = 0 */
+    const double *tip_slope;     /* in: (n) N'(L), rad per unit modal coordinate */
+    const double *tip_defl;      /* in: (n) N(L), m per unit modal coordinate */
+    int nx;                      /* derived: state size 2 (n + 2) */
+    double I3I3, I3I5, I5I5;     /* derived: dot products of I3 and I5 */
+} fp_plant;
+
+/* A Butcher tableau of an explicit method: A (stages x stages, strictly lower), B, C (stages);
+ * E = B - B_hat (stages) for an embedded pair, else NULL. fsal: the last stage is f(y_new). */
+typedef struct fp_tableau {
+    int stages;
+    const double *A;
+    const double *B;
+    const double *C;
+    const double *E;
+    int fsal;
+} fp_tableau;
+
+/* The input over an advance, as FMI's input derivatives: the force at time t is
+ * u0 + du (t - tu) + d2u (t - tu)^2 / 2 (du = d2u = 0: held), N, N/s, N/s^2. */
+typedef struct fp_input {
+    double u0, du, d2u, tu;
+} fp_input;
+
+/* Options and state of the adaptive Dormand-Prince loop (the error control of
+ * plant_fmu/integrators/rk.py, ExplicitRungeKutta._step_adaptive). */
+typedef struct fp_adaptive {
+    double rtol;                 /* in: relative tolerance, > 0 */
+    const double *atol;          /* in: absolute tolerance, n_atol values, each > 0 */
+    int n_atol;                  /* in: 1 (scalar) or nx (one per state component) */
+    double max_step;             /* in: largest step (may be +inf) */
+    double min_step;             /* in: smallest step (besides the floor of 10 ulp of t), >= 0 */
+    long max_steps;              /* in: cap on the accepted steps of one call (>= 1) */
+    double h_abs;                /* in/out: the proposed next step */
+    long nfev, nsteps, nrejected;  /* out: added to by each call */
+    double fail_h, fail_min_step;  /* out: the step and the minimum when FP_UNDERFLOW */
+} fp_adaptive;
+
+/* The ABI version FP_PLANT_ABI, and the sha256 (hex) of the sources the library was built from
+ * (a string of 64 characters, or "unknown" when built without it). */
+FP_API int fp_plant_abi(void);
+FP_API const char *fp_plant_source_digest(void);
+
+/* Check the "in" fields (sizes, non-NULL arrays, finite values) and fill the derived ones.
+ * FP_OK or FP_BADARG. */
+FP_API int fp_plant_prepare(fp_plant *p);
+
+/* Doubles of work needed by the loops for a tableau of `stages` stages: (stages + 2) nx. */
+FP_API long fp_work_size(const fp_plant *p, int stages);
+
+/* The built-in tableau of method FP_EULER, FP_RK4 or FP_DOPRI5 (static data), or NULL. */
+FP_API const fp_tableau *fp_builtin_tableau(int method);
+
+/* dx = dx/dt at the state x with the force u (nonlinear or linear model as p->linear says).
+ * x and dx have nx doubles and must not overlap. */
+FP_API void fp_rhs(const fp_plant *p, const double *x, double u, double *dx);
+
+/* The total energy T + V at x (the linear model: its quadratic form plus g I1), J. */
+FP_API double fp_energy(const fp_plant *p, const double *x);
+
+/* tip[0] = phi_o, tip[1] = omega_o at x. */
+FP_API void fp_tip(const fp_plant *p, const double *x, double *tip);
+
+/* Every output at x into out (FP_OUT_ETA + n doubles, layout FP_OUT_*). The energy is computed
+ * only when want_energy is nonzero (else out[FP_OUT_ENERGY] is left untouched). */
+FP_API void fp_outputs(const fp_plant *p, const double *x, int want_energy, double *out);
+
+/* n_steps substeps of length h from time t (the input polynomial is evaluated at the stage times
+ * (t - tu) + k h + c_i h), in place on y. method is FP_SYMPLECTIC_EULER (tab ignored) or any
+ * explicit tableau (method ignored unless FP_SYMPLECTIC_EULER). work: fp_work_size() doubles.
+ * *done = the substeps taken. FP_OK, FP_NONFINITE (y: the last finite state) or FP_BADARG. */
+FP_API int fp_fixed_steps(const fp_plant *p, int method, const fp_tableau *tab, const fp_input *u,
+                          double t, double h, long n_steps, double *y, double *work, long *done);
+
+/* Adaptive Dormand-Prince 5(4) (tab: an FSAL tableau with error weights E of an embedded 4th-order
+ * solution, e.g. the built-in FP_DOPRI5) from *t to t_end, in place on y; f holds f(t, y, u(t))
+ * on entry and on exit (the first same as last stage); a->h_abs carries the proposed step from
+ * call to call. *t is the time reached. Returns FP_OK (t_end reached), FP_CAP (a->max_steps steps
+ * accepted before t_end: the state is consistent, another call continues exactly as one longer
+ * call would), FP_UNDERFLOW (the step fell below the minimum; y, t, f: the last accepted step) or
+ * FP_BADARG. The rejections of one step are bounded too: each shrinks the step by at least 10 %
+ * until it underflows. work: fp_work_size(p, tab->stages) doubles. */
+FP_API int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u,
+                            double *t, double t_end, double *y, double *f, fp_adaptive *a,
+                            double *work);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* FP_PLANT_H */
