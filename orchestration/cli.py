@@ -285,23 +285,28 @@ def _output_dir(text: str):
 
 
 class _Interrupts:
-    """Ctrl-C during a run: the first SIGINT asks the master to stop after its current step (an
-    exception raised inside a pythonfmu FMU's Python code would kill the FMU and can crash the
-    process), the data so far is written, the FMUs are terminated and freed, and the exit code
-    is 130. Outside the co-simulation (choosing a model, the reference solution) and at a
-    third SIGINT, the usual KeyboardInterrupt."""
+    """Ctrl-C during ``flexpend run``. A SIGINT is only noted: raising KeyboardInterrupt at an
+    arbitrary point can land inside a pythonfmu FMU's embedded Python code (which kills the FMU
+    and can crash the process) or inside a library's callback (where it is printed and lost).
+    The master asks :meth:`requested` after every communication step and stops; the command
+    checks it between its phases (:meth:`check`). So the data so far is written, the FMUs are
+    terminated and freed, and the exit code is 130. A third SIGINT raises at once."""
 
     def __init__(self):
         self.count = 0
-        self.deferred = False
 
     def __call__(self, signum, frame):
         self.count += 1
-        if not self.deferred or self.count >= 3:
+        if self.count >= 3:
             raise KeyboardInterrupt
 
     def requested(self) -> bool:
         return self.count > 0
+
+    def check(self):
+        """Raise KeyboardInterrupt here, at a safe point, if Ctrl-C was pressed."""
+        if self.count:
+            raise KeyboardInterrupt
 
     def install(self):
         import signal
@@ -327,23 +332,19 @@ def cmd_run(args) -> int:
     scenes = [load_scene(n, args.set) for n in names]          # validate all before running
     out_dir = _output_dir(args.out)
 
-    # Ctrl-C is ours from here; while the run's modules are imported it is only noted (a
-    # KeyboardInterrupt raised inside a library's import machinery can be caught and printed)
-    interrupts = _Interrupts().install()
+    interrupts = _Interrupts().install()                  # Ctrl-C is noted from here on
     try:
-        interrupts.deferred = True
         from fmpy.util import write_csv  # noqa: F401
 
         from . import plots
         from .export import build_fmus
         from .run import run_scene  # noqa: F401
         plots._pyplot()
-        interrupts.deferred = False
-        if interrupts.requested():
-            raise KeyboardInterrupt
+        interrupts.check()
         paths = build_fmus()
         fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
         _check_wiring(scenes, fmus)                       # before any scene runs
+        interrupts.check()
         return _run_scenes(args, scenes, fmus, out_dir, interrupts)
     except KeyboardInterrupt:
         if not (out_dir / "summary.json").exists():     # interrupted before any scene ran
@@ -381,15 +382,12 @@ def _run_scenes(args, scenes, fmus, out_dir, interrupts) -> int:
     code = 0
     try:
         for scene in scenes:
+            interrupts.check()
             print(f"{scene.name}: running {scene['stop_time']:g} s (communication step "
                   f"{scene['master.step']:g} s)", file=sys.stderr, flush=True)
-            interrupts.deferred = True
-            try:
-                r = run_scene(scene, fmus, reference=args.reference, progress=True,
-                              connections_out=sys.stderr if args.connections else None,
-                              stop=interrupts.requested)
-            finally:
-                interrupts.deferred = False
+            r = run_scene(scene, fmus, reference=args.reference and not interrupts.requested(),
+                          progress=True, connections_out=sys.stderr if args.connections else None,
+                          stop=interrupts.requested)
             written = _write_scene(r, scene, out_dir, write_csv, plots)
             summaries[scene.name] = r.summary
             results[scene.name] = r.result
