@@ -38,8 +38,12 @@ def plot_time_histories(result, name: str, description: str, path, reference=Non
     plt = _pyplot()
     t = result["time"]
     cols = [c for c in PANELS if not (c in ("eta_1", "tip_deflection") and not np.any(result[c]))]
-    fig, axes = plt.subplots(len(cols), 1, figsize=(9, 1.9 * len(cols) + 1.2), sharex=True,
-                             layout="constrained")
+    height = 1.9 * len(cols) + 1.2
+    fig, axes = plt.subplots(len(cols), 1, figsize=(9, height), sharex=True)
+    # fixed margins (a layout engine costs a second per figure): 0.95 in at the top for the
+    # two-line title, room for the labels on the left and below
+    fig.subplots_adjust(left=0.1, right=0.98, top=1 - 0.95 / height, bottom=0.55 / height,
+                        hspace=0.12)
     axes = np.atleast_1d(axes)
     for ax, col in zip(axes, cols):
         ax.plot(t, result[col], lw=0.7, color="C0", label="co-simulation")
@@ -106,8 +110,10 @@ def plot_snapshots(beam, frames, title: str, path):
         scale = 10 ** math.floor(math.log10(0.1 * L / defl))
     ncol = min(n, 4)
     nrow = math.ceil(n / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(2.45 * ncol + 0.4, 1.95 * nrow + 0.5),
-                             squeeze=False, layout="constrained")
+    width, height = 2.45 * ncol + 0.4, 2.05 * nrow + 0.5
+    fig, axes = plt.subplots(nrow, ncol, figsize=(width, height), squeeze=False)
+    fig.subplots_adjust(left=0.55 / width, right=1 - 0.1 / width, top=1 - 0.45 / height,
+                        bottom=0.45 / height, wspace=0.3, hspace=0.35)
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     for ax, (t, x, phi, eta) in zip(axes.flat, frames):
@@ -140,8 +146,10 @@ def plot_paper_overview(results: dict, path):
     modal coordinate (Fig. 7), so that no curve hides another."""
     plt = _pyplot()
     n = len(results)
-    fig, axes = plt.subplots(n, 2, figsize=(11, 2.3 * n + 0.8), sharex=True, squeeze=False,
-                             layout="constrained")
+    height = 2.3 * n + 0.8
+    fig, axes = plt.subplots(n, 2, figsize=(11, height), sharex=True, squeeze=False)
+    fig.subplots_adjust(left=0.07, right=0.99, top=1 - 0.45 / height, bottom=0.5 / height,
+                        wspace=0.18, hspace=0.3)
     for row, (name, res) in zip(axes, results.items()):
         row[0].plot(res["time"], res["phi_o"], lw=0.7, color="C0")
         row[0].set_ylabel("$\\varphi_o$ (rad)", fontsize=9)
