@@ -5,6 +5,10 @@
     flexpend design [--set key=value ...] [--json] [--out DIR]   robust low-pass filter design
     flexpend build [--force] [--out DIR]                build the two FMUs
     flexpend scenes                                     list the scenes
+    flexpend export SCENE [--fmus python|native] [--out FILE.ssp]   the scene as an SSP archive
+    flexpend check FMU --reference DIR [--plot FILE.png] [--write-reference]   regress an FMU
+
+``flexpend run`` also runs an SSP archive (``flexpend run FILE.ssp``).
 
 Every error in the user's input (an unknown key, a bad value, an output folder that cannot be
 written) is printed as one line naming it, and the exit code is 2. ``flexpend run`` exits with 0
@@ -33,6 +37,7 @@ from .config import (CONTROLLER_KEYS, ConfigError, apply_overrides, controller_p
 __all__ = ["main"]
 
 EXIT_USAGE = 2
+EXIT_FAILED = 1     # flexpend check: a signal outside its band, or a run that did not complete
 
 
 class UsageError(Exception):
@@ -329,7 +334,11 @@ def cmd_run(args) -> int:
     from .scenes import PAPER_SCENES, load_scene
 
     names = args.scenes or list(PAPER_SCENES)
-    scenes = [load_scene(n, args.set) for n in names]          # validate all before running
+    # validate all before running; an SSP archive brings its own FMUs
+    loaded = [_read_ssp(n, args.set) if n.endswith(".ssp") else load_scene(n, args.set)
+              for n in names]
+    scenes = [getattr(s, "scene", s) for s in loaded]
+    own_fmus = {id(s.scene): s.fmus for s in loaded if hasattr(s, "fmus")}
     out_dir = _output_dir(args.out)
 
     interrupts = _Interrupts().install()                  # Ctrl-C is noted from here on
@@ -341,11 +350,13 @@ def cmd_run(args) -> int:
         from .run import run_scene  # noqa: F401
         plots._pyplot()
         interrupts.check()
-        paths = build_fmus()
-        fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
-        _check_wiring(scenes, fmus)                       # before any scene runs
+        fmus = None
+        if len(own_fmus) < len(scenes):
+            paths = build_fmus()
+            fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+        _check_wiring(scenes, fmus, own_fmus)              # before any scene runs
         interrupts.check()
-        return _run_scenes(args, scenes, fmus, out_dir, interrupts)
+        return _run_scenes(args, scenes, fmus, out_dir, interrupts, own_fmus)
     except KeyboardInterrupt:
         if not (out_dir / "summary.json").exists():     # interrupted before any scene ran
             (out_dir / "summary.json").write_text("{}")
@@ -355,15 +366,16 @@ def cmd_run(args) -> int:
         interrupts.restore()
 
 
-def _check_wiring(scenes, fmus):
-    """Every connection of every scene names variables the FMUs have (ConfigError otherwise)."""
+def _check_wiring(scenes, fmus, own_fmus=None):
+    """Every connection of every scene names variables the FMUs have (ConfigError otherwise);
+    ``own_fmus``: id(scene) -> the FMUs of a scene read from an SSP archive."""
     from fmpy import read_model_description
 
     from .master import parse_connection
 
-    variables = {k: [v.name for v in read_model_description(str(p)).modelVariables]
-                 for k, p in fmus.items()}
     for scene in scenes:
+        variables = {k: [v.name for v in read_model_description(str(p)).modelVariables]
+                     for k, p in ((own_fmus or {}).get(id(scene)) or fmus).items()}
         for text in scene["connections"]:
             c = parse_connection(text)
             for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
@@ -372,7 +384,7 @@ def _check_wiring(scenes, fmus):
                                       f"{', '.join(variables[fmu])}")
 
 
-def _run_scenes(args, scenes, fmus, out_dir, interrupts) -> int:
+def _run_scenes(args, scenes, fmus, out_dir, interrupts, own_fmus=None) -> int:
     from fmpy.util import write_csv
 
     from . import plots
@@ -385,7 +397,8 @@ def _run_scenes(args, scenes, fmus, out_dir, interrupts) -> int:
             interrupts.check()
             print(f"{scene.name}: running {scene['stop_time']:g} s (communication step "
                   f"{scene['master.step']:g} s)", file=sys.stderr, flush=True)
-            r = run_scene(scene, fmus, reference=args.reference and not interrupts.requested(),
+            r = run_scene(scene, (own_fmus or {}).get(id(scene)) or fmus,
+                          reference=args.reference and not interrupts.requested(),
                           progress=True, connections_out=sys.stderr if args.connections else None,
                           stop=interrupts.requested)
             written = _write_scene(r, scene, out_dir, write_csv, plots)
@@ -429,6 +442,70 @@ def _write_scene(r, scene, out_dir, write_csv, plots) -> list:
         plots.plot_snapshots(scene_beam(r.scene), r.frames, f"{scene.name}: beam shapes",
                              written[-1])
     return written
+
+
+def _read_ssp(path, overrides):
+    """An SSP archive as a scene and its FMUs (unpacked until the process exits)."""
+    import atexit
+
+    from .export.ssp import read_ssp
+    system = read_ssp(path, overrides)
+    atexit.register(system.close)
+    return system
+
+
+def cmd_export(args) -> int:
+    from pathlib import Path
+
+    from .export.flavours import FlavourUnavailable
+    from .export.ssp import export_scene
+    from .run import Progress
+    from .scenes import load_scene
+
+    if args.out is not None and Path(args.out).suffix != ".ssp":
+        raise UsageError(f"--out {args.out}: the archive's name must end in .ssp")
+    scene = load_scene(args.scene, args.set)
+    try:
+        r = export_scene(scene, args.fmus, args.out,
+                         progress=Progress(f"{scene.name}: choosing the model"))
+    except FlavourUnavailable as exc:
+        raise UsageError(f"--fmus {args.fmus}: {exc}") from None
+    except ValueError as exc:           # an FMU without a parameter the scene sets, ...
+        raise UsageError(str(exc)) from None
+    cfg = r.scene.config
+    print(f"wrote {r.path}: plant {Path(r.fmus['plant']).name}, controller "
+          f"{Path(r.fmus['controller']).name} ({args.fmus} FMUs), {len(cfg['connections'])} "
+          f"connections, stop time {cfg['stop_time']:g} s, master {cfg['master.algorithm']} "
+          f"at {cfg['master.step']:g} s")
+    if r.model is not None:
+        print(f"  model: {r.model['n_modes']} modes, {r.model['fidelity']} ({r.model['reason']})")
+    return 0
+
+
+def cmd_check(args) -> int:
+    from .export.check import ReferenceError, Rule, check_fmu, plot_check, write_reference
+
+    try:
+        rule = Rule(args.tolerance, args.window, args.max_outliers)
+    except ValueError as exc:
+        raise UsageError(str(exc).replace("max_outliers", "--max-outliers", 1)
+                         .replace("tolerance", "--tolerance", 1).replace("window", "--window", 1)) \
+            from None
+    outputs = [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
+    try:
+        if args.write_reference:
+            files = write_reference(args.fmu, args.reference, outputs)
+            print(f"wrote {files['ref']} (options {files['opt']}"
+                  + (f", inputs {files['in']}" if files["in"].is_file() else ", no input file")
+                  + ")")
+            return 0
+        report = check_fmu(args.fmu, args.reference, rule)
+    except ReferenceError as exc:
+        raise UsageError(str(exc)) from None
+    print("\n".join(report.lines()))
+    if args.plot:
+        print(f"plot: {plot_check(report, args.plot)}")
+    return 0 if report.passed else EXIT_FAILED
 
 
 def scene_beam(scene):
@@ -498,6 +575,47 @@ def build_parser() -> argparse.ArgumentParser:
 
     ps = sub.add_parser("scenes", help="list the scenes")
     ps.set_defaults(func=cmd_scenes)
+
+    from .export.flavours import DEFAULT_FLAVOUR, FLAVOURS
+    pe = sub.add_parser("export", help="write a scene as an SSP archive (both FMUs, wiring, "
+                                       "parameters, experiment)",
+                        description="Write SCENE as an SSP 1.0 archive: SystemStructure.ssd and "
+                                    "both FMUs under resources/. 'auto' models are chosen first. "
+                                    "Run it back with 'flexpend run FILE.ssp'.")
+    pe.add_argument("scene", metavar="SCENE", help="scene name or path to a .toml file")
+    pe.add_argument("--fmus", choices=list(FLAVOURS), default=DEFAULT_FLAVOUR,
+                    help=f"which FMUs to package (default: {DEFAULT_FLAVOUR})")
+    pe.add_argument("--out", default=None, metavar="FILE.ssp",
+                    help="the archive (default: out/<scene>.ssp)")
+    pe.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene key, e.g. master.algorithm=jacobi")
+    pe.set_defaults(func=cmd_export)
+
+    pc = sub.add_parser("check", help="regress an FMU against reference results (FMI "
+                                      "cross-check layout)",
+                        description="Simulate FMU alone with <Model>_in.csv and <Model>_ref.opt "
+                                    "of the reference folder and compare every signal of "
+                                    "<Model>_ref.csv within FMPy's cross-check band. Prints one "
+                                    "line per signal; exits 1 on any signal outside its band "
+                                    "or a run that does not reach the stop time, 2 on bad input.")
+    pc.add_argument("fmu", metavar="FMU", help="the .fmu file")
+    pc.add_argument("--reference", required=True, metavar="DIR",
+                    help="folder with <Model>_ref.csv, <Model>_ref.opt, <Model>_in.csv (or a "
+                         "<Model> subfolder with them)")
+    pc.add_argument("--plot", metavar="FILE.png", help="draw each signal over its band")
+    pc.add_argument("--write-reference", action="store_true",
+                    help="write <Model>_ref.csv from a run instead of checking (and "
+                         "<Model>_ref.opt from the FMU's default experiment if missing)")
+    pc.add_argument("--outputs", metavar="NAMES",
+                    help="with --write-reference: comma-separated signals to record (default: "
+                         "those of the existing reference, else every output)")
+    pc.add_argument("--tolerance", type=float, default=0.1,
+                    help="band half-width as a fraction of each signal's range (default: 0.1)")
+    pc.add_argument("--window", type=int, default=21,
+                    help="samples the band is widened over (default: 21; 1: none)")
+    pc.add_argument("--max-outliers", type=float, default=0.1,
+                    help="fraction of samples allowed outside the band (default: 0.1; 0: none)")
+    pc.set_defaults(func=cmd_check)
     return parser
 
 

@@ -1,15 +1,16 @@
 """Reference results in the FMI cross-check layout: each FMU alone, simulated by fmpy.simulate_fmu
 with its committed input file and options, must reproduce its committed reference within
-REFERENCE_TOLERANCE of each signal's range. Regenerate them on purpose with
-``python build/build_fmus.py --references``."""
+REFERENCE_RULE (1e-6 of each signal's range at every sample). It is the code of ``flexpend
+check`` (orchestration/export/check.py) with the tight rule. Regenerate the references on purpose
+with ``python build/build_fmus.py --references``."""
 import csv
 
 import numpy as np
 import pytest
 from fmpy.util import read_csv, read_ref_opt_file, validate_result
 
-from orchestration.export.references import (REFERENCE_TOLERANCE, compare_with_reference, reference_files,
-                                     simulate_reference_case, write_references)
+from orchestration.export.check import (REFERENCE_RULE, check_fmu, compare, reference_files,
+                                        simulate_reference_case, write_references)
 
 MODELS = ["FlexiblePendulum", "PDLowPass"]
 
@@ -18,13 +19,18 @@ def reference(name):
     return read_csv(str(reference_files(name)["ref"]))
 
 
+def largest_relative_deviation(result, ref):
+    return max(s.relative_deviation for s in compare(result, ref, REFERENCE_RULE).values())
+
+
 @pytest.mark.parametrize("name", MODELS)
 def test_fresh_run_matches_the_committed_reference(fmus, name):
-    result = simulate_reference_case(fmus[name], name)
-    ref = reference(name)
-    deviation = compare_with_reference(result, ref)
-    assert max(deviation.values()) <= REFERENCE_TOLERANCE, deviation
-    assert validate_result(result, ref) == 0          # and FMPy's cross-check band: no outlier
+    report = check_fmu(fmus[name], reference_files(name)["dir"], REFERENCE_RULE)
+    assert report.passed, "\n".join(report.lines())
+    assert all(s.outliers == 0 and s.samples == 1001 for s in report.signals.values())
+    assert max(s.relative_deviation for s in report.signals.values()) <= REFERENCE_RULE.tolerance
+    # and FMPy's own cross-check band (fmpy.util.validate_result): no outlier
+    assert validate_result(report.run.result, reference(name)) == 0
 
 
 @pytest.mark.parametrize("name, change", [
@@ -35,7 +41,10 @@ def test_fresh_run_matches_the_committed_reference(fmus, name):
 ], ids=["EI+0.1%", "zeta+10%", "preload", "filter_damping+0.1%"])
 def test_a_small_change_of_the_physics_leaves_the_band(fmus, name, change):
     result = simulate_reference_case(fmus[name], name, start_values=change)
-    assert max(compare_with_reference(result, reference(name)).values()) > 10 * REFERENCE_TOLERANCE
+    assert largest_relative_deviation(result, reference(name)) > 10 * REFERENCE_RULE.tolerance
+    report = check_fmu(fmus[name], reference_files(name)["dir"], REFERENCE_RULE,
+                       start_values=change)
+    assert not report.passed
 
 
 @pytest.mark.parametrize("name", MODELS)
@@ -62,4 +71,5 @@ def test_regeneration_reproduces_the_committed_files(fmus, tmp_path):
         assert files["in"].read_bytes() == committed["in"].read_bytes()
         assert files["opt"].read_bytes() == committed["opt"].read_bytes()
         new = read_csv(str(files["ref"]))
-        assert max(compare_with_reference(new, reference(name)).values()) <= REFERENCE_TOLERANCE
+        assert new.dtype.names == reference(name).dtype.names
+        assert largest_relative_deviation(new, reference(name)) <= REFERENCE_RULE.tolerance

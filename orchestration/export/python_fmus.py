@@ -2,7 +2,7 @@
 
     build_fmus(out_dir)          -> {"FlexiblePendulum": path, "PDLowPass": path}
 
-The reference results are :mod:`orchestration.export.references`.
+The reference results are :mod:`orchestration.export.check`.
 
 What the build does beyond ``pythonfmu build``:
 
@@ -273,7 +273,7 @@ def main(argv=None) -> int:
     if args.references:
         if set(fmus) != set(SPECS):
             fmus = build_fmus(args.out)
-        from .references import write_references
+        from .check import write_references
         for n, files in write_references(fmus).items():
             print(f"{n}: reference written to {files['ref'].parent}")
     return 0

@@ -1,0 +1,531 @@
+"""Regress an FMU against reference results in the FMI cross-check layout.
+
+    check_fmu(fmu, reference, rule=Rule())   -> CheckReport (``flexpend check``)
+    write_reference(fmu, reference)          -> the files (``flexpend check --write-reference``)
+    simulate_case(fmu, files)                -> Run: the FMU alone, its input file and options
+    compare(result, reference, rule)         -> {signal: SignalCheck}
+
+A reference is three files in one folder, named after the model (cross-check layout):
+``<Model>_in.csv`` (inputs, optional), ``<Model>_ref.csv`` (the expected result: time first, then
+the signals compared) and ``<Model>_ref.opt`` (``StartTime``, ``StopTime``, ``StepSize``,
+``RelTol``). The FMU is simulated alone by ``fmpy.simulate_fmu`` with the input file, from
+``StartTime`` to ``StopTime`` in steps of ``StepSize`` (also the output interval).
+
+The comparison is FMPy's cross-check rule (``fmpy.cross_check.validate_signal``): around each
+reference signal a band of half-width ``tolerance`` times the signal's range (max - min), widened
+over ``window`` neighbouring samples (the band's lower edge is the smallest reference value within
+the window, minus the half-width; the upper edge likewise), and a signal passes when at most
+``max_outliers`` of the result's samples fall outside. The defaults are FMPy's: 10 %, 21 samples,
+10 %. Two departures: the band is built on the reference's own samples (FMPy resamples it onto
+1000 points, which a tight band cannot tolerate: linear interpolation between the points is off by
+far more than 1e-6 of the range) and every sample counts, the first and the last included; and a
+constant signal gets the half-width ``tolerance * max(|value|, 1)`` (FMPy: 0.5 around zero, which
+no tolerance would tighten).
+
+A run that does not reach ``StopTime`` fails, whatever its samples: ``fmpy.simulate_fmu`` returns
+normally, with a shorter result, when an FMU discards a step (fmi2Discard, then
+``fmi2Terminated``), so the discard is watched for (through fmpy's FMI call logger) and the run
+stopped there, and the result's last time is checked against ``StopTime``.
+
+The project's own references (``tests/reference/``, regenerated on purpose by ``python
+build/build_fmus.py --references``) use the same code with :data:`REFERENCE_RULE`: 1e-6 of the
+range at every sample, no widening, no outlier.
+"""
+from __future__ import annotations
+
+import contextlib
+import io
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .python_fmus import ROOT
+
+__all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
+           "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
+           "simulate_case", "compare", "band", "check_fmu", "write_reference", "plot_check",
+           "simulate_reference_case", "write_references"]
+
+REFERENCE_DIR = ROOT / "tests" / "reference"
+
+
+class ReferenceError(ValueError):
+    """The reference files are missing or unreadable, or the FMU cannot be opened (one line)."""
+
+
+@dataclass(frozen=True)
+class Rule:
+    """The comparison band: half-width ``tolerance`` x the reference's range, widened over
+    ``window`` samples; a signal passes with at most ``max_outliers`` of its samples outside."""
+
+    tolerance: float = 0.1
+    window: int = 21
+    max_outliers: float = 0.1
+
+    def __post_init__(self):
+        if not (isinstance(self.tolerance, (int, float)) and 0 < self.tolerance < math.inf):
+            raise ValueError(f"tolerance = {self.tolerance!r}; allowed: a number > 0")
+        if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
+            raise ValueError(f"window = {self.window!r}; allowed: an integer >= 1 (samples)")
+        if not (isinstance(self.max_outliers, (int, float)) and 0 <= self.max_outliers < 1):
+            raise ValueError(f"max_outliers = {self.max_outliers!r}; allowed: 0 <= fraction < 1")
+
+    def describe(self) -> str:
+        widen = f", widened over {self.window} samples" if self.window > 1 else ""
+        return (f"band +-{self.tolerance:g} x range{widen}, at most "
+                f"{100 * self.max_outliers:g} % of the samples outside")
+
+
+#: FMPy's cross-check rule (the defaults of ``flexpend check``).
+FMPY_RULE = Rule()
+#: The project's own reference test: every sample within 1e-6 of the signal's range. Round-off
+#: grows at most ~1e3 times over the second (the pendulum's unstable root is +7/s), so a run on
+#: another machine stays ~1e-10 inside it, while a change of the physics by 1e-3 leaves it.
+REFERENCE_RULE = Rule(tolerance=1e-6, window=1, max_outliers=0.0)
+
+
+# ---------------------------------------------------------------------- files
+def reference_files(name: str, ref_dir: Path = REFERENCE_DIR) -> dict:
+    """The three files of model ``name`` under ``ref_dir/<name>/`` (the project's layout)."""
+    d = Path(ref_dir) / name
+    return _files(d, name)
+
+
+def _files(d: Path, name: str) -> dict:
+    return {"in": d / f"{name}_in.csv", "ref": d / f"{name}_ref.csv", "opt": d / f"{name}_ref.opt",
+            "model": name, "dir": d}
+
+
+def _model_names(fmu: Path) -> list[str]:
+    from fmpy import read_model_description
+
+    try:
+        md = read_model_description(str(fmu), validate=False)
+    except Exception as exc:  # noqa: BLE001 - any reason the FMU cannot be read
+        raise ReferenceError(f"{fmu}: not a readable FMU: {exc}") from None
+    names = [fmu.stem]
+    for n in (getattr(md.coSimulation, "modelIdentifier", None), md.modelName):
+        if n and n not in names:
+            names.append(n)
+    return names
+
+
+def find_reference(fmu, ref_dir, must_exist: bool = True) -> dict:
+    """The reference files of ``fmu`` in ``ref_dir`` or in ``ref_dir/<Model>/``, where
+    ``<Model>`` is the FMU's file name (without ``.fmu``), its model identifier or its model
+    name. With ``must_exist=False``, where they would go (for ``--write-reference``)."""
+    fmu, ref_dir = Path(fmu), Path(ref_dir)
+    if not fmu.is_file():
+        raise ReferenceError(f"{fmu}: no such FMU")
+    names = _model_names(fmu)
+    for kind in ("ref", "opt"):
+        for name in names:
+            for d in (ref_dir, ref_dir / name):
+                files = _files(d, name)
+                if files[kind].is_file():
+                    return files
+    if must_exist:
+        raise ReferenceError(f"{ref_dir}: no reference of {fmu.name} ({' or '.join(f'{n}_ref.csv' for n in names)}, "
+                             f"in the folder or in a subfolder of that name)")
+    name = names[0]
+    return _files(ref_dir if ref_dir.name == name else ref_dir / name, name)
+
+
+def read_opt(path) -> dict:
+    """The options file (``StartTime``, ``StopTime``, ``StepSize``, ``RelTol``)."""
+    from fmpy.util import read_ref_opt_file
+
+    try:
+        opt = read_ref_opt_file(str(path))
+    except OSError as exc:
+        raise ReferenceError(f"{path}: cannot read the options: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - a malformed line
+        raise ReferenceError(f"{path}: not an options file (lines 'Name,value'): {exc}") from None
+    missing = [k for k in ("StartTime", "StopTime", "StepSize") if k not in opt]
+    if missing:
+        raise ReferenceError(f"{path}: {', '.join(missing)} missing")
+    start, stop, step = opt["StartTime"], opt["StopTime"], opt["StepSize"]
+    if not (math.isfinite(start) and math.isfinite(stop) and stop > start
+            and 0 < step <= stop - start):
+        raise ReferenceError(f"{path}: StartTime = {start:g}, StopTime = {stop:g}, StepSize = "
+                             f"{step:g}: need StartTime < StopTime and 0 < StepSize <= the run")
+    return opt
+
+
+def _read_csv(path):
+    from fmpy.util import read_csv
+
+    try:
+        data = read_csv(str(path))
+    except OSError as exc:
+        raise ReferenceError(f"{path}: cannot read: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - malformed CSV
+        raise ReferenceError(f"{path}: not a result CSV (quoted header, time first): {exc}") from None
+    if data.dtype.names is None or len(data.dtype.names) < 2 or data.size < 2:
+        raise ReferenceError(f"{path}: needs a time column, at least one signal and two rows")
+    t = data[data.dtype.names[0]]
+    if not np.all(np.isfinite(t)) or np.any(np.diff(t) < 0):
+        raise ReferenceError(f"{path}: the time column must be finite and non-decreasing")
+    return data
+
+
+# ---------------------------------------------------------------------- simulation
+@dataclass
+class Run:
+    """A simulation of one FMU: the result (None if it failed before producing one), why it did
+    not reach the stop time (None when it did), the FMU's log messages and fmpy's notes."""
+
+    result: np.ndarray | None
+    failure: str | None = None
+    log: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+
+
+_DOSTEP = re.compile(r"fmi[23]DoStep\((.*)\) -> (\w+)$")
+_BAD = ("DISCARD", "ERROR", "FATAL")
+
+
+def simulate_case(fmu, files: dict, start_values=None, outputs=None) -> Run:
+    """Simulate ``fmu`` alone with the input file and options of ``files`` (a reference's
+    files); record ``outputs`` (default: the reference's signals)."""
+    from fmpy import simulate_fmu
+
+    opt = read_opt(files["opt"])
+    inputs = _read_csv(files["in"]) if files["in"].is_file() else None
+    if outputs is None:
+        outputs = list(_read_csv(files["ref"]).dtype.names[1:])
+    log, bad = [], []
+
+    def logger(component, instance, status, category, message):
+        if status >= 2:          # discard, error, fatal: the reason of a failure
+            log.append((message or b"").decode(errors="replace"))
+
+    def call_logger(message):
+        m = _DOSTEP.search(message)
+        if m and m.group(2) in _BAD:
+            t = re.search(r"currentCommunicationPoint=([^,]+)", m.group(1))
+            bad.append((m.group(2).lower(), t.group(1) if t else "?"))
+
+    stdout = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(stdout):
+            result = simulate_fmu(str(fmu), start_time=opt["StartTime"], stop_time=opt["StopTime"],
+                                  step_size=opt["StepSize"], output_interval=opt["StepSize"],
+                                  relative_tolerance=opt.get("RelTol"), input=inputs,
+                                  output=outputs, start_values=start_values or {},
+                                  debug_logging=True, logger=logger, fmi_call_logger=call_logger,
+                                  step_finished=lambda time, recorder: not bad)
+    except Exception as exc:  # noqa: BLE001 - an FMU that fails to simulate, for any reason
+        why = f"the FMU failed to simulate: {type(exc).__name__}: {exc}"
+        if log:
+            why += f" ({log[-1]})"
+        return Run(None, why, log, _notes(stdout))
+    failure = None
+    stop = opt["StopTime"]
+    if bad:
+        status, t = bad[0]
+        failure = f"doStep at t = {t} returned {status}" + (f": {log[-1]}" if log else "")
+    elif result["time"][-1] < stop - 1e-9 * max(1.0, abs(stop)):
+        failure = f"the run stopped at t = {result['time'][-1]:g}, before StopTime = {stop:g}"
+        if log:
+            failure += f": {log[-1]}"
+    if failure is not None:
+        failure = f"stopped early: {failure}" if result.size else failure
+    return Run(result, failure, log, _notes(stdout))
+
+
+def _notes(stdout) -> list[str]:
+    return [line.strip() for line in stdout.getvalue().splitlines() if line.strip()]
+
+
+# ---------------------------------------------------------------------- comparison
+@dataclass
+class SignalCheck:
+    """One signal against its band."""
+
+    name: str
+    passed: bool
+    max_deviation: float = math.nan    # largest |result - reference|
+    span: float = math.nan             # the reference's range (max - min)
+    half_width: float = math.nan       # the band's half-width
+    outliers: int = 0
+    samples: int = 0
+    problem: str | None = None         # e.g. the signal is missing from the result
+    band: tuple = ()                   # (t_ref, lower, upper), for plotting
+
+    @property
+    def relative_deviation(self) -> float:
+        return self.max_deviation / self.span if self.span > 0 else self.max_deviation
+
+    def line(self) -> str:
+        verdict = "pass" if self.passed else "FAIL"
+        if self.problem:
+            return f"{self.name:<16} {self.problem}: {verdict}"
+        return (f"{self.name:<16} max |deviation| {self.max_deviation:.3e} "
+                f"({self.relative_deviation:.2e} of range {self.span:.4g}), band +-"
+                f"{self.half_width:.3e}, {self.outliers}/{self.samples} outside: {verdict}")
+
+
+def band(t_ref, y_ref, rule: Rule):
+    """``(lower, upper, half_width)`` of the band around ``y_ref`` on the reference's samples."""
+    from scipy.ndimage import maximum_filter1d, minimum_filter1d
+
+    y_ref = np.asarray(y_ref, dtype=float)
+    lo_ref, hi_ref = float(np.min(y_ref)), float(np.max(y_ref))
+    span = hi_ref - lo_ref
+    w = rule.tolerance * (span if span > 0 else max(abs(lo_ref), 1.0))
+    if rule.window > 1:
+        lower = minimum_filter1d(y_ref, size=rule.window) - w
+        upper = maximum_filter1d(y_ref, size=rule.window) + w
+    else:
+        lower, upper = y_ref - w, y_ref + w
+    return lower, upper, w
+
+
+def compare(result, reference, rule: Rule = FMPY_RULE) -> dict:
+    """Each signal of ``reference`` (a structured array, time first) against its band, at the
+    samples of ``result`` within the reference's time span."""
+    t_ref = np.asarray(reference[reference.dtype.names[0]], dtype=float)
+    t = np.asarray(result[result.dtype.names[0]], dtype=float)
+    same_grid = t.shape == t_ref.shape and np.allclose(t, t_ref, rtol=0,
+                                                       atol=1e-9 * max(1.0, abs(t_ref[-1])))
+    inside = (t >= t_ref[0] - 1e-12) & (t <= t_ref[-1] + 1e-12)
+    out = {}
+    for name in reference.dtype.names[1:]:
+        if name not in (result.dtype.names or ()):
+            out[name] = SignalCheck(name, False, problem="missing from the result")
+            continue
+        y_ref = np.asarray(reference[name], dtype=float)
+        lower, upper, w = band(t_ref, y_ref, rule)
+        y = np.asarray(result[name], dtype=float)
+        if same_grid:
+            r, lo, hi, yy = y_ref, lower, upper, y
+        else:
+            tt, yy = t[inside], y[inside]
+            r, lo, hi = (np.interp(tt, t_ref, a) for a in (y_ref, lower, upper))
+        ok = (yy >= lo) & (yy <= hi)                  # NaN is outside
+        n_out = int(np.count_nonzero(~ok))
+        dev = float(np.max(np.abs(yy - r))) if yy.size else math.nan
+        if not math.isfinite(dev):
+            dev = math.inf
+        span = float(np.max(y_ref) - np.min(y_ref))
+        passed = yy.size > 0 and n_out <= rule.max_outliers * yy.size
+        out[name] = SignalCheck(name, bool(passed), dev, span, w, n_out, int(yy.size),
+                                band=(t_ref, lower, upper))
+    return out
+
+
+@dataclass
+class CheckReport:
+    """The verdict of ``flexpend check``: per signal, and whether the run itself completed."""
+
+    fmu: Path
+    files: dict
+    rule: Rule
+    run: Run
+    reference: np.ndarray
+    signals: dict = field(default_factory=dict)
+
+    @property
+    def failure(self) -> str | None:
+        return self.run.failure
+
+    @property
+    def passed(self) -> bool:
+        return (self.failure is None and bool(self.signals)
+                and all(s.passed for s in self.signals.values()))
+
+    def lines(self) -> list[str]:
+        out = [f"{self.fmu.name} against {self.files['ref']} ({self.rule.describe()})"]
+        out += [f"  {s.line()}" for s in self.signals.values()]
+        if self.failure:
+            out.append(f"  run: {self.failure}: FAIL")
+        n_bad = sum(not s.passed for s in self.signals.values())
+        verdict = "PASSED" if self.passed else "FAILED"
+        why = []
+        if n_bad:
+            why.append(f"{n_bad} of {len(self.signals)} signals outside their band")
+        if self.failure:
+            why.append("the run did not complete")
+        out.append(f"{verdict}" + (f": {'; '.join(why)}" if why else
+                                   f": {len(self.signals)} signals within their band"))
+        return out
+
+
+def check_fmu(fmu, reference, rule: Rule = FMPY_RULE, start_values=None) -> CheckReport:
+    """Simulate ``fmu`` with the input file and options of its reference in ``reference`` (a
+    folder) and compare every reference signal (see the module's docstring)."""
+    files = find_reference(fmu, reference)
+    for kind in ("ref", "opt"):
+        if not files[kind].is_file():
+            raise ReferenceError(f"{files[kind]}: missing")
+    ref = _read_csv(files["ref"])
+    run = simulate_case(fmu, files, start_values, outputs=list(ref.dtype.names[1:]))
+    signals = compare(run.result, ref, rule) if run.result is not None and run.result.size else {}
+    if run.result is not None and run.result.size and run.failure is None:
+        t, t_ref = run.result["time"], ref[ref.dtype.names[0]]
+        if t[0] > t_ref[0] + 1e-9 or t[-1] < t_ref[-1] - 1e-9 * max(1.0, abs(t_ref[-1])):
+            run.failure = (f"the run covers {t[0]:g}..{t[-1]:g} s, the reference "
+                           f"{t_ref[0]:g}..{t_ref[-1]:g} s")
+    return CheckReport(Path(fmu), files, rule, run, ref, signals)
+
+
+def write_reference(fmu, reference, outputs=None) -> dict:
+    """Write ``<Model>_ref.csv`` from a run of ``fmu`` with the input file and options in
+    ``reference`` (or ``reference/<Model>/``). A missing ``<Model>_ref.opt`` is written from the
+    FMU's default experiment first. ``outputs``: the signals (default: those of an existing
+    ``<Model>_ref.csv``, else every output of the FMU). A run that does not complete writes
+    nothing (:class:`ReferenceError`)."""
+    from fmpy import read_model_description
+    from fmpy.util import write_csv
+
+    fmu = Path(fmu)
+    files = find_reference(fmu, reference, must_exist=False)
+    md = read_model_description(str(fmu), validate=False)
+    if not files["opt"].is_file():
+        de = md.defaultExperiment
+        step = getattr(de, "stepSize", None) if de is not None else None
+        if de is None or step is None or de.stopTime is None:
+            raise ReferenceError(f"{files['opt']}: missing, and {fmu.name} has no default "
+                                 "experiment with a stop time and a step size to write it from")
+        opt = {"StartTime": float(de.startTime or 0.0), "StopTime": float(de.stopTime),
+               "StepSize": float(step)}
+        if de.tolerance is not None:
+            opt["RelTol"] = float(de.tolerance)
+        files["dir"].mkdir(parents=True, exist_ok=True)
+        files["opt"].write_text("".join(f"{k},{v!r}\n" for k, v in opt.items()))
+    if outputs is None:
+        if files["ref"].is_file():
+            outputs = list(_read_csv(files["ref"]).dtype.names[1:])
+        else:
+            outputs = [v.name for v in md.modelVariables if v.causality == "output"]
+    known = {v.name for v in md.modelVariables}
+    unknown = [o for o in outputs if o not in known]
+    if unknown or not outputs:
+        raise ReferenceError(f"{fmu.name} has no variable {', '.join(map(repr, unknown))}" if unknown
+                             else f"{fmu.name}: no output to record")
+    run = simulate_case(fmu, files, outputs=list(outputs))
+    if run.failure is not None:
+        raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}")
+    files["dir"].mkdir(parents=True, exist_ok=True)
+    write_csv(str(files["ref"]), run.result)
+    return files
+
+
+# ---------------------------------------------------------------------- plot
+def plot_check(report: CheckReport, path) -> Path:
+    """Each signal over its band: the reference, the band, the result, the samples outside."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    signals = list(report.signals.values())
+    n = max(1, len(signals))
+    fig, axes = plt.subplots(n, 1, figsize=(9, 1.9 * n + 0.8), sharex=True, squeeze=False)
+    res = report.run.result
+    ref = report.reference
+    t_ref = ref[ref.dtype.names[0]]
+    for ax, s in zip(axes[:, 0], signals):
+        if s.band:
+            ax.fill_between(s.band[0], s.band[1], s.band[2], color="tab:green", alpha=0.25,
+                            lw=0, label="band")
+        ax.plot(t_ref, ref[s.name], color="black", lw=0.8, label="reference")
+        if res is not None and s.name in (res.dtype.names or ()):
+            t = res[res.dtype.names[0]]
+            ax.plot(t, res[s.name], color="tab:blue", lw=0.8, ls="--", label="result")
+            if s.band and s.outliers:
+                lo = np.interp(t, s.band[0], s.band[1])
+                hi = np.interp(t, s.band[0], s.band[2])
+                bad = ~((res[s.name] >= lo) & (res[s.name] <= hi))
+                ax.plot(t[bad], res[s.name][bad], ".", color="tab:red", ms=3, label="outside")
+        ax.set_ylabel(s.name)
+        ax.set_title(f"{s.name}: {'pass' if s.passed else 'FAIL'} ({s.outliers}/{s.samples} "
+                     f"outside)", fontsize=8, loc="left")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(loc="upper right", fontsize=7)
+    axes[-1, 0].set_xlabel("time (s)")
+    verdict = "PASSED" if report.passed else "FAILED"
+    extra = f"; {report.failure}" if report.failure else ""
+    fig.suptitle(f"{report.fmu.name}: {verdict} ({report.rule.describe()}){extra}"[:160],
+                 fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ---------------------------------------------------------------------- the project's references
+#: The signals each FMU's reference records.
+REFERENCE_OUTPUTS = {
+    "FlexiblePendulum": ["x_o", "x_dot", "phi_o", "omega_o", "tip_deflection", "eta_1", "energy"],
+    "PDLowPass": ["F_c"],
+}
+
+
+def _reference_cases():
+    """name -> (options of the .opt file, input columns {name: f(t)})."""
+    two_pi = 2 * np.pi
+
+    def held(*names):
+        """The input-derivative columns, all 0: fmpy holds each input over a step (zero-order
+        hold), and an input file that names every input keeps fmpy from warning."""
+        return {n: (lambda t: np.zeros_like(t)) for n in names}
+
+    return {
+        # the plant alone (defaults: 4 modes, rk4), pushed then pulled, with a ripple at the
+        # closed-loop bending frequency (24 Hz = 150 rad/s). The pull is sized so that the pair
+        # leaves the unstable pendulum mode (+7/s) almost unexcited: the pendulum stays within
+        # 0.02 rad for the whole second while the bending modes ring
+        "FlexiblePendulum": (
+            {"StartTime": 0.0, "StopTime": 1.0, "StepSize": 1e-3, "RelTol": 1e-6},
+            {"F_c": lambda t: (np.where(t < 0.05, 20.0, 0.0)
+                               - np.where((t >= 0.05) & (t < 0.1), 29.148, 0.0)
+                               + 3.0 * np.sin(two_pi * 24.0 * t)),
+             **held("dF_c", "d2F_c")}),
+        # the controller alone (defaults: PD + the designed 2nd-order filter, 97.3 rad/s, damping
+        # 0.1) on sensor signals with a step, a slow swing and a bending-frequency ripple
+        "PDLowPass": (
+            {"StartTime": 0.0, "StopTime": 1.0, "StepSize": 1e-3, "RelTol": 1e-6},
+            {"phi_o": lambda t: (0.1 * np.sin(two_pi * 2.0 * t) + 0.01 * np.sin(150.0 * t)
+                                 + np.where(t >= 0.5, 0.05, 0.0)),
+             "omega_o": lambda t: (0.2 * np.pi * 2.0 * np.cos(two_pi * 2.0 * t)
+                                   + 1.5 * np.cos(150.0 * t)),
+             "x_o": lambda t: 0.5 * t * t,
+             **held(*(f"{d}{n}" for d in ("d", "d2") for n in ("phi_o", "omega_o", "x_o")))}),
+    }
+
+
+def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start_values=None):
+    """A fresh run of one of the project's FMUs with its committed input file and options (the
+    result array; a run that does not complete raises ``RuntimeError``)."""
+    run = simulate_case(fmu, reference_files(name, ref_dir), start_values,
+                        outputs=REFERENCE_OUTPUTS[name])
+    if run.failure is not None:
+        raise RuntimeError(f"{name}: {run.failure}")
+    return run.result
+
+
+def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
+    """Regenerate the input files, options and reference results of the project's FMUs (``fmus``:
+    name -> path); return the files of each."""
+    from fmpy.util import write_csv
+
+    written = {}
+    for name, (opt, inputs) in _reference_cases().items():
+        files = reference_files(name, ref_dir)
+        files["dir"].mkdir(parents=True, exist_ok=True)
+        n = round((opt["StopTime"] - opt["StartTime"]) / opt["StepSize"])
+        t = opt["StartTime"] + np.arange(n + 1) * opt["StepSize"]
+        arr = np.zeros(t.size, dtype=[("time", "f8")] + [(k, "f8") for k in inputs])
+        arr["time"] = t
+        for k, f in inputs.items():
+            arr[k] = f(t)
+        write_csv(str(files["in"]), arr)
+        files["opt"].write_text("".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        written[name] = write_reference(fmus[name], files["dir"], REFERENCE_OUTPUTS[name])
+    return written

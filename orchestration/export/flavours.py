@@ -1,0 +1,45 @@
+"""The FMU flavours a system can be exported with, by name.
+
+    fmu_paths("python")  -> {"plant": path, "controller": path}   (built if stale)
+
+Each flavour is one function in :data:`FLAVOURS` that returns the paths of the plant and the
+controller FMU, building them if needed; ``None`` marks a flavour this build does not have (the
+native FMUs: the command line says so and exits 2). ``python`` are the pythonfmu FMUs of
+:mod:`.python_fmus`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+__all__ = ["FLAVOURS", "DEFAULT_FLAVOUR", "FlavourUnavailable", "fmu_paths"]
+
+
+class FlavourUnavailable(ValueError):
+    """The FMUs of this flavour cannot be had in this build (the message says why)."""
+
+
+def _python_fmus() -> dict:
+    from .python_fmus import build_fmus
+
+    paths = build_fmus()
+    return {"plant": Path(paths["FlexiblePendulum"]), "controller": Path(paths["PDLowPass"])}
+
+
+#: flavour -> function returning ``{"plant": path, "controller": path}``; ``None``: not in this
+#: build. The native FMUs (FMI 2.0 in C) replace ``None`` with their build function.
+FLAVOURS = {
+    "native": None,
+    "python": _python_fmus,
+}
+#: The flavour ``flexpend export`` uses unless told otherwise.
+DEFAULT_FLAVOUR = "python"
+
+
+def fmu_paths(flavour: str = DEFAULT_FLAVOUR) -> dict:
+    """``{"plant": path, "controller": path}`` of the FMUs of ``flavour`` (built if stale)."""
+    if flavour not in FLAVOURS:
+        raise ValueError(f"FMU flavour {flavour!r} is not known; known: {', '.join(FLAVOURS)}")
+    build = FLAVOURS[flavour]
+    if build is None:
+        raise FlavourUnavailable(f"the {flavour} FMUs are not available in this build")
+    return build()
