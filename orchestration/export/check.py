@@ -9,7 +9,9 @@ A reference is three files in one folder, named after the model (cross-check lay
 ``<Model>_in.csv`` (inputs, optional), ``<Model>_ref.csv`` (the expected result: time first, then
 the signals compared) and ``<Model>_ref.opt`` (``StartTime``, ``StopTime``, ``StepSize``,
 ``RelTol``). The FMU is simulated alone by ``fmpy.simulate_fmu`` with the input file, from
-``StartTime`` to ``StopTime`` in steps of ``StepSize`` (also the output interval).
+``StartTime`` to ``StopTime`` in steps of ``StepSize`` (also the output interval), in a fresh
+isolated Python process: a pythonfmu FMU runs the first copy of its packages that a process has
+imported, so in the checker's own process a modified FMU would run the installed code and pass.
 
 The comparison is FMPy's cross-check rule (``fmpy.cross_check.validate_signal``): around each
 reference signal a band of half-width ``tolerance`` times the signal's range (max - min), widened
@@ -33,10 +35,7 @@ range at every sample, no widening, no outlier.
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -135,15 +134,21 @@ def find_reference(fmu, ref_dir, must_exist: bool = True) -> dict:
 
 
 def read_opt(path) -> dict:
-    """The options file (``StartTime``, ``StopTime``, ``StepSize``, ``RelTol``)."""
-    from fmpy.util import read_ref_opt_file
-
+    """The options file: lines ``Name,value`` with ``StartTime``, ``StopTime``, ``StepSize`` and
+    optionally ``RelTol`` (FMPy's reader requires it; a co-simulation FMU rarely needs it)."""
     try:
-        opt = read_ref_opt_file(str(path))
+        text = Path(path).read_text()
     except OSError as exc:
         raise ReferenceError(f"{path}: cannot read the options: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 - a malformed line
-        raise ReferenceError(f"{path}: not an options file (lines 'Name,value'): {exc}") from None
+    opt = {}
+    for n, line in enumerate(text.splitlines(), 1):
+        if not line.strip():
+            continue
+        name, sep, value = line.partition(",")
+        try:
+            opt[name.strip()] = float(value)
+        except ValueError:
+            raise ReferenceError(f"{path}: line {n}: {line.strip()!r} is not 'Name,value'") from None
     missing = [k for k in ("StartTime", "StopTime", "StepSize") if k not in opt]
     if missing:
         raise ReferenceError(f"{path}: {', '.join(missing)} missing")
@@ -184,61 +189,104 @@ class Run:
     notes: list = field(default_factory=list)
 
 
-_DOSTEP = re.compile(r"fmi[23]DoStep\((.*)\) -> (\w+)$")
-_BAD = ("DISCARD", "ERROR", "FATAL")
-
-
-def simulate_case(fmu, files: dict, start_values=None, outputs=None) -> Run:
+def simulate_case(fmu, files: dict, start_values=None, outputs=None, timeout=None) -> Run:
     """Simulate ``fmu`` alone with the input file and options of ``files`` (a reference's
-    files); record ``outputs`` (default: the reference's signals)."""
-    from fmpy import simulate_fmu
+    files); record ``outputs`` (default: the reference's signals).
+
+    The simulation runs in a fresh, isolated Python process (``python -I``) that imports nothing
+    but fmpy and numpy: a pythonfmu FMU runs whatever copy of its packages the process has
+    imported first, so in a process that has imported this project (the checker itself) a
+    modified FMU would run the installed code, not its own, and pass. The child also keeps a
+    crashing FMU from taking the checker down."""
+    import json
+    import subprocess
+    import sys
+    import tempfile
 
     opt = read_opt(files["opt"])
-    inputs = _read_csv(files["in"]) if files["in"].is_file() else None
+    if files["in"].is_file():
+        _read_csv(files["in"])                       # a malformed input file: ReferenceError
     if outputs is None:
         outputs = list(_read_csv(files["ref"]).dtype.names[1:])
-    log, bad = [], []
-
-    def logger(component, instance, status, category, message):
-        if status >= 2:          # discard, error, fatal: the reason of a failure
-            log.append((message or b"").decode(errors="replace"))
-
-    def call_logger(message):
-        m = _DOSTEP.search(message)
-        if m and m.group(2) in _BAD:
-            t = re.search(r"currentCommunicationPoint=([^,]+)", m.group(1))
-            bad.append((m.group(2).lower(), t.group(1) if t else "?"))
-
-    stdout = io.StringIO()
-    try:
-        with contextlib.redirect_stdout(stdout):
-            result = simulate_fmu(str(fmu), start_time=opt["StartTime"], stop_time=opt["StopTime"],
-                                  step_size=opt["StepSize"], output_interval=opt["StepSize"],
-                                  relative_tolerance=opt.get("RelTol"), input=inputs,
-                                  output=outputs, start_values=start_values or {},
-                                  debug_logging=True, logger=logger, fmi_call_logger=call_logger,
-                                  step_finished=lambda time, recorder: not bad)
-    except Exception as exc:  # noqa: BLE001 - an FMU that fails to simulate, for any reason
-        why = f"the FMU failed to simulate: {type(exc).__name__}: {exc}"
-        if log:
-            why += f" ({log[-1]})"
-        return Run(None, why, log, _notes(stdout))
-    failure = None
-    stop = opt["StopTime"]
-    if bad:
-        status, t = bad[0]
-        failure = f"doStep at t = {t} returned {status}" + (f": {log[-1]}" if log else "")
-    elif result["time"][-1] < stop - 1e-9 * max(1.0, abs(stop)):
-        failure = f"the run stopped at t = {result['time'][-1]:g}, before StopTime = {stop:g}"
-        if log:
-            failure += f": {log[-1]}"
-    if failure is not None:
-        failure = f"stopped early: {failure}" if result.size else failure
-    return Run(result, failure, log, _notes(stdout))
+    with tempfile.TemporaryDirectory(prefix="flexpend_check_") as tmp:
+        args = {"fmu": str(Path(fmu).resolve()), "opt": opt, "outputs": list(outputs),
+                "input": str(files["in"].resolve()) if files["in"].is_file() else None,
+                "start_values": dict(start_values or {}),
+                "result": str(Path(tmp) / "result.npy"), "meta": str(Path(tmp) / "meta.json")}
+        try:
+            proc = subprocess.run([sys.executable, "-I", "-c", _WORKER, json.dumps(args)],
+                                  cwd=tmp, capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return Run(None, f"the simulation did not finish within {timeout:g} s")
+        meta_path = Path(args["meta"])
+        if not meta_path.is_file():
+            tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+            return Run(None, f"the FMU crashed the simulating process (exit code "
+                             f"{proc.returncode}): {tail[0]}")
+        meta = json.loads(meta_path.read_text())
+        result = np.load(args["result"]) if Path(args["result"]).is_file() else None
+    run = Run(result, meta["failure"], meta["log"], meta["notes"])
+    if result is not None and run.failure is None:
+        stop = opt["StopTime"]
+        if result.size == 0 or result["time"][-1] < stop - 1e-9 * max(1.0, abs(stop)):
+            end = result["time"][-1] if result.size else opt["StartTime"]
+            run.failure = f"stopped early: the run ended at t = {end:g}, before StopTime = {stop:g}"
+            if run.log:
+                run.failure += f": {run.log[-1]}"
+    return run
 
 
-def _notes(stdout) -> list[str]:
-    return [line.strip() for line in stdout.getvalue().splitlines() if line.strip()]
+#: The child process of :func:`simulate_case`: fmpy.simulate_fmu with the FMU's log and every
+#: doStep's status watched; a discard (or error) stops the run there. It exits with os._exit
+#: once its files are written: an FMU's teardown at interpreter exit cannot fail the check.
+_WORKER = r"""
+import contextlib, io, json, os, re, sys
+import numpy as np
+from fmpy import simulate_fmu
+from fmpy.util import read_csv
+
+a = json.loads(sys.argv[1])
+opt = a["opt"]
+log, bad = [], []
+DOSTEP = re.compile(r"fmi[23]DoStep\((.*)\) -> (\w+)$")
+
+def logger(component, instance, status, category, message):
+    if status >= 2:              # discard, error, fatal: the reason of a failure
+        log.append((message or b"").decode(errors="replace"))
+
+def call_logger(message):
+    m = DOSTEP.search(message)
+    if m and m.group(2) in ("DISCARD", "ERROR", "FATAL"):
+        t = re.search(r"currentCommunicationPoint=([^,]+)", m.group(1))
+        bad.append((m.group(2).lower(), t.group(1) if t else "?"))
+
+out = io.StringIO()
+failure, result = None, None
+try:
+    with contextlib.redirect_stdout(out):
+        result = simulate_fmu(a["fmu"], start_time=opt["StartTime"], stop_time=opt["StopTime"],
+                              step_size=opt["StepSize"], output_interval=opt["StepSize"],
+                              relative_tolerance=opt.get("RelTol"),
+                              input=read_csv(a["input"]) if a["input"] else None,
+                              output=a["outputs"], start_values=a["start_values"],
+                              debug_logging=True, logger=logger, fmi_call_logger=call_logger,
+                              step_finished=lambda time, recorder: not bad)
+except Exception as exc:
+    failure = f"the FMU failed to simulate: {type(exc).__name__}: {exc}"
+    if log:
+        failure += f" ({log[-1]})"
+if failure is None and bad:
+    status, t = bad[0]
+    failure = f"stopped early: doStep at t = {t} returned {status}" + (f": {log[-1]}" if log else "")
+if result is not None:
+    np.save(a["result"], result)
+notes = [line.strip() for line in out.getvalue().splitlines() if line.strip()]
+with open(a["meta"], "w") as f:
+    json.dump({"failure": failure, "log": log, "notes": notes}, f)
+sys.stdout.flush()
+sys.stderr.flush()
+os._exit(0)
+"""
 
 
 # ---------------------------------------------------------------------- comparison

@@ -1,0 +1,201 @@
+"""flexpend check: one FMU against reference results in the FMI cross-check layout.
+
+Every verdict is measured against the committed references (tests/reference/, made with the
+physics as it is): they pass; an FMU built from a plant whose EI is 1 % higher fails; a reference
+with one signal shifted by twice its band fails on that signal alone; a run that an FMU stops with
+a discard fails although fmpy.simulate_fmu returns normally from it. Every check runs the command
+line in a child process (an FMU's Python code, once loaded, stays in a process).
+"""
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from fmpy import read_model_description, simulate_fmu
+from fmpy.util import read_csv, write_csv
+
+from orchestration.export.check import FMPY_RULE, REFERENCE_OUTPUTS, compare, reference_files
+from orchestration.export.python_fmus import ROOT
+
+REFERENCES = ROOT / "tests" / "reference"
+TIGHT = ["--tolerance", "0.01", "--window", "1", "--max-outliers", "0"]
+
+
+def check(*args):
+    proc = subprocess.run([sys.executable, "-m", "orchestration.cli", "check", *map(str, args)],
+                          capture_output=True, text=True, timeout=600)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def signal_lines(out):
+    """signal -> its line (the lines that end with ': pass' or ': FAIL')."""
+    return {line.split()[0]: line for line in out.splitlines()
+            if line.startswith("  ") and not line.startswith("  run: ")
+            and line.rstrip().endswith((": pass", ": FAIL"))}
+
+
+def copy_reference(name, dest):
+    shutil.copytree(REFERENCES / name, dest / name)
+    return reference_files(name, dest)
+
+
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+@pytest.mark.parametrize("rule", [[], TIGHT, ["--tolerance", "1e-6", "--window", "1",
+                                              "--max-outliers", "0"]],
+                         ids=["fmpy-rule", "1%", "1e-6"])
+def test_passes_on_the_committed_references(fmus, name, rule):
+    code, out, err = check(fmus[name], "--reference", REFERENCES, *rule)
+    assert code == 0, out + err
+    lines = signal_lines(out)
+    assert list(lines) == REFERENCE_OUTPUTS[name]            # one line per reference signal
+    assert all(line.endswith(": pass") and "0/1001 outside" in line for line in lines.values())
+    assert out.splitlines()[-1].startswith("PASSED")
+
+
+@pytest.fixture(scope="module")
+def stiffer_plant(tmp_path_factory):
+    """FlexiblePendulum built from a copy of the sources whose default EI is 1 % higher."""
+    src = tmp_path_factory.mktemp("src_EI")
+    for pkg in ("plant_fmu", "controller_fmu", "orchestration"):
+        shutil.copytree(ROOT / pkg, src / pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    params = src / "plant_fmu" / "params.py"
+    text = params.read_text()
+    assert text.count("EI: float = 8.75e2") == 1
+    params.write_text(text.replace("EI: float = 8.75e2", "EI: float = 8.8375e2"))
+    env = {**os.environ, "PYTHONPATH": str(src)}
+    code = ("import sys; from orchestration.export.python_fmus import build_fmus; "
+            "print(build_fmus(sys.argv[1], ['FlexiblePendulum'])['FlexiblePendulum'])")
+    proc = subprocess.run([sys.executable, "-c", code, str(src / "fmus")], cwd=src, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    fmu = src / "fmus" / "FlexiblePendulum.fmu"
+    start = {v.name: v.start for v in read_model_description(str(fmu)).modelVariables}
+    assert float(start["EI"]) == 883.75                   # built from the modified copy
+    return fmu
+
+
+def test_fails_on_a_plant_with_EI_one_percent_higher(stiffer_plant):
+    code, out, err = check(stiffer_plant, "--reference", REFERENCES, *TIGHT)
+    assert code == 1, out + err
+    lines = signal_lines(out)
+    failed = {n for n, line in lines.items() if line.endswith("FAIL")}
+    # 1 % of the range at every sample: every signal but the cart position (0.95 %) leaves it
+    assert failed >= {"x_dot", "phi_o", "omega_o", "tip_deflection", "eta_1", "energy"}
+    assert out.splitlines()[-1].startswith("FAILED: ")
+    # FMPy's default band (10 % of the range, widened over 21 samples) is meant for comparing
+    # tools: the tip angle (7 % off at most) stays inside it; the energy, which holds EI itself,
+    # leaves it on more than 10 % of the samples
+    code, out, err = check(stiffer_plant, "--reference", REFERENCES)
+    assert code == 1
+    lines = signal_lines(out)
+    assert lines["energy"].endswith("FAIL") and lines["phi_o"].endswith("pass")
+
+
+def test_fails_on_a_reference_signal_shifted_by_twice_the_band(fmus, tmp_path):
+    files = copy_reference("FlexiblePendulum", tmp_path)
+    ref = read_csv(str(files["ref"]))
+    span = np.ptp(ref["phi_o"])
+    ref["phi_o"] += 2 * FMPY_RULE.tolerance * span           # twice the band's half-width
+    write_csv(str(files["ref"]), ref)
+    code, out, err = check(fmus["FlexiblePendulum"], "--reference", tmp_path)
+    assert code == 1, out + err
+    lines = signal_lines(out)
+    # the widened band still holds the result where the reference varies fast within 21
+    # samples (the tip's ripple); about half of the samples are outside, far above 10 %
+    outside = int(lines["phi_o"].split(" outside")[0].split()[-1].split("/")[0])
+    assert lines["phi_o"].endswith("FAIL") and outside > 0.3 * 1001
+    assert f"max |deviation| {2 * FMPY_RULE.tolerance * span:.3e}" in lines["phi_o"]
+    assert all(line.endswith("pass") for n, line in lines.items() if n != "phi_o")
+    assert out.splitlines()[-1] == "FAILED: 1 of 7 signals outside their band"
+
+
+def diverging_reference(tmp_path):
+    """The plant's reference with an input that topples the pendulum at about 0.1 s."""
+    files = copy_reference("FlexiblePendulum", tmp_path)
+    inputs = read_csv(str(files["in"]))
+    inputs["F_c"] = 2000.0
+    write_csv(str(files["in"]), inputs)
+    return files
+
+
+def test_fails_on_a_run_stopped_by_a_discard(fmus, tmp_path):
+    files = diverging_reference(tmp_path)
+    # the trap: fmpy.simulate_fmu returns normally, with a result that ends early
+    result = simulate_fmu(fmus["FlexiblePendulum"], stop_time=1.0, step_size=1e-3,
+                          output_interval=1e-3, input=read_csv(str(files["in"])),
+                          output=REFERENCE_OUTPUTS["FlexiblePendulum"])
+    assert 0.05 < result["time"][-1] < 0.2
+    # and a reference that is that truncated run: every sample agrees, only the stop is wrong
+    write_csv(str(files["ref"]), result)
+    code, out, err = check(fmus["FlexiblePendulum"], "--reference", tmp_path, "--plot",
+                           tmp_path / "check.png")
+    assert code == 1, out + err
+    assert all(line.endswith(": pass") for line in signal_lines(out).values())
+    (run_line,) = [line for line in out.splitlines() if line.startswith("  run: ")]
+    assert "stopped early: doStep at t = 0.096 returned discard" in run_line
+    assert "exceeds phi_limit" in run_line and run_line.endswith(": FAIL")
+    (verdict,) = [line for line in out.splitlines() if line.startswith("FAILED")]
+    assert verdict == "FAILED: the run did not complete"
+    assert (tmp_path / "check.png").stat().st_size > 20_000
+
+
+def test_plot_draws_every_signal(fmus, tmp_path):
+    from matplotlib.image import imread
+
+    code, out, err = check(fmus["FlexiblePendulum"], "--reference", REFERENCES, "--plot",
+                           tmp_path / "p.png")
+    assert code == 0 and f"plot: {tmp_path / 'p.png'}" in out
+    height, width = imread(tmp_path / "p.png").shape[:2]
+    assert width > 900 and height > 7 * 180                 # one panel per signal
+
+
+def test_write_reference_reproduces_the_committed_one(fmus, tmp_path):
+    files = copy_reference("FlexiblePendulum", tmp_path)
+    committed = read_csv(str(files["ref"]))
+    files["ref"].unlink()
+    code, out, err = check(fmus["FlexiblePendulum"], "--reference", tmp_path,
+                           "--write-reference", "--outputs", ",".join(committed.dtype.names[1:]))
+    assert code == 0, out + err
+    new = read_csv(str(files["ref"]))
+    assert new.dtype.names == committed.dtype.names
+    tight = compare(new, committed, FMPY_RULE.__class__(1e-6, 1, 0.0))
+    assert all(s.passed for s in tight.values())
+    code, out, err = check(fmus["FlexiblePendulum"], "--reference", tmp_path, *TIGHT)
+    assert code == 0
+
+
+def test_write_reference_from_the_default_experiment(fmus, tmp_path):
+    """No options file: the FMU's default experiment (1 s in 1 ms steps) writes one; no inputs:
+    the controller sees zero sensors and its force stays exactly 0."""
+    code, out, err = check(fmus["PDLowPass"], "--reference", tmp_path, "--write-reference")
+    assert code == 0, out + err
+    files = reference_files("PDLowPass", tmp_path)
+    assert files["opt"].read_text().splitlines()[:3] == ["StartTime,0.0", "StopTime,1.0",
+                                                         "StepSize,0.001"]
+    ref = read_csv(str(files["ref"]))
+    assert ref.dtype.names == ("time", "F_c") and len(ref) == 1001
+    assert np.all(ref["F_c"] == 0.0)
+
+
+def test_write_reference_refuses_a_run_that_stops_early(fmus, tmp_path):
+    files = diverging_reference(tmp_path)
+    before = files["ref"].read_bytes()
+    code, out, err = check(fmus["FlexiblePendulum"], "--reference", tmp_path, "--write-reference")
+    assert code == 2 and "no reference written: stopped early" in err
+    assert files["ref"].read_bytes() == before
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["{fmu}", "--reference", "{tmp}/nowhere"], "no reference of FlexiblePendulum.fmu"),
+    (["{tmp}/missing.fmu", "--reference", "{ref}"], "missing.fmu: no such FMU"),
+    (["{fmu}", "--reference", "{ref}", "--tolerance", "0"], "--tolerance = 0.0; allowed"),
+    (["{fmu}", "--reference", "{ref}", "--max-outliers", "1.5"], "--max-outliers = 1.5"),
+    (["{fmu}"], "the following arguments are required: --reference"),
+])
+def test_bad_input_one_line_exit_2(fmus, tmp_path, args, fragment):
+    args = [a.format(fmu=fmus["FlexiblePendulum"], tmp=tmp_path, ref=REFERENCES) for a in args]
+    code, out, err = check(*args)
+    assert code == 2 and fragment in err, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err

@@ -1,0 +1,261 @@
+"""flexpend export / flexpend run FILE.ssp: the SSP 1.0 archive of a scene and back.
+
+The archive is checked with readers that are not ours: fmpy's SSD reader (which validates against
+the SSP 1.0 schema fmpy ships) and lxml's XPath on the raw XML; the values against the scene's own
+TOML file, read with tomllib. The round trip must give, on our master, the very same numbers as
+the scene run directly; a hand-written SSP of another tool must run like the equivalent scene.
+"""
+import math
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from lxml import etree
+
+from orchestration.export.ssp import NS, SSD_NAME, read_ssp, validate_ssd, write_ssp
+from orchestration.fidelity import select_model
+from orchestration.run import run_scene
+from orchestration.scenes import SCENE_DIR, load_scene, scene_from_config
+
+FOREIGN = Path(__file__).parent / "data" / "ssp_foreign"
+
+
+def flexpend(*args, cwd=None):
+    proc = subprocess.run([sys.executable, "-m", "orchestration.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=600)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def our_fmus(fmus):
+    return {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
+
+
+def ssd_root(path):
+    with zipfile.ZipFile(path) as zf:
+        return etree.fromstring(zf.read(SSD_NAME))
+
+
+def bound_values(root, component):
+    """name -> (SSV type, value text) of the parameters bound on ``component``."""
+    out = {}
+    for p in root.xpath(f"//ssd:Component[@name='{component}']//ssv:Parameter", namespaces=NS):
+        (typed,) = list(p)
+        out[p.get("name")] = (etree.QName(typed).localname, typed.get("value"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def exported(fmus, tmp_path_factory):
+    path = tmp_path_factory.mktemp("ssp") / "flexible_pd_lowpass.ssp"
+    code, out, err = flexpend("export", "flexible_pd_lowpass", "--out", str(path))
+    assert code == 0, err
+    assert f"wrote {path}" in out
+    return path
+
+
+def test_exported_ssd_validates_and_names_the_fmus_connections_and_parameters(exported, fmus):
+    from fmpy.ssp.ssd import read_ssd
+
+    root = ssd_root(exported)
+    assert validate_ssd(etree.tostring(root)) == []
+    ssd = read_ssd(str(exported))                  # fmpy's reader validates against the schema
+    assert ssd.version == "1.0"
+    comps = {c.name: c for c in ssd.system.elements}
+    assert set(comps) == {"plant", "controller"}
+    with zipfile.ZipFile(exported) as zf:          # both FMUs, byte for byte the built ones
+        for name, fmu in (("plant", "FlexiblePendulum"), ("controller", "PDLowPass")):
+            assert comps[name].source == f"resources/{fmu}.fmu"
+            assert zf.read(comps[name].source) == Path(fmus[fmu]).read_bytes()
+    # every connection of the scene (the default loop: the scene file does not set it)
+    conns = {f"{c.startElement}.{c.startConnector} -> {c.endElement}.{c.endConnector}"
+             for c in ssd.system.connections}
+    assert conns == {"plant.x_o -> controller.x_o", "plant.phi_o -> controller.phi_o",
+                     "plant.omega_o -> controller.omega_o", "controller.F_c -> plant.F_c"}
+    # every parameter the scene file sets, with its value
+    toml = tomllib.loads((SCENE_DIR / "flexible_pd_lowpass.toml").read_text())
+    plant, ctrl = bound_values(root, "plant"), bound_values(root, "controller")
+    for key, value in toml["plant"].items():
+        kind, text = plant[key]
+        assert (int(text) if kind == "Integer" else float(text)) == value
+    for key, value in toml["controller"].items():
+        kind, text = ctrl[key]
+        assert (int(text) if kind == "Integer" else float(text)) == value
+    assert float(plant["phi0"][1]) == toml["initial"]["phi"]
+    # the defaults it leaves to flexpend are written too (the archive does not depend on them)
+    assert plant["integrator"] == ("String", "rk4") and plant["gravity_preload"] == ("Boolean",
+                                                                                     "false")
+    assert "force_limit" not in ctrl   # INF, the FMU's own start value: libcosim cannot read INF
+    # the experiment: stop time, libcosim's step, our master settings
+    exp = root.find(f"{{{NS['ssd']}}}DefaultExperiment")
+    assert float(exp.get("startTime")) == 0.0 and float(exp.get("stopTime")) == toml["stop_time"]
+    (step,) = root.xpath("//osp:FixedStepAlgorithm/@baseStepSize", namespaces=NS)
+    assert float(step) == toml["master"]["step"]
+    settings = {s.get("key"): s.text for s in root.xpath("//fp:Setting", namespaces=NS)}
+    assert settings["master.algorithm"] == '"gauss-seidel"' and settings["output_interval"] == "0.01"
+
+
+def test_export_then_run_gives_the_direct_run_bit_for_bit(exported, fmus):
+    scene = load_scene("flexible_pd_lowpass")
+    direct = run_scene(scene, our_fmus(fmus), progress=False)
+    with read_ssp(exported) as system:
+        assert system.scene.config == scene.config
+        assert all(type(system.scene.config[k]) is type(v) for k, v in scene.config.items())
+        via_ssp = run_scene(system.scene, system.fmus, progress=False)
+    assert via_ssp.result.dtype == direct.result.dtype
+    assert np.array_equal(via_ssp.result, direct.result)
+    assert len(direct.result) == 1001 and direct.summary["stable"]
+
+
+def test_run_cli_on_the_archive_writes_the_same_csv(exported, fmus, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    code, _, err = flexpend("run", "flexible_pd_lowpass", "--set", "stop_time=1", "--out", str(a))
+    assert code == 0, err
+    code, _, err = flexpend("run", str(exported), "--set", "stop_time=1", "--out", str(b))
+    assert code == 0, err
+    assert (a / "flexible_pd_lowpass.csv").read_bytes() == (b / "flexible_pd_lowpass.csv").read_bytes()
+
+
+@pytest.mark.slow
+def test_auto_model_is_chosen_and_written(fmus, tmp_path):
+    path = tmp_path / "rigid.ssp"
+    code, out, err = flexpend("export", "rigid_pd", "--set", "plant.n_modes=auto", "--set",
+                              "stop_time=3", "--out", str(path))
+    assert code == 0, err
+    chosen, report = select_model(load_scene("rigid_pd", ["plant.n_modes=auto", "stop_time=3"]))
+    assert chosen["plant.n_modes"] == report["n_modes"] == 0
+    root = ssd_root(path)
+    assert bound_values(root, "plant")["n_modes"] == ("Integer", "0")
+    (choice,) = root.xpath("//fp:ModelChoice", namespaces=NS)
+    assert choice.get("n_modes") == "0" and choice.text == report["reason"]
+    assert "model: 0 modes" in out
+    with read_ssp(path) as system:
+        assert system.scene.config == chosen.config
+
+
+def foreign_archive(fmus, dest, ssd_text=None, drop=(), extra=()):
+    """The hand-written fixture zipped with the built FMUs (optionally edited)."""
+    with zipfile.ZipFile(dest, "w") as zf:
+        zf.writestr(SSD_NAME, ssd_text if ssd_text is not None
+                    else (FOREIGN / SSD_NAME).read_text())
+        members = {"resources/regulator.ssv": (FOREIGN / "resources" / "regulator.ssv").read_bytes(),
+                   "resources/FlexiblePendulum.fmu": Path(fmus["FlexiblePendulum"]).read_bytes(),
+                   "resources/PDLowPass.fmu": Path(fmus["PDLowPass"]).read_bytes(), **dict(extra)}
+        for name, data in members.items():
+            if name not in drop:
+                zf.writestr(name, data)
+    return dest
+
+
+def test_a_plain_ssp_of_another_tool_runs_like_the_equivalent_scene(fmus, tmp_path):
+    path = foreign_archive(fmus, tmp_path / "foreign.ssp")
+    # the same system typed in as a scene: the SSD's values, the scene defaults for the rest,
+    # the step of libcosim's annotation (and the default output interval, a multiple of it)
+    scene = scene_from_config("cart_and_regulator", {
+        "plant.n_modes": 2, "plant.EI": 700.0, "plant.zeta": 0.002, "plant.gravity_preload": True,
+        "plant.integrator": "dopri5", "initial.phi": 0.2, "initial.x_dot": -0.1,
+        "controller.kp": 450.0, "controller.kd": 4.5, "controller.filter_order": 1,
+        "controller.cutoff": 110.0, "stop_time": 2.0, "master.step": 0.002,
+        "description": "A softer beam with two modes under a first-order filtered PD"})
+    with read_ssp(path) as system:
+        assert system.components == {"plant": "Pendulum", "controller": "Regulator"}
+        assert system.scene.name == "cart_and_regulator"
+        assert system.scene.config["initial.phi_dot"] == 0.0      # not in the file: default
+        assert system.scene.config == {**scene.config,
+                                       "connections": ["controller.F_c -> plant.F_c",
+                                                       "plant.phi_o -> controller.phi_o",
+                                                       "plant.omega_o -> controller.omega_o",
+                                                       "plant.x_o -> controller.x_o"]}
+        via_ssp = run_scene(system.scene, system.fmus, progress=False)
+    direct = run_scene(scene, our_fmus(fmus), progress=False)
+    assert np.array_equal(via_ssp.result, direct.result)
+    assert len(direct.result) == 201 and np.ptp(direct.result["phi_o"]) > 0.1
+    code, out, err = flexpend("run", str(path), "--out", str(tmp_path / "out"))
+    assert code == 0, err
+    assert (tmp_path / "out" / "cart_and_regulator.csv").is_file()
+
+
+def _edit(text, old, new):
+    assert old in text
+    return text.replace(old, new, 1)
+
+
+BAD = {
+    "missing FMU": (dict(drop=("resources/PDLowPass.fmu",)),
+                    "component 'Regulator' names the FMU 'resources/PDLowPass.fmu', which the "
+                    "archive does not contain"),
+    "unknown connection": (dict(edit=('startConnector="omega_o"', 'startConnector="omega"')),
+                           "connection Pendulum.omega -> Regulator.omega_o: Pendulum has no "
+                           "output 'omega'"),
+    "unknown component": (dict(edit=('endElement="Pendulum"', 'endElement="Cart"')),
+                          "no component named 'Cart'"),
+    "malformed XML": (dict(edit=("</ssd:Connections>", "</ssd:Connection>")),
+                      "SystemStructure.ssd is not well-formed XML"),
+    "not the schema": (dict(edit=('name="F_c" kind="output"', 'name="F_c" kind="sideways"')),
+                       "does not follow the SSP 1.0 schema"),
+    "SSP 2.0": (dict(edit=('version="1.0"\n', 'version="2.0"\n')),
+                "SSD version '2.0': flexpend reads SSP 1.x"),
+    "missing .ssv": (dict(drop=("resources/regulator.ssv",)),
+                     "the parameter file 'resources/regulator.ssv' is not in the archive"),
+    "unknown parameter": (dict(edit=('name="zeta"', 'name="damping"')),
+                          "Pendulum has no parameter 'damping'"),
+    "bad value": (dict(edit=('<ssv:Integer value="2"/>', '<ssv:Integer value="-2"/>')),
+                  "plant.n_modes = -2 is out of range"),
+    "start time": (dict(edit=('startTime="0"', 'startTime="1"')),
+                   "startTime = 1: flexpend runs from 0"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD))
+def test_a_bad_ssp_gives_one_line_and_exit_2(fmus, tmp_path, case):
+    how, fragment = BAD[case]
+    text = (FOREIGN / SSD_NAME).read_text()
+    if "edit" in how:
+        text = _edit(text, *how["edit"])
+    path = foreign_archive(fmus, tmp_path / "bad.ssp", text, drop=how.get("drop", ()))
+    code, out, err = flexpend("run", str(path), "--out", str(tmp_path / "out"))
+    assert code == 2, (out, err)
+    assert fragment in err and err.startswith("flexpend: error: bad.ssp: ")
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not (tmp_path / "out" / "cart_and_regulator.csv").exists()
+
+
+def test_not_an_archive_and_no_file_give_one_line(tmp_path):
+    (tmp_path / "x.ssp").write_text("hello")
+    for path, fragment in ((tmp_path / "x.ssp", "not an SSP archive"),
+                           (tmp_path / "none.ssp", "no such file")):
+        code, _, err = flexpend("run", str(path))
+        assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
+
+
+def test_export_native_is_not_available_yet(tmp_path):
+    code, out, err = flexpend("export", "rigid_pd", "--fmus", "native", "--out",
+                              str(tmp_path / "x.ssp"))
+    assert code == 2 and not (tmp_path / "x.ssp").exists()
+    assert err.strip() == ("flexpend: error: --fmus native: the native FMUs are not available "
+                           "in this build")
+
+
+def test_export_bad_input_one_line(tmp_path):
+    for args, fragment in ((["no_such_scene"], "no scene 'no_such_scene'"),
+                           (["rigid_pd", "--out", str(tmp_path / "x.zip")], "must end in .ssp"),
+                           (["rigid_pd", "--set", "master.step=-1"], "master.step")):
+        code, _, err = flexpend("export", *args)
+        assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
+
+
+def test_write_ssp_refuses_an_unchosen_model(fmus, tmp_path):
+    scene = load_scene("rigid_pd", ["plant.n_modes=auto"])
+    with pytest.raises(ValueError, match="choose the model"):
+        write_ssp(scene, our_fmus(fmus), tmp_path / "x.ssp")
+
+
+def test_an_infinite_value_the_fmu_does_not_have_is_written_as_INF(fmus, tmp_path):
+    scene = load_scene("rigid_pd", ["plant.phi_limit=inf"])
+    path = write_ssp(scene, our_fmus(fmus), tmp_path / "x.ssp")
+    assert bound_values(ssd_root(path), "plant")["phi_limit"] == ("Real", "INF")
+    with read_ssp(path) as system:
+        assert math.isinf(system.scene.config["plant.phi_limit"])
