@@ -557,7 +557,8 @@ def build_parser() -> argparse.ArgumentParser:
                         description="Co-simulate the plant and controller FMUs for each scene; "
                                     "write <out>/<scene>.csv and PNG plots, print a summary.")
     pr.add_argument("scenes", nargs="*", metavar="SCENE",
-                    help="scene names (see 'flexpend scenes') or paths to .toml files")
+                    help="scene names (see 'flexpend scenes'), paths to .toml files or SSP "
+                         "archives (.ssp)")
     pr.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a scene key, e.g. master.step=5e-4")
     pr.add_argument("--out", default="out", help="output folder (default: out)")
