@@ -177,15 +177,18 @@ def test_write_reference_reproduces_the_committed_one(fmus, tmp_path):
 
 
 def test_write_reference_from_the_default_experiment(fmus, tmp_path):
-    """No options file: the FMU's default experiment (1 s in 1 ms steps) writes one; no inputs:
-    the controller sees zero sensors and its force stays exactly 0."""
+    """No options file: the FMU's default experiment writes one; no inputs: the controller sees
+    zero sensors and its force stays exactly 0."""
+    de = read_model_description(fmus["PDLowPass"]).defaultExperiment
     code, out, err = check(fmus["PDLowPass"], "--reference", tmp_path, "--write-reference")
     assert code == 0, out + err
     files = reference_files("PDLowPass", tmp_path)
-    assert files["opt"].read_text().splitlines()[:3] == ["StartTime,0.0", "StopTime,1.0",
-                                                         "StepSize,0.001"]
+    assert files["opt"].read_text().splitlines()[:3] == [
+        f"StartTime,{float(de.startTime or 0.0)!r}", f"StopTime,{float(de.stopTime)!r}",
+        f"StepSize,{float(de.stepSize)!r}"]
     ref = read_csv(str(files["ref"]))
-    assert ref.dtype.names == ("time", "F_c") and len(ref) == 1001
+    n = round((float(de.stopTime) - float(de.startTime or 0.0)) / float(de.stepSize))
+    assert ref.dtype.names == ("time", "F_c") and len(ref) == n + 1
     assert np.all(ref["F_c"] == 0.0)
 
 

@@ -65,9 +65,6 @@ FMU_TYPE = "application/x-fmu-sharedlibrary"
 #: The variables that make a component the plant (inputs, outputs); the controller has them the
 #: other way round.
 PLANT_SIGNALS = (("F_c",), ("x_o", "phi_o", "omega_o"))
-#: Plant parameters that are scene keys of their own (the initial state).
-_INITIAL = {"phi0": "initial.phi", "x0": "initial.x", "phi_dot0": "initial.phi_dot",
-            "x_dot0": "initial.x_dot"}
 #: Scene keys the SSD carries in its own elements (the rest goes into our annotation).
 _CARRIED = ("plant.", "controller.", "initial.", "fidelity.")
 _CARRIED_KEYS = ("connections", "stop_time", "description")
@@ -492,18 +489,20 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
     values["connections"] = conns
 
     # parameters: on each component, and on the system with names "<component>.<parameter>"
+    scene_keys = _scene_keys()
+
     def bind(comp_name, pname, kind, text, where):
-        r = role[comp_name]
-        variables = info[comp_name][1]
-        v = variables.get(pname)
+        v = info[comp_name][1].get(pname)
         if v is None or v.causality != "parameter":
             raise SspError(f"{label}: {where}: {comp_name} has no parameter {pname!r}")
+        key = scene_keys[role[comp_name]].get(pname)
+        if key is None:
+            raise SspError(f"{label}: {where}: {comp_name}.{pname} is not a parameter flexpend "
+                           "sets (no scene key)")
         try:
-            value = _parse_ssv_value(kind, text)
+            values[key] = _parse_ssv_value(kind, text)
         except ValueError as exc:
             raise SspError(f"{label}: {where}: {comp_name}.{pname}: {exc}") from None
-        key = _INITIAL.get(pname, f"plant.{pname}") if r == "plant" else f"controller.{pname}"
-        values[key] = value
 
     for comp in comps:
         for pname, kind, text, where in _bindings(label, zf, names, comp):
@@ -556,6 +555,17 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
     fmus = {role[n]: p for n, (p, _) in info.items()}
     components = {role[n]: n for n in info}
     return SspSystem(path, scene, fmus, components, tmpdir)
+
+
+def _scene_keys() -> dict:
+    """role -> {FMU parameter: scene key}, from the FMUs' variable tables."""
+    from controller_fmu import interface as controller_interface
+    from plant_fmu import interface as plant_interface
+
+    return {role: {v.name: v.scene_key for v in table
+                   if v.causality == "parameter" and v.scene_key}
+            for role, table in (("plant", plant_interface.VARIABLES),
+                                ("controller", controller_interface.VARIABLES))}
 
 
 def _local(tag) -> str:
