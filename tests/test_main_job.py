@@ -261,7 +261,7 @@ def test_ctrl_c_stops_cleanly_every_time(fmus, tmp_path):
 # ---------------------------------------------------------------------- the FMUs alone
 @pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
 def test_fmpy_simulate_with_the_committed_inputs_runs_without_warnings(fmus, name):
-    from orchestration.export.references import reference_files
+    from orchestration.export.check import reference_files
 
     files = reference_files(name)
     proc = subprocess.run([sys.executable, "-m", "fmpy", "simulate", fmus[name],
