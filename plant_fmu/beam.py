@@ -19,13 +19,14 @@ With ``gravity_preload`` the geometric stiffness of the self-weight compression 
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from .params import PlantParams
 
-__all__ = ["Beam", "beam_model", "analytic_beta_L", "analytic_frequencies", "analytic_mode_shape"]
+__all__ = ["Beam", "beam_model", "unit_beam", "UnitBeam", "Scales", "analytic_beta_L", "analytic_frequencies", "analytic_mode_shape"]
 
 
 @dataclass(frozen=True)
@@ -76,14 +77,15 @@ def _hermite_dN(xi: np.ndarray, le: float) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=64)
-def _fe_modes(L: float, EI: float, rhoA: float, n_elements: int):
-    """Global cantilever FE model: (omega^2, mass-normalised modes over all 2*(ne+1) dofs)."""
+def _fe_modes_unit(n_elements: int):
+    """The cantilever FE model of the unit beam (``L = EI = rhoA = 1``): (lam, mass-normalised
+    modes over all 2*(ne+1) dofs). Every uniform beam's modes are these, scaled (:func:`scales`)."""
     ne = n_elements
-    le = L / ne
+    le = 1.0 / ne
     ndof = 2 * (ne + 1)
     K = np.zeros((ndof, ndof))
     M = np.zeros((ndof, ndof))
-    ke, me = _element_matrices(le, EI, rhoA)
+    ke, me = _element_matrices(le, 1.0, 1.0)
     for e in range(ne):
         sl = slice(2 * e, 2 * e + 4)
         K[sl, sl] += ke
@@ -94,7 +96,48 @@ def _fe_modes(L: float, EI: float, rhoA: float, n_elements: int):
     modes[free] = vec
     # Sign convention: positive tip deflection.
     modes *= np.where(modes[-2] < 0, -1.0, 1.0)
+    lam.setflags(write=False)
+    modes.setflags(write=False)
     return lam, modes
+
+
+@dataclass(frozen=True)
+class Scales:
+    """Factors that turn the unit beam's modal data into those of a uniform beam of length
+    ``L``, bending stiffness ``EI``, mass per length ``rhoA`` under gravity ``g``.
+
+    With ``s = L xi``, the mass-normalised modes are ``N(s) = N_unit(xi) / sqrt(rhoA L)`` and the
+    eigenvalues ``omega^2 = lam_unit EI / (rhoA L^4)``; so ``I3 = int rhoA N ds`` scales with
+    ``rhoA L / sqrt(rhoA L)``, ``I5`` with one more ``L``, the tip slope with ``1 / (L sqrt(rhoA
+    L))`` and the geometric stiffness ``int rhoA g (L - s) N'^2 ds`` with ``g / L``.
+
+    The native FMUs (``fmu_native/plant_model.c``, ``fpm_scales``) compute the same factors with
+    the same operations in the same order, so that both flavours have bit-identical modal data."""
+
+    lam: float
+    w: float
+    slope: float
+    I3: float
+    I5: float
+    Kg: float
+
+    @classmethod
+    def of(cls, L: float, EI: float, rhoA: float, g: float) -> "Scales":
+        w = 1.0 / math.sqrt(rhoA * L)
+        I3 = (rhoA * L) * w
+        return cls(lam=EI / (rhoA * ((L * L) * (L * L))), w=w, slope=w / L, I3=I3, I5=I3 * L,
+                   Kg=g / L)
+
+
+def _fe_modes(L: float, EI: float, rhoA: float, n_elements: int):
+    """Global cantilever FE model: (omega^2, mass-normalised modes over all 2*(ne+1) dofs), the
+    unit beam's scaled."""
+    lam, modes = _fe_modes_unit(n_elements)
+    sc = Scales.of(L, EI, rhoA, 1.0)
+    out = modes.copy()
+    out[0::2] *= sc.w
+    out[1::2] *= sc.slope
+    return lam * sc.lam, out
 
 
 def _eigh_generalized(K: np.ndarray, M: np.ndarray):
@@ -119,22 +162,36 @@ def _eigh_generalized(K: np.ndarray, M: np.ndarray):
     return 1.0 / mu, np.linalg.solve(C, v.T).T
 
 
-@functools.lru_cache(maxsize=64)
-def beam_model(p: PlantParams) -> Beam:
-    """The modal data of the beam described by ``p`` (cached per parameter record)."""
-    n, ne, L, rhoA = p.n_modes, p.n_elements, p.L, p.rhoA
-    lam, modes = _fe_modes(L, p.EI, rhoA, ne)
-    le = L / ne
-    nodes = np.linspace(0.0, L, ne + 1)
+@dataclass(frozen=True)
+class UnitBeam:
+    """The modal data of the unit beam (``L = EI = rhoA = g = 1``) for one mesh, first
+    ``n_modes`` modes: what :func:`beam_model` scales, and what the native FMUs carry as tables."""
+
+    lam: np.ndarray             # (n,) eigenvalues omega^2
+    I3: np.ndarray              # (n,) int N dxi
+    I5: np.ndarray              # (n,) int xi N dxi
+    Kg: np.ndarray              # (n, n) int (1 - xi) N'^T N' dxi
+    tip_deflection: np.ndarray  # (n,) N(1)
+    tip_slope: np.ndarray       # (n,) N'(1)
+    shapes: np.ndarray          # (ne+1, n) N at the nodes
+    slopes: np.ndarray          # (ne+1, n) N' at the nodes
+
+
+@functools.lru_cache(maxsize=512)
+def unit_beam(n_elements: int, n_modes: int) -> UnitBeam:
+    """The first ``n_modes`` modes of the unit beam meshed with ``n_elements`` elements, and
+    their invariants (integrals of the Hermite interpolants, exact element by element)."""
+    ne, n = n_elements, n_modes
+    lam, modes = _fe_modes_unit(ne)
+    le = 1.0 / ne
     phi = modes[:, :n]
     w_dofs, r_dofs = phi[0::2], phi[1::2]          # (ne+1, n) deflections and slopes at nodes
-
     # Exact integrals of the Hermite interpolants: int H_k ds and int s H_k ds per element.
     int_h = le * np.array([0.5, le / 12, 0.5, -le / 12])
     int_xh = le * le * np.array([3 / 20, le / 30, 7 / 20, -le / 20])
     I3 = np.zeros(n)
     I5 = np.zeros(n)
-    # Geometric stiffness: P(s) = rhoA g (L - s), 3-point Gauss is exact for the degree-5 integrand.
+    # Geometric stiffness: P(xi) = 1 - xi, 3-point Gauss is exact for the degree-5 integrand.
     gx, gw = np.polynomial.legendre.leggauss(3)
     xi = 0.5 * (gx + 1.0)
     gw = 0.5 * gw
@@ -142,31 +199,44 @@ def beam_model(p: PlantParams) -> Beam:
     Kg = np.zeros((n, n))
     for e in range(ne):
         ve = phi[2 * e:2 * e + 4]                     # (4, n)
-        s0 = nodes[e]
-        I3 += rhoA * int_h @ ve
-        I5 += rhoA * (s0 * int_h + int_xh) @ ve
-        if p.gravity_preload:
-            dw = dH @ ve                               # (3, n): N' at the Gauss points
-            load = rhoA * p.g * (L - (s0 + le * xi))   # compressive axial force
-            Kg += (dw * (gw * load * le)[:, None]).T @ dw
-    # I4 from the FE mass matrix is identity by construction of the eigenvectors.
-    I4 = np.eye(n)
-    omega = np.sqrt(lam[:n])
+        s0 = e * le
+        I3 += int_h @ ve
+        I5 += (s0 * int_h + int_xh) @ ve
+        dw = dH @ ve                                   # (3, n): N' at the Gauss points
+        load = 1.0 - (s0 + le * xi)                    # compressive axial force
+        Kg += (dw * (gw * load * le)[:, None]).T @ dw
+    arrays = dict(lam=lam[:n].copy(), I3=I3, I5=I5, Kg=Kg, tip_deflection=w_dofs[-1].copy(),
+                  tip_slope=r_dofs[-1].copy(), shapes=w_dofs.copy(), slopes=r_dofs.copy())
+    for a in arrays.values():
+        a.setflags(write=False)
+    return UnitBeam(**arrays)
+
+
+@functools.lru_cache(maxsize=64)
+def beam_model(p: PlantParams) -> Beam:
+    """The modal data of the beam described by ``p`` (cached per parameter record): the unit
+    beam's (:func:`unit_beam`), scaled by :class:`Scales` (``tests/test_beam.py`` checks the
+    scaling against the FE model solved for the beam itself)."""
+    n, ne, L, rhoA = p.n_modes, p.n_elements, p.L, p.rhoA
+    u = unit_beam(ne, n)
+    sc = Scales.of(L, p.EI, rhoA, p.g)
+    K = u.lam * sc.lam
+    omega = np.sqrt(K)
     arrays = dict(
         frequencies=omega,
-        I3=I3, I4=I4, I5=I5,
-        K=np.diag(omega**2),
+        I3=u.I3 * sc.I3, I4=np.eye(n), I5=u.I5 * sc.I5,   # I4 = identity: mass-normalised modes
+        K=np.diag(K),
         D=np.diag(2.0 * p.zeta * omega),
-        Kg=Kg,
-        tip_deflection=w_dofs[-1].copy(),
-        tip_slope=r_dofs[-1].copy(),
-        nodes=nodes,
-        shapes=w_dofs.copy(),
-        slopes=r_dofs.copy(),
+        Kg=u.Kg * sc.Kg if p.gravity_preload else np.zeros((n, n)),
+        tip_deflection=u.tip_deflection * sc.w,
+        tip_slope=u.tip_slope * sc.slope,
+        nodes=np.linspace(0.0, L, ne + 1),
+        shapes=u.shapes * sc.w,
+        slopes=u.slopes * sc.slope,
     )
     for a in arrays.values():
         a.setflags(write=False)
-    return Beam(I0=p.m + rhoA * L, I1=rhoA * L**2 / 2, I2=rhoA * L**3 / 3, **arrays)
+    return Beam(I0=p.m + rhoA * L, I1=rhoA * (L * L) / 2, I2=rhoA * (L * L * L) / 3, **arrays)
 
 
 def fe_mass_matrix_check(p: PlantParams) -> np.ndarray:

@@ -120,3 +120,52 @@ def test_fe_eigenproblem_against_40_digits():
     np.testing.assert_allclose(lam[:ne], exact[:ne], rtol=1e-10)
     V = vec[:, :ne]                                   # the modes a model can keep
     np.testing.assert_allclose(V.T @ M @ V, np.eye(ne), atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_scaled_unit_modes_equal_the_modes_solved_for_the_beam(seed):
+    """The modal data are the unit beam's (L = EI = rhoA = 1), scaled (beam.Scales): the native
+    FMUs carry the unit tables and scale them. Against the FE eigenproblem assembled and solved
+    for the beam itself, at random L, EI, rhoA, g and meshes."""
+    from plant_fmu.beam import _eigh_generalized, _element_matrices, _hermite_dN
+
+    rng = np.random.default_rng(seed)
+    f = lambda: float(np.exp(rng.uniform(-1.5, 1.5)))  # noqa: E731
+    ne = int(rng.integers(3, 40))
+    p = P.replace(L=f(), EI=875 * f(), rho=7.8e3 * f(), g=9.81 * f(), n_elements=ne,
+                  n_modes=min(ne, 6), gravity_preload=True)
+    b = beam_model(p)
+    L, EI, rhoA, n = p.L, p.EI, p.rhoA, p.n_modes
+    le = L / ne
+    K = np.zeros((2 * ne + 2,) * 2)
+    M = np.zeros_like(K)
+    ke, me = _element_matrices(le, EI, rhoA)
+    for e in range(ne):
+        K[2 * e:2 * e + 4, 2 * e:2 * e + 4] += ke
+        M[2 * e:2 * e + 4, 2 * e:2 * e + 4] += me
+    lam, vec = _eigh_generalized(K[2:, 2:], M[2:, 2:])
+    modes = np.zeros((2 * ne + 2, lam.size))
+    modes[2:] = vec
+    modes *= np.where(modes[-2] < 0, -1.0, 1.0)
+    phi = modes[:, :n]
+    np.testing.assert_allclose(b.frequencies ** 2, lam[:n], rtol=1e-10)
+    np.testing.assert_allclose(b.tip_deflection, phi[-2], rtol=1e-8)
+    np.testing.assert_allclose(b.tip_slope, phi[-1], rtol=1e-8)
+    # invariants of the directly solved modes, by Gauss quadrature of the Hermite interpolants
+    gx, gw = np.polynomial.legendre.leggauss(4)
+    xi, gw = 0.5 * (gx + 1.0), 0.5 * gw
+    H = np.stack([1 - 3 * xi**2 + 2 * xi**3, le * (xi - 2 * xi**2 + xi**3), 3 * xi**2 - 2 * xi**3,
+                  le * (-xi**2 + xi**3)], axis=-1)
+    dH = _hermite_dN(xi, le)
+    I3, I5, Kg = np.zeros(n), np.zeros(n), np.zeros((n, n))
+    for e in range(ne):
+        ve = phi[2 * e:2 * e + 4]
+        s = e * le + le * xi
+        I3 += rhoA * le * (gw @ (H @ ve))
+        I5 += rhoA * le * ((gw * s) @ (H @ ve))
+        dw = dH @ ve
+        Kg += (dw * (gw * rhoA * p.g * (L - s) * le)[:, None]).T @ dw
+    scale = np.abs(I3).max()
+    np.testing.assert_allclose(b.I3, I3, rtol=1e-8, atol=1e-10 * scale)
+    np.testing.assert_allclose(b.I5, I5, rtol=1e-8, atol=1e-10 * scale * L)
+    np.testing.assert_allclose(b.Kg, Kg, rtol=1e-8, atol=1e-10 * np.abs(Kg).max())

@@ -242,7 +242,11 @@ def test_adaptive_loop_equals_the_python_loop(linear):
                 == (True, None)
             spread = np.abs(ulp.y - b.y).max() / np.abs(b.y).max()
             close(a.y, b.y, rtol=max(RTOL, 4.0 * spread))
-            assert (a.t, a.nfev, a.nsteps, a.nrejected) == (b.t, b.nfev, b.nsteps, b.nrejected)
+            # the same decisions as the Python loop, or as the Python loop started one ulp away
+            # (an accept/reject decision sitting on the round-off of the error norm goes either
+            # way: then the ulp run shows it)
+            counts = [(s.t, s.nfev, s.nsteps, s.nrejected) for s in (a, b, ulp)]
+            assert counts[0] in counts[1:]
         assert a.nrejected > 0 or n == 0          # the error control was exercised
 
 
