@@ -39,8 +39,8 @@ _DEFAULTS = {f.name: f.default for f in dataclasses.fields(ControllerParams)}
 VARIABLES: tuple[Variable, ...] = (
     *(real_input(n, d, u) for n, (d, u, _, _) in SENSORS.items()),
     *(real_input(f"d{n}", f"time derivative of {n} at the start of the step (polynomial input; "
-                          f"0: held)", du) for n, (_, _, du, _) in SENSORS.items()),
-    *(real_input(f"d2{n}", f"second time derivative of {n} at the start of the step", d2u)
+                          f"0: held)", du, n, 1) for n, (_, _, du, _) in SENSORS.items()),
+    *(real_input(f"d2{n}", f"second time derivative of {n} at the start of the step", d2u, n, 2)
       for n, (_, _, _, d2u) in SENSORS.items()),
     # direct feedthrough (only with filter_order = 0, but the parameter is set at run time)
     real_output("F_c", "force on the cart", "N", depends_on=tuple(SENSORS),

@@ -26,7 +26,7 @@ from .params import PlantParams
 
 __all__ = ["Variable", "ModelInfo", "VARIABLES", "MODEL", "FMU_SETTINGS", "FIDELITIES",
            "OUTPUTS", "N_ETA_OUTPUTS", "INITIAL_STATE", "start_values", "by_name",
-           "value_references", "parameter_defaults"]
+           "value_references", "parameter_defaults", "native_variables"]
 
 CAUSALITIES = ("parameter", "input", "output")
 TYPES = {float: "Real", int: "Integer", bool: "Boolean", str: "String"}
@@ -39,7 +39,11 @@ class Variable:
     ``start`` is the start value of parameters and inputs (None for outputs, which are
     calculated). ``scene_key`` is the scene key whose value sets the variable (None: no key).
     ``depends_on`` lists, for an output, the inputs it depends on directly; ``initial_depends_on``
-    the inputs and parameters its initial value depends on.
+    the inputs and parameters its initial value depends on. ``derivative_of`` names the input
+    whose time derivative of order ``derivative_order`` this input is: FMI's input derivatives as
+    variables, which only the pythonfmu FMUs have (the native FMUs take them through
+    ``fmi2SetRealInputDerivatives`` and leave these variables out, keeping every other variable's
+    value reference).
     """
 
     name: str
@@ -52,6 +56,8 @@ class Variable:
     scene_key: str | None = None
     depends_on: tuple = ()
     initial_depends_on: tuple = ()
+    derivative_of: str | None = None
+    derivative_order: int = 0
 
     def __post_init__(self):
         if self.causality not in CAUSALITIES:
@@ -85,8 +91,9 @@ def parameter(name, default, description, unit=None, scene_key=None) -> Variable
                     variability="fixed", scene_key=scene_key)
 
 
-def real_input(name, description, unit) -> Variable:
-    return Variable(name, "input", "Real", description, unit, 0.0)
+def real_input(name, description, unit, derivative_of=None, order=0) -> Variable:
+    return Variable(name, "input", "Real", description, unit, 0.0, derivative_of=derivative_of,
+                    derivative_order=order)
 
 
 def real_output(name, description, unit, depends_on=(), initial_depends_on=()) -> Variable:
@@ -178,9 +185,9 @@ _DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlantParams)}
 VARIABLES: tuple[Variable, ...] = (
     real_input("F_c", "horizontal force on the cart (at the start of the step)", "N"),
     real_input("dF_c", "time derivative of F_c at the start of the step (polynomial input; "
-                       "0: held)", "N/s"),
+                       "0: held)", "N/s", "F_c", 1),
     real_input("d2F_c", "second time derivative of F_c at the start of the step (polynomial "
-                        "input)", "N/s2"),
+                        "input)", "N/s2", "F_c", 2),
     *(real_output(n, d, u, (), deps) for n, (d, u, deps) in OUTPUTS.items()),
     *(parameter(n, _DEFAULTS[n], d, u, f"plant.{n}") for n, (d, u) in _PARAMS.items()),
     *(parameter(n, FMU_SETTINGS[n], d, u, f"plant.{n}") for n, (d, u) in _SETTINGS.items()),
@@ -193,6 +200,12 @@ MODEL = ModelInfo(
     description=("Cart with an elastic beam hinged on it (Tang & Ren 2009, corrected): floating "
                  "frame of reference with n_modes cantilever modes; input: the force on the cart"),
     version="0.2.0", start_time=0.0, stop_time=10.0, step_size=1e-3)
+
+
+def native_variables(table=VARIABLES) -> list:
+    """``[(value reference, Variable)]`` of a native FMU: the table without the input-derivative
+    variables (``derivative_of``), each variable at its value reference in the whole table."""
+    return [(vr, v) for vr, v in enumerate(table) if v.derivative_of is None]
 
 
 def by_name(table=VARIABLES) -> dict:

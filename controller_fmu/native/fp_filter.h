@@ -24,10 +24,14 @@
 extern "C" {
 #endif
 
+/* Exported from the kernel's own library; a native FMU that links the sources defines FPF_API
+ * empty, so that it exports the FMI functions alone. */
+#ifndef FPF_API
 #if defined(_WIN32)
 #define FPF_API __declspec(dllexport)
 #else
 #define FPF_API __attribute__((visibility("default")))
+#endif
 #endif
 
 #define FPF_ABI 1

@@ -1,7 +1,8 @@
 """``modelDescription.xml`` from the one table of variables of each model.
 
     TABLES["FlexiblePendulum"] -> (ModelInfo, variables)
-    fmi2_model_description(name, guid, ...) -> bytes
+    fmi2_model_description(name, guid, ...) -> bytes      (pythonfmu and native FMUs)
+    fmi3_model_description(name, token, ...) -> bytes     (native FMUs)
 
 The tables are :mod:`plant_fmu.interface` and :mod:`controller_fmu.interface`; the value
 reference of a variable is its position in its table. Units are declared in ``UnitDefinitions``
@@ -18,7 +19,8 @@ import xml.etree.ElementTree as ET
 from controller_fmu import interface as controller_interface
 from plant_fmu import interface as plant_interface
 
-__all__ = ["TABLES", "UNITS", "fmi2_model_description", "xml_value", "generation_date"]
+__all__ = ["TABLES", "UNITS", "FMI3_TYPES", "fmi2_model_description", "fmi3_model_description",
+           "xml_value", "generation_date"]
 
 #: model name -> (ModelInfo, table of variables)
 TABLES = {
@@ -68,15 +70,40 @@ def _units(table) -> list[str]:
     return used
 
 
+def _entries(table, native: bool) -> list:
+    """``[(value reference, Variable)]`` written: the whole table, or a native FMU's (without the
+    input-derivative variables, each variable keeping its value reference)."""
+    if native:
+        return plant_interface.native_variables(table)
+    return list(enumerate(table))
+
+
+def _header(root, model, units, log_categories, used):
+    """UnitDefinitions, LogCategories and DefaultExperiment (the same in FMI 2.0 and 3.0)."""
+    node = ET.SubElement(root, "UnitDefinitions")
+    for u in used:
+        unit = ET.SubElement(node, "Unit", name=u)
+        if units[u]:
+            ET.SubElement(unit, "BaseUnit", {k: str(e) for k, e in units[u].items()})
+    if log_categories:
+        cats = ET.SubElement(root, "LogCategories")
+        for n, d in log_categories.items():
+            ET.SubElement(cats, "Category", name=n, description=d)
+    ET.SubElement(root, "DefaultExperiment", startTime=repr(model.start_time),
+                  stopTime=repr(model.stop_time), stepSize=repr(model.step_size))
+
+
 def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
                            co_simulation: dict, log_categories: dict | None = None,
-                           table=None, model=None) -> bytes:
+                           table=None, model=None, native: bool = False) -> bytes:
     """The FMI 2.0 ``modelDescription.xml`` of model ``name`` (a key of :data:`TABLES`).
 
     ``co_simulation``: the attributes of ``<CoSimulation>`` (modelIdentifier, capability flags,
-    as strings); ``log_categories``: name -> description."""
+    as strings); ``log_categories``: name -> description; ``native``: a native FMU's variables
+    (:func:`plant_interface.native_variables`)."""
     if table is None:
         model, table = TABLES[name]
+    entries = _entries(table, native)
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": model.name, "guid": guid,
         "description": model.description, "version": model.version,
@@ -84,22 +111,12 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
         "variableNamingConvention": "structured",
         "numberOfEventIndicators": "0"})
     ET.SubElement(root, "CoSimulation", co_simulation)
-    units = ET.SubElement(root, "UnitDefinitions")
-    for u in _units(table):
-        unit = ET.SubElement(units, "Unit", name=u)
-        if UNITS[u]:
-            ET.SubElement(unit, "BaseUnit", {k: str(e) for k, e in UNITS[u].items()})
-    if log_categories:
-        cats = ET.SubElement(root, "LogCategories")
-        for n, d in log_categories.items():
-            ET.SubElement(cats, "Category", name=n, description=d)
-    ET.SubElement(root, "DefaultExperiment", startTime=repr(model.start_time),
-                  stopTime=repr(model.stop_time), stepSize=repr(model.step_size))
+    _header(root, model, UNITS, log_categories, _units([v for _, v in entries]))
     mv = ET.SubElement(root, "ModelVariables")
     index = {}
-    for i, v in enumerate(table):
+    for i, (vr, v) in enumerate(entries):
         index[v.name] = i + 1
-        attrs = {"name": v.name, "valueReference": str(i), "description": v.description,
+        attrs = {"name": v.name, "valueReference": str(vr), "description": v.description,
                  "causality": v.causality, "variability": v.variability}
         if v.initial:
             attrs["initial"] = v.initial
@@ -111,7 +128,7 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
             typ["start"] = xml_value(v.start)
         ET.SubElement(sv, v.type, typ)
     structure = ET.SubElement(root, "ModelStructure")
-    outputs = [v for v in table if v.causality == "output"]
+    outputs = [v for _, v in entries if v.causality == "output"]
 
     def deps(names):
         return " ".join(str(index[n]) for n in sorted(names, key=index.get))
@@ -124,5 +141,59 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
         for v in outputs:
             ET.SubElement(node, "Unknown", index=str(index[v.name]),
                           dependencies=deps(v.initial_depends_on))
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+#: FMI 3.0 type names of the table's types
+FMI3_TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "String": "String"}
+
+
+def fmi3_model_description(name: str, token: str, *, generation_tool: str,
+                           co_simulation: dict, log_categories: dict | None = None,
+                           table=None, model=None) -> bytes:
+    """The FMI 3.0 ``modelDescription.xml`` of the native FMU of model ``name``: the same variables
+    and value references as its FMI 2.0 description, FMI 3.0 types (Float64, Int32), dependencies
+    by value reference, and the independent variable ``time`` at the first free reference."""
+    if table is None:
+        model, table = TABLES[name]
+    entries = _entries(table, True)
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "3.0", "modelName": model.name, "instantiationToken": token,
+        "description": model.description, "version": model.version,
+        "generationTool": generation_tool, "generationDateAndTime": generation_date(),
+        "variableNamingConvention": "structured"})
+    ET.SubElement(root, "CoSimulation", co_simulation)
+    _header(root, model, UNITS, log_categories,
+            sorted({"s", *_units([v for _, v in entries])}))     # "s": the unit of time
+    mv = ET.SubElement(root, "ModelVariables")
+    vrs = {v.name: vr for vr, v in entries}
+    ET.SubElement(mv, "Float64", {"name": "time", "valueReference": str(len(table)),
+                                  "causality": "independent", "variability": "continuous",
+                                  "description": "simulation time", "unit": "s"})
+    for vr, v in entries:
+        attrs = {"name": v.name, "valueReference": str(vr), "description": v.description,
+                 "causality": v.causality, "variability": v.variability}
+        if v.initial:
+            attrs["initial"] = v.initial
+        if v.type == "Real" and v.unit:
+            attrs["unit"] = v.unit
+        if v.start is not None and v.type != "String":
+            attrs["start"] = xml_value(v.start)
+        node = ET.SubElement(mv, FMI3_TYPES[v.type], attrs)
+        if v.start is not None and v.type == "String":
+            ET.SubElement(node, "Start", value=str(v.start))
+    structure = ET.SubElement(root, "ModelStructure")
+
+    def deps(names):
+        return " ".join(str(vrs[n]) for n in sorted(names, key=vrs.get))
+
+    outputs = [v for _, v in entries if v.causality == "output"]
+    for v in outputs:
+        ET.SubElement(structure, "Output", valueReference=str(vrs[v.name]),
+                      dependencies=deps(v.depends_on))
+    for v in outputs:
+        ET.SubElement(structure, "InitialUnknown", valueReference=str(vrs[v.name]),
+                      dependencies=deps(v.initial_depends_on))
     ET.indent(root)
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)

@@ -29,10 +29,14 @@
 extern "C" {
 #endif
 
+/* Exported from the kernel's own library; a native FMU that links the sources defines FP_API
+ * empty, so that it exports the FMI functions alone. */
+#ifndef FP_API
 #if defined(_WIN32)
 #define FP_API __declspec(dllexport)
 #else
 #define FP_API __attribute__((visibility("default")))
+#endif
 #endif
 
 /* Version of the binary interface below (structs, signatures, codes). Bump on any change. */

@@ -1,0 +1,237 @@
+/*
+ * controller_model.c - PDLowPass as a native FMU model (see fpm.h), on the filter's compiled
+ * kernel (controller_fmu/native/fp_filter.c): the behaviour of the pythonfmu slave
+ * (controller_fmu/fmu.py).
+ *
+ * Over doStep(t, h) the filter advances exactly, xc <- Ad(h) xc + G(h) [e, e', e''], with the
+ * error signal e = kx x_o + kp phi_o + kd omega_o and its time derivatives from the sensors'
+ * input derivatives (fmi2SetRealInputDerivatives; zero: held inputs). F_c = -sat(xc[0]); with
+ * filter_order = 0 there is no filter and F_c = -sat(e) from the current inputs (direct
+ * feedthrough). F_c is never NaN: with non-finite inputs it holds its last value.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "fp_filter.h"
+#include "fpm.h"
+#include "fpm_vars.h"
+
+/* the sensors in the kernel's order: x_o, phi_o, omega_o */
+static const unsigned SENSOR_VRS[3] = {VR_x_o, VR_phi_o, VR_omega_o};
+static const char *SENSOR_NAMES[3] = {"x_o", "phi_o", "omega_o"};
+
+typedef struct disc {
+    double h;
+    double Ad[4], G[6];
+} disc;
+
+struct fpm_model {
+    fpm_values v;
+    double t0, t;
+    int initialized;
+    char error[FPM_MSG_MAX];
+    fpf_filter f;
+    double d[2][3];             /* first and second time derivatives of the sensors */
+    double xc[2];
+    double F;                   /* F_c after the last step, or the last finite F_c */
+    disc cache[2];
+    int next;
+};
+
+size_t fpm_model_size(void) { return sizeof(fpm_model); }
+fpm_values *fpm_model_values(fpm_model *m) { return &m->v; }
+double fpm_model_time(const fpm_model *m) { return m->t; }
+
+void fpm_model_reset(fpm_model *m, double start_time)
+{
+    int i;
+    memset(m, 0, sizeof *m);
+    for (i = 0; i < FPM_MAX_VARS; i++) {
+        const fpm_var *v = &fpm_vars[i];
+        if (v->name == NULL || v->causality == FPM_OUTPUT) continue;
+        if (v->type == FPM_STRING) strcpy(m->v.string[i], v->start_string);
+        else m->v.real[i] = v->start_real;
+    }
+    m->t0 = m->t = start_time;
+}
+
+/* check_real of plant_fmu/params.py, as ControllerParams uses it */
+static int check(const fpm_logger *lg, const char *name, double v, double low, int low_open,
+                 double high, int allow_inf)
+{
+    int ok = !isnan(v) && (isfinite(v) || (allow_inf && v == INFINITY)) &&
+             (low_open ? v > low : v >= low) && v <= high;
+    if (!ok)
+        fpm_log(lg, FPM_ERROR, "bad parameter: %s = %.17g is out of range; allowed: %s%g, %g]",
+                name, v, low_open ? "(" : "[", low, high);
+    return ok;
+}
+
+static int prepare(fpm_model *m, const fpm_logger *lg)
+{
+    const double *r = m->v.real;
+    if (!check(lg, "kp", r[VR_kp], -1e12, 1, 1e12, 0) ||
+        !check(lg, "kd", r[VR_kd], -1e12, 1, 1e12, 0) ||
+        !check(lg, "kx", r[VR_kx], -1e12, 1, 1e12, 0))
+        return 0;
+    if (!(r[VR_filter_order] >= 0 && r[VR_filter_order] <= 2)) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: filter_order = %.17g is out of range; allowed: "
+                "integers 0..2", r[VR_filter_order]);
+        return 0;
+    }
+    if (!check(lg, "cutoff", r[VR_cutoff], 0.0, 1, 1e9, 0) ||
+        !check(lg, "filter_damping", r[VR_filter_damping], 0.0, 1, 100.0, 0) ||
+        !check(lg, "force_limit", r[VR_force_limit], 0.0, 1, INFINITY, 1))
+        return 0;
+    m->f.order = (int)r[VR_filter_order];
+    m->f.kp = r[VR_kp];
+    m->f.kd = r[VR_kd];
+    m->f.kx = r[VR_kx];
+    m->f.cutoff = r[VR_cutoff];
+    m->f.damping = r[VR_filter_damping];
+    m->f.force_limit = r[VR_force_limit];
+    if (fpf_check(&m->f) != FPF_OK) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: the filter's parameters are out of range");
+        return 0;
+    }
+    m->xc[0] = m->xc[1] = 0.0;
+    m->F = 0.0;
+    m->cache[0].h = m->cache[1].h = -1.0;
+    m->t = m->t0;
+    return 1;
+}
+
+int fpm_model_init(fpm_model *m, const fpm_logger *lg)
+{
+    m->initialized = prepare(m, lg);
+    return m->initialized ? FPM_OK : FPM_ERROR;
+}
+
+int fpm_model_relink(fpm_model *m, const fpm_logger *lg)
+{
+    if (m->initialized && fpf_check(&m->f) != FPF_OK) {
+        fpm_log(lg, FPM_ERROR, "the FMU state is not a state of PDLowPass");
+        return FPM_ERROR;
+    }
+    m->error[FPM_MSG_MAX - 1] = '\0';
+    return FPM_OK;
+}
+
+/* The sensors and their derivatives, y = [x_o, phi_o, omega_o, d.., d2..]; 1 if all finite. */
+static int sensors(const fpm_model *m, double *y)
+{
+    int k, ok = 1;
+    for (k = 0; k < 3; k++) {
+        y[k] = m->v.real[SENSOR_VRS[k]];
+        y[3 + k] = m->d[0][k];
+        y[6 + k] = m->d[1][k];
+    }
+    for (k = 0; k < 9; k++) ok = ok && isfinite(y[k]);
+    return ok;
+}
+
+static void name_bad(const double *y, char *buf, size_t n)
+{
+    int k;
+    size_t used = 0;
+    static const char *PRE[3] = {"", "d", "d2"};
+    buf[0] = '\0';
+    for (k = 0; k < 9 && used < n; k++)
+        if (!isfinite(y[k]))
+            used += (size_t)snprintf(buf + used, n - used, "%s%s%s = %g", used ? ", " : "",
+                                     PRE[k / 3], SENSOR_NAMES[k % 3], y[k]);
+}
+
+int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
+{
+    double y[9], e[3], F;
+    disc *d;
+    char bad[256];
+    if (!m->initialized) {
+        fpm_log(lg, FPM_ERROR, "PDLowPass cannot step: it was not initialised");
+        return FPM_ERROR;
+    }
+    if (!sensors(m, y)) {
+        name_bad(y, bad, sizeof bad);
+        fpm_log(lg, FPM_DISCARD, "non-finite input at t = %.17g: %s; step rejected, state "
+                "unchanged", t, bad);
+        return FPM_DISCARD;
+    }
+    if (m->f.order) {
+        if (m->cache[0].h == h) d = &m->cache[0];
+        else if (m->cache[1].h == h) d = &m->cache[1];
+        else {
+            d = &m->cache[m->next];
+            if (fpf_discretize(&m->f, h, 1, d->Ad, d->G) != FPF_OK) {
+                d->h = -1.0;
+                fpm_log(lg, FPM_DISCARD, "filter step rejected at t = %.17g: the matrix "
+                        "exponential over h = %.17g overflows; state unchanged", t, h);
+                return FPM_DISCARD;
+            }
+            d->h = h;
+            m->next = 1 - m->next;
+        }
+        fpf_error(&m->f, y, e);
+        if (fpf_step(&m->f, d->Ad, d->G, e, m->xc, &F) != FPF_OK) {
+            fpm_log(lg, FPM_DISCARD, "filter step rejected at t = %.17g: the filter state "
+                    "overflows (error signal %.17g); state unchanged", t, e[0]);
+            return FPM_DISCARD;
+        }
+        m->F = F;
+    }
+    m->t = t + h;
+    return FPM_OK;
+}
+
+int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    double y[9], e[3], F;
+    if (vr != VR_F_c) {
+        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
+        return FPM_ERROR;
+    }
+    if (!m->initialized && !prepare(m, lg)) {
+        fpm_log(lg, FPM_ERROR, "F_c cannot be computed: a parameter is bad (above)");
+        return FPM_ERROR;
+    }
+    if (m->f.order == 0) {                    /* direct feedthrough of the current inputs */
+        if (sensors(m, y)) {
+            fpf_error(&m->f, y, e);
+            F = -e[0];
+            if (F < -m->f.force_limit) F = -m->f.force_limit;
+            if (F > m->f.force_limit) F = m->f.force_limit;
+            if (isfinite(F)) {
+                m->F = F;
+            } else {
+                fpm_log(lg, FPM_WARNING, "F_c is not finite for the inputs given; F_c holds its "
+                        "last value %.17g", m->F);
+                *value = m->F;
+                return FPM_WARNING;
+            }
+        } else {
+            char bad[256];
+            name_bad(y, bad, sizeof bad);
+            fpm_log(lg, FPM_WARNING, "F_c is not finite for the inputs %s; F_c holds its last "
+                    "value %.17g", bad, m->F);
+            *value = m->F;
+            return FPM_WARNING;
+        }
+    }
+    *value = m->F;
+    return FPM_OK;
+}
+
+int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
+                                   double value)
+{
+    int k;
+    for (k = 0; k < 3; k++)
+        if (vr == SENSOR_VRS[k] && (order == 1 || order == 2)) {
+            m->d[order - 1][k] = value;
+            return FPM_OK;
+        }
+    fpm_log(lg, FPM_ERROR, "fmi2SetRealInputDerivatives: PDLowPass takes derivatives of order 1 "
+            "and 2 of x_o, phi_o, omega_o only (got order %d of value reference %u)", order, vr);
+    return FPM_ERROR;
+}

@@ -1,0 +1,662 @@
+/*
+ * plant_model.c - FlexiblePendulum as a native FMU model (see fpm.h): its parameters' checks, its
+ * step and its outputs, on the plant's compiled kernel (plant_fmu/native/fp_plant.c).
+ *
+ * The behaviour is that of the pythonfmu slave (plant_fmu/fmu.py) and of its steppers
+ * (plant_fmu/integrators/base.py, rk.py, exponential.py), ported here so that both flavours
+ * give the same outputs: the fixed substep grid t = t_base + k h (time from integers) with a
+ * shortened last substep when a communication point is off the grid (the grid restarts there),
+ * the input polynomial of the explicit methods and symplectic Euler (held at its step average
+ * for the exponential integrator), the adaptive Dormand-Prince loop with its proposed step
+ * carried from step to step, and the divergence checks.
+ *
+ * Modes: the unit beam's tables (fpm_vars.h, computed by plant_fmu/beam.py at build time for
+ * n_elements 1..FPM_NE_MAX and n_modes 0..FPM_N_MODES_MAX), scaled at initialisation exactly as
+ * beam.Scales does, with the same operations in the same order: the modal data are then
+ * bit-identical to the pythonfmu plant's.
+ *
+ * Bounded work: a doStep takes at most FPM_MAX_SUBSTEPS substeps; beyond it the step is
+ * discarded with the state unchanged, and the log says so (the cap and what the step needed).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "fp_filter.h"
+#include "fp_plant.h"
+#include "fpm.h"
+#include "fpm_vars.h"
+
+#define NMAX FPM_N_MODES_MAX
+#define NXMAX (2 * (NMAX + 2))
+#define AUG (NXMAX + 1)
+#ifndef FPM_MAX_SUBSTEPS
+#define FPM_MAX_SUBSTEPS 1000000L
+#endif
+#define STATE_NORM2_LIMIT 1e200
+#define SNAP 1e-7
+#define EPS 2.220446049250313e-16
+
+enum { M_EULER, M_RK4, M_SYMPLECTIC, M_DOPRI5, M_EXPONENTIAL };
+static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "exponential"};
+#define N_METHODS 5
+
+/* One cached exact discretisation of the linear plant over a substep (the exponential method). */
+typedef struct expo {
+    double h;
+    double Phi[NXMAX * NXMAX];
+    double Gam[NXMAX];
+} expo;
+
+/* What a step changes (copied before it, restored when it fails). */
+typedef struct stepper {
+    double t, t_base;
+    long k;
+    double y[NXMAX];
+    double f[NXMAX];            /* dopri5: f(t, y, u(t)) (first same as last) */
+    double h_abs;               /* dopri5: the proposed step */
+    double u, du, d2u, tu;      /* the input polynomial of the stepper */
+    int prev_poly;              /* the input the method's data belong to (rk.py's _u_prev) */
+    double prev[4];
+} stepper;
+
+struct fpm_model {
+    fpm_values v;
+    double t0;
+    double dF, d2F;             /* fmi2SetRealInputDerivatives of F_c */
+    int ready;                  /* prepared from the parameters */
+    int initialized;            /* exitInitializationMode succeeded */
+    int failed;                 /* refuses to step until a saved state is restored */
+    char error[FPM_MSG_MAX];
+    /* the plant */
+    fp_plant p;
+    double I3[NMAX], I5[NMAX], K[NMAX], D[NMAX], Kg[NMAX * NMAX], tip_slope[NMAX], tip_defl[NMAX];
+    int n, nq, nx, method;
+    double h, rtol, atol, phi_limit, energy_limit;
+    stepper s;
+    double y_acc[NXMAX];        /* the last accepted state (the outputs) */
+    double out[FP_OUT_ETA + NMAX];
+    int out_fresh, energy_fresh;
+    /* the exponential method */
+    double A[NXMAX * NXMAX], B[NXMAX];
+    expo ex[2];
+    int ex_next;
+    double work[(7 + 2) * NXMAX];
+    double ework[9 * AUG * AUG];
+    double aug[AUG * AUG], E[AUG * AUG];
+};
+
+size_t fpm_model_size(void) { return sizeof(fpm_model); }
+fpm_values *fpm_model_values(fpm_model *m) { return &m->v; }
+double fpm_model_time(const fpm_model *m) { return m->ready ? m->s.t : m->t0; }
+
+void fpm_model_reset(fpm_model *m, double start_time)
+{
+    int i;
+    memset(m, 0, sizeof *m);
+    for (i = 0; i < FPM_MAX_VARS; i++) {
+        const fpm_var *v = &fpm_vars[i];
+        if (v->name == NULL || v->causality == FPM_OUTPUT) continue;
+        if (v->type == FPM_STRING) strcpy(m->v.string[i], v->start_string);
+        else m->v.real[i] = v->start_real;
+    }
+    m->t0 = start_time;
+}
+
+static void relink(fpm_model *m)
+{
+    m->p.I3 = m->I3;
+    m->p.I5 = m->I5;
+    m->p.K = m->K;
+    m->p.D = m->D;
+    m->p.Kg = m->Kg;
+    m->p.tip_slope = m->tip_slope;
+    m->p.tip_defl = m->tip_defl;
+}
+
+/* ------------------------------------------------------------------ parameter checks */
+/* check_real of plant_fmu/params.py: low/high bounds, open or closed, +inf allowed or not. */
+static int check_real(const fpm_logger *lg, const char *name, double v, int has_low, double low,
+                      int low_open, int has_high, double high, int high_open, int allow_inf)
+{
+    int ok = !isnan(v) && (isfinite(v) || (allow_inf && v == INFINITY));
+    if (has_low) ok = ok && (low_open ? v > low : v >= low);
+    if (has_high) ok = ok && (high_open ? v < high : v <= high);
+    if (!ok) {
+        char lo[32], hi[32];
+        if (has_low) snprintf(lo, sizeof lo, "%g", low); else strcpy(lo, "-inf");
+        if (has_high) snprintf(hi, sizeof hi, "%g", high); else strcpy(hi, "inf");
+        fpm_log(lg, FPM_ERROR, "bad parameter: %s = %.17g is out of range; allowed: %s%s, %s%s",
+                name, v, low_open ? "(" : "[", lo, hi, high_open ? ")" : "]");
+    }
+    return ok;
+}
+
+static int check_int(const fpm_logger *lg, const char *name, double v, int low, int high,
+                     const char *why)
+{
+    if (!(v >= low && v <= high)) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: %s = %.17g is out of range; allowed: integers "
+                "%d..%d%s", name, v, low, high, why);
+        return 0;
+    }
+    return 1;
+}
+
+/* Build the plant and the stepper from the parameters (fmu.py's _prepare). */
+static int prepare(fpm_model *m, const fpm_logger *lg)
+{
+    const double *r = m->v.real;
+    double L = r[VR_L], EI = r[VR_EI], rho = r[VR_rho], EA = r[VR_EA], E = r[VR_E];
+    double g = r[VR_g], zeta = r[VR_zeta], rhoA, w, sI3, sI5, slam, sslope, sKg;
+    int n, ne, j, i;
+    const char *fid = m->v.string[VR_fidelity], *integ = m->v.string[VR_integrator];
+    static const char *REAL_PARAMS[] = {"m", "L", "rho", "EA", "EI", "E"};
+    static const unsigned REAL_VRS[] = {VR_m, VR_L, VR_rho, VR_EA, VR_EI, VR_E};
+    m->ready = 0;
+    for (i = 0; i < 6; i++)
+        if (!check_real(lg, REAL_PARAMS[i], r[REAL_VRS[i]], 1, 0.0, 1, 1, 1e15, 0, 0)) return 0;
+    if (!check_real(lg, "zeta", zeta, 1, 0.0, 0, 1, 1.0, 1, 0)) return 0;
+    if (!check_real(lg, "g", g, 1, 0.0, 0, 1, 1e3, 0, 0)) return 0;
+    if (!check_int(lg, "n_elements", r[VR_n_elements], 1, FPM_NE_MAX,
+                   " (the native FMU carries the modes of these meshes; the pythonfmu "
+                   "FlexiblePendulum takes up to 400)")) return 0;
+    ne = (int)r[VR_n_elements];
+    if (!check_int(lg, "n_modes", r[VR_n_modes], 0, ne < NMAX ? ne : NMAX,
+                   " (at most n_elements, and at most the modes the native FMU carries)"))
+        return 0;
+    n = (int)r[VR_n_modes];
+    if (strcmp(fid, "nonlinear") != 0 && strcmp(fid, "linear") != 0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = '%s' is not allowed; allowed: "
+                "nonlinear, linear", fid);
+        return 0;
+    }
+    m->method = -1;
+    for (i = 0; i < N_METHODS; i++)
+        if (strcmp(integ, METHODS[i]) == 0) m->method = i;
+    if (m->method < 0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: integrator = '%s' is not supported by the native "
+                "FlexiblePendulum; supported: dopri5, euler, exponential, rk4, "
+                "symplectic_euler (radau and genalpha: the pythonfmu FMU)", integ);
+        return 0;
+    }
+    if (m->method == M_EXPONENTIAL && strcmp(fid, "linear") != 0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: integrator = 'exponential' integrates the plant "
+                "linearised at the upright rest state: it needs fidelity = 'linear'");
+        return 0;
+    }
+    if (!check_real(lg, "step", r[VR_step], 1, 0.0, 1, 1, INFINITY, 1, 0)) return 0;
+    if (!check_real(lg, "rtol", r[VR_rtol], 1, 0.0, 1, 1, 1.0, 0, 0)) return 0;
+    if (!check_real(lg, "atol", r[VR_atol], 1, 0.0, 1, 1, INFINITY, 1, 0)) return 0;
+    if (!check_real(lg, "phi_limit", r[VR_phi_limit], 1, 0.0, 1, 0, 0.0, 0, 1)) return 0;
+    if (!check_real(lg, "energy_limit", r[VR_energy_limit], 1, 0.0, 1, 0, 0.0, 0, 1)) return 0;
+    if (!check_real(lg, "phi0", r[VR_phi0], 0, 0, 0, 0, 0, 0, 0)) return 0;
+    if (!check_real(lg, "x0", r[VR_x0], 0, 0, 0, 0, 0, 0, 0)) return 0;
+    if (!check_real(lg, "phi_dot0", r[VR_phi_dot0], 0, 0, 0, 0, 0, 0, 0)) return 0;
+    if (!check_real(lg, "x_dot0", r[VR_x_dot0], 0, 0, 0, 0, 0, 0, 0)) return 0;
+
+    /* the modal data: the unit beam's, scaled (beam.py: Scales.of, beam_model) */
+    rhoA = rho * EA / E;
+    w = 1.0 / sqrt(rhoA * L);
+    sI3 = (rhoA * L) * w;
+    sI5 = sI3 * L;
+    slam = EI / (rhoA * ((L * L) * (L * L)));
+    sslope = w / L;
+    sKg = g / L;
+    m->n = n;
+    m->nq = n + 2;
+    m->nx = 2 * (n + 2);
+    for (j = 0; j < n; j++) {
+        double K = fpm_unit_lam[ne - 1][j] * slam, omega = sqrt(K);
+        m->K[j] = K;
+        m->D[j] = 2.0 * zeta * omega;
+        m->I3[j] = fpm_unit_I3[ne - 1][j] * sI3;
+        m->I5[j] = fpm_unit_I5[ne - 1][j] * sI5;
+        m->tip_defl[j] = fpm_unit_tip_defl[ne - 1][j] * w;
+        m->tip_slope[j] = fpm_unit_tip_slope[ne - 1][j] * sslope;
+        for (i = 0; i < n; i++)
+            m->Kg[j * n + i] = r[VR_gravity_preload] != 0.0
+                ? fpm_unit_Kg[ne - 1][j * NMAX + i] * sKg : 0.0;
+    }
+    memset(&m->p, 0, sizeof m->p);
+    m->p.n = n;
+    m->p.linear = strcmp(fid, "linear") == 0;
+    m->p.preload = r[VR_gravity_preload] != 0.0 && n > 0;
+    m->p.I0 = r[VR_m] + rhoA * L;
+    m->p.I1 = rhoA * (L * L) / 2;
+    m->p.I2 = rhoA * (L * L * L) / 3;
+    m->p.g = g;
+    relink(m);
+    if (fp_plant_prepare(&m->p) != FP_OK) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: the plant's invariants are not finite");
+        return 0;
+    }
+    m->h = r[VR_step];
+    m->rtol = r[VR_rtol];
+    m->atol = r[VR_atol];
+    m->phi_limit = r[VR_phi_limit];
+    m->energy_limit = r[VR_energy_limit];
+
+    /* the stepper at t0 with the undeformed beam and a held input 0 (make_stepper) */
+    memset(&m->s, 0, sizeof m->s);
+    m->s.t = m->s.t_base = m->s.tu = m->t0;
+    m->s.y[0] = r[VR_x0];
+    m->s.y[1] = r[VR_phi0];
+    m->s.y[m->nq] = r[VR_x_dot0];
+    m->s.y[m->nq + 1] = r[VR_phi_dot0];
+    m->s.h_abs = m->h;                    /* min(h, max_step = inf) */
+    if (m->method == M_DOPRI5) fp_rhs(&m->p, m->s.y, 0.0, m->s.f);
+    if (m->method == M_EXPONENTIAL) {     /* A and B of the linear plant, by columns */
+        double x[NXMAX], dx[NXMAX];
+        int nx = m->nx;
+        memset(x, 0, sizeof x);
+        for (j = 0; j < nx; j++) {
+            x[j] = 1.0;
+            fp_rhs(&m->p, x, 0.0, dx);
+            x[j] = 0.0;
+            for (i = 0; i < nx; i++) m->A[i * nx + j] = dx[i];
+        }
+        fp_rhs(&m->p, x, 1.0, m->B);
+        m->ex[0].h = m->ex[1].h = -1.0;
+    }
+    memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
+    m->out_fresh = m->energy_fresh = 0;
+    m->failed = 0;
+    m->error[0] = '\0';
+    m->ready = 1;
+    return 1;
+}
+
+int fpm_model_init(fpm_model *m, const fpm_logger *lg)
+{
+    m->initialized = prepare(m, lg);
+    return m->initialized ? FPM_OK : FPM_ERROR;
+}
+
+int fpm_model_relink(fpm_model *m, const fpm_logger *lg)
+{
+    if (m->ready && !(m->n >= 0 && m->n <= NMAX && m->nx == 2 * (m->n + 2) && m->p.n == m->n &&
+                      m->method >= 0 && m->method < N_METHODS)) {
+        fpm_log(lg, FPM_ERROR, "the FMU state is not a state of FlexiblePendulum (sizes %d, %d)",
+                m->n, m->nx);
+        return FPM_ERROR;
+    }
+    m->error[FPM_MSG_MAX - 1] = '\0';
+    relink(m);
+    return FPM_OK;
+}
+
+/* ------------------------------------------------------------------ stepping */
+/* The exact discretisation of the linear plant over h (exponential.py's zoh_discretize). */
+static expo *discretisation(fpm_model *m, double h)
+{
+    int nx = m->nx, na = nx + 1, i, j;
+    expo *e;
+    if (m->ex[0].h == h) return &m->ex[0];
+    if (m->ex[1].h == h) return &m->ex[1];
+    e = &m->ex[m->ex_next];
+    memset(m->aug, 0, sizeof m->aug);
+    for (i = 0; i < nx; i++) {
+        for (j = 0; j < nx; j++) m->aug[i * na + j] = m->A[i * nx + j] * h;
+        m->aug[i * na + nx] = m->B[i] * h;
+    }
+    if (fpf_expm(na, m->aug, m->E, m->ework) != FPF_OK) return NULL;
+    for (i = 0; i < nx; i++) {
+        for (j = 0; j < nx; j++) e->Phi[i * nx + j] = m->E[i * na + j];
+        e->Gam[i] = m->E[i * na + nx];
+    }
+    e->h = h;
+    m->ex_next = 1 - m->ex_next;
+    return e;
+}
+
+static int finite_state(const double *y, int nx)
+{
+    double s = 0.0;
+    int i;
+    for (i = 0; i < nx; i++) s += y[i] * y[i];
+    return s < INFINITY;
+}
+
+/* n substeps of h from the stepper's time (base.py's _full_substeps); the message on failure. */
+static int substeps(fpm_model *m, double h, long n, char *why)
+{
+    stepper *s = &m->s;
+    long done = 0;
+    if (n < 1) return 1;
+    if (m->method == M_EXPONENTIAL) {
+        int nx = m->nx, i, j;
+        long q;
+        expo *e = discretisation(m, h);
+        double y[NXMAX];
+        if (e == NULL) {
+            snprintf(why, FPM_MSG_MAX, "the matrix exponential over h = %.17g overflows", h);
+            return 0;
+        }
+        for (q = 0; q < n; q++) {
+            for (i = 0; i < nx; i++) {
+                double a = 0.0;
+                for (j = 0; j < nx; j++) a += e->Phi[i * nx + j] * s->y[j];
+                y[i] = a + e->Gam[i] * s->u;
+            }
+            if (!finite_state(y, nx)) break;
+            memcpy(s->y, y, sizeof(double) * nx);
+            s->k += 1;
+            s->t = s->t_base + s->k * h;
+            done++;
+        }
+    } else {
+        fp_input in;
+        int rc;
+        in.u0 = s->u;
+        in.du = s->du;
+        in.d2u = s->d2u;
+        in.tu = s->tu;
+        if (m->method == M_SYMPLECTIC)
+            rc = fp_fixed_steps(&m->p, FP_SYMPLECTIC_EULER, NULL, &in, s->t, h, n, s->y, m->work,
+                                &done);
+        else
+            rc = fp_fixed_steps(&m->p, -1, fp_builtin_tableau(m->method == M_RK4 ? FP_RK4 : FP_EULER),
+                                &in, s->t, h, n, s->y, m->work, &done);
+        if (rc == FP_BADARG) {
+            snprintf(why, FPM_MSG_MAX, "bad substep h = %.17g", h);
+            return 0;
+        }
+        s->k += done;
+        s->t = s->t_base + s->k * h;
+    }
+    if (done < n) {
+        snprintf(why, FPM_MSG_MAX, "non-finite state after the substep from t = %.17g (h = %.17g)",
+                 s->t, h);
+        return 0;
+    }
+    return 1;
+}
+
+/* One substep on the grid, shortened to land on t_bound (base.py's _fixed_substep). */
+static int short_substep(fpm_model *m, double t_bound, char *why)
+{
+    stepper *s = &m->s;
+    double h = m->h, t_grid = s->t_base + (s->k + 1) * h, hs, t_new;
+    double snap = SNAP * h + 4 * EPS * fabs(t_grid);
+    int rebase = 0;
+    long k = s->k + 1;
+    if (t_grid < t_bound - snap) {
+        t_new = t_grid;
+        hs = h;
+    } else if (t_grid <= t_bound + snap) {
+        t_new = t_bound;
+        hs = h;
+    } else {
+        t_new = t_bound;
+        hs = t_bound - s->t;
+        rebase = 1;
+    }
+    {
+        double t_base = s->t_base;
+        long k0 = s->k;
+        s->t_base = s->t;                 /* one substep of hs from s->t */
+        s->k = 0;
+        if (!substeps(m, hs, 1, why)) {
+            s->t_base = t_base;
+            s->k = k0;
+            return 0;
+        }
+        s->t_base = t_base;
+        s->k = k0;
+    }
+    s->t = t_new;
+    if (rebase) {
+        s->t_base = t_bound;
+        s->k = 0;
+    } else {
+        s->k = k;
+    }
+    return 1;
+}
+
+/* The fixed-step advance to t_end (base.py's _advance_fixed): 1, or 0 with why on failure, or
+ * -1 (nothing done) if it would take more than FPM_MAX_SUBSTEPS substeps. */
+static int advance_fixed(fpm_model *m, double t_end, char *why)
+{
+    stepper *s = &m->s;
+    double h = m->h, n_grid = (t_end - s->t_base) / h, n_round = nearbyint(n_grid);
+    long n_full;
+    int short_ = 0;
+    if (fabs(n_grid - n_round) <= SNAP + 4 * EPS * fabs(t_end) / h) {
+        n_full = (long)n_round - s->k;
+    } else {
+        n_full = (long)floor(n_grid) - s->k;
+        short_ = 1;
+    }
+    if (n_full + short_ > FPM_MAX_SUBSTEPS) {
+        snprintf(why, FPM_MSG_MAX, "the step to t = %.17g needs %ld substeps of %.17g s, more "
+                 "than the cap of %ld per doStep: take shorter communication steps or a larger "
+                 "plant step", t_end, n_full + short_, h, FPM_MAX_SUBSTEPS);
+        return -1;
+    }
+    if (!substeps(m, h, n_full, why)) return 0;
+    if (!short_) {
+        s->t = t_end;
+        return 1;
+    }
+    return short_substep(m, t_end, why);
+}
+
+/* The adaptive advance (rk.py's _compiled_adaptive): 1, 0 with why, or -1 at the cap. */
+static int advance_dopri(fpm_model *m, double t_end, char *why)
+{
+    stepper *s = &m->s;
+    fp_adaptive a;
+    fp_input in;
+    double t = s->t;
+    int rc;
+    memset(&a, 0, sizeof a);
+    a.rtol = m->rtol;
+    a.atol = &m->atol;
+    a.n_atol = 1;
+    a.max_step = INFINITY;
+    a.min_step = 0.0;
+    a.max_steps = FPM_MAX_SUBSTEPS;
+    a.h_abs = s->h_abs;
+    in.u0 = s->u;
+    in.du = s->du;
+    in.d2u = s->d2u;
+    in.tu = s->tu;
+    rc = fp_dopri_advance(&m->p, fp_builtin_tableau(FP_DOPRI5), &in, &t, t_end, s->y, s->f, &a,
+                          m->work);
+    s->t = t;
+    s->h_abs = a.h_abs;
+    if (rc == FP_OK) return 1;
+    if (rc == FP_CAP) {
+        snprintf(why, FPM_MSG_MAX, "dopri5 reached the cap of %ld accepted steps per doStep at "
+                 "t = %.17g before t = %.17g (rtol = %g, atol = %g): take shorter communication "
+                 "steps or looser tolerances", FPM_MAX_SUBSTEPS, t, t_end, m->rtol, m->atol);
+        return -1;
+    }
+    if (rc == FP_UNDERFLOW) {
+        snprintf(why, FPM_MSG_MAX, "step size underflow at t = %.17g: h = %.17g is below the "
+                 "minimum %.17g", t, a.fail_h, a.fail_min_step);
+        return 0;
+    }
+    snprintf(why, FPM_MSG_MAX, "bad arguments to the adaptive loop (code %d)", rc);
+    return 0;
+}
+
+/* The input over the step (fmu.py's do_step, base.py's set_input and _prepare_input). */
+static void set_input(fpm_model *m, double t, double h)
+{
+    stepper *s = &m->s;
+    double u = m->v.real[VR_F_c], du = m->dF, d2u = m->d2F;
+    int poly;
+    if (!(du != 0.0 || d2u != 0.0)) {
+        s->u = u;
+        s->du = s->d2u = 0.0;
+    } else if (m->method != M_EXPONENTIAL) {
+        s->u = u;
+        s->du = du;
+        s->d2u = d2u;
+        s->tu = t;
+    } else {                                  /* a held-input method: the step average */
+        s->u = u + h * (0.5 * du + h * d2u / 6.0);
+        s->du = s->d2u = 0.0;
+    }
+    poly = s->du != 0.0 || s->d2u != 0.0;
+    if (poly != s->prev_poly || s->prev[0] != s->u ||
+        (poly && (s->prev[1] != s->du || s->prev[2] != s->d2u || s->prev[3] != s->tu))) {
+        if (m->method == M_DOPRI5) {          /* f = f(t, y, u(t)) for the new input */
+            double ut = s->u;
+            if (poly) {
+                double q = s->t - s->tu;
+                ut = s->u + q * (s->du + 0.5 * q * s->d2u);
+            }
+            fp_rhs(&m->p, s->y, ut, s->f);
+        }
+        s->prev_poly = poly;
+        s->prev[0] = s->u;
+        s->prev[1] = s->du;
+        s->prev[2] = s->d2u;
+        s->prev[3] = s->tu;
+    }
+}
+
+/* dst = a b (truncated to n bytes with its 0). */
+static void join(char *dst, size_t n, const char *a, const char *b)
+{
+    size_t la = strlen(a), lb = strlen(b);
+    if (la > n - 1) la = n - 1;
+    if (lb > n - 1 - la) lb = n - 1 - la;
+    memmove(dst, a, la);
+    memcpy(dst + la, b, lb);
+    dst[la + lb] = '\0';
+}
+
+static int refuse(fpm_model *m, const fpm_logger *lg, int status, const char *what)
+{
+    fpm_log(lg, status, "%s", what);
+    (void)m;
+    return status;
+}
+
+static int diverged(fpm_model *m, const fpm_logger *lg, const stepper *saved, const char *why)
+{
+    m->s = *saved;                            /* the state at the start of the step */
+    join(m->error, sizeof m->error, why, "; restore a saved FMU state to continue");
+    m->failed = 1;
+    return refuse(m, lg, FPM_DISCARD, m->error);
+}
+
+int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
+{
+    char why[FPM_MSG_MAX];
+    double u = m->v.real[VR_F_c], t_end = t + h, norm2 = 0.0, phi;
+    stepper saved;
+    int i, rc;
+    if (!m->initialized || m->failed) {
+        char msg[FPM_MSG_MAX];
+        join(msg, sizeof msg, "FlexiblePendulum cannot step: ",
+             m->failed ? m->error : "it was not initialised");
+        return refuse(m, lg, m->failed ? FPM_DISCARD : FPM_ERROR, msg);
+    }
+    if (!isfinite(u + m->dF + m->d2F)) {
+        fpm_log(lg, FPM_DISCARD, "non-finite input F_c = %.17g (derivatives %.17g, %.17g) at t = "
+                "%.17g; step rejected, state unchanged", u, m->dF, m->d2F, t);
+        return FPM_DISCARD;
+    }
+    saved = m->s;
+    set_input(m, t, h);
+    if (!(t_end <= m->s.t)) {
+        rc = m->method == M_DOPRI5 ? advance_dopri(m, t_end, why) : advance_fixed(m, t_end, why);
+        if (rc < 0) {                         /* the cap: nothing accepted, retry allowed */
+            m->s = saved;
+            fpm_log(lg, FPM_DISCARD, "%s; step rejected, state unchanged", why);
+            return FPM_DISCARD;
+        }
+        if (rc == 0) {
+            char head[160], msg[FPM_MSG_MAX];
+            snprintf(head, sizeof head, "integrator '%s' failed between t = %.17g and %.17g: ",
+                     METHODS[m->method], t, t_end);
+            join(msg, sizeof msg - 64, head, why);
+            return diverged(m, lg, &saved, msg);
+        }
+    }
+    /* divergence checks (fmu.py's _check) */
+    for (i = 0; i < m->nx; i++) norm2 += m->s.y[i] * m->s.y[i];
+    if (!(norm2 <= STATE_NORM2_LIMIT)) {
+        snprintf(why, sizeof why, "divergence at t = %.17g: the state's norm %.17g exceeds 1e100 "
+                 "(numerical blow-up)", t_end, sqrt(norm2));
+        return diverged(m, lg, &saved, why);
+    }
+    phi = m->s.y[1];
+    if (!(fabs(phi) <= m->phi_limit)) {
+        snprintf(why, sizeof why, "divergence at t = %.17g: |phi| = %.17g exceeds phi_limit = "
+                 "%.17g", t_end, fabs(phi), m->phi_limit);
+        return diverged(m, lg, &saved, why);
+    }
+    m->energy_fresh = 0;
+    if (isfinite(m->energy_limit)) {
+        double energy = fp_energy(&m->p, m->s.y);
+        if (!(fabs(energy) <= m->energy_limit)) {
+            snprintf(why, sizeof why, "divergence at t = %.17g: |energy| = %.17g exceeds "
+                     "energy_limit = %.17g", t_end, fabs(energy), m->energy_limit);
+            return diverged(m, lg, &saved, why);
+        }
+        m->out[FP_OUT_ENERGY] = energy;
+        m->energy_fresh = 1;
+    }
+    memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
+    m->out_fresh = 0;
+    return FPM_OK;
+}
+
+/* ------------------------------------------------------------------ outputs and inputs */
+int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    int j;
+    if (!m->initialized && !prepare(m, lg)) {   /* read before initialisation: from the
+                                                    parameters as they are now */
+        fpm_log(lg, FPM_ERROR, "the outputs cannot be computed: a parameter is bad (above)");
+        return FPM_ERROR;
+    }
+    if (!m->out_fresh) {
+        double energy = m->out[FP_OUT_ENERGY];
+        fp_outputs(&m->p, m->y_acc, 0, m->out);
+        m->out[FP_OUT_ENERGY] = energy;
+        m->out_fresh = 1;
+    }
+    if (vr == VR_energy && !m->energy_fresh) {
+        m->out[FP_OUT_ENERGY] = fp_energy(&m->p, m->y_acc);
+        m->energy_fresh = 1;
+    }
+    switch (vr) {
+    case VR_x_o: *value = m->out[FP_OUT_X]; break;
+    case VR_x_dot: *value = m->out[FP_OUT_XDOT]; break;
+    case VR_phi_o: *value = m->out[FP_OUT_PHI_O]; break;
+    case VR_omega_o: *value = m->out[FP_OUT_OMEGA_O]; break;
+    case VR_phi: *value = m->out[FP_OUT_PHI]; break;
+    case VR_tip_deflection: *value = m->n ? m->out[FP_OUT_TIP] : 0.0; break;
+    case VR_energy: *value = m->out[FP_OUT_ENERGY]; break;
+    default:
+        for (j = 0; j < FPM_N_ETA; j++)
+            if (vr == fpm_eta_vrs[j]) {
+                *value = j < m->n ? m->out[FP_OUT_ETA + j] : 0.0;
+                return FPM_OK;
+            }
+        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
+        return FPM_ERROR;
+    }
+    return FPM_OK;
+}
+
+int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
+                                   double value)
+{
+    if (vr != VR_F_c || (order != 1 && order != 2)) {
+        fpm_log(lg, FPM_ERROR, "fmi2SetRealInputDerivatives: %s takes derivatives of order 1 and "
+                "2 of F_c only (got order %d of value reference %u)", fpm_model_name, order, vr);
+        return FPM_ERROR;
+    }
+    if (order == 1) m->dF = value;
+    else m->d2F = value;
+    return FPM_OK;
+}

@@ -1,0 +1,303 @@
+"""Build the native FMUs: FlexiblePendulum and PDLowPass in C, FMI 2.0 and FMI 3.0 co-simulation.
+
+    build_native_fmus(out_dir=build/fmus/native, fmi_version=2) -> {"FlexiblePendulum": path, ...}
+
+Each FMU is compiled from
+
+* the generic FMI layer of its FMI version (``fmu_native/fmi2.c`` or ``fmi3.c``, written once for
+  both models) and the helpers ``fmu_native/fpm_util.c``;
+* the model (``fmu_native/plant_model.c`` or ``controller_model.c``: its parameter checks, its
+  step, its outputs) on the compiled kernels the Python side calls too
+  (``plant_fmu/native/fp_plant.c``, ``controller_fmu/native/fp_filter.c``);
+* a header generated here into the build folder (never committed), ``fpm_vars.h``: the model's
+  variables from the one Python table (:mod:`plant_fmu.interface`,
+  :mod:`controller_fmu.interface`; value reference = position in the table, the input-derivative
+  variables of the pythonfmu flavour left out), the model name and GUID, and for the plant the
+  modal tables of the unit beam (:func:`plant_fmu.beam.unit_beam`) for ``n_elements`` 1 ..
+  :data:`NE_MAX` and ``n_modes`` 0 .. :data:`N_MODES_MAX`, written as exact hexadecimal floats.
+
+Binaries: ``linux64`` (host compiler) and ``win64`` (mingw-w64, when installed), with the flags of
+the kernels (:data:`kernel_build.CFLAGS`: C99, ``-Wall -Wextra -Werror -pedantic``, no
+floating-point contraction, hidden visibility: only the FMI functions are exported), linked
+against libc and libm alone (``-static-libgcc`` on Windows). The FMI headers are fmpy's copy of
+the standard's (``fmpy/c-code``). ``modelDescription.xml`` comes from
+:mod:`.model_description`. An FMU is rebuilt only when the digest of its inputs (sources, table,
+build scripts, platforms) changes.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import uuid
+import zipfile
+from pathlib import Path
+
+from plant_fmu import _native
+
+from . import kernel_build
+from .model_description import TABLES, fmi2_model_description, fmi3_model_description
+
+__all__ = ["DEFAULT_OUT", "MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PLATFORMS",
+           "build_native_fmus", "build_native_fmu", "generate_header", "fmi_include_dir",
+           "source_digest", "NativeBuildError"]
+
+ROOT = kernel_build.ROOT
+SRC = ROOT / "fmu_native"
+DEFAULT_OUT = ROOT / "build" / "fmus" / "native"
+#: The meshes and modes the native plant carries tables for (the pythonfmu plant computes any).
+NE_MAX = 100
+N_MODES_MAX = 8
+#: substeps (or accepted adaptive steps) per doStep beyond which a step is discarded
+MAX_SUBSTEPS = 1_000_000
+#: Bump when the build changes in a way its inputs do not show.
+BUILD_FORMAT = 1
+STAMP = "resources/flexpend_build.json"
+
+#: model -> (C model file, kernel sources it links)
+MODELS = {
+    "FlexiblePendulum": ("plant_model.c", ("flexpend_plant", "flexpend_filter")),
+    "PDLowPass": ("controller_model.c", ("flexpend_filter",)),
+}
+#: FMI platform folder names: (FMI 2.0, FMI 3.0)
+PLATFORMS = {"linux64": ("linux64", "x86_64-linux"), "win64": ("win64", "x86_64-windows")}
+LOG_CATEGORIES = {
+    "logStatusWarning": "Log messages with status fmi2Warning / fmi3Warning",
+    "logStatusDiscard": "Log messages with status Discard",
+    "logStatusError": "Log messages with status Error",
+    "logStatusFatal": "Log messages with status Fatal",
+    "logAll": "Every log message",
+}
+
+
+class NativeBuildError(RuntimeError):
+    """A native FMU could not be built (the message holds the compiler's output)."""
+
+
+def fmi_include_dir() -> Path:
+    """The FMI 2.0 and 3.0 headers (fmpy ships the standard's)."""
+    import fmpy
+
+    d = Path(fmpy.__file__).resolve().parent / "c-code"
+    if not (d / "fmi2Functions.h").is_file() or not (d / "fmi3Functions.h").is_file():
+        raise NativeBuildError(f"the FMI headers are missing from {d} (fmpy's c-code folder)")
+    return d
+
+
+# ---------------------------------------------------------------------- generated header
+def _c_string(s: str) -> str:
+    return json.dumps(s)            # a C string literal for the ASCII text of the tables
+
+
+def _hex(x: float) -> str:
+    """An exact C literal of ``x`` (hexadecimal float; HUGE_VAL for infinity)."""
+    x = float(x)
+    if x != x:
+        raise NativeBuildError("a NaN in a table of the native FMUs")
+    if x in (float("inf"), float("-inf")):
+        return "HUGE_VAL" if x > 0 else "-HUGE_VAL"
+    return x.hex()
+
+
+def generate_header(name: str, token: str) -> str:
+    """``fpm_vars.h`` of model ``name``: its variables, value-reference macros, name, token and,
+    for the plant, the unit beam's modal tables."""
+    from plant_fmu.interface import native_variables
+
+    model, table = TABLES[name]
+    entries = native_variables(table)
+    if len(table) > 48:
+        raise NativeBuildError(f"{name} has {len(table)} variables; fpm.h has room for 48")
+    types = {"Real": "FPM_REAL", "Integer": "FPM_INTEGER", "Boolean": "FPM_BOOLEAN",
+             "String": "FPM_STRING"}
+    caus = {"parameter": "FPM_PARAMETER", "input": "FPM_INPUT", "output": "FPM_OUTPUT"}
+    lines = [f"/* Generated by orchestration/export/native_fmus.py from the table of {name}: do "
+             f"not edit. */",
+             f"const char fpm_model_name[] = {_c_string(name)};",
+             f"const char fpm_token[] = {_c_string(token)};"]
+    for vr, v in entries:
+        lines.append(f"#define VR_{v.name} {vr}u")
+    rows = []
+    for vr, v in entries:
+        start = v.start
+        real = "0.0" if start is None or isinstance(start, str) else _hex(float(start))
+        text = _c_string(start) if isinstance(start, str) else "NULL"
+        rows.append(f"    [{vr}] = {{{_c_string(v.name)}, {types[v.type]}, {caus[v.causality]}, "
+                    f"{real}, {text}}},")
+    lines += ["const fpm_var fpm_vars[FPM_MAX_VARS] = {", *rows, "};"]
+    if name == "FlexiblePendulum":
+        lines += _mode_tables()
+    return "\n".join(lines) + "\n"
+
+
+def _mode_tables() -> list[str]:
+    from plant_fmu.beam import unit_beam
+    from plant_fmu.interface import N_ETA_OUTPUTS, value_references
+
+    n = N_MODES_MAX
+    vrs = value_references()
+    out = [f"#define FPM_NE_MAX {NE_MAX}", f"#define FPM_N_MODES_MAX {n}",
+           f"#define FPM_N_ETA {N_ETA_OUTPUTS}",
+           "static const unsigned fpm_eta_vrs[FPM_N_ETA] = {"
+           + ", ".join(f"{vrs[f'eta_{j}']}u" for j in range(1, N_ETA_OUTPUTS + 1)) + "};"]
+    fields = {"lam": [], "I3": [], "I5": [], "tip_defl": [], "tip_slope": [], "Kg": []}
+    for ne in range(1, NE_MAX + 1):
+        k = min(ne, n)
+        u = unit_beam(ne, k)
+        for key, arr in (("lam", u.lam), ("I3", u.I3), ("I5", u.I5),
+                         ("tip_defl", u.tip_deflection), ("tip_slope", u.tip_slope)):
+            row = [_hex(x) for x in arr] + ["0.0"] * (n - k)
+            fields[key].append("{" + ", ".join(row) + "}")
+        kg = [[0.0] * n for _ in range(n)]
+        for i in range(k):
+            for j in range(k):
+                kg[i][j] = float(u.Kg[i, j])
+        fields["Kg"].append("{" + ", ".join(_hex(x) for r in kg for x in r) + "}")
+    for key, rows in fields.items():
+        width = "FPM_N_MODES_MAX * FPM_N_MODES_MAX" if key == "Kg" else "FPM_N_MODES_MAX"
+        out.append(f"static const double fpm_unit_{key}[FPM_NE_MAX][{width}] = {{")
+        out += [f"    {r}," for r in rows]
+        out.append("};")
+    return out
+
+
+# ---------------------------------------------------------------------- build
+def _inputs(name: str) -> list[Path]:
+    model_c, kernels = MODELS[name]
+    files = [SRC / f for f in ("fpm.h", "fpm_util.c", "fmi2.c", "fmi3.c", model_c)]
+    for k in kernels:
+        files += _native.source_files(k, kernel_build.native_dir(k))
+    files += [ROOT / "plant_fmu" / f for f in ("interface.py", "beam.py", "params.py")]
+    files += [ROOT / "controller_fmu" / "interface.py", ROOT / "controller_fmu" / "pd_lowpass.py",
+              Path(__file__).resolve(), Path(kernel_build.__file__).resolve(),
+              ROOT / "orchestration" / "export" / "model_description.py"]
+    return files
+
+
+def source_digest(name: str, fmi_version: int, platforms) -> str:
+    """sha256 of everything an FMU is built from."""
+    h = hashlib.sha256(f"{BUILD_FORMAT} {name} fmi{fmi_version} {' '.join(platforms)} "
+                       f"{NE_MAX} {N_MODES_MAX} {MAX_SUBSTEPS} {kernel_build.CFLAGS}\n".encode())
+    for path in _inputs(name):
+        h.update(path.relative_to(ROOT).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def _token(name: str, digest: str) -> str:
+    """The GUID / instantiation token: a UUID made from the build's digest."""
+    return "{" + str(uuid.UUID(hex=hashlib.sha256(f"{name}{digest}".encode()).hexdigest()[:32])) \
+        + "}"
+
+
+def _fmu_digest(path: Path) -> str | None:
+    try:
+        with zipfile.ZipFile(path) as zf:
+            return json.loads(zf.read(STAMP))["digest"]
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+
+
+def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: Path,
+                    cc: str, extra=()) -> list[str]:
+    """The compiler's command line for one binary."""
+    model_c, kernels = MODELS[name]
+    sources = [SRC / f"fmi{fmi_version}.c", SRC / "fpm_util.c", SRC / model_c]
+    includes = [gen, SRC, fmi_include_dir()]
+    for k in kernels:
+        native = kernel_build.native_dir(k)
+        sources += [native / s for s in _native.KERNELS[k][1]]
+        includes.append(native)
+    cmd = [cc, *kernel_build.CFLAGS, *extra, "-DFP_API=", "-DFPF_API=",
+           f"-DFPM_MAX_SUBSTEPS={MAX_SUBSTEPS}L", *(f"-I{d}" for d in includes)]
+    if platform.startswith("win"):
+        cmd += ["-shared", "-static-libgcc", "-o", str(out), *map(str, sources)]
+    else:
+        cmd += ["-fPIC", "-shared", "-Wl,--no-undefined", "-o", str(out), *map(str, sources),
+                "-lm"]
+    return cmd
+
+
+def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = None,
+                     force: bool = False, platforms=None) -> Path:
+    """Build one native FMU into ``out_dir/fmi<version>/`` unless it is up to date."""
+    if name not in MODELS:
+        raise ValueError(f"unknown FMU {name!r}; known: {', '.join(MODELS)}")
+    if fmi_version not in (2, 3):
+        raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
+    out_dir = Path(out_dir or DEFAULT_OUT) / f"fmi{fmi_version}"
+    target = out_dir / f"{name}.fmu"
+    platforms = kernel_build.available_platforms() if platforms is None else list(platforms)
+    digest = source_digest(name, fmi_version, platforms)
+    if not force and _fmu_digest(target) == digest:
+        return target
+    token = _token(name, digest)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=f"flexpend_native_{name}_") as tmp:
+        tmp = Path(tmp)
+        gen = tmp / "gen"
+        gen.mkdir()
+        (gen / "fpm_vars.h").write_text(generate_header(name, token))
+        entries = {}
+        for plat in platforms:
+            if plat not in PLATFORMS:
+                raise NativeBuildError(f"no native FMU build for platform {plat}")
+            cc = kernel_build.find_compiler(plat)
+            suffix = ".dll" if plat.startswith("win") else ".so"
+            lib = tmp / f"{plat}{suffix}"
+            cmd = compile_command(name, fmi_version, plat, lib, gen, cc)
+            proc = subprocess.run(cmd, capture_output=True, text=True)
+            if proc.returncode != 0:
+                raise NativeBuildError(f"compiling {name} (FMI {fmi_version}) for {plat} failed:\n"
+                                       f"{' '.join(cmd)}\n{proc.stdout}{proc.stderr}")
+            folder = PLATFORMS[plat][0 if fmi_version == 2 else 1]
+            entries[f"binaries/{folder}/{name}{suffix}"] = lib.read_bytes()
+        entries["modelDescription.xml"] = _model_description(name, fmi_version, token)
+        entries[STAMP] = json.dumps({"model": name, "fmi_version": fmi_version,
+                                     "digest": digest, "platforms": platforms}).encode()
+        built = tmp / f"{name}.fmu"
+        with zipfile.ZipFile(built, "w", zipfile.ZIP_DEFLATED) as zf:
+            for fname, data in entries.items():
+                zf.writestr(fname, data)
+        fd, part = tempfile.mkstemp(prefix=f".{name}.", suffix=".part", dir=out_dir)
+        os.close(fd)
+        shutil.copyfile(built, part)
+        os.chmod(part, 0o644)
+        os.replace(part, target)
+    return target
+
+
+def _model_description(name: str, fmi_version: int, token: str) -> bytes:
+    common = {"modelIdentifier": name, "needsExecutionTool": "false",
+              "canHandleVariableCommunicationStepSize": "true",
+              "canBeInstantiatedOnlyOncePerProcess": "false",
+              "canGetAndSetFMUstate" if fmi_version == 2 else "canGetAndSetFMUState": "true",
+              "canSerializeFMUstate" if fmi_version == 2 else "canSerializeFMUState": "true",
+              "providesDirectionalDerivative" if fmi_version == 2 else
+              "providesDirectionalDerivatives": "false"}
+    tool = "flexpend native FMU (C)"
+    if fmi_version == 2:
+        cs = {**common, "canInterpolateInputs": "true", "maxOutputDerivativeOrder": "0",
+              "canRunAsynchronuously": "false", "canNotUseMemoryManagementFunctions": "false"}
+        return fmi2_model_description(name, token, generation_tool=tool, co_simulation=cs,
+                                      log_categories=LOG_CATEGORIES, native=True)
+    cs = {**common, "maxOutputDerivativeOrder": "0", "hasEventMode": "false",
+          "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
+          "canReturnEarlyAfterIntermediateUpdate": "false"}
+    return fmi3_model_description(name, token, generation_tool=tool, co_simulation=cs,
+                                  log_categories=LOG_CATEGORIES)
+
+
+def build_native_fmus(out_dir: Path | None = None, names=None, force: bool = False,
+                      fmi_version: int = 2) -> dict:
+    """Build (if stale) the native FMUs of one FMI version; ``{name: path}``."""
+    names = list(MODELS) if names is None else list(names)
+    unknown = sorted(set(names) - set(MODELS))
+    if unknown:
+        raise ValueError(f"unknown FMU(s) {', '.join(unknown)}; known: {', '.join(MODELS)}")
+    try:
+        return {n: build_native_fmu(n, fmi_version, out_dir, force) for n in names}
+    except kernel_build.CompilerNotFound as exc:
+        raise NativeBuildError(str(exc)) from None
