@@ -3,7 +3,7 @@
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
     flexpend design [--set key=value ...] [--json] [--out DIR]   robust low-pass filter design
-    flexpend build [--force] [--out DIR]                build the two FMUs
+    flexpend build [--force] [--out DIR] [--fmus F]     build the FMUs (pythonfmu, native)
     flexpend scenes                                     list the scenes
     flexpend export SCENE [--fmus python|native] [--out FILE.ssp]   the scene as an SSP archive
     flexpend check FMU --reference DIR [--plot FILE.png] [--write-reference]   regress an FMU
@@ -350,10 +350,10 @@ def cmd_run(args) -> int:
         from .run import run_scene  # noqa: F401
         plots._pyplot()
         interrupts.check()
-        fmus = None
-        if len(own_fmus) < len(scenes):
-            paths = build_fmus()
-            fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+        from .export import fmu_pair
+        fmus = {fl: fmu_pair(build_fmus(flavour=fl))          # the flavours the scenes use
+                for fl in dict.fromkeys(sc["master.fmus"] for sc in scenes
+                                        if id(sc) not in own_fmus)}
         _check_wiring(scenes, fmus, own_fmus)              # before any scene runs
         interrupts.check()
         return _run_scenes(args, scenes, fmus, out_dir, interrupts, own_fmus)
@@ -375,7 +375,8 @@ def _check_wiring(scenes, fmus, own_fmus=None):
 
     for scene in scenes:
         variables = {k: [v.name for v in read_model_description(str(p)).modelVariables]
-                     for k, p in ((own_fmus or {}).get(id(scene)) or fmus).items()}
+                     for k, p in ((own_fmus or {}).get(id(scene))
+                                  or fmus[scene["master.fmus"]]).items()}
         for text in scene["connections"]:
             c = parse_connection(text)
             for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
@@ -397,7 +398,7 @@ def _run_scenes(args, scenes, fmus, out_dir, interrupts, own_fmus=None) -> int:
             interrupts.check()
             print(f"{scene.name}: running {scene['stop_time']:g} s (communication step "
                   f"{scene['master.step']:g} s)", file=sys.stderr, flush=True)
-            r = run_scene(scene, (own_fmus or {}).get(id(scene)) or fmus,
+            r = run_scene(scene, (own_fmus or {}).get(id(scene)) or fmus[scene["master.fmus"]],
                           reference=args.reference and not interrupts.requested(),
                           progress=True, connections_out=sys.stderr if args.connections else None,
                           stop=interrupts.requested)
@@ -516,11 +517,20 @@ def scene_beam(scene):
 def cmd_build(args) -> int:
     from pathlib import Path
 
-    from .export import build_fmus
-    paths = build_fmus(force=args.force) if args.out is None else \
-        build_fmus(out_dir=Path(args.out), force=args.force)
-    for name, path in paths.items():
-        print(f"{name}: {path}")
+    from .export import BuildError, build_fmus
+    out = None if args.out is None else Path(args.out)
+    builds = [("python", 2, out), ("native", 2, out and out / "native"),
+              ("native", 3, out and out / "native")]
+    if args.fmus:
+        builds = [b for b in builds if b[0] == args.fmus]
+    try:
+        for flavour, version, folder in builds:
+            for name, path in build_fmus(folder, force=args.force, flavour=flavour,
+                                         fmi_version=version).items():
+                print(f"{name} ({flavour}, FMI {version}.0): {path}")
+    except BuildError as exc:
+        print(f"flexpend: {exc}", file=sys.stderr)
+        return 2
     return 0
 
 
@@ -571,7 +581,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     pb = sub.add_parser("build", help="build the two FMUs (only when their sources changed)")
     pb.add_argument("--force", action="store_true", help="rebuild even if up to date")
-    pb.add_argument("--out", default=None, help="output folder (default: build/fmus)")
+    pb.add_argument("--out", default=None, help="output folder (default: build/fmus; the native "
+                    "FMUs in its native/fmi2 and native/fmi3)")
+    pb.add_argument("--fmus", choices=("native", "python"), default=None,
+                    help="build only this flavour (default: both)")
     pb.set_defaults(func=cmd_build)
 
     ps = sub.add_parser("scenes", help="list the scenes")

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave, fmi2Real, fmi2True, fmi2ValueReference
+from fmpy.fmi2 import FMU2Slave, fmi2Integer, fmi2Real, fmi2True, fmi2ValueReference
 
 __all__ = ["CoSimulationError", "RunInterrupted", "Slave", "Connection", "Master", "parse_connection",
            "extrapolation_weights", "RunStats"]
@@ -103,10 +103,20 @@ class Slave:
         self._own_unzipdir = unzipdir is None      # extracted here: removed by close()
         self._unzipdir = unzipdir or extract(self.path)
         self.fmu = None
+        #: FMI 3.0 (fmpy's FMU3Slave) or 2.0 (FMU2Slave)
+        self.fmi3 = self.md.fmiVersion.startswith("3")
+        #: takes fmi2SetRealInputDerivatives (a native FMI 2.0 FMU, canInterpolateInputs)
+        self.interpolates_inputs = (not self.fmi3 and self.md.coSimulation is not None
+                                    and bool(self.md.coSimulation.canInterpolateInputs))
         try:
-            self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self._unzipdir,
-                                 modelIdentifier=self.md.coSimulation.modelIdentifier,
-                                 instanceName=name)
+            if self.fmi3:
+                from fmpy.fmi3 import FMU3Slave
+                cls = FMU3Slave
+            else:
+                cls = FMU2Slave
+            self.fmu = cls(guid=self.md.guid, unzipDirectory=self._unzipdir,
+                           modelIdentifier=self.md.coSimulation.modelIdentifier,
+                           instanceName=name)
             self._instantiate()
         except BaseException:
             self.fmu = None
@@ -129,6 +139,16 @@ class Slave:
             if status >= 0:
                 text = message.decode(errors="replace") if message else ""
                 self.messages.append(f"[{_STATUS[status] if status < 6 else status}] {text}")
+
+        if self.fmi3:
+            def log3(env, status, category, message):
+                logger(env, None, status, category, message)
+            try:
+                self.fmu.instantiate(visible=False, loggingOn=True, logMessage=log3)
+            except Exception as exc:
+                log = "; ".join(self.messages[-3:]) or "no log message"
+                raise CoSimulationError(f"{self.name}: instantiate failed: {exc}: {log}") from None
+            return
 
         self._logger = fmi2CallbackLoggerTYPE(logger)
         cb = fmi2CallbackFunctions()
@@ -168,6 +188,12 @@ class Slave:
             raise ValueError(f"{self.name} has no parameter {name!r}; it has: "
                              f"{', '.join(n for n, x in self.variables.items() if x.causality == 'parameter')}")
         vr = [v.valueReference]
+        if self.fmi3:
+            setter = {"Float64": self.fmu.setFloat64, "Int32": self.fmu.setInt32,
+                      "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}[v.type]
+            conv = {"Float64": float, "Int32": int, "Boolean": bool, "String": str}[v.type]
+            self._call(f"set{v.type}({name})", setter, vr, [conv(value)])
+            return
         if v.type == "Real":
             self._call(f"setReal({name})", self.fmu.setReal, vr, [float(value)])
         elif v.type in ("Integer", "Enumeration"):
@@ -178,27 +204,51 @@ class Slave:
             self._call(f"setString({name})", self.fmu.setString, vr, [str(value)])
 
     def initialize(self, t0: float, stop_time: float | None = None):
+        if self.fmi3:
+            for name, value in self._start_values.items():
+                self._set_start(name, value)
+            self._call("enterInitializationMode", self.fmu.enterInitializationMode, None, t0,
+                       stop_time)
+            self._call("exitInitializationMode", self.fmu.exitInitializationMode)
+            return
         self._call("setupExperiment", self.fmu.setupExperiment, None, t0, stop_time)
         for name, value in self._start_values.items():
             self._set_start(name, value)
         self._call("enterInitializationMode", self.fmu.enterInitializationMode)
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
 
-    def bind(self, inputs, outputs, record=()):
+    def bind(self, inputs, outputs, record=(), derivative_orders: int = 0):
         """Preallocate the buffers of the real inputs and outputs exchanged every step, and of
         the outputs only recorded at output points. The hot calls go straight to the FMU's
         ctypes functions (as loaded by fmpy), without fmpy's per-call wrapper; their status is
-        checked here."""
+        checked here. ``derivative_orders`` (1 or 2, on an FMU that interpolates inputs): the
+        inputs' time derivatives follow their values in :meth:`set_inputs` and go to
+        ``fmi2SetRealInputDerivatives``."""
         def buffers(names):
             vr = (fmi2ValueReference * len(names))(*[self.vr(n) for n in names])
             val = (fmi2Real * len(names))()
             return vr, val, len(names), np.ctypeslib.as_array(val) if names else np.zeros(0)
 
-        self._in_vr, self._in_val, self._n_in, self._in_np = buffers(list(inputs))
+        inputs = list(inputs)
+        self._in_vr, self._in_val, self._n_in, self._in_np = buffers(inputs)
         self._out_vr, self._out_val, self._n_out, self._out_np = buffers(list(outputs))
         self._rec_vr, self._rec_val, self._n_rec, self._rec_np = buffers(list(record))
+        nd = len(inputs) * derivative_orders
+        self._n_der = nd
+        self._der_vr = (fmi2ValueReference * nd)(*[self.vr(n) for n in inputs] * derivative_orders)
+        self._der_order = (fmi2Integer * nd)(*[k for k in range(1, derivative_orders + 1)
+                                               for _ in inputs])
+        self._der_val = (fmi2Real * nd)()
+        self._der_np = np.ctypeslib.as_array(self._der_val) if nd else np.zeros(0)
+        if self.fmi3:
+            self._bind_fmi3()
+            return
         fun = getattr(self.fmu, "_functions", {})
         c = self.fmu.component
+        if nd:
+            set_der = fun.get("fmi2SetRealInputDerivatives") or self.fmu.fmi2SetRealInputDerivatives
+            self._set_derivatives_raw = lambda: set_der(c, self._der_vr, nd, self._der_order,
+                                                        self._der_val)
         raw = {name: fun.get(f"fmi2{name}") for name in ("SetReal", "GetReal", "DoStep")}
         if all(raw.values()) and getattr(self.fmu, "fmiCallLogger", None) is None:
             set_real, get_real, do_step = raw["SetReal"], raw["GetReal"], raw["DoStep"]
@@ -215,6 +265,24 @@ class Slave:
                                                          self._rec_val)
             self._do_step_raw = lambda t, h: f.fmi2DoStep(c, t, h, fmi2True)
 
+    def _bind_fmi3(self):
+        """The hot calls of an FMI 3.0 FMU (fmi3SetFloat64, fmi3GetFloat64, fmi3DoStep)."""
+        import ctypes
+
+        from fmpy.fmi3 import fmi3Boolean, fmi3Float64
+
+        f, c = self.fmu, self.fmu.component
+        self._evt, self._term, self._early = fmi3Boolean(), fmi3Boolean(), fmi3Boolean()
+        self._last = fmi3Float64()
+        flags = (ctypes.byref(self._evt), ctypes.byref(self._term), ctypes.byref(self._early),
+                 ctypes.byref(self._last))
+        self._set_inputs_raw = lambda n: f.fmi3SetFloat64(c, self._in_vr, n, self._in_val, n)
+        self._get_outputs_raw = lambda: f.fmi3GetFloat64(c, self._out_vr, self._n_out,
+                                                         self._out_val, self._n_out)
+        self._get_record_raw = lambda: f.fmi3GetFloat64(c, self._rec_vr, self._n_rec,
+                                                        self._rec_val, self._n_rec)
+        self._do_step_raw = lambda t, h: f.fmi3DoStep(c, t, h, fmi3Boolean(False), *flags)
+
     def _checked(self, what, fun, *args, t=None):
         try:
             status = fun(*args)
@@ -224,12 +292,18 @@ class Slave:
             self._raise(what, status, t)
 
     def set_inputs(self, values, t=None, n=None):
-        """Set the bound inputs to ``values`` (a sequence in the order of :meth:`bind`), or only
-        the first ``n`` of them."""
-        n = self._n_in if n is None else n
-        if n:
-            self._in_np[:n] = values[:n]
-            self._checked("setReal", self._set_inputs_raw, n, t=t)
+        """Set the bound inputs to ``values`` (a sequence in the order of :meth:`bind`: the
+        values, then, on an FMU bound with ``derivative_orders``, their time derivatives), or
+        only the first ``n`` entries."""
+        n_in = self._n_in
+        n = n_in + self._n_der if n is None else n
+        m = min(n, n_in)
+        if m:
+            self._in_np[:m] = values[:m]
+            self._checked("setReal", self._set_inputs_raw, m, t=t)
+        if n > n_in and self._n_der:
+            self._der_np[:] = values[n_in:n_in + self._n_der]
+            self._checked("setRealInputDerivatives", self._set_derivatives_raw, t=t)
 
     def get_outputs(self, t=None) -> np.ndarray:
         """The bound outputs (a new array)."""
@@ -247,13 +321,21 @@ class Slave:
         self._checked("doStep", self._do_step_raw, t, h, t=t)
 
     def get_state(self):
+        if self.fmi3:
+            return self._call("getFMUState", self.fmu.getFMUState)
         return self._call("getFMUstate", self.fmu.getFMUstate)
 
     def set_state(self, state):
-        self._call("setFMUstate", self.fmu.setFMUstate, state)
+        if self.fmi3:
+            self._call("setFMUState", self.fmu.setFMUState, state)
+        else:
+            self._call("setFMUstate", self.fmu.setFMUstate, state)
 
     def free_state(self, state):
-        self._call("freeFMUstate", self.fmu.freeFMUstate, state)
+        if self.fmi3:
+            self._call("freeFMUState", self.fmu.freeFMUState, state)
+        else:
+            self._call("freeFMUstate", self.fmu.freeFMUstate, state)
 
     def close(self):
         """``terminate`` and ``freeInstance``, then remove the folder the FMU was extracted to
@@ -428,12 +510,20 @@ class Master:
         if self.input_derivatives and self.p >= 1:
             for n in names:
                 dst_vars = [c.dst_var for c in self.inputs[n]]
+                if slaves[n].interpolates_inputs:      # fmi2SetRealInputDerivatives
+                    self._n_der[n] = (2 if self.p >= 2 else 1) if dst_vars else 0
+                    continue
                 has = [all(f"{'d' if k == 1 else 'd2'}{v}" in slaves[n].variables and
                            slaves[n].variables[f"{'d' if k == 1 else 'd2'}{v}"].causality
                            == "input" for v in dst_vars) for k in (1, 2)]
                 self._n_der[n] = 0 if not (dst_vars and has[0]) else (
                     2 if has[1] and self.p >= 2 else 1)
         for n, s in slaves.items():
+            if s.interpolates_inputs:
+                if self._n_der[n]:
+                    s.bind([c.dst_var for c in self.inputs[n]], self.outputs[n],
+                           self.recorded[n], derivative_orders=self._n_der[n])
+                continue
             extra = [f"{'d' if k == 1 else 'd2'}{c.dst_var}" for k in range(1, self._n_der[n] + 1)
                      for c in self.inputs[n]]
             if extra:

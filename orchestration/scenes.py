@@ -27,6 +27,8 @@ SCENE_DIR = Path(__file__).parent / "scenes"
 PAPER_SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
 ALGORITHMS = ("gauss-seidel", "jacobi")
 FIRST = ("controller", "plant")
+#: the FMUs a scene runs on (orchestration.export.FLAVOURS)
+FMU_FLAVOURS = ("native", "python")
 
 #: Scene keys beyond the plant and controller parameters, with their defaults.
 SCENE_DEFAULTS = {
@@ -46,6 +48,8 @@ SCENE_DEFAULTS = {
     "master.min_step": 1e-6,
     "master.max_step": 2e-2,
     "master.input_derivatives": True,
+    # which FMUs run: "native" (compiled C, FMI 2.0) or "python" (pythonfmu)
+    "master.fmus": "native",
     # wiring by variable name: "fmu.variable -> fmu.variable", FMUs "plant" and "controller"
     "connections": [
         "plant.x_o -> controller.x_o",
@@ -122,6 +126,7 @@ def _validate(cfg: dict) -> None:
         real(k, low=0.0, allow_inf=True)
     _choice("master.algorithm", cfg["master.algorithm"], ALGORITHMS)
     _choice("master.first", cfg["master.first"], FIRST)
+    _choice("master.fmus", cfg["master.fmus"], FMU_FLAVOURS)
     try:
         cfg["master.extrapolation"] = check_int("master.extrapolation", cfg["master.extrapolation"],
                                                 low=0, high=2)
