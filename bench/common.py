@@ -105,9 +105,10 @@ def trivial_fmus(folder: Path | None = None) -> dict:
     return paths
 
 
-def product_fmus() -> dict:
-    """The product's FMUs (built if missing or stale): ``{"plant": path, "controller": path}``."""
-    f = build_fmus()
+def product_fmus(flavour: str = "python") -> dict:
+    """The product's FMUs of a flavour (``"python"``: pythonfmu, ``"native"``: C, FMI 2.0), built
+    if missing or stale: ``{"plant": path, "controller": path}``."""
+    f = build_fmus(flavour=flavour)
     return {"plant": f["FlexiblePendulum"], "controller": f["PDLowPass"]}
 
 

@@ -172,11 +172,11 @@ def short(param: str) -> str:
 # running one point
 
 class Runner:
-    def __init__(self, runs: int, extra: list, max_seconds: float):
+    def __init__(self, runs: int, extra: list, max_seconds: float, flavour: str = "native"):
         self.runs = runs
         self.max_seconds = max_seconds
         self.extra = extra
-        self.fmus = product_fmus()
+        self.fmus = product_fmus(flavour)
         self.trivial = trivial_fmus()
         self._refs = {}
         self._cosims = {}
@@ -490,6 +490,9 @@ def _jsonable(v):
 def main(argv=None):
     ap = _Parser(description=__doc__.split("\n\n")[0],
                  formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--fmus", choices=("native", "python"), default="native",
+                    help="the FMUs of the co-simulation points (default: native, the product's "
+                         "default; python: the pythonfmu flavour)")
     ap.add_argument("--quick", action="store_true",
                     help="fewer points and (unless --runs) 1 run per point: a few minutes")
     ap.add_argument("--runs", type=_positive_int, default=None,
@@ -538,7 +541,7 @@ def main(argv=None):
                                               "controller_fmu", "orchestration").splitlines(),
             "python": platform.python_version(), "machine": platform.machine(),
             "cpus": os.cpu_count(), "load_average_start": list(os.getloadavg()),
-            "runs": runs, "quick": args.quick, "scenes": scenes, "extra_overrides": args.set,
+            "runs": runs, "quick": args.quick, "fmus": args.fmus, "scenes": scenes, "extra_overrides": args.set,
             "integrator_master": INTEGRATOR_MASTER,
             "error": "max |phi_o - phi_o_ref| on the output grid; ref: DOP853 rtol=atol=1e-12",
             "time": "median of runs after one warm-up; a failed point is timed once; fewer runs "
@@ -546,7 +549,7 @@ def main(argv=None):
     print(f"work-precision: {len(plan)} points, {runs} runs each after a warm-up; "
           f"load average {' '.join(f'{x:.2f}' for x in meta['load_average_start'])}", flush=True)
 
-    runner = Runner(runs, args.set, MAX_POINT_SECONDS[which])
+    runner = Runner(runs, args.set, MAX_POINT_SECONDS[which], args.fmus)
     records = []
     t_start = time.perf_counter()
     for i, (scene, fam, value) in enumerate(plan, 1):

@@ -80,7 +80,7 @@ def _entries(table, native: bool) -> list:
 
 def _header(root, model, units, log_categories, used):
     """UnitDefinitions, LogCategories and DefaultExperiment (the same in FMI 2.0 and 3.0)."""
-    node = ET.SubElement(root, "UnitDefinitions")
+    node = ET.SubElement(root, "UnitDefinitions") if used else None
     for u in used:
         unit = ET.SubElement(node, "Unit", name=u)
         if units[u]:

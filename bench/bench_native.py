@@ -1,0 +1,280 @@
+"""The native FMUs' targets (issue 15), each measured side by side in one run.
+
+    python bench/bench_native.py [--runs 5] [--quick] [--json bench/results/native.json]
+
+* **T4.** At n_modes = 4 and a 1 ms communication step (the scene's coupling: Gauss-Seidel,
+  quadratic extrapolation, input derivatives), the cost per macro step on our fmpy master of the
+  native pair, of the pythonfmu pair and of two trivial native FMUs (the same generic FMI layer,
+  the same interfaces, a step that copies an input: the floor of FMI, ctypes and the master).
+  Target: native at most 10 us per macro step on a quiet machine, and within 2x of the floor.
+* **T5.** The 10 s filtered scene at a tip-angle error of 1e-5 rad or less: the fastest native
+  co-simulation setting against the fastest ``solve_ivp`` method at equal error (target: at least
+  5x faster), and against a compiled monolithic RK4 of the same closed-loop ODE built from the C
+  kernel (``bench/native/monolithic_rk4.c``; the physical limit on one core: within 2x wanted).
+* **C host.** The plain C host of the tests (``tests/native/fmi2_host.c``, Jacobi, held inputs)
+  over the native pair: its time per macro step.
+
+Times are medians of ``--runs`` runs after a warm-up, alternating the compared loops so that the
+machine's load falls on both sides of each ratio; errors against the monolithic reference (DOP853
+at 1e-12). ``--quick`` tries fewer settings (what the README's figures used on a loaded machine
+is said there).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import (RESULTS, ROOT, CoSim, load_scene, median_time, phi_error,  # noqa: E402
+                    reference)
+from targets import IVP_METHODS, ivp_points  # noqa: E402
+
+from orchestration.export import build_fmus, fmu_pair  # noqa: E402
+from orchestration.export import kernel_build, native_fmus  # noqa: E402
+
+SCENE = "flexible_pd_lowpass"
+T5_CANDIDATES = {          # the output grid (2 ms) must be a multiple of the step
+    "H=2ms, plant step 1e-3": ["master.step=2e-3", "plant.step=1e-3"],
+    "H=2ms, plant step 5e-4": ["master.step=2e-3", "plant.step=5e-4"],
+    "H=2ms (the scene's)": ["master.step=2e-3"],
+    "H=1ms, plant step 5e-4": ["master.step=1e-3", "plant.step=5e-4"],
+    "H=1ms": ["master.step=1e-3"],
+}
+RK4_STEPS = (1e-3, 5e-4, 4e-4, 2.5e-4, 2e-4, 1.25e-4, 1e-4)     # divide the 2 ms grid
+
+
+# ---------------------------------------------------------------------- the trivial native FMUs
+def trivial_native_fmus(folder: Path) -> dict:
+    """Two native FMUs with the product's interfaces (same names: the same connections) whose
+    step copies an input, built on fmu_native/fmi2.c."""
+    from plant_fmu.interface import ModelInfo, Variable
+    from orchestration.export import model_description as mdesc
+
+    specs = {"plant": ("TrivialPlant", ("F_c",), ("x_o", "phi_o", "omega_o")),
+             "controller": ("TrivialController", ("phi_o", "omega_o", "x_o"), ("F_c",))}
+    out = {}
+    for key, (name, ins, outs) in specs.items():
+        table = tuple([Variable(n, "input", "Real", "input", None, 0.0) for n in ins]
+                      + [Variable(n, "output", "Real", "output") for n in outs])
+        model = ModelInfo(name, "trivial", "0", 0.0, 1.0, 1e-3)
+        mdesc.TABLES[name] = (model, table)
+        gen = folder / f"gen_{name}"
+        gen.mkdir(parents=True, exist_ok=True)
+        token = "{00000000-0000-4000-8000-%012d}" % len(ins)
+        (gen / "fpm_vars.h").write_text(native_fmus.generate_header(name, token))
+        lib = folder / f"{name}.so"
+        cc = kernel_build.find_compiler()
+        cmd = [cc, *kernel_build.CFLAGS, f"-I{gen}", f"-I{native_fmus.SRC}",
+               f"-I{native_fmus.fmi_include_dir()}", "-fPIC", "-shared", "-o", str(lib),
+               str(native_fmus.SRC / "fmi2.c"), str(native_fmus.SRC / "fpm_util.c"),
+               str(ROOT / "bench" / "native" / "trivial_model.c"), "-lm"]
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        xml = mdesc.fmi2_model_description(
+            name, token, generation_tool="bench", table=table, model=model,
+            co_simulation={"modelIdentifier": name, "canGetAndSetFMUstate": "true",
+                           "canInterpolateInputs": "true", "canSerializeFMUstate": "true"})
+        fmu = folder / f"{name}.fmu"
+        with zipfile.ZipFile(fmu, "w") as zf:
+            zf.writestr("modelDescription.xml", xml)
+            zf.write(lib, f"binaries/linux64/{name}.so")
+        out[key] = fmu
+    return out
+
+
+# ---------------------------------------------------------------------- T4
+T4_COUPLINGS = {
+    "zero-order hold, Jacobi (the FMI floor)": ["master.extrapolation=0",
+                                                "master.input_derivatives=false",
+                                                "master.algorithm=jacobi"],
+    "the scene's: Gauss-Seidel, quadratic, input derivatives": [],
+}
+
+
+def t4(runs: int, native, python, trivial, log) -> dict:
+    return {label: _t4(runs, native, python, trivial, log, label, sets)
+            for label, sets in T4_COUPLINGS.items()}
+
+
+def _t4(runs, native, python, trivial, log, label, sets) -> dict:
+    log(f"T4  coupling: {label}")
+    scene = load_scene(SCENE, ["plant.n_modes=4", "master.step=1e-3", "stop_time=2", *sets])
+    loops = {"native": CoSim(scene, native), "pythonfmu": CoSim(scene, python),
+             "trivial native": CoSim(scene, trivial, trivial=True)}
+    for loop in loops.values():
+        loop.run()                                   # warm-up
+    per = {k: [] for k in loops}
+    for _ in range(runs):
+        for k, loop in loops.items():
+            _, stats = loop.run()
+            per[k].append(stats.wall_time / stats.steps * 1e6)
+    med = {k: statistics.median(v) for k, v in per.items()}
+    for k, v in med.items():
+        log(f"T4  {k:15s} {v:7.2f} us per macro step")
+    ratio = med["native"] / med["trivial native"]
+    log(f"T4  native / trivial native = {ratio:.2f} (limit 2), native / pythonfmu = "
+        f"{med['native'] / med['pythonfmu']:.3f}")
+    return {"target": "T4", "us_per_step": med, "runs": per, "ratio_to_floor": ratio,
+            "met_floor": ratio <= 2.0, "met_10us": med["native"] <= 10.0}
+
+
+# ---------------------------------------------------------------------- T5
+def monolithic_rk4_binary(folder: Path) -> Path:
+    exe = folder / "monolithic_rk4"
+    native = kernel_build.native_dir("flexpend_plant")
+    cmd = [kernel_build.find_compiler(), "-std=gnu99", "-O2", "-ffp-contract=off", "-DFP_API=",
+           f"-I{native}", "-o", str(exe), str(ROOT / "bench" / "native" / "monolithic_rk4.c"),
+           str(native / "fp_plant.c"), "-lm"]
+    subprocess.run(cmd, check=True, capture_output=True, text=True)
+    return exe
+
+
+def rk4_input(scene, h: float) -> str:
+    from plant_fmu.dynamics import plant_model
+    from orchestration.config import controller_params
+    m = plant_model(scene.plant)
+    c = controller_params(scene.config)
+    if c.filter_order != 2:
+        raise ValueError("the monolithic RK4 bench takes a 2nd-order filter")
+    nums = [m.n, 0, int(m.preload), m.I0, m.I1, m.I2, m.g, *m.I3, *m.I5, *m.Kdiag, *m.Ddiag,
+            *m.tip_slope, *m.tip_defl, *np.asarray(m.Kg).ravel(), c.kp, c.kd, c.kx, c.cutoff,
+            c.filter_damping, c.force_limit, scene["initial.x"], scene["initial.phi"],
+            scene["initial.x_dot"], scene["initial.phi_dot"], h, scene["stop_time"],
+            scene["output_interval"]]
+    return " ".join(repr(float(x)) if not isinstance(x, int) else str(x) for x in nums)
+
+
+def rk4_points(runs, exe, scene, ref, log) -> list:
+    out = []
+    for h in RK4_STEPS:
+        stdin = rk4_input(scene, h)
+
+        def run():
+            proc = subprocess.run([str(exe)], input=stdin, capture_output=True, text=True,
+                                  check=True)
+            vals = [float(x) for x in proc.stdout.split()]
+            return vals[0], np.array(vals[1:])
+        med, times, phi = median_time(run, runs)
+        err = float(np.max(np.abs(phi - ref["phi_o"]))) if phi.size == len(ref) else np.inf
+        out.append({"family": "monolithic RK4 (C)", "setting": f"h={h:g}", "seconds": med,
+                    "error": err, "all_seconds": times})
+        log(f"  monolithic RK4 (C) h={h:<8g} error {err:9.2e}  {med:8.4f} s")
+        if err < 1e-7:
+            break
+    return out
+
+
+def cosim_points(runs, fmus, ref, log, candidates) -> list:
+    out = []
+    for label, overrides in candidates.items():
+        scene = load_scene(SCENE, overrides)
+        cosim = CoSim(scene, fmus)
+
+        def run():
+            res, stats = cosim.run()
+            return stats.wall_time, res
+        med, times, res = median_time(run, runs)
+        err = phi_error(res, ref)
+        out.append({"family": "native co-simulation", "setting": label, "seconds": med,
+                    "error": err, "all_seconds": times})
+        log(f"  native co-simulation {label:52s} error {err:9.2e}  {med:7.3f} s")
+    return out
+
+
+def fastest(points, max_error=1e-5):
+    ok = [p for p in points if p["error"] <= max_error]
+    return min(ok, key=lambda p: p["seconds"]) if ok else None
+
+
+def t5(runs, native, log, quick) -> dict:
+    scene = load_scene(SCENE)
+    ref = reference(scene)
+    cands = dict(list(T5_CANDIDATES.items())[:4]) if quick else T5_CANDIDATES
+    co = cosim_points(runs, native, ref, log, cands)
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = monolithic_rk4_binary(Path(tmp))
+        rk = rk4_points(runs, exe, scene, ref, log)
+    ivp = ivp_points(max(1, runs // 2) if quick else runs, scene, ref, log)
+    c, i, r = fastest(co), fastest(ivp), fastest(rk)
+    res = {"target": "T5", "native": c, "solve_ivp": i, "monolithic_rk4": r,
+           "points": co + rk + ivp}
+    if c and i:
+        res["speedup_vs_solve_ivp"] = i["seconds"] / c["seconds"]
+        log(f"T5  native {c['setting']}: {c['error']:.2e} rad in {c['seconds']:.4f} s; fastest "
+            f"solve_ivp {i['setting']}: {i['error']:.2e} in {i['seconds']:.4f} s -> "
+            f"{res['speedup_vs_solve_ivp']:.1f}x (target >= 5)")
+    if c and r:
+        res["ratio_to_monolithic_rk4"] = c["seconds"] / r["seconds"]
+        log(f"T5  monolithic RK4 (C) {r['setting']}: {r['error']:.2e} in {r['seconds']:.4f} s -> "
+            f"native co-simulation / RK4 = {res['ratio_to_monolithic_rk4']:.1f} (wanted <= 2)")
+    return res
+
+
+# ---------------------------------------------------------------------- C host
+def c_host(runs, native, log) -> dict:
+    from fmpy import read_model_description
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        exe = tmp / "fmi2_host"
+        subprocess.run([kernel_build.find_compiler(), "-O2", "-std=gnu11",
+                        f"-I{native_fmus.fmi_include_dir()}", "-o", str(exe),
+                        str(ROOT / "tests" / "native" / "fmi2_host.c"), "-ldl"], check=True)
+        args, vrs = [], {}
+        for name in ("FlexiblePendulum", "PDLowPass"):
+            d = tmp / name
+            with zipfile.ZipFile(native[name]) as zf:
+                zf.extractall(d)
+            md = read_model_description(str(d / "modelDescription.xml"))
+            vrs[name] = {v.name: v.valueReference for v in md.modelVariables}
+            args += [str(d / "binaries" / "linux64" / f"{name}.so"), md.guid]
+        args += ["10000", "1e-3"]
+        args += [str(vrs["FlexiblePendulum"][n]) for n in ("F_c", "x_o", "phi_o", "omega_o")]
+        args += [str(vrs["PDLowPass"][n]) for n in ("x_o", "phi_o", "omega_o", "F_c")]
+        args += [f"{vrs['FlexiblePendulum']['phi0']}=0.5235987755982988", "bench"]
+        times = []
+        for k in range(runs + 1):
+            out = subprocess.run([str(exe), *args], capture_output=True, text=True, check=True)
+            if k:
+                times.append(float(out.stdout) * 1e6)
+    med = statistics.median(times)
+    log(f"C host (Jacobi, held inputs, n_modes 4, 1 ms): {med:.2f} us per macro step")
+    return {"us_per_step": med, "runs": times}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--quick", action="store_true", help="fewer settings in T5")
+    ap.add_argument("--json", default=str(RESULTS / "native.json"))
+    args = ap.parse_args(argv)
+    if args.runs < 1:
+        print(f"bench_native: --runs = {args.runs}; allowed: >= 1", file=sys.stderr)
+        return 2
+
+    def log(msg):
+        print(msg, flush=True)
+
+    native = fmu_pair(build_fmus(flavour="native"))
+    python = fmu_pair(build_fmus(flavour="python"))
+    with tempfile.TemporaryDirectory() as tmp:
+        trivial = trivial_native_fmus(Path(tmp))
+        r4 = t4(args.runs, native, python, trivial, log)
+    host = c_host(args.runs, build_fmus(flavour="native"), log)
+    r5 = t5(args.runs, native, log, args.quick)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({"T4": r4, "T5": r5, "c_host": host}, indent=2,
+                                              default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
