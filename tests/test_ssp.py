@@ -236,12 +236,22 @@ def test_not_an_archive_and_no_file_give_one_line(tmp_path):
         assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
 
 
-def test_export_native_is_not_available_yet(tmp_path):
+def test_export_native_ships_the_native_fmus(tmp_path):
+    import zipfile
+
+    from fmpy import read_model_description
     code, out, err = flexpend("export", "rigid_pd", "--fmus", "native", "--out",
                               str(tmp_path / "x.ssp"))
-    assert code == 2 and not (tmp_path / "x.ssp").exists()
-    assert err.strip() == ("flexpend: error: --fmus native: the native FMUs are not available "
-                           "in this build")
+    assert code == 0, err
+    with zipfile.ZipFile(tmp_path / "x.ssp") as zf:
+        fmus = [n for n in zf.namelist() if n.endswith(".fmu")]
+        assert len(fmus) == 2
+        for n in fmus:
+            (tmp_path / n.replace("/", "_")).write_bytes(zf.read(n))
+    for n in fmus:
+        md = read_model_description(str(tmp_path / n.replace("/", "_")))
+        assert md.coSimulation.canInterpolateInputs          # the native FMI 2.0 FMUs
+        assert not any(v.name.startswith("d2") for v in md.modelVariables)
 
 
 def test_export_bad_input_one_line(tmp_path):

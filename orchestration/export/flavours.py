@@ -4,8 +4,8 @@
 
 Each flavour is one function in :data:`FLAVOURS` that returns the paths of the plant and the
 controller FMU, building them if needed; ``None`` marks a flavour this build does not have (the
-native FMUs: the command line says so and exits 2). ``python`` are the pythonfmu FMUs of
-:mod:`.python_fmus`.
+command line says so and exits 2). ``python`` are the pythonfmu FMUs of :mod:`.python_fmus`,
+``native`` the FMI 2.0 native FMUs of :mod:`.native_fmus`.
 """
 from __future__ import annotations
 
@@ -25,10 +25,17 @@ def _python_fmus() -> dict:
     return {"plant": Path(paths["FlexiblePendulum"]), "controller": Path(paths["PDLowPass"])}
 
 
+def _native_fmus() -> dict:
+    from .native_fmus import build_native_fmus
+
+    paths = build_native_fmus(fmi_version=2)
+    return {"plant": Path(paths["FlexiblePendulum"]), "controller": Path(paths["PDLowPass"])}
+
+
 #: flavour -> function returning ``{"plant": path, "controller": path}``; ``None``: not in this
-#: build. The native FMUs (FMI 2.0 in C) replace ``None`` with their build function.
+#: build.
 FLAVOURS = {
-    "native": None,
+    "native": _native_fmus,
     "python": _python_fmus,
 }
 #: The flavour ``flexpend export`` uses unless told otherwise.
