@@ -103,6 +103,8 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
 int fpm_model_relink(fpm_model *m, const fpm_logger *lg);
 
 /* ---- Shared by the FMI layers (fpm_util.c) ----------------------------------------------- */
+/* The start values of the table's parameters and inputs. */
+void fpm_start_values(fpm_values *v);
 /* The index of vr in the table, or -1 (no such variable). */
 int fpm_lookup(unsigned vr);
 /* A 64-bit FNV-1a hash. */

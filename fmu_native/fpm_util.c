@@ -28,6 +28,17 @@ void fpm_log(const fpm_logger *lg, int status, const char *fmt, ...)
     lg->emit(lg->env, status, cat, msg);
 }
 
+void fpm_start_values(fpm_values *v)
+{
+    int i;
+    for (i = 0; i < FPM_MAX_VARS; i++) {
+        const fpm_var *var = &fpm_vars[i];
+        if (var->name == NULL || var->causality == FPM_OUTPUT) continue;
+        if (var->type == FPM_STRING) strcpy(v->string[i], var->start_string);
+        else v->real[i] = var->start_real;
+    }
+}
+
 int fpm_lookup(unsigned vr)
 {
     if (vr >= FPM_MAX_VARS || fpm_vars[vr].name == NULL) return -1;

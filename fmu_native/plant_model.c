@@ -92,14 +92,8 @@ double fpm_model_time(const fpm_model *m) { return m->ready ? m->s.t : m->t0; }
 
 void fpm_model_reset(fpm_model *m, double start_time)
 {
-    int i;
     memset(m, 0, sizeof *m);
-    for (i = 0; i < FPM_MAX_VARS; i++) {
-        const fpm_var *v = &fpm_vars[i];
-        if (v->name == NULL || v->causality == FPM_OUTPUT) continue;
-        if (v->type == FPM_STRING) strcpy(m->v.string[i], v->start_string);
-        else m->v.real[i] = v->start_real;
-    }
+    fpm_start_values(&m->v);
     m->t0 = start_time;
 }
 
