@@ -51,7 +51,8 @@ def bound_values(root, component):
 @pytest.fixture(scope="module")
 def exported(fmus, tmp_path_factory):
     path = tmp_path_factory.mktemp("ssp") / "flexible_pd_lowpass.ssp"
-    code, out, err = flexpend("export", "flexible_pd_lowpass", "--out", str(path))
+    code, out, err = flexpend("export", "flexible_pd_lowpass", "--fmus", "python", "--out",
+                              str(path))
     assert code == 0, err
     assert f"wrote {path}" in out
     return path

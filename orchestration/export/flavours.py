@@ -39,7 +39,7 @@ FLAVOURS = {
     "python": _python_fmus,
 }
 #: The flavour ``flexpend export`` uses unless told otherwise.
-DEFAULT_FLAVOUR = "python"
+DEFAULT_FLAVOUR = "native"
 
 
 def fmu_paths(flavour: str = DEFAULT_FLAVOUR) -> dict:
