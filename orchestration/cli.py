@@ -2,7 +2,8 @@
 
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
-    flexpend design [--set key=value ...] [--json] [--out DIR]   robust low-pass filter design
+    flexpend design [--set key=value ...] [--json] [--out DIR] [--workers N | --scheduler ADDR]
+                                                        robust low-pass filter design
     flexpend sweep SCENE [--grid ...] [--values ...] [--sample ... --samples N] [--workers N]
                                                         many runs, on dask.distributed
     flexpend build [--force] [--out DIR] [--fmus F]     build the FMUs (pythonfmu, native)
@@ -145,7 +146,12 @@ def cmd_design(args) -> int:
     settings = design_settings(cfg)
     p, c = plant_params(cfg), controller_params(cfg)
     out_dir = _output_dir(args.out)
-    r = design_filter(p, c, settings, progress=Progress("design"))
+    workers, scheduler = _executor_args(args)
+    if workers is None and not scheduler:
+        r = design_filter(p, c, settings, progress=Progress("design"))
+    else:                          # the check grid's closed loops as dask tasks
+        with _open_executor(workers, scheduler) as ex:
+            r = design_filter(p, c, settings, progress=Progress("design"), executor=ex)
     crit = r.criterion
     ylabel = ("worst-case decay rate -max Re(lambda) (1/s)" if crit == "decay"
               else "worst-case damping ratio")
@@ -660,6 +666,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a key, e.g. controller.kd=6 or design.criterion=damping")
     pd.add_argument("--out", default="out", help="output folder (default: out)")
     pd.add_argument("--json", action="store_true", help="print the result as JSON")
+    pd.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="check the chosen filter's worst case on a dask LocalCluster of N "
+                         "processes (default: here; worth it for a fine design.check_levels)")
+    pd.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="check it on the dask cluster of this scheduler")
     pd.set_defaults(func=cmd_design)
 
     pr = sub.add_parser("run", help="co-simulate scenes (default: the paper's three)",

@@ -11,8 +11,8 @@ same numbers either way (only its wall times differ).
 Why processes: the pythonfmu FMUs run their Python code in the interpreter of the process that
 loads them, one interpreter per process, so two threads of one worker would share it (and its
 GIL). Every dask worker is therefore a process with one thread
-(``LocalCluster(processes=True, threads_per_worker=1)``), which also keeps numpy's BLAS on one
-thread per worker.
+(``LocalCluster(processes=True, threads_per_worker=1)``), and every task, here or on a worker,
+runs with numpy's BLAS on one thread (threadpoolctl).
 
 Files the tasks need (the FMUs) are sent to every worker once, by a worker plugin, and a task
 finds its copy with :func:`worker_file`: a cluster needs no shared file system. The workers must
@@ -55,7 +55,13 @@ def default_workers() -> int:
 
 
 def _run_batch(fn, items):
-    return [fn(item) for item in items]
+    """Run ``fn`` on each item with numpy's BLAS on one thread: a task has one core wherever it
+    runs, and a BLAS routine's rounding can depend on its thread count (a matrix-pencil fit
+    differed in the 13th digit between 2 threads and 1), so the serial path and the workers
+    compute alike."""
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=1, user_api="blas"):
+        return [fn(item) for item in items]
 
 
 class Executor:
@@ -69,7 +75,7 @@ class Executor:
         """``(index, fn(items[index]))`` for every item, as the tasks finish; ``batch`` items
         make one task (it only matters to a distributed executor)."""
         for i, item in enumerate(items):
-            yield i, fn(item)
+            yield i, _run_batch(fn, [item])[0]
 
     def describe(self) -> str:
         return "serial (this process)"
