@@ -33,7 +33,7 @@ from pathlib import Path
 from distributed.diagnostics.plugin import WorkerPlugin
 
 __all__ = ["Executor", "DaskExecutor", "TaskLost", "open_executor", "worker_file",
-           "default_workers"]
+           "default_workers", "file_name", "scratch_dir"]
 
 
 class TaskLost:
@@ -98,6 +98,16 @@ def worker_file(name: str, default):
     """The path of file ``name`` sent to this worker by :class:`DaskExecutor` (``files=``), or
     ``default`` when the task runs elsewhere (the serial executor: the client's own path)."""
     return _WORKER_FILES.get(name, default)
+
+
+def scratch_dir() -> str | None:
+    """The local folder of the dask worker this runs on (dask removes it with the worker), or
+    None outside a worker."""
+    try:
+        from distributed import get_worker
+        return get_worker().local_directory
+    except (ImportError, ValueError):
+        return None
 
 
 def file_name(path) -> str:
@@ -188,28 +198,31 @@ class DaskExecutor(Executor):
 
     def map(self, fn, items, batch: int = 1):
         from distributed import KilledWorker, as_completed
-        from distributed.client import FutureCancelledError
 
         items = list(items)
         batch = max(1, int(batch))
-        futures = {}
-        for start in range(0, len(items), batch):
-            idx = list(range(start, min(start + batch, len(items))))
-            fut = self.client.submit(_run_batch, fn, [items[i] for i in idx], pure=False)
-            futures[fut] = idx
+        chunks = [list(range(i, min(i + batch, len(items)))) for i in range(0, len(items), batch)]
+        futures = self.client.map(_run_batch, [fn] * len(chunks),
+                                  [[items[i] for i in idx] for idx in chunks], pure=False)
+        index = {fut.key: idx for fut, idx in zip(futures, chunks)}
         try:
-            for fut in as_completed(list(futures)):
-                idx = futures.pop(fut)
-                try:
-                    results = fut.result()
-                except (KilledWorker, FutureCancelledError) as exc:
-                    text = " ".join(str(exc).split()) or type(exc).__name__
-                    results = [TaskLost(f"{type(exc).__name__}: {text}")] * len(idx)
+            # results are gathered in the background as the tasks finish
+            for fut, result in as_completed(futures, with_results=True, raise_errors=False):
+                idx = index.pop(fut.key)
+                if fut.status == "error":
+                    exc = result[1]
+                    if not isinstance(exc, KilledWorker):
+                        raise exc.with_traceback(result[2])
+                    text = " ".join(str(exc).split())
+                    result = [TaskLost(f"KilledWorker: {text}")] * len(idx)
+                elif fut.status == "cancelled":
+                    result = [TaskLost("cancelled by dask")] * len(idx)
                 fut.release()
-                yield from zip(idx, results)
+                yield from zip(idx, result)
         finally:                        # interrupted or abandoned: stop what is still queued
-            if futures:
-                self.client.cancel(list(futures))
+            left = [f for f in futures if f.key in index]
+            if left:
+                self.client.cancel(left)
 
     def close(self):
         client, self.client = getattr(self, "client", None), None
