@@ -22,7 +22,8 @@
   ``status`` (``ok``; ``failed``: the co-simulation stopped or raised, with its ``message``;
   ``lost``: its worker died), the verdict, the fitted rates and frequencies, ``decay_rate`` (minus
   the largest fitted rate), max |F_c|, the error against the monolithic reference with
-  ``--reference``, the master's time ``cosim_time`` and the whole task's ``wall_time``.
+  ``--reference``, the master's time ``cosim_time`` and the whole task's ``wall_time``; beside
+  the fit, the linearised loop's prediction (:func:`linear_prediction`).
 * **Nothing finished is lost.** Each finished run is appended at once to ``DIR/runs.jsonl``;
   the table (``DIR/sweep.parquet`` with pyarrow, else ``DIR/sweep.csv``) is written from it at
   the end. A run is keyed by the digest of its whole resolved scene (and ``--reference``): a rerun
@@ -51,7 +52,7 @@ from .config import ConfigError, check_known, parse_override, parse_value
 from .scenes import Scene, known_keys, load_scene, scene_from_config
 
 __all__ = ["Axis", "Sampler", "Point", "SweepPlan", "SweepResult", "plan_sweep", "parse_grid",
-           "parse_values", "parse_sample", "summary_row", "run_sweep", "pending", "sweep_stats",
+           "parse_values", "parse_sample", "summary_row", "linear_prediction", "run_sweep", "pending", "sweep_stats",
            "read_table",
            "write_table", "DESIGN_KEYS", "DISTRIBUTIONS"]
 
@@ -352,6 +353,23 @@ def summary_row(summary: dict) -> dict:
     return row
 
 
+def linear_prediction(scene: Scene, row: dict) -> dict:
+    """The linearised loop's prediction beside the fit (:mod:`orchestration.analysis`, the
+    design's criterion for this one plant): ``linear_decay_rate``, the smallest decay rate
+    ``-Re(lambda)`` of any closed-loop root (the cart's drift roots left aside), and for each
+    fitted oscillation the rate of the root nearest to its frequency (``slow_rate_linear``,
+    ``bending_rate_linear``)."""
+    from .analysis import _drift_free, closed_loop_matrix
+    p, c = scene.plant, scene.controller
+    lam = np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c), p))
+    out = {"linear_decay_rate": float(-lam.real.max())}
+    for mode in ("slow", "bending"):
+        w = row.get(f"{mode}_frequency")
+        out[f"{mode}_rate_linear"] = (None if w is None else
+                                      float(lam[np.argmin(np.abs(np.abs(lam.imag) - w))].real))
+    return out
+
+
 def _one_line(exc: BaseException, limit: int = 500) -> str:
     return " ".join(f"{type(exc).__name__}: {exc}".split())[:limit]
 
@@ -409,6 +427,7 @@ def run_task(task) -> dict:
         r = run_scene(Scene(name, dict(config)), paths, reference=reference, progress=False,
                       unzipdirs={role: _extracted(p) for role, p in paths.items()})
         row = summary_row(r.summary)
+        row.update(linear_prediction(r.scene, row))
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, never the end of a sweep
         row = {"status": "failed", "message": _one_line(exc)}
     row["wall_time"] = time.perf_counter() - t0

@@ -211,3 +211,20 @@ def test_bad_spec_one_line_exit_2(args, fragment, capsys, tmp_path):
     assert fragment in err, err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert not any(tmp_path.iterdir())          # nothing ran, nothing written
+
+
+def test_cli_sweep_prints_counts_writes_record_and_resumes(fmus, tmp_path, capsys):
+    import json
+    args = ["sweep", "flexible_pd_lowpass", "--values", "controller.kp=400,1e5",
+            "--set", "stop_time=0.5", "--serial", "--out", str(tmp_path)]
+    assert main(args) == 0
+    out, err = capsys.readouterr()
+    assert "flexible_pd_lowpass: 2 runs: 1 ok, 1 failed; 2 ran in" in out
+    assert "run 1 failed: plant: doStep at t = 0.027" in out
+    assert "2/2 finished, 1 failed, 0 remaining" in err
+    record = json.loads((tmp_path / "sweep.json").read_text())
+    assert record["stats"]["ok"] == 1 and record["grid"] == {"controller.kp": [400.0, 1e5]}
+    assert record["command"].startswith("flexpend sweep flexible_pd_lowpass --values")
+    assert main(args) == 0
+    out, err = capsys.readouterr()
+    assert "2 already finished" in err and "0 ran in" in out and "2 were already done" in out
