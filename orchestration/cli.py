@@ -544,7 +544,7 @@ def cmd_sweep(args) -> int:
 
     from .export import build_fmus
     from .parallel import default_workers
-    from .sweep import pending, plan_sweep, run_sweep, sweep_stats
+    from .sweep import design_worst_case, pending, plan_sweep, run_sweep, sweep_stats
 
     if args.serial and (args.workers is not None or args.scheduler):
         raise UsageError("--serial runs here, without dask: it takes no --workers or --scheduler")
@@ -577,6 +577,9 @@ def cmd_sweep(args) -> int:
               "command continues the sweep", file=sys.stderr)
         return 130
     stats = sweep_stats(res.rows)
+    design = design_worst_case(plan)
+    if design is not None:
+        stats["design_worst_case"] = design.to_json()
     meta = {"command": "flexpend " + " ".join(sys.argv[1:]) if args.argv is None else
             "flexpend " + " ".join(args.argv),
             **plan.describe(), "executor": executor.describe(), "batch": args.batch,
@@ -594,7 +597,8 @@ def _print_sweep(plan, res, stats, executor):
     print(f"{plan.scene.name}: {stats['runs']} runs: {stats['ok']} ok, {stats['failed']} failed"
           + (f", {stats['lost']} lost (their workers died; rerun the same command to retry "
              "them)" if stats["lost"] else "")
-          + f"; {res.ran} ran in {res.seconds:.1f} s on {executor.describe()}"
+          + (f"; {res.ran} ran in {res.seconds:.1f} s on {executor.describe()}" if res.ran
+             else "; 0 ran")
           + (f", {res.skipped} were already done" if res.skipped else ""))
     if stats["stable_fraction"] is not None:
         print(f"  stable: {stats['stable']} of {stats['ok'] + stats['failed']} finished runs "
@@ -606,6 +610,14 @@ def _print_sweep(plan, res, stats, executor):
         print(f"  decay rate -max(fitted rate): worst {stats['worst_decay_rate']:+.4g} 1/s "
               f"(run {stats['worst_run']}: {where}), median {stats['median_decay_rate']:+.4g}, "
               f"best {stats['best_decay_rate']:+.4g}")
+    if "worst_linear_decay_rate" in stats:
+        print(f"  linearised loop over the same runs: worst decay rate "
+              f"{stats['worst_linear_decay_rate']:+.4g} 1/s (run {stats['worst_linear_run']})")
+    if "design_worst_case" in stats:
+        w = stats["design_worst_case"]
+        at = ", ".join(f"{k} = {_fmt(v)}" for k, v in w["decay_rate_at"].items())
+        print(f"  flexpend design's worst case over the uncertainty set (linear, {w['plants']} "
+              f"plants): {w['decay_rate']:+.4g} 1/s at {at}")
     failed = [r for r in res.rows if r["status"] != "ok"]
     for r in failed[:3]:
         print(f"  run {r['run']} {r['status']}: {r['message'][:160]}")

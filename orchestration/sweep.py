@@ -242,6 +242,7 @@ class SweepPlan:
     points: list
     overrides: list = field(default_factory=list)
     uncertainty: object = None        # the design's set, when sampled
+    check_levels: int = 5             # its check grid (design.check_levels)
 
     @property
     def keys(self) -> list:
@@ -327,7 +328,8 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
         points.append(Point(len(points), params, j, sc.config,
                             run_key(base.name, sc.config, reference)))
     return SweepPlan(base, axes, samplers, n_samples or 0, seed, reference, points,
-                     list(overrides), uncertainty)
+                     list(overrides), uncertainty,
+                     settings["design.check_levels"] if uncertainty is not None else 5)
 
 
 # ---------------------------------------------------------------------------- one run
@@ -673,10 +675,25 @@ def sweep_stats(rows) -> dict:
         vals = [r["decay_rate"] for r in decays]
         out.update(worst_decay_rate=worst["decay_rate"], worst_run=worst["run"],
                    median_decay_rate=float(np.median(vals)), best_decay_rate=max(vals))
+    lin = [r for r in ok if r.get("linear_decay_rate") is not None]
+    if lin:
+        worst = min(lin, key=lambda r: r["linear_decay_rate"])
+        out.update(worst_linear_decay_rate=worst["linear_decay_rate"],
+                   worst_linear_run=worst["run"])
     return out
 
 
 # ---------------------------------------------------------------------------- plots
+def design_worst_case(plan: SweepPlan):
+    """``flexpend design``'s worst case of the scene's controller over the sampled uncertainty
+    set (its check grid, :func:`orchestration.design.worst_cases`), or None without a design
+    sample."""
+    if plan.uncertainty is None:
+        return None
+    from .design import worst_cases
+    return worst_cases(plan.uncertainty.plants(plan.check_levels), [plan.scene.controller])[0]
+
+
 def _label(v) -> str:
     return f"{v:.4g}" if isinstance(v, float) else str(v)
 
@@ -709,14 +726,29 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
         fig, ax = plt.subplots(figsize=(8, 5))
         vals = np.array([_decay(r) for r in rows])
         vals = vals[np.isfinite(vals)]
+        lin = np.array([r.get("linear_decay_rate") for r in rows if r["status"] == "ok"
+                        and r.get("linear_decay_rate") is not None], dtype=float)
+        design = design_worst_case(plan)
         if len(vals):
-            ax.hist(vals, bins=max(10, min(60, int(np.sqrt(len(vals))) * 2)), color="C0",
-                    edgecolor="white")
-            ax.axvline(0.0, color="r", lw=1, ls="--", label="0: growing to the left")
-            ax.axvline(vals.min(), color="k", lw=1, ls=":",
-                       label=f"worst {vals.min():+.4g} 1/s")
+            marks = [*vals, *lin, *([] if design is None else [design.decay])]
+            lo, hi = min(marks), max(marks)
+            pad = 0.05 * (hi - lo or 1.0)
+            bins = np.linspace(lo - pad, hi + pad, max(10, min(60, int(np.sqrt(len(vals))) * 2)))
+            ax.hist(vals, bins=bins, color="C0", edgecolor="white",
+                    label="co-simulation: -max(fitted rate)")
+            if len(lin):
+                ax.hist(lin, bins=bins, histtype="step", color="C1", lw=1.5,
+                        label="linearised loop: -max Re(lambda)")
+            ax.axvline(vals.min(), color="C0", lw=1.2, ls=":",
+                       label=f"worst fitted {vals.min():+.4g} 1/s")
+            if design is not None:
+                ax.axvline(design.decay, color="k", lw=1.2, ls="--",
+                           label=f"flexpend design's worst case over the set (linear) "
+                                 f"{design.decay:+.4g} 1/s")
+            if lo - pad < 0 < hi + pad:
+                ax.axvline(0.0, color="r", lw=1, label="0: grows to the left")
             ax.legend(fontsize=8)
-        ax.set_xlabel("decay rate -max(fitted rate), 1/s")
+        ax.set_xlabel("decay rate, 1/s")
         ax.set_ylabel("runs")
         keys = ", ".join(s.key for s in plan.samplers)
         ax.set_title(f"{title}\n{len(rows)} runs ({len(plan.points) // max(plan.n_samples, 1)} "

@@ -227,4 +227,4 @@ def test_cli_sweep_prints_counts_writes_record_and_resumes(fmus, tmp_path, capsy
     assert record["command"].startswith("flexpend sweep flexible_pd_lowpass --values")
     assert main(args) == 0
     out, err = capsys.readouterr()
-    assert "2 already finished" in err and "0 ran in" in out and "2 were already done" in out
+    assert "2 already finished" in err and "; 0 ran, 2 were already done" in out
