@@ -158,7 +158,7 @@ class DaskExecutor(Executor):
         self.cluster = None
         if scheduler:
             try:
-                self.client = Client(scheduler, timeout="20s")
+                self.client = Client(scheduler, timeout="10s")
             except (OSError, TimeoutError) as exc:
                 raise ValueError(f"no dask scheduler at {scheduler!r}: {exc}") from None
         else:
