@@ -760,9 +760,11 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
         axis = plan.axes[0]
         fig, ax = plt.subplots(figsize=(8, 5))
         x = np.arange(len(axis.values))
-        for col, label, style in (("decay_rate", "decay rate -max(rate)", "k-o"),
-                                  ("slow_rate", "slow (rigid) rate", "C0--s"),
-                                  ("bending_rate", "bending rate", "C1--^")):
+        for col, label, style in (("decay_rate", "decay rate -max(fitted rate)", "k-o"),
+                                  ("linear_decay_rate", "linearised loop: -max Re(lambda)",
+                                   "k:"),
+                                  ("slow_rate", "slow (rigid) rate, fitted", "C0--s"),
+                                  ("bending_rate", "bending rate, fitted", "C1--^")):
             y = [math.nan if r["status"] != "ok" or r.get(col) is None else r[col] for r in rows]
             ax.plot(x, y, style, ms=4, lw=1.2, label=label)
         bad = [i for i, r in enumerate(rows) if r["status"] != "ok"]
@@ -781,15 +783,23 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
         grid = np.array([_decay(r) for r in rows]).reshape(len(ax0.values), len(ax1.values))
         fig, ax = plt.subplots(figsize=(9, 6.5))
         finite = grid[np.isfinite(grid)]
-        lim = max(float(np.max(np.abs(finite))) if finite.size else 1.0, 1e-12)
+        # colours up to the 5th/95th percentile (one outlier does not wash out the rest); the
+        # cells of a small grid carry their values
+        lim = max(float(np.percentile(np.abs(finite), 95)) if finite.size else 1.0, 1e-12)
         im = ax.imshow(np.ma.masked_invalid(grid.T), origin="lower", aspect="auto",
                        cmap="RdBu", norm=TwoSlopeNorm(vmin=-lim, vcenter=0.0, vmax=lim))
+        if grid.size <= 150:
+            for (i, j), v in np.ndenumerate(grid):
+                if np.isfinite(v):
+                    ax.text(i, j, f"{v:+.3g}", ha="center", va="center", fontsize=7,
+                            color="w" if abs(v) > 0.6 * lim else "k")
         for r in failed:
             i, j = divmod(r["run"], len(ax1.values))
             ax.plot(i, j, "kx", ms=9, mew=2)
         _ticks(ax, ax0, ax0.values, "x")
         _ticks(ax, ax1, ax1.values, "y")
-        fig.colorbar(im, ax=ax, label="decay rate -max(fitted rate), 1/s (red: grows)")
+        fig.colorbar(im, ax=ax, extend="both",
+                     label="decay rate -max(fitted rate), 1/s (red: grows)")
         ax.set_title(title + "\nx: failed run; grey: no fit", fontsize=9)
     else:
         return None
