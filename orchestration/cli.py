@@ -557,6 +557,7 @@ def cmd_sweep(args) -> int:
     out_dir = Path(args.out)
     todo = pending(plan, out_dir, args.retry_failed)
     done = len({p.key for p in plan.points}) - todo
+    _output_dir(args.out)
     print(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
           + (f", {done} already finished in {out_dir}" if done else ""), file=sys.stderr)
     paths = build_fmus()
@@ -575,7 +576,7 @@ def cmd_sweep(args) -> int:
     except KeyboardInterrupt:
         print(f"\ninterrupted: the finished runs are in {out_dir / 'runs.jsonl'}; the same "
               "command continues the sweep", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     stats = sweep_stats(res.rows)
     design = design_worst_case(plan)
     if design is not None:
@@ -602,7 +603,9 @@ def _print_sweep(plan, res, stats, executor):
           + (f", {res.skipped} were already done" if res.skipped else ""))
     if stats["stable_fraction"] is not None:
         print(f"  stable: {stats['stable']} of {stats['ok'] + stats['failed']} finished runs "
-              f"({100 * stats['stable_fraction']:.1f} %)")
+              f"({100 * stats['stable_fraction']:.1f} %); unstable {stats['unstable']}, no "
+              f"verdict {stats['no_verdict']} (stopped early, or no reliable fit)"
+              + (f"; {stats['invalid']} left the model's range" if stats["invalid"] else ""))
     if "worst_decay_rate" in stats:
         worst = res.rows[stats["worst_run"]]
         where = ", ".join(f"{k} = {_fmt(worst[k]) if isinstance(worst[k], float) else worst[k]}"
@@ -620,7 +623,7 @@ def _print_sweep(plan, res, stats, executor):
               f"plants): {w['decay_rate']:+.4g} 1/s at {at}")
     failed = [r for r in res.rows if r["status"] != "ok"]
     for r in failed[:3]:
-        print(f"  run {r['run']} {r['status']}: {r['message'][:160]}")
+        print(f"  run {r['run']} {r['status']}: {(r['message'] or '')[:160]}")
     if len(failed) > 3:
         print(f"  ... {len(failed) - 3} more (the table has every message)")
     print(f"  wrote {res.table}" + (f", {res.plot}" if res.plot else ""))

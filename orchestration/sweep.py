@@ -23,7 +23,7 @@
   ``lost``: its worker died), the verdict, the fitted rates and frequencies, ``decay_rate`` (minus
   the largest fitted rate), max |F_c|, the error against the monolithic reference with
   ``--reference``, the master's time ``cosim_time`` and the whole task's ``wall_time``; beside
-  the fit, the linearised loop's prediction (:func:`linear_prediction`).
+  the fits, the linearised loop's rates (:func:`linear_decay_rate`).
 * **Nothing finished is lost.** Each finished run is appended at once to ``DIR/runs.jsonl``;
   the table (``DIR/sweep.parquet`` with pyarrow, else ``DIR/sweep.csv``) is written from it at
   the end. A run is keyed by the digest of its whole resolved scene (and ``--reference``): a rerun
@@ -52,7 +52,7 @@ from .config import ConfigError, check_known, parse_override, parse_value
 from .scenes import Scene, known_keys, load_scene, scene_from_config
 
 __all__ = ["Axis", "Sampler", "Point", "SweepPlan", "SweepResult", "plan_sweep", "parse_grid",
-           "parse_values", "parse_sample", "summary_row", "linear_prediction", "run_sweep", "pending", "sweep_stats",
+           "parse_values", "parse_sample", "summary_row", "linear_decay_rate", "run_sweep", "pending", "sweep_stats",
            "read_table",
            "write_table", "DESIGN_KEYS", "DISTRIBUTIONS"]
 
@@ -334,16 +334,30 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
 
 # ---------------------------------------------------------------------------- one run
 def summary_row(summary: dict) -> dict:
-    """The table's fields of one run, from its summary (:func:`orchestration.run.summarize`):
-    the one place that knows the summary's layout."""
-    slow, bending = summary.get("slow") or {}, summary.get("bending") or {}
-    rates = [r for r in (slow.get("rate"), bending.get("rate")) if r is not None]
-    row = {"status": "failed" if summary.get("failure") else "ok",
-           "stable": bool(summary.get("stable")),
-           "decay_rate": -max(rates) if rates else None,
-           "slow_rate": slow.get("rate"), "slow_frequency": slow.get("frequency"),
-           "bending_rate": bending.get("rate"), "bending_frequency": bending.get("frequency"),
-           "max_abs_F_c": summary.get("max_abs_F_c")}
+    """The table's fields of one run, from its summary (:func:`orchestration.summary.summarize`
+    and :func:`orchestration.run.run_scene`): the one place that knows the summary's layout.
+
+    A fitted rate is a number only where the summary found the fit reliable (the note says why
+    not); ``decay_rate`` is minus the largest reliable rate; ``valid`` is False when the run
+    left the model's range (``validity`` says how)."""
+    stopped = summary.get("stopped") or {}
+    row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable")}
+    rates = []
+    for key in ("slow", "bending"):
+        mode = summary.get(key) or {}
+        linear = mode.get("linear") or {}
+        row[f"{key}_rate"] = mode.get("rate")
+        row[f"{key}_frequency"] = mode.get("frequency")
+        row[f"{key}_rate_linear"] = linear.get("rate")
+        row[f"{key}_note"] = mode.get("note")
+        if mode.get("reliable"):
+            rates.append(mode["rate"])
+    row["decay_rate"] = -max(rates) if rates else None
+    row["max_abs_F_c"] = summary.get("max_abs_F_c")
+    row["max_abs_x"] = summary.get("max_abs_x")
+    warnings = (summary.get("validity") or {}).get("warnings") or []
+    row["valid"] = not warnings
+    row["validity"] = "; ".join(warnings) or None
     if "max_error_phi_o" in summary:
         row["max_error_phi_o"] = summary["max_error_phi_o"]
         row["max_error_eta_1"] = summary["max_error_eta_1"]
@@ -351,25 +365,16 @@ def summary_row(summary: dict) -> dict:
         row["model"] = f"{summary['model']['n_modes']} modes, {summary['model']['fidelity']}"
     row["steps"] = summary.get("steps")
     row["cosim_time"] = summary.get("wall_time")
-    row["message"] = summary.get("failure") or ""
+    row["stopped_at"] = stopped.get("time")
+    row["message"] = stopped.get("reason")
     return row
 
 
-def linear_prediction(scene: Scene, row: dict) -> dict:
-    """The linearised loop's prediction beside the fit (:mod:`orchestration.analysis`, the
-    design's criterion for this one plant): ``linear_decay_rate``, the smallest decay rate
-    ``-Re(lambda)`` of any closed-loop root (the cart's drift roots left aside), and for each
-    fitted oscillation the rate of the root nearest to its frequency (``slow_rate_linear``,
-    ``bending_rate_linear``)."""
-    from .analysis import _drift_free, closed_loop_matrix
-    p, c = scene.plant, scene.controller
-    lam = np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c), p))
-    out = {"linear_decay_rate": float(-lam.real.max())}
-    for mode in ("slow", "bending"):
-        w = row.get(f"{mode}_frequency")
-        out[f"{mode}_rate_linear"] = (None if w is None else
-                                      float(lam[np.argmin(np.abs(np.abs(lam.imag) - w))].real))
-    return out
+def linear_decay_rate(scene: Scene) -> float:
+    """The linearised loop's smallest decay rate ``-max Re(lambda)`` over all its roots, the
+    cart's drift roots left aside: ``flexpend design``'s criterion, for this one plant."""
+    from .analysis import max_real_part
+    return -max_real_part(scene.plant, scene.controller)
 
 
 def _one_line(exc: BaseException, limit: int = 500) -> str:
@@ -429,7 +434,7 @@ def run_task(task) -> dict:
         r = run_scene(Scene(name, dict(config)), paths, reference=reference, progress=False,
                       unzipdirs={role: _extracted(p) for role, p in paths.items()})
         row = summary_row(r.summary)
-        row.update(linear_prediction(r.scene, row))
+        row["linear_decay_rate"] = linear_decay_rate(r.scene)
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, never the end of a sweep
         row = {"status": "failed", "message": _one_line(exc)}
     row["wall_time"] = time.perf_counter() - t0
@@ -533,10 +538,10 @@ def read_table(path) -> list[dict]:
         rows = list(csv.DictReader(fh))
 
     def cell(k, v):
-        if k in ("message", "key", "status", "model"):
-            return v
-        if v == "":
+        if v == "":                 # text fields are None when empty, as in the rows
             return None
+        if k in ("message", "key", "status", "model", "validity") or k.endswith("_note"):
+            return v
         if v in ("True", "False"):
             return v == "True"
         return parse_value(v)
@@ -667,8 +672,11 @@ def sweep_stats(rows) -> dict:
     decays = [r for r in ok if r.get("decay_rate") is not None]
     out = {"runs": n, "ok": len(ok), "failed": sum(r["status"] == "failed" for r in rows),
            "lost": sum(r["status"] == "lost" for r in rows),
-           "stable": sum(bool(r.get("stable")) and r["status"] == "ok" for r in rows)}
+           "stable": sum(r.get("stable") is True for r in rows),
+           "unstable": sum(r.get("stable") is False for r in rows),
+           "invalid": sum(r.get("valid") is False for r in rows)}
     finished = out["ok"] + out["failed"]
+    out["no_verdict"] = finished - out["stable"] - out["unstable"]
     out["stable_fraction"] = out["stable"] / finished if finished else None
     if decays:
         worst = min(decays, key=lambda r: r["decay_rate"])
