@@ -118,15 +118,24 @@ def file_name(path) -> str:
 
 
 class _Setup(WorkerPlugin):
-    """Worker plugin: put ``paths`` first on ``sys.path`` and write ``files`` (name -> bytes)
-    into the worker's local folder."""
+    """Worker plugin: put ``paths`` first on ``sys.path``, write ``files`` (name -> bytes) into
+    the worker's local folder, and (a LocalCluster's workers) ignore Ctrl-C."""
 
     name = "flexpend-setup"
 
-    def __init__(self, paths, files):
+    def __init__(self, paths, files, ignore_sigint=False):
         self.paths, self.files = list(paths), dict(files)
+        self.ignore_sigint = ignore_sigint
 
     def setup(self, worker):
+        if self.ignore_sigint:
+            # a LocalCluster's workers share the client's terminal: Ctrl-C is the client's to
+            # handle (it keeps what finished and closes the cluster), not theirs to die of
+            import signal
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+            except ValueError:              # not the main thread: leave it
+                pass
         for p in reversed(self.paths):
             if p not in sys.path:
                 sys.path.insert(0, p)
@@ -169,7 +178,8 @@ class DaskExecutor(Executor):
         self.scheduler = scheduler
         try:
             blobs = {file_name(f): Path(f).read_bytes() for f in files}
-            self.client.register_plugin(_Setup([str(p) for p in paths], blobs))
+            self.client.register_plugin(_Setup([str(p) for p in paths], blobs,
+                                               ignore_sigint=self.cluster is not None))
         except BaseException:
             self.close()
             raise
