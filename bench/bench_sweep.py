@@ -94,7 +94,7 @@ def main(argv=None):
         print(f"LocalCluster of {args.workers} started in {out['cluster_start_s']:.2f} s; "
               f"load average {os.getloadavg()[0]:.2f}", flush=True)
         first = sweep_time(plan, fmus, cluster)
-        out["first_dask_sweep_s"] = first.seconds            # worker imports, numba caches
+        out["first_dask_sweep_s"] = first.seconds            # worker imports, first FMU loads
         ref = sweep_time(plan, fmus, serial)                  # the serial warm-up
         assert untimed(ref.rows) == untimed(first.rows), "dask and serial tables differ"
         out["tables_equal"] = True

@@ -382,17 +382,21 @@ def _one_line(exc: BaseException, limit: int = 500) -> str:
 
 
 @lru_cache(maxsize=None)
-def _fmu_mismatch(paths: tuple) -> str:
-    """Why the FMUs cannot be trusted in this process ("" when they can): pythonfmu FMUs run the
-    project packages already imported here, so this process's sources must be those the FMUs
-    were built from (a cluster's workers must run the client's version)."""
-    from .export.python_fmus import SPECS, fmu_digest, source_digest
-    for path in paths:
-        name = Path(path).name.split("-", 1)[-1].removesuffix(".fmu")
-        if name in SPECS and fmu_digest(Path(path)) != source_digest(SPECS[name]):
-            return (f"{name}.fmu was built from other sources than this process's flexpend "
-                    "(run the client's version on the workers)")
-    return ""
+def model_sources_digest() -> str:
+    """sha256 of this process's model packages (``plant_fmu``, ``controller_fmu``: Python and C
+    sources). A pythonfmu FMU runs the packages already imported in its process, so a worker
+    whose digest differs from the client's would not run the client's model."""
+    import controller_fmu
+    import plant_fmu
+
+    h = hashlib.sha256()
+    for pkg in (plant_fmu, controller_fmu):
+        root = Path(pkg.__file__).resolve().parent
+        for f in sorted(root.rglob("*")):
+            if f.suffix in (".py", ".c", ".h") and "__pycache__" not in f.parts:
+                h.update(f.relative_to(root.parent).as_posix().encode() + b"\0")
+                h.update(f.read_bytes() + b"\0")
+    return h.hexdigest()
 
 
 _EXTRACTED: dict = {}
@@ -418,19 +422,19 @@ def _extracted(path: str) -> str:
 
 
 def run_task(task) -> dict:
-    """Run one point on a worker (or here): ``(name, config, reference, fmus)``, ``fmus`` maps
-    ``plant``/``controller`` to ``(shipped name, client path)``. Never raises: a failure is a
-    row with its message."""
+    """Run one point on a worker (or here): ``(name, config, reference, fmus, sources)``;
+    ``fmus`` maps ``plant``/``controller`` to ``(shipped name, client path)``, ``sources`` is the
+    client's :func:`model_sources_digest`. Never raises: a failure is a row with its message."""
     from .parallel import worker_file
     from .run import run_scene
 
-    name, config, reference, fmus = task
+    name, config, reference, fmus, sources = task
     t0 = time.perf_counter()
     try:
         paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
-        mismatch = _fmu_mismatch(tuple(sorted(paths.values())))
-        if mismatch:
-            raise RuntimeError(mismatch)
+        if sources != model_sources_digest():
+            raise RuntimeError("this worker's flexpend model sources differ from the client's: "
+                               "install the client's version on the workers")
         r = run_scene(Scene(name, dict(config)), paths, reference=reference, progress=False,
                       unzipdirs={role: _extracted(p) for role, p in paths.items()})
         row = summary_row(r.summary)
@@ -642,7 +646,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     todo = list({p.key: p for p in plan.points
                  if results.get(p.key, {}).get("status") not in done_status}.values())
     shipped = {role: (file_name(path), str(path)) for role, path in fmus.items()}
-    tasks = [(plan.scene.name, p.config, plan.reference, shipped) for p in todo]
+    tasks = [(plan.scene.name, p.config, plan.reference, shipped, model_sources_digest())
+             for p in todo]
     bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
     t0 = time.perf_counter()
     with journal:
