@@ -516,6 +516,7 @@ def cmd_check(args) -> int:
         print(f"plot: {plot_check(report, args.plot)}")
     return 0 if report.passed else EXIT_FAILED
 
+
 def _executor_args(args):
     """``(workers, scheduler)`` for :func:`orchestration.parallel.open_executor`."""
     if args.workers is not None and args.workers < 1:
