@@ -323,8 +323,13 @@ def _families_by_name():
 
 
 def _reference_task(key):
+    """``(key, reference)``, or ``(key, None)`` for a reference scene the scene refuses (its
+    points then fail with that message, as in :meth:`Runner.point`)."""
     name, ov = key
-    return key, reference(load_scene(name, list(ov)))
+    try:
+        return key, reference(load_scene(name, list(ov)))
+    except ConfigError:
+        return key, None
 
 
 def _point_task(item):
@@ -645,11 +650,12 @@ def main(argv=None):
         for _, v in ex.map(_reference_task, ref_keys):
             if not isinstance(v, tuple):
                 _die(f"a reference was lost with its worker: {v.message}")
-            refs[v[0]] = v[1]
+            if v[1] is not None:
+                refs[v[0]] = v[1]
         items = []
         for s, f, v in plan:
             k = runner.ref_key(s, f, v)
-            items.append((s, f.name, v, setup, {} if k is None else {k: refs[k]}))
+            items.append((s, f.name, v, setup, {k: refs[k]} if k in refs else {}))
         for n, (i, rec) in enumerate(ex.map(_point_task, items), 1):
             if not isinstance(rec, dict):       # a lost task (its worker died)
                 scene, fam, value = plan[i]
