@@ -543,9 +543,9 @@ def _open_executor(workers, scheduler, files=()):
 def cmd_sweep(args) -> int:
     from pathlib import Path
 
-    from .export import build_fmus
     from .parallel import default_workers
-    from .sweep import design_worst_case, pending, plan_sweep, run_sweep, sweep_stats
+    from .sweep import (design_worst_case, fmus_for, pending, plan_sweep, run_sweep,
+                        sweep_stats)
 
     if args.serial and (args.workers is not None or args.scheduler):
         raise UsageError("--serial runs here, without dask: it takes no --workers or --scheduler")
@@ -561,15 +561,15 @@ def cmd_sweep(args) -> int:
     _output_dir(args.out)
     print(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
           + (f", {done} already finished in {out_dir}" if done else ""), file=sys.stderr)
-    paths = build_fmus()
-    fmus = {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+    fmus = fmus_for(plan)
     if args.serial or todo == 0:
         from .parallel import Executor
         executor = Executor()
     else:
         if workers is None and not scheduler:
             workers = min(default_workers(), todo)
-        executor = _open_executor(workers, scheduler, files=list(fmus.values()))
+        executor = _open_executor(workers, scheduler,
+                                  files=[f for pair in fmus.values() for f in pair.values()])
     try:
         with executor:
             res = run_sweep(plan, fmus, out_dir, executor, batch=args.batch,

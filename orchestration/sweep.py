@@ -52,7 +52,7 @@ from .config import ConfigError, check_known, parse_override, parse_value
 from .scenes import Scene, known_keys, load_scene, scene_from_config
 
 __all__ = ["Axis", "Sampler", "Point", "SweepPlan", "SweepResult", "plan_sweep", "parse_grid",
-           "parse_values", "parse_sample", "summary_row", "linear_decay_rate", "run_sweep", "pending", "sweep_stats",
+           "parse_values", "parse_sample", "summary_row", "linear_decay_rate", "fmus_for", "run_sweep", "pending", "sweep_stats",
            "read_table",
            "write_table", "DESIGN_KEYS", "DISTRIBUTIONS"]
 
@@ -619,6 +619,14 @@ def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
     return row
 
 
+def fmus_for(plan: SweepPlan) -> dict:
+    """``{flavour: {"plant": path, "controller": path}}`` for the FMU flavours (``master.fmus``)
+    the plan's runs use, built if missing or stale."""
+    from .export import build_fmus, fmu_pair
+    return {fl: fmu_pair(build_fmus(flavour=fl))
+            for fl in dict.fromkeys(p.config["master.fmus"] for p in plan.points)}
+
+
 def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
     """How many runs of ``plan`` have no finished row in ``out_dir`` yet."""
     results = Journal(Path(out_dir)).read()
@@ -632,8 +640,9 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     """Run the points of ``plan`` that ``out_dir`` has no finished row for, with ``executor``
     (:mod:`orchestration.parallel`; ``None``: serially here); write the table and the plot.
 
-    ``fmus``: ``{"plant": path, "controller": path}`` (built once by the caller; a dask
-    executor must have been opened with ``files=`` these paths)."""
+    ``fmus``: ``{"plant": path, "controller": path}`` for every run, or ``{flavour: {...}}``
+    per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
+    must have been opened with ``files=`` these paths)."""
     from .parallel import Executor, TaskLost, file_name
 
     executor = executor or Executor()
@@ -645,8 +654,13 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     # one task per key: points whose scenes resolve alike (repeated integer draws) run once
     todo = list({p.key: p for p in plan.points
                  if results.get(p.key, {}).get("status") not in done_status}.values())
-    shipped = {role: (file_name(path), str(path)) for role, path in fmus.items()}
-    tasks = [(plan.scene.name, p.config, plan.reference, shipped, model_sources_digest())
+    by_flavour = {None: fmus} if "plant" in fmus else fmus
+    shipped = {fl: {role: (file_name(path), str(path)) for role, path in pair.items()}
+               for fl, pair in by_flavour.items()}
+
+    def pair(p):
+        return shipped[None] if None in shipped else shipped[p.config["master.fmus"]]
+    tasks = [(plan.scene.name, p.config, plan.reference, pair(p), model_sources_digest())
              for p in todo]
     bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
     t0 = time.perf_counter()
