@@ -17,6 +17,10 @@
    0.9, 0.98, 1.02 and 1.1 times the predicted limit (A-stable methods: at 10 times RK4's limit);
    the growth per substep along the mode (its left eigenvector of the method's substep matrix).
 
+Every part is a list of independent tasks (orchestration.parallel): one after the other here, or
+with ``--workers N`` on a dask LocalCluster (``--scheduler ADDRESS``: an existing cluster), with
+the same numbers.
+
 Writes into bench/results/ (or --out): stability_map.csv (predicted grid), stability_observed.csv
 (observed points with the predicted radius), stability_critical.json (critical steps and substep
 limits, with the agreement counts), stability_map.png and integrator_limits.png.
@@ -73,37 +77,65 @@ class Bar:
                 self.next += 0.1
 
 
-# ---------------------------------------------------------------------- 1. the map
-def predicted_map(p, Hs, cutoffs, substep):
-    plant = linear_plant(p)
-    rho = np.empty((len(SCHEMES), 3, len(Hs), len(cutoffs)))
-    bar = Bar("predicted map", len(Hs))
-    for i, H in enumerate(Hs):
-        pm = plant_step_map("rk4", plant.A, plant.B, plant.nq, float(H), substep)
-        for s, (_, alg, first) in enumerate(SCHEMES):
-            for e in range(3):
-                for j, wc in enumerate(cutoffs):
-                    c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
-                    rho[s, e, i, j] = spectral_radius(transition_matrix(
-                        p, c, float(H), algorithm=alg, first=first, extrapolation=e,
-                        substep=substep, plant_map=pm))
+# ---------------------------------------------------------------------- tasks
+# Every part is a list of independent tasks run by an executor (orchestration.parallel): here
+# one after the other, or on dask workers; each task is a module-level function of one item.
+
+def run_tasks(ex, fn, items, label):
+    """``[fn(item) for item in items]`` on the executor, with a progress bar; a task lost with
+    its worker stops the study (a map with a hole is no map)."""
+    from orchestration.parallel import TaskLost
+    out = [None] * len(items)
+    bar = Bar(label, len(items))
+    for i, value in ex.map(fn, items):
+        if isinstance(value, TaskLost):
+            raise RuntimeError(f"{label}: a task was lost with its worker: {value.message}")
+        out[i] = value
         bar.step()
+    return out
+
+
+# ---------------------------------------------------------------------- 1. the map
+def _predicted_row(item):
+    """rho[scheme, extrapolation, cutoff] at one communication step H."""
+    p, H, cutoffs, substep = item
+    plant = linear_plant(p)
+    pm = plant_step_map("rk4", plant.A, plant.B, plant.nq, float(H), substep)
+    rho = np.empty((len(SCHEMES), 3, len(cutoffs)))
+    for s, (_, alg, first) in enumerate(SCHEMES):
+        for e in range(3):
+            for j, wc in enumerate(cutoffs):
+                c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
+                rho[s, e, j] = spectral_radius(transition_matrix(
+                    p, c, float(H), algorithm=alg, first=first, extrapolation=e,
+                    substep=substep, plant_map=pm))
     return rho
 
 
-def critical_steps(p, substep):
+def predicted_map(p, Hs, cutoffs, substep, ex):
+    rows = run_tasks(ex, _predicted_row, [(p, float(H), cutoffs, substep) for H in Hs],
+                     "predicted map")
+    return np.stack(rows, axis=2)                # (scheme, extrapolation, H, cutoff)
+
+
+def _critical_step(item):
+    p, alg, first, e, substep = item
     c = ControllerParams(cutoff=DEFAULT_CUTOFF, filter_damping=0.5)
-    out = {}
     grid = np.geomspace(2e-4, 4e-2, 240)
-    for label, alg, first in SCHEMES:
-        for e in range(3):
-            f = lambda H, a=alg, fi=first, x=e: spectral_radius(  # noqa: E731
-                transition_matrix(p, c, H, algorithm=a, first=fi, extrapolation=x,
-                                  substep=substep))
-            Hc = first_crossing(f, grid)
-            out[f"{label} p={e}"] = Hc
-            log(f"critical H at cutoff {DEFAULT_CUTOFF:g}: {label:20s} p={e}: "
-                f"{'none below 40 ms' if Hc is None else f'{Hc * 1e3:.4f} ms'}")
+    return first_crossing(lambda H: spectral_radius(
+        transition_matrix(p, c, H, algorithm=alg, first=first, extrapolation=e,
+                          substep=substep)), grid)
+
+
+def critical_steps(p, substep, ex):
+    cases = [(label, alg, first, e) for label, alg, first in SCHEMES for e in range(3)]
+    Hcs = run_tasks(ex, _critical_step, [(p, alg, first, e, substep)
+                                         for _, alg, first, e in cases], "critical steps")
+    out = {}
+    for (label, _, _, e), Hc in zip(cases, Hcs):
+        out[f"{label} p={e}"] = Hc
+        log(f"critical H at cutoff {DEFAULT_CUTOFF:g}: {label:20s} p={e}: "
+            f"{'none below 40 ms' if Hc is None else f'{Hc * 1e3:.4f} ms'}")
     return out
 
 
@@ -123,28 +155,25 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
     return observed_spectral_radius(Y, rtol=1e-6), ""
 
 
-def observed_map(p, Hs, cutoffs, substep, n_steps):
-    from orchestration.export import build_fmus
-    f = build_fmus()
-    paths = {"plant": str(f["FlexiblePendulum"]), "controller": str(f["PDLowPass"])}
-    rows = []
-    bar = Bar("observed co-simulations", len(SCHEMES) * 3 * len(Hs) * len(cutoffs))
-    for label, alg, first in SCHEMES:
-        for e in range(3):
-            for H in Hs:
-                for wc in cutoffs:
-                    c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
-                    pred = spectral_radius(transition_matrix(
-                        p, c, float(H), algorithm=alg, first=first, extrapolation=e,
-                        substep=substep))
-                    obs, failure = observe_cosim(paths, alg, first, e, H, wc, n_steps,
-                                                 p.n_modes)
-                    rows.append({"scheme": label, "extrapolation": e, "H": float(H),
-                                 "cutoff": float(wc), "rho_predicted": pred,
-                                 "rho_observed": obs, "agree": (obs < 1) == (pred < 1),
-                                 "failure": failure})
-                    bar.step()
-    return rows
+def _observed_point(item):
+    """One point of the map: the predicted radius and the observed co-simulation."""
+    from orchestration.parallel import worker_file
+    p, fmus, label, alg, first, e, H, wc, substep, n_steps = item
+    paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
+    c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
+    pred = spectral_radius(transition_matrix(p, c, float(H), algorithm=alg, first=first,
+                                             extrapolation=e, substep=substep))
+    obs, failure = observe_cosim(paths, alg, first, e, H, wc, n_steps, p.n_modes)
+    return {"scheme": label, "extrapolation": e, "H": float(H), "cutoff": float(wc),
+            "rho_predicted": pred, "rho_observed": obs, "agree": (obs < 1) == (pred < 1),
+            "failure": failure}
+
+
+def observed_map(p, Hs, cutoffs, substep, n_steps, ex, fmus):
+    """``fmus``: role -> (shipped name, path), see orchestration.parallel.worker_file."""
+    items = [(p, fmus, label, alg, first, e, float(H), float(wc), substep, n_steps)
+             for label, alg, first in SCHEMES for e in range(3) for H in Hs for wc in cutoffs]
+    return run_tasks(ex, _observed_point, items, "observed co-simulations")
 
 
 # ---------------------------------------------------------------------- 2. substep limits
@@ -182,29 +211,33 @@ def observe_substep(method, p, h, max_steps=400, grow_stop=1e4):
     return (np.linalg.norm(w @ st.y) / a0) ** (1.0 / n)
 
 
-def substep_limits(modes, factors):
+def substep_limits(modes, factors, ex):
+    rows = run_tasks(ex, _substep_rows, [(n, method, tuple(factors)) for n in modes
+                                         for method in METHODS], "substep limits")
+    return [r for part in rows for r in part]
+
+
+def _substep_rows(item):
+    """The rows of one method at one n_modes."""
+    n, method, factors = item
     rows = []
-    bar = Bar("substep limits", len(modes) * len(METHODS))
-    for n in modes:
-        p = PlantParams(n_modes=n)
-        lam = highest_mode(p)
-        rk4 = integrator_step_limit("rk4", lam)
-        for method in METHODS:
-            hs = integrator_step_limit(method, lam)
-            pts = [(f, f * hs) for f in factors] if hs else [(None, 10 * rk4)]
-            if not factors:            # predicted limit only
-                rows.append({"n_modes": n, "method": method, "mode_re": lam.real,
-                             "mode_im": lam.imag, "h_limit": hs, "factor": None, "h": None,
-                             "rho_predicted": None, "rho_observed": None, "agree": None})
-                pts = []
-            for f, h in pts:
-                pred = substep_spectral_radius(method, lam, h)
-                obs = observe_substep(method, p, h)
-                rows.append({"n_modes": n, "method": method, "mode_re": lam.real,
-                             "mode_im": lam.imag, "h_limit": hs, "factor": f, "h": h,
-                             "rho_predicted": pred, "rho_observed": obs,
-                             "agree": (obs < 1) == (pred < 1)})
-            bar.step()
+    p = PlantParams(n_modes=n)
+    lam = highest_mode(p)
+    rk4 = integrator_step_limit("rk4", lam)
+    hs = integrator_step_limit(method, lam)
+    pts = [(f, f * hs) for f in factors] if hs else [(None, 10 * rk4)]
+    if not factors:            # predicted limit only
+        rows.append({"n_modes": n, "method": method, "mode_re": lam.real,
+                     "mode_im": lam.imag, "h_limit": hs, "factor": None, "h": None,
+                     "rho_predicted": None, "rho_observed": None, "agree": None})
+        pts = []
+    for f, h in pts:
+        pred = substep_spectral_radius(method, lam, h)
+        obs = observe_substep(method, p, h)
+        rows.append({"n_modes": n, "method": method, "mode_re": lam.real,
+                     "mode_im": lam.imag, "h_limit": hs, "factor": f, "h": h,
+                     "rho_predicted": pred, "rho_observed": obs,
+                     "agree": (obs < 1) == (pred < 1)})
     return rows
 
 
@@ -300,6 +333,11 @@ def main(argv=None):
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"), help="output folder")
     ap.add_argument("--no-observe", action="store_true",
                     help="predicted map and limits only (no co-simulations)")
+    ap.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="run the tasks on a dask LocalCluster of N processes (same numbers)")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the tasks on the dask cluster of this scheduler (its workers "
+                         "need this checkout at the same path)")
     args = ap.parse_args(argv)
     out = Path(args.out)
     try:
@@ -307,6 +345,24 @@ def main(argv=None):
     except OSError as exc:
         print(f"stability_map: --out {args.out!r} cannot be created: {exc}", file=sys.stderr)
         return 2
+    from orchestration.export import build_fmus
+    from orchestration.parallel import file_name, open_executor
+    built = build_fmus()
+    fmu_paths = {"plant": built["FlexiblePendulum"], "controller": built["PDLowPass"]}
+    fmus = {role: (file_name(path), str(path)) for role, path in fmu_paths.items()}
+    try:
+        ex = open_executor(args.workers, args.scheduler, paths=[str(Path(__file__).parent)],
+                           files=list(fmu_paths.values()))
+    except ValueError as exc:
+        print(f"stability_map: {exc}", file=sys.stderr)
+        return 2
+    log(f"running on {ex.describe()}" + (f"; dask dashboard {ex.dashboard}"
+                                         if ex.dashboard else ""))
+    with ex:
+        return _study(args, out, ex, fmus)
+
+
+def _study(args, out, ex, fmus):
     p = PlantParams(n_modes=4)
     substep = 2.5e-4
     if args.quick:
@@ -319,17 +375,17 @@ def main(argv=None):
         co = np.array([80.0, 120.0, 150.0, 200.0, 260.0])
         modes, factors = tuple(range(1, 9)), (0.9, 0.98, 1.02, 1.1)
     t0 = time.perf_counter()
-    crit = critical_steps(p, substep)
-    rho = predicted_map(p, Hs, cutoffs, substep)
+    crit = critical_steps(p, substep, ex)
+    rho = predicted_map(p, Hs, cutoffs, substep, ex)
     write_csv(out / "stability_map.csv", [
         {"scheme": lab, "extrapolation": e, "H": float(H), "cutoff": float(wc),
          "rho": float(rho[s, e, i, j])}
         for s, (lab, _, _) in enumerate(SCHEMES) for e in range(3)
         for i, H in enumerate(Hs) for j, wc in enumerate(cutoffs)])
-    observed = [] if args.no_observe else observed_map(p, Ho, co, substep, n_steps=120)
+    observed = [] if args.no_observe else observed_map(p, Ho, co, substep, 120, ex, fmus)
     if observed:
         write_csv(out / "stability_observed.csv", observed)
-    limits = substep_limits(modes, () if args.no_observe else factors)
+    limits = substep_limits(modes, () if args.no_observe else factors, ex)
     write_csv(out / "integrator_limits.csv", limits)
     plot_map(out / "stability_map.png", Hs, cutoffs, rho, observed, crit)
     plot_limits(out / "integrator_limits.png", limits, modes)
@@ -346,7 +402,7 @@ def main(argv=None):
         "cosim_points": len(observed), "cosim_agree": sum(r["agree"] for r in observed),
         "substep_points": sum(r["agree"] is not None for r in limits),
         "substep_agree": sum(bool(r["agree"]) for r in limits),
-        "wall_time_s": time.perf_counter() - t0,
+        "wall_time_s": time.perf_counter() - t0, "executor": ex.describe(),
     }
     (out / "stability_critical.json").write_text(json.dumps(summary, indent=2))
     print(json.dumps({k: summary[k] for k in ("critical_H_at_cutoff_150", "cosim_points",
@@ -361,4 +417,7 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run as the module ``stability_map`` (this folder is on sys.path), so that dask pickles
+    # its task functions by reference and the workers import them
+    import stability_map
+    sys.exit(stability_map.main())

@@ -6,6 +6,7 @@ project can simulate a scene, side by side with scipy's solve_ivp and with the F
     python bench/work_precision.py --runs 5 --scene rigid_pd --family "GS"
     python bench/work_precision.py --set plant.phi_limit=3   # an extra scene key on every
                                                              # point and the reference
+    python bench/work_precision.py --workers 2     # the points on a dask LocalCluster
 
 * **Error**: the largest absolute error of ``phi_o`` over the scene's output grid, against the
   monolithic reference (DOP853 at rtol = atol = 1e-12), see ``bench/common.py``. A run that fails
@@ -34,6 +35,11 @@ project can simulate a scene, side by side with scipy's solve_ivp and with the F
 
 Results: ``bench/results/work_precision[_quick].{csv,json,png}``; the terminal shows one line per
 point, then where each family sits on the Pareto front (error against time) of its scene.
+
+``--workers N`` (a dask LocalCluster) or ``--scheduler ADDRESS`` runs the points as tasks
+(``orchestration.parallel``), each on one core: the errors are the serial run's, number for
+number; the times are measured with N points running side by side, so they stand for one core
+only where N cores are free (on a shared machine, take the serial run's times).
 """
 from __future__ import annotations
 
@@ -172,13 +178,17 @@ def short(param: str) -> str:
 # running one point
 
 class Runner:
-    def __init__(self, runs: int, extra: list, max_seconds: float, flavour: str = "native"):
+    """Runs points. ``fmus``/``trivial``: the product's and the trivial FMUs (``{"plant": path,
+    "controller": path}``); ``refs``: references already solved, by :meth:`scene_for`'s key."""
+
+    def __init__(self, runs: int, extra: list, max_seconds: float, fmus=None, trivial=None,
+                 refs=None):
         self.runs = runs
         self.max_seconds = max_seconds
         self.extra = extra
-        self.fmus = product_fmus(flavour)
-        self.trivial = trivial_fmus()
-        self._refs = {}
+        self.fmus = fmus or product_fmus()
+        self.trivial = trivial or trivial_fmus()
+        self._refs = dict(refs or {})
         self._cosims = {}
 
     def scene_for(self, scene_name, fam: Family, value):
@@ -198,12 +208,29 @@ class Runner:
         ov = [*ov, *grid, *self.extra]
         return load_scene(scene_name, ov), ov, (scene_name, [*self.extra, *grid])
 
+    def ref_key(self, scene_name, fam: Family, value):
+        """The key of the point's reference (None for the trivial FMUs, which have none)."""
+        if fam.kind == "trivial":
+            return None
+        name, ov = self.scene_for(scene_name, fam, value)[2]
+        return (name, tuple(ov))
+
     def ref(self, key):
         name, ov = key
         k = (name, tuple(ov))
         if k not in self._refs:
             self._refs[k] = reference(load_scene(name, ov))
         return self._refs[k]
+
+    def point(self, scene_name, fam: Family, value):
+        """:meth:`run`, with a sweep value the scene refuses recorded as a failed point."""
+        try:
+            return self.run(scene_name, fam, value)
+        except ConfigError as exc:
+            return dict(scene=scene_name, group=fam.group, family=fam.name, kind=fam.kind,
+                        method=fam.method, param=fam.param, value=value, settings="",
+                        median_s=math.nan, all_s=[], error=math.inf, ok=False, runs=0,
+                        message=f"ConfigError: {exc}", stats={})
 
     def run(self, scene_name, fam: Family, value):
         """The record of one point."""
@@ -282,6 +309,43 @@ class Runner:
 class _Failure:
     seconds: float
     message: str
+
+
+# ---------------------------------------------------------------------------------------------
+# the points as tasks (orchestration.parallel): here one after the other, or on dask workers
+
+#: a worker's Runner, made at its first point (keeps its loaded FMUs' extraction and references)
+_RUNNER: dict = {}
+
+
+def _families_by_name():
+    return {f.name: f for f in all_families()}
+
+
+def _reference_task(key):
+    """``(key, reference)``, or ``(key, None)`` for a reference scene the scene refuses (its
+    points then fail with that message, as in :meth:`Runner.point`)."""
+    name, ov = key
+    try:
+        return key, reference(load_scene(name, list(ov)))
+    except ConfigError:
+        return key, None
+
+
+def _point_task(item):
+    """One point: ``(scene, family name, value, setup, {reference key: reference})``."""
+    scene, family, value, setup, refs = item
+    from orchestration.parallel import worker_file
+    k = (setup["runs"], tuple(setup["extra"]), setup["max_seconds"])
+    if _RUNNER.get("key") != k:
+        def local(fmus):
+            return {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
+        _RUNNER.update(key=k, runner=Runner(setup["runs"], list(setup["extra"]),
+                                            setup["max_seconds"], local(setup["fmus"]),
+                                            local(setup["trivial"])))
+    runner = _RUNNER["runner"]
+    runner._refs.update(refs)
+    return runner.point(scene, _families_by_name()[family], value)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -506,7 +570,17 @@ def main(argv=None):
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="an extra scene override on every point and on the reference "
                          "(repeatable); family settings come first, so it overrides them")
+    ap.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                    help="run the points on a dask LocalCluster of N processes (the same "
+                         "errors; times measured side by side, so only with free cores)")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the points on the dask cluster of this scheduler (its workers "
+                         "need this checkout at the same path)")
+    ap.add_argument("--out", default=None, metavar="DIR",
+                    help="output folder (default: bench/results)")
     args = ap.parse_args(argv)
+    if args.workers and args.scheduler:
+        _die("give --workers or --scheduler, not both")
     runs = args.runs or (1 if args.quick else 3)
     scenes = args.scene or list(SCENES)
     for s in scenes:
@@ -531,8 +605,9 @@ def main(argv=None):
     which = 1 if args.quick else 0
     plan = [(s, f, v) for s in scenes for f in fams for v in f.values[which]]
 
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    stem = RESULTS / ("work_precision_quick" if args.quick else "work_precision")
+    results = Path(args.out) if args.out else RESULTS
+    results.mkdir(parents=True, exist_ok=True)
+    stem = results / ("work_precision_quick" if args.quick else "work_precision")
     command = "python bench/work_precision.py " + " ".join(
         argv if argv is not None else sys.argv[1:])
     meta = {"command": command.strip(), "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
@@ -549,24 +624,53 @@ def main(argv=None):
     print(f"work-precision: {len(plan)} points, {runs} runs each after a warm-up; "
           f"load average {' '.join(f'{x:.2f}' for x in meta['load_average_start'])}", flush=True)
 
-    runner = Runner(runs, args.set, MAX_POINT_SECONDS[which], args.fmus)
-    records = []
+    from orchestration.parallel import file_name, open_executor
+    fmus, trivial = product_fmus(args.fmus), trivial_fmus()
+    setup = {"runs": runs, "extra": list(args.set), "max_seconds": MAX_POINT_SECONDS[which],
+             "fmus": {k: (file_name(p), str(p)) for k, p in fmus.items()},
+             "trivial": {k: (file_name(p), str(p)) for k, p in trivial.items()}}
+    runner = Runner(runs, args.set, MAX_POINT_SECONDS[which], fmus, trivial)
+    records = [None] * len(plan)
     t_start = time.perf_counter()
-    for i, (scene, fam, value) in enumerate(plan, 1):
-        try:
-            rec = runner.run(scene, fam, value)
-        except ConfigError as exc:      # a sweep value the scene refuses: a failed point
-            rec = dict(scene=scene, group=fam.group, family=fam.name, kind=fam.kind,
-                       method=fam.method, param=fam.param, value=value, settings="",
-                       median_s=math.nan, all_s=[], error=math.inf, ok=False, runs=0,
-                       message=f"ConfigError: {exc}", stats={})
-        records.append(rec)
-        status = ("floor" if rec["kind"] == "trivial" else f"err {rec['error']:9.2e}") \
-            if rec["ok"] else "FAILED"
-        print(f"[{i:3d}/{len(plan)}] {scene:<20} {fam.name:<28} {fam.param}={fmt(value):<7} "
-              f"{status:<13} {rec['median_s']:8.4f} s  (x{rec['runs']}, "
-              f"{time.perf_counter() - t_start:6.0f} s elapsed)"
-              + (f"  {rec['message'][:120]}" if not rec["ok"] else ""), flush=True)
+    try:
+        ex = open_executor(args.workers, args.scheduler, paths=[str(Path(__file__).parent)],
+                           files=[*fmus.values(), *trivial.values()])
+    except ValueError as exc:
+        _die(str(exc))
+    meta["executor"] = ex.describe()
+    if ex.kind != "serial":
+        print(f"on {ex.describe()}: the errors are those of the serial run; the times are "
+              "measured with the workers running side by side" + (f"; dask dashboard "
+              f"{ex.dashboard}" if ex.dashboard else ""), flush=True)
+    with ex:
+        # the references first (each solved once), then every point with the ones it needs
+        ref_keys = list(dict.fromkeys(k for s, f, v in plan
+                                      if (k := runner.ref_key(s, f, v)) is not None))
+        refs = {}
+        for _, v in ex.map(_reference_task, ref_keys):
+            if not isinstance(v, tuple):
+                _die(f"a reference was lost with its worker: {v.message}")
+            if v[1] is not None:
+                refs[v[0]] = v[1]
+        items = []
+        for s, f, v in plan:
+            k = runner.ref_key(s, f, v)
+            items.append((s, f.name, v, setup, {k: refs[k]} if k in refs else {}))
+        for n, (i, rec) in enumerate(ex.map(_point_task, items), 1):
+            if not isinstance(rec, dict):       # a lost task (its worker died)
+                scene, fam, value = plan[i]
+                rec = dict(scene=scene, group=fam.group, family=fam.name, kind=fam.kind,
+                           method=fam.method, param=fam.param, value=value, settings="",
+                           median_s=math.nan, all_s=[], error=math.inf, ok=False, runs=0,
+                           message=f"lost: {rec.message}", stats={})
+            records[i] = rec
+            scene, fam, value = plan[i]
+            status = ("floor" if rec["kind"] == "trivial" else f"err {rec['error']:9.2e}") \
+                if rec["ok"] else "FAILED"
+            print(f"[{n:3d}/{len(plan)}] {scene:<20} {fam.name:<28} {fam.param}={fmt(value):<7} "
+                  f"{status:<13} {rec['median_s']:8.4f} s  (x{rec['runs']}, "
+                  f"{time.perf_counter() - t_start:6.0f} s elapsed)"
+                  + (f"  {rec['message'][:120]}" if not rec["ok"] else ""), flush=True)
 
     meta["load_average_end"] = list(os.getloadavg())
     meta["total_seconds"] = time.perf_counter() - t_start
@@ -592,11 +696,14 @@ def main(argv=None):
     plot(records, scenes, stem.with_suffix(".png"),
          f"{meta['command']}  (commit {meta['commit']}, {runs} runs, load average "
          f"{la[0]:.2f} at start)")
-    print(f"\nwrote {stem.relative_to(ROOT)}.csv, .json, .png  "
+    print(f"\nwrote {stem}.csv, .json, .png  "
           f"({meta['total_seconds']:.0f} s; load average at end "
           f"{' '.join(f'{x:.2f}' for x in meta['load_average_end'])})")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run as the module ``work_precision`` (this folder is on sys.path), so that dask pickles
+    # its task functions by reference and the workers import them
+    import work_precision
+    sys.exit(work_precision.main())

@@ -2,7 +2,10 @@
 
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
-    flexpend design [--set key=value ...] [--json] [--out DIR]   robust low-pass filter design
+    flexpend design [--set key=value ...] [--json] [--out DIR] [--workers N | --scheduler ADDR]
+                                                        robust low-pass filter design
+    flexpend sweep SCENE [--grid ...] [--values ...] [--sample ... --samples N] [--workers N]
+                                                        many runs, on dask.distributed
     flexpend build [--force] [--out DIR] [--fmus F]     build the FMUs (pythonfmu, native)
     flexpend scenes                                     list the scenes
     flexpend export SCENE [--fmus python|native] [--out FILE.ssp]   the scene as an SSP archive
@@ -143,7 +146,12 @@ def cmd_design(args) -> int:
     settings = design_settings(cfg)
     p, c = plant_params(cfg), controller_params(cfg)
     out_dir = _output_dir(args.out)
-    r = design_filter(p, c, settings, progress=Progress("design"))
+    workers, scheduler = _executor_args(args)
+    if workers is None and not scheduler:
+        r = design_filter(p, c, settings, progress=Progress("design"))
+    else:                          # the check grid's closed loops as dask tasks
+        with _open_executor(workers, scheduler) as ex:
+            r = design_filter(p, c, settings, progress=Progress("design"), executor=ex)
     crit = r.criterion
     ylabel = ("worst-case decay rate -max Re(lambda) (1/s)" if crit == "decay"
               else "worst-case damping ratio")
@@ -509,6 +517,119 @@ def cmd_check(args) -> int:
     return 0 if report.passed else EXIT_FAILED
 
 
+def _executor_args(args):
+    """``(workers, scheduler)`` for :func:`orchestration.parallel.open_executor`."""
+    if args.workers is not None and args.workers < 1:
+        raise UsageError(f"--workers {args.workers} is not allowed; allowed: an integer >= 1")
+    if args.workers is not None and args.scheduler:
+        raise UsageError("--workers starts a LocalCluster, --scheduler uses an existing one: "
+                         "give one of them")
+    return args.workers, args.scheduler
+
+
+def _open_executor(workers, scheduler, files=()):
+    from .parallel import open_executor
+    try:
+        ex = open_executor(workers, scheduler, files=files)
+    except ValueError as exc:                # an unreachable scheduler
+        raise UsageError(str(exc)) from None
+    print(f"running on {ex.describe()}", file=sys.stderr)
+    note = getattr(ex, "dashboard_note", lambda: None)()
+    if note:
+        print(note, file=sys.stderr)
+    return ex
+
+
+def cmd_sweep(args) -> int:
+    from pathlib import Path
+
+    from .parallel import default_workers
+    from .sweep import (design_worst_case, fmus_for, pending, plan_sweep, run_sweep,
+                        sweep_stats)
+
+    if args.serial and (args.workers is not None or args.scheduler):
+        raise UsageError("--serial runs here, without dask: it takes no --workers or --scheduler")
+    if args.batch < 1:
+        raise UsageError(f"--batch {args.batch} is not allowed; allowed: an integer >= 1")
+    workers, scheduler = _executor_args(args)
+    plan = plan_sweep(args.scene, grids=args.grid, values=args.values, samples=args.sample,
+                      n_samples=args.samples, seed=args.seed, overrides=args.set,
+                      reference=args.reference)
+    out_dir = Path(args.out)
+    todo = pending(plan, out_dir, args.retry_failed)
+    done = len({p.key for p in plan.points}) - todo
+    _output_dir(args.out)
+    print(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
+          + (f", {done} already finished in {out_dir}" if done else ""), file=sys.stderr)
+    fmus = fmus_for(plan)
+    if args.serial or todo == 0:
+        from .parallel import Executor
+        executor = Executor()
+    else:
+        if workers is None and not scheduler:
+            workers = min(default_workers(), todo)
+        executor = _open_executor(workers, scheduler,
+                                  files=[f for pair in fmus.values() for f in pair.values()])
+    try:
+        with executor:
+            res = run_sweep(plan, fmus, out_dir, executor, batch=args.batch,
+                            retry_failed=args.retry_failed)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted: the finished runs are in {out_dir / 'runs.jsonl'}; the same "
+              "command continues the sweep", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    stats = sweep_stats(res.rows)
+    design = design_worst_case(plan)
+    if design is not None:
+        stats["design_worst_case"] = design.to_json()
+    meta = {"command": "flexpend " + " ".join(sys.argv[1:]) if args.argv is None else
+            "flexpend " + " ".join(args.argv),
+            **plan.describe(), "executor": executor.describe(), "batch": args.batch,
+            "ran": res.ran, "skipped": res.skipped, "seconds": res.seconds, "stats": stats,
+            "table": str(res.table), "plot": None if res.plot is None else str(res.plot)}
+    (out_dir / "sweep.json").write_text(json.dumps(_json_safe(meta), indent=2))
+    if args.json:
+        print(json.dumps(_json_safe(meta), indent=2))
+    else:
+        _print_sweep(plan, res, stats, executor)
+    return 1 if stats["lost"] else 0
+
+
+def _print_sweep(plan, res, stats, executor):
+    print(f"{plan.scene.name}: {stats['runs']} runs: {stats['ok']} ok, {stats['failed']} failed"
+          + (f", {stats['lost']} lost (their workers died; rerun the same command to retry "
+             "them)" if stats["lost"] else "")
+          + (f"; {res.ran} ran in {res.seconds:.1f} s on {executor.describe()}" if res.ran
+             else "; 0 ran")
+          + (f", {res.skipped} were already done" if res.skipped else ""))
+    if stats["stable_fraction"] is not None:
+        print(f"  stable: {stats['stable']} of {stats['ok'] + stats['failed']} finished runs "
+              f"({100 * stats['stable_fraction']:.1f} %); unstable {stats['unstable']}, no "
+              f"verdict {stats['no_verdict']} (stopped early, or no reliable fit)"
+              + (f"; {stats['invalid']} left the model's range" if stats["invalid"] else ""))
+    if "worst_decay_rate" in stats:
+        worst = res.rows[stats["worst_run"]]
+        where = ", ".join(f"{k} = {_fmt(worst[k]) if isinstance(worst[k], float) else worst[k]}"
+                          for k in plan.keys)
+        print(f"  decay rate -max(fitted rate): worst {stats['worst_decay_rate']:+.4g} 1/s "
+              f"(run {stats['worst_run']}: {where}), median {stats['median_decay_rate']:+.4g}, "
+              f"best {stats['best_decay_rate']:+.4g}")
+    if "worst_linear_decay_rate" in stats:
+        print(f"  linearised loop over the same runs: worst decay rate "
+              f"{stats['worst_linear_decay_rate']:+.4g} 1/s (run {stats['worst_linear_run']})")
+    if "design_worst_case" in stats:
+        w = stats["design_worst_case"]
+        at = ", ".join(f"{k} = {_fmt(v)}" for k, v in w["decay_rate_at"].items())
+        print(f"  flexpend design's worst case over the uncertainty set (linear, {w['plants']} "
+              f"plants): {w['decay_rate']:+.4g} 1/s at {at}")
+    failed = [r for r in res.rows if r["status"] != "ok"]
+    for r in failed[:3]:
+        print(f"  run {r['run']} {r['status']}: {(r['message'] or '')[:160]}")
+    if len(failed) > 3:
+        print(f"  ... {len(failed) - 3} more (the table has every message)")
+    print(f"  wrote {res.table}" + (f", {res.plot}" if res.plot else ""))
+
+
 def scene_beam(scene):
     from plant_fmu.beam import beam_model
     return beam_model(scene.plant)
@@ -561,6 +682,11 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a key, e.g. controller.kd=6 or design.criterion=damping")
     pd.add_argument("--out", default="out", help="output folder (default: out)")
     pd.add_argument("--json", action="store_true", help="print the result as JSON")
+    pd.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="check the chosen filter's worst case on a dask LocalCluster of N "
+                         "processes (default: here; worth it for a fine design.check_levels)")
+    pd.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="check it on the dask cluster of this scheduler")
     pd.set_defaults(func=cmd_design)
 
     pr = sub.add_parser("run", help="co-simulate scenes (default: the paper's three)",
@@ -586,6 +712,43 @@ def build_parser() -> argparse.ArgumentParser:
     pb.add_argument("--fmus", choices=("native", "python"), default=None,
                     help="build only this flavour (default: both)")
     pb.set_defaults(func=cmd_build)
+
+    pw = sub.add_parser("sweep", help="many runs of a scene over a grid or a random sample, "
+                                      "on dask.distributed",
+                        description="Co-simulate a scene over a grid of keys and/or random "
+                                    "samples, on a dask LocalCluster (or --scheduler); write "
+                                    "<out>/sweep.parquet (or .csv), sweep.png, sweep.json, and "
+                                    "runs.jsonl (rerunning into the same --out skips the runs "
+                                    "already finished).")
+    pw.add_argument("scene", metavar="SCENE", help="scene name or path to a .toml file")
+    pw.add_argument("--grid", action="append", default=[], metavar="KEY=START:STOP:NUM[:log]",
+                    help="NUM values of a scene key from START to STOP (geometric with :log)")
+    pw.add_argument("--values", action="append", default=[], metavar="KEY=V1,V2,...",
+                    help="a list of values of a scene key")
+    pw.add_argument("--sample", action="append", default=[], metavar="KEY=DIST",
+                    help="random values: design (the key's range in flexpend design's "
+                         "uncertainty set; '--sample design' samples its four keys), "
+                         "uniform:LO:HI, loguniform:LO:HI, normal:MEAN:SD, integers:LO:HI")
+    pw.add_argument("--samples", type=int, default=None, metavar="N",
+                    help="number of random samples")
+    pw.add_argument("--seed", type=int, default=None, metavar="S",
+                    help="seed of the samples (default 0)")
+    pw.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a fixed scene key (or a design.* key of the uncertainty set)")
+    pw.add_argument("--reference", action="store_true",
+                    help="also solve each run's monolithic reference and report the error")
+    pw.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="worker processes of the LocalCluster (default: one per core)")
+    pw.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="use the dask cluster of this scheduler, e.g. tcp://host:8786")
+    pw.add_argument("--serial", action="store_true", help="run here, one run after the other")
+    pw.add_argument("--batch", type=int, default=1, metavar="N",
+                    help="runs per dask task (batch short runs; default 1)")
+    pw.add_argument("--retry-failed", action="store_true",
+                    help="rerun the runs that failed in an earlier sweep into the same --out")
+    pw.add_argument("--out", default="out/sweep", help="output folder (default: out/sweep)")
+    pw.add_argument("--json", action="store_true", help="print the sweep's record as JSON")
+    pw.set_defaults(func=cmd_sweep)
 
     ps = sub.add_parser("scenes", help="list the scenes")
     ps.set_defaults(func=cmd_scenes)
@@ -636,6 +799,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
+        args.argv = None if argv is None else list(argv)
         return args.func(args)
     except (UsageError, ConfigError) as exc:
         print(f"flexpend: error: {exc}", file=sys.stderr)

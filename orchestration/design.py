@@ -33,7 +33,8 @@ from .analysis import _drift_free, assemble_closed_loop
 from .config import ConfigError
 
 __all__ = ["DESIGN_DEFAULTS", "CRITERIA", "UncertaintySet", "RobustLoop", "WorstCase",
-           "DesignResult", "design_settings", "design_filter", "root_locus", "FILTER_KEYS"]
+           "DesignResult", "design_settings", "design_filter", "root_locus", "FILTER_KEYS",
+           "worst_cases"]
 
 #: Scores of a candidate filter: the worst-case decay rate or the worst-case damping ratio.
 CRITERIA = ("decay", "damping")
@@ -125,6 +126,25 @@ class UncertaintySet:
         return [self.nominal.replace(n_modes=n, zeta=z, EI=e, m=m)
                 for n, z, e, m in itertools.product(*ax.values())]
 
+    def sample(self, rng: np.random.Generator, n: int) -> dict:
+        """``n`` random beams of the set, ``{"n_modes": [...], "zeta": [...], "EI": [...],
+        "m": [...]}``: ``n_modes`` uniform over its integers, the damping log-uniform (the grid
+        spaces it geometrically), ``EI`` and ``m`` uniform within their spreads.
+
+        Beam ``i`` is made from the ``i``-th row of ``rng.random((n, 4))``, so the first ``k``
+        of ``n`` samples are the ``k`` samples of the same seed (a sample can be extended)."""
+        u = rng.random((int(n), 4))
+        lo, hi = self.n_modes
+        modes = np.minimum(lo + np.floor(u[:, 0] * (hi - lo + 1)), hi).astype(int)
+        z0, z1 = self.zeta
+        zeta = (np.exp(np.log(z0) + u[:, 1] * (np.log(z1) - np.log(z0))) if z0 > 0
+                else z0 + u[:, 1] * (z1 - z0))
+        p = self.nominal
+        return {"n_modes": [int(v) for v in modes], "zeta": [float(v) for v in zeta],
+                "EI": [float(p.EI * (1 - self.EI_spread + 2 * self.EI_spread * v))
+                       for v in u[:, 2]],
+                "m": [float(p.m * (1 - self.m_spread + 2 * self.m_spread * v)) for v in u[:, 3]]}
+
     def describe(self) -> dict:
         return {"n_modes": list(self.n_modes), "zeta": list(self.zeta),
                 "EI": [self.nominal.EI * (1 - self.EI_spread), self.nominal.EI * (1 + self.EI_spread)],
@@ -196,6 +216,49 @@ class RobustLoop:
         return WorstCase(d, z, dp, zp, dr, zr, self.n_plants)
 
 
+def _worst_of_chunk(task):
+    plants, controllers = task
+    loop = RobustLoop(plants)
+    return [loop.worst(c) for c in controllers]
+
+
+def worst_cases(plants, controllers, executor=None, chunks: int | None = None) -> list:
+    """:meth:`RobustLoop.worst` of each of ``controllers`` over ``plants``.
+
+    Without ``executor``, one :class:`RobustLoop` here. With one
+    (:mod:`orchestration.parallel`), the plants, ordered as a :class:`RobustLoop` orders them
+    (by ``n_modes``, stably), are cut into ``chunks`` contiguous pieces (default: 4 per worker)
+    run as tasks, and the pieces' worst cases are merged in order, keeping the first of equal
+    values: each closed loop's eigenvalues are computed alone, so the result is the serial one,
+    number for number."""
+    plants, controllers = list(plants), list(controllers)
+    if executor is None:
+        return _worst_of_chunk((plants, controllers))
+    plants.sort(key=lambda p: p.n_modes)
+    n = max(1, min(len(plants), chunks or 4 * max(1, executor.workers)))
+    bounds = np.linspace(0, len(plants), n + 1).round().astype(int)
+    tasks = [(plants[a:b], controllers) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+    parts = [None] * len(tasks)
+    for i, value in executor.map(_worst_of_chunk, tasks):
+        if not isinstance(value, list):      # a lost task: no partial worst case
+            raise RuntimeError(f"design check grid: a task was lost: {value.message}")
+        parts[i] = value
+    out = []
+    for k in range(len(controllers)):
+        best = parts[0][k]
+        decay = (best.decay, best.decay_plant, best.decay_root)
+        damping = (best.damping, best.damping_plant, best.damping_root)
+        for part in parts[1:]:
+            w = part[k]
+            if w.decay < decay[0]:
+                decay = (w.decay, w.decay_plant, w.decay_root)
+            if w.damping < damping[0]:
+                damping = (w.damping, w.damping_plant, w.damping_root)
+        out.append(WorstCase(decay[0], damping[0], decay[1], damping[1], decay[2], damping[2],
+                             sum(part[k].n_plants for part in parts)))
+    return out
+
+
 def _filter(base: ControllerParams, order: int, cutoff: float, damping: float) -> ControllerParams:
     return base.replace(filter_order=order, cutoff=float(cutoff), filter_damping=float(damping))
 
@@ -243,13 +306,14 @@ class DesignResult:
 
 
 def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
-                  progress=None) -> DesignResult:
+                  progress=None, executor=None) -> DesignResult:
     """Search the filter with the largest worst-case score (see the module's docstring).
 
     ``nominal`` fixes the beam around which ``EI`` and ``m`` vary (its ``n_modes`` and ``zeta``
     are replaced by the uncertainty set's); ``base`` holds the PD gains; ``settings`` are the
     validated ``design.*`` keys (:func:`design_settings`); ``progress(fraction)`` is called as the
-    grid is evaluated.
+    grid is evaluated. ``executor`` (:mod:`orchestration.parallel`) runs the check grid's closed
+    loops as tasks (:func:`worst_cases`: the same numbers as without it).
     """
     s = settings
     crit = s["design.criterion"]
@@ -274,8 +338,7 @@ def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
             return math.inf
         return -search.worst(_filter(base, order, wc, zf)).score(crit)
 
-    check = RobustLoop(uset.plants(s["design.check_levels"]))
-    per_order = {}
+    chosen_per_order = {}
     for order in (1, 2):
         rows = [r for r in grid if r[0] == order]
         _, wc, zf, *_ = max(rows, key=lambda r: r[score])
@@ -284,14 +347,18 @@ def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
                                       options={"xatol": 1e-3, "fatol": 1e-6, "maxiter": 200,
                                                "initial_simplex": _simplex(x0)})
         x = opt.x if opt.fun <= neg_score(order, x0) else np.asarray(x0)
-        c = _filter(base, *_round(order, math.exp(x[0]), x[1] if order == 2 else zf))
-        per_order[order] = (c, check.worst(c))
+        chosen_per_order[order] = _filter(base, *_round(order, math.exp(x[0]),
+                                                        x[1] if order == 2 else zf))
+    # the check grid, which the search did not see: the best of each order and the baselines
+    checked = [chosen_per_order[1], chosen_per_order[2], base.replace(filter_order=0), base]
+    w1, w2, w_none, w_given = worst_cases(uset.plants(s["design.check_levels"]), checked,
+                                          executor)
+    per_order = {1: (checked[0], w1), 2: (checked[1], w2)}
     if progress is not None:
         progress(0.95)
     chosen_order = max(per_order, key=lambda o: per_order[o][1].score(crit))
     chosen, worst = per_order[chosen_order]
-    baseline = {"no filter": (base.replace(filter_order=0), check.worst(base.replace(filter_order=0))),
-                "given": (base, check.worst(base))}
+    baseline = {"no filter": (checked[2], w_none), "given": (checked[3], w_given)}
     # worst case against cutoff: 1st order, 2nd order at the chosen damping and at the best one
     sweep = {"1st order": (cutoffs, [r[score] for r in grid if r[0] == 1])}
     best_zf = [max((r for r in grid if r[0] == 2 and r[1] == wc), key=lambda r: r[score])[score]

@@ -97,7 +97,7 @@ class SceneResult:
 
 def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = True,
               connections_out=None, stop=None,
-              snapshot_times=None) -> SceneResult:
+              snapshot_times=None, unzipdirs: dict | None = None) -> SceneResult:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
 
     A scene with ``plant.n_modes`` or ``plant.fidelity`` ``"auto"`` gets its model chosen first
@@ -108,7 +108,8 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     reached; the summary's ``stopped`` says when and why. ``stop``: a callable asked after every
     communication step (Ctrl-C); when it returns True the run ends the same way and the result's
     ``interrupted`` is True. The FMUs are terminated and freed, and their unpacked folders
-    removed, however the run ends."""
+    removed, however the run ends; ``unzipdirs`` (same keys as ``fmus``): folders where the FMUs
+    are already unpacked, reused and left as they are (a sweep unpacks once per process)."""
     model = None
     if needs_selection(scene):
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
@@ -117,9 +118,12 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     try:
-        slaves["plant"] = Slave(fmus["plant"], "plant", plant_start_values(scene))
+        dirs = unzipdirs or {}
+        slaves["plant"] = Slave(fmus["plant"], "plant", plant_start_values(scene),
+                                unzipdir=dirs.get("plant"))
         slaves["controller"] = Slave(fmus["controller"], "controller",
-                                     controller_start_values(scene))
+                                     controller_start_values(scene),
+                                     unzipdir=dirs.get("controller"))
         try:
             master = Master(slaves, [parse_connection(c) for c in cfg["connections"]], RECORD,
                             algorithm=cfg["master.algorithm"], first=cfg["master.first"],
