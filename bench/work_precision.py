@@ -206,7 +206,9 @@ class Runner:
             if key == "master.step" and factor * value > base["output_interval"]:
                 grid.append(f"output_interval={factor * value!r}")
         ov = [*ov, *grid, *self.extra]
-        return load_scene(scene_name, ov), ov, (scene_name, [*self.extra, *grid])
+        # the reference is monolithic: its scene only needs a master step that fits its grid
+        ref_ov = [*self.extra, *grid, *(f"master.step={g.split('=')[1]}" for g in grid)]
+        return load_scene(scene_name, ov), ov, (scene_name, ref_ov)
 
     def ref_key(self, scene_name, fam: Family, value):
         """The key of the point's reference (None for the trivial FMUs, which have none)."""

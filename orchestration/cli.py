@@ -129,8 +129,6 @@ def _filter_text(order, cutoff, damping) -> str:
 
 
 def cmd_design(args) -> int:
-    from pathlib import Path
-
     import numpy as np
 
     from . import plots

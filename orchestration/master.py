@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import functools
 import math
-import sys
 import time as _time
 from dataclasses import dataclass, field
 

@@ -158,7 +158,7 @@ class PlantModel:
     def energy_numpy(self, x: np.ndarray) -> float:
         """Total energy ``T + V`` (kinetic, gravity, strain and, with preload, foreshortening)."""
         nq = self.nq
-        xc, phi, eta = x[0], x[1], x[2:nq]
+        phi, eta = x[1], x[2:nq]
         xd, phid, etad = x[nq], x[nq + 1], x[nq + 2:]
         c, s = math.cos(phi), math.sin(phi)
         I3eta, I3etad = float(self.I3 @ eta), float(self.I3 @ etad)
@@ -196,7 +196,7 @@ class PlantModel:
     # ------------------------------------------------------------------ linear model
     def linearize(self):
         """``(M0, D0, K0)`` of ``M0 qdd + D0 qd + K0 q = e_x F_c`` at the upright rest state."""
-        n, nq = self.n, self.nq
+        nq = self.nq
         M0 = self.mass_matrix(np.zeros(nq))
         D0 = np.zeros((nq, nq))
         D0[2:, 2:] = np.diag(self.Ddiag)
