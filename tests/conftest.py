@@ -48,6 +48,7 @@ class FmuInstance:
         self.md = read_model_description(unzipdir)
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.logs = []
+        self.init_status = None
 
         def logger(env, name, status, category, message):
             self.logs.append((status, (category or b"").decode(), message.decode()))
@@ -66,9 +67,18 @@ class FmuInstance:
         if initialize:
             self.initialize()
 
-    def initialize(self):
+    def initialize(self) -> int:
+        """Enter and exit initialisation mode; the status of ``fmi2ExitInitializationMode`` (0,
+        or 3 after a bad parameter, which the FMU logs and then refuses every step with)."""
+        from fmpy.fmi1 import FMICallException
+
         self.fmu.enterInitializationMode()
-        self.fmu.exitInitializationMode()
+        try:
+            self.fmu.exitInitializationMode()
+            self.init_status = 0
+        except FMICallException as exc:
+            self.init_status = exc.status
+        return self.init_status
 
     def vr(self, *names):
         return [self.vars[n].valueReference for n in names]
