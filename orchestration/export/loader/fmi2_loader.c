@@ -166,13 +166,7 @@ static struct {
 } G;
 
 /* the exception reported by guard.cpp during the current call of this thread */
-static
-#if defined(_WIN32)
-__declspec(thread)
-#else
-_Thread_local
-#endif
-char tls_exception[512];
+static _Thread_local char tls_exception[512];
 
 /* ------------------------------------------------------------------------------------------ *
  * Small portability layer: a process-wide lock, the loader's own path, libraries, threads.
@@ -417,7 +411,7 @@ static const char *var_name(const Table *t, unsigned vr)
 /* ------------------------------------------------------------------------------------------ *
  * Instances
  * ------------------------------------------------------------------------------------------ */
-enum { ST_INSTANTIATED = 1, ST_INIT = 2, ST_STEPPING = 4, ST_TERMINATED = 8, ST_BROKEN = 16 };
+enum { FLX_INSTANTIATED = 1, FLX_INIT = 2, FLX_STEPPING = 4, FLX_TERMINATED = 8, FLX_BROKEN = 16 };
 
 typedef struct {
     unsigned magic;
@@ -500,10 +494,10 @@ static Instance *get(fmi2Component c) { return (c && ((Instance *)c)->magic == F
 static int allowed(Instance *inst, const char *fn, int mask)
 {
     if (inst->state & mask) return 1;
-    const char *now = inst->state == ST_INSTANTIATED ? "instantiated (before fmi2EnterInitializationMode)"
-                    : inst->state == ST_INIT ? "in initialization mode"
-                    : inst->state == ST_STEPPING ? "initialized (stepping)"
-                    : inst->state == ST_TERMINATED ? "terminated"
+    const char *now = inst->state == FLX_INSTANTIATED ? "instantiated (before fmi2EnterInitializationMode)"
+                    : inst->state == FLX_INIT ? "in initialization mode"
+                    : inst->state == FLX_STEPPING ? "initialized (stepping)"
+                    : inst->state == FLX_TERMINATED ? "terminated"
                     : "unusable after an internal error (free it)";
     logf_(inst, fmi2Error, "%s is not allowed: the instance is %s", fn, now);
     return 0;
@@ -1027,13 +1021,13 @@ static fmi2Status finish(Instance *inst, const char *fn, fmi2Status s)
 {
     if (tls_exception[0]) {
         logf_(inst, fmi2Error, "%s; the instance cannot be used any more", tls_exception);
-        inst->state = ST_BROKEN;
+        inst->state = FLX_BROKEN;
         return fmi2Error;
     }
     if (s >= fmi2Fatal) {
         logf_(inst, fmi2Error, "%s failed inside the FMU's Python code (see the message above); "
               "the instance cannot be used any more: free it", fn);
-        inst->state = ST_BROKEN;
+        inst->state = FLX_BROKEN;
         return fmi2Error;
     }
     if (inst->worst >= fmi2Error && s < fmi2Error) return fmi2Error;
@@ -1075,7 +1069,7 @@ static int check_vrs(Instance *inst, const char *fn, const fmi2ValueReference vr
                       "set", fn, var_name(t, vr[i]), vr[i]);
                 return 0;
             }
-            if (c == 'p' && !(inst->state & (ST_INSTANTIATED | ST_INIT))) {
+            if (c == 'p' && !(inst->state & (FLX_INSTANTIATED | FLX_INIT))) {
                 logf_(inst, fmi2Error, "%s: parameter %s is fixed: it can be set only before "
                       "fmi2ExitInitializationMode", fn, var_name(t, vr[i]));
                 return 0;
@@ -1172,7 +1166,7 @@ FLX_EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuTy
         return NULL;
     }
     inst->inner = inner;
-    inst->state = ST_INSTANTIATED;
+    inst->state = FLX_INSTANTIATED;
     return inst;
 }
 
@@ -1199,7 +1193,7 @@ FLX_EXPORT void fmi2FreeInstance(fmi2Component c)
     Instance *inst = get(c);
     if (!inst) return;
     begin(inst);
-    if (inst->state != ST_BROKEN) {
+    if (inst->state != FLX_BROKEN) {
         free_states_of(inst);
         flx_guard_free(G.fmu.free_instance, inst->inner);
     }
@@ -1242,7 +1236,7 @@ FLX_EXPORT fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolerance
                                           fmi2Boolean stopTimeDefined, fmi2Real stopTime)
 {
     INSTANCE(fmi2SetupExperiment)
-    if (!allowed(inst, "fmi2SetupExperiment", ST_INSTANTIATED)) return fmi2Error;
+    if (!allowed(inst, "fmi2SetupExperiment", FLX_INSTANTIATED)) return fmi2Error;
     if (!isfinite(startTime) || (toleranceDefined && !(tolerance > 0 && isfinite(tolerance))) ||
         (stopTimeDefined && !(stopTime >= startTime))) {
         logf_(inst, fmi2Error, "fmi2SetupExperiment: startTime must be finite, a defined "
@@ -1259,41 +1253,41 @@ FLX_EXPORT fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean tolerance
 FLX_EXPORT fmi2Status fmi2EnterInitializationMode(fmi2Component c)
 {
     INSTANCE(fmi2EnterInitializationMode)
-    if (!allowed(inst, "fmi2EnterInitializationMode", ST_INSTANTIATED)) return fmi2Error;
+    if (!allowed(inst, "fmi2EnterInitializationMode", FLX_INSTANTIATED)) return fmi2Error;
     fmi2Status s = finish(inst, "fmi2EnterInitializationMode",
                           flx_guard_component(G.fmu.enter_init, inst->inner));
-    if (s <= fmi2Warning) inst->state = ST_INIT;
+    if (s <= fmi2Warning) inst->state = FLX_INIT;
     return s;
 }
 
 FLX_EXPORT fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
     INSTANCE(fmi2ExitInitializationMode)
-    if (!allowed(inst, "fmi2ExitInitializationMode", ST_INIT)) return fmi2Error;
+    if (!allowed(inst, "fmi2ExitInitializationMode", FLX_INIT)) return fmi2Error;
     fmi2Status s = finish(inst, "fmi2ExitInitializationMode",
                           flx_guard_component(G.fmu.exit_init, inst->inner));
     /* a bad parameter is an error of this call; the instance is initialised all the same and
      * refuses every step with the reason (a state restore or fmi2Reset makes it usable) */
-    if (inst->state != ST_BROKEN) inst->state = ST_STEPPING;
+    if (inst->state != FLX_BROKEN) inst->state = FLX_STEPPING;
     return s;
 }
 
 FLX_EXPORT fmi2Status fmi2Terminate(fmi2Component c)
 {
     INSTANCE(fmi2Terminate)
-    if (!allowed(inst, "fmi2Terminate", ST_INIT | ST_STEPPING)) return fmi2Error;
+    if (!allowed(inst, "fmi2Terminate", FLX_INIT | FLX_STEPPING)) return fmi2Error;
     fmi2Status s = finish(inst, "fmi2Terminate", flx_guard_component(G.fmu.terminate, inst->inner));
-    if (inst->state != ST_BROKEN) inst->state = ST_TERMINATED;
+    if (inst->state != FLX_BROKEN) inst->state = FLX_TERMINATED;
     return s;
 }
 
 FLX_EXPORT fmi2Status fmi2Reset(fmi2Component c)
 {
     INSTANCE(fmi2Reset)
-    if (!allowed(inst, "fmi2Reset", ST_INSTANTIATED | ST_INIT | ST_STEPPING | ST_TERMINATED))
+    if (!allowed(inst, "fmi2Reset", FLX_INSTANTIATED | FLX_INIT | FLX_STEPPING | FLX_TERMINATED))
         return fmi2Error;
     fmi2Status s = finish(inst, "fmi2Reset", flx_guard_component(G.fmu.reset, inst->inner));
-    if (inst->state != ST_BROKEN) inst->state = ST_INSTANTIATED;
+    if (inst->state != FLX_BROKEN) inst->state = FLX_INSTANTIATED;
     return s;
 }
 
@@ -1302,7 +1296,7 @@ FLX_EXPORT fmi2Status fmi2Reset(fmi2Component c)
                                 T value[])                                                     \
     {                                                                                          \
         INSTANCE(fname)                                                                        \
-        if (!allowed(inst, #fname, ST_INIT | ST_STEPPING | ST_TERMINATED)) return fmi2Error;   \
+        if (!allowed(inst, #fname, FLX_INIT | FLX_STEPPING | FLX_TERMINATED)) return fmi2Error;   \
         if (!check_vrs(inst, #fname, vr, nvr, value, type, 0)) return fmi2Error;               \
         if (!nvr) return fmi2OK;                                                               \
         return finish(inst, #fname, guard(G.fmu.field, inst->inner, vr, nvr, value));          \
@@ -1313,7 +1307,7 @@ FLX_EXPORT fmi2Status fmi2Reset(fmi2Component c)
                                 const T value[])                                               \
     {                                                                                          \
         INSTANCE(fname)                                                                        \
-        if (!allowed(inst, #fname, ST_INSTANTIATED | ST_INIT | ST_STEPPING)) return fmi2Error; \
+        if (!allowed(inst, #fname, FLX_INSTANTIATED | FLX_INIT | FLX_STEPPING)) return fmi2Error; \
         if (!check_vrs(inst, #fname, vr, nvr, value, type, 1)) return fmi2Error;               \
         if (!nvr) return fmi2OK;                                                               \
         return finish(inst, #fname, guard(G.fmu.field, inst->inner, vr, nvr, value));          \
@@ -1331,7 +1325,7 @@ FLX_EXPORT fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr
                                     const fmi2String value[])
 {
     INSTANCE(fmi2SetString)
-    if (!allowed(inst, "fmi2SetString", ST_INSTANTIATED | ST_INIT | ST_STEPPING)) return fmi2Error;
+    if (!allowed(inst, "fmi2SetString", FLX_INSTANTIATED | FLX_INIT | FLX_STEPPING)) return fmi2Error;
     if (!check_vrs(inst, "fmi2SetString", vr, nvr, value, 'S', 1)) return fmi2Error;
     for (size_t i = 0; i < nvr; ++i)
         if (!value[i]) {
@@ -1344,7 +1338,7 @@ FLX_EXPORT fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr
                   flx_guard_set_string(G.fmu.set_string, inst->inner, vr, nvr, value));
 }
 
-#define ANY_STATE (ST_INSTANTIATED | ST_INIT | ST_STEPPING | ST_TERMINATED)
+#define ANY_STATE (FLX_INSTANTIATED | FLX_INIT | FLX_STEPPING | FLX_TERMINATED)
 
 FLX_EXPORT fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate)
 {
@@ -1480,7 +1474,7 @@ FLX_EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationP
                                  fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
     INSTANCE(fmi2DoStep)
-    if (!allowed(inst, "fmi2DoStep", ST_STEPPING)) return fmi2Error;
+    if (!allowed(inst, "fmi2DoStep", FLX_STEPPING)) return fmi2Error;
     if (!(communicationStepSize > 0) || !isfinite(communicationStepSize) ||
         !isfinite(currentCommunicationPoint) ||
         !isfinite(currentCommunicationPoint + communicationStepSize)) {
