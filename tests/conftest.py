@@ -7,8 +7,8 @@ import shutil
 
 import pytest
 
-# Import the project packages from this checkout before any FMU is loaded: an FMU puts its own
-# resources folder first on sys.path, and a copy imported from an unpacked FMU would outlive it.
+# The checkout's packages are imported in the test process on purpose: the FMUs must not run them
+# (each FMU loads its own copy under a private name; tests/test_fmu_robustness.py checks it).
 import controller_fmu.pd_lowpass  # noqa: F401
 import plant_fmu.dynamics  # noqa: F401
 
