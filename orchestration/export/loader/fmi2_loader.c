@@ -99,6 +99,8 @@ typedef struct {
     PyGILState_STATE (*PyGILState_Ensure)(void);
     void (*PyGILState_Release)(PyGILState_STATE);
     PyThreadState *(*PyGILState_GetThisThreadState)(void);
+    void (*PyThreadState_Clear)(PyThreadState *);
+    void (*PyThreadState_DeleteCurrent)(void);
     PyObject *(*Py_CompileString)(const char *, const char *, int);
     PyObject *(*PyEval_EvalCode)(PyObject *, PyObject *, PyObject *);
     PyObject *(*PyDict_New)(void);
@@ -512,10 +514,14 @@ static pthread_once_t g_thread_once = PTHREAD_ONCE_INIT;
 
 static void thread_ends(void *ts)
 {
-    /* the thread that got a thread state from us ends: delete it (if Python still runs) */
-    if (ts && G.py.Py_IsInitialized && G.py.Py_IsInitialized()) {
+    /* the thread that got a thread state from us ends: delete it (if Python still runs). By now
+     * glibc has cleared Python's own thread-specific pointer to it (every key's value is cleared
+     * at thread exit), so PyGILState_Release cannot be used: clear and delete it directly. */
+    if (ts && G.py.Py_IsInitialized && G.py.Py_IsInitialized() && G.py.PyThreadState_Clear &&
+        G.py.PyThreadState_DeleteCurrent) {
         G.py.PyEval_RestoreThread((PyThreadState *)ts);
-        G.py.PyGILState_Release(PyGILState_UNLOCKED);
+        G.py.PyThreadState_Clear((PyThreadState *)ts);
+        G.py.PyThreadState_DeleteCurrent();  /* releases the GIL */
     }
 }
 static void make_key(void) { pthread_key_create(&g_thread_key, thread_ends); }
@@ -608,6 +614,9 @@ static int resolve_python(void *lib, const char *what, char *why, size_t n)
     RESOLVE(G.py, lib, PyGILState_Ensure);
     RESOLVE(G.py, lib, PyGILState_Release);
     RESOLVE(G.py, lib, PyGILState_GetThisThreadState);
+    /* optional: without them a thread's state is kept after the thread ends */
+    *(void **)&G.py.PyThreadState_Clear = lib_sym(lib, "PyThreadState_Clear");
+    *(void **)&G.py.PyThreadState_DeleteCurrent = lib_sym(lib, "PyThreadState_DeleteCurrent");
     RESOLVE(G.py, lib, Py_CompileString);
     RESOLVE(G.py, lib, PyEval_EvalCode);
     RESOLVE(G.py, lib, PyDict_New);
