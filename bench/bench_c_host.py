@@ -3,7 +3,8 @@ fmpy master (issue 16; target: the C host with the loader within 1.2x of the fmp
 
     python bench/bench_c_host.py [--runs 5] [--steps 2000]
 
-Three ways to run the same loop (the ``flexible_pd_lowpass`` scene, 1 ms steps, Gauss-Seidel):
+Three ways to run the same loop (the ``flexible_pd_lowpass`` scene with 1 ms steps, Gauss-Seidel,
+inputs held: the coupling the C host implements):
 
 * **fmpy master**: ``orchestration.master`` in this process (``RunStats.wall_time / steps``);
 * **C host, before**: ``tests/c_host/fmi2_host.c`` on pythonfmu's own library
@@ -27,7 +28,7 @@ import sysconfig
 import tempfile
 from pathlib import Path
 
-from common import RESULTS, ROOT, CoSim, load_scene, median_time, product_fmus
+from common import RESULTS, ROOT, CoSim, median_time, product_fmus
 
 
 def host_env(before: bool) -> dict:
@@ -56,11 +57,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     sys.path.insert(0, str(ROOT / "tests"))
     from fmpy import extract
-    from test_fmu_c_host import host_command
+    from test_fmu_c_host import host_command, zoh_scene
 
     fmus = product_fmus()
-    scene = load_scene("flexible_pd_lowpass", [f"stop_time={args.steps * 1e-3!r}",
-                                               "output_interval=0.001"])
+    scene = zoh_scene(f"stop_time={args.steps * 1e-3!r}", "output_interval=0.001")
     cosim = CoSim(scene, fmus)
 
     def fmpy_run():

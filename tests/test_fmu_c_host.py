@@ -29,6 +29,15 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux") or not shut
 
 HOST_C = Path(__file__).parent / "c_host" / "fmi2_host.c"
 SYSTEM_PATH = "/usr/local/bin:/usr/bin:/bin"
+#: The coupling the C host implements: the master's Gauss-Seidel with the inputs held
+#: (zero-order hold), controller first, 1 ms.
+ZOH = ["master.algorithm=gauss-seidel", "master.first=controller", "master.extrapolation=0",
+       "master.input_derivatives=false", "master.adaptive=false", "master.step=0.001"]
+
+
+def zoh_scene(*overrides):
+    """The filtered scene with the coupling of the C host."""
+    return load_scene("flexible_pd_lowpass", [*ZOH, *overrides])
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +91,7 @@ def run_host(cmd, **env):
 
 @pytest.mark.slow
 def test_closed_loop_in_a_c_host_matches_the_fmpy_master(host, fmus, fmu_dirs):
-    scene = load_scene("flexible_pd_lowpass", ["stop_time=2.0", "output_interval=0.01"])
+    scene = zoh_scene("stop_time=2.0", "output_interval=0.01")
     ref = run_scene(scene, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
                     progress=False).result
     every = round(scene.config["output_interval"] / scene.config["master.step"])
@@ -98,7 +107,7 @@ def test_closed_loop_in_a_c_host_matches_the_fmpy_master(host, fmus, fmu_dirs):
 
 
 def test_the_c_host_exits_cleanly_every_time(host, fmu_dirs):
-    scene = load_scene("flexible_pd_lowpass")
+    scene = zoh_scene()
     for _ in range(3):
         proc = run_host(host_command(host, fmu_dirs, scene, 20, 10))
         assert proc.returncode == 0, proc.stderr[-3000:]
@@ -110,7 +119,7 @@ def test_a_python_without_numpy_gives_null_and_the_reason(host, fmu_dirs, tmp_pa
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True,
                    capture_output=True)
     bare = venv / "bin" / "python3"
-    scene = load_scene("flexible_pd_lowpass")
+    scene = zoh_scene()
     proc = run_host(host_command(host, fmu_dirs, scene, 10, 10), FLEXPEND_PYTHON=str(bare))
     assert proc.returncode == 5, proc.stderr[-3000:]     # NULL, then a clean exit
     assert "fmi2Instantiate returned NULL" in proc.stderr
@@ -125,7 +134,7 @@ def test_a_python_without_numpy_gives_null_and_the_reason(host, fmu_dirs, tmp_pa
 def test_pythonfmus_own_library_alone_does_not_load(host, fmu_dirs):
     """Why the loader exists: pythonfmu's library (shipped beside it) needs libpython in the
     process, which a dlopen(RTLD_LOCAL) host does not have."""
-    scene = load_scene("flexible_pd_lowpass")
+    scene = zoh_scene()
     proc = run_host(host_command(host, fmu_dirs, scene, 10, 10, binary="{model}_pythonfmu.so"))
     assert proc.returncode == 4
     assert "undefined symbol: _Py_NoneStruct" in proc.stderr

@@ -275,7 +275,10 @@ def test_8_the_master_runs_the_code_inside_the_fmu(fmus, tmp_path):
     from orchestration.run import run_scene
     from orchestration.scenes import load_scene
 
-    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.02", "output_interval=0.001"])
+    # held inputs, so that the first step's inputs are the same in both runs
+    scene = load_scene("flexible_pd_lowpass", [
+        "stop_time=0.02", "output_interval=0.001", "master.step=0.001", "master.extrapolation=0",
+        "master.input_derivatives=false"])
     paths = {"plant": fmus["FlexiblePendulum"]}
     normal = run_scene(scene, {**paths, "controller": fmus["PDLowPass"]}, progress=False).result
     doubled = run_scene(scene, {**paths, "controller": str(_doubled_controller(fmus, tmp_path))},
