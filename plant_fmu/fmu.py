@@ -180,13 +180,6 @@ class FlexiblePendulum(SlaveBase):
         why = self._check_time(current_time, st.t)
         if why:
             return self._refuse(why)
-        if not (du or d2u):
-            st.u = u
-        elif st.POLYNOMIAL_INPUT:
-            st.set_input(u, du, d2u, t=current_time)
-        else:                                 # a held-input method: the polynomial's average
-            h = step_size
-            st.u = u + h * (0.5 * du + h * d2u / 6.0)
         t_end = current_time + step_size
         if not st.adaptive and (t_end - st.t) > MAX_SUBSTEPS * st.h:
             return self._refuse(f"doStep from t = {current_time!r} over {step_size!r} needs "
@@ -194,6 +187,13 @@ class FlexiblePendulum(SlaveBase):
                                 f"more than the cap of {MAX_SUBSTEPS} per doStep: take shorter "
                                 f"communication steps or a larger step; step refused, state "
                                 f"unchanged", Fmi2Status.discard)
+        if not (du or d2u):
+            st.u = u
+        elif st.POLYNOMIAL_INPUT:
+            st.set_input(u, du, d2u, t=current_time)
+        else:                                 # a held-input method: the polynomial's average
+            h = step_size
+            st.u = u + h * (0.5 * du + h * d2u / 6.0)
         try:
             ok, msg = st.advance(t_end, max_steps=MAX_SUBSTEPS)
             if not ok:
