@@ -38,9 +38,8 @@ def jvm_host(tmp_path_factory):
     return ["java", "-cp", os.pathsep.join([str(d / "classes"), cp]), "Loop"]
 
 
-def jvm_command(jvm_host, fmus, scene, steps, every):
-    cmd = host_command("host", {"FlexiblePendulum": Path("/p"), "PDLowPass": Path("/c")}, scene,
-                       steps, every)
+def jvm_command(jvm_host, fmus, fmu_dirs, scene, steps, every):
+    cmd = host_command("host", fmu_dirs, scene, steps, every)
     return [*jvm_host, *cmd[1:4], fmus["FlexiblePendulum"], fmus["PDLowPass"], *cmd[10:]]
 
 
@@ -52,12 +51,13 @@ def java_env(**extra):
     return env
 
 
-def test_closed_loop_in_fmi4j_matches_the_fmpy_master(jvm_host, fmus):
+def test_closed_loop_in_fmi4j_matches_the_fmpy_master(jvm_host, fmus, fmu_dirs):
     scene = zoh_scene("stop_time=2.0", "output_interval=0.01")
     ref = run_scene(scene, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
                     progress=False).result
     every = round(scene.config["output_interval"] / scene.config["master.step"])
-    proc = subprocess.run(jvm_command(jvm_host, fmus, scene, every * (len(ref) - 1), every),
+    proc = subprocess.run(jvm_command(jvm_host, fmus, fmu_dirs, scene, every * (len(ref) - 1),
+                                      every),
                           env=java_env(), capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     got = np.array([[float(x) for x in line.split()] for line in proc.stdout.splitlines()
@@ -67,11 +67,11 @@ def test_closed_loop_in_fmi4j_matches_the_fmpy_master(jvm_host, fmus):
         assert np.max(np.abs(got[:, j] - ref[col])) <= 1e-12, col
 
 
-def test_fmi4j_gets_the_reason_when_numpy_is_missing(jvm_host, fmus, tmp_path):
+def test_fmi4j_gets_the_reason_when_numpy_is_missing(jvm_host, fmus, fmu_dirs, tmp_path):
     venv = tmp_path / "bare"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True,
                    capture_output=True)
-    proc = subprocess.run(jvm_command(jvm_host, fmus, zoh_scene(), 10, 10),
+    proc = subprocess.run(jvm_command(jvm_host, fmus, fmu_dirs, zoh_scene(), 10, 10),
                           env=java_env(FLEXPEND_PYTHON=str(venv / "bin" / "python3")),
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 5, proc.stdout[-2000:] + proc.stderr[-2000:]   # the JVM lived
