@@ -28,16 +28,23 @@ import hashlib
 import os
 import sys
 
-__all__ = ["missing", "libpython", "probe", "before_instantiate", "state_error", "load_slave"]
+__all__ = ["missing", "missing_in_host", "libpython", "probe", "before_instantiate", "slave_module", "state_error",
+           "load_slave"]
 
 #: What the FMU's Python code needs (the import names, with the project's lower bounds).
 REQUIRED = (("numpy", "numpy", "1.24"), ("scipy", "scipy.linalg", "1.10"))
 MIN_PYTHON = (3, 10)
 
 
-def missing() -> str:
-    """What this interpreter lacks to run the FMU ('' if nothing), as one line."""
+def missing(load: bool = True) -> str:
+    """What this interpreter lacks to run the FMU ('' if nothing), as one line. With ``load``
+    (the probe, in a child process) each package is imported; without (in the host process) only
+    numpy is, and scipy is looked up but not loaded: the FMUs import it only for the plant's
+    ``exponential`` integrator, and loading its own OpenBLAS into a host that never uses it is a
+    cost and, with OpenBLAS's threads, an exit-time risk (see docs/fmus.md)."""
     import importlib
+    import importlib.metadata
+    import importlib.util
 
     problems = []
     if sys.version_info[:2] < MIN_PYTHON:
@@ -45,15 +52,24 @@ def missing() -> str:
                         f"{'.'.join(map(str, MIN_PYTHON))}")
     for dist, module, low in REQUIRED:
         try:
-            mod = importlib.import_module(module)
+            if load or dist == "numpy":
+                importlib.import_module(module)
+                version = getattr(sys.modules[dist], "__version__", "0")
+            else:
+                if importlib.util.find_spec(dist) is None:
+                    raise ModuleNotFoundError(f"No module named {dist!r}")
+                version = importlib.metadata.version(dist)
         except Exception as exc:  # noqa: BLE001 - any failure to import is a missing package
             problems.append(f"{dist} cannot be imported ({type(exc).__name__}: {exc})")
             continue
-        top = sys.modules.get(dist, mod)
-        version = getattr(top, "__version__", "0")
         if _version_tuple(version) < _version_tuple(low):
             problems.append(f"{dist} {version} is older than {low}")
     return "; ".join(p.replace("\n", " ") for p in problems)
+
+
+def missing_in_host() -> str:
+    """:func:`missing` for the Python the loader is about to use, in the host process."""
+    return missing(load=False)
 
 
 def _version_tuple(v: str) -> tuple:
@@ -113,6 +129,20 @@ def before_instantiate(resources: str, model: str) -> str:
         if where != here:
             del sys.modules[name]
     return ""
+
+
+def slave_module(resources: str):
+    """The slave module imported from this FMU's resources folder, or None."""
+    try:
+        with open(os.path.join(resources, "slavemodule.txt"), encoding="utf-8") as f:
+            name = f.read().strip()
+    except OSError:
+        return None
+    mod = sys.modules.get(name)
+    if mod is None:
+        return None
+    where = os.path.normcase(os.path.dirname(os.path.abspath(getattr(mod, "__file__", "") or "")))
+    return mod if where == os.path.normcase(os.path.abspath(resources)) else None
 
 
 def state_error(state) -> str:

@@ -108,6 +108,7 @@ typedef struct {
     PyObject *(*PyDict_GetItemString)(PyObject *, const char *);
     PyObject *(*PyEval_GetBuiltins)(void);
     PyObject *(*PyObject_CallFunction)(PyObject *, const char *, ...);
+    PyObject *(*PyObject_GetAttrString)(PyObject *, const char *);
     const char *(*PyUnicode_AsUTF8)(PyObject *);
     PyObject *(*PyUnicode_FromString)(const char *);
     PyObject *(*PyErr_Occurred)(void);
@@ -624,6 +625,7 @@ static int resolve_python(void *lib, const char *what, char *why, size_t n)
     RESOLVE(G.py, lib, PyDict_GetItemString);
     RESOLVE(G.py, lib, PyEval_GetBuiltins);
     RESOLVE(G.py, lib, PyObject_CallFunction);
+    RESOLVE(G.py, lib, PyObject_GetAttrString);
     RESOLVE(G.py, lib, PyUnicode_AsUTF8);
     RESOLVE(G.py, lib, PyUnicode_FromString);
     RESOLVE(G.py, lib, PyErr_Occurred);
@@ -867,7 +869,7 @@ static int load_rest(const char *resources, char *why, size_t n)
         G.helper = ns;
         ns = NULL;
         /* the Python in use must have what the FMU needs (the host's own Python was not probed) */
-        if (helper_call("missing", err, sizeof err, "()", NULL, NULL) != 0 || err[0]) {
+        if (helper_call("missing_in_host", err, sizeof err, "()", NULL, NULL) != 0 || err[0]) {
             snprintf(why, n, "the Python in this process, %s, cannot run this FMU: %s", G.python,
                      err);
             rc = -1;
@@ -1065,8 +1067,9 @@ static int check_vrs(Instance *inst, const char *fn, const fmi2ValueReference vr
             return 0;
         }
         if (t->type[vr[i]] != type) {
-            static const char *names[] = {"Real", "Integer", "Boolean", "String"};
-            const char *have = names[strchr("RIBS", t->type[vr[i]]) - "RIBS"];
+            char k = t->type[vr[i]];
+            const char *have = k == 'R' ? "Real" : k == 'I' ? "Integer" : k == 'B' ? "Boolean"
+                                                                          : "String";
             logf_(inst, fmi2Error, "%s: variable %s (value reference %u) is of type %s", fn,
                   var_name(t, vr[i]), vr[i], have);
             return 0;
@@ -1161,6 +1164,16 @@ FLX_EXPORT fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuTy
                 if (want) G.py.Py_DecRef(want);
                 G.py.PyErr_Clear();
             }
+            /* pythonfmu 0.7.0 releases, at every instantiation, one reference to the slave
+             * module's dict that it never took (Py_DECREF of the borrowed PyModule_GetDict):
+             * take one here and keep it, so that the count stays right (else the dict is freed
+             * while in use once the interpreter finalises the module: a heap corruption at the
+             * exit of a Python host) */
+            PyObject *fn = G.py.PyDict_GetItemString(G.helper, "slave_module");
+            PyObject *mod = fn ? G.py.PyObject_CallFunction(fn, "(s)", resources) : NULL;
+            if (mod && mod != G.py.Py_None) G.py.PyObject_GetAttrString(mod, "__dict__");
+            if (mod) G.py.Py_DecRef(mod);
+            G.py.PyErr_Clear();
             G.py.PyGILState_Release(g);
             if (!inner) {
                 logf_(inst, fmi2Error, "fmi2Instantiate: pythonfmu could not create the instance%s%s",
