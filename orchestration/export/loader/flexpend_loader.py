@@ -5,7 +5,7 @@ It serves three callers, and needs nothing beyond the standard library:
 * **the probe**: the C loader runs ``<python> -I flexpend_loader.py`` for each candidate
   interpreter, in a child process, before it loads anything into the host; the script prints
   ``version=``, ``executable=``, ``libpython=`` (the shared library to load) and ``missing=`` (what
-  the FMU needs and this Python lacks: numpy, scipy, a recent enough version);
+  the FMU needs and this Python lacks: numpy, a recent enough version);
 * **the C loader, in process** (the file is executed into a private namespace): :func:`missing`
   checks the interpreter the loader uses, :func:`before_instantiate` makes pythonfmu import this
   FMU's slave module (not another copy's), :func:`state_error` reads the verdict of the model's
@@ -24,15 +24,16 @@ It serves three callers, and needs nothing beyond the standard library:
   are rewritten, at import, to the private name; nothing is written to disk.
 """
 import ast
-import hashlib
 import os
 import sys
 
 __all__ = ["missing", "missing_in_host", "libpython", "probe", "before_instantiate", "slave_module", "state_error",
            "load_slave"]
 
-#: What the FMU's Python code needs (the import names, with the project's lower bounds).
-REQUIRED = (("numpy", "numpy", "1.24"), ("scipy", "scipy.linalg", "1.10"))
+#: What the FMU's Python code needs (the import names, with the project's lower bounds). scipy is
+#: not among them: the FMUs import it only for the plant's ``exponential`` integrator, which then
+#: names it if it is missing.
+REQUIRED = (("numpy", "numpy", "1.24"),)
 MIN_PYTHON = (3, 10)
 
 
@@ -154,8 +155,13 @@ def state_error(state) -> str:
 
 # ---------------------------------------------------------------------------- private import
 def _digest(resources: str) -> str:
-    """sha256 of every file under the resources folder (caches left out)."""
-    h = hashlib.sha256()
+    """A BLAKE2b digest of every file under the resources folder (caches left out). CPython's own
+    BLAKE2, not hashlib: hashlib loads OpenSSL, which the FMUs keep out of a host's process."""
+    try:
+        from _blake2 import blake2b
+    except ImportError:  # pragma: no cover - a Python without the built-in module
+        from hashlib import blake2b
+    h = blake2b(digest_size=32)
     for root, dirs, files in os.walk(resources):
         dirs[:] = sorted(d for d in dirs if d != "__pycache__")
         for name in sorted(files):

@@ -8,7 +8,7 @@
  *      libcosimpy), else the interpreter named by the environment variable FLEXPEND_PYTHON, else
  *      the one recorded when the FMU was built (resources/flexpend_loader.txt), else python3 on
  *      PATH. Each candidate is first asked, in a child process, where its shared libpython is and
- *      whether numpy and scipy import (resources/flexpend_loader.py); the first usable one is
+ *      whether numpy imports (resources/flexpend_loader.py); the first usable one is
  *      loaded with RTLD_GLOBAL and initialised (isolated configuration: no signal handlers, no
  *      PYTHONPATH) before pythonfmu's library is loaded. When none is usable, fmi2Instantiate
  *      logs what is missing and how to name a Python, and returns NULL.
@@ -967,9 +967,9 @@ static int ensure_python(const Table *t, const char *resources)
             char tried[FLX_MSG];
             snprintf(tried, sizeof tried, "%s", why);
             snprintf(why, n, "no usable Python was found for this FMU (it needs CPython >= 3.10 "
-                     "with a shared libpython, numpy and scipy). Tried:%s\nName one with the "
+                     "with a shared libpython and numpy). Tried:%s\nName one with the "
                      "environment variable " FLX_ENV "=/path/to/python3 (for example a virtual "
-                     "environment with numpy and scipy installed).", tried);
+                     "environment with numpy installed).", tried);
         }
     }
     if (found == 1 && load_rest(resources, why, n) != 0) found = -1;
