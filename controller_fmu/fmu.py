@@ -30,7 +30,7 @@ from pythonfmu import DefaultExperiment
 from controller_fmu import kernel
 from controller_fmu.interface import MODEL, SENSORS, VARIABLES
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
-from plant_fmu.fmi_support import Fmi2Status, SlaveBase
+from plant_fmu.fmi_support import Fmi2Status, SlaveBase, StateError, check_finite
 
 __all__ = ["PDLowPass"]
 
@@ -121,6 +121,9 @@ class PDLowPass(SlaveBase):
         self._h = h
 
     def do_step(self, current_time, step_size):
+        why = self._step_size_error(step_size)
+        if why:
+            return self._refuse(f"PDLowPass: {why}; step refused, the instance is unchanged")
         if self._error is not None or not self._initialized:
             return self._refuse(f"PDLowPass cannot step: "
                                 f"{self._error or 'exitInitializationMode has not been called'}")
@@ -166,31 +169,73 @@ class PDLowPass(SlaveBase):
                 self._F = F
             else:
                 self.log(f"F_c is not finite for the inputs {self._bad_inputs() or self._inputs()}"
-                         f"; F_c holds its last value {self._F!r}", Fmi2Status.error)
+                         f"; F_c holds its last value {self._F!r}", Fmi2Status.warning)
         return self._F
 
     # ------------------------------------------------------------------ FMU state
+    _STATE_KEYS = ("format", "version", "model", "t", "x", "F", "error", "initialized", "params",
+                   "inputs")
+
     def _get_fmu_state(self):
-        x = [0.0, 0.0] if self._kern is None else list(self._kern.x)
-        return {"t": self._t, "x": x, "F": self._F, "error": self._error,
-                "initialized": self._initialized, "params": self._params_snapshot(),
+        x = [0.0, 0.0] if self._kern is None else [float(v) for v in self._kern.x]
+        return {**self._state_header(), "t": self._t, "x": x, "F": self._F,
+                "error": self._error, "initialized": self._initialized,
+                "params": self._params_snapshot(),
                 "inputs": [getattr(self, n) for n in self.INPUTS]}
+
+    @classmethod
+    def _check_state(cls, state):
+        cls._restored(state)
+
+    @classmethod
+    def _restored(cls, state):
+        """``(model, kernel)`` a restore of ``state`` installs (None, None after a bad
+        parameter); raises :class:`StateError` naming what is wrong."""
+        cls._check_keys(state, cls._STATE_KEYS)
+        params = state["params"]
+        names = [v.name for v in VARIABLES if v.causality == "parameter"]
+        if not isinstance(params, dict) or sorted(params) != sorted(names):
+            raise StateError(f"params must name exactly the parameters {names}")
+        check_finite("t", state["t"])
+        check_finite("x", state["x"], 2)
+        check_finite("F", state["F"])
+        check_finite("inputs", state["inputs"], len(cls.INPUTS))
+        if not isinstance(state["initialized"], bool):
+            raise StateError("initialized must be true or false")
+        if state["error"] is not None and not isinstance(state["error"], str):
+            raise StateError("error must be null or a message")
+        try:
+            p = ControllerParams(**params)
+            return PDLowPassModel(p), kernel.FilterKernel(p)
+        except (TypeError, ValueError) as exc:
+            if state["error"] is None and state["initialized"]:
+                raise StateError(f"bad parameter: {exc}") from None
+            return None, None
 
     def _set_fmu_state(self, state):
         try:
-            self._check_state(state)
-            if not self._same_params(state["params"]) or self._model is None:
-                self._restore_params(state["params"])
-                self._initialized = False
-                self._prepare()
-            self._initialized = state["initialized"]
-            self._t = state["t"]
-            if self._kern is not None:
-                self._kern.x[0], self._kern.x[1] = state["x"]
-            self._F = state["F"]
-            self._error = state["error"]
-            for n, v in zip(self.INPUTS, state["inputs"], strict=True):
-                setattr(self, n, v)
+            self._check_header(state)
+            model, kern = self._restored(state)
         except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
-            self._error = f"the FMU state could not be restored: {type(exc).__name__}: {exc}"
-            self.log(self._error, Fmi2Status.error)
+            self._restore_failed(exc)
+            return
+        # nothing below can fail: the instance changes all at once
+        if not self._same_params(state["params"]) or self._model is None:
+            self._restore_params(state["params"])
+            if model is not None:
+                params = model.params
+                self._model, self._kern = model, kern
+                self._order, self._lim = params.filter_order, params.force_limit
+                self._gains = (params.kx, params.kp, params.kd)
+                self._h, self._prep, self._disc = None, None, {}
+            else:
+                self._model = self._kern = None
+        self._initialized = state["initialized"]
+        self._t = float(state["t"])
+        if self._kern is not None:
+            self._kern.x[0], self._kern.x[1] = (float(v) for v in state["x"])
+        self._F = float(state["F"])
+        self._error = state["error"]
+        self._terminated = False
+        for n, v in zip(self.INPUTS, state["inputs"], strict=True):
+            setattr(self, n, float(v))

@@ -6,8 +6,15 @@ parameters, logs failures and (de)serialises FMU states.
 
 pythonfmu 0.7.0 turns every Python exception into ``fmi2Fatal`` and destroys the Python instance;
 Python code has no way to return ``fmi2Error``. The slaves therefore never raise: a failure is
-logged with the status ``fmi2Error`` and a message that names its cause, and ``doStep`` returns
-``fmi2Discard`` (``do_step`` returns False) until a saved FMU state is restored.
+logged with the status ``fmi2Error`` and a message that names its cause (the FMU's loader,
+``orchestration/export/loader``, turns a call during which an error was logged into
+``fmi2Error``), and ``doStep`` returns ``fmi2Discard`` (``do_step`` returns False).
+
+FMU states are dicts with a header (``format``, ``version``, ``model``); serialised, they are JSON.
+A serialised state is checked in full when it is read (:meth:`SlaveBase._fmu_state_from_bytes`:
+header, keys, types, sizes, finiteness, parameter ranges, by building the model it describes), and
+a restore builds everything it needs before it changes the instance, so that a restore that fails
+leaves the instance exactly as it was.
 """
 from __future__ import annotations
 
@@ -20,10 +27,29 @@ from pythonfmu import (Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Varia
                        Real, String)
 from pythonfmu.enums import Fmi2Status
 
-__all__ = ["SlaveBase", "Fmi2Status", "dumps_state", "loads_state"]
+__all__ = ["SlaveBase", "Fmi2Status", "dumps_state", "loads_state", "StateError",
+           "STATE_FORMAT", "STATE_VERSION", "check_finite"]
 
 #: Relative tolerance on the communication point of ``doStep`` against the slave's own time.
 TIME_RTOL = 1e-9
+#: The header of every FMU state.
+STATE_FORMAT = "flexpend-fmu-state"
+STATE_VERSION = 1
+
+
+class StateError(ValueError):
+    """An FMU state that this FMU cannot restore (the message says why)."""
+
+
+def check_finite(name: str, value, length=None) -> list | float:
+    """``value`` as a finite float (or, with ``length``, a list of that many); else StateError."""
+    if length is not None:
+        if not isinstance(value, (list, tuple)) or len(value) != length:
+            raise StateError(f"{name} must be a list of {length} numbers")
+        return [check_finite(f"{name}[{i}]", v) for i, v in enumerate(value)]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise StateError(f"{name} = {value!r} is not a finite number")
+    return float(value)
 
 _TYPES = {"Boolean": Boolean, "Integer": Integer, "Real": Real, "String": String}
 
@@ -105,7 +131,8 @@ class SlaveBase(Fmi2Slave):
             for vr, value in zip(vrs, values):
                 setattr(self, names[vr], value)
         except KeyError:                 # not only real inputs: pythonfmu's checked path
-            super().set_real(vrs, values)
+            self._guarded("setReal", lambda v: super(SlaveBase, self).set_real(v, values), vrs,
+                          None)
 
     def _set_parameter(self, name, value):
         if self._initialized:
@@ -150,23 +177,97 @@ class SlaveBase(Fmi2Slave):
         self._par = dict(params)
         self._par_snap = None
 
+    def _state_header(self) -> dict:
+        return {"format": STATE_FORMAT, "version": STATE_VERSION, "model": type(self).__name__}
+
     @staticmethod
     def _fmu_state_to_bytes(state) -> bytes:
         return dumps_state(state)
 
-    @staticmethod
-    def _fmu_state_from_bytes(state: bytes):
+    @classmethod
+    def _fmu_state_from_bytes(cls, state: bytes):
+        """The state in ``state`` (bytes), or ``{"invalid": reason}`` (which the loader turns into
+        fmi2Error with the reason): every check that needs no instance is made here."""
         try:
-            return loads_state(state)
+            data = loads_state(state)
+            cls._check_header(data)
+            cls._check_state(data)
+            return data
         except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
-            return {"invalid": f"not a serialised FMU state ({type(exc).__name__}: {exc})"}
+            if isinstance(exc, StateError):
+                return {"invalid": f"not a valid {cls.__name__} state: {exc}"}
+            return {"invalid": f"not a valid {cls.__name__} state ({type(exc).__name__}: {exc})"}
+
+    @classmethod
+    def _check_header(cls, state):
+        if not isinstance(state, dict):
+            raise StateError(f"a state is a JSON object, not {type(state).__name__}")
+        if state.get("format") != STATE_FORMAT:
+            raise StateError(f"format {state.get('format')!r}, expected {STATE_FORMAT!r}")
+        if state.get("version") != STATE_VERSION:
+            raise StateError(f"version {state.get('version')!r}; this FMU reads version "
+                             f"{STATE_VERSION}")
+        if state.get("model") != cls.__name__:
+            raise StateError(f"it is a state of the model {state.get('model')!r}, not of "
+                             f"{cls.__name__}")
 
     @staticmethod
-    def _check_state(state):
-        """Raise if ``state`` is not a state of this kind of slave (caught by the caller)."""
-        if not isinstance(state, dict) or "invalid" in state:
-            raise ValueError(state.get("invalid") if isinstance(state, dict) else
-                             f"not an FMU state: {type(state).__name__}")
+    def _check_keys(state: dict, keys):
+        missing = sorted(set(keys) - set(state))
+        extra = sorted(set(state) - set(keys))
+        if missing or extra:
+            raise StateError(f"keys missing {missing}, unknown {extra}")
+
+    @classmethod
+    def _check_state(cls, state):  # pragma: no cover - every slave defines it
+        """Raise :class:`StateError` if ``state`` cannot be restored (no instance needed)."""
+        raise NotImplementedError
+
+    def _restore_failed(self, exc) -> None:
+        """Log why a restore failed (the instance was not changed)."""
+        why = str(exc) if isinstance(exc, StateError) else f"{type(exc).__name__}: {exc}"
+        self.log(f"the FMU state could not be restored: {why}; the instance is unchanged",
+                 Fmi2Status.error)
+
+    # ------------------------------------------------------------------ never raise
+    def terminate(self):
+        self._terminated = True
+
+    def _guarded(self, what, fun, vrs, default):
+        try:
+            return fun(vrs)
+        except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
+            self.log(f"{what}: {type(exc).__name__}: {exc}", Fmi2Status.error)
+            return [default] * len(vrs)
+
+    def get_integer(self, vrs):
+        return self._guarded("getInteger", super().get_integer, vrs, 0)
+
+    def get_boolean(self, vrs):
+        return self._guarded("getBoolean", super().get_boolean, vrs, False)
+
+    def get_string(self, vrs):
+        return self._guarded("getString", super().get_string, vrs, "")
+
+    def set_integer(self, vrs, values):
+        self._guarded("setInteger", lambda v: super(SlaveBase, self).set_integer(v, values), vrs,
+                      None)
+
+    def set_boolean(self, vrs, values):
+        self._guarded("setBoolean", lambda v: super(SlaveBase, self).set_boolean(v, values), vrs,
+                      None)
+
+    def set_string(self, vrs, values):
+        self._guarded("setString", lambda v: super(SlaveBase, self).set_string(v, values), vrs,
+                      None)
+
+    def _step_size_error(self, step_size) -> str | None:
+        """Why ``doStep`` cannot take ``step_size`` (or after fmi2Terminate), or None."""
+        if self.__dict__.get("_terminated"):
+            return "doStep after fmi2Terminate is not allowed"
+        if not (isinstance(step_size, float) and math.isfinite(step_size) and step_size > 0):
+            return f"the step size {step_size!r} is not positive and finite"
+        return None
 
 
 def finite_or_none(value) -> float | None:

@@ -31,7 +31,7 @@ from pythonfmu import DefaultExperiment
 
 from plant_fmu import kernel
 from plant_fmu.dynamics import linear_plant_model, plant_model
-from plant_fmu.fmi_support import Fmi2Status, SlaveBase
+from plant_fmu.fmi_support import Fmi2Status, SlaveBase, StateError, check_finite
 from plant_fmu.integrators import REGISTRY, make_stepper
 from plant_fmu.interface import (FIDELITIES, FMU_SETTINGS, INITIAL_STATE, MODEL, N_ETA_OUTPUTS,
                                  OUTPUTS, VARIABLES)
@@ -44,6 +44,11 @@ FMU_DEFAULTS = {**FMU_SETTINGS, **{k: v for k, (_, v) in INITIAL_STATE.items()}}
 
 #: A state whose squared norm exceeds this has blown up; below it every output is finite.
 STATE_NORM2_LIMIT = 1e200
+
+#: The most substeps one ``doStep`` may take (bounded work per call): a fixed-step method whose
+#: communication step needs more is refused (fmi2Discard, nothing changed); an adaptive method that
+#: reaches it stops, like a failed integrator (restore a saved state to continue).
+MAX_SUBSTEPS = 100_000
 
 #: Inputs: the force, and its first and second time derivatives at the start of a step (FMI's
 #: input derivatives as variables, since pythonfmu has no fmi2SetRealInputDerivatives). Over
@@ -90,10 +95,10 @@ class FlexiblePendulum(SlaveBase):
         self._model = self._stepper = None
         self._error = None
 
-    def _validated(self):
+    @classmethod
+    def _validated(cls, par: dict):
         """``(PlantParams, FMU settings)`` from the parameters; raises naming the bad one."""
-        par = self._par
-        p = PlantParams(**{k: par[k] for k in self.dataclass_defaults(PlantParams)})
+        p = PlantParams(**{k: par[k] for k in cls.dataclass_defaults(PlantParams)})
         s = {k: par[k] for k in FMU_DEFAULTS}
         if s["fidelity"] not in FIDELITIES:
             raise ValueError(f"fidelity = {s['fidelity']!r} is not allowed; allowed: "
@@ -112,28 +117,45 @@ class FlexiblePendulum(SlaveBase):
             s[k] = check_real(k, s[k])
         return p, s
 
+    @classmethod
+    def _build(cls, par: dict, t0: float):
+        """``(model, stepper, settings)`` from the parameters and the start time; raises naming
+        the bad parameter (also an initial state whose outputs or energy would not be finite)."""
+        p, s = cls._validated(par)
+        model = linear_plant_model(p) if s["fidelity"] == "linear" else plant_model(p)
+        y0 = model.initial_state(phi=s["phi0"], x=s["x0"], phi_dot=s["phi_dot0"],
+                                 x_dot=s["x_dot0"])
+        with np.errstate(over="ignore", invalid="ignore"):
+            norm2 = float(y0 @ y0)
+            energy = float(model.energy(y0)) if norm2 <= STATE_NORM2_LIMIT else math.inf
+        if not (norm2 <= STATE_NORM2_LIMIT and math.isfinite(energy)):
+            init = ", ".join(f"{k} = {s[k]!r}" for k in INITIAL_STATE)
+            raise ValueError(f"the initial state ({init}) is too large: its energy or outputs "
+                             f"would not be finite (|state| must stay below 1e100)")
+        stepper = make_stepper(s["integrator"], model, t0, y0, u=0.0, h=s["step"],
+                               rtol=s["rtol"], atol=s["atol"])
+        return model, stepper, s
+
     def _prepare(self) -> bool:
         """Build the model and the stepper from the parameters; log a bad one and return False."""
         self._stepper = None
         try:
-            p, s = self._validated()
-            model = linear_plant_model(p) if s["fidelity"] == "linear" else plant_model(p)
-            y0 = model.initial_state(phi=s["phi0"], x=s["x0"], phi_dot=s["phi_dot0"],
-                                     x_dot=s["x_dot0"])
-            stepper = make_stepper(s["integrator"], model, self._t0, y0, u=0.0, h=s["step"],
-                                   rtol=s["rtol"], atol=s["atol"])
+            model, stepper, s = self._build(self._par, self._t0)
         except Exception as exc:         # noqa: BLE001 - any failure here is a bad parameter
             self._model = None
             self._error = f"bad parameter: {exc}"
             self.log(self._error, Fmi2Status.error)
             return False
+        self._install(model, stepper, s)
         self._error = None
+        self._accept(stepper.y, None)
+        return True
+
+    def _install(self, model, stepper, s):
         self._model, self._stepper = model, stepper
         self._phi_limit, self._energy_limit = s["phi_limit"], s["energy_limit"]
         self._check_energy = math.isfinite(self._energy_limit)
         self._nq, self._n = model.nq, model.n
-        self._accept(stepper.y, None)
-        return True
 
     def exit_initialization_mode(self):
         self._prepare()
@@ -141,6 +163,10 @@ class FlexiblePendulum(SlaveBase):
 
     # ------------------------------------------------------------------ stepping
     def do_step(self, current_time, step_size):
+        why = self._step_size_error(step_size)
+        if why:
+            return self._refuse(f"FlexiblePendulum: {why}; step refused, the instance is "
+                                f"unchanged")
         st = self._stepper
         if st is None or self._error is not None or not self._initialized:
             return self._refuse(f"FlexiblePendulum cannot step: "
@@ -154,6 +180,13 @@ class FlexiblePendulum(SlaveBase):
         why = self._check_time(current_time, st.t)
         if why:
             return self._refuse(why)
+        t_end = current_time + step_size
+        if not st.adaptive and (t_end - st.t) > MAX_SUBSTEPS * st.h:
+            return self._refuse(f"doStep from t = {current_time!r} over {step_size!r} needs "
+                                f"{math.ceil((t_end - st.t) / st.h)} substeps of step = {st.h!r}, "
+                                f"more than the cap of {MAX_SUBSTEPS} per doStep: take shorter "
+                                f"communication steps or a larger step; step refused, state "
+                                f"unchanged", Fmi2Status.discard)
         if not (du or d2u):
             st.u = u
         elif st.POLYNOMIAL_INPUT:
@@ -161,9 +194,8 @@ class FlexiblePendulum(SlaveBase):
         else:                                 # a held-input method: the polynomial's average
             h = step_size
             st.u = u + h * (0.5 * du + h * d2u / 6.0)
-        t_end = current_time + step_size
         try:
-            ok, msg = st.advance(t_end)
+            ok, msg = st.advance(t_end, max_steps=MAX_SUBSTEPS)
             if not ok:
                 return self._diverged(f"integrator {st.name!r} failed between t = "
                                       f"{current_time!r} and {t_end!r}: {msg}")
@@ -246,29 +278,96 @@ class FlexiblePendulum(SlaveBase):
         return self.get_real([self._vr[name]])[0]
 
     # ------------------------------------------------------------------ FMU state
+    _STATE_KEYS = ("format", "version", "model", "params", "t0", "inputs", "initialized", "error",
+                   "stepper", "y")
+
     def _get_fmu_state(self):
         st = self._stepper
-        return {"params": self._params_snapshot(), "t0": self._t0,
+        return {**self._state_header(), "params": self._params_snapshot(), "t0": self._t0,
                 "inputs": [self.F_c, self.dF_c, self.d2F_c],
                 "initialized": self._initialized, "error": self._error,
                 "stepper": None if st is None else st.get_state(),
                 "y": None if self._y is None else self._y.tolist()}
 
+    @classmethod
+    def _check_state(cls, state):
+        cls._restored(state)
+
+    @classmethod
+    def _restored(cls, state):
+        """What a restore of ``state`` installs: ``(model, stepper, settings, y)`` (None for the
+        parts the state has not), built from scratch; raises :class:`StateError` naming what is
+        wrong (keys, types, sizes, finiteness, parameter ranges, the stepper's own checks)."""
+        cls._check_keys(state, cls._STATE_KEYS)
+        params = state["params"]
+        names = [v.name for v in VARIABLES if v.causality == "parameter"]
+        if not isinstance(params, dict) or sorted(params) != sorted(names):
+            raise StateError(f"params must name exactly the parameters {names}")
+        t0 = check_finite("t0", state["t0"])
+        check_finite("inputs", state["inputs"], 3)
+        if not isinstance(state["initialized"], bool):
+            raise StateError("initialized must be true or false")
+        if state["error"] is not None and not isinstance(state["error"], str):
+            raise StateError("error must be null or a message")
+        built = None
+        try:
+            built = cls._build(params, t0)
+        except Exception as exc:   # noqa: BLE001 - a bad parameter
+            if state["error"] is None and state["initialized"]:
+                raise StateError(f"bad parameter: {exc}") from None
+        if built is None:           # a state saved after a bad parameter: nothing to restore
+            if state["stepper"] is not None or state["y"] is not None:
+                raise StateError("a state with bad parameters cannot hold a plant state")
+            return None, None, None, None
+        model, stepper, s = built
+        y = None
+        if state["y"] is not None:
+            y = np.array(check_finite("y", state["y"], stepper.nx))
+        if state["stepper"] is not None:
+            snap = state["stepper"]
+            if not isinstance(snap, dict):
+                raise StateError("stepper must be an object")
+            _check_tree_finite("stepper", snap)
+            try:
+                stepper.set_state(snap)
+            except Exception as exc:  # noqa: BLE001
+                raise StateError(f"stepper: {type(exc).__name__}: {exc}") from None
+            if not (np.all(np.isfinite(stepper.y)) and math.isfinite(stepper.t)):
+                raise StateError("stepper: the state is not finite")
+        return model, stepper, s, y
+
     def _set_fmu_state(self, state):
         try:
-            self._check_state(state)
-            if (not self._same_params(state["params"]) or state["t0"] != self._t0
-                    or self._model is None):
-                self._restore_params(state["params"])
-                self._t0 = state["t0"]
-                self._prepare()
-            if state["stepper"] is not None and self._stepper is not None:
-                self._stepper.set_state(state["stepper"])
-            self.F_c, self.dF_c, self.d2F_c = state["inputs"]
-            self._initialized = state["initialized"]
-            self._error = state["error"]
-            if state["y"] is not None:
-                self._accept(np.array(state["y"], dtype=float), None)
+            self._check_header(state)
+            model, stepper, s, y = self._restored(state)
         except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
-            self._error = f"the FMU state could not be restored: {type(exc).__name__}: {exc}"
-            self.log(self._error, Fmi2Status.error)
+            self._restore_failed(exc)
+            return
+        # nothing below can fail: the instance changes all at once
+        self._par, self._par_snap = dict(state["params"]), None
+        self._t0 = float(state["t0"])
+        if model is None:
+            self._model = self._stepper = None
+        else:
+            self._install(model, stepper, s)
+        self.F_c, self.dF_c, self.d2F_c = (float(v) for v in state["inputs"])
+        self._initialized = state["initialized"]
+        self._error = state["error"]
+        self._terminated = False
+        if y is not None:
+            self._accept(y, None)
+        elif stepper is not None:
+            self._accept(stepper.y, None)
+
+
+def _check_tree_finite(name, value, strict=False):
+    """No number of a stepper snapshot is NaN; none is infinite in an array, in the time, the
+    state, the step or the input (a scalar option such as ``max_step`` may be infinite)."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_tree_finite(f"{name}.{k}", v, strict or k in ("t", "y", "h", "u", "du", "d2u"))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _check_tree_finite(f"{name}[{i}]", v, True)
+    elif isinstance(value, float) and (value != value or (strict and not math.isfinite(value))):
+        raise StateError(f"{name} = {value!r} is not finite")

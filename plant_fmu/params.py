@@ -10,7 +10,7 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
-__all__ = ["PlantParams", "MAX_ELEMENTS", "check_real", "check_int", "check_bool",
+__all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN", "check_real", "check_int", "check_bool",
            "replace_checked"]
 
 #: The finest mesh the beam model accepts (the eigenproblem is dense).
@@ -68,6 +68,13 @@ def replace_checked(record, kind: str, changes: dict):
     return dataclasses.replace(record, **changes)
 
 
+#: The smallest value of a positive physical parameter (m, L, rho, EA, EI, E). The beam's
+#: invariants are products and quotients of up to about four of them: within [1e-15, 1e15] none
+#: underflows to zero (a subnormal L or rho once gave "float division by zero" deep in the model,
+#: naming no parameter).
+POSITIVE_MIN = 1e-15
+
+
 @dataclass(frozen=True)
 class PlantParams:
     """Physical and discretisation parameters of the cart with a flexible beam.
@@ -102,7 +109,8 @@ class PlantParams:
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
         for name in ("m", "L", "rho", "EA", "EI", "E"):
-            set_(name, check_real(name, getattr(self, name), low=0.0, high=1e15))
+            set_(name, check_real(name, getattr(self, name), low=POSITIVE_MIN, low_open=False,
+                                  high=1e15))
         set_("zeta", check_real("zeta", self.zeta, low=0.0, high=1.0, low_open=False, high_open=True))
         set_("g", check_real("g", self.g, low=0.0, high=1e3, low_open=False))
         set_("n_elements", check_int("n_elements", self.n_elements, low=1, high=MAX_ELEMENTS))

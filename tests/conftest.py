@@ -7,8 +7,8 @@ import shutil
 
 import pytest
 
-# Import the project packages from this checkout before any FMU is loaded: an FMU puts its own
-# resources folder first on sys.path, and a copy imported from an unpacked FMU would outlive it.
+# The checkout's packages are imported in the test process on purpose: the FMUs must not run them
+# (each FMU loads its own copy under a private name; tests/test_fmu_robustness.py checks it).
 import controller_fmu.pd_lowpass  # noqa: F401
 import plant_fmu.dynamics  # noqa: F401
 
@@ -48,6 +48,7 @@ class FmuInstance:
         self.md = read_model_description(unzipdir)
         self.vars = {v.name: v for v in self.md.modelVariables}
         self.logs = []
+        self.init_status = None
 
         def logger(env, name, status, category, message):
             self.logs.append((status, (category or b"").decode(), message.decode()))
@@ -66,9 +67,18 @@ class FmuInstance:
         if initialize:
             self.initialize()
 
-    def initialize(self):
+    def initialize(self) -> int:
+        """Enter and exit initialisation mode; the status of ``fmi2ExitInitializationMode`` (0,
+        or 3 after a bad parameter, which the FMU logs and then refuses every step with)."""
+        from fmpy.fmi1 import FMICallException
+
         self.fmu.enterInitializationMode()
-        self.fmu.exitInitializationMode()
+        try:
+            self.fmu.exitInitializationMode()
+            self.init_status = 0
+        except FMICallException as exc:
+            self.init_status = exc.status
+        return self.init_status
 
     def vr(self, *names):
         return [self.vars[n].valueReference for n in names]

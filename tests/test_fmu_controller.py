@@ -95,6 +95,7 @@ def test_overflowing_filter_is_discarded(open_fmu):
 ])
 def test_bad_parameter_is_an_error_naming_it(open_fmu, name, value, words):
     ctrl = open_fmu("PDLowPass", **{name: value})
+    assert ctrl.init_status == 3                                # exitInitializationMode: error
     errors = [m for s, _, m in ctrl.logs if s == 3]
     assert errors and errors[0].startswith(f"bad parameter: {words}")   # status fmi2Error
     assert ctrl.step(0.0, H) == 2 and words in ctrl.logs[-1][2]

@@ -67,8 +67,11 @@ _CHILD = textwrap.dedent('''
         s.setReal([vr["phi_o"], vr["omega_o"]], [0.1, -0.5])
     s.doStep(0.0, 1e-3)
     result["output"] = s.getReal([vr[output]])[0]
-    result["package"] = sys.modules[pkg].__file__
-    result["kernel"] = sys.modules[kernel_module]._lib._name
+    def shipped(name):   # the FMU's own copy, imported under a private name by its loader
+        return next(m for k, m in sys.modules.items()
+                    if k.startswith("_flexpend_") and k.endswith("." + name))
+    result["package"] = shipped(pkg).__file__
+    result["kernel"] = shipped(kernel_module)._lib._name
     result["hashlib"] = "_hashlib" in sys.modules
     s.terminate()
     s.freeInstance()

@@ -186,6 +186,7 @@ def test_blow_up_is_caught_before_any_output_overflows(open_fmu):
 ])
 def test_bad_parameter_is_an_error_naming_it(open_fmu, name, value, words):
     plant = open_fmu("FlexiblePendulum", **{name: value})
+    assert plant.init_status == 3                               # exitInitializationMode: error
     errors = [m for s, _, m in plant.logs if s == 3]            # logged with status fmi2Error
     assert errors and words in errors[0] and errors[0].startswith("bad parameter")
     assert plant.step(0.0, H) == 2                              # and doStep is discarded
@@ -194,8 +195,12 @@ def test_bad_parameter_is_an_error_naming_it(open_fmu, name, value, words):
 
 
 def test_parameters_are_fixed_after_initialisation(open_fmu):
+    from fmpy.fmi1 import FMICallException
+
     plant = open_fmu("FlexiblePendulum", phi0=0.1)
-    plant.set(n_modes=2)
+    with pytest.raises(FMICallException) as exc:
+        plant.set(n_modes=2)
+    assert exc.value.status == 3                                # fmi2Error, instance alive
     assert "parameter n_modes is fixed" in plant.messages(3)
     assert plant.step(0.0, H) == 0
 

@@ -16,7 +16,8 @@ def test_defaults_are_table_1():
 
 
 @pytest.mark.parametrize("field,value,match", [
-    ("m", 0.0, r"m = 0.0 is out of range; allowed: \(0.0"),
+    ("m", 0.0, r"m = 0.0 is out of range; allowed: \[1e-15"),
+    ("L", 5e-324, r"L = 5e-324 is out of range; allowed: \[1e-15"),
     ("L", -1.0, "L = -1.0"),
     ("rho", math.nan, "rho"),
     ("EI", math.inf, "EI"),

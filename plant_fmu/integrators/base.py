@@ -75,6 +75,11 @@ def numerical_jacobian(fun, t, y, u, f0, out=None):
     return J
 
 
+def _cap_message(max_steps, t, t_end) -> str:
+    return (f"the substep cap of {max_steps} per call was reached at t = {t!r} before "
+            f"t_end = {t_end!r}")
+
+
 class Stepper:
     """Base class of all methods. Use :func:`plant_fmu.integrators.make_stepper` to build one.
 
@@ -156,14 +161,18 @@ class Stepper:
     def _step_adaptive(self, t_bound):  # pragma: no cover - abstract
         raise NotImplementedError
 
-    def _advance_adaptive(self, t_end):
-        """Adaptive steps up to ``t_end``: ``(ok, message)``. Methods may replace this loop by a
-        compiled one."""
+    def _advance_adaptive(self, t_end, max_steps=None):
+        """Adaptive steps up to ``t_end``: ``(ok, message)``; at most ``max_steps`` steps (then
+        ``(False, why)``). Methods may replace this loop by a compiled one."""
         step = self._step_adaptive
+        n = 0
         while self.t < t_end:
             ok, msg = step(t_end)
             if not ok:
                 return False, msg
+            n += 1
+            if max_steps is not None and n >= max_steps and self.t < t_end:
+                return False, _cap_message(max_steps, self.t, t_end)
         return True, None
 
     def _commit(self):
@@ -239,11 +248,12 @@ class Stepper:
         return (self._u, self._du, self._d2u, self._tu) if (self._du or self._d2u) else self._u
 
     # ------------------------------------------------------------------ public driving API
-    def advance(self, t_end) -> tuple[bool, str | None]:
+    def advance(self, t_end, max_steps=None) -> tuple[bool, str | None]:
         """Substep from ``t`` to exactly ``t_end`` with the input ``u`` held constant.
 
         Returns ``(True, None)``, or ``(False, reason)`` with ``status = "failed"`` and ``y`` left
         at the last good state. A failed stepper stays failed (restore one with :meth:`set_state`).
+        ``max_steps`` bounds the substeps of an adaptive method (reaching it fails the stepper).
         """
         t_end = float(t_end)
         if self.status == FAILED:
@@ -260,7 +270,7 @@ class Stepper:
         # Overflow and NaN are reported by the status, not by floating-point warnings.
         with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             if self.adaptive:
-                ok, msg = self._advance_adaptive(t_end)
+                ok, msg = self._advance_adaptive(t_end, max_steps)
                 if not ok:
                     return False, self._fail(msg)
             else:

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from ..params import check_bool, check_real
-from .base import Stepper
+from .base import Stepper, _cap_message
 
 __all__ = ["ExplicitRungeKutta", "ExplicitEuler", "RK4", "DormandPrince54", "SymplecticEuler"]
 
@@ -127,20 +127,21 @@ class ExplicitRungeKutta(Stepper):
         if self.FSAL:
             self._f = self._f_new
 
-    def _advance_adaptive(self, t_end):
+    def _advance_adaptive(self, t_end, max_steps=None):
         if not self._compiled_error_control:
-            return super()._advance_adaptive(t_end)
-        return self._compiled_adaptive(t_end, single=False)
+            return super()._advance_adaptive(t_end, max_steps)
+        return self._compiled_adaptive(t_end, single=False, max_steps=max_steps)
 
-    def _compiled_adaptive(self, t_bound, single):
-        """Adaptive steps towards ``t_bound`` (one if ``single``) in the compiled loop, which
-        runs the error control of :meth:`_step_adaptive` below."""
+    def _compiled_adaptive(self, t_bound, single, max_steps=None):
+        """Adaptive steps towards ``t_bound`` (one if ``single``; at most ``max_steps``) in the
+        compiled loop, which runs the error control of :meth:`_step_adaptive` below."""
         kern, u = self._kernel, (self._u, self._du, self._d2u, self._tu)
+        left = math.inf if max_steps is None else max_steps
         while True:
             rc, t, y, f, h_abs, nfev, nsteps, nrej, fail_h, fail_min = kern.dopri_advance(
                 self._ktab, self.y, self._f, self.t, t_bound, u, rtol=self.rtol, atol=self.atol,
                 max_step=self.max_step, min_step=self.min_step, h_abs=self._h_abs,
-                max_steps=1 if single else _ADAPTIVE_CHUNK)
+                max_steps=1 if single else int(min(_ADAPTIVE_CHUNK, left)))
             self.t, self.y, self._f, self._h_abs = t, y, f, h_abs
             self.nfev += nfev
             self.nsteps += nsteps
@@ -150,6 +151,9 @@ class ExplicitRungeKutta(Stepper):
                                f"minimum {fail_min!r}")
             if rc == _FP_OK or single:
                 return True, None
+            left -= nsteps
+            if left <= 0:
+                return False, _cap_message(max_steps, t, t_bound)
 
     def _step_adaptive(self, t_bound):
         """One accepted step with error control (the logic of scipy's ``RungeKutta``)."""

@@ -1,0 +1,141 @@
+"""Build the FMU loader: the small C binary that stands in front of pythonfmu's library.
+
+    loader_platforms()          -> ["linux64", "win64"]   (those this machine can build)
+    build_loader(platform)      -> Path of the compiled loader (cached by source digest)
+    loader_files()              -> the sources (for the FMUs' digest)
+    install_loader(entries, name, platforms, python) -> the zip entries of an FMU, completed
+
+The sources are in ``orchestration/export/loader/``: ``fmi2_loader.c`` (finding and starting a
+Python, the checks of every FMI call, forwarding), ``guard.cpp`` (the C++ boundary: any exception
+of pythonfmu's C++ becomes fmi2Error), ``fmi2_api.h`` and ``flexpend_loader.py`` (its Python half,
+shipped in the FMU's resources). They live apart from the model packages because the loader is
+not part of any model: it is the same for every pythonfmu FMU, and the FMUs do not import it.
+
+In an FMU (:func:`install_loader`), ``binaries/<platform>/<model>.so|.dll`` becomes the loader,
+pythonfmu's library moves beside it as ``<model>_pythonfmu.so|.dll``, and the resources get
+``flexpend_loader.py`` and ``flexpend_loader.txt`` (the model's variables, from its one table, its
+log categories, and the interpreter recorded at build time).
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import tempfile
+from pathlib import Path
+
+__all__ = ["LOADER_DIR", "CACHE_DIR", "LoaderBuildError", "loader_platforms", "loader_files",
+           "build_loader", "install_loader", "loader_table", "recorded_python", "SUFFIX"]
+
+LOADER_DIR = Path(__file__).resolve().parent / "loader"
+CACHE_DIR = Path(__file__).resolve().parents[2] / "build" / "loader"
+SUFFIX = {"linux64": ".so", "win64": ".dll"}
+
+_CFLAGS = ["-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation", "-fvisibility=hidden"]
+_COMPILERS = {
+    # platform -> (C compiler, C++ compiler, extra compile flags, link flags)
+    "linux64": ("gcc", "g++", ["-fPIC"], ["-shared", "-ldl", "-lpthread"]),
+    "win64": ("x86_64-w64-mingw32-gcc", "x86_64-w64-mingw32-g++", [],
+              ["-shared", "-static-libgcc", "-static-libstdc++", "-Wl,--no-insert-timestamp"]),
+}
+
+
+class LoaderBuildError(RuntimeError):
+    """The loader could not be compiled (the message holds the compiler's output)."""
+
+
+def loader_files() -> list[Path]:
+    return sorted(p for p in LOADER_DIR.iterdir()
+                  if p.suffix in (".c", ".cpp", ".h", ".py") and p.is_file())
+
+
+def loader_platforms() -> list[str]:
+    """The platforms whose compilers are installed (linux64 needs gcc and g++ on Linux)."""
+    out = []
+    for plat, (cc, cxx, _, _) in _COMPILERS.items():
+        if plat == "linux64" and not sys.platform.startswith("linux"):
+            continue
+        if shutil.which(cc) and shutil.which(cxx):
+            out.append(plat)
+    return out
+
+
+def _digest(platform: str) -> str:
+    h = hashlib.sha256(f"{platform} {_COMPILERS[platform]} {_CFLAGS}\n".encode())
+    for p in loader_files():
+        h.update(p.name.encode() + b"\0" + p.read_bytes() + b"\0")
+    return h.hexdigest()[:16]
+
+
+def build_loader(platform: str, cache_dir: Path = CACHE_DIR) -> Path:
+    """Compile the loader for ``platform`` (or take it from the cache); return its path."""
+    if platform not in _COMPILERS:
+        raise ValueError(f"unknown platform {platform!r}; known: {', '.join(_COMPILERS)}")
+    target = Path(cache_dir) / platform / _digest(platform) / f"fmi2_loader{SUFFIX[platform]}"
+    if target.is_file():
+        return target
+    cc, cxx, cflags, ldflags = _COMPILERS[platform]
+    target.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="flexpend_loader_") as tmp:
+        objs = []
+        for src, comp, std in ((LOADER_DIR / "fmi2_loader.c", cc, "-std=c11"),
+                               (LOADER_DIR / "guard.cpp", cxx, "-std=c++17")):
+            obj = Path(tmp) / (src.stem + ".o")
+            _run([comp, std, *_CFLAGS, *cflags, "-c", str(src), "-o", str(obj)])
+            objs.append(str(obj))
+        part = Path(tmp) / target.name
+        _run([cxx, *objs, "-o", str(part), *ldflags])
+        os.replace(part, target) if target.parent.exists() else None
+    return target
+
+
+def _run(cmd):
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise LoaderBuildError(f"{' '.join(cmd)} failed:\n{proc.stdout}{proc.stderr}")
+
+
+def recorded_python() -> str:
+    """The interpreter recorded in the FMU: this one (its virtual environment's, unresolved)."""
+    return sys.executable
+
+
+def loader_table(model: str, table, log_categories, python: str) -> str:
+    """``resources/flexpend_loader.txt``: the model, the recorded interpreter, the log categories
+    and one line per variable (value reference = position in the table, type, causality)."""
+    lines = [f"model\t{model}", f"python\t{python}"]
+    lines += [f"category\t{c}" for c in log_categories]
+    for vr, v in enumerate(table):
+        if "\t" in v.name or "\n" in v.name:
+            raise ValueError(f"variable name {v.name!r} has a tab or a newline")
+        lines.append(f"var\t{vr}\t{v.type[0]}\t{v.causality[0]}\t{v.name}")
+    return "\n".join(lines) + "\n"
+
+
+def install_loader(entries: dict, model: str, table, log_categories, platforms=None,
+                   python: str | None = None) -> dict:
+    """Complete the zip entries of a pythonfmu FMU (name -> bytes) with the loader: for each
+    platform built, the loader takes the binary's name and pythonfmu's library moves beside it."""
+    platforms = loader_platforms() if platforms is None else list(platforms)
+    if "linux64" not in platforms and sys.platform.startswith("linux"):
+        raise LoaderBuildError("building the FMUs needs gcc and g++ (the linux64 loader)")
+    for plat in platforms:
+        ext = SUFFIX[plat]
+        binary = f"binaries/{plat}/{model}{ext}"
+        if binary not in entries:
+            continue
+        entries[f"binaries/{plat}/{model}_pythonfmu{ext}"] = entries[binary]
+        entries[binary] = build_loader(plat).read_bytes()
+    entries["resources/flexpend_loader.py"] = (LOADER_DIR / "flexpend_loader.py").read_bytes()
+    entries["resources/flexpend_loader.txt"] = loader_table(
+        model, table, log_categories, python or recorded_python()).encode()
+    return entries
+
+
+if __name__ == "__main__":  # pragma: no cover - a manual check
+    for plat in loader_platforms():
+        print(plat, build_loader(plat))
+    print(sysconfig.get_platform())

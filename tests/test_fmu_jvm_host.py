@@ -1,0 +1,79 @@
+"""A JVM host: FMI4j 0.38.0 (``info.laht.fmi4j:fmi-import`` from Maven Central, JNI) runs the
+closed loop of ``tests/c_host/fmi2_host.c`` (``tests/jvm_host/Loop.java``) on both FMUs in a bare
+environment (no ``LD_PRELOAD``, no ``PYTHONPATH``, system ``PATH``), and matches the fmpy master to
+1e-12; pointed at a Python without numpy, the FMU logs the reason through FMI4j's logger and the
+JVM lives (before the loader, FMI4j aborted the JVM). Skipped without ``java``, ``javac`` and
+``mvn``, or when Maven cannot fetch FMI4j.
+"""
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from orchestration.run import run_scene
+from test_fmu_c_host import host_command, system_env, zoh_scene
+
+HERE = Path(__file__).parent / "jvm_host"
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(not all(shutil.which(t) for t in ("java", "javac", "mvn"))
+                                 or not sys.platform.startswith("linux"),
+                                 reason="needs Linux, java, javac and mvn")]
+
+
+@pytest.fixture(scope="module")
+def jvm_host(tmp_path_factory):
+    d = tmp_path_factory.mktemp("jvm")
+    proc = subprocess.run(["mvn", "-q", "-B", "-f", str(HERE / "pom.xml"),
+                           "dependency:copy-dependencies", f"-DoutputDirectory={d / 'lib'}"],
+                          capture_output=True, text=True, timeout=900)
+    if proc.returncode != 0:
+        pytest.skip(f"Maven could not fetch FMI4j: {proc.stdout[-500:]}{proc.stderr[-500:]}")
+    cp = os.pathsep.join(str(j) for j in sorted((d / "lib").glob("*.jar")))
+    subprocess.run(["javac", "-cp", cp, "-d", str(d / "classes"), str(HERE / "Loop.java")],
+                   check=True, capture_output=True)
+    return ["java", "-cp", os.pathsep.join([str(d / "classes"), cp]), "Loop"]
+
+
+def jvm_command(jvm_host, fmus, fmu_dirs, scene, steps, every):
+    cmd = host_command("host", fmu_dirs, scene, steps, every)
+    return [*jvm_host, *cmd[1:4], fmus["FlexiblePendulum"], fmus["PDLowPass"], *cmd[10:]]
+
+
+def java_env(**extra):
+    env = system_env(**extra)
+    if os.environ.get("JAVA_HOME"):
+        env["JAVA_HOME"] = os.environ["JAVA_HOME"]
+    env["PATH"] = os.pathsep.join([str(Path(shutil.which("java")).parent), env["PATH"]])
+    return env
+
+
+def test_closed_loop_in_fmi4j_matches_the_fmpy_master(jvm_host, fmus, fmu_dirs):
+    scene = zoh_scene("stop_time=2.0", "output_interval=0.01")
+    ref = run_scene(scene, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
+                    progress=False).result
+    every = round(scene.config["output_interval"] / scene.config["master.step"])
+    proc = subprocess.run(jvm_command(jvm_host, fmus, fmu_dirs, scene, every * (len(ref) - 1),
+                                      every),
+                          env=java_env(), capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    got = np.array([[float(x) for x in line.split()] for line in proc.stdout.splitlines()
+                    if line[:1].isdigit()])
+    assert got.shape == (len(ref), 5)
+    for j, col in enumerate(("x", "phi_o", "omega_o", "F_c"), start=1):
+        assert np.max(np.abs(got[:, j] - ref[col])) <= 1e-12, col
+
+
+def test_fmi4j_gets_the_reason_when_numpy_is_missing(jvm_host, fmus, fmu_dirs, tmp_path):
+    venv = tmp_path / "bare"
+    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True,
+                   capture_output=True)
+    proc = subprocess.run(jvm_command(jvm_host, fmus, fmu_dirs, zoh_scene(), 10, 10),
+                          env=java_env(FLEXPEND_PYTHON=str(venv / "bin" / "python3")),
+                          capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 5, proc.stdout[-2000:] + proc.stderr[-2000:]   # the JVM lived
+    text = proc.stdout + proc.stderr
+    assert "category = logStatusError" in text and "numpy cannot be imported" in text
