@@ -24,7 +24,7 @@
 /* What an FMU state saves: the mode, then the model (aligned). */
 typedef struct saved_head {
     int mode;
-    int pad;
+    int discarded;             /* the model refused the last doStep (the master should stop) */
     double align;
 } saved_head;
 
@@ -520,7 +520,11 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
                 "restore a saved FMU state to step from another time", t, own);
         return fmi2Error;
     }
-    return (fmi2Status)fpm_model_step(c->m, &c->lg, t, h);
+    {
+        int rc = fpm_model_step(c->m, &c->lg, t, h);
+        c->head->discarded = rc == FPM_DISCARD;
+        return (fmi2Status)rc;
+    }
 }
 
 fmi2Status fmi2CancelStep(fmi2Component comp)
@@ -563,7 +567,10 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2
 {
     CHECK("fmi2GetBooleanStatus", S_ANY);
     if (s == fmi2Terminated && value != NULL) {
-        *value = fmi2False;
+        /* after the model refused a step it cannot go on by itself (a master that restores a
+         * saved state still can): a simple master (fmpy.simulate_fmu) stops instead of
+         * retrying the same step forever */
+        *value = c->head->discarded ? fmi2True : fmi2False;
         return fmi2OK;
     }
     fpm_log(&c->lg, FPM_DISCARD, "fmi2GetBooleanStatus(%d): only fmi2Terminated is available",

@@ -30,7 +30,7 @@
 
 typedef struct saved_head {
     int mode;
-    int pad;
+    int discarded;             /* the model refused the last doStep (the master should stop) */
     double align;
 } saved_head;
 
@@ -826,5 +826,8 @@ fmi3Status fmi3DoStep(fmi3Instance inst, fmi3Float64 currentCommunicationPoint,
     }
     rc = fpm_model_step(c->m, &c->lg, t, h);
     if (lastSuccessfulTime) *lastSuccessfulTime = fpm_model_time(c->m);
+    c->head->discarded = rc == FPM_DISCARD;
+    /* the model refused the step: it cannot go on by itself (see fmi2GetBooleanStatus) */
+    if (terminateSimulation && rc == FPM_DISCARD) *terminateSimulation = fmi3True;
     return (fmi3Status)rc;
 }

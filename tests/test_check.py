@@ -142,13 +142,14 @@ def test_fails_on_a_run_stopped_by_a_discard(fmus, tmp_path):
 
 
 def test_fails_on_an_fmu_that_refuses_to_step(fmus):
-    """A bad parameter: the plant logs it at initialisation and discards every doStep."""
+    """A bad parameter: the plant refuses it at initialisation (fmi2Error from
+    fmi2ExitInitializationMode, with the reason)."""
     from orchestration.export.check import check_fmu
 
     report = check_fmu(fmus["FlexiblePendulum"], REFERENCES, start_values={"n_modes": -1})
     assert not report.passed
-    assert report.failure.startswith("stopped early: doStep at t = 0.0 returned discard")
-    assert "n_modes" in report.failure
+    assert "fmi2ExitInitializationMode" in report.failure and "status 3 (error)" in report.failure
+    assert "n_modes = -1 is out of range" in report.failure
 
 
 def test_plot_draws_every_signal(fmus, tmp_path):

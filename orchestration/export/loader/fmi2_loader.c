@@ -428,6 +428,7 @@ typedef struct {
     char filter[FLX_MAX_CATS][64];
     int worst;                      /* worst status logged during the current call */
     double time;                    /* last successful communication point */
+    int discarded;                  /* the last doStep was refused (fmi2Terminated) */
     Table table;
 } Instance;
 
@@ -1399,6 +1400,7 @@ FLX_EXPORT fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate)
     }
     fmi2Status s = finish(inst, "fmi2SetFMUstate",
                           flx_guard_set_state(G.fmu.set_state, inst->inner, FMUstate));
+    if (s <= fmi2Warning) inst->discarded = 0;
     return s;
 }
 
@@ -1507,9 +1509,15 @@ FLX_EXPORT fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationP
     }
     fmi2Status s = flx_guard_do_step(G.fmu.do_step, inst->inner, currentCommunicationPoint,
                                      communicationStepSize, noSetFMUStatePriorToCurrentPoint);
-    if (s == fmi2Discard && !tls_exception[0]) return fmi2Discard;  /* a refused step */
+    if (s == fmi2Discard && !tls_exception[0]) {   /* a refused step */
+        inst->discarded = 1;
+        return fmi2Discard;
+    }
     s = finish(inst, "fmi2DoStep", s);
-    if (s <= fmi2Warning) inst->time = currentCommunicationPoint + communicationStepSize;
+    if (s <= fmi2Warning) {
+        inst->time = currentCommunicationPoint + communicationStepSize;
+        inst->discarded = 0;
+    }
     return s;
 }
 
@@ -1556,7 +1564,10 @@ FLX_EXPORT fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind
 {
     INSTANCE(fmi2GetBooleanStatus)
     if (s == fmi2Terminated && value) {
-        *value = fmi2False;  /* a refused step can be retried, or a state restored */
+        /* after a refused step the FMU cannot go on by itself (a master that can restore a
+         * saved state may still do so): a simple master such as fmpy.simulate_fmu then stops
+         * instead of retrying the same step forever */
+        *value = inst->discarded ? fmi2True : fmi2False;
         return fmi2OK;
     }
     logf_(inst, fmi2Discard, "fmi2GetBooleanStatus: only fmi2Terminated is available");
