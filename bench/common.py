@@ -129,7 +129,8 @@ class CoSim:
                                step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
                                adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
                                min_step=cfg["master.min_step"], max_step=cfg["master.max_step"],
-                               input_derivatives=cfg["master.input_derivatives"])
+                               input_derivatives=cfg["master.input_derivatives"],
+                               compiled=cfg["master.compiled"])
         self._connections = [parse_connection(c) for c in
                              (DEFAULT_CONNECTIONS if trivial else cfg["connections"])]
 

@@ -450,6 +450,8 @@ class RunStats:
     forced_accepts: int = 0   # steps at min_step whose error still exceeded the tolerance
     wall_time: float = 0.0
     rejected_times: list = field(default_factory=list)
+    #: which loop stepped: "compiled" (orchestration/native/fm_master.c) or "python"
+    loop: str = "python"
 
 
 class Master:
@@ -457,11 +459,19 @@ class Master:
 
     ``slaves``: name -> :class:`Slave`; ``connections``: :class:`Connection` list;
     ``record``: column -> (slave name, variable) to store at every output point.
+
+    ``compiled``: ``"auto"`` (default) runs a fixed-step run in C
+    (:mod:`orchestration.compiled_master`) when every FMU can take it (FMI 2.0 FMUs that need no
+    execution tool: the native FMUs) and in Python otherwise; ``False`` always in Python;
+    ``True`` in C or a ValueError saying why not. Both loops give bit-identical results;
+    :attr:`loop` says which one runs.
     """
 
     def __init__(self, slaves: dict, connections, record: dict, *, algorithm="gauss-seidel",
                  first=None, step=1e-3, extrapolation=0, adaptive=False, tolerance=1e-4,
-                 min_step=1e-6, max_step=2e-2, input_derivatives=False):
+                 min_step=1e-6, max_step=2e-2, input_derivatives=False, compiled="auto"):
+        if not (isinstance(compiled, bool) or compiled == "auto"):
+            raise ValueError(f"compiled = {compiled!r}; allowed: 'auto', True, False")
         if algorithm not in ("gauss-seidel", "jacobi"):
             raise ValueError(f"algorithm = {algorithm!r}; allowed: gauss-seidel, jacobi")
         if extrapolation not in (0, 1, 2):
@@ -538,6 +548,15 @@ class Master:
         #: predict and correct the first step (needs every FMU's state; see _startup_step)
         self._correct_startup = self.p >= 1 and all(
             s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values())
+        from . import compiled_master
+        #: why the compiled loop cannot run these FMUs (None: it can)
+        self.compiled_unavailable = compiled_master.unavailable(self)
+        if compiled is True and self.compiled_unavailable:
+            raise ValueError(f"compiled = True, but {self.compiled_unavailable}")
+        #: the loop :meth:`run` uses: "compiled" or "python"
+        self.loop = "compiled" if compiled and not self.compiled_unavailable else "python"
+        if self.loop == "compiled":
+            compiled_master.load()           # a KernelError names the library, before any run
 
     def connection_table(self) -> str:
         rows = [("from", "to")] + [(f"{c.src}.{c.src_var}", f"{c.dst}.{c.dst_var}")
@@ -563,7 +582,13 @@ class Master:
         W = _weight_rows(tau, kinds, scale)
         if k == 1:
             return W * h.u[-1]
-        return W @ np.array(h.u[-k:])
+        # summed left to right, one rounding per operation (a matrix product would go to BLAS,
+        # whose order and fused multiply-adds depend on the CPU): the compiled loop sums the same
+        u = h.u
+        acc = W[:, 0:1] * u[-k]
+        for i in range(1, k):
+            acc = acc + W[:, i:i + 1] * u[i - k]
+        return acc
 
     def _fill(self, dst, hist, t, scale, kinds):
         """The inputs of ``dst`` from the sources' polynomials: value rows, then derivative
@@ -711,7 +736,16 @@ class Master:
                     raise ValueError(f"output_interval = {output_interval} is not a multiple of "
                                      f"step = {self.h}")
                 total = n_out * m
-                for k in range(total):
+                k0 = 0
+                if self.loop == "compiled":
+                    from .compiled_master import CompiledRun
+                    stats.loop = "compiled"
+                    run = CompiledRun(self, hist, t0, m, total, out)
+                    k0 = run.run(stats, progress, stop)
+                    if k0 < total:       # a node left the integer grid: Python goes on
+                        run.history(hist)
+                        stats.loop = f"compiled, then python from step {k0}"
+                for k in range(k0, total):
                     ta, tb = t0 + k * self.h, t0 + (k + 1) * self.h
                     cur = self._step(hist, ta, tb)
                     for n in self.slaves:

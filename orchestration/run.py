@@ -130,7 +130,8 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
                             step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
                             adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
                             min_step=cfg["master.min_step"], max_step=cfg["master.max_step"],
-                            input_derivatives=cfg["master.input_derivatives"])
+                            input_derivatives=cfg["master.input_derivatives"],
+                            compiled=cfg["master.compiled"])
         except ValueError as exc:       # a variable the FMUs do not have
             raise ConfigError(f"{scene.name}: {exc}") from None
         if connections_out is not None:
@@ -159,7 +160,8 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     res = _reorder(res, n_eta)
     summary = summarize(res, scene, stopped)
     if stats is not None:
-        summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected)
+        summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected,
+                       master_loop=stats.loop)
     if model is not None:
         summary["model"] = model
     out = SceneResult(scene.name, res, summary, stats, frames=frames, scene=scene,

@@ -50,6 +50,9 @@ SCENE_DEFAULTS = {
     "master.input_derivatives": True,
     # which FMUs run: "native" (compiled C, FMI 2.0) or "python" (pythonfmu)
     "master.fmus": "native",
+    # the master's fixed-step loop in C when the FMUs can take it ("auto": the native FMUs), or
+    # always in Python (false); true: in C or an error saying why not
+    "master.compiled": "auto",
     # wiring by variable name: "fmu.variable -> fmu.variable", FMUs "plant" and "controller"
     "connections": [
         "plant.x_o -> controller.x_o",
@@ -127,6 +130,9 @@ def _validate(cfg: dict) -> None:
     _choice("master.algorithm", cfg["master.algorithm"], ALGORITHMS)
     _choice("master.first", cfg["master.first"], FIRST)
     _choice("master.fmus", cfg["master.fmus"], FMU_FLAVOURS)
+    if not (isinstance(cfg["master.compiled"], bool) or cfg["master.compiled"] == "auto"):
+        raise ConfigError(f"master.compiled = {cfg['master.compiled']!r} is not allowed; "
+                          f"allowed: 'auto', true, false")
     try:
         cfg["master.extrapolation"] = check_int("master.extrapolation", cfg["master.extrapolation"],
                                                 low=0, high=2)

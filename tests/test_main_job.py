@@ -215,28 +215,32 @@ def test_extracted_fmus_are_removed_however_the_run_ends(paths, tmp_path, monkey
 
 @pytest.mark.slow
 def test_ctrl_c_stops_cleanly_every_time(fmus, tmp_path):
-    """20 real `flexpend run`s sent SIGINT: half at a random moment after start-up, half at a
-    random moment of a scene's co-simulation. Every one exits with 130 (or 0 if it had already
-    finished), without a crash or a traceback, with summary.json written; the runs interrupted
-    while stepping have their scene's data so far on disk, marked as interrupted."""
+    """20 real `flexpend run`s sent SIGINT: half at a random moment after start-up (the main
+    job), half at a random moment of a scene's co-simulation (a 200 s filtered scene: stepping
+    lasts long enough to be hit, on the compiled loop and, every other time, on the Python loop).
+    Every one exits with 130 (or 0 if it had already finished), without a crash or a traceback,
+    with summary.json written; the runs interrupted while stepping have their scene's data so far
+    on disk, marked as interrupted."""
     import threading
 
     rng = random.Random(13)
     mid_scene = 0
     for i in range(20):
         out = tmp_path / f"run{i}"
-        proc = subprocess.Popen([sys.executable, "-m", "orchestration.cli", "run", "--out",
-                                 str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                text=True)
+        stepping = i % 2 == 1
+        scene = ["flexible_pd_lowpass", "--set", "stop_time=200", "--set",
+                 f"master.compiled={'false' if i % 4 == 3 else 'auto'}"] if stepping else []
+        proc = subprocess.Popen([sys.executable, "-m", "orchestration.cli", "run", *scene,
+                                 "--out", str(out)], stdout=subprocess.DEVNULL,
+                                stderr=subprocess.PIPE, text=True)
         lines = []
         reader = threading.Thread(target=lambda: lines.extend(proc.stderr), daemon=True)
         reader.start()
         t0 = time.monotonic()
-        stepping = i % 2 == 1
         while time.monotonic() - t0 < 120 and (
                 not any("running" in ln for ln in lines) if stepping else not out.exists()):
             time.sleep(0.01)
-        time.sleep(rng.uniform(0.02, 0.4) if stepping else rng.uniform(0.0, 3.0))
+        time.sleep(rng.uniform(0.0, 0.1) if stepping else rng.uniform(0.0, 3.0))
         proc.send_signal(signal.SIGINT)
         proc.wait(timeout=120)
         reader.join(timeout=10)

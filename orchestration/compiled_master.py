@@ -1,0 +1,285 @@
+"""The master's fixed-step loop in C (``orchestration/native/fm_master.c``), bound with ctypes.
+
+:class:`~orchestration.master.Master` runs it instead of its Python loop when every FMU can take
+it (:func:`unavailable` says why not) and the key ``compiled`` allows it. The FMUs stay loaded,
+instantiated and initialised by fmpy; the C loop receives their instance pointers and the
+addresses of the FMI functions fmpy loaded, and makes the calls the Python loop makes, in the
+same order, with the same arguments. Its results are bit-identical to the Python loop's
+(``tests/test_compiled_master.py``): the extrapolation weights come from the same cache, and the
+arithmetic is done operation for operation as numpy does it.
+
+What stays in Python: instantiation, initialisation, the consistent initial outputs and the first
+output row; the rows' array (the C loop writes into it); raising :class:`CoSimulationError` with the
+FMU's log, and :class:`RunInterrupted`. The ``stop`` callback is asked after every step, as in the
+Python loop (through a ctypes callback: about 0.1 us). The loop returns to Python at output points
+about every 20 ms of wall time, to report progress and let Python's signal handlers run.
+"""
+from __future__ import annotations
+
+import ctypes
+import time
+
+import numpy as np
+
+from plant_fmu import _native
+
+__all__ = ["unavailable", "load", "CompiledRun", "KERNEL"]
+
+KERNEL = "flexpend_master"
+
+# results of fm_run and the calls of fail_call (fm_master.h)
+_DONE, _FAILED, _STOPPED, _OFFGRID, _BADARG = range(5)
+_CALLS = {1: "setReal", 2: "setRealInputDerivatives", 3: "doStep", 4: "getReal",
+          5: "getFMUstate", 6: "setFMUstate", 7: "freeFMUstate"}
+#: wall time between two returns to Python (progress, signal handlers)
+CHUNK_SECONDS = 0.02
+#: the largest distance of an extrapolation node from its integer that the C loop takes (Python
+#: rounds the nodes to 9 decimals: within 1e-10 they are the integers the weights were made for)
+GRID_TOL = 1e-10
+#: the FMI 2.0 functions the loop calls (fm_slave's function pointers, in order)
+_FUNCTIONS = ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep", "fmi2SetRealInputDerivatives",
+              "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate")
+
+_P = ctypes.c_void_p
+
+
+class _Slave(ctypes.Structure):
+    _fields_ = [("c", _P), ("set_real", _P), ("get_real", _P), ("do_step", _P), ("set_der", _P),
+                ("get_state", _P), ("set_state", _P), ("free_state", _P),
+                ("n_in", ctypes.c_int), ("n_der", ctypes.c_int), ("n_out", ctypes.c_int),
+                ("n_rec", ctypes.c_int), ("feedthrough", ctypes.c_int), ("pad_", ctypes.c_int),
+                ("in_vr", _P), ("in_src", _P), ("in_idx", _P), ("der_vr", _P),
+                ("der_order", _P), ("out_vr", _P), ("rec_vr", _P),
+                ("in_val", _P), ("der_val", _P), ("new_val", _P), ("rec_val", _P),
+                ("saved", _P), ("hist", _P),
+                ("newest", ctypes.c_longlong), ("count", ctypes.c_int), ("mark", ctypes.c_int),
+                ("state", _P)]
+
+
+class _Master(ctypes.Structure):
+    _fields_ = [("n_slaves", ctypes.c_int), ("gauss_seidel", ctypes.c_int), ("p", ctypes.c_int),
+                ("correct_startup", ctypes.c_int), ("slaves", _P), ("order", _P),
+                ("t0", ctypes.c_double), ("h", ctypes.c_double), ("grid_tol", ctypes.c_double),
+                ("total", ctypes.c_longlong),
+                ("m", ctypes.c_longlong), ("weights", _P), ("n_cols", ctypes.c_int),
+                ("pad_", ctypes.c_int), ("col_slave", _P), ("col_rec", _P), ("col_index", _P),
+                ("out", _P), ("go_on", _P), ("k", ctypes.c_longlong), ("rows", ctypes.c_longlong),
+                ("fail_slave", ctypes.c_int), ("fail_call", ctypes.c_int),
+                ("fail_status", ctypes.c_int), ("fail_timed", ctypes.c_int),
+                ("fail_time", ctypes.c_double)]
+
+
+_GO_ON = ctypes.CFUNCTYPE(ctypes.c_int)
+_lib = None
+
+
+def load():
+    """The compiled loop's library (built at install; rebuilt when stale in a checkout), checked
+    against the structs above. Raises :class:`plant_fmu._native.KernelError`."""
+    global _lib
+    if _lib is None:
+        lib = _native.load(KERNEL, _native.native_dir(KERNEL))
+        for name, struct in (("fm_sizeof_slave", _Slave), ("fm_sizeof_master", _Master)):
+            fn = getattr(lib, name)
+            fn.restype = ctypes.c_size_t
+            if fn() != ctypes.sizeof(struct):
+                raise _native.KernelError(f"{KERNEL}: {name}() = {fn()}, the binding's struct "
+                                          f"has {ctypes.sizeof(struct)} bytes: rebuild it")
+        lib.fm_run.argtypes = [ctypes.POINTER(_Master), ctypes.c_longlong]
+        lib.fm_run.restype = ctypes.c_int
+        _lib = lib
+    return _lib
+
+
+def _address(fun) -> int | None:
+    return ctypes.cast(fun, _P).value if fun is not None else None
+
+
+def unavailable(master) -> str | None:
+    """Why the compiled loop cannot run ``master`` (a :class:`~orchestration.master.Master`), or
+    None when it can: a fixed step, and FMI 2.0 FMUs that need no execution tool (a pythonfmu FMU
+    runs Python: it keeps the Python loop), called through fmpy's raw functions, with the
+    capabilities the coupling uses (FMU states for the corrected first step, input derivatives
+    through ``fmi2SetRealInputDerivatives``)."""
+    if master.adaptive:
+        return "the adaptive communication step runs in Python"
+    for name, s in master.slaves.items():
+        if s.fmi3:
+            return f"{name} is an FMI 3.0 FMU"
+        cs = s.md.coSimulation
+        if cs is None or cs.needsExecutionTool:
+            return f"{name} needs an execution tool (a pythonfmu FMU runs Python)"
+        fun = getattr(s.fmu, "_functions", None)
+        if not fun or getattr(s.fmu, "fmiCallLogger", None) is not None:
+            return f"{name} is not called through fmpy's raw FMI functions (a call logger is set)"
+        needed = list(_FUNCTIONS[:3])
+        if master._n_der[name]:
+            if not s.interpolates_inputs:
+                return f"{name} takes input derivatives as variables, not through " \
+                       "fmi2SetRealInputDerivatives"
+            needed.append(_FUNCTIONS[3])
+        if master._correct_startup:
+            needed += _FUNCTIONS[4:]
+        missing = [f for f in needed if fun.get(f) is None]
+        if missing:
+            return f"{name} lacks {', '.join(missing)}"
+    return None
+
+
+def _ints(values, ctype=ctypes.c_int):
+    return (ctype * max(1, len(values)))(*values)
+
+
+class CompiledRun:
+    """One fixed-step run of ``master`` in C, from its history after the initial outputs.
+
+    ``run(...)`` takes the steps (all, or up to a step whose nodes leave the integer grid) and
+    returns the number of steps taken; failures and interruptions raise as in the Python loop.
+    """
+
+    def __init__(self, master, hist, t0: float, m: int, total: int, out: np.ndarray):
+        lib = load()
+        self.lib, self.master, self.t0, self.m, self.total = lib, master, t0, m, total
+        names = list(master.slaves)
+        index = {n: i for i, n in enumerate(names)}
+        keep = self._keep = []                   # every buffer the structs point to
+
+        def buf(values, ctype=ctypes.c_int):
+            a = _ints(list(values), ctype)
+            keep.append(a)
+            return ctypes.addressof(a)
+
+        def work(n):
+            a = np.zeros(max(1, n))
+            keep.append(a)
+            return a
+
+        self.slaves = (_Slave * len(names))()
+        self.hist = {}
+        for i, n in enumerate(names):
+            s, c = master.slaves[n], self.slaves[i]
+            fun = s.fmu._functions
+            c.c = s.fmu.component.value if hasattr(s.fmu.component, "value") else s.fmu.component
+            (c.set_real, c.get_real, c.do_step, c.set_der, c.get_state, c.set_state,
+             c.free_state) = [_address(fun.get(f)) for f in _FUNCTIONS]
+            ins = master.inputs[n]
+            n_der = master._n_der[n]
+            c.n_in, c.n_der = len(ins), n_der
+            c.n_out, c.n_rec = len(master.outputs[n]), len(master.recorded[n])
+            c.feedthrough = int(bool(s.feedthrough))
+            c.in_vr = buf([s.vr(x.dst_var) for x in ins], ctypes.c_uint)
+            c.in_src = buf([index[x.src] for x in ins])
+            c.in_idx = buf([master._out_index[x.src][x.src_var] for x in ins])
+            c.der_vr = buf([s.vr(x.dst_var) for x in ins] * n_der, ctypes.c_uint)
+            c.der_order = buf([k for k in range(1, n_der + 1) for _ in ins])
+            c.out_vr = buf([s.vr(v) for v in master.outputs[n]], ctypes.c_uint)
+            c.rec_vr = buf([s.vr(v) for v in master.recorded[n]], ctypes.c_uint)
+            for field, size in (("in_val", c.n_in), ("der_val", c.n_in * n_der),
+                                ("new_val", c.n_out), ("rec_val", c.n_rec), ("saved", c.n_out)):
+                setattr(c, field, work(size).ctypes.data)
+            h = np.zeros((4, max(1, c.n_out)))
+            keep.append(h)
+            self.hist[n] = h
+            c.hist = h.ctypes.data
+            # the history after the initial outputs: one sample at t0 (step 0)
+            samples = hist[n].u
+            c.count = len(samples)
+            c.newest = len(samples) - 1
+            for j, u in enumerate(samples):
+                h[j, :c.n_out] = u
+        cols = list(master.record.items())
+        col_slave = [index[s] for _, (s, _v) in cols]
+        col_rec = [int(v not in master._out_index[s]) for _, (s, v) in cols]
+        col_index = [master.recorded[s].index(v) if r else master._out_index[s][v]
+                     for (_, (s, v)), r in zip(cols, col_rec)]
+        self.rows = out.view(np.float64).reshape(len(out), 1 + len(cols))
+        self.struct = st = _Master()
+        st.n_slaves, st.gauss_seidel = len(names), int(master.algorithm == "gauss-seidel")
+        st.p, st.correct_startup = master.p, int(master._correct_startup)
+        st.slaves = ctypes.addressof(self.slaves)
+        st.order = buf([index[n] for n in master.order])
+        st.t0, st.h, st.grid_tol, st.total, st.m = t0, master.h, GRID_TOL, total, m
+        self.weights = weight_table()
+        st.weights = self.weights.ctypes.data
+        st.n_cols = len(cols)
+        st.col_slave, st.col_rec, st.col_index = buf(col_slave), buf(col_rec), buf(col_index)
+        st.out = self.rows.ctypes.data
+        st.k, st.rows = 0, 1
+
+    def run(self, stats, progress=None, stop=None) -> int:
+        """Take the steps; the number taken (``total`` unless the grid forced a handover, then
+        :meth:`history` gives the signals' history for the Python loop)."""
+        from .master import CoSimulationError, RunInterrupted
+
+        st, m, master = self.struct, self.m, self.master
+        raised = []
+        if stop is not None:
+            def go_on():
+                try:
+                    return 0 if stop() else 1
+                except BaseException as exc:  # noqa: BLE001 - re-raised below, out of C
+                    raised.append(exc)
+                    return 0
+            callback = _GO_ON(go_on)
+            st.go_on = ctypes.cast(callback, _P).value
+        chunk = m * max(1, 256 // m)              # steps per call, tuned to CHUNK_SECONDS
+        try:
+            while st.k < self.total:
+                k0, w0 = st.k, time.perf_counter()
+                rc = self.lib.fm_run(ctypes.byref(st), min(self.total, k0 + chunk))
+                elapsed = time.perf_counter() - w0
+                self._account(stats)
+                if rc == _DONE:
+                    if progress is not None:
+                        progress(st.k / self.total)
+                    taken = st.k - k0
+                    if elapsed > 0 and taken:
+                        chunk = max(m, min(4 * chunk, int(taken * CHUNK_SECONDS / elapsed)
+                                           // m * m))
+                    continue
+                if rc == _STOPPED:
+                    if raised:
+                        raise raised[0]
+                    raise RunInterrupted(master._t_reached)
+                if rc == _FAILED:
+                    name = list(master.slaves)[st.fail_slave]
+                    t = st.fail_time if st.fail_timed else None
+                    master.slaves[name]._raise(_CALLS[st.fail_call], st.fail_status, t)
+                if rc == _OFFGRID:
+                    return st.k
+                raise CoSimulationError(f"the compiled master refused its arguments (fm_run "
+                                        f"returned {rc}); master.compiled = false runs the "
+                                        f"Python loop")
+        finally:
+            st.go_on = None
+        return st.k
+
+    def _account(self, stats):
+        st, master = self.struct, self.master
+        stats.steps = int(st.k)
+        master._rows = max(master._rows, int(st.rows))
+        master._t_reached = self.t0 + int(st.k) * master.h if st.k else master._t_reached
+
+    def history(self, hist):
+        """Copy the signals' history into ``hist`` (name -> ``_History``) for the Python loop."""
+        for i, n in enumerate(self.master.slaves):
+            c, h = self.slaves[i], self.hist[n]
+            hist[n].t = [self.t0 + j * self.master.h
+                         for j in range(c.newest - c.count + 1, c.newest + 1)]
+            hist[n].u = [h[j, :c.n_out].copy() for j in range(c.count)]
+
+
+def weight_table() -> np.ndarray:
+    """``W[e + 1, k - 1, kind, :k]``: the weights the Python master uses for the ``k`` nodes
+    ``e - k + 1 .. e`` (``e`` the newest node, -1, 0 or 1, in communication steps from the point
+    of evaluation), per kind: the average over [0, 1], the value, the first and the second
+    derivative at 0 (the derivatives unscaled: the loop divides them by ``scale ** kind``)."""
+    from .master import _weights
+
+    W = np.zeros((3, 3, 4, 3))
+    for e in (-1, 0, 1):
+        for k in (1, 2, 3):
+            tau = tuple(float(j) for j in range(e - k + 1, e + 1))
+            for i, kind in enumerate(("average", 0, 1, 2)):
+                W[e + 1, k - 1, i, :k] = _weights(tau, kind)
+    return W

@@ -1,0 +1,353 @@
+/*
+ * fm_master.c - the compiled fixed-step loop of the co-simulation master (see fm_master.h).
+ *
+ * A port of orchestration/master.py (Master.run with a fixed step, _step, _startup_step,
+ * _macro_step, _outputs_after_step, _combination, _store); the names of the Python functions
+ * are given where their code is mirrored. Compiled with -ffp-contract=off: no fused
+ * multiply-add, every operation rounded as numpy rounds it.
+ */
+#include "fm_master.h"
+
+#include <math.h>
+#include <string.h>
+
+#ifndef FP_SOURCE_DIGEST
+#define FP_SOURCE_DIGEST "unknown"
+#endif
+
+FM_API int fm_abi(void) { return FM_ABI; }
+
+FM_API const char *fm_source_digest(void) { return FP_SOURCE_DIGEST; }
+
+FM_API size_t fm_sizeof_slave(void) { return sizeof(fm_slave); }
+
+FM_API size_t fm_sizeof_master(void) { return sizeof(fm_master); }
+
+/* Kinds of weight rows (the third index of m->weights). */
+#define K_AVERAGE 0
+#define K_VALUE 1
+#define K_D1 2
+#define K_D2 3
+
+static double t_of(const fm_master *m, long long j)
+{
+    return m->t0 + (double)j * m->h;          /* master.py: t0 + k * self.h */
+}
+
+static const double *weight_row(const fm_master *m, int newest_offset, int nodes, int kind)
+{
+    return m->weights + (((newest_offset + 1) * 3 + (nodes - 1)) * 4 + kind) * 3;
+}
+
+static int fail(fm_master *m, int slave, int call, int status, int timed, double t)
+{
+    m->fail_slave = slave;
+    m->fail_call = call;
+    m->fail_status = status;
+    m->fail_timed = timed;
+    m->fail_time = t;
+    return FM_FAILED;
+}
+
+/* ---------------------------------------------------------------------- history */
+static int visible(const fm_slave *s) { return s->count < FM_DEPTH ? s->count : FM_DEPTH; }
+
+/* _History.push, as the run loop does it (the oldest sample leaves beyond FM_DEPTH). */
+static void push(fm_slave *s, long long j, const double *u)
+{
+    int n = s->n_out;
+    if (s->count >= FM_DEPTH) {
+        memmove(s->hist, s->hist + (s->count - FM_DEPTH + 1) * n,
+                (size_t)((FM_DEPTH - 1) * n) * sizeof(double));
+        s->count = FM_DEPTH - 1;
+    }
+    if (n) memcpy(s->hist + s->count * n, u, (size_t)n * sizeof(double));
+    s->count++;
+    s->newest = j;
+}
+
+/* _macro_step's provisional push (Gauss-Seidel): into the spare slot, undone by unpush(). */
+static void push_provisional(fm_slave *s, const double *u)
+{
+    int n = s->n_out;
+    if (n) memcpy(s->hist + s->count * n, u, (size_t)n * sizeof(double));
+    s->count++;
+    s->newest++;
+}
+
+static void unpush(fm_slave *s)
+{
+    s->count--;
+    s->newest--;
+}
+
+/* ---------------------------------------------------------------------- extrapolation */
+/* _combination, one output: row `w` of weights on the newest `nodes` samples of source `s`,
+ * summed left to right (k == 1: one product, as numpy's W * u). */
+static double combine(const fm_slave *s, const double *w, int nodes, int idx)
+{
+    const double *u = s->hist + (s->count - nodes) * s->n_out + idx;
+    double acc;
+    int i;
+    if (nodes == 1) return w[0] * u[0];
+    acc = w[0] * u[0];
+    for (i = 1; i < nodes; i++) acc = acc + w[i] * u[i * s->n_out];
+    return acc;
+}
+
+/* _fill: the inputs of slave `d` from its sources' polynomials about step index `kt` (time `t`,
+ * time unit `scale`): the held values (`held`: the step averages, or the values and the
+ * derivatives at t when the slave takes input derivatives), or the values at t alone. */
+static int fill(const fm_master *m, fm_slave *d, long long kt, double scale, int held)
+{
+    double wd[2][3];
+    double pw[2] = {0.0, 0.0};
+    int i, r;
+    int rows = held && d->n_der ? d->n_der : 0;
+    if (rows) {
+        /* numpy: w / scale ** kd, Python's ** being libm's pow (the exponent is volatile so
+         * that the compiler does not turn pow(x, 2) into x * x) */
+        volatile double one = 1.0, two = 2.0;
+        pw[0] = pow(scale, one);
+        if (rows > 1) pw[1] = pow(scale, two);
+    }
+    for (i = 0; i < d->n_in; i++) {
+        const fm_slave *s = &m->slaves[d->in_src[i]];
+        int idx = d->in_idx[i];
+        int vis = visible(s);
+        int nodes = m->p + 1 < vis ? m->p + 1 : vis;
+        int e = (int)(s->newest - kt);
+        const double *w;
+        if (e < -1 || e > 1 || nodes < 1) return 0;
+        if (!held || d->n_der) {
+            w = weight_row(m, e, nodes, K_VALUE);
+        } else {
+            w = weight_row(m, e, nodes, K_AVERAGE);
+        }
+        d->in_val[i] = combine(s, w, nodes, idx);
+        for (r = 0; r < rows; r++) {
+            const double *wu = weight_row(m, e, nodes, K_D1 + r);
+            int j;
+            for (j = 0; j < nodes; j++) wd[r][j] = wu[j] / pw[r];
+            d->der_val[r * d->n_in + i] = combine(s, wd[r], nodes, idx);
+        }
+    }
+    return 1;
+}
+
+/* Whether every node step k can read is within grid_tol of its integer, as Python computes the
+ * nodes: (t_j - t_k) / (t_k+1 - t_k) for the held inputs, (t_j - t_k+1) / h for the point ones. */
+static int on_grid(const fm_master *m, long long k)
+{
+    double ta = t_of(m, k), tb = t_of(m, k + 1), scale = tb - ta;
+    long long j = k - 2 > 0 ? k - 2 : 0;
+    for (; j <= k + 1; j++) {
+        double tj = t_of(m, j);
+        double qa = (tj - ta) / scale, qb = (tj - tb) / m->h;
+        if (!(fabs(qa - (double)(j - k)) <= m->grid_tol) ||
+            !(fabs(qb - (double)(j - k - 1)) <= m->grid_tol))
+            return 0;
+    }
+    return 1;
+}
+
+/* ---------------------------------------------------------------------- one step */
+/* Slave.set_inputs with the held inputs (values, then derivatives), at ta. */
+static int set_held(fm_master *m, int n, long long k, double ta, double scale)
+{
+    fm_slave *d = &m->slaves[n];
+    int st;
+    if (!fill(m, d, k, scale, 1)) return FM_BADARG;
+    if (d->n_in) {
+        st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
+        if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, ta);
+    }
+    if (d->n_der && d->n_in) {
+        st = d->set_der(d->c, d->der_vr, (size_t)(d->n_in * d->n_der), d->der_order,
+                        d->der_val);
+        if (st > 1) return fail(m, n, FM_CALL_SET_DER, st, 1, ta);
+    }
+    return FM_DONE;
+}
+
+static int do_step(fm_master *m, int n, double ta, double h)
+{
+    fm_slave *d = &m->slaves[n];
+    int st = d->do_step(d->c, ta, h, 1);
+    if (st > 1) return fail(m, n, FM_CALL_DO_STEP, st, 1, ta);
+    return FM_DONE;
+}
+
+/* _outputs_after_step: a feedthrough slave first gets its inputs' values at tb. */
+static int outputs_after_step(fm_master *m, int n, long long k, double tb)
+{
+    fm_slave *d = &m->slaves[n];
+    int st;
+    if (d->feedthrough && d->n_in) {
+        if (!fill(m, d, k + 1, m->h, 0)) return FM_BADARG;
+        st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
+        if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, tb);
+    }
+    if (d->n_out) {
+        st = d->get_real(d->c, d->out_vr, (size_t)d->n_out, d->new_val);
+        if (st > 1) return fail(m, n, FM_CALL_GET_REAL, st, 1, tb);
+    }
+    return FM_DONE;
+}
+
+/* _macro_step: every slave's new outputs in its new_val. */
+static int macro_step(fm_master *m, long long k)
+{
+    double ta = t_of(m, k), tb = t_of(m, k + 1), h = tb - ta;
+    int i, rc;
+    if (!m->gauss_seidel) {
+        for (i = 0; i < m->n_slaves; i++)
+            if ((rc = set_held(m, m->order[i], k, ta, h)) != FM_DONE) return rc;
+        for (i = 0; i < m->n_slaves; i++)
+            if ((rc = do_step(m, m->order[i], ta, h)) != FM_DONE) return rc;
+        for (i = 0; i < m->n_slaves; i++)
+            if ((rc = outputs_after_step(m, m->order[i], k, tb)) != FM_DONE) return rc;
+        return FM_DONE;
+    }
+    /* Gauss-Seidel: later slaves interpolate the earlier ones' outputs between ta and tb. A
+     * slave whose newest sample is already at tb (the predicted one of the first step) has it
+     * replaced meanwhile. */
+    for (i = 0; i < m->n_slaves; i++) {
+        int n = m->order[i];
+        fm_slave *s = &m->slaves[n];
+        if ((rc = set_held(m, n, k, ta, h)) != FM_DONE) return rc;
+        if ((rc = do_step(m, n, ta, h)) != FM_DONE) return rc;
+        if ((rc = outputs_after_step(m, n, k, tb)) != FM_DONE) return rc;
+        if (s->count > 0 && s->newest == k + 1) {
+            double *u = s->hist + (s->count - 1) * s->n_out;
+            if (s->n_out) {
+                memcpy(s->saved, u, (size_t)s->n_out * sizeof(double));
+                memcpy(u, s->new_val, (size_t)s->n_out * sizeof(double));
+            }
+            s->mark = 2;                          /* replaced */
+        } else {
+            push_provisional(s, s->new_val);
+            s->mark = 1;                          /* pushed */
+        }
+    }
+    for (i = 0; i < m->n_slaves; i++) {
+        fm_slave *s = &m->slaves[i];
+        if (s->mark == 1) {
+            unpush(s);
+        } else if (s->mark == 2 && s->n_out) {
+            memcpy(s->hist + (s->count - 1) * s->n_out, s->saved,
+                   (size_t)s->n_out * sizeof(double));
+        }
+        s->mark = 0;
+    }
+    return FM_DONE;
+}
+
+/* _startup_step: predict the first step on held inputs, restore the FMU states, take it again
+ * with the inputs interpolated between t0 and the predicted outputs; free the states however it
+ * ends (a failed free replaces the failure, as an exception in Python's finally does). */
+static int startup_step(fm_master *m, long long k)
+{
+    int i, rc, got = 0;
+    for (i = 0; i < m->n_slaves; i++) {
+        fm_slave *s = &m->slaves[i];
+        int st;
+        s->state = NULL;
+        st = s->get_state(s->c, &s->state);
+        if (st > 1) return fail(m, i, FM_CALL_GET_STATE, st, 0, 0.0);
+        got++;
+    }
+    rc = macro_step(m, k);
+    if (rc == FM_DONE) {
+        for (i = 0; i < m->n_slaves; i++) push(&m->slaves[i], k + 1, m->slaves[i].new_val);
+        for (i = 0; i < m->n_slaves && rc == FM_DONE; i++) {
+            fm_slave *s = &m->slaves[i];
+            int st = s->set_state(s->c, s->state);
+            if (st > 1) rc = fail(m, i, FM_CALL_SET_STATE, st, 0, 0.0);
+        }
+        if (rc == FM_DONE) rc = macro_step(m, k);
+        if (rc == FM_DONE)
+            for (i = 0; i < m->n_slaves; i++) unpush(&m->slaves[i]);
+    }
+    for (i = 0; i < got; i++) {
+        fm_slave *s = &m->slaves[i];
+        int st = s->free_state(s->c, &s->state);
+        if (st > 1) return fail(m, i, FM_CALL_FREE_STATE, st, 0, 0.0);
+    }
+    return rc;
+}
+
+/* _store: row `row` at time t (recorded-only variables read now, in the slaves' order). */
+static int store(fm_master *m, long long row, double t)
+{
+    double *out = m->out + row * (1 + m->n_cols);
+    int i;
+    for (i = 0; i < m->n_slaves; i++) {
+        fm_slave *s = &m->slaves[i];
+        if (s->n_rec) {
+            int st = s->get_real(s->c, s->rec_vr, (size_t)s->n_rec, s->rec_val);
+            if (st > 1) return fail(m, i, FM_CALL_GET_REAL, st, 1, t);
+        }
+    }
+    out[0] = t;
+    for (i = 0; i < m->n_cols; i++) {
+        const fm_slave *s = &m->slaves[m->col_slave[i]];
+        out[1 + i] = m->col_rec[i] ? s->rec_val[m->col_index[i]]
+                                   : s->hist[(s->count - 1) * s->n_out + m->col_index[i]];
+    }
+    if (row + 1 > m->rows) m->rows = row + 1;
+    return FM_DONE;
+}
+
+static int check(const fm_master *m)
+{
+    int i, j;
+    if (!m || !m->slaves || !m->order || !m->weights || m->n_slaves < 1 || m->p < 0 ||
+        m->p > 2 || m->m < 1 || m->total < 0 || m->k < 0 || (m->n_cols && !m->out) ||
+        !(m->h > 0.0) || !(m->grid_tol >= 0.0 && m->grid_tol <= 1e-10))
+        return 0;
+    for (i = 0; i < m->n_slaves; i++) {
+        const fm_slave *s = &m->slaves[i];
+        if (m->order[i] < 0 || m->order[i] >= m->n_slaves) return 0;
+        if (!s->set_real || !s->get_real || !s->do_step || s->n_in < 0 || s->n_out < 0 ||
+            s->n_rec < 0 || s->n_der < 0 || s->n_der > 2 || s->count < 1 ||
+            s->count > FM_DEPTH)
+            return 0;
+        if (s->n_der && !s->set_der) return 0;
+        if (m->correct_startup && (!s->get_state || !s->set_state || !s->free_state)) return 0;
+        for (j = 0; j < s->n_in; j++)
+            if (s->in_src[j] < 0 || s->in_src[j] >= m->n_slaves ||
+                s->in_idx[j] < 0 || s->in_idx[j] >= m->slaves[s->in_src[j]].n_out)
+                return 0;
+    }
+    for (i = 0; i < m->n_cols; i++) {
+        const fm_slave *s;
+        if (m->col_slave[i] < 0 || m->col_slave[i] >= m->n_slaves) return 0;
+        s = &m->slaves[m->col_slave[i]];
+        if (m->col_index[i] < 0 || m->col_index[i] >= (m->col_rec[i] ? s->n_rec : s->n_out))
+            return 0;
+    }
+    return 1;
+}
+
+FM_API int fm_run(fm_master *m, long long k_end)
+{
+    int i, rc;
+    if (!check(m)) return FM_BADARG;
+    if (k_end > m->total) k_end = m->total;
+    while (m->k < k_end) {
+        long long k = m->k;
+        double tb = t_of(m, k + 1);
+        if (!on_grid(m, k)) return FM_OFFGRID;
+        if (m->correct_startup && m->slaves[m->order[0]].count == 1)
+            rc = startup_step(m, k);
+        else
+            rc = macro_step(m, k);
+        if (rc != FM_DONE) return rc;
+        for (i = 0; i < m->n_slaves; i++) push(&m->slaves[i], k + 1, m->slaves[i].new_val);
+        m->k = k + 1;
+        if ((k + 1) % m->m == 0 && (rc = store(m, (k + 1) / m->m, tb)) != FM_DONE) return rc;
+        if (m->go_on && !m->go_on()) return FM_STOPPED;
+    }
+    return FM_DONE;
+}

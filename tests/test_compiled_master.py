@@ -1,0 +1,375 @@
+"""The master's compiled fixed-step loop (orchestration/native/fm_master.c, bound in
+orchestration/compiled_master.py) against its Python loop.
+
+Independent value: the Python loop of orchestration/master.py, which the compiled loop must
+reproduce bit for bit: the same output rows on the paper's scenes and every coupling option, the
+same FMI calls with the same arguments in the same order (traced through wrappers of the FMUs'
+own functions), the same failure for a failed call of every kind (message, status, time, partial
+rows), the same divergence and the same interruption.
+"""
+from __future__ import annotations
+
+import ctypes
+import itertools
+import shutil
+
+import numpy as np
+import pytest
+
+from orchestration import compiled_master
+from orchestration.config import ConfigError
+from orchestration.master import CoSimulationError, Master, RunInterrupted, Slave, parse_connection
+from orchestration.run import RECORD, controller_start_values, plant_start_values, run_scene
+from orchestration.scenes import PAPER_SCENES, load_scene
+
+
+@pytest.fixture(scope="module")
+def native() -> dict:
+    from orchestration.export import build_fmus, fmu_pair
+    return {k: str(v) for k, v in fmu_pair(build_fmus(flavour="native")).items()}
+
+
+@pytest.fixture(scope="module")
+def unzipped(native):
+    from fmpy import extract
+    dirs = {k: extract(p) for k, p in native.items()}
+    yield dirs
+    for d in dirs.values():
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def both(scene_name, sets, native, unzipped, **kw):
+    """The scene run by the Python loop and by the compiled loop."""
+    out = {}
+    for compiled in (False, True):
+        scene = load_scene(scene_name, [f"master.compiled={str(compiled).lower()}", *sets])
+        out[compiled] = run_scene(scene, native, progress=False, unzipdirs=unzipped, **kw)
+    assert out[False].summary["master_loop"] == "python"
+    assert out[True].summary["master_loop"] == "compiled"
+    return out[False], out[True]
+
+
+def assert_same_rows(a, b):
+    assert a.dtype == b.dtype and len(a) == len(b)
+    for c in a.dtype.names:
+        np.testing.assert_array_equal(a[c], b[c], err_msg=c)
+        # bit for bit, the signs of zeros too
+        assert a[c].tobytes() == b[c].tobytes(), c
+
+
+# ---------------------------------------------------------------------- the same numbers
+SHORT = {"rigid_pd": "stop_time=1", "flexible_pd": "stop_time=0.25",
+         "flexible_pd_lowpass": "stop_time=1"}
+
+
+@pytest.mark.parametrize("name", PAPER_SCENES)
+def test_paper_scenes_are_bit_identical(native, unzipped, name):
+    """Each paper scene with its own coupling (Gauss-Seidel, quadratic extrapolation, input
+    derivatives; flexible_pd's controller has no filter: a feedthrough FMU), shortened."""
+    py, c = both(name, [SHORT[name]], native, unzipped)
+    assert py.summary["completed"] and c.summary["completed"]
+    assert_same_rows(py.result, c.result)
+    assert np.ptp(c.result["phi_o"]) > 0.01          # the loop did move
+
+
+COUPLINGS = list(itertools.product(["gauss-seidel", "jacobi"], ["controller", "plant"], [0, 1, 2],
+                                   [True, False], [2, 0]))
+
+
+@pytest.mark.parametrize("algorithm,first,p,derivatives,filter_order", COUPLINGS)
+def test_every_coupling_is_bit_identical(native, unzipped, algorithm, first, p, derivatives,
+                                         filter_order):
+    """Jacobi and Gauss-Seidel with either FMU first, extrapolation of order 0, 1, 2, held step
+    averages or fmi2SetRealInputDerivatives, a filtered (no feedthrough) and an unfiltered
+    (feedthrough: point inputs at t1 before the outputs are read) controller."""
+    sets = ["stop_time=0.2", f"master.algorithm={algorithm}", f"master.first={first}",
+            f"master.extrapolation={p}", f"master.input_derivatives={str(derivatives).lower()}",
+            f"controller.filter_order={filter_order}"]
+    py, c = both("flexible_pd_lowpass", sets, native, unzipped)
+    assert_same_rows(py.result, c.result)
+
+
+# ---------------------------------------------------------------------- the same FMI calls
+_PROTO = {
+    "fmi2SetReal": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint), ctypes.c_size_t,
+                    ctypes.POINTER(ctypes.c_double)),
+    "fmi2GetReal": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint), ctypes.c_size_t,
+                    ctypes.POINTER(ctypes.c_double)),
+    "fmi2DoStep": (ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int),
+    "fmi2SetRealInputDerivatives": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint),
+                                    ctypes.c_size_t, ctypes.POINTER(ctypes.c_int),
+                                    ctypes.POINTER(ctypes.c_double)),
+    "fmi2GetFMUstate": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p)),
+    "fmi2SetFMUstate": (ctypes.c_void_p, ctypes.c_void_p),
+    "fmi2FreeFMUstate": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p)),
+}
+
+
+class Tap:
+    """Wraps the FMI functions of a slave (as fmpy loaded them) in ctypes callbacks that both
+    loops call: every call is recorded with its arguments (and what it returned), and one call
+    can be made to return a given status instead of running."""
+
+    def __init__(self, trace, fail=None):
+        self.trace, self.fail = trace, fail       # fail: (slave, function, n-th call, status)
+        self.count = {}
+        self.armed = False
+        self.keep = []
+
+    def wrap(self, name, slave):
+        fun = slave.fmu._functions
+        for fname, argtypes in _PROTO.items():
+            real = fun[fname]
+            proto = ctypes.CFUNCTYPE(ctypes.c_int, *argtypes)
+
+            def call(*args, _f=fname, _real=real):
+                return self._call(name, _f, _real, args)
+            cb = proto(call)
+            cb.argtypes, cb.restype = list(argtypes), ctypes.c_int
+            cb.argnames = getattr(real, "argnames", None)
+            self.keep.append(cb)
+            fun[fname] = cb
+
+    def _call(self, name, fname, real, args):
+        if fname == "fmi2DoStep":
+            self.armed = True                     # the loop has begun
+        key = (name, fname)
+        if self.armed or fname.endswith("FMUstate"):
+            self.count[key] = self.count.get(key, 0) + 1
+        hit = self.fail and self.fail[:2] == key and self.count.get(key) == self.fail[2]
+        if hit and self.fail[3] > 1:
+            self.trace.append((name, fname, "failed", self.fail[3]))
+            return self.fail[3]
+        status = real(*args)
+        if hit:                                   # a warning: the call ran, and says so
+            status = self.fail[3]
+        n = args[2] if len(args) > 2 else 0
+        if fname in ("fmi2SetReal", "fmi2GetReal"):
+            rec = (list(args[1][:n]), list(args[3][:n]))
+        elif fname == "fmi2SetRealInputDerivatives":
+            rec = (list(args[1][:n]), list(args[3][:n]), list(args[4][:n]))
+        elif fname == "fmi2DoStep":
+            rec = (args[1], args[2], args[3])
+        else:
+            rec = ()
+        self.trace.append((name, fname, rec, status))
+        return status
+
+
+def tapped_run(scene, unzipped, native, compiled, fail=None, stop=None):
+    """One run of ``scene`` with every FMI call of the loop traced: (rows or exception, stats,
+    trace, master)."""
+    trace = []
+    tap = Tap(trace, fail)
+    cfg = scene.config
+    slaves = {}
+    try:
+        slaves["plant"] = Slave(native["plant"], "plant", plant_start_values(scene),
+                                unzipdir=unzipped["plant"])
+        slaves["controller"] = Slave(native["controller"], "controller",
+                                     controller_start_values(scene),
+                                     unzipdir=unzipped["controller"])
+        for n, s in slaves.items():
+            tap.wrap(n, s)
+        master = Master(slaves, [parse_connection(c) for c in cfg["connections"]], RECORD,
+                        algorithm=cfg["master.algorithm"], first=cfg["master.first"],
+                        step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
+                        input_derivatives=cfg["master.input_derivatives"], compiled=compiled)
+        assert master.loop == ("compiled" if compiled else "python")
+        try:
+            res, stats = master.run(0.0, cfg["stop_time"], cfg["output_interval"], stop=stop)
+            return res, stats, trace, master
+        except (CoSimulationError, RunInterrupted) as exc:
+            return exc, exc.stats, trace, master
+    finally:
+        for s in slaves.values():
+            s.close()
+
+
+TRACED = {
+    "the scene's (Gauss-Seidel, quadratic, input derivatives)": [],
+    "Jacobi, linear, held": ["master.algorithm=jacobi", "master.extrapolation=1",
+                             "master.input_derivatives=false"],
+    "Gauss-Seidel, plant first, zero-order hold": ["master.first=plant",
+                                                  "master.extrapolation=0"],
+    "feedthrough controller, Jacobi, quadratic": ["controller.filter_order=0",
+                                                  "master.algorithm=jacobi"],
+}
+
+
+@pytest.mark.parametrize("label", list(TRACED))
+def test_the_fmi_calls_are_the_same(native, unzipped, label):
+    """Every FMI call of the run (initialisation and 25 steps), its arguments and the values it
+    read, in the same order: the compiled loop makes the Python loop's calls."""
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.05", *TRACED[label]])
+    py = tapped_run(scene, unzipped, native, False)
+    c = tapped_run(scene, unzipped, native, True)
+    assert py[2] == c[2]
+    assert_same_rows(py[0], c[0])
+    calls = {f for _, f, *_ in c[2]}
+    assert {"fmi2DoStep", "fmi2SetReal", "fmi2GetReal"} <= calls
+    if scene["master.extrapolation"] >= 1:
+        assert {"fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"} <= calls
+    if scene["master.input_derivatives"] and scene["master.extrapolation"] >= 1:
+        assert "fmi2SetRealInputDerivatives" in calls
+
+
+# ---------------------------------------------------------------------- the same failures
+FAILURES = [
+    ("plant", "fmi2DoStep", 9, 2), ("controller", "fmi2DoStep", 1, 3),
+    ("plant", "fmi2SetReal", 7, 3), ("controller", "fmi2SetReal", 12, 2),
+    ("controller", "fmi2SetRealInputDerivatives", 5, 3),
+    ("plant", "fmi2GetReal", 8, 2), ("controller", "fmi2GetReal", 4, 4),
+    ("plant", "fmi2GetFMUstate", 1, 3), ("controller", "fmi2GetFMUstate", 1, 2),
+    ("controller", "fmi2SetFMUstate", 1, 3), ("plant", "fmi2FreeFMUstate", 1, 3),
+    ("controller", "fmi2FreeFMUstate", 1, 2),
+]
+
+
+@pytest.mark.parametrize("fail", FAILURES, ids=lambda f: f"{f[0]}-{f[1]}-{f[2]}-{f[3]}")
+@pytest.mark.parametrize("sets", [[], ["controller.filter_order=0", "master.algorithm=jacobi"]],
+                         ids=["scene", "feedthrough-jacobi"])
+def test_a_failed_call_raises_the_same_error(native, unzipped, fail, sets):
+    """A call that returns discard, error or fatal ends the run with the same
+    CoSimulationError: message (FMU, call, time, status, log), status, time, the output rows
+    reached and the steps taken; the calls up to it are the same."""
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.06", "output_interval=0.004", *sets])
+    py = tapped_run(scene, unzipped, native, False, fail)
+    c = tapped_run(scene, unzipped, native, True, fail)
+    assert isinstance(py[0], CoSimulationError), py[0]
+    assert isinstance(c[0], CoSimulationError), c[0]
+    assert str(c[0]) == str(py[0])
+    assert (c[0].status, c[0].time) == (py[0].status, py[0].time) == (fail[3], c[0].time)
+    assert f"{fail[0]}: " in str(c[0])
+    assert_same_rows(py[0].result, c[0].result)
+    assert c[1].steps == py[1].steps
+    assert c[2] == py[2]
+    assert [e[:2] for e in c[2] if e[2] == "failed"] == [fail[:2]]
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_warning_does_not_stop_the_run(native, unzipped, compiled):
+    """Status warning (1) is not a failure: the run completes with the rows of a clean run."""
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.05"])
+    clean = tapped_run(scene, unzipped, native, False)
+    for fname in ("fmi2DoStep", "fmi2GetReal", "fmi2SetRealInputDerivatives"):
+        warned = tapped_run(scene, unzipped, native, compiled, ("controller", fname, 3, 1))
+        assert not isinstance(warned[0], Exception)
+        assert warned[1].steps == clean[1].steps == 25
+        assert_same_rows(clean[0], warned[0])
+
+
+@pytest.mark.parametrize("sets", [[], ["master.algorithm=jacobi", "master.extrapolation=0",
+                                       "master.input_derivatives=false"]])
+def test_divergence_stops_at_the_same_step_with_the_same_message(native, unzipped, sets):
+    """``controller.kp = 0``: the plant falls, and its FMU discards the step where |phi|
+    passes phi_limit; both loops stop there with the same message and the same rows."""
+    py, c = both("flexible_pd_lowpass", ["controller.kp=0", *sets], native, unzipped)
+    assert py.summary["stopped"] is not None
+    assert c.summary["stopped"] == py.summary["stopped"]
+    assert "divergence" in c.summary["stopped"]["reason"]
+    assert 0.3 < c.summary["stopped"]["time"] < 0.5
+    assert_same_rows(py.result, c.result)
+    assert c.stats.steps == py.stats.steps
+
+
+# ---------------------------------------------------------------------- Ctrl-C
+def test_stop_is_asked_after_every_step_and_stops_at_the_same_step(native, unzipped):
+    """The ``stop`` callback (Ctrl-C in flexpend run) is asked after every step by both loops;
+    returning True after the 51st step gives the same partial rows and time."""
+    asked = {}
+    out = {}
+    for compiled in (False, True):
+        calls = []
+        scene = load_scene("flexible_pd_lowpass", ["stop_time=0.5",
+                                                   f"master.compiled={str(compiled).lower()}"])
+        out[compiled] = run_scene(scene, native, progress=False, unzipdirs=unzipped,
+                                  stop=lambda: calls.append(1) or len(calls) > 50)
+        asked[compiled] = len(calls)
+    py, c = out[False], out[True]
+    assert py.interrupted and c.interrupted
+    assert asked[True] == asked[False] == 51 == c.stats.steps
+    assert c.summary["stopped"] == py.summary["stopped"]
+    assert c.summary["stopped"]["time"] == pytest.approx(0.102)
+    assert_same_rows(py.result, c.result)
+
+
+def test_an_exception_in_stop_comes_out_of_the_compiled_loop(native, unzipped):
+    """A third Ctrl-C raises KeyboardInterrupt in the stop callback: it leaves the C loop and
+    comes out of the run, as from the Python loop."""
+    for compiled in (False, True):
+        calls = []
+
+        def stop():
+            calls.append(1)
+            if len(calls) == 20:
+                raise KeyboardInterrupt
+            return False
+        scene = load_scene("flexible_pd_lowpass", ["stop_time=0.5",
+                                                   f"master.compiled={str(compiled).lower()}"])
+        with pytest.raises(KeyboardInterrupt):
+            run_scene(scene, native, progress=False, unzipdirs=unzipped, stop=stop)
+        assert len(calls) == 20
+
+
+# ---------------------------------------------------------------------- when it runs
+def test_a_node_off_the_integer_grid_hands_the_run_to_python(native, unzipped, monkeypatch):
+    """Python rounds the extrapolation nodes to 9 decimals; the C loop takes a step only when
+    they are integers to ``GRID_TOL``. With a tolerance of 0 it stops at the first step whose
+    nodes are not exactly integers and the Python loop goes on from there: the same rows."""
+    monkeypatch.setattr(compiled_master, "GRID_TOL", 0.0)
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.2", "master.compiled=true"])
+    r = run_scene(scene, native, progress=False, unzipdirs=unzipped)
+    loop = r.summary["master_loop"]
+    assert loop.startswith("compiled, then python from step ")
+    assert 0 < int(loop.rsplit(" ", 1)[1]) < r.stats.steps == 100
+    py = run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.2", "master.compiled=false"]),
+                   native, progress=False, unzipdirs=unzipped)
+    assert_same_rows(py.result, r.result)
+
+
+def test_progress_is_reported_up_to_the_end(native, unzipped):
+    fractions = []
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=2"])
+    slaves = {"plant": Slave(native["plant"], "plant", plant_start_values(scene),
+                             unzipdir=unzipped["plant"]),
+              "controller": Slave(native["controller"], "controller",
+                                  controller_start_values(scene),
+                                  unzipdir=unzipped["controller"])}
+    try:
+        m = Master(slaves, [parse_connection(c) for c in scene["connections"]], RECORD,
+                   step=2e-3, extrapolation=2, input_derivatives=True)
+        m.run(0.0, 2.0, 0.002, progress=fractions.append)
+    finally:
+        for s in slaves.values():
+            s.close()
+    assert m.loop == "compiled"
+    assert fractions and fractions[-1] == 1.0 and fractions == sorted(fractions)
+
+
+def test_pythonfmu_adaptive_and_fmi3_run_in_python(native, fmus):
+    """The compiled loop takes FMI 2.0 FMUs that need no execution tool, at a fixed step: a
+    pythonfmu FMU (it runs Python), the adaptive master and FMI 3.0 FMUs keep the Python loop,
+    and ``compiled = True`` says why."""
+    from orchestration.export import build_fmus, fmu_pair
+
+    python = fmu_pair(fmus)
+    fmi3 = {k: str(v) for k, v in fmu_pair(build_fmus(flavour="native", fmi_version=3)).items()}
+    cases = [(python, [], "needs an execution tool"),
+             (native, ["master.adaptive=true"], "adaptive"),
+             (fmi3, ["master.input_derivatives=false"], "FMI 3.0")]
+    for paths, sets, why in cases:
+        scene = load_scene("flexible_pd_lowpass", ["stop_time=0.02", *sets])
+        r = run_scene(scene, paths, progress=False)
+        assert r.summary["completed"] and r.summary["master_loop"] == "python", why
+        with pytest.raises(ConfigError, match=why):
+            run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.02", "master.compiled=true",
+                                                         *sets]), paths, progress=False)
+
+
+def test_master_compiled_key_is_checked():
+    with pytest.raises(ConfigError, match="master.compiled = 'yes' is not allowed; allowed: "
+                                          "'auto', true, false"):
+        load_scene("rigid_pd", ["master.compiled=yes"])
+    with pytest.raises(ValueError, match="compiled = 1"):
+        Master({}, [], {}, compiled=1)
