@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import (RESULTS, ROOT, CoSim, load_scene, median_time, phi_error,  # noqa: E402
-                    reference)
+                    reference, trivial_native_fmus)
 from targets import IVP_METHODS, ivp_points  # noqa: E402
 
 from orchestration.export import build_fmus, fmu_pair  # noqa: E402
@@ -52,44 +52,6 @@ T5_CANDIDATES = {          # the output grid (2 ms) must be a multiple of the st
     "H=1ms": ["master.step=1e-3"],
 }
 RK4_STEPS = (1e-3, 5e-4, 4e-4, 2.5e-4, 2e-4, 1.25e-4, 1e-4)     # divide the 2 ms grid
-
-
-# ---------------------------------------------------------------------- the trivial native FMUs
-def trivial_native_fmus(folder: Path) -> dict:
-    """Two native FMUs with the product's interfaces (same names: the same connections) whose
-    step copies an input, built on fmu_native/fmi2.c."""
-    from plant_fmu.interface import ModelInfo, Variable
-    from orchestration.export import model_description as mdesc
-
-    specs = {"plant": ("TrivialPlant", ("F_c",), ("x_o", "phi_o", "omega_o")),
-             "controller": ("TrivialController", ("phi_o", "omega_o", "x_o"), ("F_c",))}
-    out = {}
-    for key, (name, ins, outs) in specs.items():
-        table = tuple([Variable(n, "input", "Real", "input", None, 0.0) for n in ins]
-                      + [Variable(n, "output", "Real", "output") for n in outs])
-        model = ModelInfo(name, "trivial", "0", 0.0, 1.0, 1e-3)
-        mdesc.TABLES[name] = (model, table)
-        gen = folder / f"gen_{name}"
-        gen.mkdir(parents=True, exist_ok=True)
-        token = "{00000000-0000-4000-8000-%012d}" % len(ins)
-        (gen / "fpm_vars.h").write_text(native_fmus.generate_header(name, token))
-        lib = folder / f"{name}.so"
-        cc = kernel_build.find_compiler()
-        cmd = [cc, *kernel_build.CFLAGS, f"-I{gen}", f"-I{native_fmus.SRC}",
-               f"-I{native_fmus.fmi_include_dir()}", "-fPIC", "-shared", "-o", str(lib),
-               str(native_fmus.SRC / "fmi2.c"), str(native_fmus.SRC / "fpm_util.c"),
-               str(ROOT / "bench" / "native" / "trivial_model.c"), "-lm"]
-        subprocess.run(cmd, check=True, capture_output=True, text=True)
-        xml = mdesc.fmi2_model_description(
-            name, token, generation_tool="bench", table=table, model=model,
-            co_simulation={"modelIdentifier": name, "canGetAndSetFMUstate": "true",
-                           "canInterpolateInputs": "true", "canSerializeFMUstate": "true"})
-        fmu = folder / f"{name}.fmu"
-        with zipfile.ZipFile(fmu, "w") as zf:
-            zf.writestr("modelDescription.xml", xml)
-            zf.write(lib, f"binaries/linux64/{name}.so")
-        out[key] = fmu
-    return out
 
 
 # ---------------------------------------------------------------------- T4

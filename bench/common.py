@@ -37,7 +37,7 @@ from orchestration.run import (DEFAULT_CONNECTIONS, controller_start_values,  # 
                                plant_start_values)
 from orchestration.scenes import load_scene  # noqa: E402
 
-__all__ = ["ROOT", "RESULTS", "product_fmus", "trivial_fmus", "CoSim", "monolithic",
+__all__ = ["ROOT", "RESULTS", "product_fmus", "trivial_fmus", "trivial_native_fmus", "CoSim", "monolithic",
            "reference", "median_time", "COUPLING_RECORD", "load_scene"]
 
 RESULTS = ROOT / "bench" / "results"
@@ -103,6 +103,49 @@ def trivial_fmus(folder: Path | None = None) -> dict:
                         str(folder)], check=True, capture_output=True, cwd=folder)
         paths[key] = folder / f"{name}.fmu"
     return paths
+
+
+def trivial_native_fmus(folder: Path | None = None) -> dict:
+    """Two native FMI 2.0 FMUs with the product's interfaces (same names: the same connections)
+    whose step copies an input, built on the product's FMI layer (``fmu_native/fmi2.c``) with
+    ``bench/native/trivial_model.c``: ``{"plant": path, "controller": path}``. The loop over them
+    costs what FMI and the master cost (the master's compiled loop takes them, as it takes the
+    product's native FMUs)."""
+    import zipfile
+
+    from orchestration.export import kernel_build, native_fmus
+    from orchestration.export import model_description as mdesc
+    from plant_fmu.interface import ModelInfo, Variable
+
+    folder = Path(folder or tempfile.mkdtemp(prefix="flexpend_trivial_native_"))
+    specs = {"plant": ("TrivialPlant", ("F_c",), ("x_o", "phi_o", "omega_o")),
+             "controller": ("TrivialController", ("phi_o", "omega_o", "x_o"), ("F_c",))}
+    out = {}
+    for key, (name, ins, outs) in specs.items():
+        table = tuple([Variable(n, "input", "Real", "input", None, 0.0) for n in ins]
+                      + [Variable(n, "output", "Real", "output") for n in outs])
+        model = ModelInfo(name, "trivial", "0", 0.0, 1.0, 1e-3)
+        mdesc.TABLES[name] = (model, table)
+        gen = folder / f"gen_{name}"
+        gen.mkdir(parents=True, exist_ok=True)
+        token = "{00000000-0000-4000-8000-%012d}" % len(ins)
+        (gen / "fpm_vars.h").write_text(native_fmus.generate_header(name, token))
+        lib = folder / f"{name}.so"
+        cmd = [kernel_build.find_compiler(), *kernel_build.CFLAGS, f"-I{gen}",
+               f"-I{native_fmus.SRC}", f"-I{native_fmus.fmi_include_dir()}", "-fPIC", "-shared",
+               "-o", str(lib), str(native_fmus.SRC / "fmi2.c"), str(native_fmus.SRC / "fpm_util.c"),
+               str(ROOT / "bench" / "native" / "trivial_model.c"), "-lm"]
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        xml = mdesc.fmi2_model_description(
+            name, token, generation_tool="bench", table=table, model=model,
+            co_simulation={"modelIdentifier": name, "canGetAndSetFMUstate": "true",
+                           "canInterpolateInputs": "true", "canSerializeFMUstate": "true"})
+        fmu = folder / f"{name}.fmu"
+        with zipfile.ZipFile(fmu, "w") as zf:
+            zf.writestr("modelDescription.xml", xml)
+            zf.write(lib, f"binaries/linux64/{name}.so")
+        out[key] = fmu
+    return out
 
 
 def product_fmus(flavour: str = "python") -> dict:

@@ -30,8 +30,11 @@ project can simulate a scene, side by side with scipy's solve_ivp and with the F
     coupling (``INTEGRATOR_MASTER``); ``exponential`` integrates the linearised plant
     (``plant.fidelity = linear``) and is labelled so;
   - ``solve_ivp`` RK45, DOP853, Radau, LSODA on the monolithic model over rtol (atol = 1e-3 rtol);
-  - the same master loop over two trivial FMUs (the FMI overhead floor), per communication step:
-    a time without an error, drawn as vertical lines.
+  - the same master loop over two trivial FMUs of the same flavour (the FMI overhead floor), per
+    communication step: a time without an error, drawn as vertical lines.
+* **FMUs**: ``--fmus native`` (the default: the native FMI 2.0 pair, which the master steps in
+  its compiled loop) or ``--fmus python``; the integrators only the pythonfmu plant has
+  (``PYTHONFMU_ONLY``: radau, genalpha) run on the pythonfmu pair, and their curves say so.
 
 Results: ``bench/results/work_precision[_quick].{csv,json,png}``; the terminal shows one line per
 point, then where each family sits on the Pareto front (error against time) of its scene.
@@ -58,7 +61,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import (RESULTS, ROOT, CoSim, load_scene, median_time, monolithic,  # noqa: E402
-                    phi_error, product_fmus, reference, trivial_fmus)
+                    phi_error, product_fmus, reference, trivial_fmus,
+                    trivial_native_fmus)
 
 from orchestration.config import ConfigError  # noqa: E402
 from orchestration.master import CoSimulationError  # noqa: E402
@@ -102,6 +106,7 @@ class Family:
     values: tuple               # (full, quick)
     overrides: list = field(default_factory=list)
     method: str = ""            # integrator, solve_ivp method or algorithm, for the record
+    flavour: str = ""           # the FMUs: "" those of --fmus, "python" the pythonfmu ones always
 
     @property
     def param(self):
@@ -126,11 +131,23 @@ def adaptive_families():
                    method="gauss-seidel")]
 
 
+#: the plant integrators only the pythonfmu FlexiblePendulum has (the native one refuses them at
+#: initialisation, naming the ones it has: fmu_native/plant_model.c); their curves always run on
+#: the pythonfmu pair, and say so
+PYTHONFMU_ONLY = ("radau", "genalpha")
+
+
 def integrator_families():
     out = []
     for name, cls in REGISTRY.items():
         base = [*INTEGRATOR_MASTER, f"plant.integrator={name}"]
-        if name == "exponential":       # exact for any step: one point, on the linearised plant
+        if name in PYTHONFMU_ONLY:
+            label = f"{name} (adaptive)" if getattr(cls, "OPTIONS", {}).get("adaptive") else name
+            sweep, values = (([("plant.rtol", 1.0), ("plant.atol", 1e-3)], PLANT_RTOLS)
+                             if "adaptive" in label else ([("plant.step", 1.0)], PLANT_STEPS))
+            out.append(Family(f"{label}, pythonfmu", "plant integrator", "cosim", sweep, values,
+                              base, method=name, flavour="python"))
+        elif name == "exponential":       # exact for any step: one point, on the linearised plant
             out.append(Family("exponential (linear model)", "plant integrator", "cosim",
                               [("plant.step", 1.0)], ([1e-3], [1e-3]),
                               [*base, "plant.fidelity=linear"], method=name))
@@ -179,15 +196,17 @@ def short(param: str) -> str:
 
 class Runner:
     """Runs points. ``fmus``/``trivial``: the product's and the trivial FMUs (``{"plant": path,
-    "controller": path}``); ``refs``: references already solved, by :meth:`scene_for`'s key."""
+    "controller": path}``); ``python_fmus``: the pythonfmu pair, for the families that need it
+    (``Family.flavour``); ``refs``: references already solved, by :meth:`scene_for`'s key."""
 
     def __init__(self, runs: int, extra: list, max_seconds: float, fmus=None, trivial=None,
-                 refs=None):
+                 refs=None, python_fmus=None):
         self.runs = runs
         self.max_seconds = max_seconds
         self.extra = extra
         self.fmus = fmus or product_fmus()
         self.trivial = trivial or trivial_fmus()
+        self.python_fmus = python_fmus
         self._refs = dict(refs or {})
         self._cosims = {}
 
@@ -246,8 +265,10 @@ class Runner:
             fn = self._guard(lambda: self._monolithic(scene, fam.method, value))
         else:
             ref = None if fam.kind == "trivial" else self.ref(ref_key)
-            cosim = CoSim(scene, self.trivial if fam.kind == "trivial" else self.fmus,
-                          trivial=fam.kind == "trivial")
+            fmus = (self.trivial if fam.kind == "trivial" else
+                    self.python_fmus or product_fmus("python") if fam.flavour == "python" else
+                    self.fmus)
+            cosim = CoSim(scene, fmus, trivial=fam.kind == "trivial")
             fn = self._guard(lambda: self._cosim(cosim))
         med, times, value_out = median_time(fn, self.runs, self.max_seconds)
         failed = isinstance(value_out, _Failure)
@@ -344,7 +365,8 @@ def _point_task(item):
             return {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
         _RUNNER.update(key=k, runner=Runner(setup["runs"], list(setup["extra"]),
                                             setup["max_seconds"], local(setup["fmus"]),
-                                            local(setup["trivial"])))
+                                            local(setup["trivial"]),
+                                            python_fmus=local(setup["python_fmus"])))
     runner = _RUNNER["runner"]
     runner._refs.update(refs)
     return runner.point(scene, _families_by_name()[family], value)
@@ -627,16 +649,22 @@ def main(argv=None):
           f"load average {' '.join(f'{x:.2f}' for x in meta['load_average_start'])}", flush=True)
 
     from orchestration.parallel import file_name, open_executor
-    fmus, trivial = product_fmus(args.fmus), trivial_fmus()
+    # the floor is the same flavour's: two trivial native FMUs (the compiled loop takes them as it
+    # takes the product's), or two trivial pythonfmu FMUs
+    fmus = product_fmus(args.fmus)
+    trivial = trivial_native_fmus() if args.fmus == "native" else trivial_fmus()
+    python_fmus = product_fmus("python")
     setup = {"runs": runs, "extra": list(args.set), "max_seconds": MAX_POINT_SECONDS[which],
              "fmus": {k: (file_name(p), str(p)) for k, p in fmus.items()},
-             "trivial": {k: (file_name(p), str(p)) for k, p in trivial.items()}}
-    runner = Runner(runs, args.set, MAX_POINT_SECONDS[which], fmus, trivial)
+             "trivial": {k: (file_name(p), str(p)) for k, p in trivial.items()},
+             "python_fmus": {k: (file_name(p), str(p)) for k, p in python_fmus.items()}}
+    runner = Runner(runs, args.set, MAX_POINT_SECONDS[which], fmus, trivial,
+                    python_fmus=python_fmus)
     records = [None] * len(plan)
     t_start = time.perf_counter()
     try:
         ex = open_executor(args.workers, args.scheduler, paths=[str(Path(__file__).parent)],
-                           files=[*fmus.values(), *trivial.values()])
+                           files=[*fmus.values(), *trivial.values(), *python_fmus.values()])
     except ValueError as exc:
         _die(str(exc))
     meta["executor"] = ex.describe()
