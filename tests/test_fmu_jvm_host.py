@@ -2,8 +2,8 @@
 closed loop of ``tests/c_host/fmi2_host.c`` (``tests/jvm_host/Loop.java``) on both FMUs in a bare
 environment (no ``LD_PRELOAD``, no ``PYTHONPATH``, system ``PATH``), and matches the fmpy master to
 1e-12; pointed at a Python without numpy, the FMU logs the reason through FMI4j's logger and the
-JVM lives (before the loader, FMI4j aborted the JVM). Skipped without ``java``, ``javac`` and
-``mvn``, or when Maven cannot fetch FMI4j.
+JVM lives (before the loader, FMI4j aborted the JVM). The native FMUs run the same loop in it, to
+the same 1e-12. Skipped without ``java``, ``javac`` and ``mvn``, or when Maven cannot fetch FMI4j.
 """
 import os
 import shutil
@@ -77,3 +77,36 @@ def test_fmi4j_gets_the_reason_when_numpy_is_missing(jvm_host, fmus, fmu_dirs, t
     assert proc.returncode == 5, proc.stdout[-2000:] + proc.stderr[-2000:]   # the JVM lived
     text = proc.stdout + proc.stderr
     assert "category = logStatusError" in text and "numpy cannot be imported" in text
+
+
+@pytest.fixture(scope="module")
+def native_fmus():
+    """The native FMI 2.0 pair (built if stale) and its unpacked folders."""
+    from fmpy import extract
+
+    from orchestration.export import build_fmus
+
+    paths = {name: str(p) for name, p in build_fmus(flavour="native").items()}
+    dirs = {name: extract(p) for name, p in paths.items()}
+    yield paths, dirs
+    for d in dirs.values():
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def test_closed_loop_of_the_native_fmus_in_fmi4j_matches_the_fmpy_master(jvm_host, native_fmus):
+    """The native FMUs (no Python anywhere) in FMI4j: the same closed loop as the fmpy master's,
+    to 1e-12."""
+    paths, dirs = native_fmus
+    scene = zoh_scene("stop_time=2.0", "output_interval=0.01")
+    ref = run_scene(scene, {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]},
+                    progress=False).result
+    every = round(scene.config["output_interval"] / scene.config["master.step"])
+    proc = subprocess.run(jvm_command(jvm_host, paths, dirs, scene, every * (len(ref) - 1), every),
+                          env=java_env(), capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    got = np.array([[float(x) for x in line.split()] for line in proc.stdout.splitlines()
+                    if line[:1].isdigit()])
+    assert got.shape == (len(ref), 5)
+    assert np.ptp(got[:, 2]) > 0.1                   # the pendulum moved
+    for j, col in enumerate(("x", "phi_o", "omega_o", "F_c"), start=1):
+        assert np.max(np.abs(got[:, j] - ref[col])) <= 1e-12, col
