@@ -28,12 +28,15 @@ from __future__ import annotations
 import functools
 import math
 import time as _time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2Integer, fmi2Real, fmi2True, fmi2ValueReference
+
+from plant_fmu._native import KernelError
 
 __all__ = ["CoSimulationError", "RunInterrupted", "Slave", "Connection", "Master", "parse_connection",
            "extrapolation_weights", "RunStats"]
@@ -551,12 +554,18 @@ class Master:
         from . import compiled_master
         #: why the compiled loop cannot run these FMUs (None: it can)
         self.compiled_unavailable = compiled_master.unavailable(self)
+        if compiled and not self.compiled_unavailable:
+            try:
+                compiled_master.load()       # before any run
+            except KernelError as exc:       # missing or stale library of a broken install
+                self.compiled_unavailable = f"the compiled loop's library does not load: {exc}"
+                if compiled == "auto":
+                    warnings.warn(f"{self.compiled_unavailable}; the Python loop runs",
+                                  RuntimeWarning, stacklevel=2)
         if compiled is True and self.compiled_unavailable:
             raise ValueError(f"compiled = True, but {self.compiled_unavailable}")
         #: the loop :meth:`run` uses: "compiled" or "python"
         self.loop = "compiled" if compiled and not self.compiled_unavailable else "python"
-        if self.loop == "compiled":
-            compiled_master.load()           # a KernelError names the library, before any run
 
     def connection_table(self) -> str:
         rows = [("from", "to")] + [(f"{c.src}.{c.src_var}", f"{c.dst}.{c.dst_var}")

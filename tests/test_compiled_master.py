@@ -373,3 +373,22 @@ def test_master_compiled_key_is_checked():
         load_scene("rigid_pd", ["master.compiled=yes"])
     with pytest.raises(ValueError, match="compiled = 1"):
         Master({}, [], {}, compiled=1)
+
+
+def test_a_library_that_does_not_load_leaves_auto_on_the_python_loop(native, unzipped,
+                                                                      monkeypatch):
+    """A missing or stale library of a broken install: ``auto`` warns and runs the Python loop
+    (the summary says which ran), ``true`` is an error naming the library's problem."""
+    from plant_fmu._native import KernelError
+
+    def broken():
+        raise KernelError("flexpend_master: no library for linux64 in /nowhere")
+    monkeypatch.setattr(compiled_master, "load", broken)
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.02"])
+    with pytest.warns(RuntimeWarning, match="does not load: flexpend_master: no library"):
+        r = run_scene(scene, native, progress=False, unzipdirs=unzipped)
+    assert r.summary["completed"] and r.summary["master_loop"] == "python"
+    with pytest.raises(ConfigError, match="compiled = True, but the compiled loop's library does "
+                                          "not load: flexpend_master: no library"):
+        run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.02", "master.compiled=true"]),
+                  native, progress=False, unzipdirs=unzipped)
