@@ -270,7 +270,7 @@ def _print_summary(name, s, written):
         print(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
     if "wall_time" in s:
         loop = f"; {s['master_loop']} loop" if s.get("master_loop") else ""
-        print(f"  wall time: {s['wall_time']:.2f} s ({s['steps']} communication steps, "
+        print(f"  wall time: {s['wall_time']:.3g} s ({s['steps']} communication steps, "
               f"{s['rejected_steps']} rejected{loop})")
     if "max_error_phi_o" in s:
         print(f"  max error against the monolithic reference: phi_o {s['max_error_phi_o']:.3e} rad, "
