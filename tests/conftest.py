@@ -13,23 +13,45 @@ import controller_fmu.pd_lowpass  # noqa: F401
 import plant_fmu.dynamics  # noqa: F401
 
 
+def _built(**kw) -> dict:
+    from orchestration.export import build_fmus
+
+    return {name: str(path) for name, path in build_fmus(**kw).items()}
+
+
+def _unpacked(paths: dict):
+    """Each FMU of ``paths`` unpacked into a folder (name -> folder), removed afterwards."""
+    from fmpy import extract
+
+    dirs = {name: extract(path) for name, path in paths.items()}
+    yield dirs
+    for d in dirs.values():
+        shutil.rmtree(d, ignore_errors=True)
+
+
 @pytest.fixture(scope="session")
 def fmus() -> dict:
     """``{"FlexiblePendulum": path, "PDLowPass": path}``, built into build/fmus/ if stale."""
-    from orchestration.export import build_fmus
-
-    return {name: str(path) for name, path in build_fmus().items()}
+    return _built()
 
 
 @pytest.fixture(scope="session")
 def fmu_dirs(fmus) -> dict:
     """The FMUs unpacked once per session: name -> folder."""
-    from fmpy import extract
+    yield from _unpacked(fmus)
 
-    dirs = {name: extract(path) for name, path in fmus.items()}
-    yield dirs
-    for d in dirs.values():
-        shutil.rmtree(d, ignore_errors=True)
+
+@pytest.fixture(scope="session")
+def native() -> dict:
+    """The native FMI 2.0 pair, ``{"FlexiblePendulum": path, "PDLowPass": path}``, built if
+    stale."""
+    return _built(flavour="native")
+
+
+@pytest.fixture(scope="session")
+def native_dirs(native) -> dict:
+    """The native FMI 2.0 pair unpacked once per session: name -> folder."""
+    yield from _unpacked(native)
 
 
 class FmuInstance:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import ctypes
 import itertools
-import shutil
 
 import numpy as np
 import pytest
@@ -24,26 +23,24 @@ from orchestration.scenes import PAPER_SCENES, load_scene
 
 
 @pytest.fixture(scope="module")
-def native() -> dict:
-    from orchestration.export import build_fmus, fmu_pair
-    return {k: str(v) for k, v in fmu_pair(build_fmus(flavour="native")).items()}
+def pair(native) -> dict:
+    """The native FMI 2.0 pair by the master's names (``plant``, ``controller``)."""
+    from orchestration.export import fmu_pair
+    return fmu_pair(native)
 
 
 @pytest.fixture(scope="module")
-def unzipped(native):
-    from fmpy import extract
-    dirs = {k: extract(p) for k, p in native.items()}
-    yield dirs
-    for d in dirs.values():
-        shutil.rmtree(d, ignore_errors=True)
+def unzipped(native_dirs) -> dict:
+    from orchestration.export import fmu_pair
+    return fmu_pair(native_dirs)
 
 
-def both(scene_name, sets, native, unzipped, **kw):
+def both(scene_name, sets, pair, unzipped, **kw):
     """The scene run by the Python loop and by the compiled loop."""
     out = {}
     for compiled in (False, True):
         scene = load_scene(scene_name, [f"master.compiled={str(compiled).lower()}", *sets])
-        out[compiled] = run_scene(scene, native, progress=False, unzipdirs=unzipped, **kw)
+        out[compiled] = run_scene(scene, pair, progress=False, unzipdirs=unzipped, **kw)
     assert out[False].summary["master_loop"] == "python"
     assert out[True].summary["master_loop"] == "compiled"
     return out[False], out[True]
@@ -63,10 +60,10 @@ SHORT = {"rigid_pd": "stop_time=1", "flexible_pd": "stop_time=0.25",
 
 
 @pytest.mark.parametrize("name", PAPER_SCENES)
-def test_paper_scenes_are_bit_identical(native, unzipped, name):
+def test_paper_scenes_are_bit_identical(pair, unzipped, name):
     """Each paper scene with its own coupling (Gauss-Seidel, quadratic extrapolation, input
     derivatives; flexible_pd's controller has no filter: a feedthrough FMU), shortened."""
-    py, c = both(name, [SHORT[name]], native, unzipped)
+    py, c = both(name, [SHORT[name]], pair, unzipped)
     assert py.summary["completed"] and c.summary["completed"]
     assert_same_rows(py.result, c.result)
     assert np.ptp(c.result["phi_o"]) > 0.01          # the loop did move
@@ -77,7 +74,7 @@ COUPLINGS = list(itertools.product(["gauss-seidel", "jacobi"], ["controller", "p
 
 
 @pytest.mark.parametrize("algorithm,first,p,derivatives,filter_order", COUPLINGS)
-def test_every_coupling_is_bit_identical(native, unzipped, algorithm, first, p, derivatives,
+def test_every_coupling_is_bit_identical(pair, unzipped, algorithm, first, p, derivatives,
                                          filter_order):
     """Jacobi and Gauss-Seidel with either FMU first, extrapolation of order 0, 1, 2, held step
     averages or fmi2SetRealInputDerivatives, a filtered (no feedthrough) and an unfiltered
@@ -85,7 +82,7 @@ def test_every_coupling_is_bit_identical(native, unzipped, algorithm, first, p, 
     sets = ["stop_time=0.2", f"master.algorithm={algorithm}", f"master.first={first}",
             f"master.extrapolation={p}", f"master.input_derivatives={str(derivatives).lower()}",
             f"controller.filter_order={filter_order}"]
-    py, c = both("flexible_pd_lowpass", sets, native, unzipped)
+    py, c = both("flexible_pd_lowpass", sets, pair, unzipped)
     assert_same_rows(py.result, c.result)
 
 
@@ -156,7 +153,7 @@ class Tap:
         return status
 
 
-def tapped_run(scene, unzipped, native, compiled, fail=None, stop=None):
+def tapped_run(scene, unzipped, pair, compiled, fail=None, stop=None):
     """One run of ``scene`` with every FMI call of the loop traced: (rows or exception, stats,
     trace, master)."""
     trace = []
@@ -164,9 +161,9 @@ def tapped_run(scene, unzipped, native, compiled, fail=None, stop=None):
     cfg = scene.config
     slaves = {}
     try:
-        slaves["plant"] = Slave(native["plant"], "plant", plant_start_values(scene),
+        slaves["plant"] = Slave(pair["plant"], "plant", plant_start_values(scene),
                                 unzipdir=unzipped["plant"])
-        slaves["controller"] = Slave(native["controller"], "controller",
+        slaves["controller"] = Slave(pair["controller"], "controller",
                                      controller_start_values(scene),
                                      unzipdir=unzipped["controller"])
         for n, s in slaves.items():
@@ -198,12 +195,12 @@ TRACED = {
 
 
 @pytest.mark.parametrize("label", list(TRACED))
-def test_the_fmi_calls_are_the_same(native, unzipped, label):
+def test_the_fmi_calls_are_the_same(pair, unzipped, label):
     """Every FMI call of the run (initialisation and 25 steps), its arguments and the values it
     read, in the same order: the compiled loop makes the Python loop's calls."""
     scene = load_scene("flexible_pd_lowpass", ["stop_time=0.05", *TRACED[label]])
-    py = tapped_run(scene, unzipped, native, False)
-    c = tapped_run(scene, unzipped, native, True)
+    py = tapped_run(scene, unzipped, pair, False)
+    c = tapped_run(scene, unzipped, pair, True)
     assert py[2] == c[2]
     assert_same_rows(py[0], c[0])
     calls = {f for _, f, *_ in c[2]}
@@ -229,13 +226,13 @@ FAILURES = [
 @pytest.mark.parametrize("fail", FAILURES, ids=lambda f: f"{f[0]}-{f[1]}-{f[2]}-{f[3]}")
 @pytest.mark.parametrize("sets", [[], ["controller.filter_order=0", "master.algorithm=jacobi"]],
                          ids=["scene", "feedthrough-jacobi"])
-def test_a_failed_call_raises_the_same_error(native, unzipped, fail, sets):
+def test_a_failed_call_raises_the_same_error(pair, unzipped, fail, sets):
     """A call that returns discard, error or fatal ends the run with the same
     CoSimulationError: message (FMU, call, time, status, log), status, time, the output rows
     reached and the steps taken; the calls up to it are the same."""
     scene = load_scene("flexible_pd_lowpass", ["stop_time=0.06", "output_interval=0.004", *sets])
-    py = tapped_run(scene, unzipped, native, False, fail)
-    c = tapped_run(scene, unzipped, native, True, fail)
+    py = tapped_run(scene, unzipped, pair, False, fail)
+    c = tapped_run(scene, unzipped, pair, True, fail)
     assert isinstance(py[0], CoSimulationError), py[0]
     assert isinstance(c[0], CoSimulationError), c[0]
     assert str(c[0]) == str(py[0])
@@ -248,12 +245,12 @@ def test_a_failed_call_raises_the_same_error(native, unzipped, fail, sets):
 
 
 @pytest.mark.parametrize("compiled", [False, True])
-def test_a_warning_does_not_stop_the_run(native, unzipped, compiled):
+def test_a_warning_does_not_stop_the_run(pair, unzipped, compiled):
     """Status warning (1) is not a failure: the run completes with the rows of a clean run."""
     scene = load_scene("flexible_pd_lowpass", ["stop_time=0.05"])
-    clean = tapped_run(scene, unzipped, native, False)
+    clean = tapped_run(scene, unzipped, pair, False)
     for fname in ("fmi2DoStep", "fmi2GetReal", "fmi2SetRealInputDerivatives"):
-        warned = tapped_run(scene, unzipped, native, compiled, ("controller", fname, 3, 1))
+        warned = tapped_run(scene, unzipped, pair, compiled, ("controller", fname, 3, 1))
         assert not isinstance(warned[0], Exception)
         assert warned[1].steps == clean[1].steps == 25
         assert_same_rows(clean[0], warned[0])
@@ -261,10 +258,10 @@ def test_a_warning_does_not_stop_the_run(native, unzipped, compiled):
 
 @pytest.mark.parametrize("sets", [[], ["master.algorithm=jacobi", "master.extrapolation=0",
                                        "master.input_derivatives=false"]])
-def test_divergence_stops_at_the_same_step_with_the_same_message(native, unzipped, sets):
+def test_divergence_stops_at_the_same_step_with_the_same_message(pair, unzipped, sets):
     """``controller.kp = 0``: the plant falls, and its FMU discards the step where |phi|
     passes phi_limit; both loops stop there with the same message and the same rows."""
-    py, c = both("flexible_pd_lowpass", ["controller.kp=0", *sets], native, unzipped)
+    py, c = both("flexible_pd_lowpass", ["controller.kp=0", *sets], pair, unzipped)
     assert py.summary["stopped"] is not None
     assert c.summary["stopped"] == py.summary["stopped"]
     assert "divergence" in c.summary["stopped"]["reason"]
@@ -274,7 +271,7 @@ def test_divergence_stops_at_the_same_step_with_the_same_message(native, unzippe
 
 
 # ---------------------------------------------------------------------- Ctrl-C
-def test_stop_is_asked_after_every_step_and_stops_at_the_same_step(native, unzipped):
+def test_stop_is_asked_after_every_step_and_stops_at_the_same_step(pair, unzipped):
     """The ``stop`` callback (Ctrl-C in flexpend run) is asked after every step by both loops;
     returning True after the 51st step gives the same partial rows and time."""
     asked = {}
@@ -283,7 +280,7 @@ def test_stop_is_asked_after_every_step_and_stops_at_the_same_step(native, unzip
         calls = []
         scene = load_scene("flexible_pd_lowpass", ["stop_time=0.5",
                                                    f"master.compiled={str(compiled).lower()}"])
-        out[compiled] = run_scene(scene, native, progress=False, unzipdirs=unzipped,
+        out[compiled] = run_scene(scene, pair, progress=False, unzipdirs=unzipped,
                                   stop=lambda: calls.append(1) or len(calls) > 50)
         asked[compiled] = len(calls)
     py, c = out[False], out[True]
@@ -294,7 +291,7 @@ def test_stop_is_asked_after_every_step_and_stops_at_the_same_step(native, unzip
     assert_same_rows(py.result, c.result)
 
 
-def test_an_exception_in_stop_comes_out_of_the_compiled_loop(native, unzipped):
+def test_an_exception_in_stop_comes_out_of_the_compiled_loop(pair, unzipped):
     """A third Ctrl-C raises KeyboardInterrupt in the stop callback: it leaves the C loop and
     comes out of the run, as from the Python loop."""
     for compiled in (False, True):
@@ -308,32 +305,32 @@ def test_an_exception_in_stop_comes_out_of_the_compiled_loop(native, unzipped):
         scene = load_scene("flexible_pd_lowpass", ["stop_time=0.5",
                                                    f"master.compiled={str(compiled).lower()}"])
         with pytest.raises(KeyboardInterrupt):
-            run_scene(scene, native, progress=False, unzipdirs=unzipped, stop=stop)
+            run_scene(scene, pair, progress=False, unzipdirs=unzipped, stop=stop)
         assert len(calls) == 20
 
 
 # ---------------------------------------------------------------------- when it runs
-def test_a_node_off_the_integer_grid_hands_the_run_to_python(native, unzipped, monkeypatch):
+def test_a_node_off_the_integer_grid_hands_the_run_to_python(pair, unzipped, monkeypatch):
     """Python rounds the extrapolation nodes to 9 decimals; the C loop takes a step only when
     they are integers to ``GRID_TOL``. With a tolerance of 0 it stops at the first step whose
     nodes are not exactly integers and the Python loop goes on from there: the same rows."""
     monkeypatch.setattr(compiled_master, "GRID_TOL", 0.0)
     scene = load_scene("flexible_pd_lowpass", ["stop_time=0.2", "master.compiled=true"])
-    r = run_scene(scene, native, progress=False, unzipdirs=unzipped)
+    r = run_scene(scene, pair, progress=False, unzipdirs=unzipped)
     loop = r.summary["master_loop"]
     assert loop.startswith("compiled, then python from step ")
     assert 0 < int(loop.rsplit(" ", 1)[1]) < r.stats.steps == 100
     py = run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.2", "master.compiled=false"]),
-                   native, progress=False, unzipdirs=unzipped)
+                   pair, progress=False, unzipdirs=unzipped)
     assert_same_rows(py.result, r.result)
 
 
-def test_progress_is_reported_up_to_the_end(native, unzipped):
+def test_progress_is_reported_up_to_the_end(pair, unzipped):
     fractions = []
     scene = load_scene("flexible_pd_lowpass", ["stop_time=2"])
-    slaves = {"plant": Slave(native["plant"], "plant", plant_start_values(scene),
+    slaves = {"plant": Slave(pair["plant"], "plant", plant_start_values(scene),
                              unzipdir=unzipped["plant"]),
-              "controller": Slave(native["controller"], "controller",
+              "controller": Slave(pair["controller"], "controller",
                                   controller_start_values(scene),
                                   unzipdir=unzipped["controller"])}
     try:
@@ -347,7 +344,7 @@ def test_progress_is_reported_up_to_the_end(native, unzipped):
     assert fractions and fractions[-1] == 1.0 and fractions == sorted(fractions)
 
 
-def test_pythonfmu_adaptive_and_fmi3_run_in_python(native, fmus):
+def test_pythonfmu_adaptive_and_fmi3_run_in_python(pair, fmus):
     """The compiled loop takes FMI 2.0 FMUs that need no execution tool, at a fixed step: a
     pythonfmu FMU (it runs Python), the adaptive master and FMI 3.0 FMUs keep the Python loop,
     and ``compiled = True`` says why."""
@@ -356,7 +353,7 @@ def test_pythonfmu_adaptive_and_fmi3_run_in_python(native, fmus):
     python = fmu_pair(fmus)
     fmi3 = {k: str(v) for k, v in fmu_pair(build_fmus(flavour="native", fmi_version=3)).items()}
     cases = [(python, [], "needs an execution tool"),
-             (native, ["master.adaptive=true"], "adaptive"),
+             (pair, ["master.adaptive=true"], "adaptive"),
              (fmi3, ["master.input_derivatives=false"], "FMI 3.0")]
     for paths, sets, why in cases:
         scene = load_scene("flexible_pd_lowpass", ["stop_time=0.02", *sets])
@@ -375,7 +372,7 @@ def test_master_compiled_key_is_checked():
         Master({}, [], {}, compiled=1)
 
 
-def test_a_library_that_does_not_load_leaves_auto_on_the_python_loop(native, unzipped,
+def test_a_library_that_does_not_load_leaves_auto_on_the_python_loop(pair, unzipped,
                                                                       monkeypatch):
     """A missing or stale library of a broken install: ``auto`` warns and runs the Python loop
     (the summary says which ran), ``true`` is an error naming the library's problem."""
@@ -386,9 +383,9 @@ def test_a_library_that_does_not_load_leaves_auto_on_the_python_loop(native, unz
     monkeypatch.setattr(compiled_master, "load", broken)
     scene = load_scene("flexible_pd_lowpass", ["stop_time=0.02"])
     with pytest.warns(RuntimeWarning, match="does not load: flexpend_master: no library"):
-        r = run_scene(scene, native, progress=False, unzipdirs=unzipped)
+        r = run_scene(scene, pair, progress=False, unzipdirs=unzipped)
     assert r.summary["completed"] and r.summary["master_loop"] == "python"
     with pytest.raises(ConfigError, match="compiled = True, but the compiled loop's library does "
                                           "not load: flexpend_master: no library"):
         run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.02", "master.compiled=true"]),
-                  native, progress=False, unzipdirs=unzipped)
+                  pair, progress=False, unzipdirs=unzipped)

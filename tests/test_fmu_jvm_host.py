@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from orchestration.export import fmu_pair
 from orchestration.run import run_scene
 from test_fmu_c_host import host_command, system_env, zoh_scene
 
@@ -51,10 +52,10 @@ def java_env(**extra):
     return env
 
 
-def test_closed_loop_in_fmi4j_matches_the_fmpy_master(jvm_host, fmus, fmu_dirs):
+def assert_fmi4j_matches_the_fmpy_master(jvm_host, fmus, fmu_dirs):
+    """2 s of the closed loop in FMI4j against the fmpy master's run of the same FMUs, to 1e-12."""
     scene = zoh_scene("stop_time=2.0", "output_interval=0.01")
-    ref = run_scene(scene, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
-                    progress=False).result
+    ref = run_scene(scene, fmu_pair(fmus), progress=False).result
     every = round(scene.config["output_interval"] / scene.config["master.step"])
     proc = subprocess.run(jvm_command(jvm_host, fmus, fmu_dirs, scene, every * (len(ref) - 1),
                                       every),
@@ -63,8 +64,13 @@ def test_closed_loop_in_fmi4j_matches_the_fmpy_master(jvm_host, fmus, fmu_dirs):
     got = np.array([[float(x) for x in line.split()] for line in proc.stdout.splitlines()
                     if line[:1].isdigit()])
     assert got.shape == (len(ref), 5)
+    assert np.ptp(got[:, 2]) > 0.1                   # the pendulum moved
     for j, col in enumerate(("x", "phi_o", "omega_o", "F_c"), start=1):
         assert np.max(np.abs(got[:, j] - ref[col])) <= 1e-12, col
+
+
+def test_closed_loop_in_fmi4j_matches_the_fmpy_master(jvm_host, fmus, fmu_dirs):
+    assert_fmi4j_matches_the_fmpy_master(jvm_host, fmus, fmu_dirs)
 
 
 def test_fmi4j_gets_the_reason_when_numpy_is_missing(jvm_host, fmus, fmu_dirs, tmp_path):
@@ -79,34 +85,8 @@ def test_fmi4j_gets_the_reason_when_numpy_is_missing(jvm_host, fmus, fmu_dirs, t
     assert "category = logStatusError" in text and "numpy cannot be imported" in text
 
 
-@pytest.fixture(scope="module")
-def native_fmus():
-    """The native FMI 2.0 pair (built if stale) and its unpacked folders."""
-    from fmpy import extract
-
-    from orchestration.export import build_fmus
-
-    paths = {name: str(p) for name, p in build_fmus(flavour="native").items()}
-    dirs = {name: extract(p) for name, p in paths.items()}
-    yield paths, dirs
-    for d in dirs.values():
-        shutil.rmtree(d, ignore_errors=True)
-
-
-def test_closed_loop_of_the_native_fmus_in_fmi4j_matches_the_fmpy_master(jvm_host, native_fmus):
+def test_closed_loop_of_the_native_fmus_in_fmi4j_matches_the_fmpy_master(jvm_host, native,
+                                                                          native_dirs):
     """The native FMUs (no Python anywhere) in FMI4j: the same closed loop as the fmpy master's,
     to 1e-12."""
-    paths, dirs = native_fmus
-    scene = zoh_scene("stop_time=2.0", "output_interval=0.01")
-    ref = run_scene(scene, {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]},
-                    progress=False).result
-    every = round(scene.config["output_interval"] / scene.config["master.step"])
-    proc = subprocess.run(jvm_command(jvm_host, paths, dirs, scene, every * (len(ref) - 1), every),
-                          env=java_env(), capture_output=True, text=True, timeout=900)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-    got = np.array([[float(x) for x in line.split()] for line in proc.stdout.splitlines()
-                    if line[:1].isdigit()])
-    assert got.shape == (len(ref), 5)
-    assert np.ptp(got[:, 2]) > 0.1                   # the pendulum moved
-    for j, col in enumerate(("x", "phi_o", "omega_o", "F_c"), start=1):
-        assert np.max(np.abs(got[:, j] - ref[col])) <= 1e-12, col
+    assert_fmi4j_matches_the_fmpy_master(jvm_host, native, native_dirs)

@@ -67,12 +67,6 @@ def rust_host(tmp_path_factory):
     return exe
 
 
-@pytest.fixture(scope="module")
-def native():
-    from orchestration.export import build_fmus
-    return {n: str(p) for n, p in build_fmus(flavour="native").items()}
-
-
 def run_rust(exe, native, steps=2000, h=1e-3, phi0=0.3):
     return subprocess.run([str(exe), native["FlexiblePendulum"], native["PDLowPass"], str(steps),
                            repr(h), f"phi0={phi0!r}"], env=system_env(), capture_output=True,

@@ -28,24 +28,9 @@ linux_gcc = pytest.mark.skipif(not sys.platform.startswith("linux") or not shuti
 
 
 @pytest.fixture(scope="session")
-def native() -> dict:
-    from orchestration.export import build_fmus
-    return {n: str(p) for n, p in build_fmus(flavour="native").items()}
-
-
-@pytest.fixture(scope="session")
 def native3() -> dict:
     from orchestration.export import build_fmus
     return {n: str(p) for n, p in build_fmus(flavour="native", fmi_version=3).items()}
-
-
-@pytest.fixture(scope="session")
-def native_dirs(native):
-    from fmpy import extract
-    dirs = {n: extract(p) for n, p in native.items()}
-    yield dirs
-    for d in dirs.values():
-        shutil.rmtree(d, ignore_errors=True)
 
 
 @pytest.fixture
