@@ -38,7 +38,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import (RESULTS, ROOT, CoSim, load_scene, median_time, phi_error,  # noqa: E402
                     reference, trivial_native_fmus)
-from targets import IVP_METHODS, ivp_points  # noqa: E402
+from targets import ivp_points  # noqa: E402
 
 from orchestration.export import build_fmus, fmu_pair  # noqa: E402
 from orchestration.export import kernel_build, native_fmus  # noqa: E402
@@ -70,9 +70,9 @@ def t4(runs: int, native, python, trivial, log) -> dict:
 
 def _t4(runs, native, python, trivial, log, label, sets) -> dict:
     log(f"T4  coupling: {label}")
-    scene = load_scene(SCENE, ["plant.n_modes=4", "master.step=1e-3", "stop_time=2", *sets])
-    python_loop = load_scene(SCENE, ["plant.n_modes=4", "master.step=1e-3", "stop_time=2", *sets,
-                                     "master.compiled=false"])
+    base = ["plant.n_modes=4", "master.step=1e-3", "stop_time=2", *sets]
+    scene = load_scene(SCENE, base)
+    python_loop = load_scene(SCENE, [*base, "master.compiled=false"])
     loops = {"native": CoSim(scene, native), "native, Python loop": CoSim(python_loop, native),
              "pythonfmu": CoSim(scene, python), "trivial native": CoSim(scene, trivial, trivial=True),
              "trivial, Python loop": CoSim(python_loop, trivial, trivial=True)}

@@ -141,23 +141,20 @@ def integrator_families():
     out = []
     for name, cls in REGISTRY.items():
         base = [*INTEGRATOR_MASTER, f"plant.integrator={name}"]
-        if name in PYTHONFMU_ONLY:
-            label = f"{name} (adaptive)" if getattr(cls, "OPTIONS", {}).get("adaptive") else name
-            sweep, values = (([("plant.rtol", 1.0), ("plant.atol", 1e-3)], PLANT_RTOLS)
-                             if "adaptive" in label else ([("plant.step", 1.0)], PLANT_STEPS))
-            out.append(Family(f"{label}, pythonfmu", "plant integrator", "cosim", sweep, values,
-                              base, method=name, flavour="python"))
-        elif name == "exponential":       # exact for any step: one point, on the linearised plant
-            out.append(Family("exponential (linear model)", "plant integrator", "cosim",
-                              [("plant.step", 1.0)], ([1e-3], [1e-3]),
-                              [*base, "plant.fidelity=linear"], method=name))
+        if name == "exponential":       # exact for any step: one point, on the linearised plant
+            fam = Family("exponential (linear model)", "plant integrator", "cosim",
+                         [("plant.step", 1.0)], ([1e-3], [1e-3]),
+                         [*base, "plant.fidelity=linear"], method=name)
         elif getattr(cls, "OPTIONS", {}).get("adaptive"):
-            out.append(Family(f"{name} (adaptive)", "plant integrator", "cosim",
-                              [("plant.rtol", 1.0), ("plant.atol", 1e-3)], PLANT_RTOLS, base,
-                              method=name))
+            fam = Family(f"{name} (adaptive)", "plant integrator", "cosim",
+                         [("plant.rtol", 1.0), ("plant.atol", 1e-3)], PLANT_RTOLS, base,
+                         method=name)
         else:
-            out.append(Family(name, "plant integrator", "cosim", [("plant.step", 1.0)],
-                              PLANT_STEPS, base, method=name))
+            fam = Family(name, "plant integrator", "cosim", [("plant.step", 1.0)],
+                         PLANT_STEPS, base, method=name)
+        if name in PYTHONFMU_ONLY:
+            fam.name, fam.flavour = f"{fam.name}, pythonfmu", "python"
+        out.append(fam)
     return out
 
 
@@ -265,9 +262,14 @@ class Runner:
             fn = self._guard(lambda: self._monolithic(scene, fam.method, value))
         else:
             ref = None if fam.kind == "trivial" else self.ref(ref_key)
-            fmus = (self.trivial if fam.kind == "trivial" else
-                    self.python_fmus or product_fmus("python") if fam.flavour == "python" else
-                    self.fmus)
+            if fam.kind == "trivial":
+                fmus = self.trivial
+            elif fam.flavour == "python":
+                if self.python_fmus is None:
+                    self.python_fmus = product_fmus("python")
+                fmus = self.python_fmus
+            else:
+                fmus = self.fmus
             cosim = CoSim(scene, fmus, trivial=fam.kind == "trivial")
             fn = self._guard(lambda: self._cosim(cosim))
         med, times, value_out = median_time(fn, self.runs, self.max_seconds)
