@@ -1,8 +1,8 @@
 """Build step of the project: compile the C kernels (plant_fmu/native, controller_fmu/native, and
 the master's compiled loop in orchestration/native) into plain shared libraries for this platform, for regular and editable installs alike.
 
-Everything else is declared in pyproject.toml. The compilation itself is
-orchestration/export/kernel_build.py (the same build the FMUs use). Without a C compiler the
+Everything else is declared in pyproject.toml. The compilation itself is fmu_common/kernels.py
+(the same build the FMUs use). Without a C compiler the
 install stops with one line naming the compiler it looked for.
 """
 import importlib.util
@@ -16,9 +16,10 @@ HERE = Path(__file__).resolve().parent
 
 
 def _kernel_build():
-    sys.path.insert(0, str(HERE))      # kernel_build imports plant_fmu._native (standard library)
-    spec = importlib.util.spec_from_file_location(
-        "_flexpend_kernel_build", HERE / "orchestration" / "export" / "kernel_build.py")
+    """fmu_common/kernels.py, loaded by its path (standard library only; nothing is installed
+    yet)."""
+    spec = importlib.util.spec_from_file_location("_flexpend_kernels",
+                                                  HERE / "fmu_common" / "kernels.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

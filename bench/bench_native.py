@@ -41,7 +41,8 @@ from common import (RESULTS, ROOT, CoSim, load_scene, median_time, phi_error,  #
 from targets import ivp_points  # noqa: E402
 
 from orchestration.export import build_fmus, fmu_pair  # noqa: E402
-from orchestration.export import kernel_build, native_fmus  # noqa: E402
+from fmu_common import kernels
+from orchestration.export import native_fmus  # noqa: E402
 
 SCENE = "flexible_pd_lowpass"
 T5_CANDIDATES = {          # the output grid (2 ms) must be a multiple of the step
@@ -97,8 +98,8 @@ def _t4(runs, native, python, trivial, log, label, sets) -> dict:
 # ---------------------------------------------------------------------- T5
 def monolithic_rk4_binary(folder: Path) -> Path:
     exe = folder / "monolithic_rk4"
-    native = kernel_build.native_dir("flexpend_plant")
-    cmd = [kernel_build.find_compiler(), "-std=gnu99", "-O2", "-ffp-contract=off", "-DFP_API=",
+    native = kernels.native_dir("flexpend_plant")
+    cmd = [kernels.find_compiler(), "-std=gnu99", "-O2", "-ffp-contract=off", "-DFP_API=",
            f"-I{native}", "-o", str(exe), str(ROOT / "bench" / "native" / "monolithic_rk4.c"),
            str(native / "fp_plant.c"), "-lm"]
     subprocess.run(cmd, check=True, capture_output=True, text=True)
@@ -192,7 +193,7 @@ def c_host(runs, native, log) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         exe = tmp / "fmi2_host"
-        subprocess.run([kernel_build.find_compiler(), "-O2", "-std=gnu11",
+        subprocess.run([kernels.find_compiler(), "-O2", "-std=gnu11",
                         f"-I{native_fmus.fmi_include_dir()}", "-o", str(exe),
                         str(ROOT / "tests" / "native" / "fmi2_host.c"), "-ldl"], check=True)
         args, vrs = [], {}

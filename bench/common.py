@@ -107,15 +107,16 @@ def trivial_fmus(folder: Path | None = None) -> dict:
 
 def trivial_native_fmus(folder: Path | None = None) -> dict:
     """Two native FMI 2.0 FMUs with the product's interfaces (same names: the same connections)
-    whose step copies an input, built on the product's FMI layer (``fmu_native/fmi2.c``) with
+    whose step copies an input, built on the product's FMI layer (``fmu_common/native/fmi2.c``) with
     ``bench/native/trivial_model.c``: ``{"plant": path, "controller": path}``. The loop over them
     costs what FMI and the master cost (the master's compiled loop takes them, as it takes the
     product's native FMUs)."""
     import zipfile
 
-    from orchestration.export import kernel_build, native_fmus
+    from fmu_common import kernels
+    from fmu_common.variables import ModelInfo, Variable
     from orchestration.export import model_description as mdesc
-    from plant_fmu.interface import ModelInfo, Variable
+    from orchestration.export import native_fmus
 
     folder = Path(folder or tempfile.mkdtemp(prefix="flexpend_trivial_native_"))
     specs = {"plant": ("TrivialPlant", ("F_c",), ("x_o", "phi_o", "omega_o")),
@@ -131,7 +132,7 @@ def trivial_native_fmus(folder: Path | None = None) -> dict:
         token = "{00000000-0000-4000-8000-%012d}" % len(ins)
         (gen / "fpm_vars.h").write_text(native_fmus.generate_header(name, token))
         lib = folder / f"{name}.so"
-        cmd = [kernel_build.find_compiler(), *kernel_build.CFLAGS, f"-I{gen}",
+        cmd = [kernels.find_compiler(), *kernels.CFLAGS, f"-I{gen}",
                f"-I{native_fmus.SRC}", f"-I{native_fmus.fmi_include_dir()}", "-fPIC", "-shared",
                "-o", str(lib), str(native_fmus.SRC / "fmi2.c"), str(native_fmus.SRC / "fpm_util.c"),
                str(ROOT / "bench" / "native" / "trivial_model.c"), "-lm"]

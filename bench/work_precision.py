@@ -132,7 +132,7 @@ def adaptive_families():
 
 
 #: the plant integrators only the pythonfmu FlexiblePendulum has (the native one refuses them at
-#: initialisation, naming the ones it has: fmu_native/plant_model.c); their curves always run on
+#: initialisation, naming the ones it has: plant_fmu/native/plant_model.c); their curves always run on
 #: the pythonfmu pair, and say so
 PYTHONFMU_ONLY = ("radau", "genalpha")
 

@@ -16,7 +16,7 @@ held (zero-order hold), or, when the sensors' time derivatives are given (inputs
 ``filter_order = 0`` there is no filter and ``F_c = -e`` is computed from the current inputs
 (direct feedthrough, declared in ``modelDescription.xml``).
 
-Failures never raise (see :mod:`plant_fmu.fmi_support`): a non-finite input makes ``doStep`` return
+Failures never raise (see :mod:`fmu_common.slave`): a non-finite input makes ``doStep`` return
 fmi2Discard with the state unchanged, and a bad parameter is logged with status fmi2Error at
 ``exitInitializationMode``, after which every ``doStep`` returns fmi2Discard. ``F_c`` is never NaN:
 it holds its last finite value.
@@ -30,7 +30,7 @@ from pythonfmu import DefaultExperiment
 from controller_fmu import kernel
 from controller_fmu.interface import MODEL, SENSORS, VARIABLES
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
-from plant_fmu.fmi_support import Fmi2Status, SlaveBase, StateError, check_finite
+from fmu_common.slave import Fmi2Status, SlaveBase, StateError, check_finite
 
 __all__ = ["PDLowPass"]
 

@@ -1,6 +1,7 @@
 """The FMU interface of the controller, ``PDLowPass``: one table of its variables.
 
-The counterpart of :mod:`plant_fmu.interface` (see there for what the table feeds). The
+The counterpart of :mod:`plant_fmu.interface` (:mod:`fmu_common.variables` says what the table
+feeds). The
 parameters are the fields of :class:`~controller_fmu.pd_lowpass.ControllerParams`, whose defaults
 (the PD of the paper and the robust low-pass filter chosen by ``flexpend design``) are the start
 values.
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from plant_fmu.interface import ModelInfo, Variable, parameter, real_input, real_output
+from fmu_common.variables import ModelInfo, Variable, parameter, real_input, real_output
 
 from .pd_lowpass import ControllerParams
 

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from plant_fmu import _native
-from plant_fmu._native import KernelError
+from fmu_common import kernels
+from fmu_common.kernels import KernelError
 
 from .pd_lowpass import ControllerParams
 
@@ -42,7 +42,7 @@ def library() -> ctypes.CDLL:
     missing or does not match its sources)."""
     global _lib
     if _lib is None:
-        lib = _native.load("flexpend_filter", _NATIVE)
+        lib = kernels.load("flexpend_filter", _NATIVE)
         lib.fpf_expm_work_size.restype = ctypes.c_long
         lib.fpf_error.restype = None
         _lib = lib

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant_fmu.params import check_int, check_real, replace_checked
+from fmu_common.checks import check_int, check_real, replace_checked
 
 __all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES"]
 

@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from plant_fmu import _native
+from fmu_common import kernels
 
 __all__ = ["unavailable", "load", "CompiledRun", "KERNEL"]
 
@@ -75,15 +75,15 @@ _lib = None
 
 def load():
     """The compiled loop's library (built at install; rebuilt when stale in a checkout), checked
-    against the structs above. Raises :class:`plant_fmu._native.KernelError`."""
+    against the structs above. Raises :class:`plant_fmu.kernels.KernelError`."""
     global _lib
     if _lib is None:
-        lib = _native.load(KERNEL, _native.native_dir(KERNEL))
+        lib = kernels.load(KERNEL, kernels.native_dir(KERNEL))
         for name, struct in (("fm_sizeof_slave", _Slave), ("fm_sizeof_master", _Master)):
             fn = getattr(lib, name)
             fn.restype = ctypes.c_size_t
             if fn() != ctypes.sizeof(struct):
-                raise _native.KernelError(f"{KERNEL}: {name}() = {fn()}, the binding's struct "
+                raise kernels.KernelError(f"{KERNEL}: {name}() = {fn()}, the binding's struct "
                                           f"has {ctypes.sizeof(struct)} bytes: rebuild it")
         lib.fm_run.argtypes = [ctypes.POINTER(_Master), ctypes.c_longlong]
         lib.fm_run.restype = ctypes.c_int

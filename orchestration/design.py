@@ -26,8 +26,9 @@ import numpy as np
 import scipy.optimize
 
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from fmu_common.checks import check_int, check_real
 from plant_fmu.dynamics import plant_model
-from plant_fmu.params import PlantParams, check_int, check_real
+from plant_fmu.params import PlantParams
 
 from .analysis import _drift_free, assemble_closed_loop
 from .config import ConfigError

@@ -42,7 +42,7 @@ RTOL, ATOL = 1e-8, 1e-10
 
 def validate_fidelity_keys(cfg: dict) -> None:
     """Check the ``fidelity.*`` keys in place (a :class:`ConfigError` names a bad one)."""
-    from plant_fmu.params import check_int, check_real
+    from fmu_common.checks import check_int, check_real
     try:
         cfg["fidelity.tolerance"] = check_real("fidelity.tolerance", cfg["fidelity.tolerance"],
                                                low=0.0, high=1.0)

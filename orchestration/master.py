@@ -36,7 +36,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2Integer, fmi2Real, fmi2True, fmi2ValueReference
 
-from plant_fmu._native import KernelError
+from fmu_common.kernels import KernelError
 
 __all__ = ["CoSimulationError", "RunInterrupted", "Slave", "Connection", "Master", "parse_connection",
            "extrapolation_weights", "RunStats"]

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller_fmu import interface as controller_interface
+from fmu_common.variables import start_values
 from plant_fmu import interface as plant_interface
 
 from .config import ConfigError
@@ -31,12 +32,12 @@ RECORD = {
 }
 def plant_start_values(scene) -> dict:
     """Scene keys -> FlexiblePendulum parameters (the table of :mod:`plant_fmu.interface`)."""
-    return plant_interface.start_values(scene.config)
+    return start_values(scene.config, plant_interface.VARIABLES)
 
 
 def controller_start_values(scene) -> dict:
     """Scene keys -> PDLowPass parameters (the table of :mod:`controller_fmu.interface`)."""
-    return plant_interface.start_values(scene.config, controller_interface.VARIABLES)
+    return start_values(scene.config, controller_interface.VARIABLES)
 
 
 class Progress:

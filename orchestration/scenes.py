@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from plant_fmu.interface import FMU_SETTINGS
-from plant_fmu.params import check_bool, check_int, check_real
+from fmu_common.checks import check_bool, check_int, check_real
 
 from .config import (FIDELITIES, ConfigError, apply_overrides, check_known, controller_params,
                      default_config, plant_params)

@@ -111,7 +111,7 @@ class Scales:
     ``rhoA L / sqrt(rhoA L)``, ``I5`` with one more ``L``, the tip slope with ``1 / (L sqrt(rhoA
     L))`` and the geometric stiffness ``int rhoA g (L - s) N'^2 ds`` with ``g / L``.
 
-    The native FMUs (``fmu_native/plant_model.c``, ``fpm_scales``) compute the same factors with
+    The native FMUs (``plant_fmu/native/plant_model.c``, ``fpm_scales``) compute the same factors with
     the same operations in the same order, so that both flavours have bit-identical modal data."""
 
     lam: float

@@ -9,7 +9,7 @@ naming it: there is no slower fallback. Over ``doStep(t, h)`` the input ``F_c`` 
 held (zero-order hold) and the stepper advances to ``t + h``. No output depends directly on
 ``F_c``; the outputs are computed from the state when they are read.
 
-Failures never raise (see :mod:`plant_fmu.fmi_support`); each one is logged with a message naming
+Failures never raise (see :mod:`fmu_common.slave`); each one is logged with a message naming
 its cause, ``doStep`` returns fmi2Discard and the outputs keep the last accepted state:
 
 * a non-finite ``F_c``: the step is rejected and the state unchanged (a retry may follow);
@@ -31,11 +31,12 @@ from pythonfmu import DefaultExperiment
 
 from plant_fmu import kernel
 from plant_fmu.dynamics import linear_plant_model, plant_model
-from plant_fmu.fmi_support import Fmi2Status, SlaveBase, StateError, check_finite
+from fmu_common.checks import check_real
+from fmu_common.slave import Fmi2Status, SlaveBase, StateError, check_finite
 from plant_fmu.integrators import REGISTRY, make_stepper
 from plant_fmu.interface import (FIDELITIES, FMU_SETTINGS, INITIAL_STATE, MODEL, N_ETA_OUTPUTS,
                                  OUTPUTS, VARIABLES)
-from plant_fmu.params import PlantParams, check_real
+from plant_fmu.params import PlantParams
 
 __all__ = ["FlexiblePendulum", "FMU_DEFAULTS", "OUTPUTS"]
 

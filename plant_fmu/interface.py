@@ -8,9 +8,9 @@ variability, type, start value, unit, description, and which scene key sets it. 
 * every ``modelDescription.xml`` is written (:mod:`orchestration.export.model_description`);
 * the master maps a scene's keys to the FMU's start values (:func:`start_values`).
 
-:class:`Variable` is shared with the controller's table (:mod:`controller_fmu.interface`). The
-module needs nothing beyond the standard library and the parameter records, so that it ships in
-the FMUs and serves the build alike.
+The table's type, :class:`fmu_common.variables.Variable`, is every model's. The module needs
+nothing beyond the standard library and the parameter records, so that it ships in the FMUs and
+serves the build alike.
 
 Units are SI. The modal coordinates ``eta_j`` belong to mass-normalised modes
 (``integral rhoA N_j^2 ds = 1``): ``N_j`` is in ``1/sqrt(kg)`` and ``eta_j`` in ``m sqrt(kg)``, so
@@ -20,86 +20,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass
+
+from fmu_common.variables import ModelInfo, Variable, parameter, real_input, real_output
 
 from .params import PlantParams
 
-__all__ = ["Variable", "ModelInfo", "VARIABLES", "MODEL", "FMU_SETTINGS", "FIDELITIES",
-           "OUTPUTS", "N_ETA_OUTPUTS", "INITIAL_STATE", "start_values", "by_name",
-           "value_references", "parameter_defaults", "native_variables"]
-
-CAUSALITIES = ("parameter", "input", "output")
-TYPES = {float: "Real", int: "Integer", bool: "Boolean", str: "String"}
-
-
-@dataclass(frozen=True)
-class Variable:
-    """One FMU variable.
-
-    ``start`` is the start value of parameters and inputs (None for outputs, which are
-    calculated). ``scene_key`` is the scene key whose value sets the variable (None: no key).
-    ``depends_on`` lists, for an output, the inputs it depends on directly; ``initial_depends_on``
-    the inputs and parameters its initial value depends on. ``derivative_of`` names the input
-    whose time derivative of order ``derivative_order`` this input is: FMI's input derivatives as
-    variables, which only the pythonfmu FMUs have (the native FMUs take them through
-    ``fmi2SetRealInputDerivatives`` and leave these variables out, keeping every other variable's
-    value reference).
-    """
-
-    name: str
-    causality: str
-    type: str
-    description: str
-    unit: str | None = None
-    start: object = None
-    variability: str = "continuous"
-    scene_key: str | None = None
-    depends_on: tuple = ()
-    initial_depends_on: tuple = ()
-    derivative_of: str | None = None
-    derivative_order: int = 0
-
-    def __post_init__(self):
-        if self.causality not in CAUSALITIES:
-            raise ValueError(f"{self.name}: causality {self.causality!r}; allowed: {CAUSALITIES}")
-        if self.type not in TYPES.values():
-            raise ValueError(f"{self.name}: type {self.type!r}; allowed: {list(TYPES.values())}")
-        if (self.start is None) != (self.causality == "output"):
-            raise ValueError(f"{self.name}: parameters and inputs have a start value, outputs none")
-
-    @property
-    def initial(self) -> str | None:
-        """FMI's ``initial`` attribute: outputs are calculated, parameters exact."""
-        return {"output": "calculated", "parameter": "exact"}.get(self.causality)
-
-
-@dataclass(frozen=True)
-class ModelInfo:
-    """What a ``modelDescription.xml`` says of the model besides its variables."""
-
-    name: str
-    description: str
-    version: str
-    start_time: float
-    stop_time: float
-    step_size: float
-
-
-def parameter(name, default, description, unit=None, scene_key=None) -> Variable:
-    """A fixed parameter typed by its default."""
-    return Variable(name, "parameter", TYPES[type(default)], description, unit, default,
-                    variability="fixed", scene_key=scene_key)
-
-
-def real_input(name, description, unit, derivative_of=None, order=0) -> Variable:
-    return Variable(name, "input", "Real", description, unit, 0.0, derivative_of=derivative_of,
-                    derivative_order=order)
-
-
-def real_output(name, description, unit, depends_on=(), initial_depends_on=()) -> Variable:
-    return Variable(name, "output", "Real", description, unit, None, depends_on=depends_on,
-                    initial_depends_on=initial_depends_on)
-
+__all__ = ["VARIABLES", "MODEL", "FMU_SETTINGS", "FIDELITIES", "OUTPUTS", "N_ETA_OUTPUTS",
+           "INITIAL_STATE"]
 
 FIDELITIES = ("nonlinear", "linear")
 
@@ -200,30 +127,3 @@ MODEL = ModelInfo(
     description=("Cart with an elastic beam hinged on it (Tang & Ren 2009, corrected): floating "
                  "frame of reference with n_modes cantilever modes; input: the force on the cart"),
     version="0.2.0", start_time=0.0, stop_time=10.0, step_size=1e-3)
-
-
-def native_variables(table=VARIABLES) -> list:
-    """``[(value reference, Variable)]`` of a native FMU: the table without the input-derivative
-    variables (``derivative_of``), each variable at its value reference in the whole table."""
-    return [(vr, v) for vr, v in enumerate(table) if v.derivative_of is None]
-
-
-def by_name(table=VARIABLES) -> dict:
-    return {v.name: v for v in table}
-
-
-def value_references(table=VARIABLES) -> dict:
-    """name -> value reference (the position in the table)."""
-    return {v.name: i for i, v in enumerate(table)}
-
-
-def parameter_defaults(table=VARIABLES) -> dict:
-    """name -> default of every parameter."""
-    return {v.name: v.start for v in table if v.causality == "parameter"}
-
-
-def start_values(config: dict, table=VARIABLES) -> dict:
-    """FMU start values from a scene configuration (dotted keys): every parameter whose scene
-    key is in ``config``."""
-    return {v.name: config[v.scene_key] for v in table
-            if v.causality == "parameter" and v.scene_key in config}

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _native
-from ._native import KernelError
+from fmu_common import kernels
+from fmu_common.kernels import KernelError
 
 __all__ = ["PlantKernel", "KernelError", "library", "FP_OK", "FP_BADARG", "FP_NONFINITE",
            "FP_CAP", "FP_UNDERFLOW", "METHODS", "OUT"]
@@ -81,7 +81,7 @@ def library() -> ctypes.CDLL:
     missing or does not match its sources)."""
     global _lib
     if _lib is None:
-        lib = _native.load("flexpend_plant", _NATIVE)
+        lib = kernels.load("flexpend_plant", _NATIVE)
         lib.fp_energy.restype = ctypes.c_double
         lib.fp_work_size.restype = ctypes.c_long
         for name in ("fp_rhs", "fp_tip", "fp_outputs"):

@@ -58,7 +58,7 @@ def test_passes_on_the_committed_references(fmus, name, rule):
 def stiffer_plant(tmp_path_factory):
     """FlexiblePendulum built from a copy of the sources whose default EI is 1 % higher."""
     src = tmp_path_factory.mktemp("src_EI")
-    for pkg in ("plant_fmu", "controller_fmu", "orchestration"):
+    for pkg in ("fmu_common", "plant_fmu", "controller_fmu", "orchestration"):
         shutil.copytree(ROOT / pkg, src / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     params = src / "plant_fmu" / "params.py"
     text = params.read_text()

@@ -376,7 +376,7 @@ def test_a_library_that_does_not_load_leaves_auto_on_the_python_loop(pair, unzip
                                                                       monkeypatch):
     """A missing or stale library of a broken install: ``auto`` warns and runs the Python loop
     (the summary says which ran), ``true`` is an error naming the library's problem."""
-    from plant_fmu._native import KernelError
+    from fmu_common.kernels import KernelError
 
     def broken():
         raise KernelError("flexpend_master: no library for linux64 in /nowhere")

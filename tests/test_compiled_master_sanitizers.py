@@ -18,8 +18,7 @@ from pathlib import Path
 import pytest
 
 from orchestration import compiled_master
-from orchestration.export import kernel_build
-from plant_fmu import _native
+from fmu_common import kernels
 
 HERE = Path(__file__).parent
 SANITIZE = ["-fsanitize=address,undefined", "-fno-omit-frame-pointer",
@@ -45,13 +44,13 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from orchestration import compiled_master
-from plant_fmu import _native
+from fmu_common import kernels
 
 _NATIVE = Path({native!r})
 compiled_master._lib = None
-compiled_master._native = SimpleNamespace(
-    load=lambda kernel, native: _native.load(kernel, _NATIVE), native_dir=_native.native_dir,
-    KernelError=_native.KernelError)
+compiled_master.kernels = SimpleNamespace(
+    load=lambda kernel, native: kernels.load(kernel, _NATIVE), native_dir=kernels.native_dir,
+    KernelError=kernels.KernelError)
 
 
 def pytest_sessionfinish(session, exitstatus):
@@ -64,11 +63,11 @@ def pytest_sessionfinish(session, exitstatus):
 def test_the_compiled_loop_tests_pass_under_the_sanitizers(tmp_path):
     native = tmp_path / "root" / "orchestration" / "native"
     native.mkdir(parents=True)
-    for f in _native.source_files(compiled_master.KERNEL):
+    for f in kernels.source_files(compiled_master.KERNEL):
         shutil.copy(f, native / f.name)
-    out = _native.library_path(compiled_master.KERNEL, None, native)
+    out = kernels.library_path(compiled_master.KERNEL, None, native)
     out.parent.mkdir(parents=True)
-    cmd = kernel_build.compile_command(compiled_master.KERNEL, _native.host_platform(), out,
+    cmd = kernels.compile_command(compiled_master.KERNEL, kernels.host_platform(), out,
                                        native, "gcc")
     cmd[1:1] = SANITIZE
     subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=native)

@@ -18,8 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestration.export import kernel_build
-from plant_fmu import _native
+from fmu_common import kernels
 from plant_fmu.dynamics import plant_model
 from plant_fmu.integrators import make_stepper
 from plant_fmu.params import PlantParams
@@ -106,8 +105,8 @@ def test_plant_fmu_unpacked_twice_instantiates_each_time_from_its_own_kernel(fmu
         resources = Path(r["unpacked"]) / "resources"
         assert Path(r["package"]).is_relative_to(resources), r
         assert Path(r["kernel"]) == resources / "plant_fmu" / "native" / "lib" / \
-            _native.host_platform() / _native.library_name("flexpend_plant",
-                                                           _native.host_platform())
+            kernels.host_platform() / kernels.library_name("flexpend_plant",
+                                                           kernels.host_platform())
         assert r["output"] == pytest.approx(expected, rel=1e-12)
         assert not r["hashlib"]          # OpenSSL in an FMU breaks a C host's exit
         seen.add(r["unpacked"])
@@ -140,13 +139,13 @@ def test_fmu_without_the_host_kernel_refuses_to_instantiate(fmus, tmp_path, name
                                                             output):
     """No silent fallback: without the host platform's kernel fmi2Instantiate fails, and the log
     names the missing file and the platform."""
-    plat = _native.host_platform()
+    plat = kernels.host_platform()
     broken = _without(fmus[name], f"native/lib/{plat}/", tmp_path / f"{name}.fmu")
     r = _run_child(broken, pkg, module, output, tmp_path)
     assert "instantiate" in r, r
     msg = " ".join(r["logs"])
     assert "KernelError" in msg and "is missing" in msg and f"({plat})" in msg, msg
-    assert f"native/lib/{plat}/{_native.library_name(kernel_of[pkg], plat)}" in msg, msg
+    assert f"native/lib/{plat}/{kernels.library_name(kernel_of[pkg], plat)}" in msg, msg
 
 
 def _shipped(fmu: str) -> dict:
@@ -154,10 +153,10 @@ def _shipped(fmu: str) -> dict:
     out = {}
     with zipfile.ZipFile(fmu) as zf:
         names = zf.namelist()
-        for kernel, (pkg, *_) in _native.KERNELS.items():
+        for kernel, (pkg, *_) in kernels.KERNELS.items():
             for plat in ("linux64", "win64", "darwin64"):
                 entry = (f"resources/{pkg}/native/lib/{plat}/"
-                         f"{_native.library_name(kernel, plat)}")
+                         f"{kernels.library_name(kernel, plat)}")
                 if entry in names:
                     out[(kernel, plat)] = zf.read(entry)
     return out
@@ -167,42 +166,42 @@ def test_kernels_in_the_fmus_are_built_from_the_current_sources(fmus, tmp_path):
     """Every kernel an FMU ships, for every platform this machine can build, embeds the digest
     of the C sources in this checkout, and the linux64 one is byte for byte what compiling them
     now gives (the build is deterministic) and reports that digest when loaded."""
-    platforms = kernel_build.available_platforms()
+    platforms = kernels.available_platforms()
     expect = {"FlexiblePendulum": {"flexpend_plant"},
               "PDLowPass": {"flexpend_plant", "flexpend_filter"}}
     for name, fmu in fmus.items():
         shipped = _shipped(fmu)
         assert {(k, p) for k in expect[name] for p in platforms} == set(shipped), name
         for (kernel, plat), data in shipped.items():
-            digest = _native.source_digest(kernel, kernel_build.native_dir(kernel))
+            digest = kernels.source_digest(kernel, kernels.native_dir(kernel))
             assert digest.encode() in data, (name, kernel, plat)
             if plat.startswith("win"):
                 assert data[:2] == b"MZ"               # a PE image (a DLL)
-            if plat != _native.host_platform():
+            if plat != kernels.host_platform():
                 continue
-            fresh = kernel_build.build_kernel(kernel, plat, tmp_path / f"{kernel}_{plat}")
+            fresh = kernels.build_kernel(kernel, plat, tmp_path / f"{kernel}_{plat}")
             assert fresh.read_bytes() == data, (name, kernel, plat)
-            copy = tmp_path / f"{name}_{_native.library_name(kernel, plat)}"
+            copy = tmp_path / f"{name}_{kernels.library_name(kernel, plat)}"
             copy.write_bytes(data)
             lib = ctypes.CDLL(str(copy))
-            getter = getattr(lib, _native.KERNELS[kernel][4])
+            getter = getattr(lib, kernels.KERNELS[kernel][4])
             getter.restype = ctypes.c_char_p
             assert getter().decode() == digest
 
 
-@pytest.mark.skipif("win64" not in kernel_build.available_platforms(),
+@pytest.mark.skipif("win64" not in kernels.available_platforms(),
                     reason="the mingw-w64 cross-compiler (x86_64-w64-mingw32-gcc) is not installed")
 def test_win64_kernels_export_the_interface(fmus, tmp_path):
     """The win64 DLLs export every function of the headers (read from the PE export table)."""
-    objdump = kernel_build.find_compiler("win64").replace("-gcc", "-objdump")
+    objdump = kernels.find_compiler("win64").replace("-gcc", "-objdump")
     headers = {"flexpend_plant": "fp_plant.h", "flexpend_filter": "fp_filter.h"}
     for (kernel, plat), data in _shipped(fmus["PDLowPass"]).items():
         if plat != "win64":
             continue
-        dll = tmp_path / _native.library_name(kernel, plat)
+        dll = tmp_path / kernels.library_name(kernel, plat)
         dll.write_bytes(data)
         table = subprocess.run([objdump, "-p", str(dll)], capture_output=True, text=True).stdout
-        header = (kernel_build.native_dir(kernel) / headers[kernel]).read_text()
+        header = (kernels.native_dir(kernel) / headers[kernel]).read_text()
         declared = set(re.findall(r"^FPF?_API [^(;]*?(\w+)\(", header, re.M))
         assert len(declared) >= 7 and all(f in table for f in declared), (kernel, declared)
 
@@ -210,7 +209,7 @@ def test_win64_kernels_export_the_interface(fmus, tmp_path):
 def _package_copy(root: Path) -> Path:
     native = root / "plant_fmu" / "native"
     native.mkdir(parents=True)
-    for f in _native.source_files("flexpend_plant", kernel_build.native_dir("flexpend_plant")):
+    for f in kernels.source_files("flexpend_plant", kernels.native_dir("flexpend_plant")):
         (native / f.name).write_bytes(f.read_bytes())
     return native
 
@@ -222,36 +221,36 @@ def test_a_stale_kernel_is_rebuilt_in_its_checkout_and_loaded_as_shipped_elsewhe
     sources. In a checkout, a library whose sources changed is rebuilt when loaded, by the
     checkout's own kernel build only."""
     native = _package_copy(tmp_path / "fmu")
-    with pytest.raises(_native.KernelError, match=r"is missing.*reinstall"):
-        _native._load("flexpend_plant", native)
-    kernel_build.build_kernel("flexpend_plant", out=_native.library_path(
+    with pytest.raises(kernels.KernelError, match=r"is missing.*reinstall"):
+        kernels._load("flexpend_plant", native)
+    kernels.build_kernel("flexpend_plant", out=kernels.library_path(
         "flexpend_plant", native=native), native=native)
     with open(native / "fp_plant.c", "a") as f:
         f.write("/* an edit */\n")
-    assert _native._load("flexpend_plant", native) is not None
+    assert kernels._load("flexpend_plant", native) is not None
 
     root = tmp_path / "checkout"
     native = _package_copy(root)
-    lib = _native.library_path("flexpend_plant", native=native)
-    kernel_build.build_kernel("flexpend_plant", out=lib, native=native)
+    lib = kernels.library_path("flexpend_plant", native=native)
+    kernels.build_kernel("flexpend_plant", out=lib, native=native)
     with open(native / "fp_plant.c", "a") as f:
         f.write("/* an edit */\n")
-    (root / "orchestration" / "export").mkdir(parents=True)
-    (root / "orchestration" / "export" / "kernel_build.py").write_text("")
-    assert _native.in_checkout(native)
-    with pytest.raises(_native.KernelError, match="out of date"):   # another checkout's build
-        _native._load("flexpend_plant", native)
-    monkeypatch.setattr(kernel_build, "ROOT", root)
-    assert _native._load("flexpend_plant", native) is not None
-    assert _native.embedded_digest(lib, _native.source_digest("flexpend_plant", native))
+    (root / kernels.CHECKOUT_MARK).parent.mkdir(parents=True)
+    (root / kernels.CHECKOUT_MARK).write_text("")
+    assert kernels.in_checkout(native)
+    with pytest.raises(kernels.KernelError, match="out of date"):   # another checkout's build
+        kernels._load("flexpend_plant", native)
+    monkeypatch.setattr(kernels, "ROOT", root)
+    assert kernels._load("flexpend_plant", native) is not None
+    assert kernels.embedded_digest(lib, kernels.source_digest("flexpend_plant", native))
 
 
 def test_install_without_a_compiler_names_it(tmp_path):
     """``pip install`` runs this lookup first: without a compiler it stops with one line that
     names what it looked for."""
-    with pytest.raises(kernel_build.CompilerNotFound) as exc:
-        kernel_build.find_compiler(env={"PATH": str(tmp_path)})
+    with pytest.raises(kernels.CompilerNotFound) as exc:
+        kernels.find_compiler(env={"PATH": str(tmp_path)})
     assert "no C compiler found (looked for $CC, cc, gcc, clang)" in str(exc.value)
     assert "\n" not in str(exc.value)
-    with pytest.raises(kernel_build.CompilerNotFound, match="CC=/nonexistent/cc was not found"):
-        kernel_build.find_compiler(env={"PATH": str(tmp_path), "CC": "/nonexistent/cc"})
+    with pytest.raises(kernels.CompilerNotFound, match="CC=/nonexistent/cc was not found"):
+        kernels.find_compiler(env={"PATH": str(tmp_path), "CC": "/nonexistent/cc"})

@@ -138,8 +138,8 @@ def test_digest_covers_every_shipped_source():
     from orchestration.export.python_fmus import SPECS, source_files
 
     names = {p.name for p in source_files(SPECS["FlexiblePendulum"])}
-    assert {"fmu.py", "dynamics.py", "beam.py", "params.py", "kernel.py", "_native.py", "rk.py",
-            "fp_plant.c", "fp_plant.h"} <= names
+    assert {"fmu.py", "dynamics.py", "beam.py", "params.py", "kernel.py", "kernels.py", "slave.py",
+            "variables.py", "checks.py", "rk.py", "fp_plant.c", "fp_plant.h"} <= names
     ctrl = {p.relative_to(p.parents[1]).as_posix() for p in source_files(SPECS["PDLowPass"])}
     assert {"controller_fmu/pd_lowpass.py", "controller_fmu/fmu.py", "controller_fmu/kernel.py",
             "native/fp_filter.c", "native/fp_filter.h", "plant_fmu/params.py"} <= ctrl

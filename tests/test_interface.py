@@ -12,6 +12,7 @@ from fmpy import read_model_description
 from controller_fmu import interface as ctrl_if
 from controller_fmu.pd_lowpass import ControllerParams
 from orchestration.export.model_description import TABLES, UNITS
+from fmu_common.variables import parameter_defaults
 from plant_fmu import interface as plant_if
 from plant_fmu.params import PlantParams
 
@@ -30,10 +31,10 @@ def test_built_fmu_declares_exactly_the_table(fmus, name):
 
 
 def test_parameter_defaults_are_the_records_defaults():
-    plant = plant_if.parameter_defaults()
+    plant = parameter_defaults(plant_if.VARIABLES)
     for f in dataclasses.fields(PlantParams):
         assert plant[f.name] == f.default and type(plant[f.name]) is type(f.default), f.name
-    ctrl = plant_if.parameter_defaults(ctrl_if.VARIABLES)
+    ctrl = parameter_defaults(ctrl_if.VARIABLES)
     assert ctrl == {f.name: f.default for f in dataclasses.fields(ControllerParams)}
     # the product's controller is the robust filter of `flexpend design` (docs/spillover.md)
     assert (ctrl["filter_order"], ctrl["cutoff"], ctrl["filter_damping"]) == (2, 97.3, 0.1)
@@ -88,7 +89,7 @@ def test_scene_keys_map_to_start_values():
     scene = load_scene("flexible_pd", ["plant.EI=900", "initial.phi=0.2", "controller.kp=400"])
     plant = plant_start_values(scene)
     assert plant["EI"] == 900 and plant["phi0"] == 0.2 and plant["n_modes"] == 4
-    assert set(plant) == set(plant_if.parameter_defaults())
+    assert set(plant) == set(parameter_defaults(plant_if.VARIABLES))
     ctrl = controller_start_values(scene)
     assert ctrl["kp"] == 400 and set(ctrl) == {f.name for f in dataclasses.fields(ControllerParams)}
 

@@ -9,7 +9,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from orchestration.export import kernel_build
+from fmu_common import kernels
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
@@ -28,11 +28,11 @@ def _plant_data(path):
 
 
 def test_kernels_under_address_and_undefined_behaviour_sanitizers(tmp_path):
-    plant = kernel_build.native_dir("flexpend_plant")
-    filt = kernel_build.native_dir("flexpend_filter")
-    driver = kernel_build.ROOT / "tests" / "native" / "kernel_check.c"
+    plant = kernels.native_dir("flexpend_plant")
+    filt = kernels.native_dir("flexpend_filter")
+    driver = kernels.ROOT / "tests" / "native" / "kernel_check.c"
     exe = tmp_path / "kernel_check"
-    cmd = ["gcc", *kernel_build.CFLAGS, "-O1", "-g", "-fno-omit-frame-pointer",
+    cmd = ["gcc", *kernels.CFLAGS, "-O1", "-g", "-fno-omit-frame-pointer",
            "-fsanitize=address,undefined", "-fno-sanitize-recover=all",
            f"-I{plant}", f"-I{filt}", "-o", str(exe), str(driver), str(plant / "fp_plant.c"),
            str(filt / "fp_filter.c"), "-lm"]

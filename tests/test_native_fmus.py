@@ -482,7 +482,8 @@ def test_fmus_and_host_under_the_sanitizers(tmp_path):
     """The native FMUs compiled with -fsanitize=address,undefined (and -Wall -Wextra -Werror),
     driven by the C host through the closed loop and through the FMU's failure paths in the
     fmpy tests' shape (a NaN input, a bad step): no report, the same numbers."""
-    from orchestration.export import kernel_build, native_fmus
+    from fmu_common import kernels
+    from orchestration.export import native_fmus
     san = ["-fsanitize=address,undefined", "-fno-omit-frame-pointer", "-fno-sanitize-recover=all"]
     exe = _host(tmp_path, flags=san)
     paths = {}
@@ -496,7 +497,7 @@ def test_fmus_and_host_under_the_sanitizers(tmp_path):
         (gen / "fpm_vars.h").write_text(native_fmus.generate_header(name, guid))
         lib = tmp_path / f"{name}.so"
         cmd = native_fmus.compile_command(name, 2, "linux64", lib, gen,
-                                          kernel_build.find_compiler(), extra=san)
+                                          kernels.find_compiler(), extra=san)
         subprocess.run(cmd, check=True, capture_output=True, text=True)
         paths[name] = (lib, guid)
     from orchestration.export import build_fmus

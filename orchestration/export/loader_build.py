@@ -5,11 +5,11 @@
     loader_files()              -> the sources (for the FMUs' digest)
     install_loader(entries, name, platforms, python) -> the zip entries of an FMU, completed
 
-The sources are in ``orchestration/export/loader/``: ``fmi2_loader.c`` (finding and starting a
+The sources are in ``fmu_common/loader/``: ``fmi2_loader.c`` (finding and starting a
 Python, the checks of every FMI call, forwarding), ``guard.cpp`` (the C++ boundary: any exception
 of pythonfmu's C++ becomes fmi2Error), ``fmi2_api.h`` and ``flexpend_loader.py`` (its Python half,
-shipped in the FMU's resources). They live apart from the model packages because the loader is
-not part of any model: it is the same for every pythonfmu FMU, and the FMUs do not import it.
+shipped in the FMU's resources). They live with what every FMU shares, apart from the model
+packages, because the loader is not part of any model: it is the same for every pythonfmu FMU.
 
 In an FMU (:func:`install_loader`), ``binaries/<platform>/<model>.so|.dll`` becomes the loader,
 pythonfmu's library moves beside it as ``<model>_pythonfmu.so|.dll``, and the resources get
@@ -30,7 +30,7 @@ from pathlib import Path
 __all__ = ["LOADER_DIR", "CACHE_DIR", "LoaderBuildError", "loader_platforms", "loader_files",
            "build_loader", "install_loader", "loader_table", "recorded_python", "SUFFIX"]
 
-LOADER_DIR = Path(__file__).resolve().parent / "loader"
+LOADER_DIR = Path(__file__).resolve().parents[2] / "fmu_common" / "loader"
 CACHE_DIR = Path(__file__).resolve().parents[2] / "build" / "loader"
 SUFFIX = {"linux64": ".so", "win64": ".dll"}
 

@@ -17,6 +17,7 @@ import math
 import xml.etree.ElementTree as ET
 
 from controller_fmu import interface as controller_interface
+from fmu_common.variables import native_variables
 from plant_fmu import interface as plant_interface
 
 __all__ = ["TABLES", "UNITS", "FMI3_TYPES", "fmi2_model_description", "fmi3_model_description",
@@ -74,7 +75,7 @@ def _entries(table, native: bool) -> list:
     """``[(value reference, Variable)]`` written: the whole table, or a native FMU's (without the
     input-derivative variables, each variable keeping its value reference)."""
     if native:
-        return plant_interface.native_variables(table)
+        return native_variables(table)
     return list(enumerate(table))
 
 
@@ -100,7 +101,7 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
 
     ``co_simulation``: the attributes of ``<CoSimulation>`` (modelIdentifier, capability flags,
     as strings); ``log_categories``: name -> description; ``native``: a native FMU's variables
-    (:func:`plant_interface.native_variables`)."""
+    (:func:`fmu_common.variables.native_variables`)."""
     if table is None:
         model, table = TABLES[name]
     entries = _entries(table, native)

@@ -4,9 +4,10 @@
 
 Each FMU is compiled from
 
-* the generic FMI layer of its FMI version (``fmu_native/fmi2.c`` or ``fmi3.c``, written once for
-  both models) and the helpers ``fmu_native/fpm_util.c``;
-* the model (``fmu_native/plant_model.c`` or ``controller_model.c``: its parameter checks, its
+* the generic FMI layer of its FMI version (``fmu_common/native/fmi2.c`` or ``fmi3.c``, written
+  once for both models) and the helpers ``fmu_common/native/fpm_util.c``;
+* the model (``plant_fmu/native/plant_model.c`` or ``controller_fmu/native/controller_model.c``:
+  its parameter checks, its
   step, its outputs) on the compiled kernels the Python side calls too
   (``plant_fmu/native/fp_plant.c``, ``controller_fmu/native/fp_filter.c``);
 * a header generated here into the build folder (never committed), ``fpm_vars.h``: the model's
@@ -17,7 +18,7 @@ Each FMU is compiled from
   :data:`NE_MAX` and ``n_modes`` 0 .. :data:`N_MODES_MAX`, written as exact hexadecimal floats.
 
 Binaries: ``linux64`` (host compiler) and ``win64`` (mingw-w64, when installed), with the flags of
-the kernels (:data:`kernel_build.CFLAGS`: C99, ``-Wall -Wextra -Werror -pedantic``, no
+the kernels (:data:`fmu_common.kernels.CFLAGS`: C99, ``-Wall -Wextra -Werror -pedantic``, no
 floating-point contraction, hidden visibility: only the FMI functions are exported), linked
 against libc and libm alone (``-static-libgcc`` on Windows). The FMI headers are fmpy's copy of
 the standard's (``fmpy/c-code``). ``modelDescription.xml`` comes from
@@ -36,17 +37,17 @@ import uuid
 import zipfile
 from pathlib import Path
 
-from plant_fmu import _native
+from fmu_common import kernels
 
-from . import kernel_build
 from .model_description import TABLES, fmi2_model_description, fmi3_model_description
 
 __all__ = ["DEFAULT_OUT", "MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PLATFORMS",
            "build_native_fmus", "build_native_fmu", "generate_header", "fmi_include_dir",
            "source_digest", "NativeBuildError"]
 
-ROOT = kernel_build.ROOT
-SRC = ROOT / "fmu_native"
+ROOT = kernels.ROOT
+#: the FMI layers every native FMU is built from
+SRC = ROOT / "fmu_common" / "native"
 DEFAULT_OUT = ROOT / "build" / "fmus" / "native"
 #: The meshes and modes the native plant carries tables for (the pythonfmu plant computes any).
 NE_MAX = 100
@@ -57,11 +58,17 @@ MAX_SUBSTEPS = 1_000_000
 BUILD_FORMAT = 1
 STAMP = "resources/flexpend_build.json"
 
-#: model -> (C model file, kernel sources it links)
+#: model -> (its FMU glue in C, in the native folder of its first kernel; the kernels it links)
 MODELS = {
     "FlexiblePendulum": ("plant_model.c", ("flexpend_plant", "flexpend_filter")),
     "PDLowPass": ("controller_model.c", ("flexpend_filter",)),
 }
+
+
+def model_source(name: str) -> Path:
+    """The C file of model ``name``'s FMU glue (its parameter checks, step and outputs)."""
+    model_c, kernel_names = MODELS[name]
+    return kernels.native_dir(kernel_names[0]) / model_c
 #: FMI platform folder names: (FMI 2.0, FMI 3.0)
 PLATFORMS = {"linux64": ("linux64", "x86_64-linux"), "win64": ("win64", "x86_64-windows")}
 LOG_CATEGORIES = {
@@ -105,7 +112,7 @@ def _hex(x: float) -> str:
 def generate_header(name: str, token: str) -> str:
     """``fpm_vars.h`` of model ``name``: its variables, value-reference macros, name, token and,
     for the plant, the unit beam's modal tables."""
-    from plant_fmu.interface import native_variables
+    from fmu_common.variables import native_variables
 
     model, table = TABLES[name]
     entries = native_variables(table)
@@ -135,10 +142,11 @@ def generate_header(name: str, token: str) -> str:
 
 def _mode_tables() -> list[str]:
     from plant_fmu.beam import unit_beam
-    from plant_fmu.interface import N_ETA_OUTPUTS, value_references
+    from fmu_common.variables import value_references
+    from plant_fmu.interface import N_ETA_OUTPUTS, VARIABLES
 
     n = N_MODES_MAX
-    vrs = value_references()
+    vrs = value_references(VARIABLES)
     out = [f"#define FPM_NE_MAX {NE_MAX}", f"#define FPM_N_MODES_MAX {n}",
            f"#define FPM_N_ETA {N_ETA_OUTPUTS}",
            "static const unsigned fpm_eta_vrs[FPM_N_ETA] = {"
@@ -166,13 +174,12 @@ def _mode_tables() -> list[str]:
 
 # ---------------------------------------------------------------------- build
 def _inputs(name: str) -> list[Path]:
-    model_c, kernels = MODELS[name]
-    files = [SRC / f for f in ("fpm.h", "fpm_util.c", "fmi2.c", "fmi3.c", model_c)]
-    for k in kernels:
-        files += _native.source_files(k, kernel_build.native_dir(k))
+    files = [SRC / f for f in ("fpm.h", "fpm_util.c", "fmi2.c", "fmi3.c")] + [model_source(name)]
+    for k in MODELS[name][1]:
+        files += kernels.source_files(k)
     files += [ROOT / "plant_fmu" / f for f in ("interface.py", "beam.py", "params.py")]
     files += [ROOT / "controller_fmu" / "interface.py", ROOT / "controller_fmu" / "pd_lowpass.py",
-              Path(__file__).resolve(), Path(kernel_build.__file__).resolve(),
+              Path(__file__).resolve(), Path(kernels.__file__).resolve(),
               ROOT / "orchestration" / "export" / "model_description.py"]
     return files
 
@@ -180,7 +187,7 @@ def _inputs(name: str) -> list[Path]:
 def source_digest(name: str, fmi_version: int, platforms) -> str:
     """sha256 of everything an FMU is built from."""
     h = hashlib.sha256(f"{BUILD_FORMAT} {name} fmi{fmi_version} {' '.join(platforms)} "
-                       f"{NE_MAX} {N_MODES_MAX} {MAX_SUBSTEPS} {kernel_build.CFLAGS}\n".encode())
+                       f"{NE_MAX} {N_MODES_MAX} {MAX_SUBSTEPS} {kernels.CFLAGS}\n".encode())
     for path in _inputs(name):
         h.update(path.relative_to(ROOT).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
     return h.hexdigest()
@@ -203,14 +210,13 @@ def _fmu_digest(path: Path) -> str | None:
 def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: Path,
                     cc: str, extra=()) -> list[str]:
     """The compiler's command line for one binary."""
-    model_c, kernels = MODELS[name]
-    sources = [SRC / f"fmi{fmi_version}.c", SRC / "fpm_util.c", SRC / model_c]
+    sources = [SRC / f"fmi{fmi_version}.c", SRC / "fpm_util.c", model_source(name)]
     includes = [gen, SRC, fmi_include_dir()]
-    for k in kernels:
-        native = kernel_build.native_dir(k)
-        sources += [native / s for s in _native.KERNELS[k][1]]
+    for k in MODELS[name][1]:
+        native = kernels.native_dir(k)
+        sources += [native / s for s in kernels.KERNELS[k][1]]
         includes.append(native)
-    cmd = [cc, *kernel_build.CFLAGS, *extra, "-DFP_API=", "-DFPF_API=",
+    cmd = [cc, *kernels.CFLAGS, *extra, "-DFP_API=", "-DFPF_API=",
            f"-DFPM_MAX_SUBSTEPS={MAX_SUBSTEPS}L", *(f"-I{d}" for d in includes)]
     if platform.startswith("win"):
         cmd += ["-shared", "-static-libgcc", "-o", str(out), *map(str, sources)]
@@ -229,7 +235,7 @@ def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = Non
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
     out_dir = Path(out_dir or DEFAULT_OUT) / f"fmi{fmi_version}"
     target = out_dir / f"{name}.fmu"
-    platforms = kernel_build.available_platforms() if platforms is None else list(platforms)
+    platforms = kernels.available_platforms() if platforms is None else list(platforms)
     digest = source_digest(name, fmi_version, platforms)
     if not force and _fmu_digest(target) == digest:
         return target
@@ -244,7 +250,7 @@ def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = Non
         for plat in platforms:
             if plat not in PLATFORMS:
                 raise NativeBuildError(f"no native FMU build for platform {plat}")
-            cc = kernel_build.find_compiler(plat)
+            cc = kernels.find_compiler(plat)
             suffix = ".dll" if plat.startswith("win") else ".so"
             lib = tmp / f"{plat}{suffix}"
             cmd = compile_command(name, fmi_version, plat, lib, gen, cc)
@@ -299,5 +305,5 @@ def build_native_fmus(out_dir: Path | None = None, names=None, force: bool = Fal
         raise ValueError(f"unknown FMU(s) {', '.join(unknown)}; known: {', '.join(MODELS)}")
     try:
         return {n: build_native_fmu(n, fmi_version, out_dir, force) for n in names}
-    except kernel_build.CompilerNotFound as exc:
+    except kernels.CompilerNotFound as exc:
         raise NativeBuildError(str(exc)) from None

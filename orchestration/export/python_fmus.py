@@ -16,7 +16,7 @@ What the build does beyond ``pythonfmu build``:
   (:mod:`orchestration.export.model_description`): units, exact start values, the real output
   dependencies (pythonfmu writes none, which makes importers see false algebraic loops and
   ``fmpy validate`` fail), a schema-valid ``generationDateAndTime``;
-* the compiled kernels of the packages it ships (:mod:`.kernel_build`: the plant's and, in the
+* the compiled kernels of the packages it ships (:mod:`fmu_common.kernels`: the plant's and, in the
   controller, the filter's) for linux64 and, when the mingw-w64 cross-compiler is installed, win64,
   under ``resources/<package>/native/lib/<platform>/``, beside their C sources: the FMU loads them
   without compiling, and refuses to instantiate on a platform it has no kernel for;
@@ -41,9 +41,9 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from plant_fmu import _native
+from fmu_common import kernels
 
-from . import kernel_build, loader_build
+from . import loader_build
 
 __all__ = ["ROOT", "DEFAULT_OUT", "SPECS", "FmuSpec", "BuildError", "build_fmus", "build_fmu",
            "is_stale", "source_digest", "fmu_digest", "spec_kernels", "main"]
@@ -69,26 +69,29 @@ class FmuSpec:
 
 
 SPECS = {
-    "FlexiblePendulum": FmuSpec("FlexiblePendulum", "plant_fmu.fmu", ("plant_fmu",)),
-    # the controller imports plant_fmu.params and plant_fmu.fmi_support; it ships the whole
-    # package, so that whichever FMU a host loads first, `plant_fmu` is complete in that process
-    "PDLowPass": FmuSpec("PDLowPass", "controller_fmu.fmu", ("controller_fmu", "plant_fmu")),
+    "FlexiblePendulum": FmuSpec("FlexiblePendulum", "plant_fmu.fmu", ("plant_fmu", "fmu_common")),
+    # the controller imports plant_fmu.params; it ships the whole package, so that whichever FMU
+    # a host loads first, `plant_fmu` is complete in that process
+    "PDLowPass": FmuSpec("PDLowPass", "controller_fmu.fmu",
+                         ("controller_fmu", "plant_fmu", "fmu_common")),
 }
 
 
 # ---------------------------------------------------------------------- sources and staleness
 def package_files(pkg: str) -> list[Path]:
-    """The ``.py`` files of a project package (recursively, caches left out) and the C sources of
-    its kernel (``native/*.c``, ``native/*.h``)."""
-    py = [p for p in (ROOT / pkg).rglob("*.py") if "__pycache__" not in p.parts]
-    native = ROOT / pkg / "native"
-    c = [p for p in native.glob("*") if p.suffix in (".c", ".h")] if native.is_dir() else []
+    """The modules of a project package (the ``.py`` files of its Python packages, recursively;
+    folders without an ``__init__.py``, such as ``fmu_common/loader``, are not modules) and the C
+    sources of the kernels it owns."""
+    root = ROOT / pkg
+    py = [p for p in root.rglob("*.py") if "__pycache__" not in p.parts
+          and all((d / "__init__.py").is_file() for d in p.parents if d.is_relative_to(root))]
+    c = [f for k, v in kernels.KERNELS.items() if v[0] == pkg for f in kernels.source_files(k)]
     return sorted(py + c)
 
 
 def spec_kernels(spec: FmuSpec) -> list[str]:
     """The compiled kernels of the packages an FMU ships."""
-    return [k for k, v in _native.KERNELS.items() if v[0] in spec.packages]
+    return [k for k, v in kernels.KERNELS.items() if v[0] in spec.packages]
 
 
 def source_files(spec: FmuSpec) -> list[Path]:
@@ -101,12 +104,12 @@ def source_digest(spec: FmuSpec, platforms=None) -> str:
     build) and the pythonfmu version."""
     import pythonfmu
 
-    platforms = kernel_build.available_platforms() if platforms is None else list(platforms)
+    platforms = kernels.available_platforms() if platforms is None else list(platforms)
     h = hashlib.sha256(f"{BUILD_FORMAT} {spec} pythonfmu {pythonfmu.__version__} kernels "
                        f"{' '.join(platforms)} loader {' '.join(loader_build.loader_platforms())} "
                        f"python {loader_build.recorded_python()}\n".encode())
     for path in [Path(__file__).resolve(), ROOT / "orchestration" / "export" / "model_description.py",
-                 Path(kernel_build.__file__).resolve(),
+                 Path(kernels.__file__).resolve(),
                  Path(loader_build.__file__).resolve(), *loader_build.loader_files(),
                  *source_files(spec)]:
         h.update(path.relative_to(ROOT).as_posix().encode() + b"\0")
@@ -134,14 +137,14 @@ def build_fmu(name: str, out_dir: Path = DEFAULT_OUT, force: bool = False) -> Pa
     spec = SPECS[name]
     out_dir = Path(out_dir)
     target = out_dir / f"{name}.fmu"
-    platforms = kernel_build.available_platforms()
+    platforms = kernels.available_platforms()
     digest = source_digest(spec)
     if not force and fmu_digest(target) == digest:
         return target
     out_dir.mkdir(parents=True, exist_ok=True)
     try:
-        libs = kernel_build.ensure_kernels(platforms, spec_kernels(spec))
-    except kernel_build.KernelBuildError as exc:
+        libs = kernels.ensure_kernels(platforms, spec_kernels(spec))
+    except kernels.KernelBuildError as exc:
         raise BuildError(f"building {name} failed: {exc}") from None
     with tempfile.TemporaryDirectory(prefix=f"flexpend_{name}_") as tmp:
         stage = Path(tmp) / "stage"

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from ..params import check_real
+from fmu_common.checks import check_real
 
 __all__ = ["Stepper", "IntegratorError", "RUNNING", "FAILED", "numerical_jacobian"]
 

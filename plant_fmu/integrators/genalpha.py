@@ -46,7 +46,7 @@ import math
 
 import numpy as np
 
-from ..params import check_bool, check_int, check_real
+from fmu_common.checks import check_bool, check_int, check_real
 from .base import Stepper, numerical_jacobian
 
 __all__ = ["GeneralizedAlpha", "genalpha_parameters"]

@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from ..params import check_bool, check_real
+from fmu_common.checks import check_bool, check_real
 from .base import Stepper, _cap_message
 
 __all__ = ["ExplicitRungeKutta", "ExplicitEuler", "RK4", "DormandPrince54", "SymplecticEuler"]

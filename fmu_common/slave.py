@@ -1,4 +1,4 @@
-"""FMI plumbing shared by the two pythonfmu slaves (``FlexiblePendulum`` and ``PDLowPass``).
+"""FMI plumbing shared by the pythonfmu slaves (``FlexiblePendulum`` and ``PDLowPass``).
 
 Nothing here knows any physics. It registers parameters from a frozen dataclass (the start values
 in ``modelDescription.xml`` are then the dataclass defaults), guards the "fixed" variability of
@@ -7,7 +7,7 @@ parameters, logs failures and (de)serialises FMU states.
 pythonfmu 0.7.0 turns every Python exception into ``fmi2Fatal`` and destroys the Python instance;
 Python code has no way to return ``fmi2Error``. The slaves therefore never raise: a failure is
 logged with the status ``fmi2Error`` and a message that names its cause (the FMU's loader,
-``orchestration/export/loader``, turns a call during which an error was logged into
+``fmu_common/loader``, turns a call during which an error was logged into
 ``fmi2Error``), and ``doStep`` returns ``fmi2Discard`` (``do_step`` returns False).
 
 FMU states are dicts with a header (``format``, ``version``, ``model``); serialised, they are JSON.
@@ -78,7 +78,7 @@ def loads_state(data: bytes):
 
 
 class SlaveBase(Fmi2Slave):
-    """A pythonfmu slave whose variables come from a table (:mod:`plant_fmu.interface`).
+    """A pythonfmu slave whose variables come from a table (:mod:`fmu_common.variables`).
 
     Subclasses call :meth:`_register_table` in ``__init__`` and read ``self._par`` (a dict
     name -> value) when they initialise.
@@ -93,7 +93,7 @@ class SlaveBase(Fmi2Slave):
 
     # ------------------------------------------------------------------ variables
     def _register_table(self, table, output_getter):
-        """Register the variables of ``table`` (:mod:`plant_fmu.interface`), in its order, so that
+        """Register the variables of ``table`` (:mod:`fmu_common.variables`), in its order, so that
         a variable's value reference is its position in the table: parameters are fixed and
         kept in ``self._par``, inputs are attributes of the slave, outputs are read through
         ``output_getter(name)``."""
