@@ -50,7 +50,7 @@ void fpm_model_reset(fpm_model *m, double start_time)
     m->t0 = m->t = start_time;
 }
 
-/* check_real of plant_fmu/params.py, as ControllerParams uses it */
+/* check_real of fmu_common/checks.py, as ControllerParams uses it */
 static int check(const fpm_logger *lg, const char *name, double v, double low, int low_open,
                  double high, int allow_inf)
 {

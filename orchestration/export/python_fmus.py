@@ -70,10 +70,8 @@ class FmuSpec:
 
 SPECS = {
     "FlexiblePendulum": FmuSpec("FlexiblePendulum", "plant_fmu.fmu", ("plant_fmu", "fmu_common")),
-    # the controller imports plant_fmu.params; it ships the whole package, so that whichever FMU
-    # a host loads first, `plant_fmu` is complete in that process
-    "PDLowPass": FmuSpec("PDLowPass", "controller_fmu.fmu",
-                         ("controller_fmu", "plant_fmu", "fmu_common")),
+    # each FMU carries its own model and what every FMU shares, nothing of the other model
+    "PDLowPass": FmuSpec("PDLowPass", "controller_fmu.fmu", ("controller_fmu", "fmu_common")),
 }
 
 
