@@ -1,5 +1,5 @@
 """Build step of the project: compile the C kernels (plant_fmu/native, controller_fmu/native, and
-the master's compiled loop in orchestration/native) into plain shared libraries for this platform, for regular and editable installs alike.
+the master's compiled loop in orchestration/cosim/native) into plain shared libraries for this platform, for regular and editable installs alike.
 
 Everything else is declared in pyproject.toml. The compilation itself is fmu_common/kernels.py
 (the same build the FMUs use). Without a C compiler the

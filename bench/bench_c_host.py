@@ -6,7 +6,7 @@ fmpy master (issue 16; target: the C host with the loader within 1.2x of the fmp
 Three ways to run the same loop (the ``flexible_pd_lowpass`` scene with 1 ms steps, Gauss-Seidel,
 inputs held: the coupling the C host implements):
 
-* **fmpy master**: ``orchestration.master`` in this process (``RunStats.wall_time / steps``);
+* **fmpy master**: ``orchestration.cosim.master`` in this process (``RunStats.wall_time / steps``);
 * **C host, before**: ``tests/c_host/fmi2_host.c`` on pythonfmu's own library
   (``binaries/linux64/<model>_pythonfmu.so``), with what it needs by hand: ``LD_PRELOAD`` of
   libpython, ``PYTHONHOME`` and ``PYTHONPATH`` (every call then creates and destroys a Python

@@ -108,7 +108,7 @@ def monolithic_rk4_binary(folder: Path) -> Path:
 
 def rk4_input(scene, h: float) -> str:
     from plant_fmu.dynamics import plant_model
-    from orchestration.config import controller_params
+    from orchestration.scene.keys import controller_params
     m = plant_model(scene.plant)
     c = controller_params(scene.config)
     if c.filter_order != 2:

@@ -2,7 +2,7 @@
 monolithic runs of a scene, the error measure and the timing discipline.
 
 * **Error**: the largest absolute error of ``phi_o`` over the run, on the scene's output grid,
-  against the monolithic reference (:func:`orchestration.reference.simulate_reference`, DOP853 at
+  against the monolithic reference (:func:`orchestration.studies.reference.simulate_reference`, DOP853 at
   rtol = atol = 1e-12).
 * **Time**: the median of ``runs`` timed repetitions after one untimed warm-up (JIT compilation,
   caches, page faults), with ``time.perf_counter``. Co-simulation times are the master's
@@ -31,11 +31,12 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from orchestration.export import build_fmus  # noqa: E402
-from orchestration.master import Master, Slave, parse_connection  # noqa: E402
-from orchestration.reference import ClosedLoop, simulate_reference  # noqa: E402
-from orchestration.run import (DEFAULT_CONNECTIONS, controller_start_values,  # noqa: E402
-                               plant_start_values)
-from orchestration.scenes import load_scene  # noqa: E402
+from orchestration.cosim.master import Master
+from orchestration.cosim.slave import Slave
+from orchestration.scene.wiring import parse_connection  # noqa: E402
+from orchestration.studies.reference import ClosedLoop, simulate_reference  # noqa: E402
+from orchestration.job import DEFAULT_CONNECTIONS, controller_start_values, plant_start_values
+from orchestration.scene.schema import load_scene  # noqa: E402
 
 __all__ = ["ROOT", "RESULTS", "product_fmus", "trivial_fmus", "trivial_native_fmus", "CoSim", "monolithic",
            "reference", "median_time", "COUPLING_RECORD", "load_scene"]

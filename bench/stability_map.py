@@ -7,7 +7,7 @@
    500/5, n_modes = 4, plant RK4 with substep 2.5e-4), one panel per coupling scheme (Jacobi,
    Gauss-Seidel controller first, Gauss-Seidel plant first) and extrapolation order (0, 1, 2).
    Predicted: the spectral radius of the transition matrix of one communication step
-   (orchestration/stability.py), shaded, with its contour rho = 1. Observed: the real FMUs on the
+   (orchestration/studies/stability.py), shaded, with its contour rho = 1. Observed: the real FMUs on the
    master with the nonlinear plant from initial.phi = 1e-3, 120 communication steps; the growth
    factor per step of the sampled outputs (eigensystem realisation) decides grow (x) or decay (o).
    The critical H at the default cutoff (150 rad/s) is the first crossing of rho = 1.
@@ -17,7 +17,7 @@
    0.9, 0.98, 1.02 and 1.1 times the predicted limit (A-stable methods: at 10 times RK4's limit);
    the growth per substep along the mode (its left eigenvector of the method's substep matrix).
 
-Every part is a list of independent tasks (orchestration.parallel): one after the other here, or
+Every part is a list of independent tasks (orchestration.sweep.executor): one after the other here, or
 with ``--workers N`` on a dask LocalCluster (``--scheduler ADDRESS``: an existing cluster), with
 the same numbers.
 
@@ -44,10 +44,11 @@ from controller_fmu.pd_lowpass import ControllerParams  # noqa: E402
 from plant_fmu.dynamics import plant_model  # noqa: E402
 from plant_fmu.integrators import make_stepper  # noqa: E402
 from plant_fmu.params import PlantParams  # noqa: E402
-from orchestration.stability import (SCHEMES, first_crossing, highest_mode,  # noqa: E402
-                                     integrator_step_limit, linear_plant,
-                                     observed_spectral_radius, plant_step_map, spectral_radius,
-                                     substep_matrix, substep_spectral_radius, transition_matrix)
+from orchestration.studies.stability import (SCHEMES, first_crossing, highest_mode,
+                                             integrator_step_limit, linear_plant,
+                                             observed_spectral_radius, plant_step_map,
+                                             spectral_radius, substep_matrix,
+                                             substep_spectral_radius, transition_matrix)
 
 METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau")
 OBSERVED = ["phi_o", "omega_o", "F_c", "phi", "eta_1", "eta_2", "eta_3", "eta_4"]
@@ -78,13 +79,13 @@ class Bar:
 
 
 # ---------------------------------------------------------------------- tasks
-# Every part is a list of independent tasks run by an executor (orchestration.parallel): here
+# Every part is a list of independent tasks run by an executor (orchestration.sweep.executor): here
 # one after the other, or on dask workers; each task is a module-level function of one item.
 
 def run_tasks(ex, fn, items, label):
     """``[fn(item) for item in items]`` on the executor, with a progress bar; a task lost with
     its worker stops the study (a map with a hole is no map)."""
-    from orchestration.parallel import TaskLost
+    from orchestration.sweep.executor import TaskLost
     out = [None] * len(items)
     bar = Bar(label, len(items))
     for i, value in ex.map(fn, items):
@@ -140,8 +141,8 @@ def critical_steps(p, substep, ex):
 
 
 def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
-    from orchestration.run import run_scene
-    from orchestration.scenes import scene_from_config
+    from orchestration.job import run_scene
+    from orchestration.scene.schema import scene_from_config
     scene = scene_from_config("stability_map", {
         "plant.n_modes": n_modes, "controller.filter_order": 2, "controller.cutoff": float(wc),
         "controller.filter_damping": 0.5, "initial.phi": 1e-3, "master.step": float(H),
@@ -157,7 +158,7 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
 
 def _observed_point(item):
     """One point of the map: the predicted radius and the observed co-simulation."""
-    from orchestration.parallel import worker_file
+    from orchestration.sweep.executor import worker_file
     p, fmus, label, alg, first, e, H, wc, substep, n_steps = item
     paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
     c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
@@ -170,7 +171,7 @@ def _observed_point(item):
 
 
 def observed_map(p, Hs, cutoffs, substep, n_steps, ex, fmus):
-    """``fmus``: role -> (shipped name, path), see orchestration.parallel.worker_file."""
+    """``fmus``: role -> (shipped name, path), see orchestration.sweep.executor.worker_file."""
     items = [(p, fmus, label, alg, first, e, float(H), float(wc), substep, n_steps)
              for label, alg, first in SCHEMES for e in range(3) for H in Hs for wc in cutoffs]
     return run_tasks(ex, _observed_point, items, "observed co-simulations")
@@ -346,7 +347,7 @@ def main(argv=None):
         print(f"stability_map: --out {args.out!r} cannot be created: {exc}", file=sys.stderr)
         return 2
     from orchestration.export import build_fmus
-    from orchestration.parallel import file_name, open_executor
+    from orchestration.sweep.executor import file_name, open_executor
     built = build_fmus()
     fmu_paths = {"plant": built["FlexiblePendulum"], "controller": built["PDLowPass"]}
     fmus = {role: (file_name(path), str(path)) for role, path in fmu_paths.items()}

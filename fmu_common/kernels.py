@@ -61,8 +61,8 @@ KERNELS = {
                        "fp_plant_source_digest", 1),
     "flexpend_filter": ("controller_fmu", ("fp_filter.c",), ("fp_filter.h",), "fpf_abi",
                         "fpf_source_digest", 1),
-    # the master's compiled fixed-step loop (orchestration/compiled_master.py), for the host
-    "flexpend_master": ("orchestration", ("fm_master.c",), ("fm_master.h",), "fm_abi",
+    # the master's compiled fixed-step loop (orchestration/cosim/compiled.py), for the host
+    "flexpend_master": ("orchestration/cosim", ("fm_master.c",), ("fm_master.h",), "fm_abi",
                         "fm_source_digest", 1),
 }
 

@@ -34,8 +34,8 @@ import sys
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from .config import (CONTROLLER_KEYS, ConfigError, apply_overrides, controller_params,
-                     default_config, fidelity, plant_params)
+from .scene.keys import (CONTROLLER_KEYS, ConfigError, apply_overrides, controller_params,
+                         default_config, fidelity, plant_params)
 
 __all__ = ["main"]
 
@@ -82,9 +82,9 @@ def _no_auto(cfg, command):
 
 
 def cmd_analyze(args) -> int:
-    from .analysis import analyze
+    from .studies.analysis import analyze
 
-    from .scenes import known_keys
+    from .scene.schema import known_keys
 
     # every scene key is accepted; those that do not change the linear loop are ignored
     cfg = apply_overrides(default_config(), args.set, known=known_keys())
@@ -131,11 +131,11 @@ def _filter_text(order, cutoff, damping) -> str:
 def cmd_design(args) -> int:
     import numpy as np
 
-    from . import plots
-    from .analysis import frequency_response
-    from .design import DESIGN_DEFAULTS, design_filter, design_settings, root_locus
-    from .run import Progress
-    from .scenes import known_keys
+    from .report import figures as plots
+    from .studies.analysis import frequency_response
+    from .studies.design import DESIGN_DEFAULTS, design_filter, design_settings, root_locus
+    from .job import Progress
+    from .scene.schema import known_keys
 
     known = {**known_keys(), **DESIGN_DEFAULTS}
     cfg = apply_overrides(known, args.set, known=known)
@@ -338,7 +338,7 @@ EXIT_INTERRUPTED = 130
 
 
 def cmd_run(args) -> int:
-    from .scenes import PAPER_SCENES, load_scene
+    from .scene.schema import PAPER_SCENES, load_scene
 
     names = args.scenes or list(PAPER_SCENES)
     # validate all before running; an SSP archive brings its own FMUs
@@ -352,9 +352,9 @@ def cmd_run(args) -> int:
     try:
         from fmpy.util import write_csv  # noqa: F401
 
-        from . import plots
+        from .report import figures as plots
         from .export import build_fmus
-        from .run import run_scene  # noqa: F401
+        from .job import run_scene  # noqa: F401
         plots._pyplot()
         interrupts.check()
         from .export import fmu_pair
@@ -378,7 +378,7 @@ def _check_wiring(scenes, fmus, own_fmus=None):
     ``own_fmus``: id(scene) -> the FMUs of a scene read from an SSP archive."""
     from fmpy import read_model_description
 
-    from .master import parse_connection
+    from .scene.wiring import parse_connection
 
     for scene in scenes:
         variables = {k: [v.name for v in read_model_description(str(p)).modelVariables]
@@ -395,8 +395,8 @@ def _check_wiring(scenes, fmus, own_fmus=None):
 def _run_scenes(args, scenes, fmus, out_dir, interrupts, own_fmus=None) -> int:
     from fmpy.util import write_csv
 
-    from . import plots
-    from .run import run_scene
+    from .report import figures as plots
+    from .job import run_scene
 
     summaries, results = {}, {}
     code = 0
@@ -456,7 +456,7 @@ def _read_ssp(path, overrides):
     """An SSP archive as a scene and its FMUs (unpacked until the process exits)."""
     import atexit
 
-    from .export.ssp import read_ssp
+    from .scene.ssp import read_ssp
     system = read_ssp(path, overrides)
     atexit.register(system.close)
     return system
@@ -466,9 +466,9 @@ def cmd_export(args) -> int:
     from pathlib import Path
 
     from .export.flavours import FlavourUnavailable
-    from .export.ssp import export_scene
-    from .run import Progress
-    from .scenes import load_scene
+    from .export.system import export_scene
+    from .job import Progress
+    from .scene.schema import load_scene
 
     if args.out is not None and Path(args.out).suffix != ".ssp":
         raise UsageError(f"--out {args.out}: the archive's name must end in .ssp")
@@ -517,7 +517,7 @@ def cmd_check(args) -> int:
 
 
 def _executor_args(args):
-    """``(workers, scheduler)`` for :func:`orchestration.parallel.open_executor`."""
+    """``(workers, scheduler)`` for :func:`orchestration.sweep.executor.open_executor`."""
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed; allowed: an integer >= 1")
     if args.workers is not None and args.scheduler:
@@ -527,7 +527,7 @@ def _executor_args(args):
 
 
 def _open_executor(workers, scheduler, files=()):
-    from .parallel import open_executor
+    from .sweep.executor import open_executor
     try:
         ex = open_executor(workers, scheduler, files=files)
     except ValueError as exc:                # an unreachable scheduler
@@ -542,9 +542,9 @@ def _open_executor(workers, scheduler, files=()):
 def cmd_sweep(args) -> int:
     from pathlib import Path
 
-    from .parallel import default_workers
-    from .sweep import (design_worst_case, fmus_for, pending, plan_sweep, run_sweep,
-                        sweep_stats)
+    from .sweep.executor import default_workers
+    from .sweep.plan import design_worst_case, plan_sweep
+    from .sweep.engine import fmus_for, pending, run_sweep, sweep_stats
 
     if args.serial and (args.workers is not None or args.scheduler):
         raise UsageError("--serial runs here, without dask: it takes no --workers or --scheduler")
@@ -562,7 +562,7 @@ def cmd_sweep(args) -> int:
           + (f", {done} already finished in {out_dir}" if done else ""), file=sys.stderr)
     fmus = fmus_for(plan)
     if args.serial or todo == 0:
-        from .parallel import Executor
+        from .sweep.executor import Executor
         executor = Executor()
     else:
         if workers is None and not scheduler:
@@ -655,7 +655,7 @@ def cmd_build(args) -> int:
 
 
 def cmd_scenes(args) -> int:
-    from .scenes import list_scenes, load_scene
+    from .scene.schema import list_scenes, load_scene
     for name in list_scenes():
         print(f"{name:24s} {load_scene(name)['description']}")
     return 0

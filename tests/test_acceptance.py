@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from controller_fmu.pd_lowpass import ControllerParams
-from orchestration.analysis import analyze, closed_loop_matrix
+from orchestration.studies.analysis import analyze, closed_loop_matrix
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from controller_fmu.pd_lowpass import ControllerParams
-from orchestration.analysis import analyze, closed_loop_matrix, loop_transfer, max_real_part
+from orchestration.studies.analysis import analyze, closed_loop_matrix, loop_transfer, max_real_part
 from plant_fmu.params import PlantParams
 
 CASES = [(PlantParams(n_modes=0), ControllerParams(filter_order=0)),

@@ -1,7 +1,7 @@
-"""The master's compiled fixed-step loop (orchestration/native/fm_master.c, bound in
-orchestration/compiled_master.py) against its Python loop.
+"""The master's compiled fixed-step loop (orchestration/cosim/native/fm_master.c, bound in
+orchestration/cosim/compiled.py) against its Python loop.
 
-Independent value: the Python loop of orchestration/master.py, which the compiled loop must
+Independent value: the Python loop of orchestration/cosim/master.py, which the compiled loop must
 reproduce bit for bit: the same output rows on the paper's scenes and every coupling option, the
 same FMI calls with the same arguments in the same order (traced through wrappers of the FMUs'
 own functions), the same failure for a failed call of every kind (message, status, time, partial
@@ -15,11 +15,13 @@ import itertools
 import numpy as np
 import pytest
 
-from orchestration import compiled_master
-from orchestration.config import ConfigError
-from orchestration.master import CoSimulationError, Master, RunInterrupted, Slave, parse_connection
-from orchestration.run import RECORD, controller_start_values, plant_start_values, run_scene
-from orchestration.scenes import PAPER_SCENES, load_scene
+from orchestration.cosim import compiled as compiled_master
+from orchestration.scene.keys import ConfigError
+from orchestration.cosim.slave import CoSimulationError, RunInterrupted, Slave
+from orchestration.cosim.master import Master
+from orchestration.scene.wiring import parse_connection
+from orchestration.job import RECORD, controller_start_values, plant_start_values, run_scene
+from orchestration.scene.schema import PAPER_SCENES, load_scene
 
 
 @pytest.fixture(scope="module")

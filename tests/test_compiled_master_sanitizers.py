@@ -1,4 +1,4 @@
-"""The master's compiled loop (orchestration/native/fm_master.c) under AddressSanitizer and
+"""The master's compiled loop (orchestration/cosim/native/fm_master.c) under AddressSanitizer and
 UndefinedBehaviorSanitizer: the library is rebuilt with the project's flags plus
 ``-fsanitize=address,undefined`` and the whole of ``tests/test_compiled_master.py`` (every coupling,
 traced FMI calls, every injected failure, divergence, stop, the grid hand-over) runs against it in
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from orchestration import compiled_master
+from orchestration.cosim import compiled as compiled_master
 from fmu_common import kernels
 
 HERE = Path(__file__).parent
@@ -43,7 +43,7 @@ PLUGIN = '''
 from pathlib import Path
 from types import SimpleNamespace
 
-from orchestration import compiled_master
+from orchestration.cosim import compiled as compiled_master
 from fmu_common import kernels
 
 _NATIVE = Path({native!r})

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from controller_fmu.pd_lowpass import ControllerParams
-from orchestration.analysis import max_real_part
-from orchestration.design import (DESIGN_DEFAULTS, RobustLoop, UncertaintySet, design_filter,
-                                  design_settings)
-from orchestration.scenes import load_scene
+from orchestration.studies.analysis import max_real_part
+from orchestration.studies.design import (DESIGN_DEFAULTS, RobustLoop, UncertaintySet,
+                                          design_filter, design_settings)
+from orchestration.scene.schema import load_scene
 from plant_fmu.params import PlantParams
 
 #: The uncertainty set of issue 6: n_modes 2..8, zeta 0.05 %..0.2 %, EI +-10 %, m +-20 %.

@@ -3,12 +3,12 @@ measurement of its own: the time responses fitted by the matrix pencil, or the c
 import numpy as np
 import pytest
 
-from orchestration.config import ConfigError
-from orchestration.fidelity import output_difference, select_model
-from orchestration.reference import simulate_reference
-from orchestration.fit import dominant_oscillation
-from orchestration.run import run_scene
-from orchestration.scenes import Scene, load_scene
+from orchestration.scene.keys import ConfigError
+from orchestration.studies.fidelity import output_difference, select_model
+from orchestration.studies.reference import simulate_reference
+from orchestration.studies.fit import dominant_oscillation
+from orchestration.job import run_scene
+from orchestration.scene.schema import Scene, load_scene
 
 OUTPUTS = ["x", "phi_o", "omega_o", "F_c"]
 

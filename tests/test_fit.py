@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from orchestration.fit import dominant_oscillation
+from orchestration.studies.fit import dominant_oscillation
 
 T = np.arange(0, 5, 0.01)
 SIGNAL = (0.5 * np.exp(-0.765 * T) * np.cos(10.13 * T + 0.3)

@@ -4,7 +4,7 @@ master in C compiled here, loads both FMUs' linux64 binaries with ``dlopen(RTLD_
 
 * The FMU's loader finds the interpreter recorded at build time (this test session's), loads its
   libpython and runs the closed loop; the outputs equal those of the fmpy master
-  (``orchestration.master``) on the same scene to 1e-12 (they are in fact bit-identical: the
+  (``orchestration.cosim.master``) on the same scene to 1e-12 (they are in fact bit-identical: the
   same Python code and the same sequence of calls).
 * Pointed (``FLEXPEND_PYTHON``) at a Python without numpy (a virtual environment made with
   ``--without-pip``), ``fmi2Instantiate`` returns NULL and logs why, with a category, and the host
@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from orchestration.run import controller_start_values, plant_start_values, run_scene
-from orchestration.scenes import load_scene
+from orchestration.job import controller_start_values, plant_start_values, run_scene
+from orchestration.scene.schema import load_scene
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux") or not shutil.which("gcc"),
                                 reason="needs Linux and gcc")

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from orchestration.export import fmu_pair
-from orchestration.run import run_scene
+from orchestration.job import run_scene
 from test_fmu_c_host import host_command, system_env, zoh_scene
 
 HERE = Path(__file__).parent / "jvm_host"

@@ -270,10 +270,10 @@ def test_8_a_modified_copy_runs_its_own_code_beside_the_original(fmus, fmu_dirs,
 
 
 def test_8_the_master_runs_the_code_inside_the_fmu(fmus, tmp_path):
-    """``flexpend run``'s master (orchestration.master, in this process where the checkout's
+    """``flexpend run``'s master (orchestration.cosim.master, in this process where the checkout's
     packages are imported) runs the controller FMU it is given, not the checkout's code."""
-    from orchestration.run import run_scene
-    from orchestration.scenes import load_scene
+    from orchestration.job import run_scene
+    from orchestration.scene.schema import load_scene
 
     # held inputs, so that the first step's inputs are the same in both runs
     scene = load_scene("flexible_pd_lowpass", [

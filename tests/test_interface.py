@@ -83,8 +83,8 @@ def test_modal_coordinates_carry_m_sqrt_kg():
 
 
 def test_scene_keys_map_to_start_values():
-    from orchestration.run import controller_start_values, plant_start_values
-    from orchestration.scenes import load_scene
+    from orchestration.job import controller_start_values, plant_start_values
+    from orchestration.scene.schema import load_scene
 
     scene = load_scene("flexible_pd", ["plant.EI=900", "initial.phi=0.2", "controller.kp=400"])
     plant = plant_start_values(scene)

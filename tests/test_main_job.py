@@ -13,11 +13,11 @@ import time
 import numpy as np
 import pytest
 
-from orchestration.analysis import closed_loop_matrix
+from orchestration.studies.analysis import closed_loop_matrix
 from orchestration.cli import main
-from orchestration.run import run_scene
-from orchestration.scenes import PAPER_SCENES, load_scene
-from orchestration.summary import TIP_DEFLECTION_LIMIT
+from orchestration.job import run_scene
+from orchestration.scene.schema import PAPER_SCENES, load_scene
+from orchestration.report.summary import TIP_DEFLECTION_LIMIT
 
 
 @pytest.fixture(scope="module")

@@ -2,12 +2,15 @@
 import numpy as np
 import pytest
 
-from orchestration.analysis import analyze
-from orchestration.master import Master, Slave, _History, extrapolation_weights, parse_connection
-from orchestration.reference import simulate_reference
-from orchestration.run import (DEFAULT_CONNECTIONS, RECORD, controller_start_values,
+from orchestration.studies.analysis import analyze
+from orchestration.cosim.master import Master
+from orchestration.cosim.slave import Slave
+from orchestration.cosim.coupling import _History, extrapolation_weights
+from orchestration.scene.wiring import parse_connection
+from orchestration.studies.reference import simulate_reference
+from orchestration.job import (DEFAULT_CONNECTIONS, RECORD, controller_start_values,
                                plant_start_values, run_scene)
-from orchestration.scenes import load_scene
+from orchestration.scene.schema import load_scene
 
 
 @pytest.fixture(scope="module")

@@ -172,8 +172,8 @@ def assert_same(a, b, rel_exponential=False):
 @pytest.mark.slow
 @pytest.mark.parametrize("scene, sets", SCENES, ids=[f"{s}-{'-'.join(x)}" for s, x in SCENES])
 def test_native_and_pythonfmu_give_the_same_outputs(native, fmus, scene, sets):
-    from orchestration.run import run_scene
-    from orchestration.scenes import load_scene
+    from orchestration.job import run_scene
+    from orchestration.scene.schema import load_scene
     sc = load_scene(scene, sets)
     a = run_scene(sc, pair(native), progress=False)
     b = run_scene(sc, pair(fmus), progress=False)
@@ -185,8 +185,8 @@ def test_native_and_pythonfmu_give_the_same_outputs(native, fmus, scene, sets):
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", range(3))
 def test_native_and_pythonfmu_agree_at_random_parameters(native, fmus, seed):
-    from orchestration.run import run_scene
-    from orchestration.scenes import load_scene
+    from orchestration.job import run_scene
+    from orchestration.scene.schema import load_scene
     rng = np.random.default_rng(seed)
     f = lambda: float(np.exp(rng.uniform(-0.5, 0.5)))  # noqa: E731
     ne = int(rng.integers(8, 40))
@@ -368,8 +368,10 @@ def test_state_get_set_and_serialisation_are_bit_identical(open_native, integrat
 # ---------------------------------------------------------------------- importers
 def _master(paths, *, algorithm="jacobi", extrapolation=0, step=1e-3, stop=2.0, start=None,
             input_derivatives=False):
-    from orchestration.master import Master, Slave, parse_connection
-    from orchestration.run import DEFAULT_CONNECTIONS
+    from orchestration.cosim.master import Master
+    from orchestration.cosim.slave import Slave
+    from orchestration.scene.wiring import parse_connection
+    from orchestration.job import DEFAULT_CONNECTIONS
     slaves = {"plant": Slave(paths["FlexiblePendulum"], "plant", start or {"phi0": 0.3}),
               "controller": Slave(paths["PDLowPass"], "controller")}
     rec = {"x_o": ("plant", "x_o"), "phi_o": ("plant", "phi_o"),
@@ -409,9 +411,9 @@ def test_input_derivatives_go_through_fmi2SetRealInputDerivatives(native, fmus):
 
 
 def test_adaptive_master_rolls_back_the_native_fmus(native, fmus):
-    from orchestration.run import run_scene
-    from orchestration.scenes import load_scene
-    from orchestration.reference import simulate_reference
+    from orchestration.job import run_scene
+    from orchestration.scene.schema import load_scene
+    from orchestration.studies.reference import simulate_reference
     sc = load_scene("flexible_pd_lowpass", ["stop_time=1", "master.adaptive=true",
                                             "master.step=2e-2"])
     a = run_scene(sc, pair(native), progress=False)

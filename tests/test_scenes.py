@@ -3,8 +3,8 @@ import math
 
 import pytest
 
-from orchestration.config import ConfigError
-from orchestration.scenes import PAPER_SCENES, list_scenes, load_scene
+from orchestration.scene.keys import ConfigError
+from orchestration.scene.schema import PAPER_SCENES, list_scenes, load_scene
 
 
 def test_paper_scenes_load_with_the_papers_setup():

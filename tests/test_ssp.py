@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from orchestration.export.ssp import NS, SSD_NAME, read_ssp, validate_ssd, write_ssp
-from orchestration.fidelity import select_model
-from orchestration.run import run_scene
-from orchestration.scenes import SCENE_DIR, load_scene, scene_from_config
+from orchestration.scene.ssp import NS, SSD_NAME, read_ssp, validate_ssd, write_ssp
+from orchestration.studies.fidelity import select_model
+from orchestration.job import run_scene
+from orchestration.scene.schema import SCENE_DIR, load_scene, scene_from_config
 
 FOREIGN = Path(__file__).parent / "data" / "ssp_foreign"
 

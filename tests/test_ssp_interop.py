@@ -21,10 +21,10 @@ import pytest
 
 import libcosimpy  # noqa: F401  (a declared test dependency: fail, do not skip)
 
-from orchestration import run as run_module
-from orchestration.export.ssp import fmpy_parameter_set, read_ssp
-from orchestration.master import Master
-from orchestration.scenes import load_scene
+from orchestration import job as run_module
+from orchestration.scene.ssp import fmpy_parameter_set, read_ssp
+from orchestration.cosim.master import Master
+from orchestration.scene.schema import load_scene
 
 pytestmark = pytest.mark.slow
 

@@ -1,5 +1,5 @@
 """The co-simulation's stability boundaries: the transition matrix of one communication step
-(orchestration/stability.py) against independent computations, and the real FMUs on the master
+(orchestration/studies/stability.py) against independent computations, and the real FMUs on the master
 at three points just inside and three just outside each predicted boundary.
 
 Observation: the co-simulation's output samples (one per communication step) of a small motion
@@ -19,12 +19,14 @@ import numpy as np
 import pytest
 
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
-from orchestration.analysis import max_real_part
-from orchestration.run import run_scene
-from orchestration.scenes import scene_from_config
-from orchestration.stability import (METHODS, critical_value, highest_mode, integrator_step_limit,
-                                     linear_plant, observed_spectral_radius, plant_step_map,
-                                     scene_transition_matrix, spectral_radius, transition_matrix)
+from orchestration.studies.analysis import max_real_part
+from orchestration.job import run_scene
+from orchestration.scene.schema import scene_from_config
+from orchestration.studies.stability import (METHODS, critical_value, highest_mode,
+                                             integrator_step_limit, linear_plant,
+                                             observed_spectral_radius, plant_step_map,
+                                             scene_transition_matrix, spectral_radius,
+                                             transition_matrix)
 from plant_fmu.dynamics import linear_plant_model
 from plant_fmu.integrators import make_stepper
 from plant_fmu.params import PlantParams

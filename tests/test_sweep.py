@@ -1,5 +1,5 @@
 """flexpend sweep: the same table on dask as serially, seeded samples, failed and lost runs,
-resuming, and one-line errors for bad specs (orchestration/sweep.py, orchestration/parallel.py).
+resuming, and one-line errors for bad specs (orchestration/sweep/, orchestration/sweep/executor.py).
 
 The runs are short (3 s of the filtered scene from 0.05 rad, where the summary's fits are
 reliable) so that the file stays a few seconds long."""
@@ -10,12 +10,12 @@ import pytest
 import scipy.stats
 
 from orchestration.cli import main
-from orchestration.design import UncertaintySet, worst_cases
-from orchestration.parallel import DaskExecutor, Executor, TaskLost
-from orchestration.run import run_scene
-from orchestration.scenes import load_scene
-from orchestration.sweep import (Journal, plan_sweep, read_table, run_sweep, sweep_stats,
-                                 write_table)
+from orchestration.studies.design import UncertaintySet, worst_cases
+from orchestration.sweep.executor import DaskExecutor, Executor, TaskLost
+from orchestration.job import run_scene
+from orchestration.scene.schema import load_scene
+from orchestration.sweep.engine import Journal, read_table, run_sweep, sweep_stats, write_table
+from orchestration.sweep.plan import plan_sweep
 from plant_fmu.params import PlantParams
 
 SHORT = ["stop_time=3", "initial.phi=0.05"]

@@ -12,12 +12,14 @@
 them (``flexpend check``; the project's own references in ``tests/reference/``).
 ``build/build_fmus.py`` and ``flexpend build`` are thin front ends of this package.
 """
+import argparse
+import sys
 from pathlib import Path
 
 from .native_fmus import NativeBuildError, build_native_fmus
 from .python_fmus import BuildError
 
-__all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair"]
+__all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "main"]
 
 #: The two flavours of the FMUs: compiled C (the default of ``flexpend run``) and pythonfmu.
 FMU_FLAVOURS = ("native", "python")
@@ -47,3 +49,39 @@ def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = 
 def fmu_pair(paths: dict) -> dict:
     """``{"plant": ..., "controller": ...}`` from :func:`build_fmus`' result (the master's names)."""
     return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+
+
+# ---------------------------------------------------------------------- command line
+def main(argv=None) -> int:
+    """``python build/build_fmus.py``: build the pythonfmu FMUs, and with ``--references``
+    regenerate the reference results under ``tests/reference/``."""
+    from .check import write_references
+    from .python_fmus import DEFAULT_OUT, SPECS, build_fmus as build_python, is_stale
+
+    ap = argparse.ArgumentParser(prog="build_fmus.py", description="Build the FlexiblePendulum and PDLowPass FMUs (pythonfmu) into build/fmus/, only those whose sources changed.")
+    ap.add_argument("names", nargs="*", help=f"FMUs to build (default: all of {', '.join(SPECS)})")
+    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output folder (default: build/fmus)")
+    ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
+    ap.add_argument("--references", action="store_true",
+                    help="also regenerate the reference results under tests/reference/")
+    args = ap.parse_args(argv)
+    unknown = sorted(set(args.names) - set(SPECS))
+    if unknown:
+        print(f"error: unknown FMU(s) {', '.join(unknown)}; known: {', '.join(SPECS)}",
+              file=sys.stderr)
+        return 2
+    try:
+        stale = {n: is_stale(n, args.out) for n in (args.names or SPECS)}
+        fmus = build_python(args.out, args.names or None, force=args.force)
+    except BuildError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for n, p in fmus.items():
+        state = "built" if args.force or stale[n] else "up to date"
+        print(f"{n}: {p} ({state})")
+    if args.references:
+        if set(fmus) != set(SPECS):
+            fmus = build_python(args.out)
+        for n, files in write_references(fmus).items():
+            print(f"{n}: reference written to {files['ref'].parent}")
+    return 0

@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .python_fmus import ROOT
+from fmu_common.kernels import ROOT
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",

@@ -29,7 +29,6 @@ leaves it on ``sys.path``/``sys.modules``, which must not leak into the caller (
 """
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import os
@@ -46,7 +45,7 @@ from fmu_common import kernels
 from . import loader_build
 
 __all__ = ["ROOT", "DEFAULT_OUT", "SPECS", "FmuSpec", "BuildError", "build_fmus", "build_fmu",
-           "is_stale", "source_digest", "fmu_digest", "spec_kernels", "main"]
+           "is_stale", "source_digest", "fmu_digest", "spec_kernels"]
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_OUT = ROOT / "build" / "fmus"
@@ -261,35 +260,3 @@ def _worker(args_json: str):
     with zipfile.ZipFile(a["dest"], "w", zipfile.ZIP_DEFLATED) as zf:
         for fname, data in entries.items():
             zf.writestr(fname, data)
-
-
-# ---------------------------------------------------------------------- command line
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="build_fmus.py", description=__doc__.split("\n\n")[0])
-    ap.add_argument("names", nargs="*", help=f"FMUs to build (default: all of {', '.join(SPECS)})")
-    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output folder (default: build/fmus)")
-    ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
-    ap.add_argument("--references", action="store_true",
-                    help="also regenerate the reference results under tests/reference/")
-    args = ap.parse_args(argv)
-    unknown = sorted(set(args.names) - set(SPECS))
-    if unknown:
-        print(f"error: unknown FMU(s) {', '.join(unknown)}; known: {', '.join(SPECS)}",
-              file=sys.stderr)
-        return 2
-    try:
-        stale = {n: is_stale(n, args.out) for n in (args.names or SPECS)}
-        fmus = build_fmus(args.out, args.names or None, force=args.force)
-    except BuildError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    for n, p in fmus.items():
-        state = "built" if args.force or stale[n] else "up to date"
-        print(f"{n}: {p} ({state})")
-    if args.references:
-        if set(fmus) != set(SPECS):
-            fmus = build_fmus(args.out)
-        from .check import write_references
-        for n, files in write_references(fmus).items():
-            print(f"{n}: reference written to {files['ref'].parent}")
-    return 0

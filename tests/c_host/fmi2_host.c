@@ -1,6 +1,6 @@
 /* A minimal FMI 2.0 co-simulation master in C, with no Python anywhere in it: it loads the
  * plant and the controller with dlopen(RTLD_LOCAL) and runs the closed loop the way
- * orchestration/master.py does by default (Gauss-Seidel, controller first, inputs held over each
+ * orchestration/cosim/master.py does by default (Gauss-Seidel, controller first, inputs held over each
  * step; the controller's inputs are moved to their values at the end of the step before its
  * output is read, as the master does for a slave with direct feedthrough).
  *

@@ -2,7 +2,7 @@
 
 ``plant.n_modes = "auto"`` and ``plant.fidelity = "auto"`` (in a scene or by ``--set``) are
 resolved here, before the co-simulation, by measuring the scene's own outputs over the scene's own
-run on the monolithic closed loop (:func:`orchestration.reference.simulate_reference`, DOP853 at
+run on the monolithic closed loop (:func:`orchestration.studies.reference.simulate_reference`, DOP853 at
 ``rtol = 1e-8``: its error is far below any sensible tolerance):
 
 1. Modes (``n_modes = "auto"``). The linearised loop's stability verdict is computed for every
@@ -22,44 +22,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from .config import ConfigError
+from ..scene.keys import ConfigError
+from ..scene.schema import AUTO
 
-__all__ = ["AUTO", "FIDELITY_DEFAULTS", "COMPARABLE_OUTPUTS", "needs_selection",
-           "output_difference", "select_model", "validate_fidelity_keys"]
+__all__ = ["output_difference", "select_model"]
 
-AUTO = "auto"
-#: Outputs that every model has (0 for the rigid model's deflection), by result column.
-COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
-#: ``fidelity.*`` scene keys with their defaults.
-FIDELITY_DEFAULTS = {
-    "fidelity.tolerance": 0.05,
-    "fidelity.max_modes": 8,
-    "fidelity.outputs": ["x", "phi_o", "omega_o", "F_c"],
-}
 #: Accuracy of the monolithic runs that are compared.
 RTOL, ATOL = 1e-8, 1e-10
 
 
-def validate_fidelity_keys(cfg: dict) -> None:
-    """Check the ``fidelity.*`` keys in place (a :class:`ConfigError` names a bad one)."""
-    from fmu_common.checks import check_int, check_real
-    try:
-        cfg["fidelity.tolerance"] = check_real("fidelity.tolerance", cfg["fidelity.tolerance"],
-                                               low=0.0, high=1.0)
-        n_el = cfg["plant.n_elements"] if isinstance(cfg["plant.n_elements"], int) else 24
-        cfg["fidelity.max_modes"] = check_int("fidelity.max_modes", cfg["fidelity.max_modes"],
-                                              low=1, high=n_el)
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(str(exc)) from None
-    outs = cfg["fidelity.outputs"]
-    if (not isinstance(outs, list) or not outs
-            or not all(isinstance(o, str) and o in COMPARABLE_OUTPUTS for o in outs)):
-        raise ConfigError(f"fidelity.outputs = {outs!r} is not allowed; allowed: a non-empty list "
-                          f"of {', '.join(COMPARABLE_OUTPUTS)}")
 
 
-def needs_selection(scene) -> bool:
-    return AUTO in (scene["plant.n_modes"], scene["plant.fidelity"])
 
 
 def output_difference(a: np.ndarray, b: np.ndarray, outputs) -> dict:
@@ -81,9 +54,9 @@ def select_model(scene, progress=None):
     chosen, and a JSON-ready report of the choice and the differences measured."""
 
     from .analysis import max_real_part
-    from .config import plant_params
+    from ..scene.keys import plant_params
     from .reference import simulate_reference
-    from .scenes import Scene
+    from ..scene.schema import Scene
 
     cfg = scene.config
     tol, outs, n_max = cfg["fidelity.tolerance"], cfg["fidelity.outputs"], cfg["fidelity.max_modes"]
@@ -161,6 +134,6 @@ def select_model(scene, progress=None):
         progress(1.0)
     report.update(n_modes=n, fidelity=fid, reason="; ".join(reasons))
     resolved = concrete(n, fid)
-    from .scenes import validate_config
+    from ..scene.schema import validate_config
     validate_config(resolved.config)
     return resolved, report

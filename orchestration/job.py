@@ -11,12 +11,15 @@ from controller_fmu import interface as controller_interface
 from fmu_common.variables import start_values
 from plant_fmu import interface as plant_interface
 
-from .config import ConfigError
-from .fidelity import needs_selection, select_model
-from .master import CoSimulationError, Master, RunInterrupted, Slave, parse_connection
-from .reference import COLUMNS
-from .scenes import SCENE_DEFAULTS
-from .summary import summarize
+from .scene.keys import ConfigError
+from .scene.schema import needs_selection
+from .studies.fidelity import select_model
+from .cosim.slave import CoSimulationError, RunInterrupted, Slave
+from .cosim.master import Master
+from .scene.wiring import parse_connection
+from .studies.reference import COLUMNS
+from .scene.schema import SCENE_DEFAULTS
+from .report.summary import summarize
 
 __all__ = ["run_scene", "SceneResult", "DEFAULT_CONNECTIONS", "plant_start_values",
            "controller_start_values", "Progress", "summarize"]
@@ -102,7 +105,7 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
 
     A scene with ``plant.n_modes`` or ``plant.fidelity`` ``"auto"`` gets its model chosen first
-    (:func:`orchestration.fidelity.select_model`); the summary's ``model`` entry says which and why,
+    (:func:`orchestration.studies.fidelity.select_model`); the summary's ``model`` entry says which and why,
     and the result's ``scene`` is the resolved scene.
 
     A run whose FMU refuses to go on (a divergence, a failed integrator) keeps the output points
@@ -168,7 +171,7 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
     out = SceneResult(scene.name, res, summary, stats, frames=frames, scene=scene,
                       interrupted=interrupted)
     if reference and stopped is None:
-        from .reference import simulate_reference
+        from .studies.reference import simulate_reference
         ref = simulate_reference(scene)
         out.reference = ref
         summary["max_error_phi_o"] = float(np.max(np.abs(res["phi_o"] - ref["phi_o"])))

@@ -1,13 +1,13 @@
 /*
  * fm_master.h - the compiled fixed-step loop of the co-simulation master
- * (orchestration/master.py's Master.run with adaptive = false), for FMI 2.0 co-simulation FMUs
+ * (orchestration/cosim/master.py's Master.run with adaptive = false), for FMI 2.0 co-simulation FMUs
  * that need no execution tool (the native FMUs).
  *
  * Contract
  * --------
  * - C99 plus libm. No global state, no allocation, no I/O, no threads: everything is in the
  *   fm_master and fm_slave structs and the arrays they point to, which the caller (Python,
- *   orchestration/compiled_master.py) owns and fills.
+ *   orchestration/cosim/compiled.py) owns and fills.
  * - The FMUs are loaded, instantiated and initialised by the caller (fmpy); this loop receives
  *   their instance pointers and the addresses of their FMI functions, and makes only the calls
  *   the Python loop makes, in the same order, with the same arguments.

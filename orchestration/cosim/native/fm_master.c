@@ -1,7 +1,7 @@
 /*
  * fm_master.c - the compiled fixed-step loop of the co-simulation master (see fm_master.h).
  *
- * A port of orchestration/master.py (Master.run with a fixed step, _step, _startup_step,
+ * A port of orchestration/cosim/master.py (Master.run with a fixed step, _step, _startup_step,
  * _macro_step, _outputs_after_step, _combination, _store); the names of the Python functions
  * are given where their code is mirrored. Compiled with -ffp-contract=off: no fused
  * multiply-add, every operation rounded as numpy rounds it.

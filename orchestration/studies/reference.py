@@ -12,7 +12,7 @@ import scipy.integrate
 from controller_fmu.pd_lowpass import PDLowPassModel
 from plant_fmu.dynamics import linear_plant_model, plant_model
 
-from .config import fidelity
+from ..scene.keys import fidelity
 
 __all__ = ["COLUMNS", "ClosedLoop", "simulate_reference"]
 

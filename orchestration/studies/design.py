@@ -6,7 +6,7 @@ second order, the filter damping. A candidate is scored by its worst case over t
 (by default: ``n_modes`` 2..8, structural damping 0.05 %..0.2 %, ``EI`` +-10 %, cart mass +-20 %):
 
 - ``decay``: the smallest closed-loop decay rate ``-max Re(lambda)`` (1/s), the cart's drift roots
-  left aside as in :mod:`orchestration.analysis`;
+  left aside as in :mod:`orchestration.studies.analysis`;
 - ``damping``: the smallest damping ratio ``-Re(lambda)/|lambda|`` of any closed-loop root.
 
 The search evaluates a grid of candidates on a coarse grid of the uncertainty set (``levels``
@@ -31,7 +31,7 @@ from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
 from .analysis import _drift_free, assemble_closed_loop
-from .config import ConfigError
+from ..scene.keys import ConfigError
 
 __all__ = ["DESIGN_DEFAULTS", "CRITERIA", "UncertaintySet", "RobustLoop", "WorstCase",
            "DesignResult", "design_settings", "design_filter", "root_locus", "FILTER_KEYS",
@@ -227,7 +227,7 @@ def worst_cases(plants, controllers, executor=None, chunks: int | None = None) -
     """:meth:`RobustLoop.worst` of each of ``controllers`` over ``plants``.
 
     Without ``executor``, one :class:`RobustLoop` here. With one
-    (:mod:`orchestration.parallel`), the plants, ordered as a :class:`RobustLoop` orders them
+    (:mod:`orchestration.sweep.executor`), the plants, ordered as a :class:`RobustLoop` orders them
     (by ``n_modes``, stably), are cut into ``chunks`` contiguous pieces (default: 4 per worker)
     run as tasks, and the pieces' worst cases are merged in order, keeping the first of equal
     values: each closed loop's eigenvalues are computed alone, so the result is the serial one,
@@ -313,7 +313,7 @@ def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
     ``nominal`` fixes the beam around which ``EI`` and ``m`` vary (its ``n_modes`` and ``zeta``
     are replaced by the uncertainty set's); ``base`` holds the PD gains; ``settings`` are the
     validated ``design.*`` keys (:func:`design_settings`); ``progress(fraction)`` is called as the
-    grid is evaluated. ``executor`` (:mod:`orchestration.parallel`) runs the check grid's closed
+    grid is evaluated. ``executor`` (:mod:`orchestration.sweep.executor`) runs the check grid's closed
     loops as tasks (:func:`worst_cases`: the same numbers as without it).
     """
     s = settings

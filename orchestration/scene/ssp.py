@@ -41,12 +41,12 @@ import re
 import shutil
 import tempfile
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-from ..config import ConfigError, parse_value
+from .keys import ConfigError, parse_value
 
-__all__ = ["SspError", "ExportResult", "SspSystem", "export_scene", "write_ssp", "read_ssp",
+__all__ = ["SspError", "SspSystem", "write_ssp", "read_ssp",
            "validate_ssd", "fmpy_parameter_set", "ssd_of", "SSD_NAME", "NS", "SCENE_ANNOTATION",
            "OSP_ANNOTATION", "PLANT_SIGNALS"]
 
@@ -118,7 +118,7 @@ def _parse_ssv_value(kind: str, text: str):
 
 
 def _toml_value(value) -> str:
-    """A scene value as a TOML value (read back by :func:`orchestration.config.parse_value`)."""
+    """A scene value as a TOML value (read back by :func:`orchestration.scene.keys.parse_value`)."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -163,35 +163,13 @@ def _parser():
     return etree.XMLParser(resolve_entities=False, no_network=True, remove_blank_text=True)
 
 
-# ---------------------------------------------------------------------- writing
-@dataclass
-class ExportResult:
-    path: Path
-    scene: object                 # the scene written (its model chosen)
-    model: dict | None = None     # the report of the choice, where "auto" chose the model
-    fmus: dict = field(default_factory=dict)
 
 
-def export_scene(scene, flavour: str | None = None, out=None, progress=None) -> ExportResult:
-    """Write ``scene`` as an SSP archive with the FMUs of ``flavour`` (default
-    :data:`~orchestration.export.flavours.DEFAULT_FLAVOUR`); ``plant.n_modes``/``plant.fidelity``
-    ``"auto"`` are chosen first (:func:`orchestration.fidelity.select_model`), and the chosen
-    model is written."""
-    from ..fidelity import needs_selection, select_model
-    from .flavours import DEFAULT_FLAVOUR, fmu_paths
-
-    fmus = fmu_paths(flavour or DEFAULT_FLAVOUR)
-    model = None
-    if needs_selection(scene):
-        scene, model = select_model(scene, progress)
-    path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
-    write_ssp(scene, fmus, path, model=model)
-    return ExportResult(path, scene, model, fmus)
 
 
 def _component_parameters(scene) -> dict:
     """component -> {FMU parameter: value}: what the master sets on each FMU."""
-    from ..run import controller_start_values, plant_start_values
+    from ..job import controller_start_values, plant_start_values
 
     return {"plant": plant_start_values(scene), "controller": controller_start_values(scene)}
 
@@ -207,7 +185,7 @@ def ssd_of(scene, fmus: dict, sources: dict, model: dict | None = None):
     from fmpy import read_model_description
     from lxml import etree
 
-    from ..master import parse_connection
+    from .wiring import parse_connection
 
     cfg = scene.config
     if "auto" in (cfg["plant.n_modes"], cfg["plant.fidelity"]):
@@ -373,7 +351,7 @@ def _scene_name(root, path: Path) -> str:
 def read_ssp(path, overrides=()) -> SspSystem:
     """Read an SSP archive into a scene and the paths of its FMUs (unpacked into a temporary
     folder); ``overrides``: ``--set`` items applied on top. :class:`SspError` (or
-    :class:`~orchestration.config.ConfigError` for a bad value) names any problem."""
+    :class:`~orchestration.scene.keys.ConfigError` for a bad value) names any problem."""
     path = Path(path)
     label = path.name
     if not path.is_file():
@@ -421,7 +399,7 @@ def _parse_xml(label, member, data):
 def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides):
     from fmpy import read_model_description
 
-    from ..scenes import scene_from_config
+    from .schema import scene_from_config
 
     info = {}                      # component name -> (FMU path, {variable: ModelVariable})
     for comp in comps:
@@ -537,7 +515,7 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
         values.update(settings)
     elif osp_step is not None:
         values["master.step"] = osp_step
-        from ..scenes import SCENE_DEFAULTS
+        from .schema import SCENE_DEFAULTS
         dt = SCENE_DEFAULTS["output_interval"]
         ratio = dt / osp_step
         if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:

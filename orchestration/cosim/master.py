@@ -25,423 +25,19 @@ integers.
 """
 from __future__ import annotations
 
-import functools
 import math
 import time as _time
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-from fmpy import extract, read_model_description
-from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave, fmi2Integer, fmi2Real, fmi2True, fmi2ValueReference
 
 from fmu_common.kernels import KernelError
 
-__all__ = ["CoSimulationError", "RunInterrupted", "Slave", "Connection", "Master", "parse_connection",
-           "extrapolation_weights", "RunStats"]
+from .coupling import _History, _weight_rows
+from .slave import CoSimulationError, RunInterrupted
 
-_STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
-
-
-class CoSimulationError(RuntimeError):
-    """An FMU call failed; the message names the FMU, the call, the status and the FMU's log.
-
-    Raised by :meth:`Master.run`, it also carries what was computed before the failure:
-    ``result`` (the output rows up to the last output point reached) and ``stats``."""
-
-    def __init__(self, message, status=None, time=None):
-        super().__init__(message)
-        self.status = status
-        self.time = time
-        self.result = None
-        self.stats = None
-
-
-class RunInterrupted(Exception):
-    """:meth:`Master.run` stopped because its ``stop`` callback asked it to (Ctrl-C); ``result``
-    holds the output rows up to the last output point reached, ``time`` the time reached."""
-
-    def __init__(self, time, result=None, stats=None):
-        super().__init__(f"interrupted at t = {time:.6g}")
-        self.time = time
-        self.result = result
-        self.stats = stats
-
-
-@dataclass(frozen=True)
-class Connection:
-    src: str
-    src_var: str
-    dst: str
-    dst_var: str
-
-    def __str__(self):
-        return f"{self.src}.{self.src_var} -> {self.dst}.{self.dst_var}"
-
-
-def parse_connection(text: str) -> Connection:
-    """``"plant.phi_o -> controller.phi_o"`` -> :class:`Connection`."""
-    try:
-        left, right = (s.strip() for s in text.split("->"))
-        src, src_var = left.split(".", 1)
-        dst, dst_var = right.split(".", 1)
-    except ValueError:
-        raise ValueError(f"connection {text!r} is not of the form 'fmu.var -> fmu.var'") from None
-    return Connection(src, src_var, dst, dst_var)
-
-
-class Slave:
-    """One co-simulation FMU instance, with typed start values and fast real I/O."""
-
-    def __init__(self, path, name: str, start_values: dict | None = None, log_level: int = 3,
-                 unzipdir=None):
-        self.name = name
-        self.path = str(path)
-        self.md = read_model_description(self.path)
-        self.variables = {v.name: v for v in self.md.modelVariables}
-        self.messages: list[str] = []
-        self._log_level = log_level
-        self._own_unzipdir = unzipdir is None      # extracted here: removed by close()
-        self._unzipdir = unzipdir or extract(self.path)
-        self.fmu = None
-        #: FMI 3.0 (fmpy's FMU3Slave) or 2.0 (FMU2Slave)
-        self.fmi3 = self.md.fmiVersion.startswith("3")
-        #: takes fmi2SetRealInputDerivatives (a native FMI 2.0 FMU, canInterpolateInputs)
-        self.interpolates_inputs = (not self.fmi3 and self.md.coSimulation is not None
-                                    and bool(self.md.coSimulation.canInterpolateInputs))
-        try:
-            if self.fmi3:
-                from fmpy.fmi3 import FMU3Slave
-                cls = FMU3Slave
-            else:
-                cls = FMU2Slave
-            self.fmu = cls(guid=self.md.guid, unzipDirectory=self._unzipdir,
-                           modelIdentifier=self.md.coSimulation.modelIdentifier,
-                           instanceName=name)
-            self._instantiate()
-        except BaseException:
-            self.fmu = None
-            self._remove_unzipdir()
-            raise
-        self._start_values = dict(start_values or {})
-        inputs = {v.name for v in self.md.modelVariables if v.causality == "input"}
-        #: True when an output may depend directly on an input (no dependencies declared
-        #: counts as "all"): its outputs at t_k+1 then need the inputs at t_k+1.
-        self.feedthrough = any(o.dependencies is None or
-                               any(d.name in inputs for d in o.dependencies)
-                               for o in self.md.outputs)
-
-    # ------------------------------------------------------------------ plumbing
-    def _instantiate(self):
-        from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, \
-            fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, calloc, free
-
-        def logger(component, instance, status, category, message):
-            if status >= 0:
-                text = message.decode(errors="replace") if message else ""
-                self.messages.append(f"[{_STATUS[status] if status < 6 else status}] {text}")
-
-        if self.fmi3:
-            def log3(env, status, category, message):
-                logger(env, None, status, category, message)
-            try:
-                self.fmu.instantiate(visible=False, loggingOn=True, logMessage=log3)
-            except Exception as exc:
-                log = "; ".join(self.messages[-3:]) or "no log message"
-                raise CoSimulationError(f"{self.name}: instantiate failed: {exc}: {log}") from None
-            return
-
-        self._logger = fmi2CallbackLoggerTYPE(logger)
-        cb = fmi2CallbackFunctions()
-        cb.logger = self._logger
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-        self._callbacks = cb
-        try:
-            self.fmu.instantiate(visible=False, callbacks=cb, loggingOn=True)
-        except Exception as exc:
-            log = "; ".join(self.messages[-3:]) or "no log message"
-            raise CoSimulationError(f"{self.name}: instantiate failed: {exc}: {log}") from None
-
-    def _call(self, what: str, fun, *args, t=None):
-        """Run one FMI call; a status above warning becomes :class:`CoSimulationError`."""
-        try:
-            return fun(*args)
-        except FMICallException as exc:
-            self._raise(what, exc.status, t)
-
-    def _raise(self, what, status, t):
-        log = "; ".join(self.messages[-3:]) or "no log message"
-        at = f" at t = {t:.6g}" if t is not None else ""
-        raise CoSimulationError(f"{self.name}: {what}{at} returned {_STATUS[status]}: {log}",
-                                status=status, time=t) from None
-
-    def vr(self, name: str) -> int:
-        try:
-            return self.variables[name].valueReference
-        except KeyError:
-            raise ValueError(f"{self.name} has no variable {name!r}; it has: "
-                             f"{', '.join(self.variables)}") from None
-
-    def _set_start(self, name, value):
-        v = self.variables.get(name)
-        if v is None:
-            raise ValueError(f"{self.name} has no parameter {name!r}; it has: "
-                             f"{', '.join(n for n, x in self.variables.items() if x.causality == 'parameter')}")
-        vr = [v.valueReference]
-        if self.fmi3:
-            setter = {"Float64": self.fmu.setFloat64, "Int32": self.fmu.setInt32,
-                      "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}[v.type]
-            conv = {"Float64": float, "Int32": int, "Boolean": bool, "String": str}[v.type]
-            self._call(f"set{v.type}({name})", setter, vr, [conv(value)])
-            return
-        if v.type == "Real":
-            self._call(f"setReal({name})", self.fmu.setReal, vr, [float(value)])
-        elif v.type in ("Integer", "Enumeration"):
-            self._call(f"setInteger({name})", self.fmu.setInteger, vr, [int(value)])
-        elif v.type == "Boolean":
-            self._call(f"setBoolean({name})", self.fmu.setBoolean, vr, [bool(value)])
-        elif v.type == "String":
-            self._call(f"setString({name})", self.fmu.setString, vr, [str(value)])
-
-    def initialize(self, t0: float, stop_time: float | None = None):
-        if self.fmi3:
-            for name, value in self._start_values.items():
-                self._set_start(name, value)
-            self._call("enterInitializationMode", self.fmu.enterInitializationMode, None, t0,
-                       stop_time)
-            self._call("exitInitializationMode", self.fmu.exitInitializationMode)
-            return
-        self._call("setupExperiment", self.fmu.setupExperiment, None, t0, stop_time)
-        for name, value in self._start_values.items():
-            self._set_start(name, value)
-        self._call("enterInitializationMode", self.fmu.enterInitializationMode)
-        self._call("exitInitializationMode", self.fmu.exitInitializationMode)
-
-    def bind(self, inputs, outputs, record=(), derivative_orders: int = 0):
-        """Preallocate the buffers of the real inputs and outputs exchanged every step, and of
-        the outputs only recorded at output points. The hot calls go straight to the FMU's
-        ctypes functions (as loaded by fmpy), without fmpy's per-call wrapper; their status is
-        checked here. ``derivative_orders`` (1 or 2, on an FMU that interpolates inputs): the
-        inputs' time derivatives follow their values in :meth:`set_inputs` and go to
-        ``fmi2SetRealInputDerivatives``."""
-        def buffers(names):
-            vr = (fmi2ValueReference * len(names))(*[self.vr(n) for n in names])
-            val = (fmi2Real * len(names))()
-            return vr, val, len(names), np.ctypeslib.as_array(val) if names else np.zeros(0)
-
-        inputs = list(inputs)
-        self._in_vr, self._in_val, self._n_in, self._in_np = buffers(inputs)
-        self._out_vr, self._out_val, self._n_out, self._out_np = buffers(list(outputs))
-        self._rec_vr, self._rec_val, self._n_rec, self._rec_np = buffers(list(record))
-        nd = len(inputs) * derivative_orders
-        self._n_der = nd
-        self._der_vr = (fmi2ValueReference * nd)(*[self.vr(n) for n in inputs] * derivative_orders)
-        self._der_order = (fmi2Integer * nd)(*[k for k in range(1, derivative_orders + 1)
-                                               for _ in inputs])
-        self._der_val = (fmi2Real * nd)()
-        self._der_np = np.ctypeslib.as_array(self._der_val) if nd else np.zeros(0)
-        if self.fmi3:
-            self._bind_fmi3()
-            return
-        fun = getattr(self.fmu, "_functions", {})
-        c = self.fmu.component
-        if nd:
-            set_der = fun.get("fmi2SetRealInputDerivatives") or self.fmu.fmi2SetRealInputDerivatives
-            self._set_derivatives_raw = lambda: set_der(c, self._der_vr, nd, self._der_order,
-                                                        self._der_val)
-        raw = {name: fun.get(f"fmi2{name}") for name in ("SetReal", "GetReal", "DoStep")}
-        if all(raw.values()) and getattr(self.fmu, "fmiCallLogger", None) is None:
-            set_real, get_real, do_step = raw["SetReal"], raw["GetReal"], raw["DoStep"]
-            self._set_inputs_raw = lambda n: set_real(c, self._in_vr, n, self._in_val)
-            self._get_outputs_raw = lambda: get_real(c, self._out_vr, self._n_out, self._out_val)
-            self._get_record_raw = lambda: get_real(c, self._rec_vr, self._n_rec, self._rec_val)
-            self._do_step_raw = lambda t, h: do_step(c, t, h, fmi2True)
-        else:                                    # fmpy's checked wrappers (they raise)
-            f = self.fmu
-            self._set_inputs_raw = lambda n: f.fmi2SetReal(c, self._in_vr, n, self._in_val)
-            self._get_outputs_raw = lambda: f.fmi2GetReal(c, self._out_vr, self._n_out,
-                                                          self._out_val)
-            self._get_record_raw = lambda: f.fmi2GetReal(c, self._rec_vr, self._n_rec,
-                                                         self._rec_val)
-            self._do_step_raw = lambda t, h: f.fmi2DoStep(c, t, h, fmi2True)
-
-    def _bind_fmi3(self):
-        """The hot calls of an FMI 3.0 FMU (fmi3SetFloat64, fmi3GetFloat64, fmi3DoStep)."""
-        import ctypes
-
-        from fmpy.fmi3 import fmi3Boolean, fmi3Float64
-
-        f, c = self.fmu, self.fmu.component
-        self._evt, self._term, self._early = fmi3Boolean(), fmi3Boolean(), fmi3Boolean()
-        self._last = fmi3Float64()
-        flags = (ctypes.byref(self._evt), ctypes.byref(self._term), ctypes.byref(self._early),
-                 ctypes.byref(self._last))
-        self._set_inputs_raw = lambda n: f.fmi3SetFloat64(c, self._in_vr, n, self._in_val, n)
-        self._get_outputs_raw = lambda: f.fmi3GetFloat64(c, self._out_vr, self._n_out,
-                                                         self._out_val, self._n_out)
-        self._get_record_raw = lambda: f.fmi3GetFloat64(c, self._rec_vr, self._n_rec,
-                                                        self._rec_val, self._n_rec)
-        self._do_step_raw = lambda t, h: f.fmi3DoStep(c, t, h, fmi3Boolean(False), *flags)
-
-    def _checked(self, what, fun, *args, t=None):
-        try:
-            status = fun(*args)
-        except FMICallException as exc:
-            status = exc.status
-        if status is not None and status > 1:
-            self._raise(what, status, t)
-
-    def set_inputs(self, values, t=None, n=None):
-        """Set the bound inputs to ``values`` (a sequence in the order of :meth:`bind`: the
-        values, then, on an FMU bound with ``derivative_orders``, their time derivatives), or
-        only the first ``n`` entries."""
-        n_in = self._n_in
-        n = n_in + self._n_der if n is None else n
-        m = min(n, n_in)
-        if m:
-            self._in_np[:m] = values[:m]
-            self._checked("setReal", self._set_inputs_raw, m, t=t)
-        if n > n_in and self._n_der:
-            self._der_np[:] = values[n_in:n_in + self._n_der]
-            self._checked("setRealInputDerivatives", self._set_derivatives_raw, t=t)
-
-    def get_outputs(self, t=None) -> np.ndarray:
-        """The bound outputs (a new array)."""
-        if self._n_out:
-            self._checked("getReal", self._get_outputs_raw, t=t)
-        return self._out_np.copy()
-
-    def get_recorded(self, t=None) -> np.ndarray:
-        """The outputs bound as recorded only (a view, overwritten by the next call)."""
-        if self._n_rec:
-            self._checked("getReal", self._get_record_raw, t=t)
-        return self._rec_np
-
-    def do_step(self, t: float, h: float):
-        self._checked("doStep", self._do_step_raw, t, h, t=t)
-
-    def get_state(self):
-        if self.fmi3:
-            return self._call("getFMUState", self.fmu.getFMUState)
-        return self._call("getFMUstate", self.fmu.getFMUstate)
-
-    def set_state(self, state):
-        if self.fmi3:
-            self._call("setFMUState", self.fmu.setFMUState, state)
-        else:
-            self._call("setFMUstate", self.fmu.setFMUstate, state)
-
-    def free_state(self, state):
-        if self.fmi3:
-            self._call("freeFMUState", self.fmu.freeFMUState, state)
-        else:
-            self._call("freeFMUstate", self.fmu.freeFMUstate, state)
-
-    def close(self):
-        """``terminate`` and ``freeInstance``, then remove the folder the FMU was extracted to
-        (when this slave extracted it); safe to call twice and after a failure."""
-        if self.fmu is None:
-            self._remove_unzipdir()
-            return
-        fmu, self.fmu = self.fmu, None
-        try:
-            fmu.terminate()
-        except Exception:  # noqa: BLE001 - an FMU in error may refuse terminate; still free it
-            pass
-        try:
-            fmu.freeInstance()
-        finally:
-            try:
-                fmu.freeLibrary()
-            except Exception:  # noqa: BLE001
-                pass
-            self._remove_unzipdir()
-
-    def _remove_unzipdir(self):
-        if getattr(self, "_own_unzipdir", False) and self._unzipdir:
-            import shutil
-            shutil.rmtree(self._unzipdir, ignore_errors=True)
-            self._unzipdir = None
-
-
-# ---------------------------------------------------------------------- extrapolation
-def extrapolation_weights(times, t0: float, t1: float) -> np.ndarray:
-    """Weights ``w`` with ``sum(w_i u_i)`` = the average over ``[t0, t1]`` of the polynomial
-    through the samples ``(times_i, u_i)`` (degree ``len(times) - 1``)."""
-    h = t1 - t0
-    # Lagrange basis in a scaled variable for conditioning: tau = (t - t0) / (t1 - t0)
-    return _weights(tuple(_key((ti - t0) / h) for ti in times), "average")
-
-
-def _point_weights(times, t: float, scale: float, derivative: int = 0) -> np.ndarray:
-    """Weights evaluating the polynomial through the samples at ``t`` (or its ``derivative``-th
-    time derivative there, ``scale`` being the time unit of the weights' construction)."""
-    w = _weights(tuple(_key((ti - t) / scale) for ti in times), derivative)
-    return w if derivative == 0 else w / scale ** derivative
-
-
-def _key(tau: float) -> float:
-    """``tau`` to 12 significant digits: a fixed communication step gives the same few node
-    patterns over and over, whose weights are then computed once."""
-    return float(f"{tau:.12g}")
-
-
-@functools.lru_cache(maxsize=4096)
-def _weights(tau: tuple, kind) -> np.ndarray:
-    """Weights of the polynomial through nodes ``tau``: its average over ``[0, 1]``
-    (``kind = "average"``) or its ``kind``-th derivative at 0 (``kind`` = 0, 1, 2)."""
-    n = len(tau)
-    if kind != "average" and n <= kind:             # too few samples: that derivative is 0
-        return np.zeros(n)
-    if n == 1:
-        return np.ones(1)
-    V = np.vander(np.array(tau), n, increasing=True)       # V[i, j] = tau_i^j
-    if kind == "average":
-        rhs = 1.0 / np.arange(1, n + 1)                    # the average of tau^j over [0, 1]
-    else:
-        rhs = np.zeros(n)
-        rhs[kind] = math.factorial(kind)                   # d^k/dtau^k of tau^j at 0
-    w = np.linalg.solve(V.T, rhs)
-    w.flags.writeable = False
-    return w
-
-
-@functools.lru_cache(maxsize=4096)
-def _weight_rows(tau: tuple, kinds: tuple, scale: float) -> np.ndarray:
-    """Rows of weights on the samples at nodes ``tau`` (times in units of ``scale`` from the
-    origin): per ``kind``, the polynomial's average over ``[0, 1]`` (``"average"``) or its
-    ``kind``-th time derivative at 0 (``scale ** -kind`` included)."""
-    W = np.array([_weights(tau, kd) if kd == "average" or kd == 0
-                  else _weights(tau, kd) / scale ** kd for kd in kinds])
-    W.flags.writeable = False
-    return W
-
-
-class _History:
-    """The last few communication-point values of every connection source."""
-
-    def __init__(self, depth: int):
-        self.t: list[float] = []
-        self.u: list[np.ndarray] = []
-        self.depth = depth
-
-    def push(self, t, u):
-        self.t.append(t)
-        self.u.append(np.asarray(u, dtype=float))
-        if len(self.t) > self.depth:
-            del self.t[0], self.u[0]
-
-    def pop(self):
-        self.t.pop()
-        self.u.pop()
-
-    def snapshot(self):
-        return list(self.t), list(self.u)
-
-    def restore(self, snap):
-        self.t, self.u = list(snap[0]), list(snap[1])
+__all__ = ["RunStats", "Master"]
 
 
 @dataclass
@@ -453,7 +49,7 @@ class RunStats:
     forced_accepts: int = 0   # steps at min_step whose error still exceeded the tolerance
     wall_time: float = 0.0
     rejected_times: list = field(default_factory=list)
-    #: which loop stepped: "compiled" (orchestration/native/fm_master.c) or "python"
+    #: which loop stepped: "compiled" (orchestration/cosim/native/fm_master.c) or "python"
     loop: str = "python"
 
 
@@ -464,7 +60,7 @@ class Master:
     ``record``: column -> (slave name, variable) to store at every output point.
 
     ``compiled``: ``"auto"`` (default) runs a fixed-step run in C
-    (:mod:`orchestration.compiled_master`) when every FMU can take it (FMI 2.0 FMUs that need no
+    (:mod:`orchestration.cosim.compiled`) when every FMU can take it (FMI 2.0 FMUs that need no
     execution tool: the native FMUs) and in Python otherwise; ``False`` always in Python;
     ``True`` in C or a ValueError saying why not. Both loops give bit-identical results;
     :attr:`loop` says which one runs.
@@ -551,7 +147,7 @@ class Master:
         #: predict and correct the first step (needs every FMU's state; see _startup_step)
         self._correct_startup = self.p >= 1 and all(
             s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values())
-        from . import compiled_master
+        from . import compiled as compiled_master
         #: why the compiled loop cannot run these FMUs (None: it can)
         self.compiled_unavailable = compiled_master.unavailable(self)
         if compiled and not self.compiled_unavailable:
@@ -747,7 +343,7 @@ class Master:
                 total = n_out * m
                 k0 = 0
                 if self.loop == "compiled":
-                    from .compiled_master import CompiledRun
+                    from .compiled import CompiledRun
                     stats.loop = "compiled"
                     run = CompiledRun(self, hist, t0, m, total, out)
                     k0 = run.run(stats, progress, stop)
@@ -851,3 +447,4 @@ class Master:
     def close(self):
         for s in self.slaves.values():
             s.close()
+

@@ -1,4 +1,4 @@
-"""Scenes: what to run, as TOML files in ``orchestration/scenes/``.
+"""Scenes: what to run, as TOML files in ``orchestration/scene/files/``.
 
 A scene is a flat mapping of dotted keys (TOML tables flatten to them: ``[plant] n_modes = 4`` is
 ``plant.n_modes``), validated here. ``plant.*`` and ``controller.*`` are the FMU parameters, with
@@ -15,20 +15,56 @@ from pathlib import Path
 from plant_fmu.interface import FMU_SETTINGS
 from fmu_common.checks import check_bool, check_int, check_real
 
-from .config import (FIDELITIES, ConfigError, apply_overrides, check_known, controller_params,
-                     default_config, plant_params)
-from .fidelity import AUTO, FIDELITY_DEFAULTS, validate_fidelity_keys
+from .keys import (FIDELITIES, ConfigError, apply_overrides, check_known, controller_params,
+                   default_config, plant_params)
 
 __all__ = ["Scene", "SCENE_DIR", "SCENE_DEFAULTS", "load_scene", "scene_from_config",
            "list_scenes", "PAPER_SCENES", "ALGORITHMS", "validate_config"]
 
-SCENE_DIR = Path(__file__).parent / "scenes"
+SCENE_DIR = Path(__file__).parent / "files"
 #: The paper's sample, in the order of its figures: rigid + PD, flexible + PD, flexible + filter.
 PAPER_SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
 ALGORITHMS = ("gauss-seidel", "jacobi")
 FIRST = ("controller", "plant")
 #: the FMUs a scene runs on (orchestration.export.FLAVOURS)
 FMU_FLAVOURS = ("native", "python")
+
+AUTO = "auto"
+
+
+#: Outputs that every model has (0 for the rigid model's deflection), by result column.
+COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
+
+
+#: ``fidelity.*`` scene keys with their defaults.
+FIDELITY_DEFAULTS = {
+    "fidelity.tolerance": 0.05,
+    "fidelity.max_modes": 8,
+    "fidelity.outputs": ["x", "phi_o", "omega_o", "F_c"],
+}
+
+
+def validate_fidelity_keys(cfg: dict) -> None:
+    """Check the ``fidelity.*`` keys in place (a :class:`ConfigError` names a bad one)."""
+    from fmu_common.checks import check_int, check_real
+    try:
+        cfg["fidelity.tolerance"] = check_real("fidelity.tolerance", cfg["fidelity.tolerance"],
+                                               low=0.0, high=1.0)
+        n_el = cfg["plant.n_elements"] if isinstance(cfg["plant.n_elements"], int) else 24
+        cfg["fidelity.max_modes"] = check_int("fidelity.max_modes", cfg["fidelity.max_modes"],
+                                              low=1, high=n_el)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+    outs = cfg["fidelity.outputs"]
+    if (not isinstance(outs, list) or not outs
+            or not all(isinstance(o, str) and o in COMPARABLE_OUTPUTS for o in outs)):
+        raise ConfigError(f"fidelity.outputs = {outs!r} is not allowed; allowed: a non-empty list "
+                          f"of {', '.join(COMPARABLE_OUTPUTS)}")
+
+
+def needs_selection(scene) -> bool:
+    return AUTO in (scene["plant.n_modes"], scene["plant.fidelity"])
+
 
 #: Scene keys beyond the plant and controller parameters, with their defaults.
 SCENE_DEFAULTS = {
@@ -62,7 +98,7 @@ SCENE_DEFAULTS = {
     ],
     # the plant FMU's solver settings and divergence bounds, with the FMU's own defaults
     **{f"plant.{k}": v for k, v in FMU_SETTINGS.items() if k != "fidelity"},
-    # the choice of plant.n_modes = "auto" / plant.fidelity = "auto" (orchestration/fidelity.py)
+    # the choice of plant.n_modes = "auto" / plant.fidelity = "auto" (orchestration/studies/fidelity.py)
     **FIDELITY_DEFAULTS,
 }
 
@@ -150,7 +186,7 @@ def _validate(cfg: dict) -> None:
     if not isinstance(conns, list) or not conns or not all(isinstance(c, str) for c in conns):
         raise ConfigError("connections must be a non-empty list of strings "
                           "'fmu.variable -> fmu.variable'")
-    from .master import parse_connection
+    from .wiring import parse_connection
     for c in conns:
         try:
             conn = parse_connection(c)
@@ -197,7 +233,7 @@ def scene_from_config(name: str, values: dict, overrides=()) -> Scene:
     try:
         _validate(cfg)
     except ConfigError as exc:
-        from .config import parse_override
+        from .keys import parse_override
         if any(str(exc).startswith(parse_override(o)[0] + " ") for o in overrides):
             raise OverrideError(f"--set: {exc}") from None
         raise
@@ -220,7 +256,7 @@ def _resolve(ref: str) -> Path:
 
 
 def load_scene(ref: str, overrides=()) -> Scene:
-    """Load a scene by name (a file in ``orchestration/scenes/``) or by path."""
+    """Load a scene by name (a file in ``orchestration/scene/files/``) or by path."""
     path = _resolve(ref)
     try:
         values = _flatten(tomllib.loads(path.read_text()))

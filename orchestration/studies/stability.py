@@ -2,7 +2,7 @@
 
 At small amplitude the plant is its linearisation ``x' = A x + B F_c``, ``y = C x`` (sensors
 ``y = [x_o, phi_o, omega_o]``) and the controller is linear, so one communication step of the
-master (:mod:`orchestration.master`) is a linear map ``z_{k+1} = Phi z_k`` of an augmented state
+master (:mod:`orchestration.cosim.master`) is a linear map ``z_{k+1} = Phi z_k`` of an augmented state
 
     z = [x, xc, y_k, y_{k-1} .. y_{k-p}, F_k, F_{k-1} .. F_{k-p}]
 
@@ -10,7 +10,7 @@ master (:mod:`orchestration.master`) is a linear map ``z_{k+1} = Phi z_k`` of an
 ``Phi`` models what the master does, step by step:
 
 * each FMU's input is held over ``doStep``: the step average of the polynomial through the last
-  ``p + 1`` samples of its source (:func:`orchestration.master.extrapolation_weights`), fewer at
+  ``p + 1`` samples of its source (:func:`orchestration.cosim.coupling.extrapolation_weights`), fewer at
   the start;
 * Gauss-Seidel: the second FMU gets the polynomial through the newest samples *including* the first
   FMU's output at ``t_k+1`` (an interpolation);
@@ -28,7 +28,7 @@ master (:mod:`orchestration.master`) is a linear map ``z_{k+1} = Phi z_k`` of an
 The spectral radius ``rho(Phi)`` decides: the co-simulation of the linearised loop decays iff
 ``rho < 1``. With ``kx = 0`` the cart's position and velocity are neither fed back nor felt by the
 other states; they are left out structurally (``drift_free``), as in
-:mod:`orchestration.analysis`, because their double root at zero (one at 1 per step) would hide
+:mod:`orchestration.studies.analysis`, because their double root at zero (one at 1 per step) would hide
 the verdict.
 
 :func:`integrator_step_limit` gives where a plant method fails on the plant's highest mode (its
@@ -49,7 +49,7 @@ from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
-from .master import extrapolation_weights
+from ..cosim.coupling import extrapolation_weights
 
 __all__ = ["METHODS", "FIXED_STEP_METHODS", "ALGORITHMS", "substep_matrix", "plant_step_map",
            "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
@@ -308,7 +308,7 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
 
     With extrapolation (``p >= 1``) the master predicts the first step with held inputs, rolls
     it back and takes it again with the inputs interpolated between ``t_0`` and the predicted
-    samples at ``t_1`` (:meth:`orchestration.master.Master._startup_step`); ``step_index = 0``
+    samples at ``t_1`` (:meth:`orchestration.cosim.master.Master._startup_step`); ``step_index = 0``
     gives that corrected map.
     """
     if not isinstance(c, ControllerParams):

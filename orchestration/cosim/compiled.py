@@ -1,6 +1,6 @@
-"""The master's fixed-step loop in C (``orchestration/native/fm_master.c``), bound with ctypes.
+"""The master's fixed-step loop in C (``orchestration/cosim/native/fm_master.c``), bound with ctypes.
 
-:class:`~orchestration.master.Master` runs it instead of its Python loop when every FMU can take
+:class:`~orchestration.cosim.master.Master` runs it instead of its Python loop when every FMU can take
 it (:func:`unavailable` says why not) and the key ``compiled`` allows it. The FMUs stay loaded,
 instantiated and initialised by fmpy; the C loop receives their instance pointers and the
 addresses of the FMI functions fmpy loaded, and makes the calls the Python loop makes, in the
@@ -96,7 +96,7 @@ def _address(fun) -> int | None:
 
 
 def unavailable(master) -> str | None:
-    """Why the compiled loop cannot run ``master`` (a :class:`~orchestration.master.Master`), or
+    """Why the compiled loop cannot run ``master`` (a :class:`~orchestration.cosim.master.Master`), or
     None when it can: a fixed step, and FMI 2.0 FMUs that need no execution tool (a pythonfmu FMU
     runs Python: it keeps the Python loop), called through fmpy's raw functions, with the
     capabilities the coupling uses (FMU states for the corrected first step, input derivatives
@@ -209,7 +209,7 @@ class CompiledRun:
     def run(self, stats, progress=None, stop=None) -> int:
         """Take the steps; the number taken (``total`` unless the grid forced a handover, then
         :meth:`history` gives the signals' history for the Python loop)."""
-        from .master import CoSimulationError, RunInterrupted
+        from .slave import CoSimulationError, RunInterrupted
 
         st, m, master = self.struct, self.m, self.master
         raised = []
@@ -274,7 +274,7 @@ def weight_table() -> np.ndarray:
     ``e - k + 1 .. e`` (``e`` the newest node, -1, 0 or 1, in communication steps from the point
     of evaluation), per kind: the average over [0, 1], the value, the first and the second
     derivative at 0 (the derivatives unscaled: the loop divides them by ``scale ** kind``)."""
-    from .master import _weights
+    from .coupling import _weights
 
     W = np.zeros((3, 3, 4, 3))
     for e in (-1, 0, 1):

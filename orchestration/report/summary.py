@@ -1,7 +1,7 @@
 """What a run's summary says: the fitted modes beside the linear prediction, the verdict, and
 whether the run left the model's range of validity.
 
-**Modes.** Two oscillations are fitted (:func:`orchestration.fit.fit_mode`, matrix pencil): the
+**Modes.** Two oscillations are fitted (:func:`orchestration.studies.fit.fit_mode`, matrix pencil): the
 slow, rigid-pendulum one on ``phi_o`` (0.5 to 60 rad/s) and the bending one on ``eta_1``: the
 largest oscillation within 30 % of the plant's first bending mode with the hinge free (its first
 open-loop oscillation, 152.5 rad/s for the paper's beam; the loop's mode near it is the one the
@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from .fit import fit_mode
+from ..studies.fit import fit_mode
 
 __all__ = ["SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT", "FIT_RESIDUAL",
            "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window", "fit_modes",
@@ -62,7 +62,7 @@ _SIGNALS = {"slow": ("phi_o", SLOW_BAND), "bending": ("eta_1", BENDING_BAND)}
 
 def linear_modes(scene) -> np.ndarray:
     """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop."""
-    from .analysis import closed_loop_matrix
+    from ..studies.analysis import closed_loop_matrix
 
     lam = np.linalg.eigvals(closed_loop_matrix(scene.plant, scene.controller))
     return lam[lam.imag > 1e-9]

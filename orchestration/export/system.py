@@ -1,0 +1,39 @@
+"""A scene as an SSP archive with its FMUs (``flexpend export``): the model chosen first, the FMUs
+built, the archive written by :func:`orchestration.scene.ssp.write_ssp`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..scene.ssp import write_ssp
+
+__all__ = ["ExportResult", "export_scene"]
+
+
+# ---------------------------------------------------------------------- writing
+@dataclass
+class ExportResult:
+    path: Path
+    scene: object                 # the scene written (its model chosen)
+    model: dict | None = None     # the report of the choice, where "auto" chose the model
+    fmus: dict = field(default_factory=dict)
+
+
+def export_scene(scene, flavour: str | None = None, out=None, progress=None) -> ExportResult:
+    """Write ``scene`` as an SSP archive with the FMUs of ``flavour`` (default
+    :data:`~orchestration.export.flavours.DEFAULT_FLAVOUR`); ``plant.n_modes``/``plant.fidelity``
+    ``"auto"`` are chosen first (:func:`orchestration.studies.fidelity.select_model`), and the chosen
+    model is written."""
+    from ..scene.schema import needs_selection
+    from ..studies.fidelity import select_model
+    from .flavours import DEFAULT_FLAVOUR, fmu_paths
+
+    fmus = fmu_paths(flavour or DEFAULT_FLAVOUR)
+    model = None
+    if needs_selection(scene):
+        scene, model = select_model(scene, progress)
+    path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
+    write_ssp(scene, fmus, path, model=model)
+    return ExportResult(path, scene, model, fmus)
+

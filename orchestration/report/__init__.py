@@ -1,0 +1,1 @@
+"""What a run reports: the summary, the figures and the text."""

@@ -1,0 +1,410 @@
+"""Running a sweep: one task per point (here or on dask), the journal of finished runs, the table
+and the statistics (see :mod:`orchestration.sweep`).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from ..scene.keys import parse_value
+from ..scene.schema import Scene
+from .plan import Point, SweepPlan
+from .plot import plot_sweep
+
+__all__ = ["summary_row", "linear_decay_rate", "model_sources_digest", "run_task", "Journal",
+           "write_table", "read_table", "SweepProgress", "SweepResult", "fmus_for", "pending",
+           "run_sweep", "sweep_stats"]
+
+
+JOURNAL = "runs.jsonl"
+
+
+#: statuses of a finished run (a lost run is rerun by the next sweep into the same folder)
+DONE = ("ok", "failed")
+
+
+# ---------------------------------------------------------------------------- one run
+def summary_row(summary: dict) -> dict:
+    """The table's fields of one run, from its summary (:func:`orchestration.report.summary.summarize`
+    and :func:`orchestration.job.run_scene`): the one place that knows the summary's layout.
+
+    A fitted rate is a number only where the summary found the fit reliable (the note says why
+    not); ``decay_rate`` is minus the largest reliable rate; ``valid`` is False when the run
+    left the model's range (``validity`` says how)."""
+    stopped = summary.get("stopped") or {}
+    row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable")}
+    rates = []
+    for key in ("slow", "bending"):
+        mode = summary.get(key) or {}
+        linear = mode.get("linear") or {}
+        row[f"{key}_rate"] = mode.get("rate")
+        row[f"{key}_frequency"] = mode.get("frequency")
+        row[f"{key}_rate_linear"] = linear.get("rate")
+        row[f"{key}_note"] = mode.get("note")
+        if mode.get("reliable"):
+            rates.append(mode["rate"])
+    row["decay_rate"] = -max(rates) if rates else None
+    row["max_abs_F_c"] = summary.get("max_abs_F_c")
+    row["max_abs_x"] = summary.get("max_abs_x")
+    warnings = (summary.get("validity") or {}).get("warnings") or []
+    row["valid"] = not warnings
+    row["validity"] = "; ".join(warnings) or None
+    if "max_error_phi_o" in summary:
+        row["max_error_phi_o"] = summary["max_error_phi_o"]
+        row["max_error_eta_1"] = summary["max_error_eta_1"]
+    if summary.get("model"):
+        row["model"] = f"{summary['model']['n_modes']} modes, {summary['model']['fidelity']}"
+    row["steps"] = summary.get("steps")
+    row["cosim_time"] = summary.get("wall_time")
+    row["stopped_at"] = stopped.get("time")
+    row["message"] = stopped.get("reason")
+    return row
+
+
+def linear_decay_rate(scene: Scene) -> float:
+    """The linearised loop's smallest decay rate ``-max Re(lambda)`` over all its roots, the
+    cart's drift roots left aside: ``flexpend design``'s criterion, for this one plant."""
+    from ..studies.analysis import max_real_part
+    return -max_real_part(scene.plant, scene.controller)
+
+
+def _one_line(exc: BaseException, limit: int = 500) -> str:
+    return " ".join(f"{type(exc).__name__}: {exc}".split())[:limit]
+
+
+@lru_cache(maxsize=None)
+def model_sources_digest() -> str:
+    """sha256 of this process's model packages (``plant_fmu``, ``controller_fmu``: Python and C
+    sources). A pythonfmu FMU runs the packages already imported in its process, so a worker
+    whose digest differs from the client's would not run the client's model."""
+    import controller_fmu
+    import plant_fmu
+
+    h = hashlib.sha256()
+    for pkg in (plant_fmu, controller_fmu):
+        root = Path(pkg.__file__).resolve().parent
+        for f in sorted(root.rglob("*")):
+            if f.suffix in (".py", ".c", ".h") and "__pycache__" not in f.parts:
+                h.update(f.relative_to(root.parent).as_posix().encode() + b"\0")
+                h.update(f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+_EXTRACTED: dict = {}
+
+
+def _extracted(path: str) -> str:
+    """The FMU at ``path`` extracted once per process and reused by every run of it (extracting
+    and removing a folder per run cost ~90 of the ~140 ms of a 0.05 s run): in a dask worker
+    into the worker's own folder, which dask removes with the worker; here into a temporary
+    folder removed when this process exits."""
+    if path not in _EXTRACTED:
+        import atexit
+        import shutil
+        import tempfile
+
+        from fmpy import extract
+
+        from .executor import scratch_dir
+        folder = tempfile.mkdtemp(prefix="flexpend_fmu_", dir=scratch_dir())
+        _EXTRACTED[path] = extract(path, unzipdir=folder)
+        atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return _EXTRACTED[path]
+
+
+def run_task(task) -> dict:
+    """Run one point on a worker (or here): ``(name, config, reference, fmus, sources)``;
+    ``fmus`` maps ``plant``/``controller`` to ``(shipped name, client path)``, ``sources`` is the
+    client's :func:`model_sources_digest`. Never raises: a failure is a row with its message."""
+    from ..job import run_scene
+    from .executor import worker_file
+
+    name, config, reference, fmus, sources = task
+    t0 = time.perf_counter()
+    try:
+        paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
+        if sources != model_sources_digest():
+            raise RuntimeError("this worker's flexpend model sources differ from the client's: "
+                               "install the client's version on the workers")
+        r = run_scene(Scene(name, dict(config)), paths, reference=reference, progress=False,
+                      unzipdirs={role: _extracted(p) for role, p in paths.items()})
+        row = summary_row(r.summary)
+        row["linear_decay_rate"] = linear_decay_rate(r.scene)
+    except Exception as exc:  # noqa: BLE001 - a failed run is a row, never the end of a sweep
+        row = {"status": "failed", "message": _one_line(exc)}
+    row["wall_time"] = time.perf_counter() - t0
+    return row
+
+
+# ---------------------------------------------------------------------------- journal, table
+class Journal:
+    """``DIR/runs.jsonl``: one JSON row per finished run, appended and flushed at once."""
+
+    def __init__(self, folder: Path):
+        self.path = Path(folder) / JOURNAL
+
+    def read(self) -> dict:
+        """key -> the newest row of that key (a torn last line, from a kill, is skipped)."""
+        rows = {}
+        if self.path.is_file():
+            for line in self.path.read_text().splitlines():
+                try:
+                    row = json.loads(line)
+                except ValueError:
+                    continue
+                if isinstance(row, dict) and "key" in row:
+                    rows[row["key"]] = row
+        return rows
+
+    def __enter__(self):
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._fh = open(self.path, "a+")
+        self._fh.seek(0, os.SEEK_END)
+        if self._fh.tell():                  # start on a fresh line after a torn one
+            self._fh.seek(self._fh.tell() - 1)
+            last = self._fh.read(1)
+            if last != "\n":
+                self._fh.write("\n")
+        return self
+
+    def append(self, row: dict):
+        self._fh.write(json.dumps(row) + "\n")
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+
+    def __exit__(self, *exc):
+        self._fh.close()
+
+
+def _have_pyarrow() -> bool:
+    try:
+        import pyarrow  # noqa: F401
+        import pyarrow.parquet  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _columns(rows) -> list:
+    return list(dict.fromkeys(k for r in rows for k in r))
+
+
+def write_table(rows, folder: Path, parquet: bool | None = None) -> Path:
+    """The rows as ``folder/sweep.parquet`` (pyarrow present, or ``parquet=True``) or
+    ``folder/sweep.csv``; a column whose values mix types is written as text."""
+    folder = Path(folder)
+    cols = _columns(rows)
+    parquet = _have_pyarrow() if parquet is None else parquet
+    for stale in ("sweep.parquet", "sweep.csv"):
+        (folder / stale).unlink(missing_ok=True)
+    if parquet:
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+        arrays = {}
+        for c in cols:
+            vals = [r.get(c) for r in rows]
+            try:
+                arrays[c] = pa.array(vals)
+            except (pa.ArrowInvalid, pa.ArrowTypeError):
+                arrays[c] = pa.array([None if v is None else str(v) for v in vals])
+        path = folder / "sweep.parquet"
+        pq.write_table(pa.table(arrays), path)
+        return path
+    import csv
+    path = folder / "sweep.csv"
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for r in rows:
+            w.writerow(["" if r.get(c) is None else repr(r[c]) if isinstance(r.get(c), float)
+                        else r[c] for c in cols])
+    return path
+
+
+def read_table(path) -> list[dict]:
+    """The rows of a sweep table (Parquet or CSV), as dicts; CSV cells are read as in
+    ``--set`` (numbers, booleans; an empty cell is None)."""
+    path = Path(path)
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
+        return pq.read_table(path).to_pylist()
+    import csv
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+
+    def cell(k, v):
+        if v == "":                 # text fields are None when empty, as in the rows
+            return None
+        if k in ("message", "key", "status", "model", "validity") or k.endswith("_note"):
+            return v
+        if v in ("True", "False"):
+            return v == "True"
+        return parse_value(v)
+    return [{k: cell(k, v) for k, v in r.items()} for r in rows]
+
+
+# ---------------------------------------------------------------------------- progress
+class SweepProgress:
+    """A bar on stderr: finished, failed and remaining runs, the elapsed time and an estimate
+    of the rest. On a terminal it redraws one line; otherwise it prints a line every 10 %."""
+
+    def __init__(self, total: int, stream=None):
+        self.total, self.stream = max(total, 0), stream or sys.stderr
+        self.ok = self.failed = self.lost = 0
+        self.t0 = time.perf_counter()
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._next = 0.1
+        self._last = 0.0
+
+    @property
+    def finished(self):
+        return self.ok + self.failed + self.lost
+
+    def text(self) -> str:
+        el = time.perf_counter() - self.t0
+        n, tot = self.finished, max(self.total, 1)
+        bar = "#" * int(30 * n / tot)
+        eta = f", ~{el * (self.total - n) / n:.0f} s left" if 0 < n < self.total else ""
+        lost = f", {self.lost} lost" if self.lost else ""
+        return (f"sweep [{bar:.<30}] {n}/{self.total} finished, {self.failed} failed{lost}, "
+                f"{self.total - n} remaining, {el:.0f} s{eta}")
+
+    def update(self, status: str):
+        setattr(self, status, getattr(self, status) + 1)
+        done = self.finished >= self.total
+        if self.tty:
+            now = time.perf_counter()
+            if done or now - self._last > 0.2:
+                self._last = now
+                self.stream.write("\r" + self.text() + " " * 4 + ("\n" if done else ""))
+                self.stream.flush()
+        elif done or self.finished / max(self.total, 1) >= self._next:
+            while self._next <= self.finished / max(self.total, 1):
+                self._next += 0.1
+            self.stream.write(self.text() + "\n")
+            self.stream.flush()
+
+
+# ---------------------------------------------------------------------------- the sweep
+@dataclass
+class SweepResult:
+    rows: list                  # one per point, in the plan's order
+    ran: int                    # runs done by this call
+    skipped: int                # runs found finished in the folder's journal
+    seconds: float
+    table: Path | None = None
+    plot: Path | None = None
+
+    def count(self, status: str) -> int:
+        return sum(r["status"] == status for r in self.rows)
+
+
+def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
+    """The point's identity (run number, key, swept values, sample), then ``result``'s fields
+    (a journal row's identity fields are the point's own)."""
+    row = {"run": point.index, "key": point.key}
+    row.update({k: point.params.get(k) for k in plan.keys})
+    if plan.samplers:
+        row["sample"] = point.sample
+    row.update((k, v) for k, v in result.items() if k not in row and k != "sample")
+    return row
+
+
+def fmus_for(plan: SweepPlan) -> dict:
+    """``{flavour: {"plant": path, "controller": path}}`` for the FMU flavours (``master.fmus``)
+    the plan's runs use, built if missing or stale."""
+    from ..export import build_fmus, fmu_pair
+    return {fl: fmu_pair(build_fmus(flavour=fl))
+            for fl in dict.fromkeys(p.config["master.fmus"] for p in plan.points)}
+
+
+def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
+    """How many runs of ``plan`` have no finished row in ``out_dir`` yet."""
+    results = Journal(Path(out_dir)).read()
+    done_status = ("ok",) if retry_failed else DONE
+    return len({p.key for p in plan.points
+                if results.get(p.key, {}).get("status") not in done_status})
+
+
+def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int = 1,
+              retry_failed: bool = False, progress=True, plot: bool = True) -> SweepResult:
+    """Run the points of ``plan`` that ``out_dir`` has no finished row for, with ``executor``
+    (:mod:`orchestration.sweep.executor`; ``None``: serially here); write the table and the plot.
+
+    ``fmus``: ``{"plant": path, "controller": path}`` for every run, or ``{flavour: {...}}``
+    per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
+    must have been opened with ``files=`` these paths)."""
+    from .executor import Executor, TaskLost, file_name
+
+    executor = executor or Executor()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    journal = Journal(out_dir)
+    done_status = ("ok",) if retry_failed else DONE
+    results = journal.read()
+    # one task per key: points whose scenes resolve alike (repeated integer draws) run once
+    todo = list({p.key: p for p in plan.points
+                 if results.get(p.key, {}).get("status") not in done_status}.values())
+    by_flavour = {None: fmus} if "plant" in fmus else fmus
+    shipped = {fl: {role: (file_name(path), str(path)) for role, path in pair.items()}
+               for fl, pair in by_flavour.items()}
+
+    def pair(p):
+        return shipped[None] if None in shipped else shipped[p.config["master.fmus"]]
+    tasks = [(plan.scene.name, p.config, plan.reference, pair(p), model_sources_digest())
+             for p in todo]
+    bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
+    t0 = time.perf_counter()
+    with journal:
+        for i, result in executor.map(run_task, tasks, batch=batch):
+            if isinstance(result, TaskLost):
+                result = {"status": "lost", "message": result.message}
+            row = _row(todo[i], result, plan)
+            journal.append(row)
+            results[row["key"]] = row
+            if bar is not None:
+                bar.update(row["status"])
+    seconds = time.perf_counter() - t0
+    ordered = [_row(p, results[p.key], plan) for p in plan.points]
+    skipped = len({p.key for p in plan.points}) - len(todo)
+    out = SweepResult(ordered, len(todo), skipped, seconds)
+    out.table = write_table(ordered, out_dir)
+    if plot:
+        out.plot = plot_sweep(plan, ordered, out_dir / "sweep.png")
+    return out
+
+
+def sweep_stats(rows) -> dict:
+    """Counts, the fraction of stable runs and the decay rates (worst, median, best) of the
+    finished runs."""
+    n = len(rows)
+    ok = [r for r in rows if r["status"] == "ok"]
+    decays = [r for r in ok if r.get("decay_rate") is not None]
+    out = {"runs": n, "ok": len(ok), "failed": sum(r["status"] == "failed" for r in rows),
+           "lost": sum(r["status"] == "lost" for r in rows),
+           "stable": sum(r.get("stable") is True for r in rows),
+           "unstable": sum(r.get("stable") is False for r in rows),
+           "invalid": sum(r.get("valid") is False for r in rows)}
+    finished = out["ok"] + out["failed"]
+    out["no_verdict"] = finished - out["stable"] - out["unstable"]
+    out["stable_fraction"] = out["stable"] / finished if finished else None
+    if decays:
+        worst = min(decays, key=lambda r: r["decay_rate"])
+        vals = [r["decay_rate"] for r in decays]
+        out.update(worst_decay_rate=worst["decay_rate"], worst_run=worst["run"],
+                   median_decay_rate=float(np.median(vals)), best_decay_rate=max(vals))
+    lin = [r for r in ok if r.get("linear_decay_rate") is not None]
+    if lin:
+        worst = min(lin, key=lambda r: r["linear_decay_rate"])
+        out.update(worst_linear_decay_rate=worst["linear_decay_rate"],
+                   worst_linear_run=worst["run"])
+    return out
+
