@@ -5,8 +5,11 @@ Everything else is declared in pyproject.toml. The compilation itself is fmu_com
 (the same build the FMUs use). Without a C compiler the
 install stops with one line naming the compiler it looked for.
 """
+import atexit
 import importlib.util
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 from setuptools import setup
@@ -41,4 +44,33 @@ class build_py_with_kernels(build_py):
             sys.exit(f"error: {exc}")
 
 
-setup(cmdclass={"build_py": build_py_with_kernels})
+def _bdist_wheel():
+    """``bdist_wheel`` tagged for this platform and any CPython 3 (``py3-none-<platform>``): the
+    wheel carries compiled C libraries, loaded by ctypes, not Python extensions."""
+    try:
+        from setuptools.command.bdist_wheel import bdist_wheel
+    except ImportError:
+        try:
+            from wheel.bdist_wheel import bdist_wheel
+        except ImportError:          # no wheel support here (an editable install needs none)
+            return {}
+
+    class bdist_wheel_platform(bdist_wheel):
+        def finalize_options(self):
+            super().finalize_options()
+            self.root_is_pure = False
+
+        def get_tag(self):
+            return ("py3", "none", super().get_tag()[2])
+
+    return {"bdist_wheel": bdist_wheel_platform}
+
+
+# The build's scratch (build/lib, the egg-info) goes to a temporary folder, not into the source
+# tree: `build/` is the project's own folder (the FMUs), and a wheel build leaves nothing behind.
+SCRATCH = tempfile.mkdtemp(prefix="flexpend-setup-")
+atexit.register(shutil.rmtree, SCRATCH, ignore_errors=True)
+
+setup(cmdclass={"build_py": build_py_with_kernels, **_bdist_wheel()},
+      options={"build": {"build_base": str(Path(SCRATCH) / "build")},
+               "egg_info": {"egg_base": SCRATCH}})

@@ -108,16 +108,15 @@ def monolithic_rk4_binary(folder: Path) -> Path:
 
 def rk4_input(scene, h: float) -> str:
     from plant_fmu.dynamics import plant_model
-    from orchestration.scene.keys import controller_params
-    m = plant_model(scene.plant)
-    c = controller_params(scene.config)
+    m = plant_model(scene.plant.params)
+    c = scene.controller
     if c.filter_order != 2:
         raise ValueError("the monolithic RK4 bench takes a 2nd-order filter")
     nums = [m.n, 0, int(m.preload), m.I0, m.I1, m.I2, m.g, *m.I3, *m.I5, *m.Kdiag, *m.Ddiag,
             *m.tip_slope, *m.tip_defl, *np.asarray(m.Kg).ravel(), c.kp, c.kd, c.kx, c.cutoff,
-            c.filter_damping, c.force_limit, scene["initial.x"], scene["initial.phi"],
-            scene["initial.x_dot"], scene["initial.phi_dot"], h, scene["stop_time"],
-            scene["output_interval"]]
+            c.filter_damping, c.force_limit, scene.initial.x, scene.initial.phi,
+            scene.initial.x_dot, scene.initial.phi_dot, h, scene.output.stop_time,
+            scene.output.output_interval]
     return " ".join(repr(float(x)) if not isinstance(x, int) else str(x) for x in nums)
 
 

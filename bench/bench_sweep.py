@@ -4,7 +4,7 @@ LocalCluster against the serial path, and dask's overhead per task.
     python bench/bench_sweep.py [--workers 2] [--reps 3] [--stop-time 2]
 
 * **Sweep**: 64 runs of the filtered scene (``controller.kp`` 400..600 x ``controller.cutoff``
-  80..120 rad/s, 8 x 8, ``stop_time`` 2 s), through :func:`orchestration.sweep.engine.run_sweep` into a
+  80..120 rad/s, 8 x 8, ``stop_time`` 2 s), through :func:`orchestration.sweeps.engine.run_sweep` into a
   fresh folder each time: serially in this process, and on a LocalCluster of ``--workers``
   processes that is already started and warmed up (its start-up and first sweep are reported
   apart). The two alternate, ``--reps`` times each after a warm-up; medians. The tables of both
@@ -36,9 +36,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from common import RESULTS, product_fmus  # noqa: E402
 
-from orchestration.sweep.executor import DaskExecutor, Executor  # noqa: E402
-from orchestration.sweep.plan import plan_sweep
-from orchestration.sweep.engine import run_sweep  # noqa: E402
+from orchestration.sweeps.executor import DaskExecutor, Executor  # noqa: E402
+from orchestration.sweeps.plan import plan_sweep
+from orchestration.sweeps.engine import run_sweep  # noqa: E402
 
 SCENE = "flexible_pd_lowpass"
 GRID = ["controller.kp=400:600:8", "controller.cutoff=80:120:8"]

@@ -35,7 +35,8 @@ from orchestration.cosim.master import Master
 from orchestration.cosim.slave import Slave
 from orchestration.scene.wiring import parse_connection  # noqa: E402
 from orchestration.studies.reference import ClosedLoop, simulate_reference  # noqa: E402
-from orchestration.job import DEFAULT_CONNECTIONS, controller_start_values, plant_start_values
+from orchestration.job import controller_start_values, plant_start_values  # noqa: E402
+from orchestration.scene.records import DEFAULT_CONNECTIONS
 from orchestration.scene.schema import load_scene  # noqa: E402
 
 __all__ = ["ROOT", "RESULTS", "product_fmus", "trivial_fmus", "trivial_native_fmus", "CoSim", "monolithic",
@@ -163,25 +164,18 @@ class CoSim:
 
     def __init__(self, scene, fmus: dict, *, trivial: bool = False, record=None):
         self.scene = scene
-        cfg = scene.config
         self.trivial = trivial
         starts = ({}, {}) if trivial else (plant_start_values(scene),
                                            controller_start_values(scene))
         self.fmus = fmus
         self._starts = starts
         self._record = dict(record or COUPLING_RECORD)
-        self._master_kw = dict(algorithm=cfg["master.algorithm"], first=cfg["master.first"],
-                               step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
-                               adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
-                               min_step=cfg["master.min_step"], max_step=cfg["master.max_step"],
-                               input_derivatives=cfg["master.input_derivatives"],
-                               compiled=cfg["master.compiled"])
-        self._connections = [parse_connection(c) for c in
-                             (DEFAULT_CONNECTIONS if trivial else cfg["connections"])]
+        self._connections = ([parse_connection(c) for c in DEFAULT_CONNECTIONS] if trivial
+                             else scene.connections)
 
     def run(self):
         """One run from t = 0: ``(result, stats)``; FMUs instantiated fresh (not timed)."""
-        cfg = self.scene.config
+        out = self.scene.output
         slaves = {}
         try:
             slaves["plant"] = Slave(self.fmus["plant"], "plant", self._starts[0],
@@ -191,8 +185,8 @@ class CoSim:
             if self.trivial:       # the product's dependency structure: the same master work
                 slaves["plant"].feedthrough = False
                 slaves["controller"].feedthrough = True
-            master = Master(slaves, self._connections, self._record, **self._master_kw)
-            return master.run(0.0, cfg["stop_time"], cfg["output_interval"])
+            master = Master(slaves, self._connections, self._record, self.scene.master)
+            return master.run(0.0, out.stop_time, out.output_interval)
         finally:
             for s in slaves.values():
                 s.close()
@@ -225,7 +219,7 @@ def monolithic(scene, method: str, rtol: float, atol: float | None = None):
     ``(seconds, phi_o on the output grid or None if it failed, nfev)``."""
     import scipy.integrate
     loop = ClosedLoop(scene)
-    t_end, dt = scene["stop_time"], scene["output_interval"]
+    t_end, dt = scene.output.stop_time, scene.output.output_interval
     t_eval = np.arange(int(round(t_end / dt)) + 1) * dt
     t_eval[-1] = min(t_eval[-1], t_end)
     t0 = time.perf_counter()

@@ -17,7 +17,7 @@
    0.9, 0.98, 1.02 and 1.1 times the predicted limit (A-stable methods: at 10 times RK4's limit);
    the growth per substep along the mode (its left eigenvector of the method's substep matrix).
 
-Every part is a list of independent tasks (orchestration.sweep.executor): one after the other here, or
+Every part is a list of independent tasks (orchestration.sweeps.executor): one after the other here, or
 with ``--workers N`` on a dask LocalCluster (``--scheduler ADDRESS``: an existing cluster), with
 the same numbers.
 
@@ -79,13 +79,13 @@ class Bar:
 
 
 # ---------------------------------------------------------------------- tasks
-# Every part is a list of independent tasks run by an executor (orchestration.sweep.executor): here
+# Every part is a list of independent tasks run by an executor (orchestration.sweeps.executor): here
 # one after the other, or on dask workers; each task is a module-level function of one item.
 
 def run_tasks(ex, fn, items, label):
     """``[fn(item) for item in items]`` on the executor, with a progress bar; a task lost with
     its worker stops the study (a map with a hole is no map)."""
-    from orchestration.sweep.executor import TaskLost
+    from orchestration.sweeps.executor import TaskLost
     out = [None] * len(items)
     bar = Bar(label, len(items))
     for i, value in ex.map(fn, items):
@@ -158,7 +158,7 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
 
 def _observed_point(item):
     """One point of the map: the predicted radius and the observed co-simulation."""
-    from orchestration.sweep.executor import worker_file
+    from orchestration.sweeps.executor import worker_file
     p, fmus, label, alg, first, e, H, wc, substep, n_steps = item
     paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
     c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
@@ -171,7 +171,7 @@ def _observed_point(item):
 
 
 def observed_map(p, Hs, cutoffs, substep, n_steps, ex, fmus):
-    """``fmus``: role -> (shipped name, path), see orchestration.sweep.executor.worker_file."""
+    """``fmus``: role -> (shipped name, path), see orchestration.sweeps.executor.worker_file."""
     items = [(p, fmus, label, alg, first, e, float(H), float(wc), substep, n_steps)
              for label, alg, first in SCHEMES for e in range(3) for H in Hs for wc in cutoffs]
     return run_tasks(ex, _observed_point, items, "observed co-simulations")
@@ -347,7 +347,7 @@ def main(argv=None):
         print(f"stability_map: --out {args.out!r} cannot be created: {exc}", file=sys.stderr)
         return 2
     from orchestration.export import build_fmus
-    from orchestration.sweep.executor import file_name, open_executor
+    from orchestration.sweeps.executor import file_name, open_executor
     built = build_fmus()
     fmu_paths = {"plant": built["FlexiblePendulum"], "controller": built["PDLowPass"]}
     fmus = {role: (file_name(path), str(path)) for role, path in fmu_paths.items()}

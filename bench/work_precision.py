@@ -40,7 +40,7 @@ Results: ``bench/results/work_precision[_quick].{csv,json,png}``; the terminal s
 point, then where each family sits on the Pareto front (error against time) of its scene.
 
 ``--workers N`` (a dask LocalCluster) or ``--scheduler ADDRESS`` runs the points as tasks
-(``orchestration.sweep.executor``), each on one core: the errors are the serial run's, number for
+(``orchestration.sweeps.executor``), each on one core: the errors are the serial run's, number for
 number; the times are measured with N points running side by side, so they stand for one core
 only where N cores are free (on a shared machine, take the serial run's times).
 """
@@ -337,7 +337,7 @@ class _Failure:
 
 
 # ---------------------------------------------------------------------------------------------
-# the points as tasks (orchestration.sweep.executor): here one after the other, or on dask workers
+# the points as tasks (orchestration.sweeps.executor): here one after the other, or on dask workers
 
 #: a worker's Runner, made at its first point (keeps its loaded FMUs' extraction and references)
 _RUNNER: dict = {}
@@ -360,7 +360,7 @@ def _reference_task(key):
 def _point_task(item):
     """One point: ``(scene, family name, value, setup, {reference key: reference})``."""
     scene, family, value, setup, refs = item
-    from orchestration.sweep.executor import worker_file
+    from orchestration.sweeps.executor import worker_file
     k = (setup["runs"], tuple(setup["extra"]), setup["max_seconds"])
     if _RUNNER.get("key") != k:
         def local(fmus):
@@ -650,7 +650,7 @@ def main(argv=None):
     print(f"work-precision: {len(plan)} points, {runs} runs each after a warm-up; "
           f"load average {' '.join(f'{x:.2f}' for x in meta['load_average_start'])}", flush=True)
 
-    from orchestration.sweep.executor import file_name, open_executor
+    from orchestration.sweeps.executor import file_name, open_executor
     # the floor is the same flavour's: two trivial native FMUs (the compiled loop takes them as it
     # takes the product's), or two trivial pythonfmu FMUs
     fmus = product_fmus(args.fmus)

@@ -1,30 +1,55 @@
-"""Run a scene: the two FMUs on the master, then the summary, the CSV and the figures."""
+"""The job: scene -> FMUs -> master -> result -> files.
+
+    simulate(scene, overrides=None, *, fmus=None, reference=False, progress=False) -> Run
+    run_scene(scene, fmus, ...) -> Run         one scene on FMUs at hand (a sweep's task)
+    run_job(items, out, ...) -> JobResult      ``flexpend run``: every scene, its files, the
+                                               paper overview and summary.json
+
+A scene whose model is ``"auto"`` gets it chosen first (:mod:`orchestration.studies.fidelity`);
+the FMUs of the scene's flavour are built when missing or stale (:mod:`orchestration.export`); the
+master (:mod:`orchestration.cosim`) steps them; :mod:`orchestration.report` summarises the result
+and draws it. A :class:`Run` holds all of it: ``to_pandas()``, ``plot()`` (a Figure),
+``summary``, ``scene``, ``save(folder)``.
+
+A run whose FMU refuses to go on (a divergence, a failed integrator) keeps the output points it
+reached, and its summary says when and why; so does a run stopped by its ``stop`` callback
+(Ctrl-C). The FMUs are terminated and freed, and their unpacked folders removed, however a run
+ends.
+"""
 from __future__ import annotations
 
-import sys
-import time
-from dataclasses import dataclass, field
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
 from controller_fmu import interface as controller_interface
-from fmu_common.variables import start_values
 from plant_fmu import interface as plant_interface
+from plant_fmu.beam import beam_model
 
-from .scene.keys import ConfigError
-from .scene.schema import needs_selection
-from .studies.fidelity import select_model
-from .cosim.slave import CoSimulationError, RunInterrupted, Slave
 from .cosim.master import Master
-from .scene.wiring import parse_connection
-from .studies.reference import COLUMNS
-from .scene.schema import SCENE_DEFAULTS
+from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
+from .export import build_fmus, fmu_pair
+from .report import figures
+from .report.files import save_figure, write_csv, write_json
+from .report.progress import Progress
 from .report.summary import summarize
+from .scene.keys import ConfigError
+from .scene.records import FMU_FLAVOURS, Scene
+from .scene.schema import load_scene, start_values
+from .scene.ssp import read_ssp
+from .studies.fidelity import select_model
+from .studies.reference import COLUMNS, simulate_reference
 
-__all__ = ["run_scene", "SceneResult", "DEFAULT_CONNECTIONS", "plant_start_values",
-           "controller_start_values", "Progress", "summarize"]
+__all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "load_job", "check_wiring",
+           "scene_fmus", "plant_start_values", "controller_start_values", "RECORD",
+           "EXIT_STOPPED", "EXIT_INTERRUPTED"]
 
-DEFAULT_CONNECTIONS = tuple(SCENE_DEFAULTS["connections"])
+#: Exit codes of ``flexpend run`` besides 0 (every scene ran to its stop time) and 2 (bad input).
+EXIT_STOPPED = 3
+EXIT_INTERRUPTED = 130
+
 #: column -> (FMU, variable): what the master records at every output point.
 RECORD = {
     "x": ("plant", "x_o"), "x_dot": ("plant", "x_dot"), "phi_o": ("plant", "phi_o"),
@@ -33,92 +58,122 @@ RECORD = {
     "energy": ("plant", "energy"), "phi": ("plant", "phi"),
     **{f"eta_{j}": ("plant", f"eta_{j}") for j in range(2, 9)},
 }
-def plant_start_values(scene) -> dict:
-    """Scene keys -> FlexiblePendulum parameters (the table of :mod:`plant_fmu.interface`)."""
-    return start_values(scene.config, plant_interface.VARIABLES)
 
 
-def controller_start_values(scene) -> dict:
-    """Scene keys -> PDLowPass parameters (the table of :mod:`controller_fmu.interface`)."""
-    return start_values(scene.config, controller_interface.VARIABLES)
+def plant_start_values(scene: Scene) -> dict:
+    """The scene's FlexiblePendulum parameters (the table of :mod:`plant_fmu.interface`)."""
+    return start_values(scene, plant_interface.VARIABLES)
 
 
-class Progress:
-    """A progress bar on stderr, shown once a run has lasted a second.
-
-    On a terminal it redraws one line; otherwise it prints a line at each quarter."""
-
-    def __init__(self, label: str, stream=None, delay: float = 1.0):
-        self.label, self.stream, self.delay = label, stream or sys.stderr, delay
-        self.start = time.perf_counter()
-        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
-        self.shown = False
-        self.last_quarter = 0
-
-    def close(self):
-        """End the bar's line early (a run that stopped before the end)."""
-        if self.tty and self.shown:
-            self.stream.write("\n")
-            self.stream.flush()
-            self.shown = False
-
-    def __call__(self, fraction: float):
-        elapsed = time.perf_counter() - self.start
-        if elapsed < self.delay:
-            return
-        if self.tty:
-            if fraction < 1.0 and elapsed - getattr(self, "_last", 0.0) < 0.1:
-                return
-            self._last = elapsed
-            n = int(30 * fraction)
-            eta = elapsed * (1 - fraction) / max(fraction, 1e-9)
-            self.stream.write(f"\r{self.label} [{'#' * n}{'.' * (30 - n)}] {100 * fraction:5.1f} % "
-                              f"{elapsed:6.1f} s, ~{eta:5.1f} s left ")
-            self.shown = True
-            if fraction >= 1.0:
-                self.stream.write("\n")
-                self.shown = False
-            self.stream.flush()
-        else:
-            quarter = int(fraction * 4)
-            if quarter > self.last_quarter:
-                self.last_quarter = quarter
-                self.stream.write(f"{self.label}: {25 * quarter} % after {elapsed:.1f} s\n")
-                self.stream.flush()
+def controller_start_values(scene: Scene) -> dict:
+    """The scene's PDLowPass parameters (the table of :mod:`controller_fmu.interface`)."""
+    return start_values(scene, controller_interface.VARIABLES)
 
 
+# ---------------------------------------------------------------------- a run
 @dataclass
-class SceneResult:
-    name: str
+class Run:
+    """One co-simulation of a scene.
+
+    ``scene``: the scene that ran (its model chosen when it was ``"auto"``); ``result``: the
+    output points reached, a numpy structured array (``time`` first, then the CSV's columns in SI
+    units); ``summary``: what ``summary.json`` holds for it; ``stats``: the master's counts and
+    wall time; ``reference``: the monolithic reference on the same grid (when asked);
+    ``interrupted``: stopped by its ``stop`` callback."""
+
+    scene: Scene
     result: np.ndarray
     summary: dict
     stats: object = None
     reference: np.ndarray | None = None
-    frames: list = field(default_factory=list)
-    scene: object = None          # the scene that ran (its model chosen when it was "auto")
-    interrupted: bool = False     # stopped by the ``stop`` callback (Ctrl-C)
+    frames: list = field(default_factory=list, repr=False)
+    interrupted: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.scene.name
+
+    @property
+    def completed(self) -> bool:
+        """Whether the run reached its stop time."""
+        return self.summary["stopped"] is None
+
+    def to_pandas(self):
+        """The result as a pandas DataFrame indexed by ``time`` (s), the columns of the CSV."""
+        import pandas as pd
+
+        names = self.result.dtype.names
+        return pd.DataFrame({c: self.result[c] for c in names[1:]},
+                            index=pd.Index(self.result["time"], name="time"))
+
+    def plot(self):
+        """The time histories (tip angle, first modal coordinate, tip deflection, force, cart
+        position) as a matplotlib Figure; the process's backend is left alone."""
+        return figures.time_histories(self.result, self.scene, self.reference, self.summary)
+
+    def plot_shapes(self):
+        """The beam and the cart at eight times over the run, a Figure (None before two output
+        points)."""
+        if not self.frames:
+            return None
+        return figures.snapshots(beam_model(self.scene.plant.params), self.frames, self.scene)
+
+    def save(self, folder, *, summary: bool = True) -> list[Path]:
+        """Write what ``flexpend run`` writes for this run into ``folder``: ``<name>.csv``,
+        ``<name>.png``, ``<name>_shapes.png`` and (``summary``) this run's entry of
+        ``summary.json`` (other entries kept); the paths written. Each file is complete or
+        absent."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        written = [write_csv(folder / f"{self.name}.csv", self.result)]
+        if len(self.result) >= 2:
+            written.append(save_figure(self.plot(), folder / f"{self.name}.png"))
+        shapes = self.plot_shapes()
+        if shapes is not None:
+            written.append(save_figure(shapes, folder / f"{self.name}_shapes.png"))
+        if summary:
+            entries = _read_summaries(folder / "summary.json")
+            entries[self.name] = self.summary
+            written.append(write_json(folder / "summary.json", entries))
+        return written
 
 
-def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = True,
-              connections_out=None, stop=None,
-              snapshot_times=None, unzipdirs: dict | None = None) -> SceneResult:
+def _read_summaries(path: Path) -> dict:
+    import json
+
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def check_wiring(scene: Scene, fmus: dict) -> None:
+    """Every connection of ``scene`` names variables the FMUs (``{"plant": path, "controller":
+    path}``) have; a ConfigError names the first that does not."""
+    variables = {role: [v.name for v in describe(path).modelVariables]
+                 for role, path in fmus.items()}
+    for c in scene.connections:
+        for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
+            if var not in variables[fmu]:
+                raise ConfigError(f"{scene.name}: {fmu} has no variable {var!r}; it has: "
+                                  f"{', '.join(variables[fmu])}")
+
+
+def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bool = True,
+              connections_out=None, stop=None, snapshot_times=None,
+              unzipdirs: dict | None = None) -> Run:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
 
-    A scene with ``plant.n_modes`` or ``plant.fidelity`` ``"auto"`` gets its model chosen first
-    (:func:`orchestration.studies.fidelity.select_model`); the summary's ``model`` entry says which and why,
-    and the result's ``scene`` is the resolved scene.
-
-    A run whose FMU refuses to go on (a divergence, a failed integrator) keeps the output points
-    reached; the summary's ``stopped`` says when and why. ``stop``: a callable asked after every
-    communication step (Ctrl-C); when it returns True the run ends the same way and the result's
-    ``interrupted`` is True. The FMUs are terminated and freed, and their unpacked folders
-    removed, however the run ends; ``unzipdirs`` (same keys as ``fmus``): folders where the FMUs
-    are already unpacked, reused and left as they are (a sweep unpacks once per process)."""
+    ``stop``: a callable asked after every communication step; when it returns True the run
+    ends as if an FMU had stopped it, and :attr:`Run.interrupted` is True. ``unzipdirs`` (the
+    keys of ``fmus``): folders where the FMUs are already unpacked, reused and left as they are
+    (a sweep unpacks once per process). ``connections_out``: a stream for the connection
+    table."""
     model = None
-    if needs_selection(scene):
+    if not scene.resolved:
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
-    cfg = scene.config
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     try:
@@ -129,21 +184,15 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
                                      controller_start_values(scene),
                                      unzipdir=dirs.get("controller"))
         try:
-            master = Master(slaves, [parse_connection(c) for c in cfg["connections"]], RECORD,
-                            algorithm=cfg["master.algorithm"], first=cfg["master.first"],
-                            step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
-                            adaptive=cfg["master.adaptive"], tolerance=cfg["master.tolerance"],
-                            min_step=cfg["master.min_step"], max_step=cfg["master.max_step"],
-                            input_derivatives=cfg["master.input_derivatives"],
-                            compiled=cfg["master.compiled"])
+            master = Master(slaves, scene.connections, RECORD, scene.master)
         except ValueError as exc:       # a variable the FMUs do not have
             raise ConfigError(f"{scene.name}: {exc}") from None
         if connections_out is not None:
             connections_out.write(f"{scene.name}: connections\n{master.connection_table()}\n")
         bar = Progress(scene.name) if progress else None
         try:
-            res, stats = master.run(0.0, cfg["stop_time"], cfg["output_interval"], progress=bar,
-                                    stop=stop)
+            res, stats = master.run(0.0, scene.output.stop_time, scene.output.output_interval,
+                                    progress=bar, stop=stop)
         except CoSimulationError as exc:
             res, stats = exc.result, exc.stats
             stopped = {"time": exc.time, "reason": str(exc)}
@@ -157,9 +206,9 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
             s.close()
     if res is None:
         res = np.zeros(0, dtype=[(c, "f8") for c in ("time", *RECORD)])
-    n_eta = min(scene.plant.n_modes, 8)
+    n_eta = min(scene.plant.params.n_modes, 8)
     if snapshot_times is None:             # eight times over the run, as the paper's Figs. 5, 8
-        snapshot_times = np.linspace(0.0, cfg["stop_time"], 8)
+        snapshot_times = np.linspace(0.0, scene.output.stop_time, 8)
     frames = _frames(res, n_eta, snapshot_times)
     res = _reorder(res, n_eta)
     summary = summarize(res, scene, stopped)
@@ -168,10 +217,8 @@ def run_scene(scene, fmus: dict, *, reference: bool = False, progress: bool = Tr
                        master_loop=stats.loop)
     if model is not None:
         summary["model"] = model
-    out = SceneResult(scene.name, res, summary, stats, frames=frames, scene=scene,
-                      interrupted=interrupted)
+    out = Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)
     if reference and stopped is None:
-        from .studies.reference import simulate_reference
         ref = simulate_reference(scene)
         out.reference = ref
         summary["max_error_phi_o"] = float(np.max(np.abs(res["phi_o"] - ref["phi_o"])))
@@ -202,3 +249,131 @@ def _frames(res, n_eta, times):
         eta = [res[f"eta_{j}"][i] for j in range(1, n_eta + 1)]
         frames.append((float(res["time"][i]), float(res["x"][i]), float(res["phi"][i]), eta))
     return frames
+
+
+# ---------------------------------------------------------------------- the front door's run
+def scene_fmus(flavour: str) -> dict:
+    """``{"plant": path, "controller": path}``: the FMUs of ``flavour``, built if missing or
+    stale."""
+    return fmu_pair(build_fmus(flavour=flavour))
+
+
+def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool = False,
+             progress: bool = False) -> Run:
+    """Co-simulate one scene and return its :class:`Run`.
+
+    ``scene``: a scene name (``flexpend scenes``), a path to a ``.toml`` scene file or to an SSP
+    archive (``.ssp``, which brings its own FMUs), a dict of scene keys, or a
+    :class:`~orchestration.scene.records.Scene`. ``overrides``: a dict of scene keys on top
+    (``{"controller.kp": 400, "stop_time": 2}``). ``fmus``: ``"native"`` or ``"python"`` (the
+    scene key ``master.fmus``; default: the scene's, native unless it says otherwise), built if
+    missing or stale. ``reference``: also solve the monolithic reference and put the error
+    against it in the summary. ``progress``: a progress bar on stderr for a long run.
+
+    A bad scene, key or value raises :class:`~orchestration.scene.keys.ConfigError` (a
+    ``ValueError``) naming it; a wrong type, ``TypeError``. A run that an FMU stops early is
+    not an error: its summary says when and why (:attr:`Run.completed` is False)."""
+    if fmus is not None and fmus not in FMU_FLAVOURS:
+        raise ValueError(f"fmus = {fmus!r} is not allowed; allowed: "
+                         f"{', '.join(map(repr, FMU_FLAVOURS))}")
+    for name, value in (("reference", reference), ("progress", progress)):
+        if not isinstance(value, bool):
+            raise TypeError(f"{name} must be True or False, got {value!r}")
+    (sc, own), = load_job([scene], overrides)
+    try:
+        if fmus is not None and own is None:
+            sc = sc.replace(master=replace(sc.master, fmus=fmus))
+        pair = own.fmus if own is not None else scene_fmus(sc.master.fmus)
+        check_wiring(sc, pair)
+        return run_scene(sc, pair, reference=reference, progress=progress)
+    finally:
+        if own is not None:
+            own.close()
+
+
+# ---------------------------------------------------------------------- flexpend run
+def load_job(refs, overrides=None) -> list:
+    """``[(scene, system or None)]`` for scene references: names, paths of scene files, dicts,
+    scenes, or SSP archives (``.ssp``; ``system`` is the archive, unpacked, which brings its own
+    FMUs: close it when done). Every scene is read and checked before any runs."""
+    out = []
+    try:
+        for ref in refs:
+            if isinstance(ref, (str, os.PathLike)) and os.fspath(ref).endswith(".ssp"):
+                system = read_ssp(ref, overrides or ())
+                out.append((system.scene, system))
+            else:
+                out.append((load_scene(ref, overrides), None))
+    except BaseException:
+        for _, system in out:
+            if system is not None:
+                system.close()
+        raise
+    return out
+
+
+@dataclass
+class JobResult:
+    """What ``flexpend run`` did: the runs (in order), the exit code and the files written."""
+
+    runs: list
+    code: int = 0
+    written: list = field(default_factory=list)
+
+    @property
+    def summaries(self) -> dict:
+        return {r.name: r.summary for r in self.runs}
+
+
+def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,
+            overview: bool = False, announce=None, report=None) -> JobResult:
+    """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
+    folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
+    ``overview``, the paper overview; ``summary.json`` holds every run's summary, and is written
+    even when nothing ran.
+
+    ``stop``: asked between runs and after every communication step (Ctrl-C); ``announce(scene)``
+    is called before a run and ``report(run, written)`` after it. The exit code: 0 when every
+    scene ran to its stop time, :data:`EXIT_STOPPED` when one stopped early,
+    :data:`EXIT_INTERRUPTED` when ``stop`` ended the job (the data so far is written)."""
+    out = Path(out)
+    job = JobResult([])
+    pairs = {}
+    try:
+        for scene, system in items:                 # FMUs and wiring before any scene runs
+            if system is None and scene.master.fmus not in pairs:
+                if stop is not None and stop():
+                    job.code = EXIT_INTERRUPTED
+                    return job
+                pairs[scene.master.fmus] = scene_fmus(scene.master.fmus)
+            check_wiring(scene, system.fmus if system is not None else pairs[scene.master.fmus])
+        for scene, system in items:
+            if stop is not None and stop():
+                job.code = EXIT_INTERRUPTED
+                break
+            if announce is not None:
+                announce(scene)
+            fmus = system.fmus if system is not None else pairs[scene.master.fmus]
+            run = run_scene(scene, fmus, reference=reference and not (stop and stop()),
+                            progress=True, connections_out=connections_out, stop=stop)
+            job.runs.append(run)
+            written = run.save(out, summary=False)
+            write_json(out / "summary.json", job.summaries)
+            job.written += written
+            if report is not None:
+                report(run, written)
+            if run.interrupted:
+                job.code = EXIT_INTERRUPTED
+                break
+            if not run.completed:
+                job.code = EXIT_STOPPED
+        if overview and job.code != EXIT_INTERRUPTED and len(job.runs) == len(items) \
+                and not (stop and stop()):
+            fig = figures.paper_overview(job.runs)
+            job.written.append(save_figure(fig, out / "paper_overview.png"))
+        if stop is not None and stop():
+            job.code = EXIT_INTERRUPTED
+    finally:
+        if not job.runs:
+            write_json(out / "summary.json", {})
+    return job

@@ -160,7 +160,6 @@ def tapped_run(scene, unzipped, pair, compiled, fail=None, stop=None):
     trace, master)."""
     trace = []
     tap = Tap(trace, fail)
-    cfg = scene.config
     slaves = {}
     try:
         slaves["plant"] = Slave(pair["plant"], "plant", plant_start_values(scene),
@@ -170,13 +169,11 @@ def tapped_run(scene, unzipped, pair, compiled, fail=None, stop=None):
                                      unzipdir=unzipped["controller"])
         for n, s in slaves.items():
             tap.wrap(n, s)
-        master = Master(slaves, [parse_connection(c) for c in cfg["connections"]], RECORD,
-                        algorithm=cfg["master.algorithm"], first=cfg["master.first"],
-                        step=cfg["master.step"], extrapolation=cfg["master.extrapolation"],
-                        input_derivatives=cfg["master.input_derivatives"], compiled=compiled)
+        master = Master(slaves, scene.connections, RECORD, scene.master, compiled=compiled)
         assert master.loop == ("compiled" if compiled else "python")
         try:
-            res, stats = master.run(0.0, cfg["stop_time"], cfg["output_interval"], stop=stop)
+            res, stats = master.run(0.0, scene.output.stop_time, scene.output.output_interval,
+                                    stop=stop)
             return res, stats, trace, master
         except (CoSimulationError, RunInterrupted) as exc:
             return exc, exc.stats, trace, master
@@ -207,9 +204,9 @@ def test_the_fmi_calls_are_the_same(pair, unzipped, label):
     assert_same_rows(py[0], c[0])
     calls = {f for _, f, *_ in c[2]}
     assert {"fmi2DoStep", "fmi2SetReal", "fmi2GetReal"} <= calls
-    if scene["master.extrapolation"] >= 1:
+    if scene.master.extrapolation >= 1:
         assert {"fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"} <= calls
-    if scene["master.input_derivatives"] and scene["master.extrapolation"] >= 1:
+    if scene.master.input_derivatives and scene.master.extrapolation >= 1:
         assert "fmi2SetRealInputDerivatives" in calls
 
 
@@ -336,7 +333,7 @@ def test_progress_is_reported_up_to_the_end(pair, unzipped):
                                   controller_start_values(scene),
                                   unzipdir=unzipped["controller"])}
     try:
-        m = Master(slaves, [parse_connection(c) for c in scene["connections"]], RECORD,
+        m = Master(slaves, [parse_connection(c) for c in scene.get("connections")], RECORD,
                    step=2e-3, extrapolation=2, input_derivatives=True)
         m.run(0.0, 2.0, 0.002, progress=fractions.append)
     finally:

@@ -8,13 +8,13 @@ from orchestration.studies.fidelity import output_difference, select_model
 from orchestration.studies.reference import simulate_reference
 from orchestration.studies.fit import dominant_oscillation
 from orchestration.job import run_scene
-from orchestration.scene.schema import Scene, load_scene
+from orchestration.scene.schema import load_scene
 
 OUTPUTS = ["x", "phi_o", "omega_o", "F_c"]
 
 
 def _with(scene, **values):
-    return Scene(scene.name, {**scene.config, **{k.replace("__", "."): v for k, v in values.items()}})
+    return load_scene(scene, {k.replace("__", "."): v for k, v in values.items()})
 
 
 def test_rigid_scene_needs_no_mode():
@@ -56,7 +56,7 @@ def test_filtered_scene_small_angle_is_served_by_the_linear_model(fmus):
     scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", "initial.phi=0.05"])
     paths = {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
     r = run_scene(scene, paths, progress=False)
-    assert r.summary["model"]["fidelity"] == "linear" and r.scene["plant.fidelity"] == "linear"
+    assert r.summary["model"]["fidelity"] == "linear" and r.scene.plant.fidelity == "linear"
     assert r.summary["model"]["n_modes"] == 4
     # measured by the co-simulated FMUs: linear and nonlinear plants agree to the tolerance
     assert _cosim_difference(fmus, r.scene) <= r.summary["model"]["tolerance"]
@@ -66,7 +66,7 @@ def test_filtered_scene_small_angle_is_served_by_the_linear_model(fmus):
 def test_filtered_scene_from_pi_over_6_needs_the_nonlinear_model(fmus):
     scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto"])
     resolved, report = select_model(scene)
-    assert resolved["plant.fidelity"] == "nonlinear"
+    assert resolved.plant.fidelity == "nonlinear"
     assert _cosim_difference(fmus, resolved) > report["tolerance"]
 
 

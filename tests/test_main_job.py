@@ -27,7 +27,7 @@ def paths(fmus):
 
 def linear_mode_near(scene, frequency):
     """The closed-loop eigenvalue of the scene's linearised loop nearest to ``frequency``."""
-    lam = np.linalg.eigvals(closed_loop_matrix(scene.plant, scene.controller))
+    lam = np.linalg.eigvals(closed_loop_matrix(scene.plant.params, scene.controller))
     lam = lam[lam.imag > 0]
     return lam[np.argmin(np.abs(lam.imag - frequency))]
 
@@ -146,10 +146,10 @@ def test_output_grid_resolves_the_fastest_plotted_oscillation():
     bending mode the figures show, eta_1 and F_c)."""
     for name in PAPER_SCENES:
         scene = load_scene(name)
-        lam = np.linalg.eigvals(closed_loop_matrix(scene.plant, scene.controller))
+        lam = np.linalg.eigvals(closed_loop_matrix(scene.plant.params, scene.controller))
         shown = [z.imag for z in lam if 0 < z.imag < 300 and -z.real < 0.05 * z.imag]
         for w in shown:
-            assert 2 * math.pi / w / scene["output_interval"] >= 20, (name, w)
+            assert 2 * math.pi / w / scene.output.output_interval >= 20, (name, w)
 
 
 # ---------------------------------------------------------------------- no data lost

@@ -8,8 +8,8 @@ from orchestration.cosim.slave import Slave
 from orchestration.cosim.coupling import _History, extrapolation_weights
 from orchestration.scene.wiring import parse_connection
 from orchestration.studies.reference import simulate_reference
-from orchestration.job import (DEFAULT_CONNECTIONS, RECORD, controller_start_values,
-                               plant_start_values, run_scene)
+from orchestration.job import RECORD, controller_start_values, plant_start_values, run_scene
+from orchestration.scene.records import DEFAULT_CONNECTIONS, MasterSettings
 from orchestration.scene.schema import load_scene
 
 
@@ -103,7 +103,9 @@ def test_rollback_restores_state_exactly(paths):
               "controller": Slave(paths["controller"], "controller",
                                   controller_start_values(scene))}
     try:
-        m = Master(slaves, [parse_connection(c) for c in DEFAULT_CONNECTIONS], RECORD, step=1e-3)
+        m = Master(slaves, [parse_connection(c) for c in DEFAULT_CONNECTIONS], RECORD,
+                   MasterSettings(step=1e-3, first="plant", extrapolation=0,
+                                  input_derivatives=False))
         for s in slaves.values():
             s.initialize(0.0, 1.0)
         hist = {n: _History(3) for n in slaves}
@@ -152,7 +154,7 @@ def test_paper_scenes_verdicts_and_rates_at_small_amplitude(paths, scene, verdic
     r = run_scene(sc, paths, progress=False)
     s = r.summary
     assert s["stable"] is verdict
-    eig = analyze(sc.plant, sc.controller).eigenvalues
+    eig = analyze(sc.plant.params, sc.controller).eigenvalues
     slow_lin = min((z for z in eig if 5 < z.imag < 30), key=lambda z: abs(z.imag - 10.2))
     assert s["slow"]["rate"] == pytest.approx(slow_lin.real, rel=0.10)
     assert s["slow"]["frequency"] == pytest.approx(slow_lin.imag, rel=0.10)

@@ -178,7 +178,7 @@ def test_native_and_pythonfmu_give_the_same_outputs(native, fmus, scene, sets):
     a = run_scene(sc, pair(native), progress=False)
     b = run_scene(sc, pair(fmus), progress=False)
     assert a.summary["stopped"] is None and b.summary["stopped"] is None
-    assert len(a.result) == len(b.result) == round(sc["stop_time"] / sc["output_interval"]) + 1
+    assert len(a.result) == len(b.result) == round(sc.output.stop_time / sc.output.output_interval) + 1
     assert_same(a.result, b.result, rel_exponential="plant.integrator='exponential'" in sets)
 
 
@@ -371,7 +371,7 @@ def _master(paths, *, algorithm="jacobi", extrapolation=0, step=1e-3, stop=2.0, 
     from orchestration.cosim.master import Master
     from orchestration.cosim.slave import Slave
     from orchestration.scene.wiring import parse_connection
-    from orchestration.job import DEFAULT_CONNECTIONS
+    from orchestration.scene.records import DEFAULT_CONNECTIONS
     slaves = {"plant": Slave(paths["FlexiblePendulum"], "plant", start or {"phi0": 0.3}),
               "controller": Slave(paths["PDLowPass"], "controller")}
     rec = {"x_o": ("plant", "x_o"), "phi_o": ("plant", "phi_o"),

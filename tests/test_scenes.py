@@ -10,11 +10,11 @@ from orchestration.scene.schema import PAPER_SCENES, list_scenes, load_scene
 def test_paper_scenes_load_with_the_papers_setup():
     rigid, flex, filt = (load_scene(n) for n in PAPER_SCENES)
     for s in (rigid, flex, filt):
-        assert s["initial.phi"] == pytest.approx(math.pi / 6)
+        assert s.initial.phi == pytest.approx(math.pi / 6)
         assert (s.controller.kp, s.controller.kd) == (500.0, 5.0)
     # the paper's 10 s, but for the unfiltered flexible beam: 2.5 s, while its motion is
     # reproducible (README "Accuracy")
-    assert (rigid["stop_time"], flex["stop_time"], filt["stop_time"]) == (10.0, 2.5, 10.0)
+    assert (rigid.output.stop_time, flex.output.stop_time, filt.output.stop_time) == (10.0, 2.5, 10.0)
     assert rigid.plant.n_modes == 0 and rigid.controller.filter_order == 0
     assert flex.plant.n_modes >= 2 and flex.controller.filter_order == 0
     assert filt.plant.n_modes >= 2 and filt.controller.filter_order > 0
@@ -23,7 +23,7 @@ def test_paper_scenes_load_with_the_papers_setup():
 
 def test_overrides_apply():
     s = load_scene("rigid_pd", ["master.step=5e-4", "plant.n_modes=2", "master.algorithm=jacobi"])
-    assert s["master.step"] == 5e-4 and s.plant.n_modes == 2 and s["master.algorithm"] == "jacobi"
+    assert s.master.step == 5e-4 and s.plant.n_modes == 2 and s.master.algorithm == "jacobi"
 
 
 def _scene(tmp_path, text):
@@ -64,7 +64,7 @@ def test_unknown_scene():
 
 def test_connections_are_validated():
     s = load_scene("rigid_pd")
-    assert "controller.F_c -> plant.F_c" in s["connections"]
+    assert "controller.F_c -> plant.F_c" in s.get("connections")
     with pytest.raises(ConfigError, match="names FMU 'controler'; allowed: plant, controller"):
         load_scene("rigid_pd", ['connections=["plant.phi_o -> controler.phi_o"]'])
     with pytest.raises(ConfigError, match="is not of the form 'fmu.var -> fmu.var'"):

@@ -111,7 +111,7 @@ def test_export_then_run_gives_the_direct_run_bit_for_bit(exported, fmus):
         via_ssp = run_scene(system.scene, system.fmus, progress=False)
     assert via_ssp.result.dtype == direct.result.dtype
     assert np.array_equal(via_ssp.result, direct.result)
-    assert len(direct.result) == round(scene["stop_time"] / scene["output_interval"]) + 1
+    assert len(direct.result) == round(scene.output.stop_time / scene.output.output_interval) + 1
     assert direct.summary["stable"]
 
 
@@ -131,7 +131,7 @@ def test_auto_model_is_chosen_and_written(fmus, tmp_path):
                               "stop_time=3", "--out", str(path))
     assert code == 0, err
     chosen, report = select_model(load_scene("rigid_pd", ["plant.n_modes=auto", "stop_time=3"]))
-    assert chosen["plant.n_modes"] == report["n_modes"] == 0
+    assert chosen.plant.n_modes == report["n_modes"] == 0
     root = ssd_root(path)
     assert bound_values(root, "plant")["n_modes"] == ("Integer", "0")
     (choice,) = root.xpath("//fp:ModelChoice", namespaces=NS)
@@ -177,7 +177,7 @@ def test_a_plain_ssp_of_another_tool_runs_like_the_equivalent_scene(fmus, tmp_pa
         via_ssp = run_scene(system.scene, system.fmus, progress=False)
     direct = run_scene(scene, our_fmus(fmus), progress=False)
     assert np.array_equal(via_ssp.result, direct.result)
-    assert len(direct.result) == round(2.0 / scene["output_interval"]) + 1
+    assert len(direct.result) == round(2.0 / scene.output.output_interval) + 1
     assert np.ptp(direct.result["phi_o"]) > 0.1
     code, out, err = flexpend("run", str(path), "--out", str(tmp_path / "out"))
     assert code == 0, err

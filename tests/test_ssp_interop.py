@@ -29,9 +29,9 @@ from orchestration.scene.schema import load_scene
 pytestmark = pytest.mark.slow
 
 SCENE = load_scene("flexible_pd_lowpass")
-H = SCENE["master.step"]                                      # the archive's step
-STEPS = round(SCENE["stop_time"] / H)                         # the scene's 10 s
-EVERY = round(SCENE["output_interval"] / H)                   # steps per output point
+H = SCENE.master.step                                      # the archive's step
+STEPS = round(SCENE.output.stop_time / H)                         # the scene's 10 s
+EVERY = round(SCENE.output.output_interval / H)                   # steps per output point
 JACOBI = ["master.algorithm=jacobi", "master.extrapolation=0",
           "master.input_derivatives=false", "master.adaptive=false"]
 #: (component, variable) compared at every step
@@ -98,8 +98,8 @@ def our_jacobi(archive, master_class=Master):
     run_module.Master = master_class
     try:
         with read_ssp(archive, JACOBI) as system:
-            assert system.scene["master.step"] == H and system.scene["stop_time"] == STEPS * H
-            assert system.scene["output_interval"] == EVERY * H
+            assert system.scene.master.step == H and system.scene.output.stop_time == STEPS * H
+            assert system.scene.output.output_interval == EVERY * H
             r = run_module.run_scene(system.scene, system.fmus, progress=False)
     finally:
         run_module.Master = saved

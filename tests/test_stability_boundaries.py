@@ -60,9 +60,9 @@ def _observe(scene, paths):
     r = run_scene(scene, paths, progress=False)
     if r.summary["stopped"] is not None:
         return math.inf
-    skip = scene["master.extrapolation"] + 2
+    skip = scene.master.extrapolation + 2
     Y = np.column_stack([r.result[c] for c in OBSERVED])[skip:]
-    rtol = 1e-8 if scene["plant.fidelity"] == "linear" else 1e-6
+    rtol = 1e-8 if scene.plant.fidelity == "linear" else 1e-6
     return observed_spectral_radius(Y, rtol=rtol)
 
 
@@ -153,9 +153,9 @@ def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, 
                       "plant.n_modes": 2, "controller.filter_order": filter_order,
                       "controller.kx": 3.0, "n_steps": 25})
     res = run_scene(scene, paths, progress=False).result
-    plant = linear_plant(scene.plant, drift_free=False)
+    plant = linear_plant(scene.plant.params, drift_free=False)
     ctrl = PDLowPassModel(scene.controller)
-    x0 = linear_plant_model(scene.plant).initial_state(phi=1e-3)
+    x0 = linear_plant_model(scene.plant.params).initial_state(phi=1e-3)
     nx, nc, P = len(x0), ctrl.nx, p_extra + 1
     # z = [x, xc, y_k..y_k-p, F_k..F_k-p]; the consistent initial outputs, no older samples
     z = np.zeros(nx + nc + 3 * P + P)
@@ -167,7 +167,7 @@ def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, 
     for k in range(len(res)):
         x_o, phi_o, omega_o = plant.C @ z[:nx]
         rows.append((phi_o, omega_o, x_o, z[iF]))
-        z = transition_matrix(scene.plant, scene.controller, H, algorithm=algorithm, first=first,
+        z = transition_matrix(scene.plant.params, scene.controller, H, algorithm=algorithm, first=first,
                               extrapolation=p_extra, drift_free=False, step_index=k) @ z
     hand = np.array(rows)
     for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):

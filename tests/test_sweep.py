@@ -1,5 +1,5 @@
 """flexpend sweep: the same table on dask as serially, seeded samples, failed and lost runs,
-resuming, and one-line errors for bad specs (orchestration/sweep/, orchestration/sweep/executor.py).
+resuming, and one-line errors for bad specs (orchestration/sweeps/, orchestration/sweeps/executor.py).
 
 The runs are short (3 s of the filtered scene from 0.05 rad, where the summary's fits are
 reliable) so that the file stays a few seconds long."""
@@ -11,11 +11,11 @@ import scipy.stats
 
 from orchestration.cli import main
 from orchestration.studies.design import UncertaintySet, worst_cases
-from orchestration.sweep.executor import DaskExecutor, Executor, TaskLost
+from orchestration.sweeps.executor import DaskExecutor, Executor, TaskLost
 from orchestration.job import run_scene
 from orchestration.scene.schema import load_scene
-from orchestration.sweep.engine import Journal, read_table, run_sweep, sweep_stats, write_table
-from orchestration.sweep.plan import plan_sweep
+from orchestration.sweeps.engine import Journal, read_table, run_sweep, sweep_stats, write_table
+from orchestration.sweeps.plan import plan_sweep
 from plant_fmu.params import PlantParams
 
 SHORT = ["stop_time=3", "initial.phi=0.05"]
@@ -75,7 +75,7 @@ def test_grid_on_two_workers_equals_serial_and_a_direct_run(paths, cluster, tmp_
         r["slow"]["linear"]["rate"]
     assert row["bending_rate"] == r["bending"]["rate"]
     assert row["max_abs_F_c"] == r["max_abs_F_c"]
-    assert row["steps"] == r["steps"] == round(3 / scene["master.step"])
+    assert row["steps"] == r["steps"] == round(3 / scene.master.step)
     reliable = [m["rate"] for m in (r["slow"], r["bending"]) if m["reliable"]]
     assert reliable and row["decay_rate"] == -max(reliable)
     assert (tmp_path / "dask" / "sweep.png").stat().st_size > 10_000      # the heat map

@@ -23,6 +23,9 @@ import numpy as np
 
 from fmu_common import kernels
 
+from .coupling import weight_table
+from .slave import CoSimulationError, RunInterrupted
+
 __all__ = ["unavailable", "load", "CompiledRun", "KERNEL"]
 
 KERNEL = "flexpend_master"
@@ -95,30 +98,30 @@ def _address(fun) -> int | None:
     return ctypes.cast(fun, _P).value if fun is not None else None
 
 
-def unavailable(master) -> str | None:
-    """Why the compiled loop cannot run ``master`` (a :class:`~orchestration.cosim.master.Master`), or
-    None when it can: a fixed step, and FMI 2.0 FMUs that need no execution tool (a pythonfmu FMU
-    runs Python: it keeps the Python loop), called through fmpy's raw functions, with the
-    capabilities the coupling uses (FMU states for the corrected first step, input derivatives
-    through ``fmi2SetRealInputDerivatives``)."""
-    if master.adaptive:
+def unavailable(coupling, slaves: dict, adaptive: bool) -> str | None:
+    """Why the compiled loop cannot run ``coupling`` (a :class:`~orchestration.cosim.coupling.
+    Coupling`) over ``slaves``, or None when it can: a fixed step, and FMI 2.0 FMUs that need no
+    execution tool (a pythonfmu FMU runs Python: it keeps the Python loop), called through fmpy's
+    raw functions, with the capabilities the coupling uses (FMU states for the corrected first
+    step, input derivatives through ``fmi2SetRealInputDerivatives``)."""
+    if adaptive:
         return "the adaptive communication step runs in Python"
-    for name, s in master.slaves.items():
+    for name, s in slaves.items():
         if s.fmi3:
             return f"{name} is an FMI 3.0 FMU"
         cs = s.md.coSimulation
         if cs is None or cs.needsExecutionTool:
             return f"{name} needs an execution tool (a pythonfmu FMU runs Python)"
-        fun = getattr(s.fmu, "_functions", None)
-        if not fun or getattr(s.fmu, "fmiCallLogger", None) is not None:
+        fun = s.raw_functions()
+        if not fun:
             return f"{name} is not called through fmpy's raw FMI functions (a call logger is set)"
         needed = list(_FUNCTIONS[:3])
-        if master._n_der[name]:
-            if not s.interpolates_inputs:
+        if coupling.n_der[name]:
+            if not coupling.interpolates[name]:
                 return f"{name} takes input derivatives as variables, not through " \
                        "fmi2SetRealInputDerivatives"
             needed.append(_FUNCTIONS[3])
-        if master._correct_startup:
+        if coupling.correct_startup:
             needed += _FUNCTIONS[4:]
         missing = [f for f in needed if fun.get(f) is None]
         if missing:
@@ -131,16 +134,21 @@ def _ints(values, ctype=ctypes.c_int):
 
 
 class CompiledRun:
-    """One fixed-step run of ``master`` in C, from its history after the initial outputs.
+    """One fixed-step run in C of ``coupling`` over ``slaves``, from the signals' history ``hist``
+    after the initial outputs, writing the rows of ``out`` (row 0 written).
 
     ``run(...)`` takes the steps (all, or up to a step whose nodes leave the integer grid) and
     returns the number of steps taken; failures and interruptions raise as in the Python loop.
+    :attr:`steps` and :attr:`rows_written` say how far it got, however it ended.
     """
 
-    def __init__(self, master, hist, t0: float, m: int, total: int, out: np.ndarray):
+    def __init__(self, coupling, slaves: dict, hist, t0: float, m: int, total: int,
+                 out: np.ndarray):
         lib = load()
-        self.lib, self.master, self.t0, self.m, self.total = lib, master, t0, m, total
-        names = list(master.slaves)
+        self.lib, self.coupling, self.t0, self.m, self.total = lib, coupling, t0, m, total
+        self.py_slaves = slaves
+        self.steps, self.rows_written = 0, 1
+        names = list(slaves)
         index = {n: i for i, n in enumerate(names)}
         keep = self._keep = []                   # every buffer the structs point to
 
@@ -156,24 +164,25 @@ class CompiledRun:
 
         self.slaves = (_Slave * len(names))()
         self.hist = {}
+        cp = coupling
         for i, n in enumerate(names):
-            s, c = master.slaves[n], self.slaves[i]
-            fun = s.fmu._functions
-            c.c = s.fmu.component.value if hasattr(s.fmu.component, "value") else s.fmu.component
+            s, c = slaves[n], self.slaves[i]
+            fun = s.raw_functions()
+            c.c = s.instance()
             (c.set_real, c.get_real, c.do_step, c.set_der, c.get_state, c.set_state,
              c.free_state) = [_address(fun.get(f)) for f in _FUNCTIONS]
-            ins = master.inputs[n]
-            n_der = master._n_der[n]
+            ins = cp.inputs[n]
+            n_der = cp.n_der[n]
             c.n_in, c.n_der = len(ins), n_der
-            c.n_out, c.n_rec = len(master.outputs[n]), len(master.recorded[n])
+            c.n_out, c.n_rec = len(cp.outputs[n]), len(cp.recorded[n])
             c.feedthrough = int(bool(s.feedthrough))
             c.in_vr = buf([s.vr(x.dst_var) for x in ins], ctypes.c_uint)
             c.in_src = buf([index[x.src] for x in ins])
-            c.in_idx = buf([master._out_index[x.src][x.src_var] for x in ins])
+            c.in_idx = buf([cp.out_index[x.src][x.src_var] for x in ins])
             c.der_vr = buf([s.vr(x.dst_var) for x in ins] * n_der, ctypes.c_uint)
             c.der_order = buf([k for k in range(1, n_der + 1) for _ in ins])
-            c.out_vr = buf([s.vr(v) for v in master.outputs[n]], ctypes.c_uint)
-            c.rec_vr = buf([s.vr(v) for v in master.recorded[n]], ctypes.c_uint)
+            c.out_vr = buf([s.vr(v) for v in cp.outputs[n]], ctypes.c_uint)
+            c.rec_vr = buf([s.vr(v) for v in cp.recorded[n]], ctypes.c_uint)
             for field, size in (("in_val", c.n_in), ("der_val", c.n_in * n_der),
                                 ("new_val", c.n_out), ("rec_val", c.n_rec), ("saved", c.n_out)):
                 setattr(c, field, work(size).ctypes.data)
@@ -187,18 +196,18 @@ class CompiledRun:
             c.newest = len(samples) - 1
             for j, u in enumerate(samples):
                 h[j, :c.n_out] = u
-        cols = list(master.record.items())
+        cols = list(cp.record.items())
         col_slave = [index[s] for _, (s, _v) in cols]
-        col_rec = [int(v not in master._out_index[s]) for _, (s, v) in cols]
-        col_index = [master.recorded[s].index(v) if r else master._out_index[s][v]
+        col_rec = [int(v not in cp.out_index[s]) for _, (s, v) in cols]
+        col_index = [cp.recorded[s].index(v) if r else cp.out_index[s][v]
                      for (_, (s, v)), r in zip(cols, col_rec)]
         self.rows = out.view(np.float64).reshape(len(out), 1 + len(cols))
         self.struct = st = _Master()
-        st.n_slaves, st.gauss_seidel = len(names), int(master.algorithm == "gauss-seidel")
-        st.p, st.correct_startup = master.p, int(master._correct_startup)
+        st.n_slaves, st.gauss_seidel = len(names), int(cp.algorithm == "gauss-seidel")
+        st.p, st.correct_startup = cp.p, int(cp.correct_startup)
         st.slaves = ctypes.addressof(self.slaves)
-        st.order = buf([index[n] for n in master.order])
-        st.t0, st.h, st.grid_tol, st.total, st.m = t0, master.h, GRID_TOL, total, m
+        st.order = buf([index[n] for n in cp.order])
+        st.t0, st.h, st.grid_tol, st.total, st.m = t0, cp.h, GRID_TOL, total, m
         self.weights = weight_table()
         st.weights = self.weights.ctypes.data
         st.n_cols = len(cols)
@@ -209,9 +218,7 @@ class CompiledRun:
     def run(self, stats, progress=None, stop=None) -> int:
         """Take the steps; the number taken (``total`` unless the grid forced a handover, then
         :meth:`history` gives the signals' history for the Python loop)."""
-        from .slave import CoSimulationError, RunInterrupted
-
-        st, m, master = self.struct, self.m, self.master
+        st, m = self.struct, self.m
         raised = []
         if stop is not None:
             def go_on():
@@ -240,11 +247,11 @@ class CompiledRun:
                 if rc == _STOPPED:
                     if raised:
                         raise raised[0]
-                    raise RunInterrupted(master._t_reached)
+                    raise RunInterrupted(self.t_reached)
                 if rc == _FAILED:
-                    name = list(master.slaves)[st.fail_slave]
+                    name = list(self.py_slaves)[st.fail_slave]
                     t = st.fail_time if st.fail_timed else None
-                    master.slaves[name]._raise(_CALLS[st.fail_call], st.fail_status, t)
+                    raise self.py_slaves[name].error(_CALLS[st.fail_call], st.fail_status, t)
                 if rc == _OFFGRID:
                     return st.k
                 raise CoSimulationError(f"the compiled master refused its arguments (fm_run "
@@ -255,31 +262,19 @@ class CompiledRun:
         return st.k
 
     def _account(self, stats):
-        st, master = self.struct, self.master
-        stats.steps = int(st.k)
-        master._rows = max(master._rows, int(st.rows))
-        master._t_reached = self.t0 + int(st.k) * master.h if st.k else master._t_reached
+        st = self.struct
+        stats.steps = self.steps = int(st.k)
+        self.rows_written = max(self.rows_written, int(st.rows))
+
+    @property
+    def t_reached(self) -> float:
+        """The time of the last step taken (``t0`` before the first)."""
+        return self.t0 + self.steps * self.coupling.h
 
     def history(self, hist):
         """Copy the signals' history into ``hist`` (name -> ``_History``) for the Python loop."""
-        for i, n in enumerate(self.master.slaves):
+        for i, n in enumerate(self.py_slaves):
             c, h = self.slaves[i], self.hist[n]
-            hist[n].t = [self.t0 + j * self.master.h
+            hist[n].t = [self.t0 + j * self.coupling.h
                          for j in range(c.newest - c.count + 1, c.newest + 1)]
             hist[n].u = [h[j, :c.n_out].copy() for j in range(c.count)]
-
-
-def weight_table() -> np.ndarray:
-    """``W[e + 1, k - 1, kind, :k]``: the weights the Python master uses for the ``k`` nodes
-    ``e - k + 1 .. e`` (``e`` the newest node, -1, 0 or 1, in communication steps from the point
-    of evaluation), per kind: the average over [0, 1], the value, the first and the second
-    derivative at 0 (the derivatives unscaled: the loop divides them by ``scale ** kind``)."""
-    from .coupling import _weights
-
-    W = np.zeros((3, 3, 4, 3))
-    for e in (-1, 0, 1):
-        for k in (1, 2, 3):
-            tau = tuple(float(j) for j in range(e - k + 1, e + 1))
-            for i, kind in enumerate(("average", 0, 1, 2)):
-                W[e + 1, k - 1, i, :k] = _weights(tau, kind)
-    return W

@@ -1,5 +1,13 @@
-"""The coupling's arithmetic: the extrapolation polynomials' weights and the history of the signals
-exchanged (the Python and the compiled loop use the same weights).
+"""The coupling of a co-simulation: which FMU gets which signal, in which order, extrapolated how.
+
+:class:`Coupling` is the one description of a communication step that both loops consume, the
+Python loops of :class:`~orchestration.cosim.master.Master` and the compiled loop of
+:mod:`orchestration.cosim.compiled`: the order of the FMUs, each FMU's inputs (gathered from its
+sources' outputs), the outputs exchanged and the ones only recorded, how many input derivatives
+each FMU takes, what its inputs are over a step (held step averages, or values and derivatives),
+and whether the first step is predicted and corrected. Below it, the arithmetic both loops share:
+the extrapolation polynomials' weights (:func:`weight_table` is the compiled loop's copy of
+them) and the history of the exchanged signals.
 """
 from __future__ import annotations
 
@@ -8,7 +16,107 @@ import math
 
 import numpy as np
 
-__all__ = ["extrapolation_weights"]
+from ..scene.records import MasterSettings
+
+__all__ = ["Coupling", "extrapolation_weights", "weight_table", "derivative_name"]
+
+
+def derivative_name(variable: str, order: int) -> str:
+    """The input variable that carries the ``order``-th time derivative of ``variable`` on FMUs
+    that take input derivatives as variables (pythonfmu has no ``fmi2SetRealInputDerivatives``):
+    ``dF_c``, ``d2F_c``."""
+    return f"{'d' if order == 1 else 'd2'}{variable}"
+
+
+class Coupling:
+    """The coupling of ``slaves`` (name -> :class:`~orchestration.cosim.slave.Slave`) wired by
+    ``connections``, recording ``record`` (column -> (slave, variable)), stepped as ``settings``
+    says. A ValueError names a connection to an FMU or a variable that does not exist.
+
+    Public attributes, read by both loops: ``settings``, ``algorithm``, ``order`` (the slaves in
+    stepping order), ``h`` (the communication step), ``p`` (the extrapolation order),
+    ``inputs[n]`` (the connections into ``n``, in order), ``outputs[n]`` (the outputs of ``n``
+    exchanged every step, sorted), ``recorded[n]`` (its outputs only recorded), ``out_index[n]``
+    (output name -> position in ``outputs[n]``), ``gather[n]`` ((source, input positions, output
+    positions) per source of ``n``), ``n_der[n]`` (input derivative orders ``n`` takes, 0 to 2),
+    ``bound_inputs[n]`` (the input variables set on ``n``, derivative variables included),
+    ``kinds[n]`` (what the inputs of ``n`` are over a step: ``("average",)`` held, or ``(0, 1[,
+    2])`` values and derivatives at the step's start), ``targets`` (where each source's rows go
+    in the input buffer) and ``correct_startup`` (the first step predicted and corrected)."""
+
+    def __init__(self, slaves: dict, connections, record: dict,
+                 settings: MasterSettings | None = None):
+        settings = settings or MasterSettings()
+        self.settings = settings
+        self.connections = list(connections)
+        for c in self.connections:
+            for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
+                if fmu not in slaves:
+                    raise ValueError(f"connection {c}: no FMU named {fmu!r}; FMUs: "
+                                     f"{', '.join(slaves)}")
+                slaves[fmu].vr(var)
+        self.record = dict(record)
+        self.algorithm = settings.algorithm
+        names = list(slaves)
+        first = settings.first if settings.first in names else None
+        self.order = names if first is None else [first] + [n for n in names if n != first]
+        self.h = settings.step
+        self.p = settings.extrapolation
+        self.inputs = {n: [c for c in self.connections if c.dst == n] for n in names}
+        self.outputs = {n: sorted({c.src_var for c in self.connections if c.src == n})
+                        for n in names}
+        self.recorded = {n: sorted({v for s, v in self.record.values() if s == n}
+                                   - set(self.outputs[n])) for n in names}
+        self.out_index = {n: {v: i for i, v in enumerate(self.outputs[n])} for n in names}
+        self.gather = {n: [(src, np.array([i for i, c in enumerate(self.inputs[n])
+                                           if c.src == src]),
+                            np.array([self.out_index[src][c.src_var]
+                                      for c in self.inputs[n] if c.src == src]))
+                           for src in dict.fromkeys(c.src for c in self.inputs[n])]
+                       for n in names}
+        # input derivatives: FMI's (fmi2SetRealInputDerivatives) or as the input variables
+        # d<u> and d2<u>; how many orders each slave takes, 0 to 2
+        self.n_der = {n: 0 for n in names}
+        if settings.input_derivatives and self.p >= 1:
+            for n in names:
+                dst_vars = [c.dst_var for c in self.inputs[n]]
+                if slaves[n].interpolates_inputs:
+                    self.n_der[n] = (2 if self.p >= 2 else 1) if dst_vars else 0
+                    continue
+                var = slaves[n].variables
+                has = [all(derivative_name(v, k) in var
+                           and var[derivative_name(v, k)].causality == "input"
+                           for v in dst_vars) for k in (1, 2)]
+                self.n_der[n] = 0 if not (dst_vars and has[0]) else (
+                    2 if has[1] and self.p >= 2 else 1)
+        #: whether an FMU takes its input derivatives through fmi2SetRealInputDerivatives
+        self.interpolates = {n: slaves[n].interpolates_inputs for n in names}
+        self.bound_inputs = {
+            n: [c.dst_var for c in self.inputs[n]] + (
+                [] if self.interpolates[n] else
+                [derivative_name(c.dst_var, k) for k in range(1, self.n_der[n] + 1)
+                 for c in self.inputs[n]])
+            for n in names}
+        self.targets = {(n, src, nk): pos[None, :] + len(self.inputs[n]) * np.arange(nk)[:, None]
+                        for n in names for src, pos, _ in self.gather[n] for nk in (1, 2, 3)}
+        self.kinds = {n: tuple(range(self.n_der[n] + 1)) if self.n_der[n] else ("average",)
+                      for n in names}
+        self.correct_startup = self.p >= 1 and all(
+            s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values())
+
+    def bind(self, slaves: dict):
+        """Preallocate every slave's buffers for the signals this coupling exchanges."""
+        for n, s in slaves.items():
+            s.bind(self.bound_inputs[n], self.outputs[n], self.recorded[n],
+                   derivative_orders=self.n_der[n] if self.interpolates[n] else 0)
+
+    def table(self) -> str:
+        """The connections as a two-column table (``flexpend run --connections``)."""
+        rows = [("from", "to")] + [(f"{c.src}.{c.src_var}", f"{c.dst}.{c.dst_var}")
+                                   for c in self.connections]
+        w = max(len(r[0]) for r in rows)
+        return "\n".join(f"{a:<{w}}  ->  {b}" if i else f"{a:<{w}}      {b}"
+                         for i, (a, b) in enumerate(rows))
 
 
 # ---------------------------------------------------------------------- extrapolation
@@ -88,3 +196,16 @@ class _History:
     def restore(self, snap):
         self.t, self.u = list(snap[0]), list(snap[1])
 
+
+def weight_table() -> np.ndarray:
+    """``W[e + 1, k - 1, kind, :k]``: the weights the Python master uses for the ``k`` nodes
+    ``e - k + 1 .. e`` (``e`` the newest node, -1, 0 or 1, in communication steps from the point
+    of evaluation), per kind: the average over [0, 1], the value, the first and the second
+    derivative at 0 (the derivatives unscaled: the loop divides them by ``scale ** kind``)."""
+    W = np.zeros((3, 3, 4, 3))
+    for e in (-1, 0, 1):
+        for k in (1, 2, 3):
+            tau = tuple(float(j) for j in range(e - k + 1, e + 1))
+            for i, kind in enumerate(("average", 0, 1, 2)):
+                W[e + 1, k - 1, i, :k] = _weights(tau, kind)
+    return W

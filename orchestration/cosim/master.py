@@ -28,13 +28,15 @@ from __future__ import annotations
 import math
 import time as _time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from fmu_common.kernels import KernelError
 
-from .coupling import _History, _weight_rows
+from ..scene.records import MasterSettings
+from . import compiled as compiled_master
+from .coupling import Coupling, _History, _weight_rows
 from .slave import CoSimulationError, RunInterrupted
 
 __all__ = ["RunStats", "Master"]
@@ -57,99 +59,37 @@ class Master:
     """Steps FMUs wired by name.
 
     ``slaves``: name -> :class:`Slave`; ``connections``: :class:`Connection` list;
-    ``record``: column -> (slave name, variable) to store at every output point.
+    ``record``: column -> (slave name, variable) to store at every output point; ``settings``:
+    the scene's :class:`~orchestration.scene.records.MasterSettings` (the coupling), with
+    ``changes`` to its fields applied (``Master(..., step=1e-3)``).
 
-    ``compiled``: ``"auto"`` (default) runs a fixed-step run in C
+    ``settings.compiled``: ``"auto"`` (default) runs a fixed-step run in C
     (:mod:`orchestration.cosim.compiled`) when every FMU can take it (FMI 2.0 FMUs that need no
     execution tool: the native FMUs) and in Python otherwise; ``False`` always in Python;
     ``True`` in C or a ValueError saying why not. Both loops give bit-identical results;
     :attr:`loop` says which one runs.
     """
 
-    def __init__(self, slaves: dict, connections, record: dict, *, algorithm="gauss-seidel",
-                 first=None, step=1e-3, extrapolation=0, adaptive=False, tolerance=1e-4,
-                 min_step=1e-6, max_step=2e-2, input_derivatives=False, compiled="auto"):
-        if not (isinstance(compiled, bool) or compiled == "auto"):
-            raise ValueError(f"compiled = {compiled!r}; allowed: 'auto', True, False")
-        if algorithm not in ("gauss-seidel", "jacobi"):
-            raise ValueError(f"algorithm = {algorithm!r}; allowed: gauss-seidel, jacobi")
-        if extrapolation not in (0, 1, 2):
-            raise ValueError(f"extrapolation = {extrapolation!r}; allowed: 0, 1, 2")
-        if not step > 0:
-            raise ValueError(f"step = {step!r}; allowed: > 0")
+    def __init__(self, slaves: dict, connections, record: dict,
+                 settings: MasterSettings | None = None, **changes):
+        settings = settings or MasterSettings()
+        if changes:
+            settings = replace(settings, **changes)
+        compiled = settings.compiled
+        self.settings = settings
         self.slaves = slaves
-        self.connections = list(connections)
-        for c in self.connections:
-            for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
-                if fmu not in slaves:
-                    raise ValueError(f"connection {c}: no FMU named {fmu!r}; FMUs: "
-                                     f"{', '.join(slaves)}")
-                slaves[fmu].vr(var)
-        self.record = dict(record)
-        self.algorithm = algorithm
-        names = list(slaves)
-        self.order = names if first is None else [first] + [n for n in names if n != first]
-        self.h = float(step)
-        self.p = int(extrapolation)
-        self.adaptive = bool(adaptive)
-        self.tol = float(tolerance)
-        self.min_step, self.max_step = float(min_step), float(max_step)
-        # per-slave input connections (in order) and the outputs each slave must provide
-        self.inputs = {n: [c for c in self.connections if c.dst == n] for n in names}
-        #: outputs exchanged every step (connection sources), and outputs only recorded
-        self.outputs = {n: sorted({c.src_var for c in self.connections if c.src == n})
-                        for n in names}
-        self.recorded = {n: sorted({v for s, v in self.record.values() if s == n}
-                                   - set(self.outputs[n])) for n in names}
-        for n, s in slaves.items():
-            s.bind([c.dst_var for c in self.inputs[n]], self.outputs[n], self.recorded[n])
-        self._out_index = {n: {v: i for i, v in enumerate(self.outputs[n])} for n in names}
-        # each slave's inputs gathered from its sources: (source, input positions, output indices)
-        self._gather = {n: [(src, np.array([i for i, c in enumerate(self.inputs[n])
-                                            if c.src == src]),
-                             np.array([self._out_index[src][c.src_var]
-                                       for c in self.inputs[n] if c.src == src]))
-                            for src in dict.fromkeys(c.src for c in self.inputs[n])]
-                        for n in names}
-        # input derivatives (FMI's, as the input variables d<u> and d2<u>; pythonfmu FMUs cannot
-        # take fmi2SetRealInputDerivatives): how many orders each slave takes, 0 to 2
-        self.input_derivatives = bool(input_derivatives)
-        self._n_der = {n: 0 for n in names}
-        if self.input_derivatives and self.p >= 1:
-            for n in names:
-                dst_vars = [c.dst_var for c in self.inputs[n]]
-                if slaves[n].interpolates_inputs:      # fmi2SetRealInputDerivatives
-                    self._n_der[n] = (2 if self.p >= 2 else 1) if dst_vars else 0
-                    continue
-                has = [all(f"{'d' if k == 1 else 'd2'}{v}" in slaves[n].variables and
-                           slaves[n].variables[f"{'d' if k == 1 else 'd2'}{v}"].causality
-                           == "input" for v in dst_vars) for k in (1, 2)]
-                self._n_der[n] = 0 if not (dst_vars and has[0]) else (
-                    2 if has[1] and self.p >= 2 else 1)
-        for n, s in slaves.items():
-            if s.interpolates_inputs:
-                if self._n_der[n]:
-                    s.bind([c.dst_var for c in self.inputs[n]], self.outputs[n],
-                           self.recorded[n], derivative_orders=self._n_der[n])
-                continue
-            extra = [f"{'d' if k == 1 else 'd2'}{c.dst_var}" for k in range(1, self._n_der[n] + 1)
-                     for c in self.inputs[n]]
-            if extra:
-                s.bind([c.dst_var for c in self.inputs[n]] + extra, self.outputs[n],
-                       self.recorded[n])
-        self._in_buf = {n: np.zeros(len(self.inputs[n]) * (1 + self._n_der[n])) for n in names}
-        # where the rows of each source's polynomial go in the input buffer (per number of rows)
-        self._targets = {(n, src, nk): pos[None, :] + len(self.inputs[n]) * np.arange(nk)[:, None]
-                         for n in names for src, pos, _ in self._gather[n] for nk in (1, 2, 3)}
-        #: what each slave's inputs are: held step averages, or values and derivatives
-        self._kinds = {n: tuple(range(self._n_der[n] + 1)) if self._n_der[n] else ("average",)
-                       for n in names}
-        #: predict and correct the first step (needs every FMU's state; see _startup_step)
-        self._correct_startup = self.p >= 1 and all(
-            s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values())
-        from . import compiled as compiled_master
+        #: the coupling both loops step (order, inputs, extrapolation, start-up)
+        self.coupling = coupling = Coupling(slaves, connections, record, settings)
+        coupling.bind(slaves)
+        self.record = coupling.record
+        self.h = settings.step
+        self.adaptive = settings.adaptive
+        self.tol = settings.tolerance
+        self.min_step, self.max_step = settings.min_step, settings.max_step
+        self._in_buf = {n: np.zeros(len(coupling.inputs[n]) * (1 + coupling.n_der[n]))
+                        for n in slaves}
         #: why the compiled loop cannot run these FMUs (None: it can)
-        self.compiled_unavailable = compiled_master.unavailable(self)
+        self.compiled_unavailable = compiled_master.unavailable(coupling, slaves, self.adaptive)
         if compiled and not self.compiled_unavailable:
             try:
                 compiled_master.load()       # before any run
@@ -164,18 +104,14 @@ class Master:
         self.loop = "compiled" if compiled and not self.compiled_unavailable else "python"
 
     def connection_table(self) -> str:
-        rows = [("from", "to")] + [(f"{c.src}.{c.src_var}", f"{c.dst}.{c.dst_var}")
-                                   for c in self.connections]
-        w = max(len(r[0]) for r in rows)
-        return "\n".join(f"{a:<{w}}  ->  {b}" if i else f"{a:<{w}}      {b}"
-                         for i, (a, b) in enumerate(rows))
+        return self.coupling.table()
 
     # ------------------------------------------------------------------ stepping
     def _combination(self, h: "_History", t: float, scale: float, kinds: tuple):
         """Rows ``kinds`` (``"average"`` over ``[t, t + scale]``, or the ``j``-th derivative at
         ``t``) of the polynomial through the newest ``p + 1`` samples of ``h`` (fewer at the
         start): an array ``len(kinds) x outputs``, derivatives in time units."""
-        k = min(self.p + 1, len(h.t))
+        k = min(self.coupling.p + 1, len(h.t))
         ts = h.t
         if k == 1:
             tau = (round((ts[-1] - t) / scale, 9),)
@@ -200,19 +136,19 @@ class Master:
         rows, as bound (``kinds[j]`` fills the ``j``-th block of ``len(inputs)`` entries)."""
         buf = self._in_buf[dst]
         nk = len(kinds)
-        for src, pos, idx in self._gather[dst]:
-            buf[self._targets[dst, src, nk]] = self._combination(hist[src], t, scale, kinds)[:, idx]
+        for src, pos, idx in self.coupling.gather[dst]:
+            buf[self.coupling.targets[dst, src, nk]] = self._combination(hist[src], t, scale, kinds)[:, idx]
         return buf
 
     def _held_inputs(self, dst, hist, t0, t1):
         """Input values for ``dst`` over ``[t0, t1]``: the polynomials' step averages, held; or,
         for a slave taking input derivatives, the polynomials at ``t0`` and their derivatives
         (the FMU integrates the polynomial over its step)."""
-        return self._fill(dst, hist, t0, t1 - t0, self._kinds[dst])
+        return self._fill(dst, hist, t0, t1 - t0, self.coupling.kinds[dst])
 
     def _point_inputs(self, dst, hist, t1):
         """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there; only
-        the first ``len(self.inputs[dst])`` entries, the values, are meant)."""
+        the first ``len(self.coupling.inputs[dst])`` entries, the values, are meant)."""
         return self._fill(dst, hist, t1, self.h, (0,))
 
     def _outputs_after_step(self, n, hist, t1):
@@ -221,24 +157,24 @@ class Master:
         inputs are first moved to their values at ``t1``, so that every sample of the history
         belongs to its time stamp."""
         s = self.slaves[n]
-        if s.feedthrough and self.inputs[n]:
-            s.set_inputs(self._point_inputs(n, hist, t1), t1, n=len(self.inputs[n]))
+        if s.feedthrough and self.coupling.inputs[n]:
+            s.set_inputs(self._point_inputs(n, hist, t1), t1, n=len(self.coupling.inputs[n]))
         return s.get_outputs(t1)
 
     def _macro_step(self, hist, t0, t1):
         """One communication step; returns the new outputs of every slave."""
         h = t1 - t0
         new = {}
-        if self.algorithm == "jacobi":
-            for n in self.order:
+        if self.coupling.algorithm == "jacobi":
+            for n in self.coupling.order:
                 self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), t0)
-            for n in self.order:
+            for n in self.coupling.order:
                 self.slaves[n].do_step(t0, h)
-            for n in self.order:
+            for n in self.coupling.order:
                 new[n] = self._outputs_after_step(n, hist, t1)
         else:
             pushed, replaced = [], []
-            for n in self.order:
+            for n in self.coupling.order:
                 self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), t0)
                 self.slaves[n].do_step(t0, h)
                 new[n] = self._outputs_after_step(n, hist, t1)
@@ -277,14 +213,14 @@ class Master:
         return new
 
     def _step(self, hist, t0, t1):
-        if self._correct_startup and len(hist[self.order[0]].t) == 1:
+        if self.coupling.correct_startup and len(hist[self.coupling.order[0]].t) == 1:
             return self._startup_step(hist, t0, t1)
         return self._macro_step(hist, t0, t1)
 
     def _coupling_error(self, hist, new, t1):
         """Weighted max difference between the predicted and the actual source outputs."""
         err = 0.0
-        for src in dict.fromkeys(c.src for c in self.connections):
+        for src in dict.fromkeys(c.src for c in self.coupling.connections):
             if len(hist[src].t) == 0:
                 continue
             pred = self._combination(hist[src], t1, self.h, (0,))[0]
@@ -299,11 +235,11 @@ class Master:
         feedthrough output is read."""
         cur = {n: s.get_outputs(t0) for n, s in self.slaves.items()}
         for _ in range(2):
-            for n in self.order:
-                if self.inputs[n]:
+            for n in self.coupling.order:
+                if self.coupling.inputs[n]:
                     vals = np.zeros(self._in_buf[n].size)     # input derivatives 0
-                    vals[:len(self.inputs[n])] = [cur[c.src][self._out_index[c.src][c.src_var]]
-                                                  for c in self.inputs[n]]
+                    vals[:len(self.coupling.inputs[n])] = [cur[c.src][self.coupling.out_index[c.src][c.src_var]]
+                                                  for c in self.coupling.inputs[n]]
                     self.slaves[n].set_inputs(vals, t0)
                     cur[n] = self.slaves[n].get_outputs(t0)
         return cur
@@ -343,10 +279,14 @@ class Master:
                 total = n_out * m
                 k0 = 0
                 if self.loop == "compiled":
-                    from .compiled import CompiledRun
                     stats.loop = "compiled"
-                    run = CompiledRun(self, hist, t0, m, total, out)
-                    k0 = run.run(stats, progress, stop)
+                    run = compiled_master.CompiledRun(self.coupling, self.slaves, hist, t0, m,
+                                                      total, out)
+                    try:
+                        k0 = run.run(stats, progress, stop)
+                    finally:
+                        self._rows = max(self._rows, run.rows_written)
+                        self._t_reached = run.t_reached
                     if k0 < total:       # a node left the integer grid: Python goes on
                         run.history(hist)
                         stats.loop = f"compiled, then python from step {k0}"
@@ -396,7 +336,7 @@ class Master:
                     err, discarded = math.inf, True
                 step = t1 - t
                 # the coupling error is O(h^(k)) per step with k samples in the polynomial
-                expo = -1.0 / min(self.p + 1, len(hist[self.order[0]].t))
+                expo = -1.0 / min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t))
                 if err > 1.0 and step > self.min_step * (1 + 1e-9):
                     stats.rejected += 1
                     stats.rejected_times.append(t)
@@ -435,11 +375,11 @@ class Master:
 
     def _store(self, out, i, t, cur):
         """Row ``i``: time, then the recorded outputs (the slaves are at ``t``)."""
-        rec = {n: (dict(zip(self.recorded[n], s.get_recorded(t).tolist()))
-                   if self.recorded[n] else {}) for n, s in self.slaves.items()}
+        rec = {n: (dict(zip(self.coupling.recorded[n], s.get_recorded(t).tolist()))
+                   if self.coupling.recorded[n] else {}) for n, s in self.slaves.items()}
         row = [t]
         for col, (s, v) in self.record.items():
-            i_out = self._out_index[s].get(v)
+            i_out = self.coupling.out_index[s].get(v)
             row.append(cur[s][i_out] if i_out is not None else rec[s][v])
         out[i] = tuple(row)
         self._rows = max(self._rows, i + 1)

@@ -4,12 +4,15 @@ above warning becomes one :class:`CoSimulationError` in one place (:meth:`Slave.
 """
 from __future__ import annotations
 
+import functools
+import os
+
 import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2Integer, fmi2Real, fmi2True, fmi2ValueReference
 
-__all__ = ["CoSimulationError", "RunInterrupted", "Slave"]
+__all__ = ["describe", "CoSimulationError", "RunInterrupted", "Slave"]
 
 
 _STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
@@ -40,6 +43,19 @@ class RunInterrupted(Exception):
         self.stats = stats
 
 
+
+def describe(path):
+    """The FMU's model description (fmpy's ``read_model_description``), read once per file and
+    content: every caller in a process (the wiring check, the slaves) shares it."""
+    st = os.stat(path)
+    return _describe(os.fspath(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=64)
+def _describe(path: str, mtime_ns: int, size: int):
+    return read_model_description(path)
+
+
 class Slave:
     """One co-simulation FMU instance, with typed start values and fast real I/O."""
 
@@ -47,7 +63,7 @@ class Slave:
                  unzipdir=None):
         self.name = name
         self.path = str(path)
-        self.md = read_model_description(self.path)
+        self.md = describe(self.path)
         self.variables = {v.name: v for v in self.md.modelVariables}
         self.messages: list[str] = []
         self._log_level = log_level
@@ -127,10 +143,28 @@ class Slave:
             self._raise(what, exc.status, t)
 
     def _raise(self, what, status, t):
+        raise self.error(what, status, t) from None
+
+    def error(self, what: str, status: int, t=None) -> CoSimulationError:
+        """The :class:`CoSimulationError` of the call ``what`` (at time ``t``) that returned the
+        FMI status ``status``: it names this FMU, the call, the status and the FMU's log."""
         log = "; ".join(self.messages[-3:]) or "no log message"
         at = f" at t = {t:.6g}" if t is not None else ""
-        raise CoSimulationError(f"{self.name}: {what}{at} returned {_STATUS[status]}: {log}",
-                                status=status, time=t) from None
+        return CoSimulationError(f"{self.name}: {what}{at} returned {_STATUS[status]}: {log}",
+                                 status=status, time=t)
+
+    def raw_functions(self) -> dict:
+        """The FMI functions as fmpy loaded them (name -> ctypes function), for callers that
+        call the FMU directly (the compiled loop); empty when fmpy wraps the calls (a call
+        logger is set)."""
+        if self.fmu is None or getattr(self.fmu, "fmiCallLogger", None) is not None:
+            return {}
+        return dict(getattr(self.fmu, "_functions", {}))
+
+    def instance(self) -> int:
+        """The FMU instance's address (``fmi2Component``)."""
+        c = self.fmu.component
+        return c.value if hasattr(c, "value") else c
 
     def vr(self, name: str) -> int:
         try:

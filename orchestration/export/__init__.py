@@ -16,6 +16,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from . import places
 from .native_fmus import NativeBuildError, build_native_fmus
 from .python_fmus import BuildError
 
@@ -38,8 +39,8 @@ def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = 
     if fmi_version not in (2, 3) or (flavour == "python" and fmi_version != 2):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2 (both flavours), 3 (native)")
     if flavour == "python":
-        from .python_fmus import DEFAULT_OUT, build_fmus as build_python
-        return build_python(Path(out_dir) if out_dir else DEFAULT_OUT, names, force)
+        from .python_fmus import build_fmus as build_python
+        return build_python(Path(out_dir) if out_dir else None, names, force)
     try:
         return build_native_fmus(Path(out_dir) if out_dir else None, names, force, fmi_version)
     except NativeBuildError as exc:
@@ -56,11 +57,12 @@ def main(argv=None) -> int:
     """``python build/build_fmus.py``: build the pythonfmu FMUs, and with ``--references``
     regenerate the reference results under ``tests/reference/``."""
     from .check import write_references
-    from .python_fmus import DEFAULT_OUT, SPECS, build_fmus as build_python, is_stale
+    from .python_fmus import SPECS, build_fmus as build_python, is_stale
 
     ap = argparse.ArgumentParser(prog="build_fmus.py", description="Build the FlexiblePendulum and PDLowPass FMUs (pythonfmu) into build/fmus/, only those whose sources changed.")
     ap.add_argument("names", nargs="*", help=f"FMUs to build (default: all of {', '.join(SPECS)})")
-    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output folder (default: build/fmus)")
+    ap.add_argument("--out", default=str(places.fmu_dir()),
+                    help="output folder (default: build/fmus in a checkout)")
     ap.add_argument("--force", action="store_true", help="rebuild even if up to date")
     ap.add_argument("--references", action="store_true",
                     help="also regenerate the reference results under tests/reference/")

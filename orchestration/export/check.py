@@ -466,13 +466,13 @@ def write_reference(fmu, reference, outputs=None) -> dict:
 # ---------------------------------------------------------------------- plot
 def plot_check(report: CheckReport, path) -> Path:
     """Each signal over its band: the reference, the band, the result, the samples outside."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..report.figures import new_figure
+    from ..report.files import save_figure
 
     signals = list(report.signals.values())
     n = max(1, len(signals))
-    fig, axes = plt.subplots(n, 1, figsize=(9, 1.9 * n + 0.8), sharex=True, squeeze=False)
+    fig = new_figure(9, 1.9 * n + 0.8)
+    axes = fig.subplots(n, 1, sharex=True, squeeze=False)
     res = report.run.result
     ref = report.reference
     t_ref = ref[ref.dtype.names[0]]
@@ -502,8 +502,7 @@ def plot_check(report: CheckReport, path) -> Path:
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
     return path
 
 

@@ -27,11 +27,12 @@ import sysconfig
 import tempfile
 from pathlib import Path
 
-__all__ = ["LOADER_DIR", "CACHE_DIR", "LoaderBuildError", "loader_platforms", "loader_files",
+from . import places
+
+__all__ = ["LOADER_DIR", "LoaderBuildError", "loader_platforms", "loader_files",
            "build_loader", "install_loader", "loader_table", "recorded_python", "SUFFIX"]
 
 LOADER_DIR = Path(__file__).resolve().parents[2] / "fmu_common" / "loader"
-CACHE_DIR = Path(__file__).resolve().parents[2] / "build" / "loader"
 SUFFIX = {"linux64": ".so", "win64": ".dll"}
 
 _CFLAGS = ["-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation", "-fvisibility=hidden"]
@@ -70,11 +71,12 @@ def _digest(platform: str) -> str:
     return h.hexdigest()[:16]
 
 
-def build_loader(platform: str, cache_dir: Path = CACHE_DIR) -> Path:
-    """Compile the loader for ``platform`` (or take it from the cache); return its path."""
+def build_loader(platform: str, cache_dir: Path | None = None) -> Path:
+    """Compile the loader for ``platform`` (or take it from the cache,
+    :func:`.places.loader_cache` by default); return its path."""
     if platform not in _COMPILERS:
         raise ValueError(f"unknown platform {platform!r}; known: {', '.join(_COMPILERS)}")
-    target = Path(cache_dir) / platform / _digest(platform) / f"fmi2_loader{SUFFIX[platform]}"
+    target = Path(cache_dir or places.loader_cache()) / platform / _digest(platform) / f"fmi2_loader{SUFFIX[platform]}"
     if target.is_file():
         return target
     cc, cxx, cflags, ldflags = _COMPILERS[platform]

@@ -39,16 +39,16 @@ from pathlib import Path
 
 from fmu_common import kernels
 
+from . import places
 from .model_description import TABLES, fmi2_model_description, fmi3_model_description
 
-__all__ = ["DEFAULT_OUT", "MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PLATFORMS",
+__all__ = ["MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PLATFORMS",
            "build_native_fmus", "build_native_fmu", "generate_header", "fmi_include_dir",
            "source_digest", "NativeBuildError"]
 
 ROOT = kernels.ROOT
 #: the FMI layers every native FMU is built from
 SRC = ROOT / "fmu_common" / "native"
-DEFAULT_OUT = ROOT / "build" / "fmus" / "native"
 #: The meshes and modes the native plant carries tables for (the pythonfmu plant computes any).
 NE_MAX = 100
 N_MODES_MAX = 8
@@ -233,7 +233,7 @@ def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = Non
         raise ValueError(f"unknown FMU {name!r}; known: {', '.join(MODELS)}")
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
-    out_dir = Path(out_dir or DEFAULT_OUT) / f"fmi{fmi_version}"
+    out_dir = Path(out_dir or places.native_fmu_dir()) / f"fmi{fmi_version}"
     target = out_dir / f"{name}.fmu"
     platforms = kernels.available_platforms() if platforms is None else list(platforms)
     digest = source_digest(name, fmi_version, platforms)

@@ -42,13 +42,12 @@ from pathlib import Path
 
 from fmu_common import kernels
 
-from . import loader_build
+from . import loader_build, places
 
-__all__ = ["ROOT", "DEFAULT_OUT", "SPECS", "FmuSpec", "BuildError", "build_fmus", "build_fmu",
+__all__ = ["ROOT", "SPECS", "FmuSpec", "BuildError", "build_fmus", "build_fmu",
            "is_stale", "source_digest", "fmu_digest", "spec_kernels"]
 
 ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_OUT = ROOT / "build" / "fmus"
 STAMP = "resources/flexpend_build.json"
 #: Bump to force a rebuild when the build itself changes in a way the sources do not show.
 BUILD_FORMAT = 4
@@ -123,16 +122,17 @@ def fmu_digest(path: Path) -> str | None:
         return None
 
 
-def is_stale(name: str, out_dir: Path = DEFAULT_OUT) -> bool:
-    path = Path(out_dir) / f"{name}.fmu"
+def is_stale(name: str, out_dir: Path | None = None) -> bool:
+    path = Path(out_dir or places.fmu_dir()) / f"{name}.fmu"
     return fmu_digest(path) != source_digest(SPECS[name])
 
 
 # ---------------------------------------------------------------------- build
-def build_fmu(name: str, out_dir: Path = DEFAULT_OUT, force: bool = False) -> Path:
-    """Build one FMU into ``out_dir`` unless it is up to date; return its path."""
+def build_fmu(name: str, out_dir: Path | None = None, force: bool = False) -> Path:
+    """Build one FMU into ``out_dir`` (default: :func:`.places.fmu_dir`) unless it is up to
+    date; return its path."""
     spec = SPECS[name]
-    out_dir = Path(out_dir)
+    out_dir = Path(out_dir or places.fmu_dir())
     target = out_dir / f"{name}.fmu"
     platforms = kernels.available_platforms()
     digest = source_digest(spec)
@@ -169,7 +169,7 @@ def build_fmu(name: str, out_dir: Path = DEFAULT_OUT, force: bool = False) -> Pa
     return target
 
 
-def build_fmus(out_dir: Path = DEFAULT_OUT, names=None, force: bool = False) -> dict:
+def build_fmus(out_dir: Path | None = None, names=None, force: bool = False) -> dict:
     """Build (if stale) every FMU of :data:`SPECS` (or ``names``); return name -> path."""
     names = list(SPECS) if names is None else list(names)
     unknown = sorted(set(names) - set(SPECS))

@@ -7,11 +7,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..scene.ssp import write_ssp
+from ..studies.fidelity import select_model
+from .flavours import DEFAULT_FLAVOUR, fmu_paths
 
 __all__ = ["ExportResult", "export_scene"]
 
 
-# ---------------------------------------------------------------------- writing
 @dataclass
 class ExportResult:
     path: Path
@@ -25,13 +26,9 @@ def export_scene(scene, flavour: str | None = None, out=None, progress=None) -> 
     :data:`~orchestration.export.flavours.DEFAULT_FLAVOUR`); ``plant.n_modes``/``plant.fidelity``
     ``"auto"`` are chosen first (:func:`orchestration.studies.fidelity.select_model`), and the chosen
     model is written."""
-    from ..scene.schema import needs_selection
-    from ..studies.fidelity import select_model
-    from .flavours import DEFAULT_FLAVOUR, fmu_paths
-
     fmus = fmu_paths(flavour or DEFAULT_FLAVOUR)
     model = None
-    if needs_selection(scene):
+    if not scene.resolved:
         scene, model = select_model(scene, progress)
     path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
     write_ssp(scene, fmus, path, model=model)

@@ -3,15 +3,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["plot_time_histories", "plot_snapshots", "beam_shape", "plot_paper_overview",
-           "plot_loop_bode", "plot_root_locus", "plot_worst_case"]
+__all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "loop_bode",
+           "root_locus", "worst_case", "new_figure"]
 
 
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
+def new_figure(width: float, height: float):
+    """A matplotlib Figure of its own (no pyplot: the process's backend and pyplot's figures are
+    left alone); :func:`orchestration.report.files.save_figure` writes it."""
+    from matplotlib.figure import Figure
+    return Figure(figsize=(width, height))
 
 
 def _wrapped(text: str, width: int = 95) -> str:
@@ -29,17 +29,16 @@ PANELS = {
 }
 
 
-def plot_time_histories(result, name: str, description: str, path, reference=None,
-                        summary=None):
+def time_histories(result, scene, reference=None, summary=None):
     """The paper's time histories (Figs. 3, 4, 6, 7): tip angle, first modal coordinate, tip
     deflection, force and cart position against time. The bending panels are left out for a
     rigid model. With a ``summary`` the fit windows are shaded, the validity bound of the tip
     deflection drawn and an early stop marked."""
-    plt = _pyplot()
     t = result["time"]
     cols = [c for c in PANELS if not (c in ("eta_1", "tip_deflection") and not np.any(result[c]))]
     height = 1.9 * len(cols) + 1.2
-    fig, axes = plt.subplots(len(cols), 1, figsize=(9, height), sharex=True)
+    fig = new_figure(9, height)
+    axes = fig.subplots(len(cols), 1, sharex=True)
     # fixed margins (a layout engine costs a second per figure): 0.95 in at the top for the
     # two-line title, room for the labels on the left and below
     fig.subplots_adjust(left=0.1, right=0.98, top=1 - 0.95 / height, bottom=0.55 / height,
@@ -76,9 +75,8 @@ def plot_time_histories(result, name: str, description: str, path, reference=Non
     if reference is not None:
         axes[0].legend(loc="upper right", fontsize=7)
     axes[-1].set_xlabel("time (s)")
-    fig.suptitle(f"{name}\n{_wrapped(description)}", fontsize=9)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    fig.suptitle(f"{scene.name}\n{_wrapped(scene.description or scene.name)}", fontsize=9)
+    return fig
 
 
 def beam_shape(beam, x, phi, eta, scale: float = 1.0):
@@ -91,14 +89,13 @@ def beam_shape(beam, x, phi, eta, scale: float = 1.0):
     return x + s * b1[0] + w * b2[0], s * b1[1] + w * b2[1]
 
 
-def plot_snapshots(beam, frames, title: str, path):
+def snapshots(beam, frames, scene):
     """Beam shapes at several times (the paper's Figs. 5 and 8), two rows of panels; each
     panel's horizontal axis is the rail in metres, centred on the cart, which is drawn at its
     position. ``frames``: list of ``(t, x, phi, eta)``. A deflection that would not show (below
     2 % of L everywhere) is magnified, and the title says by how much."""
     import math
 
-    plt = _pyplot()
     from matplotlib.patches import Rectangle
 
     n = len(frames)
@@ -111,7 +108,8 @@ def plot_snapshots(beam, frames, title: str, path):
     ncol = min(n, 4)
     nrow = math.ceil(n / ncol)
     width, height = 2.45 * ncol + 0.4, 2.05 * nrow + 0.5
-    fig, axes = plt.subplots(nrow, ncol, figsize=(width, height), squeeze=False)
+    fig = new_figure(width, height)
+    axes = fig.subplots(nrow, ncol, squeeze=False)
     fig.subplots_adjust(left=0.55 / width, right=1 - 0.1 / width, top=1 - 0.45 / height,
                         bottom=0.45 / height, wspace=0.3, hspace=0.35)
     for ax in axes.flat[n:]:
@@ -135,19 +133,20 @@ def plot_snapshots(beam, frames, title: str, path):
     for ax in axes[-1]:
         ax.set_xlabel("rail position (m)", fontsize=8)
     magnified = f"deflection x {scale:g}" if scale != 1 else "deflection to scale"
-    fig.suptitle(f"{title} (dotted: floating frame; {magnified}; cart and rail to scale)",
+    fig.suptitle(f"{scene.name}: beam shapes (dotted: floating frame; {magnified}; cart and "
+                 "rail to scale)",
                  fontsize=9)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
-def plot_paper_overview(results: dict, path):
-    """The paper's sample side by side, one row per scene: tip angle (Figs. 3, 4, 6) and first
-    modal coordinate (Fig. 7), so that no curve hides another."""
-    plt = _pyplot()
+def paper_overview(runs):
+    """The paper's sample side by side, one row per run (a :class:`~orchestration.job.Run`): tip
+    angle (Figs. 3, 4, 6) and first modal coordinate (Fig. 7), so that no curve hides another."""
+    results = {r.name: r.result for r in runs}
     n = len(results)
     height = 2.3 * n + 0.8
-    fig, axes = plt.subplots(n, 2, figsize=(11, height), sharex=True, squeeze=False)
+    fig = new_figure(11, height)
+    axes = fig.subplots(n, 2, sharex=True, squeeze=False)
     fig.subplots_adjust(left=0.07, right=0.99, top=1 - 0.45 / height, bottom=0.5 / height,
                         wspace=0.18, hspace=0.3)
     for row, (name, res) in zip(axes, results.items()):
@@ -168,15 +167,14 @@ def plot_paper_overview(results: dict, path):
         ax.set_xlabel("time (s)")
     fig.suptitle("Tang & Ren's sample from phi0 = pi/6: rigid + PD, flexible + PD, flexible + PD "
                  "+ low-pass", fontsize=10)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
-def plot_loop_bode(w, loops: dict, title: str, path, marks=()):
+def loop_bode(w, loops: dict, title: str, marks=()):
     """Magnitude and phase of loop transfer functions ``{label: L(jw)}`` on ``w`` (rad/s);
     ``marks``: ``(frequency, label)`` drawn as vertical lines."""
-    plt = _pyplot()
-    fig, (am, ap) = plt.subplots(2, 1, figsize=(8, 6.5), sharex=True)
+    fig = new_figure(8, 6.5)
+    am, ap = fig.subplots(2, 1, sharex=True)
     for label, L in loops.items():
         am.loglog(w, np.abs(L), lw=0.9, label=label)
         ap.semilogx(w, np.degrees(np.unwrap(np.angle(L))), lw=0.9, label=label)
@@ -195,17 +193,16 @@ def plot_loop_bode(w, loops: dict, title: str, path, marks=()):
     for ax in (am, ap):
         ax.grid(alpha=0.3, which="both")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return fig
 
 
-def plot_root_locus(cutoffs, roots, chosen_cutoff: float, title: str, path,
-                    zoom=((-12.0, 2.0), (0.0, 500.0))):
+def root_locus(cutoffs, roots, chosen_cutoff: float, title: str,
+               zoom=((-12.0, 2.0), (0.0, 500.0))):
     """Closed-loop roots (upper half-plane) as the cutoff varies, coloured by the cutoff; the
     chosen cutoff's roots as stars. Left: all roots; right: the part near the imaginary axis."""
     from matplotlib.colors import LogNorm
-    plt = _pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.6))
+    fig = new_figure(10, 4.6)
+    axes = fig.subplots(1, 2)
     cut = np.repeat(np.asarray(cutoffs)[:, None], roots.shape[1], axis=1)
     up = roots.imag >= 0
     i = int(np.argmin(np.abs(np.asarray(cutoffs) - chosen_cutoff)))
@@ -224,15 +221,14 @@ def plot_root_locus(cutoffs, roots, chosen_cutoff: float, title: str, path,
     axes[1].legend(fontsize=8, loc="upper left")
     fig.colorbar(sc, ax=axes, label="cutoff (rad/s)")
     fig.suptitle(title, fontsize=10)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return fig
 
 
-def plot_worst_case(sweeps: dict, chosen: tuple, ylabel: str, title: str, path):
+def worst_case(sweeps: dict, chosen: tuple, ylabel: str, title: str):
     """Worst-case score against cutoff, one line per ``{label: (cutoffs, scores)}``;
     ``chosen = (cutoff, score, label)`` is marked."""
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(8, 4.6))
+    fig = new_figure(8, 4.6)
+    ax = fig.subplots()
     for label, (wc, v) in sweeps.items():
         ax.semilogx(wc, v, "-o", ms=2.5, lw=0.9, label=label)
     ax.axhline(0.0, color="0.3", lw=0.7)
@@ -245,5 +241,4 @@ def plot_worst_case(sweeps: dict, chosen: tuple, ylabel: str, title: str, path):
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return fig

@@ -64,7 +64,7 @@ def linear_modes(scene) -> np.ndarray:
     """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop."""
     from ..studies.analysis import closed_loop_matrix
 
-    lam = np.linalg.eigvals(closed_loop_matrix(scene.plant, scene.controller))
+    lam = np.linalg.eigvals(closed_loop_matrix(scene.plant.params, scene.controller))
     return lam[lam.imag > 1e-9]
 
 
@@ -138,22 +138,22 @@ def _fit(t, y, key, modes, near=None):
 
 def fit_modes(res: np.ndarray, scene=None) -> dict:
     """``{"slow": entry, "bending": entry}`` (see :func:`_fit`)."""
-    L = scene.plant.L if scene is not None else None
+    L = scene.plant.params.L if scene is not None else None
     w = linear_window(res, L)
     modes = linear_modes(scene) if scene is not None else None
     t = res["time"][w]
-    near = {"bending": first_bending_frequency(scene.plant) if scene is not None else None}
+    near = {"bending": first_bending_frequency(scene.plant.params) if scene is not None else None}
     out = {key: _fit(t, res[col][w], key, modes, near.get(key))
            for key, (col, _) in _SIGNALS.items()}
-    if scene is not None and scene.plant.n_modes == 0:
+    if scene is not None and scene.plant.params.n_modes == 0:
         out["bending"]["note"] = "none: rigid model (plant.n_modes = 0)"
     return out
 
 
 def validity(res: np.ndarray, scene) -> dict:
     """Where the run leaves the model's range (see the module docstring)."""
-    L = scene.plant.L
-    phi_max = min(math.pi / 2, scene["plant.phi_limit"])
+    L = scene.plant.params.L
+    phi_max = min(math.pi / 2, scene.plant.phi_limit)
     out = {"tip_deflection_limit": TIP_DEFLECTION_LIMIT * L, "phi_limit": phi_max,
            "max_abs_tip_deflection": None, "max_abs_phi": None, "warnings": []}
     if len(res) == 0:

@@ -1,106 +1,133 @@
-"""Scenes: what to run, as TOML files in ``orchestration/scene/files/``.
+"""Reading scenes: scene files (TOML), dicts and ``--set`` items into a validated
+:class:`~orchestration.scene.records.Scene`.
 
-A scene is a flat mapping of dotted keys (TOML tables flatten to them: ``[plant] n_modes = 4`` is
-``plant.n_modes``), validated here. ``plant.*`` and ``controller.*`` are the FMU parameters, with
-the names of ``flexpend analyze``; the plant's solver settings are ``plant.integrator``,
-``plant.step``, ``plant.rtol`` and ``plant.atol``.
+A scene file is TOML whose tables flatten to dotted keys (``[plant] n_modes = 4`` is
+``plant.n_modes``); the keys are those of :data:`~orchestration.scene.records.KEYS`, with the
+defaults of the records. Every key is checked once, when the records are made: an unknown key, or
+a bad value, is a :class:`~orchestration.scene.keys.ConfigError` whose one-line message names it
+(and the file, or ``--set``, it came from).
 """
 from __future__ import annotations
 
-import math
+import dataclasses
+import os
 import tomllib
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from plant_fmu.interface import FMU_SETTINGS
-from fmu_common.checks import check_bool, check_int, check_real
+from controller_fmu.pd_lowpass import ControllerParams
+from fmu_common.variables import start_values as _start_values
+from plant_fmu.params import PlantParams
 
-from .keys import (FIDELITIES, ConfigError, apply_overrides, check_known, controller_params,
-                   default_config, plant_params)
+from .keys import ConfigError, check_known, parse_override
+from .records import (AUTO, KEYS, FidelitySettings, InitialState, MasterSettings, OutputSettings,
+                      PlantSetup, Scene)
 
-__all__ = ["Scene", "SCENE_DIR", "SCENE_DEFAULTS", "load_scene", "scene_from_config",
-           "list_scenes", "PAPER_SCENES", "ALGORITHMS", "validate_config"]
+__all__ = ["SCENE_DIR", "PAPER_SCENES", "known_keys", "scene_from_config", "load_scene",
+           "list_scenes", "OverrideError", "start_values", "MAX_SCENE_BYTES"]
 
 SCENE_DIR = Path(__file__).parent / "files"
 #: The paper's sample, in the order of its figures: rigid + PD, flexible + PD, flexible + filter.
 PAPER_SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
-ALGORITHMS = ("gauss-seidel", "jacobi")
-FIRST = ("controller", "plant")
-#: the FMUs a scene runs on (orchestration.export.FLAVOURS)
-FMU_FLAVOURS = ("native", "python")
-
-AUTO = "auto"
+#: The largest scene file read (a scene is a few hundred bytes).
+MAX_SCENE_BYTES = 1 << 20
 
 
-#: Outputs that every model has (0 for the rigid model's deflection), by result column.
-COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
+class OverrideError(ConfigError):
+    """A bad ``--set`` item (reported without the scene file's name)."""
 
 
-#: ``fidelity.*`` scene keys with their defaults.
-FIDELITY_DEFAULTS = {
-    "fidelity.tolerance": 0.05,
-    "fidelity.max_modes": 8,
-    "fidelity.outputs": ["x", "phi_o", "omega_o", "F_c"],
-}
+def known_keys() -> dict:
+    """Every scene key with its default."""
+    return dict(_DEFAULT.config)
 
 
-def validate_fidelity_keys(cfg: dict) -> None:
-    """Check the ``fidelity.*`` keys in place (a :class:`ConfigError` names a bad one)."""
-    from fmu_common.checks import check_int, check_real
+def _section(cfg: dict, prefix: str, cls) -> dict:
+    return {f.name: cfg[f"{prefix}{f.name}"] for f in dataclasses.fields(cls)
+            if f"{prefix}{f.name}" in cfg}
+
+
+def _plant(cfg: dict) -> PlantSetup:
+    n_modes = cfg["plant.n_modes"]
+    auto = n_modes == AUTO
+    if isinstance(n_modes, str) and not auto:
+        raise ConfigError(f"plant.n_modes = {n_modes!r} is not allowed; allowed: an integer "
+                          f"0..plant.n_elements or {AUTO!r}")
+    physical = _section(cfg, "plant.", PlantParams)
+    if auto:
+        physical["n_modes"] = 0
     try:
-        cfg["fidelity.tolerance"] = check_real("fidelity.tolerance", cfg["fidelity.tolerance"],
-                                               low=0.0, high=1.0)
-        n_el = cfg["plant.n_elements"] if isinstance(cfg["plant.n_elements"], int) else 24
-        cfg["fidelity.max_modes"] = check_int("fidelity.max_modes", cfg["fidelity.max_modes"],
-                                              low=1, high=n_el)
+        beam = PlantParams(**physical)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(str(exc)) from None
-    outs = cfg["fidelity.outputs"]
-    if (not isinstance(outs, list) or not outs
-            or not all(isinstance(o, str) and o in COMPARABLE_OUTPUTS for o in outs)):
-        raise ConfigError(f"fidelity.outputs = {outs!r} is not allowed; allowed: a non-empty list "
-                          f"of {', '.join(COMPARABLE_OUTPUTS)}")
+        raise ConfigError(f"plant.{exc}") from None
+    settings = {f.name: cfg[f"plant.{f.name}"] for f in dataclasses.fields(PlantSetup)
+                if f.name not in ("beam", "n_modes_auto")}
+    return PlantSetup(beam, auto, **settings)
 
 
-def needs_selection(scene) -> bool:
-    return AUTO in (scene["plant.n_modes"], scene["plant.fidelity"])
+def _controller(cfg: dict) -> ControllerParams:
+    try:
+        return ControllerParams(**_section(cfg, "controller.", ControllerParams))
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"controller.{exc}") from None
 
 
-#: Scene keys beyond the plant and controller parameters, with their defaults.
-SCENE_DEFAULTS = {
-    "description": "",
-    "stop_time": 10.0,
-    "output_interval": 0.002,
-    "initial.phi": math.pi / 6,
-    "initial.x": 0.0,
-    "initial.phi_dot": 0.0,
-    "initial.x_dot": 0.0,
-    "master.algorithm": "gauss-seidel",
-    "master.first": "controller",
-    "master.step": 2e-3,
-    "master.extrapolation": 2,
-    "master.adaptive": False,
-    "master.tolerance": 1e-4,
-    "master.min_step": 1e-6,
-    "master.max_step": 2e-2,
-    "master.input_derivatives": True,
-    # which FMUs run: "native" (compiled C, FMI 2.0) or "python" (pythonfmu)
-    "master.fmus": "native",
-    # the master's fixed-step loop in C when the FMUs can take it ("auto": the native FMUs), or
-    # always in Python (false); true: in C or an error saying why not
-    "master.compiled": "auto",
-    # wiring by variable name: "fmu.variable -> fmu.variable", FMUs "plant" and "controller"
-    "connections": [
-        "plant.x_o -> controller.x_o",
-        "plant.phi_o -> controller.phi_o",
-        "plant.omega_o -> controller.omega_o",
-        "controller.F_c -> plant.F_c",
-    ],
-    # the plant FMU's solver settings and divergence bounds, with the FMU's own defaults
-    **{f"plant.{k}": v for k, v in FMU_SETTINGS.items() if k != "fidelity"},
-    # the choice of plant.n_modes = "auto" / plant.fidelity = "auto" (orchestration/studies/fidelity.py)
-    **FIDELITY_DEFAULTS,
-}
+def _build(name: str, cfg: dict) -> Scene:
+    """The records of a complete configuration (every key of :data:`KEYS`)."""
+    return Scene(name=name, plant=_plant(cfg), controller=_controller(cfg),
+                 fidelity=FidelitySettings(**_section(cfg, "fidelity.", FidelitySettings)),
+                 output=OutputSettings(**_section(cfg, "", OutputSettings)),
+                 initial=InitialState(**_section(cfg, "initial.", InitialState)),
+                 master=MasterSettings(**_section(cfg, "master.", MasterSettings)),
+                 connections=cfg["connections"], description=cfg["description"])
+
+
+def _overrides(overrides) -> list:
+    """``--set`` items (``"key=value"`` strings) or a dict as ``[(key, value)]``."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, dict):
+        for k in overrides:
+            if not isinstance(k, str):
+                raise TypeError(f"overrides: a key must be a string, got {k!r}")
+        return list(overrides.items())
+    if isinstance(overrides, str):
+        raise TypeError("overrides must be a dict of scene keys or a list of 'key=value' "
+                        f"strings, got the string {overrides!r}")
+    return [parse_override(o) if isinstance(o, str) else _bad_item(o) for o in overrides]
+
+
+def _bad_item(item):
+    raise TypeError(f"overrides: expected 'key=value', got {item!r}")
+
+
+def scene_from_config(name: str, values: dict, overrides=None) -> Scene:
+    """The scene of the keys ``values`` (the rest at their defaults), with ``overrides`` (``--set``
+    items, or a dict) on top."""
+    known = known_keys()
+    check_known(values, known)
+    pairs = _overrides(overrides)
+    try:
+        check_known([k for k, _ in pairs], known)
+    except ConfigError as exc:
+        raise OverrideError(f"--set: {exc}") from None
+    cfg = {**known, **values, **dict(pairs)}
+    try:
+        return _build(name, cfg)
+    except ConfigError as exc:
+        if any(str(exc).startswith(k + " ") for k, _ in pairs):
+            raise OverrideError(f"--set: {exc}") from None
+        raise
+
+
+def _resolve(ref: str) -> Path:
+    path = Path(ref)
+    if path.suffix == ".toml" and (path.exists() or os.sep in ref or "/" in ref):
+        return path
+    candidate = SCENE_DIR / f"{ref}.toml"
+    if candidate.exists():
+        return candidate
+    raise ConfigError(f"no scene {ref!r}; scenes: {', '.join(list_scenes())} (or a path to a "
+                      ".toml file)")
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:
@@ -114,154 +141,43 @@ def _flatten(table: dict, prefix: str = "") -> dict:
     return out
 
 
-def _choice(key, value, allowed):
-    if value not in allowed:
-        raise ConfigError(f"{key} = {value!r} is not allowed; allowed: {', '.join(map(str, allowed))}")
-    return value
-
-
-@dataclass(frozen=True)
-class Scene:
-    """A validated scene. ``config`` holds every key, defaults filled in."""
-
-    name: str
-    config: dict = field(repr=False)
-
-    def __getitem__(self, key):
-        return self.config[key]
-
-    @property
-    def plant(self):
-        return plant_params(self.config)
-
-    @property
-    def controller(self):
-        return controller_params(self.config)
-
-
-def _validate(cfg: dict) -> None:
-    def real(key, **kw):
-        try:
-            cfg[key] = check_real(key, cfg[key], **kw)
-        except (TypeError, ValueError) as exc:
-            raise ConfigError(str(exc)) from None
-
-    n_modes = cfg["plant.n_modes"]
-    if isinstance(n_modes, str) and n_modes != AUTO:
-        raise ConfigError(f"plant.n_modes = {n_modes!r} is not allowed; allowed: an integer "
-                          f"0..plant.n_elements or {AUTO!r}")
-    plant_params({**cfg, "plant.n_modes": 0} if n_modes == AUTO else cfg)
-    controller_params(cfg)
-    _choice("plant.fidelity", cfg["plant.fidelity"], (*FIDELITIES, AUTO))
-    validate_fidelity_keys(cfg)
-    real("stop_time", low=0.0, high=1e6)
-    real("output_interval", low=0.0, high=1e6)
-    for k in ("initial.phi", "initial.x", "initial.phi_dot", "initial.x_dot"):
-        real(k, low=-1e6, high=1e6)
-    for k in ("master.step", "master.tolerance", "master.min_step", "master.max_step",
-              "plant.step", "plant.rtol", "plant.atol"):
-        real(k, low=0.0, high=1e6)
-    for k in ("plant.phi_limit", "plant.energy_limit"):
-        real(k, low=0.0, allow_inf=True)
-    _choice("master.algorithm", cfg["master.algorithm"], ALGORITHMS)
-    _choice("master.first", cfg["master.first"], FIRST)
-    _choice("master.fmus", cfg["master.fmus"], FMU_FLAVOURS)
-    if not (isinstance(cfg["master.compiled"], bool) or cfg["master.compiled"] == "auto"):
-        raise ConfigError(f"master.compiled = {cfg['master.compiled']!r} is not allowed; "
-                          f"allowed: 'auto', true, false")
+def _read_toml(path: Path) -> dict:
+    """The flattened keys of a scene file (a ConfigError names what is wrong with the file)."""
+    label = path.name
     try:
-        cfg["master.extrapolation"] = check_int("master.extrapolation", cfg["master.extrapolation"],
-                                                low=0, high=2)
-        cfg["master.adaptive"] = check_bool("master.adaptive", cfg["master.adaptive"])
-        cfg["master.input_derivatives"] = check_bool("master.input_derivatives",
-                                                     cfg["master.input_derivatives"])
-    except (TypeError, ValueError) as exc:
-        raise ConfigError(str(exc)) from None
-    from plant_fmu.integrators import REGISTRY
-    _choice("plant.integrator", cfg["plant.integrator"], sorted(REGISTRY))
-    if cfg["plant.integrator"] == "exponential" and cfg["plant.fidelity"] != "linear":
-        raise ConfigError("plant.integrator = 'exponential' integrates the linearised plant; it "
-                          "needs plant.fidelity = 'linear'")
-    conns = cfg["connections"]
-    if not isinstance(conns, list) or not conns or not all(isinstance(c, str) for c in conns):
-        raise ConfigError("connections must be a non-empty list of strings "
-                          "'fmu.variable -> fmu.variable'")
-    from .wiring import parse_connection
-    for c in conns:
-        try:
-            conn = parse_connection(c)
-        except ValueError as exc:
-            raise ConfigError(f"connections {exc}") from None
-        for fmu in (conn.src, conn.dst):
-            if fmu not in ("plant", "controller"):
-                raise ConfigError(f"connections {c!r} names FMU {fmu!r}; allowed: plant, "
-                                  "controller")
-    if not isinstance(cfg["description"], str):
-        raise ConfigError("description must be a string")
-    if cfg["master.min_step"] > cfg["master.max_step"]:
-        raise ConfigError(f"master.min_step = {cfg['master.min_step']} exceeds master.max_step = "
-                          f"{cfg['master.max_step']}")
-    if cfg["master.step"] > cfg["stop_time"]:
-        raise ConfigError(f"master.step = {cfg['master.step']} exceeds stop_time = "
-                          f"{cfg['stop_time']}")
-    n_out = cfg["stop_time"] / cfg["output_interval"]
-    if n_out < 1 - 1e-9 or abs(n_out - round(n_out)) > 1e-9 * n_out:
-        raise ConfigError(f"stop_time = {cfg['stop_time']} must be a positive multiple of "
-                          f"output_interval = {cfg['output_interval']}")
-    ratio = cfg["output_interval"] / cfg["master.step"]
-    if not cfg["master.adaptive"] and abs(ratio - round(ratio)) > 1e-9 * ratio:
-        raise ConfigError(f"output_interval = {cfg['output_interval']} must be a multiple of "
-                          f"master.step = {cfg['master.step']}")
-
-
-#: Validates a scene's configuration in place (a :class:`ConfigError` names the bad key).
-validate_config = _validate
-
-
-def known_keys() -> dict:
-    return {**default_config(), **SCENE_DEFAULTS}
-
-
-def scene_from_config(name: str, values: dict, overrides=()) -> Scene:
-    """Validate ``values`` (dotted keys) with ``--set`` overrides on top."""
-    known = known_keys()
-    check_known(values, known)
+        if not path.is_file():
+            raise ConfigError(f"{label}: not a regular file" if path.exists()
+                              else f"{label}: no such file")
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_SCENE_BYTES + 1)
+    except OSError as exc:
+        raise ConfigError(f"{label}: cannot be read ({exc.strerror or exc})") from None
+    if len(data) > MAX_SCENE_BYTES:
+        raise ConfigError(f"{label}: larger than {MAX_SCENE_BYTES} bytes; a scene file is a few "
+                          "hundred")
     try:
-        cfg = apply_overrides({**known, **values}, overrides, known)
-    except ConfigError as exc:
-        raise OverrideError(f"--set: {exc}") from None
-    try:
-        _validate(cfg)
-    except ConfigError as exc:
-        from .keys import parse_override
-        if any(str(exc).startswith(parse_override(o)[0] + " ") for o in overrides):
-            raise OverrideError(f"--set: {exc}") from None
-        raise
-    return Scene(name, cfg)
-
-
-class OverrideError(ConfigError):
-    """A bad ``--set`` item (reported without the scene file's name)."""
-
-
-def _resolve(ref: str) -> Path:
-    path = Path(ref)
-    if path.suffix == ".toml" and path.exists():
-        return path
-    candidate = SCENE_DIR / f"{ref}.toml"
-    if candidate.exists():
-        return candidate
-    raise ConfigError(f"no scene {ref!r}; scenes: {', '.join(list_scenes())} (or a path to a "
-                      ".toml file)")
-
-
-def load_scene(ref: str, overrides=()) -> Scene:
-    """Load a scene by name (a file in ``orchestration/scene/files/``) or by path."""
-    path = _resolve(ref)
-    try:
-        values = _flatten(tomllib.loads(path.read_text()))
+        return _flatten(tomllib.loads(data.decode("utf-8")))
+    except UnicodeDecodeError:
+        raise ConfigError(f"{label}: not valid TOML: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path.name}: not valid TOML: {exc}") from None
+        raise ConfigError(f"{label}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{label}: not valid TOML: nested too deeply") from None
+
+
+def load_scene(ref, overrides=None) -> Scene:
+    """A scene by name (a file of ``orchestration/scene/files/``), by path (a ``.toml`` file), from
+    a dict of scene keys, or a :class:`Scene` itself; ``overrides`` (``--set`` items or a dict of
+    scene keys) on top."""
+    if isinstance(ref, Scene):
+        return ref if not overrides else scene_from_config(ref.name, dict(ref.config), overrides)
+    if isinstance(ref, dict):
+        return scene_from_config("scene", ref, overrides)
+    if not isinstance(ref, (str, os.PathLike)):
+        raise TypeError(f"scene must be a name, a path, a dict of scene keys or a Scene, got "
+                        f"{type(ref).__name__}")
+    path = _resolve(os.fspath(ref))
+    values = _read_toml(path)
     try:
         return scene_from_config(path.stem, values, overrides)
     except OverrideError:
@@ -272,3 +188,13 @@ def load_scene(ref: str, overrides=()) -> Scene:
 
 def list_scenes() -> list[str]:
     return sorted(p.stem for p in SCENE_DIR.glob("*.toml"))
+
+
+def start_values(scene: Scene, table) -> dict:
+    """FMU start values of ``scene``: every parameter of the variable table ``table`` that a
+    scene key sets (:attr:`fmu_common.variables.Variable.scene_key`), read off the records."""
+    return _start_values({v.scene_key: scene.get(v.scene_key) for v in table
+                          if v.causality == "parameter" and v.scene_key in KEYS}, table)
+
+
+_DEFAULT = Scene(name="default")

@@ -44,7 +44,12 @@ import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller_fmu import interface as controller_interface
+from plant_fmu import interface as plant_interface
+
 from .keys import ConfigError, parse_value
+from .records import OutputSettings
+from .schema import scene_from_config, start_values
 
 __all__ = ["SspError", "SspSystem", "write_ssp", "read_ssp",
            "validate_ssd", "fmpy_parameter_set", "ssd_of", "SSD_NAME", "NS", "SCENE_ANNOTATION",
@@ -163,15 +168,10 @@ def _parser():
     return etree.XMLParser(resolve_entities=False, no_network=True, remove_blank_text=True)
 
 
-
-
-
-
 def _component_parameters(scene) -> dict:
     """component -> {FMU parameter: value}: what the master sets on each FMU."""
-    from ..job import controller_start_values, plant_start_values
-
-    return {"plant": plant_start_values(scene), "controller": controller_start_values(scene)}
+    return {"plant": start_values(scene, plant_interface.VARIABLES),
+            "controller": start_values(scene, controller_interface.VARIABLES)}
 
 
 def _scene_settings(cfg: dict) -> dict:
@@ -185,10 +185,8 @@ def ssd_of(scene, fmus: dict, sources: dict, model: dict | None = None):
     from fmpy import read_model_description
     from lxml import etree
 
-    from .wiring import parse_connection
-
     cfg = scene.config
-    if "auto" in (cfg["plant.n_modes"], cfg["plant.fidelity"]):
+    if not scene.resolved:
         raise ValueError(f"{scene.name}: choose the model before writing it (plant.n_modes and "
                          "plant.fidelity must not be 'auto')")
     E = etree.Element
@@ -199,7 +197,7 @@ def ssd_of(scene, fmus: dict, sources: dict, model: dict | None = None):
         system.set("description", cfg["description"])
     elements = etree.SubElement(system, _q("ssd", "Elements"))
     params = _component_parameters(scene)
-    conns = [parse_connection(text) for text in cfg["connections"]]
+    conns = scene.connections
     # inputs left unconnected are not connectors: fmpy.ssp (0.3.32) wires an unconnected input
     # connector to the source of the input before it
     wired = {comp: {c.dst_var for c in conns if c.dst == comp} for comp in ("plant", "controller")}
@@ -399,7 +397,6 @@ def _parse_xml(label, member, data):
 def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides):
     from fmpy import read_model_description
 
-    from .schema import scene_from_config
 
     info = {}                      # component name -> (FMU path, {variable: ModelVariable})
     for comp in comps:
@@ -515,8 +512,7 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
         values.update(settings)
     elif osp_step is not None:
         values["master.step"] = osp_step
-        from .schema import SCENE_DEFAULTS
-        dt = SCENE_DEFAULTS["output_interval"]
+        dt = OutputSettings().output_interval
         ratio = dt / osp_step
         if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
             values["output_interval"] = osp_step
@@ -537,9 +533,6 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
 
 def _scene_keys() -> dict:
     """role -> {FMU parameter: scene key}, from the FMUs' variable tables."""
-    from controller_fmu import interface as controller_interface
-    from plant_fmu import interface as plant_interface
-
     return {role: {v.name: v.scene_key for v in table
                    if v.causality == "parameter" and v.scene_key}
             for role, table in (("plant", plant_interface.VARIABLES),

@@ -15,6 +15,7 @@ against closed-loop eigenvalues.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -165,12 +166,16 @@ def margins(p: PlantParams, c: ControllerParams, n_grid: int = 4000) -> dict:
 
 @dataclass
 class Analysis:
+    """The linearised closed loop of ``plant`` and ``controller`` (:func:`analyze`)."""
+
     cantilever_frequencies: list
     open_loop_eigenvalues: np.ndarray
     eigenvalues: np.ndarray
     max_real_part: float
     stable: bool
     margins: dict
+    plant: PlantParams | None = None
+    controller: ControllerParams | None = None
 
     def modes(self):
         """One row per oscillatory closed-loop mode (upper half-plane) or real root:
@@ -185,7 +190,12 @@ class Analysis:
         return sorted(rows, key=lambda r: r[2])
 
     def to_json(self) -> dict:
-        return {
+        out = {}
+        if self.plant is not None:
+            out["plant"] = dataclasses.asdict(self.plant)
+        if self.controller is not None:
+            out["controller"] = dataclasses.asdict(self.controller)
+        return out | {
             "cantilever_frequencies": self.cantilever_frequencies,
             "open_loop_eigenvalues": [[float(z.real), float(z.imag)] for z in self.open_loop_eigenvalues],
             "eigenvalues": [[float(z.real), float(z.imag)] for z in self.eigenvalues],
@@ -211,4 +221,6 @@ def analyze(p: PlantParams, c: ControllerParams) -> Analysis:
         max_real_part=mrp,
         stable=mrp < 0,
         margins=margins(p, c),
+        plant=p,
+        controller=c,
     )

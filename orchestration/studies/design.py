@@ -227,7 +227,7 @@ def worst_cases(plants, controllers, executor=None, chunks: int | None = None) -
     """:meth:`RobustLoop.worst` of each of ``controllers`` over ``plants``.
 
     Without ``executor``, one :class:`RobustLoop` here. With one
-    (:mod:`orchestration.sweep.executor`), the plants, ordered as a :class:`RobustLoop` orders them
+    (:mod:`orchestration.sweeps.executor`), the plants, ordered as a :class:`RobustLoop` orders them
     (by ``n_modes``, stably), are cut into ``chunks`` contiguous pieces (default: 4 per worker)
     run as tasks, and the pieces' worst cases are merged in order, keeping the first of equal
     values: each closed loop's eigenvalues are computed alone, so the result is the serial one,
@@ -313,7 +313,7 @@ def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
     ``nominal`` fixes the beam around which ``EI`` and ``m`` vary (its ``n_modes`` and ``zeta``
     are replaced by the uncertainty set's); ``base`` holds the PD gains; ``settings`` are the
     validated ``design.*`` keys (:func:`design_settings`); ``progress(fraction)`` is called as the
-    grid is evaluated. ``executor`` (:mod:`orchestration.sweep.executor`) runs the check grid's closed
+    grid is evaluated. ``executor`` (:mod:`orchestration.sweeps.executor`) runs the check grid's closed
     loops as tasks (:func:`worst_cases`: the same numbers as without it).
     """
     s = settings

@@ -23,16 +23,14 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene.keys import ConfigError
-from ..scene.schema import AUTO
+from ..scene.records import AUTO
+from .analysis import max_real_part
+from .reference import simulate_reference
 
 __all__ = ["output_difference", "select_model"]
 
 #: Accuracy of the monolithic runs that are compared.
 RTOL, ATOL = 1e-8, 1e-10
-
-
-
-
 
 
 def output_difference(a: np.ndarray, b: np.ndarray, outputs) -> dict:
@@ -52,21 +50,14 @@ def _label(n: int, fid: str) -> str:
 def select_model(scene, progress=None):
     """``(resolved scene, report)``: the scene with ``plant.n_modes`` and ``plant.fidelity``
     chosen, and a JSON-ready report of the choice and the differences measured."""
-
-    from .analysis import max_real_part
-    from ..scene.keys import plant_params
-    from .reference import simulate_reference
-    from ..scene.schema import Scene
-
-    cfg = scene.config
-    tol, outs, n_max = cfg["fidelity.tolerance"], cfg["fidelity.outputs"], cfg["fidelity.max_modes"]
-    auto_n, auto_f = cfg["plant.n_modes"] == AUTO, cfg["plant.fidelity"] == AUTO
-    mode_fid = "nonlinear" if auto_f else cfg["plant.fidelity"]
+    tol, outs, n_max = scene.fidelity.tolerance, scene.fidelity.outputs, scene.fidelity.max_modes
+    auto_n, auto_f = scene.plant.n_modes_auto, scene.plant.fidelity == AUTO
+    mode_fid = "nonlinear" if auto_f else scene.plant.fidelity
     runs = {}
     total = (n_max + 2 if auto_n else 0) + (2 if auto_f else 0)
 
     def concrete(n, fid):
-        return Scene(scene.name, {**cfg, "plant.n_modes": n, "plant.fidelity": fid})
+        return scene.replace(plant=scene.plant.with_model(n, fid))
 
     def run(n, fid):
         if (n, fid) not in runs:
@@ -92,7 +83,7 @@ def select_model(scene, progress=None):
         c = scene.controller
         verdicts = []
         for n in range(n_max + 1):
-            mrp = max_real_part(plant_params({**cfg, "plant.n_modes": n}), c)
+            mrp = max_real_part(scene.plant.beam.replace(n_modes=n), c)
             verdicts.append({"n_modes": n, "max_real_part": mrp, "stable": mrp < 0})
         report["linear_verdicts"] = verdicts
         stable = [v["stable"] for v in verdicts]
@@ -121,8 +112,8 @@ def select_model(scene, progress=None):
                            f"richest, {n_max} modes, is taken")
         report["converged"] = converged
     else:
-        n = cfg["plant.n_modes"]
-    fid = cfg["plant.fidelity"]
+        n = scene.plant.n_modes
+    fid = scene.plant.fidelity
     if auto_f:
         cmp_ = compare((n, "linear"), (n, "nonlinear"))
         report["comparisons"].append(cmp_)
@@ -133,7 +124,4 @@ def select_model(scene, progress=None):
     if progress is not None:
         progress(1.0)
     report.update(n_modes=n, fidelity=fid, reason="; ".join(reasons))
-    resolved = concrete(n, fid)
-    from ..scene.schema import validate_config
-    validate_config(resolved.config)
-    return resolved, report
+    return concrete(n, fid), report

@@ -12,7 +12,7 @@ import scipy.integrate
 from controller_fmu.pd_lowpass import PDLowPassModel
 from plant_fmu.dynamics import linear_plant_model, plant_model
 
-from ..scene.keys import fidelity
+from ..scene.keys import ConfigError
 
 __all__ = ["COLUMNS", "ClosedLoop", "simulate_reference"]
 
@@ -24,13 +24,16 @@ class ClosedLoop:
     """The monolithic closed loop of a scene: state ``[plant state, filter state]``."""
 
     def __init__(self, scene):
-        p, c = scene.plant, scene.controller
-        self.plant = linear_plant_model(p) if fidelity(scene.config) == "linear" else plant_model(p)
+        if not scene.resolved:
+            raise ConfigError(f"{scene.name}: plant.n_modes or plant.fidelity is 'auto': choose "
+                              "the model first (orchestration.studies.fidelity.select_model)")
+        p, c = scene.plant.params, scene.controller
+        self.plant = linear_plant_model(p) if scene.plant.fidelity == "linear" else plant_model(p)
         self.ctrl = PDLowPassModel(c)
         self.np = self.plant.nx
         self.x0 = np.concatenate([
-            self.plant.initial_state(phi=scene["initial.phi"], x=scene["initial.x"],
-                                     phi_dot=scene["initial.phi_dot"], x_dot=scene["initial.x_dot"]),
+            self.plant.initial_state(phi=scene.initial.phi, x=scene.initial.x,
+                                     phi_dot=scene.initial.phi_dot, x_dot=scene.initial.x_dot),
             self.ctrl.initial_state()])
         self.Af, self.bf = self.ctrl.Af, self.ctrl.Bf[:, 0]
         # A filter starting at rest outputs F_c = 0, which is what the controller FMU does too.
@@ -65,7 +68,7 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
     Raises ``RuntimeError`` if the solver fails (the message is scipy's).
     """
     loop = ClosedLoop(scene)
-    t_end, dt = scene["stop_time"], scene["output_interval"]
+    t_end, dt = scene.output.stop_time, scene.output.output_interval
     n_out = int(round(t_end / dt))
     t_eval = np.arange(n_out + 1) * dt
     t_eval[-1] = min(t_eval[-1], t_end)

@@ -413,18 +413,15 @@ def spectral_radius(M: np.ndarray) -> float:
 
 
 def scene_transition_matrix(scene, H: float | None = None, step_index=None, drift_free=True):
-    """:func:`transition_matrix` for a scene's plant, controller and master keys
-    (``master.step``, ``master.algorithm``, ``master.first``, ``master.extrapolation``,
-    ``plant.integrator``, ``plant.step``)."""
-    cfg = scene.config
-    if cfg["master.adaptive"]:
+    """:func:`transition_matrix` for a scene's plant, controller and master (its step,
+    algorithm, first FMU and extrapolation; the plant's integrator and substep)."""
+    m = scene.master
+    if m.adaptive:
         raise ValueError("master.adaptive = true: an adaptive master has no fixed transition "
                          "matrix; allowed: false")
-    return transition_matrix(scene.plant, scene.controller,
-                             cfg["master.step"] if H is None else H,
-                             algorithm=cfg["master.algorithm"], first=cfg["master.first"],
-                             extrapolation=cfg["master.extrapolation"],
-                             integrator=cfg["plant.integrator"], substep=cfg["plant.step"],
+    return transition_matrix(scene.plant.params, scene.controller, m.step if H is None else H,
+                             algorithm=m.algorithm, first=m.first, extrapolation=m.extrapolation,
+                             integrator=scene.plant.integrator, substep=scene.plant.step,
                              drift_free=drift_free, step_index=step_index)
 
 

@@ -1,5 +1,5 @@
 """Running a sweep: one task per point (here or on dask), the journal of finished runs, the table
-and the statistics (see :mod:`orchestration.sweep`).
+and the statistics (see :mod:`orchestration.sweeps`).
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..scene.keys import parse_value
-from ..scene.schema import Scene
+from ..scene.records import Scene
 from .plan import Point, SweepPlan
 from .plot import plot_sweep
 
@@ -73,7 +73,7 @@ def linear_decay_rate(scene: Scene) -> float:
     """The linearised loop's smallest decay rate ``-max Re(lambda)`` over all its roots, the
     cart's drift roots left aside: ``flexpend design``'s criterion, for this one plant."""
     from ..studies.analysis import max_real_part
-    return -max_real_part(scene.plant, scene.controller)
+    return -max_real_part(scene.plant.params, scene.controller)
 
 
 def _one_line(exc: BaseException, limit: int = 500) -> str:
@@ -121,20 +121,20 @@ def _extracted(path: str) -> str:
 
 
 def run_task(task) -> dict:
-    """Run one point on a worker (or here): ``(name, config, reference, fmus, sources)``;
+    """Run one point on a worker (or here): ``(scene, reference, fmus, sources)``;
     ``fmus`` maps ``plant``/``controller`` to ``(shipped name, client path)``, ``sources`` is the
     client's :func:`model_sources_digest`. Never raises: a failure is a row with its message."""
     from ..job import run_scene
     from .executor import worker_file
 
-    name, config, reference, fmus, sources = task
+    scene, reference, fmus, sources = task
     t0 = time.perf_counter()
     try:
         paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
         if sources != model_sources_digest():
             raise RuntimeError("this worker's flexpend model sources differ from the client's: "
                                "install the client's version on the workers")
-        r = run_scene(Scene(name, dict(config)), paths, reference=reference, progress=False,
+        r = run_scene(scene, paths, reference=reference, progress=False,
                       unzipdirs={role: _extracted(p) for role, p in paths.items()})
         row = summary_row(r.summary)
         row["linear_decay_rate"] = linear_decay_rate(r.scene)
@@ -323,7 +323,7 @@ def fmus_for(plan: SweepPlan) -> dict:
     the plan's runs use, built if missing or stale."""
     from ..export import build_fmus, fmu_pair
     return {fl: fmu_pair(build_fmus(flavour=fl))
-            for fl in dict.fromkeys(p.config["master.fmus"] for p in plan.points)}
+            for fl in dict.fromkeys(p.scene.master.fmus for p in plan.points)}
 
 
 def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
@@ -337,7 +337,7 @@ def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
 def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int = 1,
               retry_failed: bool = False, progress=True, plot: bool = True) -> SweepResult:
     """Run the points of ``plan`` that ``out_dir`` has no finished row for, with ``executor``
-    (:mod:`orchestration.sweep.executor`; ``None``: serially here); write the table and the plot.
+    (:mod:`orchestration.sweeps.executor`; ``None``: serially here); write the table and the plot.
 
     ``fmus``: ``{"plant": path, "controller": path}`` for every run, or ``{flavour: {...}}``
     per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
@@ -358,8 +358,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
                for fl, pair in by_flavour.items()}
 
     def pair(p):
-        return shipped[None] if None in shipped else shipped[p.config["master.fmus"]]
-    tasks = [(plan.scene.name, p.config, plan.reference, pair(p), model_sources_digest())
+        return shipped[None] if None in shipped else shipped[p.scene.master.fmus]
+    tasks = [(p.scene, plan.reference, pair(p), model_sources_digest())
              for p in todo]
     bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
     t0 = time.perf_counter()

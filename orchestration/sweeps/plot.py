@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..report.figures import new_figure
+from ..report.files import save_figure
 from .plan import SweepPlan, design_worst_case
 
 __all__ = ["plot_sweep"]
@@ -34,14 +36,13 @@ def _decay(r):
 def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
     """Heat map (2 swept axes), line plot (1 axis) or histogram (a sample) of the decay rate
     ``-max(fitted rate)``; failed runs marked. None when the sweep has no such shape."""
-    from ..report.figures import _pyplot
 
     title = f"flexpend sweep {plan.scene.name}" + (
         f" ({' '.join('--set ' + o for o in plan.overrides)})" if plan.overrides else "")
     failed = [r for r in rows if r["status"] != "ok"]
     if plan.samplers:
-        plt = _pyplot()
-        fig, ax = plt.subplots(figsize=(8, 5))
+        fig = new_figure(8, 5)
+        ax = fig.subplots()
         vals = np.array([_decay(r) for r in rows])
         vals = vals[np.isfinite(vals)]
         lin = np.array([r.get("linear_decay_rate") for r in rows if r["status"] == "ok"
@@ -74,9 +75,9 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
                      f"{len(failed)} failed, {len(rows) - len(failed) - len(vals)} without a fit",
                      fontsize=9)
     elif len(plan.axes) == 1:
-        plt = _pyplot()
         axis = plan.axes[0]
-        fig, ax = plt.subplots(figsize=(8, 5))
+        fig = new_figure(8, 5)
+        ax = fig.subplots()
         x = np.arange(len(axis.values))
         for col, label, style in (("decay_rate", "decay rate -max(fitted rate)", "k-o"),
                                   ("linear_decay_rate", "linearised loop: -max Re(lambda)",
@@ -95,11 +96,11 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
         ax.grid(alpha=0.3)
         ax.set_title(title, fontsize=9)
     elif len(plan.axes) == 2:
-        plt = _pyplot()
         from matplotlib.colors import TwoSlopeNorm
         ax0, ax1 = plan.axes
         grid = np.array([_decay(r) for r in rows]).reshape(len(ax0.values), len(ax1.values))
-        fig, ax = plt.subplots(figsize=(9, 6.5))
+        fig = new_figure(9, 6.5)
+        ax = fig.subplots()
         finite = grid[np.isfinite(grid)]
         # colours up to the 5th/95th percentile (one outlier does not wash out the rest); the
         # cells of a small grid carry their values
@@ -122,7 +123,6 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
     else:
         return None
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return save_figure(fig, path)
     return path
 

@@ -1,5 +1,5 @@
 """Sweeps and uncertainty studies: many co-simulations of one scene, as tasks on dask.distributed
-(:mod:`orchestration.sweep.executor`), or one after the other in this process.
+(:mod:`orchestration.sweeps.executor`), or one after the other in this process.
 
     flexpend sweep SCENE [--grid KEY=START:STOP:NUM[:log] ...] [--values KEY=V1,V2,...]
                          [--sample KEY=DIST ... --samples N --seed S] [--set KEY=VALUE ...]

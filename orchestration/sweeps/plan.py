@@ -1,5 +1,5 @@
 """What a sweep runs: the swept keys (grids, value lists, random samples) and every point's
-validated scene (see :mod:`orchestration.sweep`).
+validated scene (see :mod:`orchestration.sweeps`).
 """
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..scene.keys import ConfigError, check_known, parse_override, parse_value
-from ..scene.schema import Scene, known_keys, load_scene, scene_from_config
+from ..scene.records import Scene
+from ..scene.schema import known_keys, load_scene, scene_from_config
 
 __all__ = ["DESIGN_KEYS", "DISTRIBUTIONS", "Axis", "Sampler", "parse_grid", "parse_values",
            "parse_sample", "draw_samples", "Point", "SweepPlan", "run_key", "plan_sweep",
@@ -190,7 +191,7 @@ class Point:
     index: int
     params: dict
     sample: int | None
-    config: dict = field(repr=False)
+    scene: Scene = field(repr=False)
     key: str = ""
 
 
@@ -268,9 +269,8 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
         except ConfigError as exc:
             raise ConfigError(f"--set: {exc}") from None
         settings = design_settings({**known, **dict(pairs)})
-        nominal = base.plant if base["plant.n_modes"] != "auto" else \
-            scene_from_config(base.name, {**base.config, "plant.n_modes": 0}).plant
-        uncertainty = UncertaintySet.from_settings(nominal, settings)
+        # the nominal beam (its n_modes is the set's; 0 stands for "auto")
+        uncertainty = UncertaintySet.from_settings(base.plant.beam, settings)
     elif design_items:
         raise ConfigError(f"--set {design_items[0]!r}: design.* keys shape the design's "
                           "uncertainty set; they need --sample design (or KEY=design)")
@@ -288,8 +288,7 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
         except ConfigError as exc:
             where = ", ".join(f"{k}={v!r}" for k, v in params.items())
             raise ConfigError(f"run {len(points)} ({where}): {exc}") from None
-        points.append(Point(len(points), params, j, sc.config,
-                            run_key(base.name, sc.config, reference)))
+        points.append(Point(len(points), params, j, sc, run_key(base.name, sc.config, reference)))
     return SweepPlan(base, axes, samplers, n_samples or 0, seed, reference, points,
                      list(overrides), uncertainty,
                      settings["design.check_levels"] if uncertainty is not None else 5)

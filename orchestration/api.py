@@ -1,0 +1,83 @@
+"""The front door's functions (exported by :mod:`orchestration`): keyword arguments, typed
+results, errors that subclass ``ValueError`` or ``TypeError`` and name the bad key or argument.
+
+    load_scene(scene, overrides=None) -> Scene
+    simulate(scene, overrides=None, *, fmus=None, reference=False, progress=False) -> Run
+    analyze(scene=None, overrides=None) -> Analysis
+    design(scene=None, overrides=None, *, design=None, workers=None, scheduler=None,
+           progress=False) -> DesignReport
+    sweep(scene, *, grid=..., values=..., sample=..., samples=None, ...) -> Sweep
+    build_fmus(flavour="native", *, fmi_version=2, out=None, force=False) -> {name: path}
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from .export import build_fmus as _build_fmus
+from .job import Run, simulate
+from .report.design import DesignReport
+from .report.progress import Progress
+from .scene.keys import ConfigError, check_known
+from .scene.records import FMU_FLAVOURS, Scene
+from .scene.schema import load_scene
+from .studies.analysis import Analysis
+from .studies.analysis import analyze as _analyze
+from .studies.design import DESIGN_DEFAULTS, design_filter, design_settings
+from .sweeps.executor import open_executor
+from .sweeps.job import Sweep, sweep
+
+__all__ = ["load_scene", "simulate", "analyze", "design", "sweep", "build_fmus", "Scene", "Run",
+           "Analysis", "DesignReport", "Sweep"]
+
+
+def _resolved(scene, overrides, command: str) -> Scene:
+    """The scene (default: the default scene) with its model given: analyses need a model."""
+    sc = load_scene(scene if scene is not None else {}, overrides)
+    if not sc.resolved:
+        key = "plant.n_modes" if sc.plant.n_modes_auto else "plant.fidelity"
+        raise ConfigError(f"{key} = 'auto' is chosen by a run (flexpend run); {command} needs a "
+                          "value")
+    return sc
+
+
+def analyze(scene=None, overrides=None) -> Analysis:
+    """The linearised closed loop of a scene's plant and controller (every scene key is accepted;
+    those that do not change the linear loop are ignored): eigenvalues, damping ratios, the
+    verdict and the margins (:class:`~orchestration.studies.analysis.Analysis`).
+
+    ``scene``: as :func:`load_scene` takes it (default: the default scene); ``overrides``: a
+    dict of scene keys (``{"plant.n_modes": 3, "controller.filter_order": 0}``)."""
+    sc = _resolved(scene, overrides, "analyze")
+    return _analyze(sc.plant.params, sc.controller)
+
+
+def design(scene=None, overrides=None, *, design: dict | None = None, workers: int | None = None,
+           scheduler: str | None = None, progress: bool = False) -> DesignReport:
+    """The robust low-pass filter for the scene's PD gains (``flexpend design``): the filter
+    order, cutoff and damping with the largest worst-case decay rate (or damping ratio) over
+    the uncertainty set around the scene's plant. ``design``: the ``design.*`` keys
+    (``{"design.criterion": "damping"}``); ``workers``/``scheduler``: check the worst case on
+    dask. The result's ``save(folder)`` writes what ``flexpend design`` writes."""
+    sc = _resolved(scene, overrides, "design")
+    items = dict(design or {})
+    check_known(items, DESIGN_DEFAULTS)
+    settings = design_settings({**DESIGN_DEFAULTS, **items})
+    bar = Progress("design") if progress else None
+    p, c = sc.plant.params, sc.controller
+    if workers is None and not scheduler:
+        r = design_filter(p, c, settings, progress=bar)
+    else:
+        with open_executor(workers, scheduler) as ex:
+            r = design_filter(p, c, settings, progress=bar, executor=ex)
+    return DesignReport(r, p, c, settings)
+
+
+def build_fmus(flavour: str = "native", *, fmi_version: int = 2, out=None,
+               force: bool = False) -> dict:
+    """Build the plant and controller FMUs of ``flavour`` (``"native"``: C, FMI 2.0 or 3.0;
+    ``"python"``: pythonfmu, FMI 2.0) if missing or stale; ``{model name: path}``."""
+    if flavour not in FMU_FLAVOURS:
+        raise ValueError(f"flavour = {flavour!r} is not allowed; allowed: "
+                         f"{', '.join(map(repr, FMU_FLAVOURS))}")
+    return _build_fmus(Path(out) if out is not None else None, force=force, flavour=flavour,
+                       fmi_version=fmi_version)

@@ -1,0 +1,58 @@
+"""Where the FMUs and the build's caches go.
+
+In a source checkout (``pyproject.toml`` beside the packages) they go into its ``build/``
+folder: ``build/fmus/`` (pythonfmu FMUs), ``build/fmus/native/fmi2/`` and ``fmi3/`` (native FMUs)
+and ``build/loader/`` (the pythonfmu FMUs' compiled loader), as the README says. An installed
+flexpend (a wheel in site-packages) writes nothing beside its packages: it builds into
+``$FLEXPEND_HOME`` when set, else into the user's cache folder
+(``$XDG_CACHE_HOME/flexpend/<version>``, by default ``~/.cache/flexpend/<version>``), whatever
+the current folder. ``FLEXPEND_HOME`` also redirects a checkout's builds.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+#: The folder holding the packages: a checkout, or an installation's site-packages (this
+#: module's own place: in the pythonfmu builder's child process, fmu_common may come from the
+#: FMU's staging folder).
+ROOT = Path(__file__).resolve().parents[2]
+
+__all__ = ["ROOT", "in_checkout", "home", "fmu_dir", "native_fmu_dir", "loader_cache"]
+
+
+def in_checkout() -> bool:
+    """Whether the packages run from a source checkout (not from an installation)."""
+    return (ROOT / "pyproject.toml").is_file() and (ROOT / "orchestration").is_dir()
+
+
+def home() -> Path:
+    """The folder that holds the built FMUs and the build's caches."""
+    env = os.environ.get("FLEXPEND_HOME")
+    if env:
+        return Path(env).expanduser()
+    if in_checkout():
+        return ROOT / "build"
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        v = version("flexpend")
+    except PackageNotFoundError:
+        v = "unknown"
+    cache = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(cache) / "flexpend" / v
+
+
+def fmu_dir() -> Path:
+    """The pythonfmu FMUs' folder (``build/fmus`` in a checkout)."""
+    return home() / "fmus"
+
+
+def native_fmu_dir() -> Path:
+    """The native FMUs' folder, holding ``fmi2/`` and ``fmi3/`` (``build/fmus/native``)."""
+    return home() / "fmus" / "native"
+
+
+def loader_cache() -> Path:
+    """The compiled loaders of the pythonfmu FMUs, by source digest (``build/loader``)."""
+    return home() / "loader"

@@ -1,0 +1,88 @@
+"""What ``flexpend design`` shows and writes: the worst case against the cutoff, the loop's Bode
+plot with and without the chosen filter, the root locus over the cutoff (nominal beam), as
+figures and files (``design.json``, ``design_sweep.csv`` and three PNGs)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..studies.analysis import frequency_response
+from ..studies.design import root_locus
+from . import figures
+from .files import atomic_path, save_figure, write_json
+from .text import filter_text
+
+__all__ = ["DesignReport"]
+
+
+@dataclass
+class DesignReport:
+    """A design (:class:`~orchestration.studies.design.DesignResult`) of the filter of
+    ``controller``'s PD on the nominal ``plant``, with its figures and files."""
+
+    result: object
+    plant: object
+    controller: object
+    settings: dict
+    written: list = field(default_factory=list)
+    record: dict = field(default_factory=dict)     # design.json, once saved
+
+    def to_json(self) -> dict:
+        return self.result.to_json()
+
+    def figures(self) -> dict:
+        """``{file name: Figure}``: the worst case against the cutoff, the Bode plot, the root
+        locus."""
+        r, p, c = self.result, self.plant, self.controller
+        ch = r.chosen
+        chosen_label = f"chosen: {filter_text(ch.filter_order, ch.cutoff, ch.filter_damping)}"
+        ylabel = ("worst-case decay rate -max Re(lambda) (1/s)" if r.criterion == "decay"
+                  else "worst-case damping ratio")
+        uset = r.uncertainty.describe()
+        out = {"design_worst_case.png": figures.worst_case(
+            r.sweep, (ch.cutoff, r.worst.score(r.criterion), chosen_label), ylabel,
+            f"worst case over n_modes {uset['n_modes'][0]}..{uset['n_modes'][1]}, zeta "
+            f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g}, EI +-{100 * r.uncertainty.EI_spread:g} "
+            f"%, m +-{100 * r.uncertainty.m_spread:g} % (PD kp = {c.kp:g}, kd = {c.kd:g})")}
+        w = np.logspace(0, np.log10(max(20.0 * ch.cutoff, 5e3)), 3000)
+        loops = {"PD, no filter": frequency_response(p, c.replace(filter_order=0), w),
+                 chosen_label.replace("chosen: ", "PD + "): frequency_response(p, ch, w)}
+        if (c.filter_order, c.cutoff, c.filter_damping) != \
+                (ch.filter_order, ch.cutoff, ch.filter_damping) and c.filter_order:
+            loops[f"PD + given {filter_text(c.filter_order, c.cutoff, c.filter_damping)}"] = \
+                frequency_response(p, c, w)
+        out["design_bode.png"] = figures.loop_bode(
+            w, loops, f"loop broken at the force, L = -K G (nominal beam, {p.n_modes} modes)",
+            [(ch.cutoff, "cutoff")])
+        s = self.settings
+        wcs, roots = root_locus(p, ch, np.union1d(
+            np.geomspace(s["design.cutoff_min"], s["design.cutoff_max"], 300), [ch.cutoff]))
+        kind = "1st order" if ch.filter_order == 1 else f"2nd order, zf = {ch.filter_damping:g}"
+        out["design_root_locus.png"] = figures.root_locus(
+            wcs, roots, ch.cutoff, f"closed-loop roots as the cutoff varies ({kind}; nominal "
+                                   f"beam, {p.n_modes} modes)")
+        return out
+
+    def save(self, folder) -> list[Path]:
+        """Write ``design.json``, ``design_sweep.csv`` and the figures into ``folder``; the
+        paths written (each file complete or absent)."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        r = self.result
+        labels = list(r.sweep)
+        rows = np.column_stack([r.sweep[labels[0]][0]] + [r.sweep[k][1] for k in labels])
+        header = "cutoff," + ",".join(k.replace(",", ";") for k in labels)
+        written = []
+        with atomic_path(folder / "design_sweep.csv") as tmp:
+            np.savetxt(tmp, rows, delimiter=",", header=header, comments="")
+        written.append(folder / "design_sweep.csv")
+        plots = [save_figure(fig, folder / name, dpi=90) for name, fig in self.figures().items()]
+        out = self.to_json()
+        out["plots"] = [str(p) for p in sorted(plots, key=lambda p: p.name)]
+        out["sweep_csv"] = str(written[0])
+        written.insert(0, write_json(folder / "design.json", out))
+        self.record = out
+        self.written = written + sorted(plots, key=lambda p: p.name)
+        return self.written

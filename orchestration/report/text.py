@@ -1,0 +1,183 @@
+"""What the terminal shows: the text of an analysis, a design, a run's summary and a sweep.
+
+Each function returns lines (no trailing newline); the command line prints them. Numbers are
+printed with the digits that mean something (:func:`num`).
+"""
+from __future__ import annotations
+
+import math
+
+__all__ = ["num", "filter_text", "analysis_lines", "mode_text", "run_lines", "design_lines",
+           "sweep_lines"]
+
+
+def num(v, spec=".4g") -> str:
+    """A number as text: ``spec`` digits, ``-`` for None or NaN, ``inf`` for infinity."""
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "-"
+    if isinstance(v, float) and math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return format(v, spec)
+
+
+def filter_text(order, cutoff, damping) -> str:
+    return {0: "none", 1: f"1st order, wc = {cutoff:g} rad/s",
+            2: f"2nd order, wc = {cutoff:g} rad/s, zf = {damping:g}"}[order]
+
+
+def analysis_lines(plant, controller, a) -> list[str]:
+    """``flexpend analyze``: the loop, its closed-loop eigenvalues, the verdict and the margins
+    (:class:`~orchestration.studies.analysis.Analysis`)."""
+    p, c = plant, controller
+    out = [f"plant: n_modes = {p.n_modes}, zeta = {p.zeta:g}, gravity_preload = "
+           f"{str(p.gravity_preload).lower()}  (linearised at the upright rest state)",
+           f"controller: kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}, filter: "
+           f"{filter_text(c.filter_order, c.cutoff, c.filter_damping)}"]
+    if a.cantilever_frequencies:
+        out.append("cantilever frequencies (rad/s): "
+                   + ", ".join(f"{w:.2f}" for w in a.cantilever_frequencies))
+    out += ["", f"{'closed-loop eigenvalue':>30}  {'|lambda| rad/s':>14}  {'damping ratio':>13}"]
+    for re, im, wn, zeta in a.modes():
+        lam = f"{re:+.4f} {'+-' if im > 0 else '  '} {im:.4f}j" if im > 0 else f"{re:+.4f}"
+        out.append(f"{lam:>30}  {wn:14.3f}  {num(zeta, '13.4f'):>13}")
+    verdict = "STABLE" if a.stable else "UNSTABLE"
+    note = " (cart drift roots at 0 left aside)" if c.kx == 0 else ""
+    out += ["", f"max real part{note}: {a.max_real_part:+.4f}  ->  {verdict}"]
+    m = a.margins
+    if m["nominal_stable"]:
+        out.append(f"gain margin: x{num(m['gain_margin_upper'])} upward (at "
+                   f"{num(m['gain_margin_upper_freq'])} rad/s), x{num(m['gain_margin_lower'])} "
+                   f"downward (at {num(m['gain_margin_lower_freq'])} rad/s)")
+    out.append(f"phase margin: {num(m['phase_margin_deg'])} deg at "
+               f"{num(m['phase_margin_freq'])} rad/s (smallest of all gain crossovers)")
+    return out
+
+
+def mode_text(m) -> str:
+    """One fitted mode, with the linear prediction beside it."""
+    if m is None:
+        return "-"
+    lin = m.get("linear")
+    lin_text = (f"   (linear: {lin['rate']:+.3f} +- {lin['frequency']:.2f}j)" if lin else "")
+    if m["reliable"]:
+        return f"rate {m['rate']:+.3f} 1/s at {m['frequency']:.2f} rad/s{lin_text}"
+    return f"{m['note']}{lin_text}"
+
+
+def run_lines(name: str, s: dict, written=()) -> list[str]:
+    """A run's summary (:func:`orchestration.report.summary.summarize`) for the terminal."""
+    if s["stopped"] is not None:
+        verdict = f"STOPPED at t = {s['stopped']['time']:.6g} s"
+    else:
+        verdict = {True: "stable", False: "UNSTABLE", None: "no verdict (no reliable fit)"}[
+            s["stable"]]
+    out = [f"{name}: {verdict}"]
+    if s["stopped"] is not None:
+        out.append(f"  stopped: {s['stopped']['reason']}")
+    if s.get("model"):
+        m = s["model"]
+        auto = " and ".join(k for k, on in (("plant.n_modes", m["n_modes_auto"]),
+                                               ("plant.fidelity", m["fidelity_auto"])) if on)
+        out.append(f"  model: {m['n_modes']} modes, {m['fidelity']} ({auto} = auto, tolerance "
+                   f"{100 * m['tolerance']:g} % on {', '.join(m['outputs'])})")
+        out += [f"    {part}" for part in m["reason"].split("; ")]
+    out.append(f"  slow (rigid) oscillation: {mode_text(s.get('slow'))}")
+    out.append(f"  bending oscillation:      {mode_text(s.get('bending'))}")
+    v = s.get("validity")
+    if v and v["warnings"]:
+        out += [f"  WARNING, outside the model's range: {w}" for w in v["warnings"]]
+    elif v and v["max_abs_tip_deflection"] is not None:
+        out.append(f"  within the model's range (tip deflection at most "
+                   f"{v['max_abs_tip_deflection']:.3g} m, |phi| at most {v['max_abs_phi']:.3g} "
+                   "rad)")
+    if s.get("max_abs_F_c") is not None:
+        out.append(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
+    if "wall_time" in s:
+        loop = f"; {s['master_loop']} loop" if s.get("master_loop") else ""
+        out.append(f"  wall time: {s['wall_time']:.3g} s ({s['steps']} communication steps, "
+                   f"{s['rejected_steps']} rejected{loop})")
+    if "max_error_phi_o" in s:
+        out.append(f"  max error against the monolithic reference: phi_o "
+                   f"{s['max_error_phi_o']:.3e} rad, eta_1 {s['max_error_eta_1']:.3e} m kg^0.5")
+    if written:
+        out.append(f"  wrote {', '.join(str(w) for w in written)}")
+    return out
+
+
+def design_lines(d) -> list[str]:
+    """``flexpend design``'s report (a :class:`~orchestration.report.design.DesignReport`)."""
+    r, c = d.result, d.controller
+    uset = r.uncertainty.describe()
+    crit = r.criterion
+
+    def where(pl):
+        return f"n_modes = {pl.n_modes}, zeta = {pl.zeta:g}, EI = {pl.EI:.4g}, m = {pl.m:.3g}"
+
+    def root(z):
+        return f"{z.real:+.4f} +- {abs(z.imag):.2f}j" if z.imag else f"{z.real:+.4f}"
+
+    ch, wc_ = r.chosen, r.worst
+    out = [f"robust low-pass design for the PD kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}",
+           f"uncertainty: n_modes {uset['n_modes'][0]}..{uset['n_modes'][1]}, zeta "
+           f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g}, EI {uset['EI'][0]:.4g}..{uset['EI'][1]:.4g}, "
+           f"m {uset['m'][0]:.3g}..{uset['m'][1]:.3g}; searched on {r.levels} levels, checked on "
+           f"{r.check_levels} levels ({wc_.n_plants} plants)",
+           f"criterion: the smallest closed-loop "
+           f"{'decay rate' if crit == 'decay' else 'damping ratio'} over the set, maximised",
+           "",
+           f"chosen filter: {filter_text(ch.filter_order, ch.cutoff, ch.filter_damping)}",
+           "  " + " ".join(f"--set {k}={v:g}" for k, v in r.filter_keys().items()),
+           f"  worst-case decay rate {wc_.decay:+.4f} 1/s: root {root(wc_.decay_root)} at "
+           f"{where(wc_.decay_plant)}",
+           f"  worst-case damping ratio {wc_.damping:+.5f}: root {root(wc_.damping_root)} at "
+           f"{where(wc_.damping_plant)}",
+           f"  {'STABLE' if wc_.stable else 'UNSTABLE'} over the whole set",
+           "",
+           f"{'filter':<56}  {'worst decay 1/s':>15}  {'worst damping':>13}"]
+    rows = [(f"best {o}{'st' if o == 1 else 'nd'} order", cc, ww)
+            for o, (cc, ww) in r.per_order.items()]
+    rows += [(k, cc, ww) for k, (cc, ww) in r.baseline.items()]
+    for label, cc, ww in rows:
+        text = f"{label}: {filter_text(cc.filter_order, cc.cutoff, cc.filter_damping)}"
+        out.append(f"{text:<56}  {ww.decay:+15.4f}  {ww.damping:+13.5f}")
+    if d.written:
+        out += ["", "wrote " + ", ".join(str(w) for w in d.written)]
+    return out
+
+
+def sweep_lines(plan, res, stats, executor) -> list[str]:
+    """A sweep's counts, verdicts and decay rates (:func:`orchestration.sweeps.engine.
+    sweep_stats`)."""
+    out = [f"{plan.scene.name}: {stats['runs']} runs: {stats['ok']} ok, {stats['failed']} failed"
+           + (f", {stats['lost']} lost (their workers died; rerun the same command to retry "
+              "them)" if stats["lost"] else "")
+           + (f"; {res.ran} ran in {res.seconds:.1f} s on {executor.describe()}" if res.ran
+              else "; 0 ran")
+           + (f", {res.skipped} were already done" if res.skipped else "")]
+    if stats["stable_fraction"] is not None:
+        out.append(f"  stable: {stats['stable']} of {stats['ok'] + stats['failed']} finished runs "
+                   f"({100 * stats['stable_fraction']:.1f} %); unstable {stats['unstable']}, no "
+                   f"verdict {stats['no_verdict']} (stopped early, or no reliable fit)"
+                   + (f"; {stats['invalid']} left the model's range" if stats["invalid"] else ""))
+    if "worst_decay_rate" in stats:
+        worst = res.rows[stats["worst_run"]]
+        where = ", ".join(f"{k} = {num(worst[k]) if isinstance(worst[k], float) else worst[k]}"
+                          for k in plan.keys)
+        out.append(f"  decay rate -max(fitted rate): worst {stats['worst_decay_rate']:+.4g} 1/s "
+                   f"(run {stats['worst_run']}: {where}), median "
+                   f"{stats['median_decay_rate']:+.4g}, best {stats['best_decay_rate']:+.4g}")
+    if "worst_linear_decay_rate" in stats:
+        out.append(f"  linearised loop over the same runs: worst decay rate "
+                   f"{stats['worst_linear_decay_rate']:+.4g} 1/s (run "
+                   f"{stats['worst_linear_run']})")
+    if "design_worst_case" in stats:
+        w = stats["design_worst_case"]
+        at = ", ".join(f"{k} = {num(v)}" for k, v in w["decay_rate_at"].items())
+        out.append(f"  flexpend design's worst case over the uncertainty set (linear, "
+                   f"{w['plants']} plants): {w['decay_rate']:+.4g} 1/s at {at}")
+    failed = [r for r in res.rows if r["status"] != "ok"]
+    out += [f"  run {r['run']} {r['status']}: {(r['message'] or '')[:160]}" for r in failed[:3]]
+    if len(failed) > 3:
+        out.append(f"  ... {len(failed) - 3} more (the table has every message)")
+    out.append(f"  wrote {res.table}" + (f", {res.plot}" if res.plot else ""))
+    return out

@@ -1,0 +1,338 @@
+"""A scene's typed records: what to run, validated once when the scene is read.
+
+A :class:`Scene` is a name, a description, the wiring and six frozen records:
+
+========== ======================= ===========================================================
+record     class                   scene keys
+========== ======================= ===========================================================
+plant      :class:`PlantSetup`     ``plant.*``: the physical plant (:class:`PlantParams`), the
+                                   model's fidelity and the plant FMU's solver settings
+controller :class:`ControllerParams` ``controller.*``: the PD and the low-pass filter
+master     :class:`MasterSettings` ``master.*``: the coupling and the FMUs it runs
+initial    :class:`InitialState`   ``initial.*``: the initial angle, position and rates
+fidelity   :class:`FidelitySettings` ``fidelity.*``: how ``"auto"`` chooses the model
+output     :class:`OutputSettings` ``stop_time``, ``output_interval``
+========== ======================= ===========================================================
+
+Every record checks its own fields when it is made (a :class:`~orchestration.scene.keys.ConfigError`,
+a ``ValueError``, names the scene key and what is allowed), and the scene checks what ties the
+records together (the steps against the output grid). Dotted keys are the records' names at the
+edges only (scene files, ``--set``, sweep axes, SSP): :data:`KEYS` maps them to the fields,
+:meth:`Scene.get` reads a key off the records and :mod:`orchestration.scene.schema` builds the
+records from keys.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, replace
+from types import MappingProxyType
+
+from controller_fmu.pd_lowpass import ControllerParams
+from fmu_common.checks import check_bool, check_int, check_real
+from plant_fmu.interface import FIDELITIES, FMU_SETTINGS
+from plant_fmu.params import PlantParams
+
+from .keys import ConfigError
+from .wiring import Connection, parse_connection
+
+__all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", "PlantSetup",
+           "MasterSettings", "InitialState", "FidelitySettings", "OutputSettings", "Scene",
+           "DEFAULT_CONNECTIONS", "KEYS"]
+
+#: The value of ``plant.n_modes`` and ``plant.fidelity`` that lets a run choose the model.
+AUTO = "auto"
+ALGORITHMS = ("gauss-seidel", "jacobi")
+FIRST = ("controller", "plant")
+#: the FMUs a scene runs on: compiled C (FMI 2.0) or pythonfmu
+FMU_FLAVOURS = ("native", "python")
+#: Outputs that every model has (0 for the rigid model's deflection), by result column.
+COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
+#: The paper's loop: the sensors to the controller, the force to the plant.
+DEFAULT_CONNECTIONS = (
+    "plant.x_o -> controller.x_o",
+    "plant.phi_o -> controller.phi_o",
+    "plant.omega_o -> controller.omega_o",
+    "controller.F_c -> plant.F_c",
+)
+
+
+def _set(obj, name, value):
+    object.__setattr__(obj, name, value)
+
+
+def _checked(key, check, *args, **kw):
+    """``check(key, *args, **kw)``, its TypeError or ValueError as a ConfigError."""
+    try:
+        return check(key, *args, **kw)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _choice(key, value, allowed):
+    if value not in allowed:
+        raise ConfigError(f"{key} = {value!r} is not allowed; allowed: "
+                          f"{', '.join(map(str, allowed))}")
+    return value
+
+
+@dataclass(frozen=True)
+class PlantSetup:
+    """``plant.*``: the plant's physical parameters, the model and the plant FMU's settings.
+
+    ``n_modes`` and ``fidelity`` may be ``"auto"``: a run chooses them
+    (:func:`orchestration.studies.fidelity.select_model`) and runs the scene it resolves, whose
+    plant has both. Until then :attr:`params` raises: nothing can use a model not chosen yet.
+    """
+
+    beam: PlantParams = PlantParams()      # with n_modes = 0 while n_modes is "auto"
+    n_modes_auto: bool = False
+    fidelity: str = FMU_SETTINGS["fidelity"]
+    integrator: str = FMU_SETTINGS["integrator"]
+    step: float = FMU_SETTINGS["step"]
+    rtol: float = FMU_SETTINGS["rtol"]
+    atol: float = FMU_SETTINGS["atol"]
+    phi_limit: float = FMU_SETTINGS["phi_limit"]
+    energy_limit: float = FMU_SETTINGS["energy_limit"]
+
+    def __post_init__(self):
+        from plant_fmu.integrators import REGISTRY
+
+        if not isinstance(self.beam, PlantParams):
+            raise TypeError(f"beam must be a PlantParams, got {type(self.beam).__name__}")
+        _choice("plant.fidelity", self.fidelity, (*FIDELITIES, AUTO))
+        _choice("plant.integrator", self.integrator, sorted(REGISTRY))
+        for name in ("step", "rtol", "atol"):
+            _set(self, name, _checked(f"plant.{name}", check_real, getattr(self, name),
+                                      low=0.0, high=1e6))
+        for name in ("phi_limit", "energy_limit"):
+            _set(self, name, _checked(f"plant.{name}", check_real, getattr(self, name),
+                                      low=0.0, allow_inf=True))
+        if self.integrator == "exponential" and self.fidelity != "linear":
+            raise ConfigError("plant.integrator = 'exponential' integrates the linearised plant; "
+                              "it needs plant.fidelity = 'linear'")
+
+    @property
+    def n_modes(self):
+        """The number of cantilever modes, or ``"auto"``."""
+        return AUTO if self.n_modes_auto else self.beam.n_modes
+
+    @property
+    def resolved(self) -> bool:
+        """Whether the model is chosen (neither ``n_modes`` nor ``fidelity`` is ``"auto"``)."""
+        return not self.n_modes_auto and self.fidelity != AUTO
+
+    @property
+    def params(self) -> PlantParams:
+        """The plant's parameters, its model chosen (ConfigError while ``n_modes`` is auto)."""
+        if self.n_modes_auto:
+            raise ConfigError("plant.n_modes = 'auto' is chosen by a run: resolve the scene "
+                              "first (orchestration.studies.fidelity.select_model)")
+        return self.beam
+
+    def with_model(self, n_modes: int, fidelity: str) -> "PlantSetup":
+        """This plant with the model ``n_modes`` and ``fidelity`` chosen."""
+        return replace(self, beam=self.beam.replace(n_modes=n_modes), n_modes_auto=False,
+                       fidelity=fidelity)
+
+
+@dataclass(frozen=True)
+class MasterSettings:
+    """``master.*``: the co-simulation's coupling (see ``orchestration.cosim``)."""
+
+    algorithm: str = "gauss-seidel"
+    first: str = "controller"
+    step: float = 2e-3
+    extrapolation: int = 2
+    adaptive: bool = False
+    tolerance: float = 1e-4
+    min_step: float = 1e-6
+    max_step: float = 2e-2
+    input_derivatives: bool = True
+    fmus: str = "native"
+    compiled: object = "auto"
+
+    def __post_init__(self):
+        _choice("master.algorithm", self.algorithm, ALGORITHMS)
+        _choice("master.first", self.first, FIRST)
+        _choice("master.fmus", self.fmus, FMU_FLAVOURS)
+        for name in ("step", "tolerance", "min_step", "max_step"):
+            _set(self, name, _checked(f"master.{name}", check_real, getattr(self, name),
+                                      low=0.0, high=1e6))
+        _set(self, "extrapolation", _checked("master.extrapolation", check_int,
+                                             self.extrapolation, low=0, high=2))
+        for name in ("adaptive", "input_derivatives"):
+            _set(self, name, _checked(f"master.{name}", check_bool, getattr(self, name)))
+        if not (isinstance(self.compiled, bool) or self.compiled == "auto"):
+            raise ConfigError(f"master.compiled = {self.compiled!r} is not allowed; allowed: "
+                              "'auto', true, false")
+        if self.min_step > self.max_step:
+            raise ConfigError(f"master.min_step = {self.min_step} exceeds master.max_step = "
+                              f"{self.max_step}")
+
+
+@dataclass(frozen=True)
+class InitialState:
+    """``initial.*``: the initial state (the beam undeformed)."""
+
+    phi: float = math.pi / 6
+    x: float = 0.0
+    phi_dot: float = 0.0
+    x_dot: float = 0.0
+
+    def __post_init__(self):
+        for f in fields(self):
+            _set(self, f.name, _checked(f"initial.{f.name}", check_real, getattr(self, f.name),
+                                        low=-1e6, high=1e6))
+
+
+@dataclass(frozen=True)
+class FidelitySettings:
+    """``fidelity.*``: how a run chooses the model when ``plant.n_modes`` or ``plant.fidelity``
+    is ``"auto"`` (:mod:`orchestration.studies.fidelity`)."""
+
+    tolerance: float = 0.05
+    max_modes: int = 8
+    outputs: tuple = ("x", "phi_o", "omega_o", "F_c")
+
+    def __post_init__(self):
+        _set(self, "tolerance", _checked("fidelity.tolerance", check_real, self.tolerance,
+                                         low=0.0, high=1.0))
+        _set(self, "max_modes", _checked("fidelity.max_modes", check_int, self.max_modes,
+                                         low=1, high=400))
+        outs = self.outputs
+        if (not isinstance(outs, (list, tuple)) or not outs
+                or not all(isinstance(o, str) and o in COMPARABLE_OUTPUTS for o in outs)):
+            raise ConfigError(f"fidelity.outputs = {outs!r} is not allowed; allowed: a "
+                              f"non-empty list of {', '.join(COMPARABLE_OUTPUTS)}")
+        _set(self, "outputs", tuple(outs))
+
+
+@dataclass(frozen=True)
+class OutputSettings:
+    """``stop_time`` and ``output_interval``: the run's length and its output grid (s)."""
+
+    stop_time: float = 10.0
+    output_interval: float = 0.002
+
+    def __post_init__(self):
+        for f in fields(self):
+            _set(self, f.name, _checked(f.name, check_real, getattr(self, f.name), low=0.0,
+                                        high=1e6))
+        n_out = self.stop_time / self.output_interval
+        if not math.isfinite(n_out) or n_out < 1 - 1e-9 or abs(n_out - round(n_out)) > 1e-9 * n_out:
+            raise ConfigError(f"stop_time = {self.stop_time} must be a positive multiple of "
+                              f"output_interval = {self.output_interval}")
+
+    @property
+    def n_out(self) -> int:
+        """The number of output intervals."""
+        return int(round(self.stop_time / self.output_interval))
+
+
+def _keys() -> dict:
+    """scene key -> (record, attribute path): the one map between the dotted keys and the
+    records' fields, in the order of a scene file."""
+    out = {"description": ("", "description")}
+    out.update({f"plant.{f.name}": ("plant", "n_modes" if f.name == "n_modes" else f"beam.{f.name}")
+                for f in fields(PlantParams)})
+    out.update({f"plant.{f.name}": ("plant", f.name) for f in fields(PlantSetup)
+                if f.name not in ("beam", "n_modes_auto")})
+    out.update({f"controller.{f.name}": ("controller", f.name) for f in fields(ControllerParams)})
+    out.update({f"initial.{f.name}": ("initial", f.name) for f in fields(InitialState)})
+    out.update({f.name: ("output", f.name) for f in fields(OutputSettings)})
+    out.update({f"master.{f.name}": ("master", f.name) for f in fields(MasterSettings)})
+    out.update({f"fidelity.{f.name}": ("fidelity", f.name) for f in fields(FidelitySettings)})
+    out["connections"] = ("", "connections")
+    return out
+
+
+def _connections(value) -> tuple:
+    if isinstance(value, str) or not isinstance(value, (list, tuple)) or not value:
+        raise ConfigError("connections must be a non-empty list of strings "
+                          "'fmu.variable -> fmu.variable'")
+    out = []
+    for c in value:
+        if isinstance(c, Connection):
+            conn = c
+        elif isinstance(c, str):
+            try:
+                conn = parse_connection(c)
+            except ValueError as exc:
+                raise ConfigError(f"connections {exc}") from None
+        else:
+            raise ConfigError("connections must be a non-empty list of strings "
+                              "'fmu.variable -> fmu.variable'")
+        for fmu in (conn.src, conn.dst):
+            if fmu not in ("plant", "controller"):
+                raise ConfigError(f"connections {str(conn)!r} names FMU {fmu!r}; allowed: "
+                                  "plant, controller")
+        out.append(conn)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene: its name, description, wiring and records (see the module)."""
+
+    name: str
+    plant: PlantSetup = PlantSetup()
+    controller: ControllerParams = ControllerParams()
+    master: MasterSettings = MasterSettings()
+    initial: InitialState = InitialState()
+    fidelity: FidelitySettings = FidelitySettings()
+    output: OutputSettings = OutputSettings()
+    connections: tuple = field(default=DEFAULT_CONNECTIONS)
+    description: str = ""
+
+    def __post_init__(self):
+        for name, cls in (("plant", PlantSetup), ("controller", ControllerParams),
+                          ("master", MasterSettings), ("initial", InitialState),
+                          ("fidelity", FidelitySettings), ("output", OutputSettings)):
+            if not isinstance(getattr(self, name), cls):
+                raise TypeError(f"Scene.{name} must be a {cls.__name__}, got "
+                                f"{type(getattr(self, name)).__name__}")
+        _set(self, "connections", _connections(self.connections))
+        if not isinstance(self.description, str):
+            raise ConfigError("description must be a string")
+        if self.fidelity.max_modes > self.plant.beam.n_elements:
+            raise ConfigError(f"fidelity.max_modes = {self.fidelity.max_modes} is out of range; "
+                              f"allowed: integers 1..{self.plant.beam.n_elements}")
+        m, out = self.master, self.output
+        if m.step > out.stop_time:
+            raise ConfigError(f"master.step = {m.step} exceeds stop_time = {out.stop_time}")
+        ratio = out.output_interval / m.step
+        if not m.adaptive and (not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 * ratio):
+            raise ConfigError(f"output_interval = {out.output_interval} must be a multiple of "
+                              f"master.step = {m.step}")
+
+    @property
+    def resolved(self) -> bool:
+        """Whether the model is chosen (see :attr:`PlantSetup.resolved`)."""
+        return self.plant.resolved
+
+    def get(self, key: str):
+        """The value of the scene key ``key``, read off the records (in its edge form: lists of
+        strings for ``connections`` and ``fidelity.outputs``); KeyError for an unknown key."""
+        record, path = KEYS[key]
+        obj = getattr(self, record) if record else self
+        for part in path.split("."):
+            obj = getattr(obj, part)
+        if key == "plant.n_modes":
+            return self.plant.n_modes
+        if key == "connections":
+            return [str(c) for c in obj]
+        return list(obj) if isinstance(obj, tuple) else obj
+
+    @property
+    def config(self) -> MappingProxyType:
+        """Every scene key with its value: the records in their edge form (scene files, sweep
+        keys, SSP annotations)."""
+        return MappingProxyType({key: self.get(key) for key in KEYS})
+
+    def replace(self, **changes) -> "Scene":
+        """A copy with records (or the name, description, connections) replaced, validated."""
+        return replace(self, **changes)
+
+
+#: scene key -> (record, attribute path) (see :func:`_keys`)
+KEYS = _keys()

@@ -1,0 +1,135 @@
+"""A sweep from start to end (``flexpend sweep`` and :func:`orchestration.sweeps`): the plan, the
+executor (serial, a LocalCluster or a scheduler), the runs, the statistics and ``sweep.json``."""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..report.files import write_json
+from ..scene.keys import ConfigError
+from .engine import fmus_for, pending, run_sweep, sweep_stats
+from .executor import Executor, default_workers, open_executor
+from .plan import design_worst_case, plan_sweep
+
+__all__ = ["Sweep", "sweep"]
+
+
+@dataclass
+class Sweep:
+    """A finished (or resumed) sweep: the plan, the runs (:class:`~orchestration.sweeps.engine.
+    SweepResult`: rows, table and plot paths), the statistics and the record of ``sweep.json``."""
+
+    plan: object
+    result: object
+    stats: dict
+    record: dict
+    executor: str
+
+    @property
+    def rows(self) -> list:
+        return self.result.rows
+
+    def to_pandas(self):
+        """One row per run, as a pandas DataFrame indexed by the run's number."""
+        import pandas as pd
+
+        return pd.DataFrame(self.result.rows).set_index("run")
+
+
+def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
+          seed: int | None = None, overrides=(), reference: bool = False,
+          workers: int | None = None, scheduler: str | None = None, serial: bool = False,
+          batch: int = 1, retry_failed: bool = False, out="out/sweep", progress: bool = True,
+          command: str | None = None, on_executor=None) -> Sweep:
+    """Run a sweep of ``scene`` into the folder ``out`` (see :mod:`orchestration.sweeps`).
+
+    ``grid``, ``values``, ``sample``: the ``--grid``, ``--values``, ``--sample`` items (strings),
+    or dicts: ``grid={"controller.kp": (300, 700, 5)}`` (a fourth item ``"log"`` for a geometric
+    grid), ``values={"plant.n_modes": [2, 3, 4]}``, ``sample={"plant.EI": "uniform:800:950"}``
+    (or ``sample="design"``). ``workers``: a LocalCluster of that many processes (default: one
+    per core); ``scheduler``: the address of a dask scheduler; ``serial``: here, one run after
+    the other. Errors name the bad argument
+    (:class:`~orchestration.scene.keys.ConfigError`, a ``ValueError``)."""
+    if serial and (workers is not None or scheduler):
+        raise ConfigError("serial runs here, without dask: it takes no workers or scheduler")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or workers < 1):
+        raise ConfigError(f"workers = {workers!r} is not allowed; allowed: an integer >= 1")
+    if workers is not None and scheduler:
+        raise ConfigError("workers starts a LocalCluster, scheduler uses an existing one: give "
+                          "one of them")
+    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
+        raise ConfigError(f"batch = {batch!r} is not allowed; allowed: an integer >= 1")
+    plan = plan_sweep(scene, grids=_items("grid", grid), values=_items("values", values),
+                      samples=_items("sample", sample), n_samples=samples, seed=seed,
+                      overrides=_overrides(overrides), reference=reference)
+    out_dir = Path(out)
+    todo = pending(plan, out_dir, retry_failed)
+    done = len({p.key for p in plan.points}) - todo
+    if progress:
+        print(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
+              + (f", {done} already finished in {out_dir}" if done else ""), file=sys.stderr)
+    fmus = fmus_for(plan)
+    if serial or todo == 0:
+        executor = Executor()
+    else:
+        if workers is None and not scheduler:
+            workers = min(default_workers(), todo)
+        executor = open_executor(workers, scheduler,
+                                 files=[f for pair in fmus.values() for f in pair.values()])
+        if on_executor is not None:
+            on_executor(executor)
+    with executor:
+        res = run_sweep(plan, fmus, out_dir, executor, batch=batch, retry_failed=retry_failed,
+                        progress=progress)
+    stats = sweep_stats(res.rows)
+    design = design_worst_case(plan)
+    if design is not None:
+        stats["design_worst_case"] = design.to_json()
+    record = {"command": command, **plan.describe(), "executor": executor.describe(),
+              "batch": batch, "ran": res.ran, "skipped": res.skipped, "seconds": res.seconds,
+              "stats": stats, "table": str(res.table),
+              "plot": None if res.plot is None else str(res.plot)}
+    write_json(out_dir / "sweep.json", record)
+    return Sweep(plan, res, stats, record, executor.describe())
+
+
+def _items(option: str, spec) -> list:
+    """``--grid``/``--values``/``--sample`` items from strings, a list of them, or a dict."""
+    if spec is None:
+        return []
+    if isinstance(spec, str):
+        return [spec]
+    if isinstance(spec, dict):
+        out = []
+        for key, v in spec.items():
+            if option == "grid":
+                if not isinstance(v, (list, tuple)) or len(v) not in (3, 4):
+                    raise ConfigError(f"grid[{key!r}] = {v!r}: expected (start, stop, num) or "
+                                      "(start, stop, num, 'log')")
+                out.append(f"{key}=" + ":".join(str(x) for x in v))
+            elif option == "values":
+                if isinstance(v, str) or not isinstance(v, (list, tuple)) or not v:
+                    raise ConfigError(f"values[{key!r}] = {v!r}: expected a non-empty list")
+                out.append(f"{key}=" + ",".join(_toml(x) for x in v))
+            else:
+                out.append(f"{key}={v}")
+        return out
+    if not all(isinstance(x, str) for x in spec):
+        raise TypeError(f"{option} must be a dict or a list of strings, got {spec!r}")
+    return list(spec)
+
+
+def _toml(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    return repr(value)
+
+
+def _overrides(overrides) -> list:
+    if isinstance(overrides, dict):
+        return [f"{k}={_toml(v)}" for k, v in overrides.items()]
+    return list(overrides or ())

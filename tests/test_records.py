@@ -1,0 +1,126 @@
+"""Scenes read once into typed records: every record is made (and validated) once per run, every
+connection parsed once, every FMU's modelDescription read once; the records reject bad values
+naming the key, and read back through the keys they were made from."""
+import dataclasses
+import math
+
+import pytest
+
+from controller_fmu.pd_lowpass import ControllerParams
+from orchestration.cli import main
+from orchestration.cosim import slave as slave_module
+from orchestration.scene import records, schema, wiring
+from orchestration.scene.keys import ConfigError
+from orchestration.scene.records import (KEYS, FidelitySettings, InitialState, MasterSettings,
+                                         OutputSettings, PlantSetup, Scene)
+from orchestration.scene.schema import known_keys, load_scene, scene_from_config
+from plant_fmu.params import PlantParams
+
+RECORDS = (PlantParams, ControllerParams, PlantSetup, MasterSettings, InitialState,
+           FidelitySettings, OutputSettings, Scene)
+
+
+@pytest.fixture
+def counts(monkeypatch):
+    """Constructions of every record class, parses of connections, reads of modelDescriptions."""
+    made = {cls.__name__: 0 for cls in RECORDS}
+    made["parse_connection"] = made["read_model_description"] = 0
+    for cls in RECORDS:
+        original = cls.__post_init__
+
+        def counted(self, _original=original, _name=cls.__name__):
+            made[_name] += 1
+            _original(self)
+        monkeypatch.setattr(cls, "__post_init__", counted)
+    parse = wiring.parse_connection
+
+    def parse_counted(text):
+        made["parse_connection"] += 1
+        return parse(text)
+    monkeypatch.setattr(records, "parse_connection", parse_counted)
+    read = slave_module.read_model_description
+
+    def read_counted(path):
+        made["read_model_description"] += 1
+        return read(path)
+    monkeypatch.setattr(slave_module, "read_model_description", read_counted)
+    slave_module._describe.cache_clear()
+    return made
+
+
+def test_one_run_builds_each_record_once(native, counts, tmp_path):
+    """``flexpend run`` of one scene, in this process: the scene's records once each, its four
+    connections once each, the two FMUs' modelDescriptions once each (the wiring check and the
+    master share them)."""
+    assert main(["run", "flexible_pd_lowpass", "--set", "stop_time=0.2", "--out",
+                 str(tmp_path)]) == 0
+    assert {k: counts[k] for k in (c.__name__ for c in RECORDS)} == \
+        {c.__name__: 1 for c in RECORDS}
+    assert counts["parse_connection"] == len(records.DEFAULT_CONNECTIONS) == 4
+    assert counts["read_model_description"] == 2
+
+
+def test_every_key_reads_back_what_made_the_records():
+    """Keys -> records -> keys is the identity on the values given (normalised as the records
+    normalise them: an int given for a real is a float)."""
+    values = {"plant.n_modes": 3, "plant.EI": 900, "controller.kp": 450.5, "master.step": 1e-3,
+              "master.algorithm": "jacobi", "initial.phi": 0.25, "stop_time": 2,
+              "output_interval": 0.004, "fidelity.outputs": ["phi_o", "x"],
+              "plant.phi_limit": math.inf, "description": "a test"}
+    scene = scene_from_config("t", values)
+    for key, value in values.items():
+        got = scene.get(key)
+        assert got == value and (type(got) is type(value) or isinstance(value, int)), key
+    assert scene.plant.params.EI == 900.0 and isinstance(scene.plant.params.EI, float)
+    assert set(scene.config) == set(KEYS) == set(known_keys())
+    assert scene_from_config("t", dict(scene.config)) == scene
+
+
+def test_records_are_frozen_and_validate_on_their_own():
+    scene = load_scene("rigid_pd")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        scene.master.step = 1.0
+    with pytest.raises(ConfigError, match=r"^master.extrapolation = 3 is out of range"):
+        MasterSettings(extrapolation=3)
+    with pytest.raises(ConfigError, match=r"^initial.phi must be a real number"):
+        InitialState(phi="up")
+    with pytest.raises(ConfigError, match=r"^fidelity.outputs = \['phi'\] is not allowed"):
+        FidelitySettings(outputs=["phi"])
+    with pytest.raises(ConfigError, match="must be a positive multiple of output_interval"):
+        OutputSettings(stop_time=0.015, output_interval=0.01)
+    with pytest.raises(ConfigError, match="output_interval = 0.003 must be a multiple of "
+                                          "master.step = 0.002"):
+        Scene("s", output=OutputSettings(stop_time=0.006, output_interval=0.003))
+
+
+def test_an_auto_model_must_be_chosen_before_its_parameters_are_used():
+    scene = load_scene("flexible_pd", {"plant.n_modes": "auto"})
+    assert not scene.resolved and scene.plant.n_modes == "auto"
+    with pytest.raises(ConfigError, match="plant.n_modes = 'auto' is chosen by a run"):
+        scene.plant.params
+    chosen = scene.replace(plant=scene.plant.with_model(3, "nonlinear"))
+    assert chosen.resolved and chosen.plant.params.n_modes == 3
+    assert chosen.plant.params.EI == scene.plant.beam.EI
+
+
+@pytest.mark.parametrize("overrides", [{"master.step": 1e-320}, {"output_interval": 1e-320},
+                                       {"stop_time": 1e300}, {"master.step": 5e-324}])
+def test_extreme_numbers_are_one_line_errors(overrides):
+    """Subnormal or huge values are refused with a ConfigError naming a key, never an
+    OverflowError or a ZeroDivisionError."""
+    with pytest.raises(ConfigError) as info:
+        load_scene("rigid_pd", overrides)
+    assert "\n" not in str(info.value) and any(k in str(info.value) for k in overrides)
+
+
+def test_load_scene_takes_names_paths_dicts_and_records(tmp_path):
+    by_name = load_scene("rigid_pd")
+    path = schema.SCENE_DIR / "rigid_pd.toml"
+    assert load_scene(path) == load_scene(str(path)) == by_name
+    assert load_scene(by_name) is by_name
+    assert load_scene(by_name, {"controller.kp": 400}).controller.kp == 400.0
+    assert load_scene({"controller.kp": 400}).controller.kp == 400.0
+    with pytest.raises(TypeError, match="scene must be a name, a path, a dict"):
+        load_scene(42)
+    with pytest.raises(TypeError, match="overrides must be a dict"):
+        load_scene("rigid_pd", "controller.kp=400")
