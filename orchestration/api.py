@@ -17,8 +17,8 @@ from .export import build_fmus as _build_fmus
 from .job import Run, simulate
 from .report.design import DesignReport
 from .report.progress import Progress
-from .scene.keys import ConfigError, check_known
-from .scene.records import FMU_FLAVOURS, Scene
+from .scene.keys import FMU_FLAVOURS, ConfigError, check_known
+from .scene.records import Scene
 from .scene.schema import load_scene
 from .studies.analysis import Analysis
 from .studies.analysis import analyze as _analyze

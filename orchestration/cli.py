@@ -40,7 +40,7 @@ import sys
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-from .scene.keys import ConfigError, parse_override  # noqa: E402  (standard library only)
+from .scene.keys import FMU_FLAVOURS, ConfigError, parse_override  # noqa: E402  (stdlib only)
 
 __all__ = ["main", "entry", "EXIT_USAGE", "EXIT_FAILED", "EXIT_STOPPED", "EXIT_INTERRUPTED"]
 
@@ -48,7 +48,6 @@ EXIT_USAGE = 2
 EXIT_FAILED = 1     # flexpend check: a signal outside its band, or a run that did not complete
 EXIT_STOPPED = 3
 EXIT_INTERRUPTED = 130
-FMU_FLAVOURS = ("native", "python")
 
 
 class UsageError(Exception):
@@ -212,7 +211,6 @@ def cmd_run(args) -> int:
 def cmd_export(args) -> int:
     from pathlib import Path
 
-    from .export.flavours import FlavourUnavailable
     from .export.system import export_scene
     from .report.progress import Progress
     from .scene.schema import load_scene
@@ -223,8 +221,6 @@ def cmd_export(args) -> int:
     try:
         r = export_scene(scene, args.fmus, args.out,
                          progress=Progress(f"{scene.name}: choosing the model"))
-    except FlavourUnavailable as exc:
-        raise UsageError(f"--fmus {args.fmus}: {exc}") from None
     except ValueError as exc:           # an FMU without a parameter the scene sets, ...
         raise UsageError(str(exc)) from None
     sc = r.scene
@@ -238,7 +234,13 @@ def cmd_export(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from .export.check import ReferenceError, Rule, check_fmu, plot_check, write_reference
+    from .export.check import (
+        ReferenceError,
+        Rule,
+        check_fmu,
+        plot_check,
+        write_reference,
+    )
 
     try:
         rule = Rule(args.tolerance, args.window, args.max_outliers)

@@ -30,20 +30,20 @@ from plant_fmu.beam import beam_model
 
 from .cosim.master import Master
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
-from .export import build_fmus, fmu_pair
+from .export import flavour_fmus
 from .report import figures
 from .report.files import save_figure, write_csv, write_json
 from .report.progress import Progress
 from .report.summary import summarize
-from .scene.keys import ConfigError
-from .scene.records import FMU_FLAVOURS, Scene
+from .scene.keys import FMU_FLAVOURS, ConfigError
+from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
 from .studies.fidelity import select_model
 from .studies.reference import COLUMNS, simulate_reference
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "load_job", "check_wiring",
-           "scene_fmus", "plant_start_values", "controller_start_values", "RECORD",
+           "plant_start_values", "controller_start_values", "RECORD",
            "EXIT_STOPPED", "EXIT_INTERRUPTED"]
 
 #: Exit codes of ``flexpend run`` besides 0 (every scene ran to its stop time) and 2 (bad input).
@@ -252,12 +252,6 @@ def _frames(res, n_eta, times):
 
 
 # ---------------------------------------------------------------------- the front door's run
-def scene_fmus(flavour: str) -> dict:
-    """``{"plant": path, "controller": path}``: the FMUs of ``flavour``, built if missing or
-    stale."""
-    return fmu_pair(build_fmus(flavour=flavour))
-
-
 def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool = False,
              progress: bool = False) -> Run:
     """Co-simulate one scene and return its :class:`Run`.
@@ -283,7 +277,7 @@ def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool 
     try:
         if fmus is not None and own is None:
             sc = sc.replace(master=replace(sc.master, fmus=fmus))
-        pair = own.fmus if own is not None else scene_fmus(sc.master.fmus)
+        pair = own.fmus if own is not None else flavour_fmus(sc.master.fmus)
         check_wiring(sc, pair)
         return run_scene(sc, pair, reference=reference, progress=progress)
     finally:
@@ -345,7 +339,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 if stop is not None and stop():
                     job.code = EXIT_INTERRUPTED
                     return job
-                pairs[scene.master.fmus] = scene_fmus(scene.master.fmus)
+                pairs[scene.master.fmus] = flavour_fmus(scene.master.fmus)
             check_wiring(scene, system.fmus if system is not None else pairs[scene.master.fmus])
         for scene, system in items:
             if stop is not None and stop():

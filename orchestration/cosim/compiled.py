@@ -1,7 +1,8 @@
-"""The master's fixed-step loop in C (``orchestration/cosim/native/fm_master.c``), bound with ctypes.
+"""The master's fixed-step loop in C (``orchestration/cosim/native/fm_master.c``), bound with
+ctypes.
 
-:class:`~orchestration.cosim.master.Master` runs it instead of its Python loop when every FMU can take
-it (:func:`unavailable` says why not) and the key ``compiled`` allows it. The FMUs stay loaded,
+:class:`~orchestration.cosim.master.Master` runs it instead of its Python loop when every FMU can
+take it (:func:`unavailable` says why not) and the key ``compiled`` allows it. The FMUs stay loaded,
 instantiated and initialised by fmpy; the C loop receives their instance pointers and the
 addresses of the FMI functions fmpy loaded, and makes the calls the Python loop makes, in the
 same order, with the same arguments. Its results are bit-identical to the Python loop's

@@ -5,7 +5,7 @@
 :mod:`.python_fmus` builds the pythonfmu FMUs (FMI 2.0; only when their sources changed) into
 ``build/fmus/``; :mod:`.native_fmus` the native ones (C, FMI 2.0 and 3.0, linux64 and win64) into
 ``build/fmus/native/fmi2/`` and ``build/fmus/native/fmi3/``;
-:mod:`.flavours` gives the FMUs of a flavour by name (``python``, ``native``);
+:func:`flavour_fmus` gives the FMU pair of a flavour by name (``python``, ``native``);
 :mod:`.ssp` writes a scene as an SSP 1.0 archive and reads one back (``flexpend export``,
 ``flexpend run FILE.ssp``);
 :mod:`.check` regresses an FMU against reference results in the FMI cross-check layout and writes
@@ -16,14 +16,14 @@ import argparse
 import sys
 from pathlib import Path
 
+from ..scene.keys import FMU_FLAVOURS
 from . import places
+from .check import write_references
 from .native_fmus import NativeBuildError, build_native_fmus
-from .python_fmus import BuildError
+from .python_fmus import SPECS, BuildError, is_stale
+from .python_fmus import build_fmus as build_python
 
-__all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "main"]
-
-#: The two flavours of the FMUs: compiled C (the default of ``flexpend run``) and pythonfmu.
-FMU_FLAVOURS = ("native", "python")
+__all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "flavour_fmus", "main"]
 
 
 def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = "python",
@@ -39,7 +39,6 @@ def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = 
     if fmi_version not in (2, 3) or (flavour == "python" and fmi_version != 2):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2 (both flavours), 3 (native)")
     if flavour == "python":
-        from .python_fmus import build_fmus as build_python
         return build_python(Path(out_dir) if out_dir else None, names, force)
     try:
         return build_native_fmus(Path(out_dir) if out_dir else None, names, force, fmi_version)
@@ -52,14 +51,20 @@ def fmu_pair(paths: dict) -> dict:
     return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
 
 
+def flavour_fmus(flavour: str) -> dict:
+    """``{"plant": path, "controller": path}``: the FMI 2.0 FMUs a scene of ``master.fmus =
+    flavour`` runs on, built if missing or stale."""
+    return fmu_pair(build_fmus(flavour=flavour))
+
+
 # ---------------------------------------------------------------------- command line
 def main(argv=None) -> int:
     """``python build/build_fmus.py``: build the pythonfmu FMUs, and with ``--references``
     regenerate the reference results under ``tests/reference/``."""
-    from .check import write_references
-    from .python_fmus import SPECS, build_fmus as build_python, is_stale
 
-    ap = argparse.ArgumentParser(prog="build_fmus.py", description="Build the FlexiblePendulum and PDLowPass FMUs (pythonfmu) into build/fmus/, only those whose sources changed.")
+    ap = argparse.ArgumentParser(
+        prog="build_fmus.py", description="Build the FlexiblePendulum and PDLowPass FMUs "
+        "(pythonfmu) into build/fmus/, only those whose sources changed.")
     ap.add_argument("names", nargs="*", help=f"FMUs to build (default: all of {', '.join(SPECS)})")
     ap.add_argument("--out", default=str(places.fmu_dir()),
                     help="output folder (default: build/fmus in a checkout)")

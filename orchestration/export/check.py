@@ -43,6 +43,9 @@ import numpy as np
 
 from fmu_common.kernels import ROOT
 
+from ..report.figures import new_figure
+from ..report.files import save_figure
+
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
            "simulate_case", "compare", "band", "check_fmu", "write_reference", "plot_check",
@@ -466,8 +469,6 @@ def write_reference(fmu, reference, outputs=None) -> dict:
 # ---------------------------------------------------------------------- plot
 def plot_check(report: CheckReport, path) -> Path:
     """Each signal over its band: the reference, the band, the result, the samples outside."""
-    from ..report.figures import new_figure
-    from ..report.files import save_figure
 
     signals = list(report.signals.values())
     n = max(1, len(signals))

@@ -38,6 +38,9 @@ import zipfile
 from pathlib import Path
 
 from fmu_common import kernels
+from fmu_common.variables import native_variables, value_references
+from plant_fmu.beam import unit_beam
+from plant_fmu.interface import N_ETA_OUTPUTS, VARIABLES
 
 from . import places
 from .model_description import TABLES, fmi2_model_description, fmi3_model_description
@@ -112,7 +115,6 @@ def _hex(x: float) -> str:
 def generate_header(name: str, token: str) -> str:
     """``fpm_vars.h`` of model ``name``: its variables, value-reference macros, name, token and,
     for the plant, the unit beam's modal tables."""
-    from fmu_common.variables import native_variables
 
     model, table = TABLES[name]
     entries = native_variables(table)
@@ -141,9 +143,6 @@ def generate_header(name: str, token: str) -> str:
 
 
 def _mode_tables() -> list[str]:
-    from plant_fmu.beam import unit_beam
-    from fmu_common.variables import value_references
-    from plant_fmu.interface import N_ETA_OUTPUTS, VARIABLES
 
     n = N_MODES_MAX
     vrs = value_references(VARIABLES)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ..scene.ssp import write_ssp
 from ..studies.fidelity import select_model
-from .flavours import DEFAULT_FLAVOUR, fmu_paths
+from . import flavour_fmus
 
 __all__ = ["ExportResult", "export_scene"]
 
@@ -21,12 +21,12 @@ class ExportResult:
     fmus: dict = field(default_factory=dict)
 
 
-def export_scene(scene, flavour: str | None = None, out=None, progress=None) -> ExportResult:
-    """Write ``scene`` as an SSP archive with the FMUs of ``flavour`` (default
-    :data:`~orchestration.export.flavours.DEFAULT_FLAVOUR`); ``plant.n_modes``/``plant.fidelity``
+def export_scene(scene, flavour: str = "native", out=None, progress=None) -> ExportResult:
+    """Write ``scene`` as an SSP archive with the FMUs of ``flavour`` (``"native"`` or
+    ``"python"``); ``plant.n_modes``/``plant.fidelity``
     ``"auto"`` are chosen first (:func:`orchestration.studies.fidelity.select_model`), and the chosen
     model is written."""
-    fmus = fmu_paths(flavour or DEFAULT_FLAVOUR)
+    fmus = flavour_fmus(flavour)
     model = None
     if not scene.resolved:
         scene, model = select_model(scene, progress)

@@ -37,6 +37,9 @@ import math
 
 import numpy as np
 
+from plant_fmu.dynamics import plant_model
+
+from ..studies.analysis import closed_loop_matrix
 from ..studies.fit import fit_mode
 
 __all__ = ["SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT", "FIT_RESIDUAL",
@@ -62,7 +65,6 @@ _SIGNALS = {"slow": ("phi_o", SLOW_BAND), "bending": ("eta_1", BENDING_BAND)}
 
 def linear_modes(scene) -> np.ndarray:
     """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop."""
-    from ..studies.analysis import closed_loop_matrix
 
     lam = np.linalg.eigvals(closed_loop_matrix(scene.plant.params, scene.controller))
     return lam[lam.imag > 1e-9]
@@ -87,7 +89,6 @@ def linear_window(res: np.ndarray, L: float | None) -> slice:
 
 def first_bending_frequency(plant) -> float | None:
     """The plant's first open-loop oscillation (rad/s): its first bending mode, hinge free."""
-    from plant_fmu.dynamics import plant_model
 
     if plant.n_modes == 0:
         return None

@@ -9,9 +9,16 @@ whose one-line message names the key and what is allowed.
 from __future__ import annotations
 
 import difflib
+import json
+import math
+
 import tomllib
 
-__all__ = ["ConfigError", "parse_value", "parse_override", "check_known"]
+__all__ = ["ConfigError", "FMU_FLAVOURS", "parse_value", "toml_value", "parse_override",
+           "check_known"]
+
+#: The FMUs a scene runs on (``master.fmus``): compiled C (FMI 2.0), or pythonfmu.
+FMU_FLAVOURS = ("native", "python")
 
 
 class ConfigError(ValueError):
@@ -25,6 +32,25 @@ def parse_value(text: str):
         return tomllib.loads(f"v = {text}")["v"]
     except (tomllib.TOMLDecodeError, RecursionError):
         return text.strip()
+
+
+def toml_value(value) -> str:
+    """A scene value as a TOML value: the inverse of :func:`parse_value`."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} into an SSP annotation")
 
 
 def parse_override(item: str) -> tuple[str, object]:

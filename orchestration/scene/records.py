@@ -29,10 +29,11 @@ from types import MappingProxyType
 
 from controller_fmu.pd_lowpass import ControllerParams
 from fmu_common.checks import check_bool, check_int, check_real
+from plant_fmu.integrators import REGISTRY
 from plant_fmu.interface import FIDELITIES, FMU_SETTINGS
 from plant_fmu.params import PlantParams
 
-from .keys import ConfigError
+from .keys import FMU_FLAVOURS, ConfigError
 from .wiring import Connection, parse_connection
 
 __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", "PlantSetup",
@@ -43,8 +44,6 @@ __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", 
 AUTO = "auto"
 ALGORITHMS = ("gauss-seidel", "jacobi")
 FIRST = ("controller", "plant")
-#: the FMUs a scene runs on: compiled C (FMI 2.0) or pythonfmu
-FMU_FLAVOURS = ("native", "python")
 #: Outputs that every model has (0 for the rigid model's deflection), by result column.
 COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
 #: The paper's loop: the sensors to the controller, the force to the plant.
@@ -95,7 +94,6 @@ class PlantSetup:
     energy_limit: float = FMU_SETTINGS["energy_limit"]
 
     def __post_init__(self):
-        from plant_fmu.integrators import REGISTRY
 
         if not isinstance(self.beam, PlantParams):
             raise TypeError(f"beam must be a PlantParams, got {type(self.beam).__name__}")

@@ -11,16 +11,25 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import tomllib
 from pathlib import Path
+
+import tomllib
 
 from controller_fmu.pd_lowpass import ControllerParams
 from fmu_common.variables import start_values as _start_values
 from plant_fmu.params import PlantParams
 
 from .keys import ConfigError, check_known, parse_override
-from .records import (AUTO, KEYS, FidelitySettings, InitialState, MasterSettings, OutputSettings,
-                      PlantSetup, Scene)
+from .records import (
+    AUTO,
+    KEYS,
+    FidelitySettings,
+    InitialState,
+    MasterSettings,
+    OutputSettings,
+    PlantSetup,
+    Scene,
+)
 
 __all__ = ["SCENE_DIR", "PAPER_SCENES", "known_keys", "scene_from_config", "load_scene",
            "list_scenes", "OverrideError", "start_values", "MAX_SCENE_BYTES"]

@@ -34,7 +34,6 @@ systems, parameter mappings, transformations, a start time other than 0) is an
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -47,7 +46,7 @@ from pathlib import Path
 from controller_fmu import interface as controller_interface
 from plant_fmu import interface as plant_interface
 
-from .keys import ConfigError, parse_value
+from .keys import ConfigError, parse_value, toml_value
 from .records import OutputSettings
 from .schema import scene_from_config, start_values
 
@@ -122,29 +121,10 @@ def _parse_ssv_value(kind: str, text: str):
     return text
 
 
-def _toml_value(value) -> str:
-    """A scene value as a TOML value (read back by :func:`orchestration.scene.keys.parse_value`)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise TypeError(f"cannot write {value!r} into an SSP annotation")
-
-
 # ---------------------------------------------------------------------- schema
 def _schema():
-    from lxml import etree
     import fmpy.ssp
+    from lxml import etree
 
     xsd = Path(fmpy.ssp.__file__).parent / "schema" / "SystemStructureDescription.xsd"
     return etree.XMLSchema(file=str(xsd))
@@ -247,7 +227,7 @@ def ssd_of(scene, fmus: dict, sources: dict, model: dict | None = None):
     ours = etree.SubElement(notes, _q("ssc", "Annotation"), type=SCENE_ANNOTATION)
     sc = etree.SubElement(ours, _q("fp", "Scene"), nsmap={"fp": NS["fp"]}, name=scene.name)
     for key, value in _scene_settings(cfg).items():
-        etree.SubElement(sc, _q("fp", "Setting"), key=key).text = _toml_value(value)
+        etree.SubElement(sc, _q("fp", "Setting"), key=key).text = toml_value(value)
     if model is not None:
         m = etree.SubElement(sc, _q("fp", "ModelChoice"), n_modes=str(model["n_modes"]),
                              fidelity=model["fidelity"])

@@ -30,8 +30,8 @@ from fmu_common.checks import check_int, check_real
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
-from .analysis import _drift_free, assemble_closed_loop
 from ..scene.keys import ConfigError
+from .analysis import _drift_free, assemble_closed_loop
 
 __all__ = ["DESIGN_DEFAULTS", "CRITERIA", "UncertaintySet", "RobustLoop", "WorstCase",
            "DesignResult", "design_settings", "design_filter", "root_locus", "FILTER_KEYS",

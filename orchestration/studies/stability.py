@@ -47,6 +47,7 @@ import scipy.optimize
 
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.dynamics import plant_model
+from plant_fmu.integrators.genalpha import genalpha_parameters
 from plant_fmu.params import PlantParams
 
 from ..cosim.coupling import extrapolation_weights
@@ -158,7 +159,6 @@ def substep_matrix(method: str, A, B, nq: int, h: float, rho_inf: float = 0.8) -
     # genalpha (Arnold & Bruls 2007) on [q, v, a, qdd, u], with the equation of motion
     # qdd_{n+1} = A2 [q_{n+1}; v_{n+1}] + B2 u at the end of the substep
     # Chung & Hulbert's alpha_m, alpha_f, beta, gamma from rho_inf
-    from plant_fmu.integrators.genalpha import genalpha_parameters
     g = genalpha_parameters(rho_inf)
     am, af, beta, gamma = g["alpha_m"], g["alpha_f"], g["beta"], g["gamma"]
     A2, B2 = A[nq:], B[nq:]

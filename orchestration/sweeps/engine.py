@@ -14,8 +14,15 @@ from pathlib import Path
 
 import numpy as np
 
+import controller_fmu
+import plant_fmu
+
+from ..export import flavour_fmus
+from ..job import run_scene
 from ..scene.keys import parse_value
 from ..scene.records import Scene
+from ..studies.analysis import max_real_part
+from .executor import Executor, TaskLost, file_name, scratch_dir, worker_file
 from .plan import Point, SweepPlan
 from .plot import plot_sweep
 
@@ -72,7 +79,6 @@ def summary_row(summary: dict) -> dict:
 def linear_decay_rate(scene: Scene) -> float:
     """The linearised loop's smallest decay rate ``-max Re(lambda)`` over all its roots, the
     cart's drift roots left aside: ``flexpend design``'s criterion, for this one plant."""
-    from ..studies.analysis import max_real_part
     return -max_real_part(scene.plant.params, scene.controller)
 
 
@@ -85,8 +91,6 @@ def model_sources_digest() -> str:
     """sha256 of this process's model packages (``plant_fmu``, ``controller_fmu``: Python and C
     sources). A pythonfmu FMU runs the packages already imported in its process, so a worker
     whose digest differs from the client's would not run the client's model."""
-    import controller_fmu
-    import plant_fmu
 
     h = hashlib.sha256()
     for pkg in (plant_fmu, controller_fmu):
@@ -113,7 +117,6 @@ def _extracted(path: str) -> str:
 
         from fmpy import extract
 
-        from .executor import scratch_dir
         folder = tempfile.mkdtemp(prefix="flexpend_fmu_", dir=scratch_dir())
         _EXTRACTED[path] = extract(path, unzipdir=folder)
         atexit.register(shutil.rmtree, folder, ignore_errors=True)
@@ -124,8 +127,6 @@ def run_task(task) -> dict:
     """Run one point on a worker (or here): ``(scene, reference, fmus, sources)``;
     ``fmus`` maps ``plant``/``controller`` to ``(shipped name, client path)``, ``sources`` is the
     client's :func:`model_sources_digest`. Never raises: a failure is a row with its message."""
-    from ..job import run_scene
-    from .executor import worker_file
 
     scene, reference, fmus, sources = task
     t0 = time.perf_counter()
@@ -321,9 +322,7 @@ def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
 def fmus_for(plan: SweepPlan) -> dict:
     """``{flavour: {"plant": path, "controller": path}}`` for the FMU flavours (``master.fmus``)
     the plan's runs use, built if missing or stale."""
-    from ..export import build_fmus, fmu_pair
-    return {fl: fmu_pair(build_fmus(flavour=fl))
-            for fl in dict.fromkeys(p.scene.master.fmus for p in plan.points)}
+    return {fl: flavour_fmus(fl) for fl in dict.fromkeys(p.scene.master.fmus for p in plan.points)}
 
 
 def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
@@ -342,7 +341,6 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     ``fmus``: ``{"plant": path, "controller": path}`` for every run, or ``{flavour: {...}}``
     per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
     must have been opened with ``files=`` these paths)."""
-    from .executor import Executor, TaskLost, file_name
 
     executor = executor or Executor()
     out_dir = Path(out_dir)

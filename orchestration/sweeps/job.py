@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..report.files import write_json
-from ..scene.keys import ConfigError
+from ..scene.keys import ConfigError, toml_value
 from .engine import fmus_for, pending, run_sweep, sweep_stats
 from .executor import Executor, default_workers, open_executor
 from .plan import design_worst_case, plan_sweep
@@ -112,7 +112,7 @@ def _items(option: str, spec) -> list:
             elif option == "values":
                 if isinstance(v, str) or not isinstance(v, (list, tuple)) or not v:
                     raise ConfigError(f"values[{key!r}] = {v!r}: expected a non-empty list")
-                out.append(f"{key}=" + ",".join(_toml(x) for x in v))
+                out.append(f"{key}=" + ",".join(toml_value(x) for x in v))
             else:
                 out.append(f"{key}={v}")
         return out
@@ -121,15 +121,7 @@ def _items(option: str, spec) -> list:
     return list(spec)
 
 
-def _toml(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return f'"{value}"'
-    return repr(value)
-
-
 def _overrides(overrides) -> list:
     if isinstance(overrides, dict):
-        return [f"{k}={_toml(v)}" for k, v in overrides.items()]
+        return [f"{k}={toml_value(v)}" for k, v in overrides.items()]
     return list(overrides or ())

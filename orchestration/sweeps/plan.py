@@ -15,6 +15,12 @@ import numpy as np
 from ..scene.keys import ConfigError, check_known, parse_override, parse_value
 from ..scene.records import Scene
 from ..scene.schema import known_keys, load_scene, scene_from_config
+from ..studies.design import (
+    DESIGN_DEFAULTS,
+    UncertaintySet,
+    design_settings,
+    worst_cases,
+)
 
 __all__ = ["DESIGN_KEYS", "DISTRIBUTIONS", "Axis", "Sampler", "parse_grid", "parse_values",
            "parse_sample", "draw_samples", "Point", "SweepPlan", "run_key", "plan_sweep",
@@ -261,7 +267,6 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
     base = load_scene(scene, scene_items)
     uncertainty = None
     if any(s.dist == "design" for s in samplers):
-        from ..studies.design import DESIGN_DEFAULTS, UncertaintySet, design_settings
         known = dict(DESIGN_DEFAULTS)
         pairs = [parse_override(o) for o in design_items]
         try:
@@ -301,6 +306,5 @@ def design_worst_case(plan: SweepPlan):
     sample."""
     if plan.uncertainty is None:
         return None
-    from ..studies.design import worst_cases
     return worst_cases(plan.uncertainty.plants(plan.check_levels), [plan.scene.controller])[0]
 
