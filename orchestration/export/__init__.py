@@ -38,12 +38,14 @@ def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = 
         raise ValueError(f"flavour = {flavour!r}; allowed: {', '.join(FMU_FLAVOURS)}")
     if fmi_version not in (2, 3) or (flavour == "python" and fmi_version != 2):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2 (both flavours), 3 (native)")
-    if flavour == "python":
-        return build_python(Path(out_dir) if out_dir else None, names, force)
-    try:
-        return build_native_fmus(Path(out_dir) if out_dir else None, names, force, fmi_version)
-    except NativeBuildError as exc:
-        raise BuildError(str(exc)) from None
+    with places.build_lock():
+        if flavour == "python":
+            return build_python(Path(out_dir) if out_dir else None, names, force)
+        try:
+            return build_native_fmus(Path(out_dir) if out_dir else None, names, force,
+                                     fmi_version)
+        except NativeBuildError as exc:
+            raise BuildError(str(exc)) from None
 
 
 def fmu_pair(paths: dict) -> dict:

@@ -11,6 +11,8 @@ the current folder. ``FLEXPEND_HOME`` also redirects a checkout's builds.
 from __future__ import annotations
 
 import os
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 #: The folder holding the packages: a checkout, or an installation's site-packages (this
@@ -18,7 +20,8 @@ from pathlib import Path
 #: FMU's staging folder).
 ROOT = Path(__file__).resolve().parents[2]
 
-__all__ = ["ROOT", "in_checkout", "home", "fmu_dir", "native_fmu_dir", "loader_cache"]
+__all__ = ["ROOT", "in_checkout", "home", "fmu_dir", "native_fmu_dir", "loader_cache",
+           "build_lock"]
 
 
 def in_checkout() -> bool:
@@ -56,3 +59,39 @@ def native_fmu_dir() -> Path:
 def loader_cache() -> Path:
     """The compiled loaders of the pythonfmu FMUs, by source digest (``build/loader``)."""
     return home() / "loader"
+
+
+@contextmanager
+def build_lock():
+    """Hold the builds' lock (``<home>/.build.lock``): two processes that build the same FMUs at
+    once (two ``flexpend run``, the workers of a test session) take turns, and the second finds
+    them up to date. Without ``fcntl`` (Windows) builds are not serialised; each file is still
+    written atomically."""
+    try:
+        import fcntl
+    except ImportError:
+        fcntl = None
+    if fcntl is None or _held.depth:              # not serialised here, or already held
+        _held.depth += 1
+        try:
+            yield
+        finally:
+            _held.depth -= 1
+        return
+    folder = home()
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".build.lock", "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)
+        _held.depth += 1
+        try:
+            yield
+        finally:
+            _held.depth -= 1
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+class _Depth(threading.local):
+    depth = 0
+
+
+_held = _Depth()
