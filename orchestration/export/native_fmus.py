@@ -4,8 +4,10 @@
 
 Each FMU is compiled from
 
-* the generic FMI layer of its FMI version (``fmu_common/native/fmi2.c`` or ``fmi3.c``, written
-  once for both models) and the helpers ``fmu_common/native/fpm_util.c``;
+* the instance core, version-neutral and written once for both models
+  (``fmu_common/native/fpm_core.c`` on the guard ``fpm_guard.c``: modes, the table's checks,
+  variable access, FMU states), under the thin adapter of its FMI version (``fmi2.c`` or
+  ``fmi3.c``);
 * the model (``plant_fmu/native/plant_model.c`` or ``controller_fmu/native/controller_model.c``:
   its parameter checks, its
   step, its outputs) on the compiled kernels the Python side calls too
@@ -48,6 +50,8 @@ __all__ = ["DEFAULT_OUT", "MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PL
 ROOT = kernels.ROOT
 #: the FMI layers every native FMU is built from
 SRC = ROOT / "fmu_common" / "native"
+#: the core every native FMU links, under its FMI version's adapter (fmi<version>.c)
+CORE_SOURCES = ("fpm_guard.c", "fpm_core.c")
 DEFAULT_OUT = ROOT / "build" / "fmus" / "native"
 #: The meshes and modes the native plant carries tables for (the pythonfmu plant computes any).
 NE_MAX = 100
@@ -174,7 +178,7 @@ def _mode_tables() -> list[str]:
 
 # ---------------------------------------------------------------------- build
 def _inputs(name: str) -> list[Path]:
-    files = [SRC / f for f in ("fpm.h", "fpm_util.c", "fmi2.c", "fmi3.c")] + [model_source(name)]
+    files = [SRC / f for f in ("fpm.h", *CORE_SOURCES, "fmi2.c", "fmi3.c")] + [model_source(name)]
     for k in MODELS[name][1]:
         files += kernels.source_files(k)
     files += [ROOT / "plant_fmu" / f for f in ("interface.py", "beam.py", "params.py")]
@@ -210,7 +214,7 @@ def _fmu_digest(path: Path) -> str | None:
 def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: Path,
                     cc: str, extra=()) -> list[str]:
     """The compiler's command line for one binary."""
-    sources = [SRC / f"fmi{fmi_version}.c", SRC / "fpm_util.c", model_source(name)]
+    sources = [SRC / f"fmi{fmi_version}.c", *(SRC / f for f in CORE_SOURCES), model_source(name)]
     includes = [gen, SRC, fmi_include_dir()]
     for k in MODELS[name][1]:
         native = kernels.native_dir(k)
