@@ -271,6 +271,11 @@ int fpm_do_step(fpm_instance *c, const char *fn, int mask, double t, double h)
                 "a saved FMU state to step from another time", fn, t, own);
         return FPM_ERROR;
     }
+    if (!(t + h > own)) {
+        fpm_log(&c->lg, FPM_DISCARD, "%s: the step from t = %.17g over %.17g ends before the FMU's "
+                "time %.17g: nothing to integrate; step rejected, state unchanged", fn, t, h, own);
+        return FPM_DISCARD;
+    }
     rc = fpm_model_step(c->m, &c->lg, t, h);
     c->discarded = rc == FPM_DISCARD;
     return rc;

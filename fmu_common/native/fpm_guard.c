@@ -18,9 +18,13 @@ void fpm_log(const fpm_logger *lg, int status, const char *fmt, ...)
     va_start(ap, fmt);
     vsnprintf(msg, sizeof msg, fmt, ap);
     va_end(ap);
-    /* hosts may pass the message to printf as a format: no '%' goes out */
-    for (i = 0; msg[i] != '\0'; i++)
-        if (msg[i] == '%') msg[i] = '#';
+    /* hosts may pass the message to printf as a format: no '%' goes out; and hosts decode it
+     * as UTF-8: a value echoed from the host (a string parameter) goes out as ASCII */
+    for (i = 0; msg[i] != '\0'; i++) {
+        unsigned char ch = (unsigned char)msg[i];
+        if (ch == '%') msg[i] = '#';
+        else if (ch < 0x20 || ch > 0x7e) msg[i] = '?';
+    }
     switch (status) {
     case FPM_OK: cat = "logAll"; break;
     case FPM_WARNING: cat = "logStatusWarning"; break;
