@@ -139,8 +139,81 @@ def test_variables_are_the_tables_less_the_derivative_inputs(native, native3):
         for v, t in zip(md2.modelVariables, [t for t in table if t.derivative_of is None]):
             assert v.unit == (t.unit if t.type == "Real" else None)
             if t.start is not None:
-                assert str(v.start).lower() == xml_value(t.start).lower() or \
+                assert str(v.start).lower() == xml_value(t.start, native=True).lower() or \
                     float(v.start) == float(t.start)
+
+
+def test_no_limit_is_the_largest_double_and_means_no_limit(native, native3, open_native):
+    """Issue 23, 6: "no limit" is written as the largest double (the FMI 2.0 VDM checker's static
+    distribution stops on INF), and inf is still accepted when set."""
+    from fmpy import read_model_description
+
+    from orchestration.export.model_description import NO_LIMIT
+    for paths in (native, native3):
+        md = read_model_description(paths["PDLowPass"])
+        assert {v.name: v.start for v in md.modelVariables}["force_limit"] == NO_LIMIT
+    assert float(NO_LIMIT) == sys.float_info.max
+    a = open_native("PDLowPass", phi_o=0.3)                          # the start value
+    b = open_native("PDLowPass", phi_o=0.3, force_limit=math.inf)
+    for k in range(20):
+        assert a.step(k * 1e-3, 1e-3) == 0 and b.step(k * 1e-3, 1e-3) == 0
+    assert a.get("F_c") == b.get("F_c")
+
+
+def test_the_build_says_what_it_built_and_what_it_skipped(tmp_path, monkeypatch, capsys):
+    """Issue 23, 6: one line per platform built, one line naming the missing cross-compiler."""
+    from fmu_common import kernels
+    from orchestration.export import native_fmus
+    monkeypatch.setitem(kernels.CROSS_COMPILERS, "win64", "no-such-x86_64-w64-mingw32-gcc")
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, force=True)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("PDLowPass (FMI 2): built linux64 (binaries/linux64/PDLowPass.so)")
+    assert err[1].startswith("PDLowPass (FMI 2): win64 skipped: the C cross-compiler "
+                             "no-such-x86_64-w64-mingw32-gcc for win64 was not found")
+    assert len(err) == 2
+    with zipfile.ZipFile(tmp_path / "fmi2" / "PDLowPass.fmu") as zf:
+        assert not any("win64" in n for n in zf.namelist())
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path)        # up to date: nothing said
+    assert capsys.readouterr().err == ""
+
+
+VDM_ARTIFACT = "org.into-cps.vdmcheck.fmi2:vdmcheck2:1.1.3:zip:distribution-{}"
+
+
+@pytest.fixture(scope="session")
+def vdmcheck(tmp_path_factory) -> dict:
+    """The FMI 2.0 VDM checker 1.1.3, both distributions, from Maven Central (into a temporary
+    folder: nothing is cached in the repository)."""
+    if shutil.which("mvn") is None or shutil.which("java") is None:
+        pytest.skip("needs maven and java (.ci/run installs them)")
+    root = tmp_path_factory.mktemp("vdmcheck")
+    out = {}
+    for dist in ("static", "rules"):
+        proc = subprocess.run(["mvn", "-q", "-B", "dependency:copy",
+                               f"-Dartifact={VDM_ARTIFACT.format(dist)}",
+                               f"-DoutputDirectory={root}"], capture_output=True, text=True,
+                              timeout=600)
+        assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+        with zipfile.ZipFile(root / f"vdmcheck2-1.1.3-distribution-{dist}.zip") as zf:
+            zf.extractall(root / dist)
+        (script,) = (root / dist).glob("*/VDMCheck2.sh")
+        script.chmod(0o755)                  # the script finds its folder with `which $0`
+        out[dist] = script
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dist", ["static", "rules"])
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+def test_the_fmi2_vdm_checker_finds_no_error(native, vdmcheck, name, dist):
+    """Issue 23, 6: both distributions of the VDM checker accept every native FMI 2.0 FMU
+    (the static one stopped on PDLowPass's start="INF"; the checker has no FMI 3.0 version:
+    fmpy validate checks those, above)."""
+    proc = subprocess.run(["bash", str(vdmcheck[dist]), native[name]], capture_output=True,
+                          text=True, timeout=600)
+    out = proc.stdout + proc.stderr
+    assert "No errors found." in out, out[-3000:]
+    assert not any(line.startswith("Error") for line in out.splitlines()), out[-3000:]
 
 
 # ---------------------------------------------------------------------- same as pythonfmu

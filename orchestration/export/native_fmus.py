@@ -25,7 +25,9 @@ floating-point contraction, hidden visibility: only the FMI functions are export
 against libc and libm alone (``-static-libgcc`` on Windows). The FMI headers are fmpy's copy of
 the standard's (``fmpy/c-code``). ``modelDescription.xml`` comes from
 :mod:`.model_description`. An FMU is rebuilt only when the digest of its inputs (sources, table,
-build scripts, platforms) changes.
+build scripts, platforms) changes. A build says what it built on stderr: one line per platform
+compiled, and one line naming the missing cross-compiler of a platform it skipped (win64 without
+mingw-w64).
 """
 from __future__ import annotations
 
@@ -34,6 +36,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import uuid
 import zipfile
@@ -230,15 +233,34 @@ def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: 
     return cmd
 
 
+def _say(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def skipped_platforms() -> dict:
+    """The cross platforms this machine cannot build: platform -> why (the compiler missing)."""
+    out = {}
+    for plat in kernels.CROSS_COMPILERS:
+        if plat == kernels.host_platform():
+            continue
+        try:
+            kernels.find_compiler(plat)
+        except kernels.CompilerNotFound as exc:
+            out[plat] = str(exc)
+    return out
+
+
 def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = None,
                      force: bool = False, platforms=None) -> Path:
-    """Build one native FMU into ``out_dir/fmi<version>/`` unless it is up to date."""
+    """Build one native FMU into ``out_dir/fmi<version>/`` unless it is up to date; say on
+    stderr what was built (one line per platform) and which platform was skipped and why."""
     if name not in MODELS:
         raise ValueError(f"unknown FMU {name!r}; known: {', '.join(MODELS)}")
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
     out_dir = Path(out_dir or DEFAULT_OUT) / f"fmi{fmi_version}"
     target = out_dir / f"{name}.fmu"
+    skipped = skipped_platforms() if platforms is None else {}
     platforms = kernels.available_platforms() if platforms is None else list(platforms)
     digest = source_digest(name, fmi_version, platforms)
     if not force and _fmu_digest(target) == digest:
@@ -264,6 +286,11 @@ def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = Non
                                        f"{' '.join(cmd)}\n{proc.stdout}{proc.stderr}")
             folder = PLATFORMS[plat][0 if fmi_version == 2 else 1]
             entries[f"binaries/{folder}/{name}{suffix}"] = lib.read_bytes()
+            _say(f"{name} (FMI {fmi_version}): built {plat} (binaries/{folder}/{name}{suffix}) "
+                 f"with {cc}")
+        for plat, why in skipped.items():
+            _say(f"{name} (FMI {fmi_version}): {plat} skipped: {why} (Debian: apt-get install "
+                 f"gcc-mingw-w64-x86-64); the FMU has no {plat} binary")
         entries["modelDescription.xml"] = _model_description(name, fmi_version, token)
         entries[STAMP] = json.dumps({"model": name, "fmi_version": fmi_version,
                                      "digest": digest, "platforms": platforms}).encode()
