@@ -73,6 +73,8 @@ extern "C" {
 #define FPM_TERMINATED 32
 #define FPM_ERROR_MODE 64     /* after a failed exitInitializationMode */
 #define FPM_ANY 127
+#define FPM_FATAL_MODE 128    /* unusable (the pythonfmu loader: pythonfmu's instance broke):
+                                 in no mask, only freeInstance */
 
 /* FMI 2.0 co-simulation: the modes each call is allowed in (the standard's table of section
  * 4.2.4), shared by fmi2.c and the pythonfmu loader. */

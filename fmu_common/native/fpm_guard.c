@@ -44,6 +44,7 @@ const char *fpm_mode_name(int mode)
     case FPM_CONTINUOUS: return "ContinuousTimeMode";
     case FPM_STEP: return "StepMode";
     case FPM_TERMINATED: return "Terminated";
+    case FPM_FATAL_MODE: return "Fatal (unusable after an internal error: free it)";
     default: return "Error";
     }
 }

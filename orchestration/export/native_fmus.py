@@ -116,13 +116,18 @@ def _hex(x: float) -> str:
     return x.hex()
 
 
-def generate_header(name: str, token: str) -> str:
+def generate_header(name: str, token: str, table=None, mode_tables: bool = True) -> str:
     """``fpm_vars.h`` of model ``name``: its variables, value-reference macros, name, token and,
-    for the plant, the unit beam's modal tables."""
+    for the plant, the unit beam's modal tables. ``table``: a whole table instead of the native
+    FMU's variables (the pythonfmu loader checks its FMU's calls against it); ``mode_tables``:
+    False leaves the modal tables out."""
     from fmu_common.variables import native_variables
 
-    model, table = TABLES[name]
-    entries = native_variables(table)
+    if table is None:
+        entries = native_variables(TABLES[name][1])
+        table = TABLES[name][1]
+    else:
+        entries = list(enumerate(table))
     if len(table) > 48:
         raise NativeBuildError(f"{name} has {len(table)} variables; fpm.h has room for 48")
     types = {"Real": "FPM_REAL", "Integer": "FPM_INTEGER", "Boolean": "FPM_BOOLEAN",
@@ -142,7 +147,7 @@ def generate_header(name: str, token: str) -> str:
         rows.append(f"    [{vr}] = {{{_c_string(v.name)}, {types[v.type]}, {caus[v.causality]}, "
                     f"{real}, {text}}},")
     lines += ["const fpm_var fpm_vars[FPM_MAX_VARS] = {", *rows, "};"]
-    if name == "FlexiblePendulum":
+    if name == "FlexiblePendulum" and mode_tables:
         lines += _mode_tables()
     return "\n".join(lines) + "\n"
 
