@@ -41,11 +41,37 @@ int fpm_refuse(fpm_instance *c, int status, const char *fn, const char *what)
     return status;
 }
 
+/* The mode check of every call (the message from the guard only when it fails: this is on the
+ * path of every call a master makes). */
 #define GUARD(c, fn, mask)                                                                    \
     do {                                                                                      \
         if ((c) == NULL) return FPM_ERROR;                                                    \
-        if (!fpm_allowed(&(c)->lg, fn, (c)->mode, mask)) return FPM_ERROR;                    \
+        if (!((c)->mode & (mask)) && !fpm_allowed(&(c)->lg, fn, (c)->mode, mask))             \
+            return FPM_ERROR;                                                                 \
     } while (0)
+
+/* fpm_check_access's verdict without its messages, inline for the calls of every step; the guard
+ * is asked (and logs) only when this says no. */
+static int access_ok(int mode, const unsigned vr[], size_t n, const void *values, int type,
+                     int set)
+{
+    size_t i;
+    if (n > 0 && (vr == NULL || values == NULL)) return 0;
+    for (i = 0; i < n; i++) {
+        const fpm_var *v;
+        if (vr[i] >= FPM_MAX_VARS) return 0;
+        v = &fpm_vars[vr[i]];
+        if (v->name == NULL || v->type != type) return 0;
+        if (set && (v->causality == FPM_OUTPUT ||
+                    (v->causality == FPM_PARAMETER && !(mode & FPM_MASK_SET_PARAMETER))))
+            return 0;
+    }
+    return 1;
+}
+
+#define ACCESS(c, fn, vr, n, values, type, set, names)                                        \
+    (access_ok((c)->mode, vr, n, values, type, set) ||                                        \
+     fpm_check_access(&(c)->lg, fn, (c)->mode, vr, n, values, type, set, names))
 
 /* ------------------------------------------------------------------ life cycle */
 fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *token,
@@ -170,8 +196,7 @@ int fpm_get(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size
     size_t i;
     int worst = FPM_OK;
     GUARD(c, fn, mask);
-    if (!fpm_check_access(&c->lg, fn, c->mode, vr, n, values, type, 0, type_names))
-        return FPM_ERROR;
+    if (!ACCESS(c, fn, vr, n, values, type, 0, type_names)) return FPM_ERROR;
     v = fpm_model_values(c->m);
     for (i = 0; i < n; i++) {
         double x = v->real[vr[i]];
@@ -196,8 +221,7 @@ int fpm_set(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size
     fpm_values *v;
     size_t i;
     GUARD(c, fn, mask);
-    if (!fpm_check_access(&c->lg, fn, c->mode, vr, n, values, type, 1, type_names))
-        return FPM_ERROR;
+    if (!ACCESS(c, fn, vr, n, values, type, 1, type_names)) return FPM_ERROR;
     if (layout == FPM_C_STRING)               /* every string checked before any is set */
         for (i = 0; i < n; i++) {
             const char *s = ((const char *const *)values)[i];
@@ -232,8 +256,7 @@ int fpm_set_input_derivatives(fpm_instance *c, const char *fn, int mask, const u
     static const char *const TYPES[4] = {"Real", "Integer", "Boolean", "String"};
     size_t i;
     GUARD(c, fn, mask);
-    if (!fpm_check_access(&c->lg, fn, c->mode, vr, n, values, FPM_REAL, 1, TYPES))
-        return FPM_ERROR;
+    if (!ACCESS(c, fn, vr, n, values, FPM_REAL, 1, TYPES)) return FPM_ERROR;
     if (n > 0 && order == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the order array is NULL");
     for (i = 0; i < n; i++)
         if (fpm_vars[vr[i]].causality != FPM_INPUT) {

@@ -47,8 +47,8 @@ def find_clang() -> str | None:
     return shutil.which("clang-14") or shutil.which("clang")
 
 
-def build(model: str, out_dir: Path, cc: str | None = None) -> Path:
-    """The libFuzzer target of ``model`` in ``out_dir``."""
+def build(model: str, out_dir: Path, cc: str | None = None, flags=None, suffix="") -> Path:
+    """The libFuzzer target of ``model`` in ``out_dir`` (``flags``: instead of :data:`FLAGS`)."""
     if str(ROOT) not in sys.path:
         sys.path.insert(0, str(ROOT))
     from fmu_common import kernels
@@ -69,8 +69,8 @@ def build(model: str, out_dir: Path, cc: str | None = None) -> Path:
         native = kernels.native_dir(k)
         sources += [native / s for s in kernels.KERNELS[k][1]]
         includes.append(native)
-    exe = out_dir / f"fuzz_{model}"
-    cmd = [cc, *FLAGS, "-DFP_API=", "-DFPF_API=", f"-DFPM_MAX_SUBSTEPS={FUZZ_MAX_SUBSTEPS}L",
+    exe = out_dir / f"fuzz_{model}{suffix}"
+    cmd = [cc, *(FLAGS if flags is None else flags), "-DFP_API=", "-DFPF_API=", f"-DFPM_MAX_SUBSTEPS={FUZZ_MAX_SUBSTEPS}L",
            *(f"-I{d}" for d in includes), "-o", str(exe), *map(str, sources), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
@@ -123,6 +123,32 @@ def fuzz(exe: Path, corpus: Path, seconds: int, workdir: Path) -> dict:
             "findings": findings, "scratch": scratch, **_stats(proc.stderr)}
 
 
+def line_coverage(model: str, corpora, work: Path) -> str:
+    """llvm-cov's report of the lines of the core, the adapters and the model that the inputs of
+    ``corpora`` (folders) execute, from a build with source-based coverage (no sanitizers)."""
+    cov = shutil.which("llvm-cov-14") or shutil.which("llvm-cov")
+    prof = shutil.which("llvm-profdata-14") or shutil.which("llvm-profdata")
+    if cov is None or prof is None:
+        return "(no llvm-cov / llvm-profdata)"
+    flags = ["-g", "-O1", "-std=c99", "-ffp-contract=off", "-fsanitize=fuzzer",
+             "-fprofile-instr-generate", "-fcoverage-mapping"]
+    exe = build(model, work, flags=flags, suffix="_cov")
+    raw = work / f"{model}.profraw"
+    files = [str(p) for d in corpora if Path(d).is_dir() for p in Path(d).iterdir() if p.is_file()]
+    subprocess.run([str(exe), *RUN_OPTIONS, *files], capture_output=True, text=True,
+                   env={"LLVM_PROFILE_FILE": str(raw), "PATH": "/usr/bin:/bin"}, timeout=3600)
+    data = work / f"{model}.profdata"
+    subprocess.run([prof, "merge", "-sparse", str(raw), "-o", str(data)], check=True,
+                   capture_output=True)
+    from orchestration.export import native_fmus
+    src = native_fmus.SRC
+    sources = [src / "fpm_guard.c", src / "fpm_core.c", src / "fmi2.c", src / "fmi3.c",
+               native_fmus.model_source(model)]
+    out = subprocess.run([cov, "report", str(exe), f"-instr-profile={data}",
+                          *map(str, sources)], capture_output=True, text=True, check=True)
+    return out.stdout
+
+
 def merge(exe: Path, corpus: Path, scratch: Path) -> None:
     """Add to ``corpus`` the inputs of ``scratch`` that add coverage."""
     corpus.mkdir(parents=True, exist_ok=True)
@@ -138,6 +164,8 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", help="working folder (default: a temporary one, removed)")
     ap.add_argument("--merge", action="store_true",
                     help="add the new inputs that add coverage to the committed corpus")
+    ap.add_argument("--lines", action="store_true",
+                    help="report the lines covered by the corpus and the run's inputs (llvm-cov)")
     args = ap.parse_args(argv)
     if args.seconds < 1:
         print(f"fuzz.py: --seconds = {args.seconds}; allowed: >= 1", file=sys.stderr)
@@ -165,6 +193,8 @@ def main(argv=None) -> int:
                 failed = True
             elif args.merge:
                 merge(exe, CORPUS / model, f["scratch"])
+            if args.lines:
+                print(line_coverage(model, [CORPUS / model, f["scratch"]], work))
     finally:
         if not args.keep and not failed:
             shutil.rmtree(work, ignore_errors=True)
