@@ -16,8 +16,8 @@ included): so a loader is built per model.
 
 In an FMU (:func:`install_loader`), ``binaries/<platform>/<model>.so|.dll`` becomes the loader,
 pythonfmu's library moves beside it as ``<model>_pythonfmu.so|.dll``, and the resources get
-``flexpend_loader.py`` and ``flexpend_loader.txt`` (the model's variables, from its one table, its
-log categories, and the interpreter recorded at build time).
+``flexpend_loader.py`` and ``flexpend_loader.txt`` (the model's name, its log categories, and the
+interpreter recorded at build time; the variables are compiled into the loader).
 """
 from __future__ import annotations
 
@@ -124,15 +124,12 @@ def recorded_python() -> str:
     return sys.executable
 
 
-def loader_table(model: str, table, log_categories, python: str) -> str:
-    """``resources/flexpend_loader.txt``: the model, the recorded interpreter, the log categories
-    and one line per variable (value reference = position in the table, type, causality)."""
+def loader_table(model: str, log_categories, python: str) -> str:
+    """``resources/flexpend_loader.txt``: the model (the loader checks it is the one it was built
+    for), the recorded interpreter and the log categories. The variables are compiled into the
+    loader (:func:`loader_header`)."""
     lines = [f"model\t{model}", f"python\t{python}"]
     lines += [f"category\t{c}" for c in log_categories]
-    for vr, v in enumerate(table):
-        if "\t" in v.name or "\n" in v.name:
-            raise ValueError(f"variable name {v.name!r} has a tab or a newline")
-        lines.append(f"var\t{vr}\t{v.type[0]}\t{v.causality[0]}\t{v.name}")
     return "\n".join(lines) + "\n"
 
 
@@ -152,7 +149,7 @@ def install_loader(entries: dict, model: str, table, log_categories, platforms=N
         entries[binary] = build_loader(plat, model, table).read_bytes()
     entries["resources/flexpend_loader.py"] = (LOADER_DIR / "flexpend_loader.py").read_bytes()
     entries["resources/flexpend_loader.txt"] = loader_table(
-        model, table, log_categories, python or recorded_python()).encode()
+        model, log_categories, python or recorded_python()).encode()
     return entries
 
 
