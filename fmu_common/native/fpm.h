@@ -231,6 +231,8 @@ struct fpm_instance {
     fpm_model *m;              /* the model */
     fpm_model *spare;          /* where a state is restored before it replaces the model */
     size_t state_cap;          /* bytes of a serialised state, at most */
+    unsigned char *scratch;    /* state_cap bytes: a state is serialised here, then copied into
+                                  a state of its own size */
 };
 
 /* A new instance (NULL, logged, if the token is not this FMU's or memory is short). host: the

@@ -100,8 +100,14 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
                 token ? token : "(null)", fpm_token);
         return NULL;
     }
-    /* the instance, the host's callbacks and two models in one block */
-    block = (unsigned char *)calloc(1, head + hsize + 2 * ((fpm_model_size() + 15u) / 16u * 16u));
+    /* a serialised state is at most: header, mode and flag, every value as its widest item,
+     * the model's items (each no wider than its part of the struct; a string 4 bytes more),
+     * checksum */
+    tmp.state_cap = HEADER + 8u + FPM_MAX_VARS * (8u + 4u + FPM_STR_MAX) + fpm_model_size() + 64u
+                    + 8u;
+    /* the instance, the host's callbacks, two models and the scratch buffer in one block */
+    block = (unsigned char *)calloc(1, head + hsize + 2 * ((fpm_model_size() + 15u) / 16u * 16u)
+                                           + tmp.state_cap);
     if (block == NULL) {
         fpm_log(&tmp.lg, FPM_ERROR, "%s: out of memory", fn);
         return NULL;
@@ -113,14 +119,10 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
     if (host_size) memcpy(c->host, host, host_size);
     c->m = (fpm_model *)(block + head + hsize);
     c->spare = (fpm_model *)(block + head + hsize + (fpm_model_size() + 15u) / 16u * 16u);
+    c->scratch = block + head + hsize + 2 * ((fpm_model_size() + 15u) / 16u * 16u);
     c->interface = interface;
     c->modes = modes;
     c->mode = FPM_INSTANTIATED;
-    /* a serialised state is at most: header, mode and flag, every value as its widest item,
-     * the model's items (each no wider than its part of the struct, strings 4 bytes more),
-     * checksum */
-    c->state_cap = HEADER + 8u + FPM_MAX_VARS * (8u + 4u + FPM_STR_MAX) + 2u * fpm_model_size()
-                   + 8u;
     fpm_model_reset(c->m, 0.0);
     return c;
 }
@@ -433,12 +435,13 @@ static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned ch
     return FPM_OK;
 }
 
-static state *new_state(fpm_instance *c)
+static state *new_state(size_t cap)
 {
-    state *s = (state *)calloc(1, offsetof(state, data) + c->state_cap);
+    state *s = (state *)malloc(offsetof(state, data) + cap);
     if (s == NULL) return NULL;
     s->magic = STATE_MAGIC;
-    s->cap = c->state_cap;
+    s->n = 0;
+    s->cap = cap;
     return s;
 }
 
@@ -459,22 +462,25 @@ static const state *known(fpm_instance *c, const char *fn, const void *p)
 int fpm_get_state(fpm_instance *c, const char *fn, int mask, void **out)
 {
     state *s;
+    size_t n;
     GUARD(c, fn, mask);
     if (out == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the pointer to the state is NULL");
-    if (*out != NULL) {
-        if (known(c, fn, *out) == NULL) return FPM_ERROR;
-        s = (state *)*out;
-        if (s->cap < c->state_cap)
-            return fpm_refuse(c, FPM_ERROR, fn, "the state given to overwrite is too small");
-    } else {
-        s = new_state(c);
-        if (s == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
+    if (*out != NULL && known(c, fn, *out) == NULL) return FPM_ERROR;
+    n = serialize(c, c->scratch, c->state_cap);
+    if (n == 0) return fpm_refuse(c, FPM_ERROR, fn, "the state does not fit its buffer (a bug)");
+    s = (state *)*out;
+    if (s == NULL || s->cap < n) {            /* a state of its own size (FMI: a state given
+                                                 is overwritten) */
+        state *fresh = new_state(n);
+        if (fresh == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
+        if (s != NULL) {
+            s->magic = 0;
+            free(s);
+        }
+        s = fresh;
     }
-    s->n = serialize(c, s->data, s->cap);
-    if (s->n == 0) {
-        if (*out == NULL) free(s);
-        return fpm_refuse(c, FPM_ERROR, fn, "the state does not fit its buffer (a bug)");
-    }
+    memcpy(s->data, c->scratch, n);
+    s->n = n;
     *out = s;
     return FPM_OK;
 }
@@ -553,9 +559,16 @@ int fpm_deserialize_state(fpm_instance *c, const char *fn, int mask, const unsig
     }
     /* the whole check, by restoring it into the spare model (the live one is not touched) */
     if (restore_into_spare(c, fn, data, size, &mode, &discarded) != FPM_OK) return FPM_ERROR;
-    s = *out != NULL ? (state *)*out : new_state(c);
-    if (s == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
-    if (s->cap < size) return fpm_refuse(c, FPM_ERROR, fn, "the state given to overwrite is too small");
+    s = (state *)*out;
+    if (s == NULL || s->cap < size) {
+        state *fresh = new_state(size);
+        if (fresh == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
+        if (s != NULL) {
+            s->magic = 0;
+            free(s);
+        }
+        s = fresh;
+    }
     memcpy(s->data, data, size);
     s->n = size;
     *out = s;
