@@ -136,7 +136,8 @@ def trivial_native_fmus(folder: Path | None = None) -> dict:
         lib = folder / f"{name}.so"
         cmd = [kernels.find_compiler(), *kernels.CFLAGS, f"-I{gen}",
                f"-I{native_fmus.SRC}", f"-I{native_fmus.fmi_include_dir()}", "-fPIC", "-shared",
-               "-o", str(lib), str(native_fmus.SRC / "fmi2.c"), str(native_fmus.SRC / "fpm_util.c"),
+               "-o", str(lib), str(native_fmus.SRC / "fmi2.c"),
+               *(str(native_fmus.SRC / f) for f in native_fmus.CORE_SOURCES),
                str(ROOT / "bench" / "native" / "trivial_model.c"), "-lm"]
         subprocess.run(cmd, check=True, capture_output=True, text=True)
         xml = mdesc.fmi2_model_description(

@@ -31,7 +31,7 @@ _PARAMS = {
     "filter_order": ("order of the unit-DC-gain low-pass filter: 0 (none), 1 or 2", None),
     "cutoff": ("filter cutoff frequency", "rad/s"),
     "filter_damping": ("damping ratio of the 2nd-order filter", None),
-    "force_limit": ("saturation |F_c| <= force_limit (INF: none)", "N"),
+    "force_limit": ("saturation |F_c| <= force_limit (inf, or the largest double: none)", "N"),
 }
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(ControllerParams)}
 

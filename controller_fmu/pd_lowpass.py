@@ -11,13 +11,18 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
 
 from fmu_common.checks import check_int, check_real, replace_checked
 
-__all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES"]
+__all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES", "NO_LIMIT"]
+
+#: "No limit" for the saturation: the largest double (1.7976931348623157e+308). No finite force
+#: exceeds it, so it means what infinity means; ``inf`` is accepted too.
+NO_LIMIT = sys.float_info.max
 
 #: Controller inputs, in the order of the columns of ``B`` and ``D``.
 INPUT_NAMES = ("x_o", "phi_o", "omega_o")
@@ -25,7 +30,10 @@ INPUT_NAMES = ("x_o", "phi_o", "omega_o")
 
 @dataclass(frozen=True)
 class ControllerParams:
-    """Gains and filter of the controller. ``force_limit = inf`` means no saturation.
+    """Gains and filter of the controller. ``force_limit`` is the saturation; the default,
+    ``NO_LIMIT`` (the largest double, which no finite force exceeds), and ``inf`` mean none.
+    The default is finite so that every FMU checker reads the FMUs' start value (the FMI 2.0 VDM
+    checker's static distribution cannot read ``INF``; libcosim's SSP reader neither).
 
     The defaults are the paper's PD (``kp = 500``, ``kd = 5``) and the robust second-order
     filter that ``flexpend design`` chooses for it (97.3 rad/s, damping 0.1; ``docs/spillover.md``).
@@ -38,7 +46,7 @@ class ControllerParams:
     filter_order: int = 2
     cutoff: float = 97.3
     filter_damping: float = 0.1
-    force_limit: float = math.inf
+    force_limit: float = NO_LIMIT
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)

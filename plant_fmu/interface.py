@@ -74,8 +74,8 @@ _SETTINGS = {
     "step": ("internal substep of the fixed-step methods (initial step of the adaptive ones)", "s"),
     "rtol": ("relative tolerance of the adaptive and implicit methods", None),
     "atol": ("absolute tolerance of the adaptive and implicit methods", None),
-    "phi_limit": ("divergence bound on |phi| (INF: none)", "rad"),
-    "energy_limit": ("divergence bound on |energy| (INF: none)", "J"),
+    "phi_limit": ("divergence bound on |phi| (inf, or the largest double: none)", "rad"),
+    "energy_limit": ("divergence bound on |energy| (inf, or the largest double: none)", "J"),
 }
 _INITIAL = {
     "phi0": ("initial angle phi of the (undeformed) beam from the upward vertical", "rad"),

@@ -79,7 +79,7 @@ def test_start_values_equal_the_dataclass_defaults(fmus, name, defaults):
         v = params[key]
         assert v.variability == "fixed"
         assert type(_start(v)) is type(default), key          # Real/Integer/Boolean/String
-        assert _start(v) == default, key                      # exact (INF for force_limit)
+        assert _start(v) == default, key                      # exact (no limit: DBL_MAX)
 
 
 def test_plant_defaults_match_the_fmu_module():

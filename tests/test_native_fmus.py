@@ -139,8 +139,81 @@ def test_variables_are_the_tables_less_the_derivative_inputs(native, native3):
         for v, t in zip(md2.modelVariables, [t for t in table if t.derivative_of is None]):
             assert v.unit == (t.unit if t.type == "Real" else None)
             if t.start is not None:
-                assert str(v.start).lower() == xml_value(t.start).lower() or \
+                assert str(v.start).lower() == xml_value(t.start, native=True).lower() or \
                     float(v.start) == float(t.start)
+
+
+def test_no_limit_is_the_largest_double_and_means_no_limit(native, native3, open_native):
+    """Issue 23, 6: "no limit" is written as the largest double (the FMI 2.0 VDM checker's static
+    distribution stops on INF), and inf is still accepted when set."""
+    from fmpy import read_model_description
+
+    from orchestration.export.model_description import NO_LIMIT
+    for paths in (native, native3):
+        md = read_model_description(paths["PDLowPass"])
+        assert {v.name: v.start for v in md.modelVariables}["force_limit"] == NO_LIMIT
+    assert float(NO_LIMIT) == sys.float_info.max
+    a = open_native("PDLowPass", phi_o=0.3)                          # the start value
+    b = open_native("PDLowPass", phi_o=0.3, force_limit=math.inf)
+    for k in range(20):
+        assert a.step(k * 1e-3, 1e-3) == 0 and b.step(k * 1e-3, 1e-3) == 0
+    assert a.get("F_c") == b.get("F_c")
+
+
+def test_the_build_says_what_it_built_and_what_it_skipped(tmp_path, monkeypatch, capsys):
+    """Issue 23, 6: one line per platform built, one line naming the missing cross-compiler."""
+    from fmu_common import kernels
+    from orchestration.export import native_fmus
+    monkeypatch.setitem(kernels.CROSS_COMPILERS, "win64", "no-such-x86_64-w64-mingw32-gcc")
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, force=True)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("PDLowPass (FMI 2): built linux64 (binaries/linux64/PDLowPass.so)")
+    assert err[1].startswith("PDLowPass (FMI 2): win64 skipped: the C cross-compiler "
+                             "no-such-x86_64-w64-mingw32-gcc for win64 was not found")
+    assert len(err) == 2
+    with zipfile.ZipFile(tmp_path / "fmi2" / "PDLowPass.fmu") as zf:
+        assert not any("win64" in n for n in zf.namelist())
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path)        # up to date: nothing said
+    assert capsys.readouterr().err == ""
+
+
+VDM_ARTIFACT = "org.into-cps.vdmcheck.fmi2:vdmcheck2:1.1.3:zip:distribution-{}"
+
+
+@pytest.fixture(scope="session")
+def vdmcheck(tmp_path_factory) -> dict:
+    """The FMI 2.0 VDM checker 1.1.3, both distributions, from Maven Central (into a temporary
+    folder: nothing is cached in the repository)."""
+    if shutil.which("mvn") is None or shutil.which("java") is None:
+        pytest.skip("needs maven and java (.ci/run installs them)")
+    root = tmp_path_factory.mktemp("vdmcheck")
+    out = {}
+    for dist in ("static", "rules"):
+        proc = subprocess.run(["mvn", "-q", "-B", "dependency:copy",
+                               f"-Dartifact={VDM_ARTIFACT.format(dist)}",
+                               f"-DoutputDirectory={root}"], capture_output=True, text=True,
+                              timeout=600)
+        assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+        with zipfile.ZipFile(root / f"vdmcheck2-1.1.3-distribution-{dist}.zip") as zf:
+            zf.extractall(root / dist)
+        (script,) = (root / dist).glob("*/VDMCheck2.sh")
+        script.chmod(0o755)                  # the script finds its folder with `which $0`
+        out[dist] = script
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dist", ["static", "rules"])
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+def test_the_fmi2_vdm_checker_finds_no_error(native, vdmcheck, name, dist):
+    """Issue 23, 6: both distributions of the VDM checker accept every native FMI 2.0 FMU
+    (the static one stopped on PDLowPass's start="INF"; the checker has no FMI 3.0 version:
+    fmpy validate checks those, above)."""
+    proc = subprocess.run(["bash", str(vdmcheck[dist]), native[name]], capture_output=True,
+                          text=True, timeout=600)
+    out = proc.stdout + proc.stderr
+    assert "No errors found." in out, out[-3000:]
+    assert not any(line.startswith("Error") for line in out.splitlines()), out[-3000:]
 
 
 # ---------------------------------------------------------------------- same as pythonfmu
@@ -324,7 +397,7 @@ def test_corrupt_serialised_state_is_an_error(open_native):
     other = open_native("PDLowPass")
     with pytest.raises(FMICallException):
         other.fmu.deSerializeFMUstate(bytes(data))
-    assert "a state of this FMU has" in other.messages(3)
+    assert "belongs to another model" in other.messages(3)
 
 
 def test_every_non_ok_status_comes_with_a_message(open_native):
@@ -582,3 +655,186 @@ def test_libcosim_runs_the_native_pair_like_the_fmpy_master(native, tmp_path):
     ref = _master(native, stop=1.0)
     for j, c in enumerate(("x_o", "phi_o", "omega_o", "F_c")):
         assert np.max(np.abs(rows[:, j] - ref[c][1:])) <= 1e-12, c
+
+
+# ---------------------------------------------------------------------- issue 23: the core
+def _fnv(data: bytes) -> int:
+    h = 14695981039346656037
+    for b in data:
+        h = ((h ^ b) * 1099511628211) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def _refix(blob: bytearray) -> bytes:
+    """Recompute a state's trailer, as anyone can (an FNV-1a, no key)."""
+    import struct
+    blob[-8:] = struct.pack("<Q", _fnv(bytes(blob[:-8])))
+    return bytes(blob)
+
+
+def _state_offsets(name: str) -> dict:
+    sys.path.insert(0, str(Path(__file__).parent / "fuzz"))
+    from make_corpus import layout
+    return layout(name, {})
+
+
+@pytest.mark.parametrize("name, item, kind, value, words", [
+    ("FlexiblePendulum", "n_modes", "d", 4194304.0, "n_modes = 4194304 is out of range"),
+    ("FlexiblePendulum", "n_elements", "d", 2.5, "n_elements = 2.5 is not an Integer value"),
+    ("FlexiblePendulum", "initialized", "i", 0, "not initialised in a state that needs"),
+    ("FlexiblePendulum", "k", "d", 2.0 ** 63, "is not a substep count"),
+    ("FlexiblePendulum", "y", "d", math.nan, "the state y = nan is not finite"),
+    ("FlexiblePendulum", "mode", "i", 0x7FFFFFFF, "the mode 2147483647 is not a state"),
+    ("FlexiblePendulum", "phi_limit", "d", -1.0, "phi_limit = -1 is out of range"),
+    ("PDLowPass", "filter_order", "d", 1048576.0, "filter_order = 1048576 is out of range"),
+    ("PDLowPass", "xc0", "d", math.inf, "xc[0] = inf is not finite"),
+    ("PDLowPass", "F", "d", -math.inf, "F_c = -inf is not finite"),
+    ("PDLowPass", "force_limit", "d", 0.0, "force_limit = 0 is out of range"),
+], ids=lambda x: x if isinstance(x, str) and " " not in x else None)
+def test_23_1_a_crafted_state_with_its_checksum_recomputed_is_refused(open_native, name, item,
+                                                                      kind, value, words):
+    """Issue 23, 1: a state edited field by field with the trailer recomputed passes the
+    checksum and is refused by the checks of the values, naming the item; the instance is
+    unchanged (the old layer accepted next = 1048576 or nx = 4194304 and crashed at doStep)."""
+    import struct
+    from fmpy.fmi1 import FMICallException
+    start = {"phi0": 0.3} if name == "FlexiblePendulum" else {"phi_o": 0.1}
+    out = "phi_o" if name == "FlexiblePendulum" else "F_c"
+    inst = open_native(name, **start)
+    assert inst.step(0.0, 1e-3) == 0
+    state = inst.fmu.getFMUstate()
+    blob = bytearray(inst.fmu.serializeFMUstate(state))
+    at = _state_offsets(name)[item]
+    blob[at:at + (8 if kind == "d" else 4)] = struct.pack("<d" if kind == "d" else "<i", value)
+    with pytest.raises(FMICallException) as exc:
+        inst.fmu.deSerializeFMUstate(_refix(blob))
+    assert exc.value.status == 3
+    log = inst.messages(3)
+    assert "corrupt" not in log and words in log and "the instance is unchanged" in log
+    assert inst.step(1e-3, 1e-3) == 0
+    twin = open_native(name, **start)
+    assert twin.step(0.0, 1e-3) == 0 and twin.step(1e-3, 1e-3) == 0
+    assert inst.get(out) == twin.get(out)
+    inst.fmu.freeFMUstate(state)
+
+
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+def test_23_1_every_double_of_a_state_crafted_restores_to_a_legal_state_or_is_refused(
+        open_native, name):
+    """Each 8 bytes of the payload overwritten with a hostile double (checksum recomputed):
+    the restore is refused, or what it restores steps with finite outputs or refuses the step
+    with a message."""
+    import struct
+    from fmpy.fmi1 import FMICallException
+    inst = open_native(name, **({"phi0": 0.3} if name == "FlexiblePendulum" else {"phi_o": 0.1}))
+    assert inst.step(0.0, 1e-3) == 0
+    state = inst.fmu.getFMUstate()
+    good = bytes(inst.fmu.serializeFMUstate(state))
+    outputs = [v for v in inst.vars.values() if v.causality == "output"]
+    restored = 0
+    for at in range(24, len(good) - 8 - 7):
+        for value in (math.nan, 1e300, -1.0, 2.0 ** 62):
+            blob = bytearray(good)
+            blob[at:at + 8] = struct.pack("<d", value)
+            try:
+                back = inst.fmu.deSerializeFMUstate(_refix(blob))
+            except FMICallException as exc:
+                assert exc.status == 3 and inst.logs[-1][2]
+                continue
+            restored += 1
+            inst.fmu.setFMUstate(back)
+            inst.fmu.freeFMUstate(back)
+            t = inst.fmu.getRealStatus(2)                    # fmi2LastSuccessfulTime
+            status = inst.step(t, 1e-3)
+            assert status == 0 or inst.logs[-1][0] == status
+            for v in outputs:
+                try:
+                    assert math.isfinite(inst.fmu.getReal([v.valueReference])[0])
+                except FMICallException as exc:
+                    assert exc.status == 3
+            inst.fmu.setFMUstate(state)
+    assert restored > 0                                      # inputs may be anything
+    inst.fmu.freeFMUstate(state)
+
+
+@pytest.mark.parametrize("start, h", [({}, 1e19), ({}, 1e300), ({"step": 1e-300}, 1e-3),
+                                      ({"step": 5e-324}, 1e-3)])
+def test_23_2_a_step_too_long_for_the_cap_is_refused_not_skipped(open_native, start, h):
+    """Issue 23, 2: the substep count is computed in floating point and checked before any
+    conversion: a step of 1e19 or 1e300 (2^63 substeps or more), or a plant step of 1e-300 or
+    5e-324 (which hung the second doStep), is discarded with the count, the state unchanged."""
+    inst = open_native("FlexiblePendulum", phi0=0.2, **start)
+    before = inst.outputs()
+    for _ in range(2):
+        assert inst.step(0.0, h) == 2
+        assert "more than the cap of" in inst.messages(2)
+        assert inst.outputs() == before
+    assert inst.fmu.getRealStatus(2) == 0.0                  # the time did not move
+
+
+def test_23_2_a_step_below_the_time_resolution_is_refused(open_native):
+    inst = open_native("PDLowPass", phi_o=0.1)
+    assert inst.step(0.0, 1.0) == 0
+    assert inst.step(1.0, 1e-20) == 2                        # 1 + 1e-20 == 1
+    assert "below the resolution of the time" in inst.messages(2)
+    assert inst.step(1.0, 1e-3) == 0
+
+
+@pytest.mark.parametrize("phi_dot0", [1e160, 1.7976931348623157e308])
+def test_23_3_an_initial_state_with_non_finite_outputs_is_a_bad_parameter(open_native,
+                                                                         phi_dot0):
+    """Issue 23, 3: exitInitializationMode refused (it returned OK and energy read inf or NaN
+    with status OK); no output is ever read non-finite with OK."""
+    from fmpy.fmi1 import FMICallException
+    inst = open_native("FlexiblePendulum", initialize=False, phi_dot0=phi_dot0)
+    assert inst.initialize() == 3
+    assert "the initial state" in inst.messages(3) and "too large" in inst.messages(3)
+    for v in [v for v in inst.vars.values() if v.causality == "output"]:
+        with pytest.raises(FMICallException):
+            inst.fmu.getReal([v.valueReference])
+
+
+@pytest.mark.parametrize("param, value", [("L", 1e-200), ("rho", 5e-324), ("EI", 1e16)])
+def test_23_3_a_parameter_outside_the_range_of_finite_invariants_is_named(open_native, param,
+                                                                          value):
+    """The positive parameters lie in [1e-15, 1e15] as in plant_fmu/params.py: a subnormal one
+    gave a float division by zero (UBSan) in the modal scaling."""
+    inst = open_native("FlexiblePendulum", initialize=False, **{param: value})
+    assert inst.initialize() == 3
+    assert f"bad parameter: {param} = " in inst.messages(3)
+
+
+FMI3_NULL = r"""
+import sys
+from fmpy import read_model_description, extract
+from fmpy.fmi3 import FMU3Slave
+from fmpy.fmi1 import FMICallException
+path = sys.argv[1]
+md = read_model_description(path)
+d = extract(path)
+messages = []
+fmu = FMU3Slave(guid=md.guid, unzipDirectory=d, modelIdentifier=md.coSimulation.modelIdentifier)
+fmu.instantiate(loggingOn=True, logMessage=lambda *a: messages.append(a))
+fmu.enterInitializationMode()
+fmu.exitInitializationMode()
+for fn in (fmu.fmi3GetFloat64, fmu.fmi3SetFloat64, fmu.fmi3GetInt32, fmu.fmi3GetFloat32):
+    try:
+        fn(fmu.component, None, 2, None, 2)
+        print("OK", fn.__name__)
+    except FMICallException as exc:
+        print("status", exc.status)
+print("messages", len(messages))
+fmu.terminate()
+fmu.freeInstance()
+"""
+
+
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+def test_23_4_null_arrays_with_a_count_are_an_error_in_fmi3(native3, name):
+    """Issue 23, 4: fmi3GetFloat64(inst, NULL, 2, NULL, 2) was SIGSEGV (in a child process)."""
+    proc = subprocess.run([sys.executable, "-c", FMI3_NULL, native3[name]], capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    lines = proc.stdout.split("\n")
+    assert lines[:4] == ["status 3"] * 4
+    assert "messages 4" in proc.stdout

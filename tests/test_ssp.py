@@ -89,7 +89,8 @@ def test_exported_ssd_validates_and_names_the_fmus_connections_and_parameters(ex
     # the defaults it leaves to flexpend are written too (the archive does not depend on them)
     assert plant["integrator"] == ("String", "rk4") and plant["gravity_preload"] == ("Boolean",
                                                                                      "false")
-    assert "force_limit" not in ctrl   # INF, the FMU's own start value: libcosim cannot read INF
+    # no limit: the largest double, which libcosim reads (it cannot read INF)
+    assert ctrl["force_limit"] == ("Real", "1.7976931348623157e+308")
     # the experiment: stop time, libcosim's step, our master settings
     exp = root.find(f"{{{NS['ssd']}}}DefaultExperiment")
     assert float(exp.get("startTime")) == 0.0 and float(exp.get("stopTime")) == toml["stop_time"]

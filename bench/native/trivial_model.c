@@ -58,9 +58,22 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
     return FPM_OK;
 }
 
-int fpm_model_relink(fpm_model *m, const fpm_logger *lg)
+int fpm_model_initialized(const fpm_model *m)
 {
     (void)m;
-    (void)lg;
-    return FPM_OK;
+    return 1;
+}
+
+void fpm_model_save(const fpm_model *m, fpm_writer *w)
+{
+    fpm_put_f64(w, m->t);
+    fpm_put_f64(w, m->y);
+}
+
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
+{
+    (void)initialized;
+    fpm_get_finite(r, "t", &m->t);
+    fpm_get_finite(r, "y", &m->y);
+    return r->why[0] == '\0';
 }

@@ -102,14 +102,74 @@ int fpm_model_init(fpm_model *m, const fpm_logger *lg)
     return m->initialized ? FPM_OK : FPM_ERROR;
 }
 
-int fpm_model_relink(fpm_model *m, const fpm_logger *lg)
+int fpm_model_initialized(const fpm_model *m) { return m->initialized; }
+
+void fpm_model_save(const fpm_model *m, fpm_writer *w)
 {
-    if (m->initialized && fpf_check(&m->f) != FPF_OK) {
-        fpm_log(lg, FPM_ERROR, "the FMU state is not a state of PDLowPass");
-        return FPM_ERROR;
+    int k;
+    fpm_put_f64(w, m->t0);
+    fpm_put_f64(w, m->t);
+    fpm_put_i32(w, m->initialized);
+    for (k = 0; k < 3; k++) {
+        fpm_put_f64(w, m->d[0][k]);
+        fpm_put_f64(w, m->d[1][k]);
     }
-    m->error[FPM_MSG_MAX - 1] = '\0';
-    return FPM_OK;
+    fpm_put_f64(w, m->xc[0]);
+    fpm_put_f64(w, m->xc[1]);
+    fpm_put_f64(w, m->F);
+}
+
+/* A logger that keeps the first error message in a reader's why. */
+static void into_why(void *env, int status, const char *category, const char *message)
+{
+    (void)category;
+    if (status > FPM_WARNING) fpm_reject((fpm_reader *)env, "%s", message);
+}
+
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
+{
+    fpm_logger lg;
+    double t0, t, xc[2], F;
+    int k, init;
+    lg.emit = into_why;
+    lg.env = r;
+    fpm_get_finite(r, "t0", &t0);
+    fpm_get_finite(r, "t", &t);
+    if (!fpm_get_int_in(r, "initialized", 0, 1, &init)) return 0;
+    if (initialized >= 0 && init != initialized)
+        return fpm_reject(r, "the model is %sinitialised in a state that needs %s",
+                          init ? "" : "not ", initialized ? "an initialised one" : "none");
+    for (k = 0; k < 3; k++) {                 /* any values: legal calls can set them */
+        fpm_get_f64(r, "an input derivative", &m->d[0][k]);
+        fpm_get_f64(r, "an input derivative", &m->d[1][k]);
+    }
+    fpm_get_finite(r, "xc[0]", &xc[0]);
+    fpm_get_finite(r, "xc[1]", &xc[1]);
+    fpm_get_finite(r, "F_c", &F);
+    if (r->why[0] != '\0') return 0;
+    m->t0 = t0;
+    m->t = t0;
+    if (!init) {                              /* as reset left it (F_c: a feedthrough read) */
+        if (t != t0 || xc[0] != 0.0 || xc[1] != 0.0)
+            return fpm_reject(r, "the filter of a model not initialised has moved");
+        m->F = F;
+        return 1;
+    }
+    /* the parameters with the checks of initialisation, and everything derived from them */
+    if (!prepare(m, &lg)) return 0;
+    m->initialized = 1;
+    if (!(t >= t0)) return fpm_reject(r, "t = %.17g is before the start t0 = %.17g", t, t0);
+    if (xc[1] != 0.0 && m->f.order < 2)
+        return fpm_reject(r, "xc[1] = %g but the filter has order %d", xc[1], m->f.order);
+    if (xc[0] != 0.0 && m->f.order < 1)
+        return fpm_reject(r, "xc[0] = %g but there is no filter", xc[0]);
+    if (!(fabs(F) <= m->f.force_limit))
+        return fpm_reject(r, "F_c = %g exceeds force_limit = %g", F, m->f.force_limit);
+    m->t = t;
+    m->xc[0] = xc[0];
+    m->xc[1] = xc[1];
+    m->F = F;
+    return 1;
 }
 
 /* The sensors and their derivatives, y = [x_o, phi_o, omega_o, d.., d2..]; 1 if all finite. */
@@ -211,6 +271,10 @@ int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
             *value = m->F;
             return FPM_WARNING;
         }
+    }
+    if (!isfinite(m->F)) {                    /* never: F_c holds its last finite value */
+        fpm_log(lg, FPM_ERROR, "F_c = %g is not finite at t = %.17g", m->F, m->t);
+        return FPM_ERROR;
     }
     *value = m->F;
     return FPM_OK;

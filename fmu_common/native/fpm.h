@@ -1,16 +1,32 @@
 /*
- * fpm.h - what a model gives the generic FMI layers (fmi2.c, fmi3.c), and what they give it.
+ * fpm.h - the native FMUs' instance core, version-neutral, and what a model gives it.
  *
- * The shape of the Modelica Reference-FMUs, our own code: the FMI interface is written once per
- * FMI version; a model (plant_model.c, controller_model.c) contributes
+ * The shape of the Modelica Reference-FMUs (src/cosimulation.c under fmi2Functions.c and
+ * fmi3Functions.c), our own code, in three layers:
+ *
+ *   the guard (fpm_guard.c)  the mode machine (one bit per mode, a mask per call), the checks of
+ *                            value references, types, causalities and arrays against the model's
+ *                            generated table of variables, and the log line of every non-OK
+ *                            status. It needs no model: the pythonfmu FMUs' loader
+ *                            (fmu_common/loader/fmi2_loader.c) checks its calls with it too.
+ *   the core (fpm_core.c)    one instance: life cycle, variable access through the table, doStep's
+ *                            checks, FMU states (copy, serialisation, restore: only independent
+ *                            quantities are saved; a restore validates everything and rebuilds
+ *                            the derived ones with the code initialisation uses, into a spare
+ *                            model, so that a failed restore changes nothing).
+ *   the adapters             fmi2.c and fmi3.c: signatures, status codes and each call's mask.
+ *
+ * A model (plant_model.c, controller_model.c) gives
  *   - its table of variables, generated at build time from the Python table of the model
  *     (plant_fmu/interface.py, controller_fmu/interface.py) into fpm_vars.h;
- *   - its data, one flat struct (fpm_model) holding every value and state, so that an FMU
- *     state is a copy of it (relinked by fpm_model_relink when its arrays are pointed to);
- *   - its parameter checks (fpm_model_init), its step (fpm_model_step) and its outputs.
+ *   - its data, one struct (fpm_model) holding the values of the table and its own state;
+ *   - its parameter checks (fpm_model_init), its step (fpm_model_step), its outputs, and the
+ *     save and load of its independent state (fpm_model_save, fpm_model_load).
+ * Model Exchange (the next interface) adds its modes (FPM_CONTINUOUS) and the model's
+ * right-hand side to this core; the mode machine, the table checks and the states stay.
  *
- * Contract: C99 plus libm; no global mutable state (every instance is its own memory);
- * no allocation after instantiation except for FMU states the host asks for; every non-OK status
+ * Contract: C99 plus libm; no global mutable state (every instance is its own memory); no
+ * allocation after instantiation except for FMU states the host asks for; every non-OK status
  * is returned together with a log message naming its cause (fpm_log).
  */
 #ifndef FPM_H
@@ -46,6 +62,39 @@ extern "C" {
  * pythonfmu slaves' TIME_RTOL). */
 #define FPM_TIME_RTOL 1e-9
 
+/* ---- The mode machine ------------------------------------------------------------------- */
+/* One bit per mode, for every FMI version and interface; each call of an adapter names the
+ * modes it is allowed in (a mask). */
+#define FPM_INSTANTIATED 1
+#define FPM_INIT 2            /* initialization mode */
+#define FPM_EVENT 4           /* event mode (FMI 3.0; Model Exchange) */
+#define FPM_CONTINUOUS 8      /* continuous-time mode (Model Exchange) */
+#define FPM_STEP 16           /* step mode (FMI 2.0: stepComplete) */
+#define FPM_TERMINATED 32
+#define FPM_ERROR_MODE 64     /* after a failed exitInitializationMode */
+#define FPM_ANY 127
+#define FPM_FATAL_MODE 128    /* unusable (the pythonfmu loader: pythonfmu's instance broke):
+                                 in no mask, only freeInstance */
+
+/* FMI 2.0 co-simulation: the modes each call is allowed in (the standard's table of section
+ * 4.2.4), shared by fmi2.c and the pythonfmu loader. */
+#define FPM2_MASK_ANY FPM_ANY
+#define FPM2_MASK_SETUP FPM_INSTANTIATED
+#define FPM2_MASK_ENTER_INIT FPM_INSTANTIATED
+#define FPM2_MASK_EXIT_INIT FPM_INIT
+#define FPM2_MASK_TERMINATE (FPM_STEP | FPM_ERROR_MODE)
+#define FPM2_MASK_RESET FPM_ANY
+#define FPM2_MASK_GET FPM_ANY
+#define FPM2_MASK_SET (FPM_INSTANTIATED | FPM_INIT | FPM_STEP)
+#define FPM2_MASK_STATE FPM_ANY
+#define FPM2_MASK_DO_STEP FPM_STEP
+/* parameters (variability fixed) may be set in these modes only */
+#define FPM_MASK_SET_PARAMETER (FPM_INSTANTIATED | FPM_INIT)
+
+/* Interfaces */
+#define FPM_COSIMULATION 0
+#define FPM_MODEL_EXCHANGE 1
+
 /* One variable of the table (generated into fpm_vars.h). */
 typedef struct fpm_var {
     const char *name;
@@ -61,7 +110,7 @@ typedef struct fpm_values {
     char string[FPM_MAX_VARS][FPM_STR_MAX];
 } fpm_values;
 
-/* The logger the FMI layer hands to the model for one call. */
+/* A logger: where the messages of one instance go. */
 typedef struct fpm_logger {
     void (*emit)(void *env, int status, const char *category, const char *message);
     void *env;
@@ -79,44 +128,155 @@ extern const fpm_var fpm_vars[FPM_MAX_VARS];   /* name NULL: no variable of that
 extern const char fpm_model_name[];
 extern const char fpm_token[];                 /* GUID / instantiation token */
 
-/* ---- What each model implements ---------------------------------------------------------- */
-typedef struct fpm_model fpm_model;
-size_t fpm_model_size(void);
-/* Start values and a clean state (calloc'ed memory, or a reset). */
-void fpm_model_reset(fpm_model *m, double start_time);
-fpm_values *fpm_model_values(fpm_model *m);
-/* exitInitializationMode: check every parameter (FPM_ERROR with a message naming the bad one)
- * and prepare. */
-int fpm_model_init(fpm_model *m, const fpm_logger *lg);
-/* One communication step from t over h (h > 0 and finite, checked by the caller). */
-int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h);
-/* The time the model has reached. */
-double fpm_model_time(const fpm_model *m);
-/* The value of output vr (before initialisation: from the parameters as they are). */
-int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value);
-/* The order-th time derivative (1 or 2) of input vr over the next steps (FMI 2.0's
- * fmi2SetRealInputDerivatives); FPM_ERROR if the input cannot take it. */
-int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
-                                   double value);
-/* After the struct was copied in (an FMU state restored): point its arrays at itself, and
- * check it (FPM_ERROR with a message if it is not a state of this model). */
-int fpm_model_relink(fpm_model *m, const fpm_logger *lg);
-
-/* ---- Shared by the FMI layers (fpm_util.c) ----------------------------------------------- */
+/* ---- The guard (fpm_guard.c): no model needed --------------------------------------------- */
+/* The name of a mode ("Instantiated", "InitializationMode", ...). */
+const char *fpm_mode_name(int mode);
+/* 1 if `mode` is in `mask`; else 0 with "<fn> is not allowed in state <mode>" logged. */
+int fpm_allowed(const fpm_logger *lg, const char *fn, int mode, int mask);
+/* Check one get or set call before anything is read or written: a NULL array with n > 0,
+ * every value reference against the table, its type, and for a set (set = 1) its causality
+ * (no output; a parameter only in FPM_MASK_SET_PARAMETER). type_names: the version's names of
+ * FPM_REAL .. FPM_STRING. 1, or 0 with the reason logged. */
+int fpm_check_access(const fpm_logger *lg, const char *fn, int mode, const unsigned vr[],
+                     size_t n, const void *values, int type, int set,
+                     const char *const type_names[4]);
 /* The start values of the table's parameters and inputs. */
 void fpm_start_values(fpm_values *v);
 /* The index of vr in the table, or -1 (no such variable). */
 int fpm_lookup(unsigned vr);
 /* A 64-bit FNV-1a hash. */
 unsigned long long fpm_hash(const void *data, size_t n, unsigned long long h);
-/* The bytes of a serialised FMU state of `size` bytes of model (with `mode`): header, payload,
- * checksum. */
-size_t fpm_serialized_size(size_t size);
-void fpm_serialize(const void *mode_and_model, size_t size, unsigned char *out);
-/* Check a serialised state and copy its payload into `mode_and_model` (size bytes); FPM_OK or
- * FPM_ERROR with the reason in why (FPM_MSG_MAX bytes). */
-int fpm_deserialize(const unsigned char *in, size_t n, void *mode_and_model, size_t size,
-                    char *why);
+
+/* ---- Serialised FMU states: the writer and reader a model saves and loads with ------------ */
+typedef struct fpm_writer {
+    unsigned char *p;          /* NULL: only count */
+    size_t n, cap;
+} fpm_writer;
+
+typedef struct fpm_reader {
+    const unsigned char *p;
+    size_t n, pos;
+    char why[FPM_MSG_MAX];     /* the first thing that was wrong */
+} fpm_reader;
+
+void fpm_put_f64(fpm_writer *w, double x);
+void fpm_put_i32(fpm_writer *w, int x);
+void fpm_put_str(fpm_writer *w, const char *s);
+/* Each reads one item; 0 (and r->why set) when the data end or the item is malformed. */
+int fpm_get_f64(fpm_reader *r, const char *what, double *x);
+int fpm_get_i32(fpm_reader *r, const char *what, int *x);
+int fpm_get_str(fpm_reader *r, const char *what, char *dst, size_t cap);
+/* Read a double that must be finite (0 and why otherwise). */
+int fpm_get_finite(fpm_reader *r, const char *what, double *x);
+/* Read an integer in lo..hi (0 and why otherwise). */
+int fpm_get_int_in(fpm_reader *r, const char *what, int lo, int hi, int *x);
+/* Mark the state invalid with a reason (printf format); returns 0. */
+int fpm_reject(fpm_reader *r, const char *fmt, ...)
+#if defined(__GNUC__)
+    __attribute__((format(printf, 2, 3)))
+#endif
+    ;
+
+/* ---- What each model implements ---------------------------------------------------------- */
+typedef struct fpm_model fpm_model;
+size_t fpm_model_size(void);
+/* Start values and a clean state (calloc'ed memory, or a reset). */
+void fpm_model_reset(fpm_model *m, double start_time);
+fpm_values *fpm_model_values(fpm_model *m);
+/* exitInitializationMode: check every parameter (FPM_ERROR with a message naming the bad one),
+ * prepare, and check that the initial outputs are finite. */
+int fpm_model_init(fpm_model *m, const fpm_logger *lg);
+/* One communication step from t over h (h > 0 and finite, t + h > t, checked by the caller).
+ * The step is taken whole (the time becomes t + h and the outputs are finite) or refused with a
+ * message. */
+int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h);
+/* The time the model has reached. */
+double fpm_model_time(const fpm_model *m);
+/* The value of output vr (before initialisation: from the parameters as they are). A value that
+ * is not finite is refused (FPM_ERROR with a message). */
+int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value);
+/* The order-th time derivative (1 or 2) of input vr over the next steps (FMI 2.0's
+ * fmi2SetRealInputDerivatives); FPM_ERROR if the input cannot take it. */
+int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
+                                   double value);
+/* 1 once fpm_model_init succeeded (until a reset). */
+int fpm_model_initialized(const fpm_model *m);
+/* Write the model's independent state (its time, physical state, held inputs and their
+ * derivatives, and what legal calls leave behind: a refusal's reason); the table's values are
+ * written by the core. */
+void fpm_model_save(const fpm_model *m, fpm_writer *w);
+/* Read what fpm_model_save wrote into m, which is fresh (fpm_model_reset) and holds the values
+ * the core read. Validate every item (finiteness, the parameters' ranges with the checks of
+ * initialisation, sizes against the model) and rebuild every derived field with the code
+ * initialisation uses. initialized: 1 the mode needs an initialised model, 0 it needs one that
+ * is not, -1 either. 1, or 0 with r->why set. */
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized);
+
+/* ---- The core (fpm_core.c) ---------------------------------------------------------------- */
+typedef struct fpm_instance fpm_instance;
+/* Sends one message to the host (the adapter's logger). */
+typedef void (*fpm_host_emit)(fpm_instance *c, int status, const char *category,
+                              const char *message);
+
+struct fpm_instance {
+    fpm_logger lg;             /* messages of this instance (emit -> host_emit) */
+    fpm_host_emit host_emit;
+    void *host;                /* the adapter's copy of the host's callbacks (host_size bytes) */
+    char name[128];
+    int logging_on;
+    int interface;             /* FPM_COSIMULATION (FPM_MODEL_EXCHANGE: the next issue) */
+    int modes;                 /* the modes this instance can reach */
+    int mode;
+    int discarded;             /* the model refused the last doStep (the master should stop) */
+    fpm_model *m;              /* the model */
+    fpm_model *spare;          /* where a state is restored before it replaces the model */
+    size_t state_cap;          /* bytes of a serialised state, at most */
+    unsigned char *scratch;    /* state_cap bytes: a state is serialised here, then copied into
+                                  a state of its own size */
+};
+
+/* A new instance (NULL, logged, if the token is not this FMU's or memory is short). host: the
+ * adapter's callbacks, copied (host_size bytes). modes: the modes the interface has. */
+fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *token,
+                              int interface, int modes, const void *host, size_t host_size,
+                              fpm_host_emit emit, int logging_on);
+void fpm_free_instance(fpm_instance *c);
+/* Each returns an FPM_* status and logs the reason of any other than FPM_OK; `fn` is the
+ * adapter's function name and `mask` the modes it is allowed in. */
+int fpm_set_debug_logging(fpm_instance *c, const char *fn, int mask, int on, size_t n,
+                          const char *const categories[]);
+int fpm_enter_init(fpm_instance *c, const char *fn, int mask, double start, int stop_defined,
+                   double stop, int enter);
+int fpm_exit_init(fpm_instance *c, const char *fn, int mask, int next_mode);
+int fpm_set_mode(fpm_instance *c, const char *fn, int mask, int mode);
+int fpm_reset(fpm_instance *c, const char *fn, int mask);
+
+/* How values are laid out in the caller's array. */
+#define FPM_C_DOUBLE 0
+#define FPM_C_INT 1          /* int (fmi2Integer, fmi2Boolean, fmi3Int32) */
+#define FPM_C_BOOL 2         /* a one-byte bool (fmi3Boolean) */
+#define FPM_C_STRING 3       /* const char * */
+int fpm_get(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size_t n,
+            void *values, int type, int layout, const char *const type_names[4]);
+int fpm_set(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size_t n,
+            const void *values, int type, int layout, const char *const type_names[4]);
+int fpm_set_input_derivatives(fpm_instance *c, const char *fn, int mask, const unsigned vr[],
+                              size_t n, const int order[], const double values[]);
+int fpm_do_step(fpm_instance *c, const char *fn, int mask, double t, double h);
+double fpm_time(const fpm_instance *c);
+
+/* FMU states: a state is the serialised bytes of the instance (magic, format, size, the
+ * model's identity, the payload, a checksum), in memory. */
+int fpm_get_state(fpm_instance *c, const char *fn, int mask, void **state);
+int fpm_set_state(fpm_instance *c, const char *fn, int mask, const void *state);
+int fpm_free_state(fpm_instance *c, const char *fn, int mask, void **state);
+int fpm_state_size(fpm_instance *c, const char *fn, int mask, const void *state, size_t *size);
+int fpm_serialize_state(fpm_instance *c, const char *fn, int mask, const void *state,
+                        unsigned char *data, size_t size);
+int fpm_deserialize_state(fpm_instance *c, const char *fn, int mask, const unsigned char *data,
+                          size_t size, void **state);
+/* Log "fn: what" with status (for what an adapter refuses itself); returns status. */
+int fpm_refuse(fpm_instance *c, int status, const char *fn, const char *what);
 
 #ifdef __cplusplus
 }

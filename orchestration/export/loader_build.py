@@ -1,20 +1,23 @@
 """Build the FMU loader: the small C binary that stands in front of pythonfmu's library.
 
     loader_platforms()          -> ["linux64", "win64"]   (those this machine can build)
-    build_loader(platform)      -> Path of the compiled loader (cached by source digest)
+    build_loader(platform, model, table) -> Path of the model's loader (cached by digest)
     loader_files()              -> the sources (for the FMUs' digest)
     install_loader(entries, name, platforms, python) -> the zip entries of an FMU, completed
 
 The sources are in ``fmu_common/loader/``: ``fmi2_loader.c`` (finding and starting a
-Python, the checks of every FMI call, forwarding), ``guard.cpp`` (the C++ boundary: any exception
-of pythonfmu's C++ becomes fmi2Error), ``fmi2_api.h`` and ``flexpend_loader.py`` (its Python half,
-shipped in the FMU's resources). They live with what every FMU shares, apart from the model
-packages, because the loader is not part of any model: it is the same for every pythonfmu FMU.
+Python, forwarding), ``guard.cpp`` (the C++ boundary: any exception of pythonfmu's C++ becomes
+fmi2Error), ``fmi2_api.h`` and ``flexpend_loader.py`` (its Python half, shipped in the FMU's
+resources). The checks of every FMI call are the native FMUs' guard
+(``fmu_common/native/fpm_guard.c``: the same mode machine and masks, the same checks of
+references, types and causalities) against the model's table generated into ``fpm_vars.h`` from
+the same Python table as the native FMUs' (here the whole table, input-derivative variables
+included): so a loader is built per model.
 
 In an FMU (:func:`install_loader`), ``binaries/<platform>/<model>.so|.dll`` becomes the loader,
 pythonfmu's library moves beside it as ``<model>_pythonfmu.so|.dll``, and the resources get
-``flexpend_loader.py`` and ``flexpend_loader.txt`` (the model's variables, from its one table, its
-log categories, and the interpreter recorded at build time).
+``flexpend_loader.py`` and ``flexpend_loader.txt`` (the model's name, its log categories, and the
+interpreter recorded at build time; the variables are compiled into the loader).
 """
 from __future__ import annotations
 
@@ -33,6 +36,9 @@ __all__ = ["LOADER_DIR", "LoaderBuildError", "loader_platforms", "loader_files",
            "build_loader", "install_loader", "loader_table", "recorded_python", "SUFFIX"]
 
 LOADER_DIR = Path(__file__).resolve().parents[2] / "fmu_common" / "loader"
+#: the guard the loader shares with the native FMUs
+GUARD_DIR = LOADER_DIR.parent / "native"
+GUARD_FILES = ("fpm.h", "fpm_guard.c")
 SUFFIX = {"linux64": ".so", "win64": ".dll"}
 
 _CFLAGS = ["-O2", "-Wall", "-Wextra", "-Werror", "-Wno-format-truncation", "-fvisibility=hidden"]
@@ -49,8 +55,17 @@ class LoaderBuildError(RuntimeError):
 
 
 def loader_files() -> list[Path]:
-    return sorted(p for p in LOADER_DIR.iterdir()
-                  if p.suffix in (".c", ".cpp", ".h", ".py") and p.is_file())
+    own = sorted(p for p in LOADER_DIR.iterdir()
+                 if p.suffix in (".c", ".cpp", ".h", ".py") and p.is_file())
+    return own + [GUARD_DIR / f for f in GUARD_FILES] + [Path(__file__).resolve().parent
+                                                         / "native_fmus.py"]
+
+
+def loader_header(model: str, table) -> str:
+    """``fpm_vars.h`` of the loader of ``model``: its whole table (value reference = position)."""
+    from .native_fmus import generate_header
+
+    return generate_header(model, "", table=table, mode_tables=False)
 
 
 def loader_platforms() -> list[str]:
@@ -64,29 +79,34 @@ def loader_platforms() -> list[str]:
     return out
 
 
-def _digest(platform: str) -> str:
-    h = hashlib.sha256(f"{platform} {_COMPILERS[platform]} {_CFLAGS}\n".encode())
+def _digest(platform: str, header: str) -> str:
+    h = hashlib.sha256(f"{platform} {_COMPILERS[platform]} {_CFLAGS}\n{header}".encode())
     for p in loader_files():
         h.update(p.name.encode() + b"\0" + p.read_bytes() + b"\0")
     return h.hexdigest()[:16]
 
 
-def build_loader(platform: str, cache_dir: Path | None = None) -> Path:
-    """Compile the loader for ``platform`` (or take it from the cache,
-    :func:`.places.loader_cache` by default); return its path."""
+def build_loader(platform: str, model: str, table, cache_dir: Path | None = None) -> Path:
+    """Compile the loader of ``model`` (its ``table``) for ``platform`` (or take it from the
+    cache, :func:`.places.loader_cache` by default); return its path."""
     if platform not in _COMPILERS:
         raise ValueError(f"unknown platform {platform!r}; known: {', '.join(_COMPILERS)}")
-    target = Path(cache_dir or places.loader_cache()) / platform / _digest(platform) / f"fmi2_loader{SUFFIX[platform]}"
+    header = loader_header(model, table)
+    target = (Path(cache_dir or places.loader_cache()) / platform / _digest(platform, header)
+              / f"fmi2_loader{SUFFIX[platform]}")
     if target.is_file():
         return target
     cc, cxx, cflags, ldflags = _COMPILERS[platform]
     target.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="flexpend_loader_") as tmp:
+        (Path(tmp) / "fpm_vars.h").write_text(header)
+        includes = [f"-I{tmp}", f"-I{GUARD_DIR}"]
         objs = []
         for src, comp, std in ((LOADER_DIR / "fmi2_loader.c", cc, "-std=c11"),
+                               (GUARD_DIR / "fpm_guard.c", cc, "-std=c11"),
                                (LOADER_DIR / "guard.cpp", cxx, "-std=c++17")):
             obj = Path(tmp) / (src.stem + ".o")
-            _run([comp, std, *_CFLAGS, *cflags, "-c", str(src), "-o", str(obj)])
+            _run([comp, std, *_CFLAGS, *cflags, *includes, "-c", str(src), "-o", str(obj)])
             objs.append(str(obj))
         part = Path(tmp) / target.name
         _run([cxx, *objs, "-o", str(part), *ldflags])
@@ -105,15 +125,12 @@ def recorded_python() -> str:
     return sys.executable
 
 
-def loader_table(model: str, table, log_categories, python: str) -> str:
-    """``resources/flexpend_loader.txt``: the model, the recorded interpreter, the log categories
-    and one line per variable (value reference = position in the table, type, causality)."""
+def loader_table(model: str, log_categories, python: str) -> str:
+    """``resources/flexpend_loader.txt``: the model (the loader checks it is the one it was built
+    for), the recorded interpreter and the log categories. The variables are compiled into the
+    loader (:func:`loader_header`)."""
     lines = [f"model\t{model}", f"python\t{python}"]
     lines += [f"category\t{c}" for c in log_categories]
-    for vr, v in enumerate(table):
-        if "\t" in v.name or "\n" in v.name:
-            raise ValueError(f"variable name {v.name!r} has a tab or a newline")
-        lines.append(f"var\t{vr}\t{v.type[0]}\t{v.causality[0]}\t{v.name}")
     return "\n".join(lines) + "\n"
 
 
@@ -130,14 +147,16 @@ def install_loader(entries: dict, model: str, table, log_categories, platforms=N
         if binary not in entries:
             continue
         entries[f"binaries/{plat}/{model}_pythonfmu{ext}"] = entries[binary]
-        entries[binary] = build_loader(plat).read_bytes()
+        entries[binary] = build_loader(plat, model, table).read_bytes()
     entries["resources/flexpend_loader.py"] = (LOADER_DIR / "flexpend_loader.py").read_bytes()
     entries["resources/flexpend_loader.txt"] = loader_table(
-        model, table, log_categories, python or recorded_python()).encode()
+        model, log_categories, python or recorded_python()).encode()
     return entries
 
 
 if __name__ == "__main__":  # pragma: no cover - a manual check
+    from .model_description import TABLES
     for plat in loader_platforms():
-        print(plat, build_loader(plat))
+        for name, (_, tab) in TABLES.items():
+            print(plat, name, build_loader(plat, name, tab))
     print(sysconfig.get_platform())

@@ -7,13 +7,15 @@
 The tables are :mod:`plant_fmu.interface` and :mod:`controller_fmu.interface`; the value
 reference of a variable is its position in its table. Units are declared in ``UnitDefinitions``
 with their SI base units, start values are written exactly (``repr`` of the float, ``INF`` for
-infinity), and ``ModelStructure`` carries the real dependencies of the outputs (pythonfmu writes
+infinity in the pythonfmu FMUs; in the native FMUs an infinite start value, "no limit", is written
+as the largest double, :data:`NO_LIMIT`), and ``ModelStructure`` carries the real dependencies of the outputs (pythonfmu writes
 none, which makes importers see false algebraic loops).
 """
 from __future__ import annotations
 
 import datetime
 import math
+import sys
 import xml.etree.ElementTree as ET
 
 from controller_fmu import interface as controller_interface
@@ -21,7 +23,14 @@ from fmu_common.variables import native_variables
 from plant_fmu import interface as plant_interface
 
 __all__ = ["TABLES", "UNITS", "FMI3_TYPES", "fmi2_model_description", "fmi3_model_description",
-           "xml_value", "generation_date"]
+           "xml_value", "generation_date", "NO_LIMIT"]
+
+#: "No limit" (an infinite start value: force_limit, phi_limit, energy_limit) as the native FMUs'
+#: descriptions write it: the largest double, 1.7976931348623157e+308. Every checker reads it
+#: (fmpy validate, and both distributions of the FMI 2.0 VDM checker, whose "static" one stops on
+#: ``INF``: XSD`POSITIVE_INFINITY is not in scope), and for the FMUs it means what infinity
+#: means: no finite value exceeds it. Setting ``inf`` stays allowed.
+NO_LIMIT = repr(sys.float_info.max)
 
 #: model name -> (ModelInfo, table of variables)
 TABLES = {
@@ -44,14 +53,17 @@ UNITS = {
 }
 
 
-def xml_value(value) -> str:
-    """A start value as FMI writes it: exact floats, ``INF``/``-INF``, ``true``/``false``."""
+def xml_value(value, native: bool = False) -> str:
+    """A start value as FMI writes it: exact floats, ``INF``/``-INF`` (a native FMU's
+    description: :data:`NO_LIMIT` for ``inf``), ``true``/``false``."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float):
         if math.isnan(value):
             return "NaN"
         if math.isinf(value):
+            if native:
+                return NO_LIMIT if value > 0 else "-" + NO_LIMIT
             return "INF" if value > 0 else "-INF"
         return repr(value)
     return str(value)
@@ -126,7 +138,7 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
         if v.type == "Real" and v.unit:
             typ["unit"] = v.unit
         if v.start is not None:
-            typ["start"] = xml_value(v.start)
+            typ["start"] = xml_value(v.start, native)
         ET.SubElement(sv, v.type, typ)
     structure = ET.SubElement(root, "ModelStructure")
     outputs = [v for _, v in entries if v.causality == "output"]
@@ -180,7 +192,7 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
         if v.type == "Real" and v.unit:
             attrs["unit"] = v.unit
         if v.start is not None and v.type != "String":
-            attrs["start"] = xml_value(v.start)
+            attrs["start"] = xml_value(v.start, True)
         node = ET.SubElement(mv, FMI3_TYPES[v.type], attrs)
         if v.start is not None and v.type == "String":
             ET.SubElement(node, "Start", value=str(v.start))

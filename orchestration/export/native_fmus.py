@@ -4,8 +4,10 @@
 
 Each FMU is compiled from
 
-* the generic FMI layer of its FMI version (``fmu_common/native/fmi2.c`` or ``fmi3.c``, written
-  once for both models) and the helpers ``fmu_common/native/fpm_util.c``;
+* the instance core, version-neutral and written once for both models
+  (``fmu_common/native/fpm_core.c`` on the guard ``fpm_guard.c``: modes, the table's checks,
+  variable access, FMU states), under the thin adapter of its FMI version (``fmi2.c`` or
+  ``fmi3.c``);
 * the model (``plant_fmu/native/plant_model.c`` or ``controller_fmu/native/controller_model.c``:
   its parameter checks, its
   step, its outputs) on the compiled kernels the Python side calls too
@@ -23,7 +25,9 @@ floating-point contraction, hidden visibility: only the FMI functions are export
 against libc and libm alone (``-static-libgcc`` on Windows). The FMI headers are fmpy's copy of
 the standard's (``fmpy/c-code``). ``modelDescription.xml`` comes from
 :mod:`.model_description`. An FMU is rebuilt only when the digest of its inputs (sources, table,
-build scripts, platforms) changes.
+build scripts, platforms) changes. A build says what it built on stderr: one line per platform
+compiled, and one line naming the missing cross-compiler of a platform it skipped (win64 without
+mingw-w64).
 """
 from __future__ import annotations
 
@@ -32,6 +36,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import uuid
 import zipfile
@@ -52,6 +57,8 @@ __all__ = ["MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PLATFORMS",
 ROOT = kernels.ROOT
 #: the FMI layers every native FMU is built from
 SRC = ROOT / "fmu_common" / "native"
+#: the core every native FMU links, under its FMI version's adapter (fmi<version>.c)
+CORE_SOURCES = ("fpm_guard.c", "fpm_core.c")
 #: The meshes and modes the native plant carries tables for (the pythonfmu plant computes any).
 NE_MAX = 100
 N_MODES_MAX = 8
@@ -112,12 +119,17 @@ def _hex(x: float) -> str:
     return x.hex()
 
 
-def generate_header(name: str, token: str) -> str:
+def generate_header(name: str, token: str, table=None, mode_tables: bool = True) -> str:
     """``fpm_vars.h`` of model ``name``: its variables, value-reference macros, name, token and,
-    for the plant, the unit beam's modal tables."""
+    for the plant, the unit beam's modal tables. ``table``: a whole table instead of the native
+    FMU's variables (the pythonfmu loader checks its FMU's calls against it); ``mode_tables``:
+    False leaves the modal tables out."""
 
-    model, table = TABLES[name]
-    entries = native_variables(table)
+    if table is None:
+        entries = native_variables(TABLES[name][1])
+        table = TABLES[name][1]
+    else:
+        entries = list(enumerate(table))
     if len(table) > 48:
         raise NativeBuildError(f"{name} has {len(table)} variables; fpm.h has room for 48")
     types = {"Real": "FPM_REAL", "Integer": "FPM_INTEGER", "Boolean": "FPM_BOOLEAN",
@@ -137,7 +149,7 @@ def generate_header(name: str, token: str) -> str:
         rows.append(f"    [{vr}] = {{{_c_string(v.name)}, {types[v.type]}, {caus[v.causality]}, "
                     f"{real}, {text}}},")
     lines += ["const fpm_var fpm_vars[FPM_MAX_VARS] = {", *rows, "};"]
-    if name == "FlexiblePendulum":
+    if name == "FlexiblePendulum" and mode_tables:
         lines += _mode_tables()
     return "\n".join(lines) + "\n"
 
@@ -173,7 +185,7 @@ def _mode_tables() -> list[str]:
 
 # ---------------------------------------------------------------------- build
 def _inputs(name: str) -> list[Path]:
-    files = [SRC / f for f in ("fpm.h", "fpm_util.c", "fmi2.c", "fmi3.c")] + [model_source(name)]
+    files = [SRC / f for f in ("fpm.h", *CORE_SOURCES, "fmi2.c", "fmi3.c")] + [model_source(name)]
     for k in MODELS[name][1]:
         files += kernels.source_files(k)
     files += [ROOT / "plant_fmu" / f for f in ("interface.py", "beam.py", "params.py")]
@@ -209,7 +221,7 @@ def _fmu_digest(path: Path) -> str | None:
 def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: Path,
                     cc: str, extra=()) -> list[str]:
     """The compiler's command line for one binary."""
-    sources = [SRC / f"fmi{fmi_version}.c", SRC / "fpm_util.c", model_source(name)]
+    sources = [SRC / f"fmi{fmi_version}.c", *(SRC / f for f in CORE_SOURCES), model_source(name)]
     includes = [gen, SRC, fmi_include_dir()]
     for k in MODELS[name][1]:
         native = kernels.native_dir(k)
@@ -225,15 +237,34 @@ def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: 
     return cmd
 
 
+def _say(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+def skipped_platforms() -> dict:
+    """The cross platforms this machine cannot build: platform -> why (the compiler missing)."""
+    out = {}
+    for plat in kernels.CROSS_COMPILERS:
+        if plat == kernels.host_platform():
+            continue
+        try:
+            kernels.find_compiler(plat)
+        except kernels.CompilerNotFound as exc:
+            out[plat] = str(exc)
+    return out
+
+
 def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = None,
                      force: bool = False, platforms=None) -> Path:
-    """Build one native FMU into ``out_dir/fmi<version>/`` unless it is up to date."""
+    """Build one native FMU into ``out_dir/fmi<version>/`` unless it is up to date; say on
+    stderr what was built (one line per platform) and which platform was skipped and why."""
     if name not in MODELS:
         raise ValueError(f"unknown FMU {name!r}; known: {', '.join(MODELS)}")
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
     out_dir = Path(out_dir or places.native_fmu_dir()) / f"fmi{fmi_version}"
     target = out_dir / f"{name}.fmu"
+    skipped = skipped_platforms() if platforms is None else {}
     platforms = kernels.available_platforms() if platforms is None else list(platforms)
     digest = source_digest(name, fmi_version, platforms)
     if not force and _fmu_digest(target) == digest:
@@ -259,6 +290,11 @@ def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = Non
                                        f"{' '.join(cmd)}\n{proc.stdout}{proc.stderr}")
             folder = PLATFORMS[plat][0 if fmi_version == 2 else 1]
             entries[f"binaries/{folder}/{name}{suffix}"] = lib.read_bytes()
+            _say(f"{name} (FMI {fmi_version}): built {plat} (binaries/{folder}/{name}{suffix}) "
+                 f"with {cc}")
+        for plat, why in skipped.items():
+            _say(f"{name} (FMI {fmi_version}): {plat} skipped: {why} (Debian: apt-get install "
+                 f"gcc-mingw-w64-x86-64); the FMU has no {plat} binary")
         entries["modelDescription.xml"] = _model_description(name, fmi_version, token)
         entries[STAMP] = json.dumps({"model": name, "fmi_version": fmi_version,
                                      "digest": digest, "platforms": platforms}).encode()

@@ -15,9 +15,22 @@
  * beam.Scales does, with the same operations in the same order: the modal data are then
  * bit-identical to the pythonfmu plant's.
  *
- * Bounded work: a doStep takes at most FPM_MAX_SUBSTEPS substeps; beyond it the step is
- * discarded with the state unchanged, and the log says so (the cap and what the step needed).
+ * Bounded work: a doStep takes at most FPM_MAX_SUBSTEPS substeps, counted in floating point and
+ * checked against the cap before any conversion to an integer; beyond it the step is discarded
+ * with the state unchanged, and the log says so (the cap and what the step needed).
+ *
+ * No silent wrong answer: the outputs are computed at every accepted step (and at
+ * initialisation) and a step whose outputs would not be finite is refused like a divergence; the
+ * parameters are checked with the ranges of plant_fmu/params.py, and a quantity derived from
+ * them that overflows or underflows is refused at initialisation, naming the parameters.
+ *
+ * FMU states save the independent state only (fpm_model_save): the time, the stepper's state
+ * (substep grid, state vector, the adaptive step and its first-same-as-last derivative, the input
+ * polynomial), the input derivatives and a refusal's reason. Everything else (sizes, the method,
+ * the modal data, the plant, the linear model's matrices and discretisations, the outputs) is
+ * rebuilt on restore by prepare(), the code of initialisation.
  */
+#include <limits.h>
 #include <math.h>
 #include <stdio.h>
 #include <string.h>
@@ -36,6 +49,7 @@
 #define STATE_NORM2_LIMIT 1e200
 #define SNAP 1e-7
 #define EPS 2.220446049250313e-16
+#define POSITIVE_MIN 1e-15          /* plant_fmu/params.py: POSITIVE_MIN */
 
 enum { M_EULER, M_RK4, M_SYMPLECTIC, M_DOPRI5, M_EXPONENTIAL };
 static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "exponential"};
@@ -137,6 +151,63 @@ static int check_int(const fpm_logger *lg, const char *name, double v, int low, 
     return 1;
 }
 
+/* The quantities derived from the positive parameters are finite and normal (neither overflow
+ * nor underflow to 0); else a message naming the parameters they come from. */
+static int derived_ok(const fpm_logger *lg, const fpm_model *m, double rhoA, double w,
+                      double slam)
+{
+    const double *r = m->v.real;
+    struct { const char *what, *from; double v; } q[4];
+    int i, j;
+    q[0].what = "the mass per length rhoA = rho EA / E"; q[0].from = "rho, EA, E"; q[0].v = rhoA;
+    q[1].what = "the mode scale 1 / sqrt(rhoA L)"; q[1].from = "rho, EA, E, L"; q[1].v = w;
+    q[2].what = "the stiffness scale EI / (rhoA L^4)"; q[2].from = "EI, rho, EA, E, L";
+    q[2].v = slam;
+    q[3].what = "the total mass m + rhoA L"; q[3].from = "m, rho, EA, E, L";
+    q[3].v = r[VR_m] + rhoA * r[VR_L];
+    for (i = 0; i < 4; i++)
+        if (!(isfinite(q[i].v) && fabs(q[i].v) >= 2.2250738585072014e-308)) {
+            fpm_log(lg, FPM_ERROR, "bad parameter: %s = %g %s (from %s: m = %g, L = %g, rho = %g, "
+                    "EA = %g, EI = %g, E = %g)", q[i].what, q[i].v,
+                    isfinite(q[i].v) ? "underflows" : "overflows", q[i].from, r[VR_m], r[VR_L],
+                    r[VR_rho], r[VR_EA], r[VR_EI], r[VR_E]);
+            return 0;
+        }
+    for (j = 0; j < m->n; j++)
+        if (!(isfinite(m->K[j]) && isfinite(m->D[j]) && isfinite(m->I3[j]) && isfinite(m->I5[j])
+              && isfinite(m->tip_defl[j]) && isfinite(m->tip_slope[j]))) {
+            fpm_log(lg, FPM_ERROR, "bad parameter: the modal data of mode %d overflow (from L = %g, "
+                    "EI = %g, rho = %g, EA = %g, E = %g, zeta = %g, g = %g)", j + 1, r[VR_L],
+                    r[VR_EI], r[VR_rho], r[VR_EA], r[VR_E], r[VR_zeta], r[VR_g]);
+            return 0;
+        }
+    return 1;
+}
+
+/* Every output at y_acc into out (energy included); 1 if all are finite, else 0 with the first
+ * output that is not in *bad (when bad is not NULL). */
+static int outputs_ok(fpm_model *m, const char **bad)
+{
+    static const char *NAMES[FP_OUT_ETA] = {"x_o", "x_dot", "phi_o", "omega_o", "phi",
+                                            "tip_deflection", "energy"};
+    double norm2 = 0.0;
+    int i;
+    for (i = 0; i < m->nx; i++) norm2 += m->y_acc[i] * m->y_acc[i];
+    if (!(norm2 <= STATE_NORM2_LIMIT)) {
+        if (bad) *bad = "the state's norm";
+        return 0;
+    }
+    fp_outputs(&m->p, m->y_acc, 1, m->out);
+    m->out_fresh = m->energy_fresh = 1;
+    for (i = 0; i < FP_OUT_ETA + m->n; i++)
+        if (!isfinite(m->out[i])) {
+            if (bad) *bad = i < FP_OUT_ETA ? NAMES[i] : "a modal coordinate";
+            m->out_fresh = m->energy_fresh = 0;
+            return 0;
+        }
+    return 1;
+}
+
 /* Build the plant and the stepper from the parameters (fmu.py's _prepare). */
 static int prepare(fpm_model *m, const fpm_logger *lg)
 {
@@ -149,7 +220,8 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     static const unsigned REAL_VRS[] = {VR_m, VR_L, VR_rho, VR_EA, VR_EI, VR_E};
     m->ready = 0;
     for (i = 0; i < 6; i++)
-        if (!check_real(lg, REAL_PARAMS[i], r[REAL_VRS[i]], 1, 0.0, 1, 1, 1e15, 0, 0)) return 0;
+        if (!check_real(lg, REAL_PARAMS[i], r[REAL_VRS[i]], 1, POSITIVE_MIN, 0, 1, 1e15, 0, 0))
+            return 0;
     if (!check_real(lg, "zeta", zeta, 1, 0.0, 0, 1, 1.0, 1, 0)) return 0;
     if (!check_real(lg, "g", g, 1, 0.0, 0, 1, 1e3, 0, 0)) return 0;
     if (!check_int(lg, "n_elements", r[VR_n_elements], 1, FPM_NE_MAX,
@@ -212,6 +284,7 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
             m->Kg[j * n + i] = r[VR_gravity_preload] != 0.0
                 ? fpm_unit_Kg[ne - 1][j * NMAX + i] * sKg : 0.0;
     }
+    if (!derived_ok(lg, m, rhoA, w, slam)) return 0;
     memset(&m->p, 0, sizeof m->p);
     m->p.n = n;
     m->p.linear = strcmp(fid, "linear") == 0;
@@ -254,9 +327,15 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         m->ex[0].h = m->ex[1].h = -1.0;
     }
     memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
-    m->out_fresh = m->energy_fresh = 0;
     m->failed = 0;
     m->error[0] = '\0';
+    if (!outputs_ok(m, NULL)) {                /* plant_fmu/fmu.py's _build */
+        fpm_log(lg, FPM_ERROR, "bad parameter: the initial state (phi0 = %.17g, x0 = %.17g, "
+                "phi_dot0 = %.17g, x_dot0 = %.17g) is too large: its energy or outputs would not "
+                "be finite (|state| must stay below 1e100)", r[VR_phi0], r[VR_x0],
+                r[VR_phi_dot0], r[VR_x_dot0]);
+        return 0;
+    }
     m->ready = 1;
     return 1;
 }
@@ -267,18 +346,6 @@ int fpm_model_init(fpm_model *m, const fpm_logger *lg)
     return m->initialized ? FPM_OK : FPM_ERROR;
 }
 
-int fpm_model_relink(fpm_model *m, const fpm_logger *lg)
-{
-    if (m->ready && !(m->n >= 0 && m->n <= NMAX && m->nx == 2 * (m->n + 2) && m->p.n == m->n &&
-                      m->method >= 0 && m->method < N_METHODS)) {
-        fpm_log(lg, FPM_ERROR, "the FMU state is not a state of FlexiblePendulum (sizes %d, %d)",
-                m->n, m->nx);
-        return FPM_ERROR;
-    }
-    m->error[FPM_MSG_MAX - 1] = '\0';
-    relink(m);
-    return FPM_OK;
-}
 
 /* ------------------------------------------------------------------ stepping */
 /* The exact discretisation of the linear plant over h (exponential.py's zoh_discretize). */
@@ -414,22 +481,23 @@ static int short_substep(fpm_model *m, double t_bound, char *why)
 static int advance_fixed(fpm_model *m, double t_end, char *why)
 {
     stepper *s = &m->s;
-    double h = m->h, n_grid = (t_end - s->t_base) / h, n_round = nearbyint(n_grid);
-    long n_full;
+    double h = m->h, n_grid = (t_end - s->t_base) / h, n_round = nearbyint(n_grid), n_full;
     int short_ = 0;
+    /* the count in floating point, checked against the cap before it becomes an integer (a
+     * count of 2^63 or more, or not finite, has no long: the cast would be undefined) */
     if (fabs(n_grid - n_round) <= SNAP + 4 * EPS * fabs(t_end) / h) {
-        n_full = (long)n_round - s->k;
+        n_full = n_round - (double)s->k;
     } else {
-        n_full = (long)floor(n_grid) - s->k;
+        n_full = floor(n_grid) - (double)s->k;
         short_ = 1;
     }
-    if (n_full + short_ > FPM_MAX_SUBSTEPS) {
-        snprintf(why, FPM_MSG_MAX, "the step to t = %.17g needs %ld substeps of %.17g s, more "
+    if (!(n_full + short_ <= (double)FPM_MAX_SUBSTEPS)) {
+        snprintf(why, FPM_MSG_MAX, "the step to t = %.17g needs %.17g substeps of %.17g s, more "
                  "than the cap of %ld per doStep: take shorter communication steps or a larger "
                  "plant step", t_end, n_full + short_, h, FPM_MAX_SUBSTEPS);
         return -1;
     }
-    if (!substeps(m, h, n_full, why)) return 0;
+    if (!substeps(m, h, (long)n_full, why)) return 0;
     if (!short_) {
         s->t = t_end;
         return 1;
@@ -587,19 +655,26 @@ int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
                  "%.17g", t_end, fabs(phi), m->phi_limit);
         return diverged(m, lg, &saved, why);
     }
-    m->energy_fresh = 0;
-    if (isfinite(m->energy_limit)) {
-        double energy = fp_energy(&m->p, m->s.y);
-        if (!(fabs(energy) <= m->energy_limit)) {
+    {   /* the outputs of the new state, each finite, or the step is refused */
+        const char *bad = "";
+        double y_prev[NXMAX];
+        memcpy(y_prev, m->y_acc, sizeof y_prev);
+        memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
+        if (!outputs_ok(m, &bad)) {
+            memcpy(m->y_acc, y_prev, sizeof y_prev);
+            snprintf(why, sizeof why, "divergence at t = %.17g: the output %s would not be "
+                     "finite", t_end, bad);
+            return diverged(m, lg, &saved, why);
+        }
+        if (!(fabs(m->out[FP_OUT_ENERGY]) <= m->energy_limit)) {
+            double energy = m->out[FP_OUT_ENERGY];
+            memcpy(m->y_acc, y_prev, sizeof y_prev);
+            m->out_fresh = m->energy_fresh = 0;
             snprintf(why, sizeof why, "divergence at t = %.17g: |energy| = %.17g exceeds "
                      "energy_limit = %.17g", t_end, fabs(energy), m->energy_limit);
             return diverged(m, lg, &saved, why);
         }
-        m->out[FP_OUT_ENERGY] = energy;
-        m->energy_fresh = 1;
     }
-    memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
-    m->out_fresh = 0;
     return FPM_OK;
 }
 
@@ -634,9 +709,16 @@ int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
         for (j = 0; j < FPM_N_ETA; j++)
             if (vr == fpm_eta_vrs[j]) {
                 *value = j < m->n ? m->out[FP_OUT_ETA + j] : 0.0;
-                return FPM_OK;
+                break;
             }
-        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
+        if (j == FPM_N_ETA) {
+            fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
+            return FPM_ERROR;
+        }
+    }
+    if (!isfinite(*value)) {                  /* never: steps and initialisation refuse it */
+        fpm_log(lg, FPM_ERROR, "the output %s = %g is not finite at t = %.17g", fpm_vars[vr].name,
+                *value, fpm_model_time(m));
         return FPM_ERROR;
     }
     return FPM_OK;
@@ -653,4 +735,101 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
     if (order == 1) m->dF = value;
     else m->d2F = value;
     return FPM_OK;
+}
+
+/* ------------------------------------------------------------------ FMU states */
+int fpm_model_initialized(const fpm_model *m) { return m->initialized; }
+
+void fpm_model_save(const fpm_model *m, fpm_writer *w)
+{
+    const stepper *s = &m->s;
+    int i;
+    fpm_put_f64(w, m->t0);
+    fpm_put_f64(w, m->dF);
+    fpm_put_f64(w, m->d2F);
+    fpm_put_i32(w, m->initialized);
+    if (!m->initialized) return;
+    fpm_put_i32(w, m->failed);
+    fpm_put_str(w, m->error);
+    fpm_put_f64(w, s->t);
+    fpm_put_f64(w, s->t_base);
+    fpm_put_f64(w, (double)s->k);
+    for (i = 0; i < m->nx; i++) fpm_put_f64(w, s->y[i]);
+    for (i = 0; i < m->nx; i++) fpm_put_f64(w, s->f[i]);
+    fpm_put_f64(w, s->h_abs);
+    fpm_put_f64(w, s->u);
+    fpm_put_f64(w, s->du);
+    fpm_put_f64(w, s->d2u);
+    fpm_put_f64(w, s->tu);
+    fpm_put_i32(w, s->prev_poly);
+    for (i = 0; i < 4; i++) fpm_put_f64(w, s->prev[i]);
+}
+
+/* A logger that keeps the first error message in a reader's why. */
+static void into_why(void *env, int status, const char *category, const char *message)
+{
+    (void)category;
+    if (status > FPM_WARNING) fpm_reject((fpm_reader *)env, "%s", message);
+}
+
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
+{
+    fpm_logger lg;
+    stepper s;
+    double k, phi, norm2 = 0.0;
+    int init, i;
+    const char *bad = "";
+    lg.emit = into_why;
+    lg.env = r;
+    fpm_get_finite(r, "t0", &m->t0);
+    fpm_get_f64(r, "dF_c", &m->dF);             /* any values: legal calls can set them */
+    fpm_get_f64(r, "d2F_c", &m->d2F);
+    if (!fpm_get_int_in(r, "initialized", 0, 1, &init)) return 0;
+    if (initialized >= 0 && init != initialized)
+        return fpm_reject(r, "the model is %sinitialised in a state that needs %s",
+                          init ? "" : "not ", initialized ? "an initialised one" : "none");
+    if (!init) return 1;                        /* prepared again when an output is read */
+    /* the parameters with the checks of initialisation, and everything derived from them:
+     * sizes, method, modal data, the plant, the linear model */
+    if (!prepare(m, &lg)) return 0;
+    m->initialized = 1;
+    s = m->s;
+    fpm_get_int_in(r, "failed", 0, 1, &m->failed);
+    fpm_get_str(r, "the refusal's reason", m->error, sizeof m->error);
+    fpm_get_finite(r, "t", &s.t);
+    fpm_get_finite(r, "t_base", &s.t_base);
+    fpm_get_f64(r, "k", &k);
+    for (i = 0; i < m->nx; i++) fpm_get_finite(r, "the state y", &s.y[i]);
+    for (i = 0; i < m->nx; i++) fpm_get_finite(r, "the derivative f", &s.f[i]);
+    fpm_get_finite(r, "h_abs", &s.h_abs);
+    fpm_get_finite(r, "u", &s.u);
+    fpm_get_finite(r, "du", &s.du);
+    fpm_get_finite(r, "d2u", &s.d2u);
+    fpm_get_finite(r, "tu", &s.tu);
+    fpm_get_int_in(r, "prev_poly", 0, 1, &s.prev_poly);
+    for (i = 0; i < 4; i++) fpm_get_finite(r, "the input the method's data belong to", &s.prev[i]);
+    if (r->why[0] != '\0') return 0;
+    /* what legal calls leave: a grid counted from t_base, time not before the start, an
+     * adaptive step > 0, and a state that passed the divergence checks */
+    if (!(k >= 0.0 && k <= 9007199254740992.0 && k < (double)(LONG_MAX / 2) && k == floor(k)))
+        return fpm_reject(r, "k = %g is not a substep count", k);
+    if (!(s.t >= m->t0 && s.t_base >= m->t0 && s.t_base <= s.t))
+        return fpm_reject(r, "the times t0 = %.17g, t_base = %.17g, t = %.17g are out of order",
+                          m->t0, s.t_base, s.t);
+    if (!(s.h_abs > 0.0)) return fpm_reject(r, "h_abs = %g is not positive", s.h_abs);
+    if (!m->failed) m->error[0] = '\0';
+    s.k = (long)k;
+    for (i = 0; i < m->nx; i++) norm2 += s.y[i] * s.y[i];
+    phi = s.y[1];
+    if (!(norm2 <= STATE_NORM2_LIMIT))
+        return fpm_reject(r, "the state's norm %g exceeds 1e100", sqrt(norm2));
+    if (!(fabs(phi) <= m->phi_limit))
+        return fpm_reject(r, "|phi| = %g exceeds phi_limit = %g", fabs(phi), m->phi_limit);
+    m->s = s;
+    memcpy(m->y_acc, s.y, sizeof m->y_acc);   /* the last accepted state is the stepper's */
+    if (!outputs_ok(m, &bad)) return fpm_reject(r, "the output %s would not be finite", bad);
+    if (!(fabs(m->out[FP_OUT_ENERGY]) <= m->energy_limit))
+        return fpm_reject(r, "|energy| = %g exceeds energy_limit = %g",
+                          fabs(m->out[FP_OUT_ENERGY]), m->energy_limit);
+    return 1;
 }

@@ -1,0 +1,576 @@
+/* fpm_core.c - the instance core of the native FMUs, version-neutral (see fpm.h): life cycle,
+ * variable access through the generated table, doStep's checks, and FMU states.
+ *
+ * FMU states. A state, in memory or serialised, is one byte string: "FPMS", the format
+ * version, the payload's size, the model's identity (name, token and format hashed), the payload
+ * and an FNV-1a checksum of everything before it. The payload holds only independent quantities:
+ * the mode and the refusal flag, the values of the table's parameters and inputs, and what the
+ * model saves (fpm_model_save). The checksum catches accidents, not intent: anyone can recompute
+ * it, so a restore trusts nothing. It reads the payload into the instance's spare model, checks
+ * every item (fpm_model_load: ranges, finiteness, sizes) and rebuilds every derived quantity with
+ * the code initialisation uses; only when all of it succeeded does the spare model replace the
+ * live one. A crafted state can at worst hold a state that legal calls could reach, and a failed
+ * restore leaves the instance as it was. */
+#include "fpm.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define MAGIC "FPMS"
+#define FORMAT 2u
+#define HEADER 24u
+#define STATE_MAGIC 0x46504d5354415445ULL    /* "FPMSTATE": a state this core allocated */
+
+typedef struct state {
+    unsigned long long magic;
+    size_t n, cap;                 /* bytes used, bytes allocated in data */
+    unsigned char data[1];         /* n bytes (allocated with cap) */
+} state;
+
+static void core_emit(void *env, int status, const char *category, const char *message)
+{
+    fpm_instance *c = (fpm_instance *)env;
+    c->host_emit(c, status, category, message);
+}
+
+int fpm_refuse(fpm_instance *c, int status, const char *fn, const char *what)
+{
+    if (c != NULL) fpm_log(&c->lg, status, "%s: %s", fn, what);
+    return status;
+}
+
+/* The mode check of every call (the message from the guard only when it fails: this is on the
+ * path of every call a master makes). */
+#define GUARD(c, fn, mask)                                                                    \
+    do {                                                                                      \
+        if ((c) == NULL) return FPM_ERROR;                                                    \
+        if (!((c)->mode & (mask)) && !fpm_allowed(&(c)->lg, fn, (c)->mode, mask))             \
+            return FPM_ERROR;                                                                 \
+    } while (0)
+
+/* fpm_check_access's verdict without its messages, inline for the calls of every step; the guard
+ * is asked (and logs) only when this says no. */
+static int access_ok(int mode, const unsigned vr[], size_t n, const void *values, int type,
+                     int set)
+{
+    size_t i;
+    if (n > 0 && (vr == NULL || values == NULL)) return 0;
+    for (i = 0; i < n; i++) {
+        const fpm_var *v;
+        if (vr[i] >= FPM_MAX_VARS) return 0;
+        v = &fpm_vars[vr[i]];
+        if (v->name == NULL || v->type != type) return 0;
+        if (set && (v->causality == FPM_OUTPUT ||
+                    (v->causality == FPM_PARAMETER && !(mode & FPM_MASK_SET_PARAMETER))))
+            return 0;
+    }
+    return 1;
+}
+
+#define ACCESS(c, fn, vr, n, values, type, set, names)                                        \
+    (access_ok((c)->mode, vr, n, values, type, set) ||                                        \
+     fpm_check_access(&(c)->lg, fn, (c)->mode, vr, n, values, type, set, names))
+
+/* ------------------------------------------------------------------ life cycle */
+fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *token,
+                              int interface, int modes, const void *host, size_t host_size,
+                              fpm_host_emit emit, int logging_on)
+{
+    fpm_instance tmp, *c;
+    unsigned char *block;
+    size_t head = (sizeof(fpm_instance) + 15u) / 16u * 16u;
+    size_t hsize = (host_size + 15u) / 16u * 16u;
+    memset(&tmp, 0, sizeof tmp);
+    tmp.host = (void *)host;
+    tmp.host_emit = emit;
+    tmp.lg.emit = core_emit;
+    tmp.lg.env = &tmp;
+    tmp.logging_on = logging_on;
+    strncpy(tmp.name, name ? name : "?", sizeof tmp.name - 1);
+    if (interface != FPM_COSIMULATION) {
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: %s is a co-simulation FMU: model exchange is not "
+                "supported", fn, fpm_model_name);
+        return NULL;
+    }
+    if (token == NULL || strcmp(token, fpm_token) != 0) {
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: the GUID / instantiation token %s is not this FMU's "
+                "(%s): the modelDescription.xml and the binary come from different builds", fn,
+                token ? token : "(null)", fpm_token);
+        return NULL;
+    }
+    /* a serialised state is at most: header, mode and flag, every value as its widest item,
+     * the model's items (each no wider than its part of the struct; a string 4 bytes more),
+     * checksum */
+    tmp.state_cap = HEADER + 8u + FPM_MAX_VARS * (8u + 4u + FPM_STR_MAX) + fpm_model_size() + 64u
+                    + 8u;
+    /* the instance, the host's callbacks, two models and the scratch buffer in one block */
+    block = (unsigned char *)calloc(1, head + hsize + 2 * ((fpm_model_size() + 15u) / 16u * 16u)
+                                           + tmp.state_cap);
+    if (block == NULL) {
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: out of memory", fn);
+        return NULL;
+    }
+    c = (fpm_instance *)block;
+    *c = tmp;
+    c->lg.env = c;
+    c->host = block + head;
+    if (host_size) memcpy(c->host, host, host_size);
+    c->m = (fpm_model *)(block + head + hsize);
+    c->spare = (fpm_model *)(block + head + hsize + (fpm_model_size() + 15u) / 16u * 16u);
+    c->scratch = block + head + hsize + 2 * ((fpm_model_size() + 15u) / 16u * 16u);
+    c->interface = interface;
+    c->modes = modes;
+    c->mode = FPM_INSTANTIATED;
+    fpm_model_reset(c->m, 0.0);
+    return c;
+}
+
+void fpm_free_instance(fpm_instance *c)
+{
+    free(c);
+}
+
+int fpm_set_debug_logging(fpm_instance *c, const char *fn, int mask, int on, size_t n,
+                          const char *const categories[])
+{
+    GUARD(c, fn, mask);
+    if (n > 0 && categories == NULL)
+        return fpm_refuse(c, FPM_ERROR, fn, "categories is NULL but nCategories > 0");
+    c->logging_on = on ? 1 : 0;
+    return FPM_OK;
+}
+
+int fpm_enter_init(fpm_instance *c, const char *fn, int mask, double start, int stop_defined,
+                   double stop, int enter)
+{
+    fpm_values v;
+    GUARD(c, fn, mask);
+    if (!isfinite(start) || (stop_defined && !(stop >= start))) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: startTime = %.17g, stopTime = %.17g: the start must be "
+                "finite and not after the stop", fn, start, stop);
+        return FPM_ERROR;
+    }
+    v = *fpm_model_values(c->m);          /* keep the values set so far, restart the time */
+    fpm_model_reset(c->m, start);
+    *fpm_model_values(c->m) = v;
+    if (enter) c->mode = FPM_INIT;
+    return FPM_OK;
+}
+
+int fpm_exit_init(fpm_instance *c, const char *fn, int mask, int next_mode)
+{
+    int rc;
+    GUARD(c, fn, mask);
+    rc = fpm_model_init(c->m, &c->lg);
+    if (rc > FPM_WARNING) {
+        c->mode = FPM_ERROR_MODE;
+        return FPM_ERROR;
+    }
+    c->mode = next_mode;
+    return rc;
+}
+
+int fpm_set_mode(fpm_instance *c, const char *fn, int mask, int mode)
+{
+    GUARD(c, fn, mask);
+    c->mode = mode;
+    return FPM_OK;
+}
+
+int fpm_reset(fpm_instance *c, const char *fn, int mask)
+{
+    GUARD(c, fn, mask);
+    fpm_model_reset(c->m, 0.0);
+    c->mode = FPM_INSTANTIATED;
+    c->discarded = 0;
+    return FPM_OK;
+}
+
+double fpm_time(const fpm_instance *c) { return fpm_model_time(c->m); }
+
+/* ------------------------------------------------------------------ variables */
+int fpm_get(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size_t n,
+            void *values, int type, int layout, const char *const type_names[4])
+{
+    fpm_values *v;
+    size_t i;
+    int worst = FPM_OK;
+    GUARD(c, fn, mask);
+    if (!ACCESS(c, fn, vr, n, values, type, 0, type_names)) return FPM_ERROR;
+    v = fpm_model_values(c->m);
+    for (i = 0; i < n; i++) {
+        double x = v->real[vr[i]];
+        if (fpm_vars[vr[i]].causality == FPM_OUTPUT) {
+            int rc = fpm_model_get_output(c->m, &c->lg, vr[i], &x);
+            if (rc > FPM_WARNING) return rc;
+            if (rc > worst) worst = rc;
+        }
+        switch (layout) {
+        case FPM_C_DOUBLE: ((double *)values)[i] = x; break;
+        case FPM_C_INT: ((int *)values)[i] = type == FPM_BOOLEAN ? x != 0.0 : (int)x; break;
+        case FPM_C_BOOL: ((unsigned char *)values)[i] = x != 0.0; break;
+        default: ((const char **)values)[i] = v->string[vr[i]]; break;
+        }
+    }
+    return worst;
+}
+
+int fpm_set(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size_t n,
+            const void *values, int type, int layout, const char *const type_names[4])
+{
+    fpm_values *v;
+    size_t i;
+    GUARD(c, fn, mask);
+    if (!ACCESS(c, fn, vr, n, values, type, 1, type_names)) return FPM_ERROR;
+    if (layout == FPM_C_STRING)               /* every string checked before any is set */
+        for (i = 0; i < n; i++) {
+            const char *s = ((const char *const *)values)[i];
+            if (s == NULL || strlen(s) >= FPM_STR_MAX) {
+                fpm_log(&c->lg, FPM_ERROR, "%s: the value of %s is %s (at most %d characters)",
+                        fn, fpm_vars[vr[i]].name, s ? "too long" : "NULL", FPM_STR_MAX - 1);
+                return FPM_ERROR;
+            }
+        }
+    v = fpm_model_values(c->m);
+    for (i = 0; i < n; i++) {
+        switch (layout) {
+        case FPM_C_DOUBLE: v->real[vr[i]] = ((const double *)values)[i]; break;
+        case FPM_C_INT:
+            v->real[vr[i]] = type == FPM_BOOLEAN ? (((const int *)values)[i] ? 1.0 : 0.0)
+                                                 : (double)((const int *)values)[i];
+            break;
+        case FPM_C_BOOL: v->real[vr[i]] = ((const unsigned char *)values)[i] ? 1.0 : 0.0; break;
+        default: {                            /* the host may hand back our own buffer */
+            const char *src = ((const char *const *)values)[i];
+            memmove(v->string[vr[i]], src, strlen(src) + 1);
+            break;
+        }
+        }
+    }
+    return FPM_OK;
+}
+
+int fpm_set_input_derivatives(fpm_instance *c, const char *fn, int mask, const unsigned vr[],
+                              size_t n, const int order[], const double values[])
+{
+    static const char *const TYPES[4] = {"Real", "Integer", "Boolean", "String"};
+    size_t i;
+    GUARD(c, fn, mask);
+    if (!ACCESS(c, fn, vr, n, values, FPM_REAL, 1, TYPES)) return FPM_ERROR;
+    if (n > 0 && order == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the order array is NULL");
+    for (i = 0; i < n; i++)
+        if (fpm_vars[vr[i]].causality != FPM_INPUT) {
+            fpm_log(&c->lg, FPM_ERROR, "%s: %s is not an input", fn, fpm_vars[vr[i]].name);
+            return FPM_ERROR;
+        }
+    for (i = 0; i < n; i++) {
+        int rc = fpm_model_set_input_derivative(c->m, &c->lg, vr[i], order[i], values[i]);
+        if (rc != FPM_OK) return rc;
+    }
+    return FPM_OK;
+}
+
+/* ------------------------------------------------------------------ doStep */
+int fpm_do_step(fpm_instance *c, const char *fn, int mask, double t, double h)
+{
+    double own;
+    int rc;
+    GUARD(c, fn, mask);
+    if (!(h > 0.0) || !isfinite(h) || !isfinite(t) || !isfinite(t + h)) {
+        fpm_log(&c->lg, FPM_DISCARD, "%s: communicationStepSize = %.17g at t = %.17g: the step "
+                "must be positive and finite, and the time finite; step rejected, state "
+                "unchanged", fn, h, t);
+        return FPM_DISCARD;
+    }
+    if (!(t + h > t)) {
+        fpm_log(&c->lg, FPM_DISCARD, "%s: communicationStepSize = %.17g is below the resolution "
+                "of the time t = %.17g (t + h == t): the FMU's time cannot advance by it; step "
+                "rejected, state unchanged", fn, h, t);
+        return FPM_DISCARD;
+    }
+    own = fpm_model_time(c->m);
+    if (!(fabs(t - own) <= FPM_TIME_RTOL * (fabs(own) > 1.0 ? fabs(own) : 1.0))) {
+        fpm_log(&c->lg, FPM_ERROR, "%s called at t = %.17g but the FMU is at t = %.17g; restore "
+                "a saved FMU state to step from another time", fn, t, own);
+        return FPM_ERROR;
+    }
+    if (!(t + h > own)) {
+        fpm_log(&c->lg, FPM_DISCARD, "%s: the step from t = %.17g over %.17g ends before the FMU's "
+                "time %.17g: nothing to integrate; step rejected, state unchanged", fn, t, h, own);
+        return FPM_DISCARD;
+    }
+    rc = fpm_model_step(c->m, &c->lg, t, h);
+    c->discarded = rc == FPM_DISCARD;
+    return rc;
+}
+
+/* ------------------------------------------------------------------ FMU states */
+static unsigned long long identity(void)
+{
+    unsigned long long h = 14695981039346656037ULL;
+    unsigned f = FORMAT;
+    h = fpm_hash(fpm_model_name, strlen(fpm_model_name), h);
+    h = fpm_hash(fpm_token, strlen(fpm_token), h);
+    return fpm_hash(&f, sizeof f, h);
+}
+
+static void put_u64_at(unsigned char *p, unsigned long long v)
+{
+    int i;
+    for (i = 0; i < 8; i++) p[i] = (unsigned char)(v >> (8 * i));
+}
+
+static unsigned long long get_u64_at(const unsigned char *p)
+{
+    unsigned long long v = 0;
+    int i;
+    for (i = 0; i < 8; i++) v |= (unsigned long long)p[i] << (8 * i);
+    return v;
+}
+
+/* The instance serialised into out (cap bytes); the size, or 0 if it does not fit. */
+static size_t serialize(const fpm_instance *c, unsigned char *out, size_t cap)
+{
+    fpm_writer w;
+    const fpm_values *v = fpm_model_values(c->m);
+    int i;
+    size_t payload;
+    if (cap < HEADER + 8u) return 0;
+    w.p = out;
+    w.cap = cap - 8u;
+    w.n = HEADER;
+    fpm_put_i32(&w, c->mode);
+    fpm_put_i32(&w, c->discarded);
+    for (i = 0; i < FPM_MAX_VARS; i++) {
+        const fpm_var *var = &fpm_vars[i];
+        if (var->name == NULL || var->causality == FPM_OUTPUT) continue;
+        if (var->type == FPM_STRING) fpm_put_str(&w, v->string[i]);
+        else fpm_put_f64(&w, v->real[i]);
+    }
+    fpm_model_save(c->m, &w);
+    if (w.n > w.cap) return 0;
+    payload = w.n - HEADER;
+    memcpy(out, MAGIC, 4);
+    out[4] = (unsigned char)FORMAT;
+    out[5] = out[6] = out[7] = 0;
+    put_u64_at(out + 8, (unsigned long long)payload);
+    put_u64_at(out + 16, identity());
+    put_u64_at(out + w.n, fpm_hash(out, w.n, 14695981039346656037ULL));
+    return w.n + 8u;
+}
+
+/* Read serialised bytes into the spare model, checking everything; the mode and flag in
+ * *mode, *discarded. FPM_OK, or FPM_ERROR with the reason logged. */
+static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned char *in, size_t n,
+                              int *mode, int *discarded)
+{
+    fpm_reader r;
+    fpm_values *v;
+    size_t payload;
+    int i, need;
+    if (in == NULL || n < HEADER + 8u || memcmp(in, MAGIC, 4) != 0) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: not a serialised FMU state of %s (%lu bytes, no header)",
+                fn, fpm_model_name, (unsigned long)n);
+        return FPM_ERROR;
+    }
+    if (in[4] != FORMAT || in[5] || in[6] || in[7]) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: serialised FMU state of format version %u; this FMU "
+                "reads %u", fn, (unsigned)in[4] | (unsigned)in[5] << 8, FORMAT);
+        return FPM_ERROR;
+    }
+    payload = (size_t)get_u64_at(in + 8);
+    if (payload != n - HEADER - 8u) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: serialised FMU state of %lu bytes; its header says "
+                "%lu bytes", fn, (unsigned long)n, (unsigned long)(get_u64_at(in + 8) + HEADER + 8u));
+        return FPM_ERROR;
+    }
+    if (get_u64_at(in + 16) != identity()) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: the serialised FMU state belongs to another model or "
+                "build (this is %s, token %s)", fn, fpm_model_name, fpm_token);
+        return FPM_ERROR;
+    }
+    if (get_u64_at(in + n - 8u) != fpm_hash(in, n - 8u, 14695981039346656037ULL)) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: the serialised FMU state is corrupt (its checksum does "
+                "not match its bytes)", fn);
+        return FPM_ERROR;
+    }
+    memset(&r, 0, sizeof r);
+    r.p = in + HEADER;
+    r.n = payload;
+    fpm_model_reset(c->spare, 0.0);
+    v = fpm_model_values(c->spare);
+    if (fpm_get_i32(&r, "the mode", mode) &&
+        !(*mode > 0 && (*mode & (*mode - 1)) == 0 && (*mode & c->modes)))
+        fpm_reject(&r, "the mode %d is not a state this instance can be in", *mode);
+    fpm_get_int_in(&r, "the refusal flag", 0, 1, discarded);
+    if (r.why[0] == '\0' && *discarded && !(*mode & (FPM_STEP | FPM_EVENT | FPM_TERMINATED)))
+        fpm_reject(&r, "a refused step in state %s", fpm_mode_name(*mode));
+    for (i = 0; i < FPM_MAX_VARS && r.why[0] == '\0'; i++) {
+        const fpm_var *var = &fpm_vars[i];
+        double x;
+        if (var->name == NULL || var->causality == FPM_OUTPUT) continue;
+        if (var->type == FPM_STRING) {
+            fpm_get_str(&r, var->name, v->string[i], FPM_STR_MAX);
+            continue;
+        }
+        if (!fpm_get_f64(&r, var->name, &x)) break;
+        if (var->type == FPM_INTEGER && !(x >= -2147483648.0 && x <= 2147483647.0 && x == floor(x)))
+            fpm_reject(&r, "%s = %g is not an Integer value", var->name, x);
+        if (var->type == FPM_BOOLEAN && x != 0.0 && x != 1.0)
+            fpm_reject(&r, "%s = %g is not a Boolean value", var->name, x);
+        v->real[i] = x;
+    }
+    need = (*mode & (FPM_STEP | FPM_EVENT | FPM_CONTINUOUS)) ? 1
+           : (*mode & (FPM_INSTANTIATED | FPM_INIT | FPM_ERROR_MODE)) ? 0 : -1;
+    if (r.why[0] == '\0') fpm_model_load(c->spare, &r, need);
+    if (r.why[0] == '\0' && r.pos != r.n)
+        fpm_reject(&r, "%lu bytes are left over", (unsigned long)(r.n - r.pos));
+    if (r.why[0] != '\0') {
+        fpm_log(&c->lg, FPM_ERROR, "%s: the FMU state is not a valid state of %s: %s; the "
+                "instance is unchanged", fn, fpm_model_name, r.why);
+        return FPM_ERROR;
+    }
+    return FPM_OK;
+}
+
+static state *new_state(size_t cap)
+{
+    state *s = (state *)malloc(offsetof(state, data) + cap);
+    if (s == NULL) return NULL;
+    s->magic = STATE_MAGIC;
+    s->n = 0;
+    s->cap = cap;
+    return s;
+}
+
+static const state *known(fpm_instance *c, const char *fn, const void *p)
+{
+    const state *s = (const state *)p;
+    if (s == NULL) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: the FMU state is NULL", fn);
+        return NULL;
+    }
+    if (s->magic != STATE_MAGIC || s->n > s->cap) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: not an FMU state of this FMU (or one freed already)", fn);
+        return NULL;
+    }
+    return s;
+}
+
+int fpm_get_state(fpm_instance *c, const char *fn, int mask, void **out)
+{
+    state *s;
+    size_t n;
+    GUARD(c, fn, mask);
+    if (out == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the pointer to the state is NULL");
+    if (*out != NULL && known(c, fn, *out) == NULL) return FPM_ERROR;
+    n = serialize(c, c->scratch, c->state_cap);
+    if (n == 0) return fpm_refuse(c, FPM_ERROR, fn, "the state does not fit its buffer (a bug)");
+    s = (state *)*out;
+    if (s == NULL || s->cap < n) {            /* a state of its own size (FMI: a state given
+                                                 is overwritten) */
+        state *fresh = new_state(n);
+        if (fresh == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
+        if (s != NULL) {
+            s->magic = 0;
+            free(s);
+        }
+        s = fresh;
+    }
+    memcpy(s->data, c->scratch, n);
+    s->n = n;
+    *out = s;
+    return FPM_OK;
+}
+
+/* Make the spare model the live one. */
+static void commit(fpm_instance *c, int mode, int discarded)
+{
+    fpm_model *m = c->m;
+    c->m = c->spare;
+    c->spare = m;
+    c->mode = mode;
+    c->discarded = discarded;
+}
+
+int fpm_set_state(fpm_instance *c, const char *fn, int mask, const void *p)
+{
+    const state *s;
+    int mode, discarded;
+    GUARD(c, fn, mask);
+    if ((s = known(c, fn, p)) == NULL) return FPM_ERROR;
+    if (restore_into_spare(c, fn, s->data, s->n, &mode, &discarded) != FPM_OK) return FPM_ERROR;
+    commit(c, mode, discarded);
+    return FPM_OK;
+}
+
+int fpm_free_state(fpm_instance *c, const char *fn, int mask, void **p)
+{
+    state *s;
+    GUARD(c, fn, mask);
+    if (p == NULL || *p == NULL) return FPM_OK;
+    if (known(c, fn, *p) == NULL) return FPM_ERROR;
+    s = (state *)*p;
+    s->magic = 0;
+    free(s);
+    *p = NULL;
+    return FPM_OK;
+}
+
+int fpm_state_size(fpm_instance *c, const char *fn, int mask, const void *p, size_t *size)
+{
+    const state *s;
+    GUARD(c, fn, mask);
+    if (size == NULL) return fpm_refuse(c, FPM_ERROR, fn, "size is NULL");
+    if ((s = known(c, fn, p)) == NULL) return FPM_ERROR;
+    *size = s->n;
+    return FPM_OK;
+}
+
+int fpm_serialize_state(fpm_instance *c, const char *fn, int mask, const void *p,
+                        unsigned char *data, size_t size)
+{
+    const state *s;
+    GUARD(c, fn, mask);
+    if ((s = known(c, fn, p)) == NULL) return FPM_ERROR;
+    if (data == NULL || size < s->n) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: need a buffer of %lu bytes, got %lu%s", fn,
+                (unsigned long)s->n, (unsigned long)size, data == NULL ? " (NULL)" : "");
+        return FPM_ERROR;
+    }
+    memcpy(data, s->data, s->n);
+    return FPM_OK;
+}
+
+int fpm_deserialize_state(fpm_instance *c, const char *fn, int mask, const unsigned char *data,
+                          size_t size, void **out)
+{
+    state *s;
+    int mode, discarded;
+    GUARD(c, fn, mask);
+    if (out == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the pointer to the state is NULL");
+    if (*out != NULL && known(c, fn, *out) == NULL) return FPM_ERROR;
+    if (data != NULL && size > c->state_cap) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: serialised FMU state of %lu bytes; a state of %s has at "
+                "most %lu", fn, (unsigned long)size, fpm_model_name, (unsigned long)c->state_cap);
+        return FPM_ERROR;
+    }
+    /* the whole check, by restoring it into the spare model (the live one is not touched) */
+    if (restore_into_spare(c, fn, data, size, &mode, &discarded) != FPM_OK) return FPM_ERROR;
+    s = (state *)*out;
+    if (s == NULL || s->cap < size) {
+        state *fresh = new_state(size);
+        if (fresh == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
+        if (s != NULL) {
+            s->magic = 0;
+            free(s);
+        }
+        s = fresh;
+    }
+    memcpy(s->data, data, size);
+    s->n = size;
+    *out = s;
+    return FPM_OK;
+}
