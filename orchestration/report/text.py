@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["num", "filter_text", "analysis_lines", "mode_text", "run_lines", "design_lines",
+__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "run_lines", "design_lines",
            "sweep_lines"]
 
 
@@ -43,13 +43,56 @@ def analysis_lines(plant, controller, a) -> list[str]:
     verdict = "STABLE" if a.stable else "UNSTABLE"
     note = " (cart drift roots at 0 left aside)" if c.kx == 0 else ""
     out += ["", f"max real part{note}: {a.max_real_part:+.4f}  ->  {verdict}"]
-    m = a.margins
-    if m["nominal_stable"]:
-        out.append(f"gain margin: x{num(m['gain_margin_upper'])} upward (at "
-                   f"{num(m['gain_margin_upper_freq'])} rad/s), x{num(m['gain_margin_lower'])} "
-                   f"downward (at {num(m['gain_margin_lower_freq'])} rad/s)")
-    out.append(f"phase margin: {num(m['phase_margin_deg'])} deg at "
-               f"{num(m['phase_margin_freq'])} rad/s (smallest of all gain crossovers)")
+    out += margin_lines(a.margins)
+    return out
+
+
+def margin_lines(m: dict) -> list[str]:
+    """The margins of :func:`orchestration.studies.analysis.margins`, the same numbers and words
+    as its JSON: the gain range, the phase margin (the smallest phase change at any gain
+    crossover) with every crossover, the delay margin; for an unstable loop, the note instead."""
+    cross = m["gain_crossovers"]
+
+    def change(r):
+        ph = r["phase_change_deg"]
+        return f"{num(abs(ph))} deg {'lag' if ph >= 0 else 'lead'}"
+
+    listed = "; ".join(f"{num(r['frequency'])} rad/s: {change(r)}" for r in cross)
+    if not m["nominal_stable"]:
+        return [m["note"]] + ([f"  gain crossovers (phase change that puts a root on the "
+                               f"imaginary axis): {listed}"] if cross else [])
+
+    def where(db, freq):
+        return (f"{num(db, '+.3g')} dB, " + ("a real root through 0" if freq == 0 else
+                                              f"roots at +-{num(freq)}j"))
+
+    lo, hi = m["gain_margin_lower"], m["gain_margin_upper"]
+    if lo == 0.0 and math.isinf(hi):
+        gain = "gain margin: none needed, the loop is stable for every loop-gain factor > 0"
+    elif lo == 0.0:
+        gain = (f"gain margin: stable for loop-gain factors up to x{num(hi)} "
+                f"({where(m['gain_margin_upper_db'], m['gain_margin_upper_freq'])})")
+    elif math.isinf(hi):
+        gain = (f"gain margin: stable for every loop-gain factor above x{num(lo)} "
+                f"({where(m['gain_margin_lower_db'], m['gain_margin_lower_freq'])}); no gain "
+                "increase destabilises it")
+    else:
+        gain = (f"gain margin: stable for loop-gain factors from x{num(lo)} "
+                f"({where(m['gain_margin_lower_db'], m['gain_margin_lower_freq'])}) to "
+                f"x{num(hi)} ({where(m['gain_margin_upper_db'], m['gain_margin_upper_freq'])})")
+    out = [gain]
+    if not cross:
+        out.append(f"phase margin: inf ({m['note']})")
+        return out
+    pm = (f"phase margin: {num(m['phase_margin_deg'])} deg of {m['phase_margin_sense']} at "
+          f"{num(m['phase_margin_freq'])} rad/s")
+    if len(cross) == 1:
+        out.append(pm + " (the only gain crossover)")
+    else:
+        out += [pm + f", the smallest phase change at any of the {len(cross)} gain crossovers "
+                "that puts a closed-loop root on the imaginary axis:", f"  {listed}"]
+    out.append(f"delay margin: {num(1e3 * m['delay_margin_s'])} ms (its lag reaches the phase "
+               f"change at {num(m['delay_margin_freq'])} rad/s first)")
     return out
 
 
