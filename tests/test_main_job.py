@@ -187,6 +187,18 @@ def test_stop_time_must_be_a_multiple_of_the_output_interval(tmp_path, capsys):
         assert len(err.strip().splitlines()) == 1
 
 
+def test_an_initial_state_beyond_the_plants_limits_is_exit_2_not_a_run(tmp_path, capsys):
+    """`--set initial.phi=2` used to run and stop at t = 0 with exit 3: the scene is refused when
+    read, in one line naming the key and the limit, and nothing is run or written."""
+    out = tmp_path / "out"
+    for item in ("initial.phi=2", "initial.phi=-1.6"):
+        assert main(["run", "rigid_pd", "--set", item, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("flexpend: error: ") and f"{item.replace('=', ' = ')} is beyond" in err
+        assert "plant.phi_limit = 1.571 rad" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
 def test_bad_out_is_one_line_and_exit_2(tmp_path, capsys):
     afile = tmp_path / "a_file"
     afile.write_text("x")
