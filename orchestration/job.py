@@ -34,7 +34,7 @@ from .export import build_fmus, fmu_pair
 from .report import figures
 from .report.files import save_figure, write_csv, write_json
 from .report.progress import Progress
-from .report.summary import summarize
+from .report.summary import stop_reason, summarize
 from .scene.keys import ConfigError
 from .scene.records import FMU_FLAVOURS, Scene
 from .scene.schema import load_scene, start_values
@@ -195,7 +195,8 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
                                     progress=bar, stop=stop)
         except CoSimulationError as exc:
             res, stats = exc.result, exc.stats
-            stopped = {"time": exc.time, "reason": str(exc)}
+            stopped = {"time": exc.time, "reason": stop_reason(str(exc)),
+                       "fmu_message": str(exc)}
         except RunInterrupted as exc:
             res, stats, interrupted = exc.result, exc.stats, True
             stopped = {"time": exc.time, "reason": "interrupted (Ctrl-C)"}

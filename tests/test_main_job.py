@@ -5,6 +5,7 @@ import json
 import math
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -177,6 +178,44 @@ def test_a_diverging_run_keeps_its_data_says_why_and_exits_3(fmus, tmp_path):
         if line.strip().startswith("wrote "):
             for f in line.strip()[len("wrote "):].split(", "):
                 assert os.path.getsize(f) > 0
+
+
+def _significant_digits(number: str) -> int:
+    return len(re.sub(r"[^0-9]", "", re.split("[eE]", number)[0]).lstrip("0"))
+
+
+@pytest.mark.parametrize("flavour", ["python", "native"])
+def test_a_stop_is_told_in_the_users_terms_and_the_fmus_message_is_kept(request, flavour):
+    """The FMU's log ('divergence at t = 0.40400000000000003: |phi| = 1.5797451062103358 exceeds
+    phi_limit = ...; restore a saved FMU state to continue') stays in summary.json as
+    fmu_message; the summary's reason and the terminal say what happened with the scene's key,
+    without FMI words or float noise."""
+    from orchestration.report.text import run_lines
+
+    built = request.getfixturevalue("fmus" if flavour == "python" else "native")
+    paths = {"plant": built["FlexiblePendulum"], "controller": built["PDLowPass"]}
+    scene = load_scene("flexible_pd_lowpass", ["controller.kp=0", "stop_time=1"])
+    r = run_scene(scene, paths, progress=False)
+    stopped = r.summary["stopped"]
+    assert stopped["reason"].startswith("the beam tilted past plant.phi_limit = 1.571 rad (90 deg) "
+                                        "by t = 0.40")
+    assert "restore a saved FMU state" in stopped["fmu_message"]
+    assert "phi_limit = 1.5707963267948966" in stopped["fmu_message"]
+    text = "\n".join(run_lines(r.name, r.summary))
+    assert f"STOPPED at t = {stopped['time']:.4g} s" in text and stopped["reason"] in text
+    for jargon in ("FMU", "doStep", "discard", "restore", "[", "returned"):
+        assert jargon not in text, jargon
+    numbers = re.findall(r"\d+\.\d+(?:e[-+]?\d+)?", text)
+    assert numbers and max(map(_significant_digits, numbers)) <= 5, numbers
+
+
+def test_a_completed_runs_summary_has_no_float_noise(paths):
+    from orchestration.report.text import run_lines
+
+    r = run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.5"]), paths, progress=False)
+    text = "\n".join(run_lines(r.name, r.summary))
+    numbers = re.findall(r"\d+\.\d+(?:e[-+]?\d+)?", text)
+    assert numbers and max(map(_significant_digits, numbers)) <= 5, numbers
 
 
 def test_stop_time_must_be_a_multiple_of_the_output_interval(tmp_path, capsys):

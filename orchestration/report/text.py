@@ -110,7 +110,7 @@ def mode_text(m) -> str:
 def run_lines(name: str, s: dict, written=()) -> list[str]:
     """A run's summary (:func:`orchestration.report.summary.summarize`) for the terminal."""
     if s["stopped"] is not None:
-        verdict = f"STOPPED at t = {s['stopped']['time']:.6g} s"
+        verdict = f"STOPPED at t = {num(s['stopped']['time'], '.4g')} s"
     else:
         verdict = {True: "stable", False: "UNSTABLE", None: "no verdict (no reliable fit)"}[
             s["stable"]]
@@ -130,9 +130,10 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
     if v and v["warnings"]:
         out += [f"  WARNING, outside the model's range: {w}" for w in v["warnings"]]
     elif v and v["max_abs_tip_deflection"] is not None:
-        out.append(f"  within the model's range (tip deflection at most "
-                   f"{v['max_abs_tip_deflection']:.3g} m, |phi| at most {v['max_abs_phi']:.3g} "
-                   "rad)")
+        d = v["max_abs_tip_deflection"]
+        bend = ("rigid beam" if d == 0 else f"tip deflection at most {d:.3g} m")
+        out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}within the "
+                   f"model's range ({bend}, |phi| at most {v['max_abs_phi']:.3g} rad)")
     if s.get("max_abs_F_c") is not None:
         out.append(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
     if "wall_time" in s:
