@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 
+from ..studies.analysis import first_bending_frequency
 from ..studies.fit import fit_mode
 
 __all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT", "FIT_RESIDUAL",
@@ -83,16 +84,6 @@ def linear_window(res: np.ndarray, L: float | None) -> slice:
                 best = (start, i)
             start = None
     return slice(*best)
-
-
-def first_bending_frequency(plant) -> float | None:
-    """The plant's first open-loop oscillation (rad/s): its first bending mode, hinge free."""
-    from plant_fmu.dynamics import plant_model
-
-    if plant.n_modes == 0:
-        return None
-    lam = np.linalg.eigvals(plant_model(plant).state_space()[0])
-    return float(min(z.imag for z in lam if z.imag > 1.0))
 
 
 def _fit(t, y, key, modes, near=None):

@@ -29,7 +29,8 @@ from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
 __all__ = ["closed_loop_matrix", "assemble_closed_loop", "loop_transfer", "frequency_response",
-           "analyze", "Analysis", "margins", "max_real_part"]
+           "analyze", "Analysis", "margins", "max_real_part", "first_bending_frequency",
+           "LoopRoots", "loop_roots"]
 
 
 def assemble_closed_loop(A, B, C, controller_ss, gain: float = 1.0) -> np.ndarray:
@@ -67,6 +68,54 @@ def _drift_free(Acl: np.ndarray, p: PlantParams) -> np.ndarray:
 def max_real_part(p: PlantParams, c: ControllerParams, gain: float = 1.0) -> float:
     """Largest real part of the closed loop's eigenvalues, the cart's drift roots left aside."""
     return float(np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c, gain), p)).real.max())
+
+
+def first_bending_frequency(p: PlantParams) -> float | None:
+    """The plant's first open-loop oscillation (rad/s): its first bending mode with the hinge
+    free (152.5 rad/s for the paper's beam; the cantilever's is 26.3 rad/s). The loop's root
+    near it is the one the PD destabilises (MODEL.md); None for the rigid model."""
+    if p.n_modes == 0:
+        return None
+    lam = np.linalg.eigvals(plant_model(p).state_space()[0])
+    return float(min(z.imag for z in lam if z.imag > 1.0))
+
+
+@dataclass(frozen=True)
+class LoopRoots:
+    """The closed-loop roots of a plant and controller, the cart's drift roots left aside (when
+    ``kx = 0``), sorted by frequency; ``bending``: the root nearest the first bending frequency
+    (upper half-plane; None for the rigid model); ``slow``: the lowest oscillatory root below it
+    (the rigid pendulum's), or None."""
+
+    roots: np.ndarray
+    bending: complex | None
+    slow: complex | None
+    bending_frequency: float | None
+
+    @property
+    def max_real_part(self) -> float:
+        return float(self.roots.real.max())
+
+    @property
+    def stable(self) -> bool:
+        return self.max_real_part < 0
+
+    def growing(self) -> list:
+        """The roots in the right half-plane (upper half and real axis), fastest first."""
+        return sorted((z for z in self.roots if z.real >= 0 and z.imag >= 0),
+                      key=lambda z: -z.real)
+
+
+def loop_roots(p: PlantParams, c: ControllerParams) -> LoopRoots:
+    """:class:`LoopRoots` of the linearised closed loop of ``p`` and ``c``."""
+    lam = np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c), p))
+    lam = lam[np.argsort(np.abs(lam.imag), kind="stable")]
+    up = lam[lam.imag > 1e-9]
+    wb = first_bending_frequency(p)
+    bending = complex(up[np.argmin(np.abs(up.imag - wb))]) if wb is not None and len(up) else None
+    below = [z for z in up if wb is None or z.imag < 0.5 * wb]
+    slow = complex(min(below, key=lambda z: z.imag)) if below else None
+    return LoopRoots(lam, bending, slow, wb)
 
 
 def loop_transfer(p: PlantParams, c: ControllerParams) -> control.StateSpace:
