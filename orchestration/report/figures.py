@@ -541,27 +541,41 @@ def root_map(scenes):
 
 def loop_bode(w, loops: dict, title: str, marks=()):
     """Magnitude and phase of loop transfer functions ``{label: L(jw)}`` on ``w`` (rad/s);
-    ``marks``: ``(frequency, label)`` drawn as vertical lines."""
-    fig = new_figure(8, 6.5)
+    ``marks``: ``(frequency, label)`` drawn as vertical lines, labelled inside the axes. The
+    phase is unwrapped; the lines at -180 deg + k 360 deg are where ``L(jw)`` is real and
+    negative (a phase crossover)."""
+    from matplotlib.ticker import MultipleLocator
+    from matplotlib.transforms import blended_transform_factory
+
+    width, height = 8.0, 6.5
+    fig = new_figure(width, height)
     am, ap = fig.subplots(2, 1, sharex=True)
+    fig.subplots_adjust(left=0.8 / width, right=1 - 0.2 / width, top=1 - 0.4 / height,
+                        bottom=0.55 / height, hspace=0.08)
+    phases = []
     for label, L in loops.items():
         am.loglog(w, np.abs(L), lw=0.9, label=label)
-        ap.semilogx(w, np.degrees(np.unwrap(np.angle(L))), lw=0.9, label=label)
+        ph = np.degrees(np.unwrap(np.angle(L)))
+        phases.append(ph)
+        ap.semilogx(w, ph, lw=0.9, label=label)
     am.axhline(1.0, color="0.5", lw=0.6)
-    for ph in (-180.0, 180.0):
-        ap.axhline(ph, color="0.5", lw=0.6)
+    lo, hi = min(p.min() for p in phases), max(p.max() for p in phases)
+    for k in range(math.floor((lo - 180) / 360), math.ceil((hi - 180) / 360) + 1):
+        if lo - 90 <= 180 + 360 * k <= hi + 90:
+            ap.axhline(180.0 + 360 * k, color="0.5", lw=0.6)
+    ap.yaxis.set_major_locator(MultipleLocator(180 if hi - lo <= 1440 else 360))
     for f, label in marks:
         for ax in (am, ap):
             ax.axvline(f, color="0.4", ls=":", lw=0.8)
-        am.annotate(label, (f, am.get_ylim()[1]), fontsize=7, rotation=90, va="top", ha="right")
+        am.text(f, 0.03, f"{label} ", fontsize=7, rotation=90, va="bottom", ha="right",
+                transform=blended_transform_factory(am.transData, am.transAxes))
     am.set_ylabel("|L(jw)|")
     ap.set_ylabel("phase of L(jw) (deg)")
     ap.set_xlabel("frequency (rad/s)")
     am.set_title(title, fontsize=10)
-    am.legend(fontsize=8)
+    am.legend(fontsize=8, loc="lower left")
     for ax in (am, ap):
         ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
     return fig
 
 
@@ -570,8 +584,11 @@ def root_locus(cutoffs, roots, chosen_cutoff: float, title: str,
     """Closed-loop roots (upper half-plane) as the cutoff varies, coloured by the cutoff; the
     chosen cutoff's roots as stars. Left: all roots; right: the part near the imaginary axis."""
     from matplotlib.colors import LogNorm
-    fig = new_figure(10, 4.6)
+    width, height = 10.0, 4.6
+    fig = new_figure(width, height)
     axes = fig.subplots(1, 2)
+    fig.subplots_adjust(left=0.75 / width, right=1 - 1.05 / width, top=1 - 0.45 / height,
+                        bottom=0.55 / height, wspace=0.2)
     cut = np.repeat(np.asarray(cutoffs)[:, None], roots.shape[1], axis=1)
     up = roots.imag >= 0
     i = int(np.argmin(np.abs(np.asarray(cutoffs) - chosen_cutoff)))
@@ -588,8 +605,9 @@ def root_locus(cutoffs, roots, chosen_cutoff: float, title: str,
     axes[1].set_xlim(*zoom[0])
     axes[1].set_ylim(*zoom[1])
     axes[1].legend(fontsize=8, loc="upper left")
-    fig.colorbar(sc, ax=axes, label="cutoff (rad/s)")
-    fig.suptitle(title, fontsize=10)
+    cax = fig.add_axes([1 - 0.85 / width, 0.55 / height, 0.15 / width, 1 - 1.0 / height])
+    fig.colorbar(sc, cax=cax, label="cutoff (rad/s)")
+    fig.suptitle(title, fontsize=10, y=1 - 0.08 / height, va="top")
     return fig
 
 
