@@ -323,6 +323,7 @@ def paper_figures(runs, folder) -> list[Path]:
     ``root_map.png``, the closed-loop roots of each run's linearised loop
     (:func:`~orchestration.report.figures.root_map`); the paths written."""
     folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
     written = [save_figure(figures.paper_overview(runs), folder / "paper_overview.png")]
     plants = {}                            # plant -> the runs on it
     for r in runs:

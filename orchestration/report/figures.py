@@ -471,10 +471,11 @@ def mode_shapes(plants):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7.5, loc="upper left", bbox_to_anchor=(1.03, 1.0), borderaxespad=0)
     from ..studies.analysis import first_bending_frequency
-    for ax, (label, p) in zip(axes, plants):
-        ax.text(1.03, 0.0, f"hinge free, the first bending\nmode is at "
-                f"{first_bending_frequency(p):.4g} rad/s:\nthe loop's bending root is\nnear it",
-                transform=ax.transAxes, fontsize=7.5, va="bottom", color="0.3")
+    for ax, (label, p) in zip(axes, plants):             # beside the panel, under its legend
+        box = ax.get_position()
+        fig.text(box.x1 + 0.1 / width, box.y0, f"hinge free, the first bending\nmode is at "
+                 f"{first_bending_frequency(p):.4g} rad/s:\nthe loop's bending root is\nnear it",
+                 fontsize=7.5, va="bottom", color="0.3")
     axes[0].set_ylabel("position along the beam s (m)", fontsize=8)
     fig.suptitle("The cantilever modes the plant uses\n(floating frame, clamped at the hinge)",
                  fontsize=10, y=1 - 0.06 / height, va="top")
