@@ -48,9 +48,12 @@ def root_text(z) -> str:
 def plant_text(scene) -> str:
     """The plant that ran: rigid or its number of cantilever modes, the fidelity, and the
     physical parameters that differ from the paper's Table 1."""
+    from dataclasses import fields
+
     from plant_fmu.params import PlantParams
 
-    p, default = scene.plant.params, PlantParams()
+    p = scene.plant.params
+    table1 = {f.name: f.default for f in fields(PlantParams)}     # no record made for it
     if p.n_modes == 0:
         out = "rigid pendulum"
     else:
@@ -59,7 +62,7 @@ def plant_text(scene) -> str:
         out += ", linearised plant"
     changed = [f"{k} = {getattr(p, k):g}" if not isinstance(getattr(p, k), bool)
                else f"{k} = {str(getattr(p, k)).lower()}"
-               for k in _PHYSICAL if getattr(p, k) != getattr(default, k)
+               for k in _PHYSICAL if getattr(p, k) != table1[k]
                and not (p.n_modes == 0 and k in _BENDING_ONLY)]
     return out + (f" ({', '.join(changed)})" if changed else "")
 
