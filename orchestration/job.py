@@ -355,7 +355,8 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
             overview: bool = False, announce=None, report=None) -> JobResult:
     """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
     folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
-    ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json`` holds every run's summary, and is written
+    ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json``
+    holds every run's summary, and is written
     even when nothing ran.
 
     ``stop``: asked between runs and after every communication step (Ctrl-C); ``announce(scene)``

@@ -93,7 +93,8 @@ def test_delay_margin_puts_a_root_on_the_axis(p, c):
     assert L * np.exp(-1j * w * tau) == pytest.approx(-1.0, abs=1e-9)
 
 
-@pytest.mark.parametrize("p,c", CASES + [(PlantParams(n_modes=4), ControllerParams(filter_order=0))],
+@pytest.mark.parametrize("p,c", CASES + [(PlantParams(n_modes=4),
+                                          ControllerParams(filter_order=0))],
                          ids=IDS + ["n4-pd-unstable"])
 def test_margin_text_states_what_the_json_holds(p, c):
     """``flexpend analyze`` prints the JSON's margins with the same names and numbers; an unstable

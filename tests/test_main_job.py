@@ -233,7 +233,8 @@ def test_an_initial_state_beyond_the_plants_limits_is_exit_2_not_a_run(tmp_path,
     for item in ("initial.phi=2", "initial.phi=-1.6"):
         assert main(["run", "rigid_pd", "--set", item, "--out", str(out)]) == 2
         err = capsys.readouterr().err
-        assert err.startswith("flexpend: error: ") and f"{item.replace('=', ' = ')} is beyond" in err
+        assert err.startswith("flexpend: error: ")
+        assert f"{item.replace('=', ' = ')} is beyond" in err
         assert "plant.phi_limit = 1.571 rad" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
 

@@ -146,7 +146,8 @@ def test_initial_energy_is_the_plant_models(n_modes, fidelity):
 @pytest.mark.parametrize("overrides,fragment", [
     ({"initial.phi": 2}, "initial.phi = 2 is beyond plant.phi_limit = 1.571 rad (90 deg)"),
     ({"initial.phi": -1.6}, "initial.phi = -1.6 is beyond plant.phi_limit = 1.571 rad"),
-    ({"initial.phi": 0.6, "plant.phi_limit": 0.5}, "initial.phi = 0.6 is beyond plant.phi_limit = 0.5 rad"),
+    ({"initial.phi": 0.6, "plant.phi_limit": 0.5},
+     "initial.phi = 0.6 is beyond plant.phi_limit = 0.5 rad"),
     ({"initial.x_dot": 2000}, "beyond plant.energy_limit = 1e+06 J"),
     ({"initial.phi_dot": 500, "plant.energy_limit": 1e5, "plant.fidelity": "linear"},
      "beyond plant.energy_limit = 1e+05 J"),

@@ -74,7 +74,8 @@ def controller_text(c) -> str:
     for k, sym in terms:
         if k == 0 and sym == "x_o":
             continue
-        law += (f" {'-' if k < 0 else '+'} " if law else ("-" if k < 0 else "")) + f"{abs(k):g}\\,{sym}"
+        sign = f" {'-' if k < 0 else '+'} " if law else ("-" if k < 0 else "")
+        law += f"{sign}{abs(k):g}\\,{sym}"
     out = f"PD $F_c = -({law})$"
     out += {0: ", no filter",
             1: f", 1st-order low-pass at {c.cutoff:g} rad/s",
@@ -126,7 +127,8 @@ def outcome_text(summary) -> str:
         return ""
     stopped = summary.get("stopped")
     if stopped:
-        return f"co-simulation STOPPED at t = {stopped['time']:.4g} s: {stopped['reason']}"
+        at = f" at t = {stopped['time']:.4g} s" if stopped.get("time") is not None else ""
+        return f"co-simulation STOPPED{at}: {stopped['reason']}"
     out = "co-simulation: " + {True: "stable (every reliable fit decays)",
                                False: "UNSTABLE (a reliable fit grows)",
                                None: "no verdict (no reliable fit)"}[summary.get("stable")]
@@ -139,8 +141,9 @@ def outcome_text(summary) -> str:
 def scene_title(scene, summary=None) -> str:
     """A figure's title, from the records of the scene that ran (and its summary): the plant,
     the control law, the initial state, the linear prediction, the outcome."""
-    lines = [f"{scene.name}: {plant_text(scene)}, {initial_text(scene.initial)}",
-             controller_text(scene.controller), loop_text(scene), outcome_text(summary)]
+    lines = [f"{scene.name}: {plant_text(scene)}",
+             f"{controller_text(scene.controller)}; {initial_text(scene.initial)}",
+             loop_text(scene), outcome_text(summary)]
     # mathtext is not wrapped (its source is longer than what it draws); plain lines are
     return "\n".join(line if "$" in line else _wrapped(line, 130) for line in lines if line)
 

@@ -40,9 +40,9 @@ import numpy as np
 from ..studies.analysis import first_bending_frequency
 from ..studies.fit import fit_mode
 
-__all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT", "FIT_RESIDUAL",
-           "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window", "fit_modes",
-           "first_bending_frequency", "validity", "summarize"]
+__all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT",
+           "FIT_RESIDUAL", "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window",
+           "fit_modes", "first_bending_frequency", "validity", "summarize"]
 
 #: Bands (rad/s) of the rigid (slow) and the bending oscillation.
 SLOW_BAND = (0.5, 60.0)

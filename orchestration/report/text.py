@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "run_lines", "design_lines",
+__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "run_lines",
+           "design_lines",
            "sweep_lines"]
 
 

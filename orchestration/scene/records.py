@@ -329,8 +329,8 @@ class Scene:
         phi, lim = self.initial.phi, self.plant.phi_limit
         if not abs(phi) <= lim:
             raise ConfigError(f"initial.phi = {phi:.6g} is beyond plant.phi_limit = {lim:.4g} rad "
-                              f"({math.degrees(lim):.4g} deg), where the plant stops a run; allowed: "
-                              f"|initial.phi| <= {lim:.4g}")
+                              f"({math.degrees(lim):.4g} deg), where the plant stops a run; "
+                              f"allowed: |initial.phi| <= {lim:.4g}")
         e_lim = self.plant.energy_limit
         if math.isfinite(e_lim):
             energy = initial_energy(self.plant.beam, self.initial,
