@@ -196,7 +196,9 @@ def cmd_run(args) -> int:
     if args.json:
         print(_json(job.summaries))
     elif out_dir / "paper_overview.png" in job.written:
-        print(f"paper overview: {out_dir / 'paper_overview.png'}")
+        names = ("paper_overview.png", "mode_shapes.png", "root_map.png")
+        print("paper figures: " + ", ".join(str(out_dir / n) for n in names
+                                             if out_dir / n in job.written))
     if job.code == JOB_INTERRUPTED:
         print(f"flexpend: interrupted; the data so far is in {out_dir}", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -34,7 +34,7 @@ from .export import flavour_fmus
 from .report import figures
 from .report.files import save_figure, write_csv, write_json
 from .report.progress import Progress
-from .report.summary import summarize
+from .report.summary import stop_reason, summarize
 from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
@@ -42,8 +42,8 @@ from .scene.ssp import read_ssp
 from .studies.fidelity import select_model
 from .studies.reference import COLUMNS, simulate_reference
 
-__all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "load_job", "check_wiring",
-           "plant_start_values", "controller_start_values", "RECORD",
+__all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
+           "check_wiring", "plant_start_values", "controller_start_values", "RECORD",
            "EXIT_STOPPED", "EXIT_INTERRUPTED"]
 
 #: Exit codes of ``flexpend run`` besides 0 (every scene ran to its stop time) and 2 (bad input).
@@ -116,7 +116,9 @@ class Run:
         points)."""
         if not self.frames:
             return None
-        return figures.snapshots(beam_model(self.scene.plant.params), self.frames, self.scene)
+        x = self.result["x"]
+        return figures.snapshots(beam_model(self.scene.plant.params), self.frames, self.scene,
+                                 travel=(float(x.min()), float(x.max())))
 
     def save(self, folder, *, summary: bool = True) -> list[Path]:
         """Write what ``flexpend run`` writes for this run into ``folder``: ``<name>.csv``,
@@ -195,7 +197,8 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
                                     progress=bar, stop=stop)
         except CoSimulationError as exc:
             res, stats = exc.result, exc.stats
-            stopped = {"time": exc.time, "reason": str(exc)}
+            stopped = {"time": exc.time, "reason": stop_reason(str(exc)),
+                       "fmu_message": str(exc)}
         except RunInterrupted as exc:
             res, stats, interrupted = exc.result, exc.stats, True
             stopped = {"time": exc.time, "reason": "interrupted (Ctrl-C)"}
@@ -207,8 +210,8 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     if res is None:
         res = np.zeros(0, dtype=[(c, "f8") for c in ("time", *RECORD)])
     n_eta = min(scene.plant.params.n_modes, 8)
-    if snapshot_times is None:             # eight times over the run, as the paper's Figs. 5, 8
-        snapshot_times = np.linspace(0.0, scene.output.stop_time, 8)
+    if snapshot_times is None:   # eight times over what ran, as the paper's Figs. 5, 8
+        snapshot_times = np.linspace(0.0, res["time"][-1] if len(res) else 0.0, 8)
     frames = _frames(res, n_eta, snapshot_times)
     res = _reorder(res, n_eta)
     summary = summarize(res, scene, stopped)
@@ -306,6 +309,29 @@ def load_job(refs, overrides=None) -> list:
     return out
 
 
+def paper_figures(runs, folder) -> list[Path]:
+    """The figures of a set of runs side by side (``flexpend run`` of the paper's scenes):
+    ``paper_overview.png`` (:func:`~orchestration.report.figures.paper_overview`),
+    ``mode_shapes.png``, the cantilever modes of each flexible plant that ran
+    (:func:`~orchestration.report.figures.mode_shapes`; none when every run is rigid), and
+    ``root_map.png``, the closed-loop roots of each run's linearised loop
+    (:func:`~orchestration.report.figures.root_map`); the paths written."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    written = [save_figure(figures.paper_overview(runs), folder / "paper_overview.png")]
+    plants = {}                            # plant -> the runs on it
+    for r in runs:
+        if r.scene.plant.params.n_modes > 0:
+            plants.setdefault(r.scene.plant.params, []).append(r)
+    if plants:
+        labelled = [(f"{', '.join(r.name for r in on)}: {figures.plant_text(on[0].scene)}", p)
+                    for p, on in plants.items()]
+        written.append(save_figure(figures.mode_shapes(labelled), folder / "mode_shapes.png"))
+    written.append(save_figure(figures.root_map([r.scene for r in runs]),
+                               folder / "root_map.png"))
+    return written
+
+
 @dataclass
 class JobResult:
     """What ``flexpend run`` did: the runs (in order), the exit code and the files written."""
@@ -323,7 +349,8 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
             overview: bool = False, announce=None, report=None) -> JobResult:
     """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
     folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
-    ``overview``, the paper overview; ``summary.json`` holds every run's summary, and is written
+    ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json``
+    holds every run's summary, and is written
     even when nothing ran.
 
     ``stop``: asked between runs and after every communication step (Ctrl-C); ``announce(scene)``
@@ -363,8 +390,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 job.code = EXIT_STOPPED
         if overview and job.code != EXIT_INTERRUPTED and len(job.runs) == len(items) \
                 and not (stop and stop()):
-            fig = figures.paper_overview(job.runs)
-            job.written.append(save_figure(fig, out / "paper_overview.png"))
+            job.written += paper_figures(job.runs, out)
         if stop is not None and stop():
             job.code = EXIT_INTERRUPTED
     finally:

@@ -5,6 +5,7 @@ import json
 import math
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -179,12 +180,63 @@ def test_a_diverging_run_keeps_its_data_says_why_and_exits_3(fmus, tmp_path):
                 assert os.path.getsize(f) > 0
 
 
+def _significant_digits(number: str) -> int:
+    return len(re.sub(r"[^0-9]", "", re.split("[eE]", number)[0]).lstrip("0"))
+
+
+@pytest.mark.parametrize("flavour", ["python", "native"])
+def test_a_stop_is_told_in_the_users_terms_and_the_fmus_message_is_kept(request, flavour):
+    """The FMU's log ('divergence at t = 0.40400000000000003: |phi| = 1.5797451062103358 exceeds
+    phi_limit = ...; restore a saved FMU state to continue') stays in summary.json as
+    fmu_message; the summary's reason and the terminal say what happened with the scene's key,
+    without FMI words or float noise."""
+    from orchestration.report.text import run_lines
+
+    built = request.getfixturevalue("fmus" if flavour == "python" else "native")
+    paths = {"plant": built["FlexiblePendulum"], "controller": built["PDLowPass"]}
+    scene = load_scene("flexible_pd_lowpass", ["controller.kp=0", "stop_time=1"])
+    r = run_scene(scene, paths, progress=False)
+    stopped = r.summary["stopped"]
+    assert stopped["reason"].startswith("the beam tilted past plant.phi_limit = 1.571 rad (90 deg) "
+                                        "by t = 0.40")
+    assert "restore a saved FMU state" in stopped["fmu_message"]
+    assert "phi_limit = 1.5707963267948966" in stopped["fmu_message"]
+    text = "\n".join(run_lines(r.name, r.summary))
+    assert f"STOPPED at t = {stopped['time']:.4g} s" in text and stopped["reason"] in text
+    for jargon in ("FMU", "doStep", "discard", "restore", "[", "returned"):
+        assert jargon not in text, jargon
+    numbers = re.findall(r"\d+\.\d+(?:e[-+]?\d+)?", text)
+    assert numbers and max(map(_significant_digits, numbers)) <= 5, numbers
+
+
+def test_a_completed_runs_summary_has_no_float_noise(paths):
+    from orchestration.report.text import run_lines
+
+    r = run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.5"]), paths, progress=False)
+    text = "\n".join(run_lines(r.name, r.summary))
+    numbers = re.findall(r"\d+\.\d+(?:e[-+]?\d+)?", text)
+    assert numbers and max(map(_significant_digits, numbers)) <= 5, numbers
+
+
 def test_stop_time_must_be_a_multiple_of_the_output_interval(tmp_path, capsys):
     for item in ("stop_time=0.004", "stop_time=0.015"):
         assert main(["run", "rigid_pd", "--set", item, "--out", str(tmp_path)]) == 2
         err = capsys.readouterr().err
         assert "must be a positive multiple of output_interval" in err
         assert len(err.strip().splitlines()) == 1
+
+
+def test_an_initial_state_beyond_the_plants_limits_is_exit_2_not_a_run(tmp_path, capsys):
+    """`--set initial.phi=2` used to run and stop at t = 0 with exit 3: the scene is refused when
+    read, in one line naming the key and the limit, and nothing is run or written."""
+    out = tmp_path / "out"
+    for item in ("initial.phi=2", "initial.phi=-1.6"):
+        assert main(["run", "rigid_pd", "--set", item, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("flexpend: error: ")
+        assert f"{item.replace('=', ' = ')} is beyond" in err
+        assert "plant.phi_limit = 1.571 rad" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
 
 
 def test_bad_out_is_one_line_and_exit_2(tmp_path, capsys):

@@ -124,3 +124,44 @@ def test_load_scene_takes_names_paths_dicts_and_records(tmp_path):
         load_scene(42)
     with pytest.raises(TypeError, match="overrides must be a dict"):
         load_scene("rigid_pd", "controller.kp=400")
+
+
+@pytest.mark.parametrize("n_modes", [0, 4])
+@pytest.mark.parametrize("fidelity", ["nonlinear", "linear"])
+def test_initial_energy_is_the_plant_models(n_modes, fidelity):
+    """The scene's energy check computes what the plant FMU's model computes at the start."""
+    import numpy as np
+
+    from plant_fmu.dynamics import linear_plant_model, plant_model
+
+    p = PlantParams(n_modes=n_modes, EI=900.0, m=1.3, L=1.1, gravity_preload=True)
+    model = (linear_plant_model if fidelity == "linear" else plant_model)(p)
+    start = InitialState(phi=0.7, x=0.3, phi_dot=-1.2, x_dot=2.5)
+    x = np.zeros(2 * model.nq)
+    x[[0, 1, model.nq, model.nq + 1]] = start.x, start.phi, start.x_dot, start.phi_dot
+    assert records.initial_energy(p, start, linear=fidelity == "linear") == \
+        pytest.approx(model.energy(x), rel=1e-12)
+
+
+@pytest.mark.parametrize("overrides,fragment", [
+    ({"initial.phi": 2}, "initial.phi = 2 is beyond plant.phi_limit = 1.571 rad (90 deg)"),
+    ({"initial.phi": -1.6}, "initial.phi = -1.6 is beyond plant.phi_limit = 1.571 rad"),
+    ({"initial.phi": 0.6, "plant.phi_limit": 0.5},
+     "initial.phi = 0.6 is beyond plant.phi_limit = 0.5 rad"),
+    ({"initial.x_dot": 2000}, "beyond plant.energy_limit = 1e+06 J"),
+    ({"initial.phi_dot": 500, "plant.energy_limit": 1e5, "plant.fidelity": "linear"},
+     "beyond plant.energy_limit = 1e+05 J"),
+])
+def test_an_initial_state_beyond_the_plants_limits_is_rejected(overrides, fragment):
+    """The plant FMU stops a run at once beyond its limits: the scene is refused when read, in
+    one line naming the key and the limit."""
+    with pytest.raises(ConfigError) as info:
+        load_scene("rigid_pd", overrides)
+    assert fragment in str(info.value) and "\n" not in str(info.value)
+
+
+def test_an_initial_state_at_the_limit_or_without_one_is_accepted():
+    assert load_scene("rigid_pd", {"initial.phi": math.pi / 2}).initial.phi == math.pi / 2
+    assert load_scene("rigid_pd", {"initial.phi": 3, "plant.phi_limit": math.inf}).initial.phi == 3
+    assert load_scene("rigid_pd", {"initial.x_dot": 2000,
+                                   "plant.energy_limit": math.inf}).initial.x_dot == 2000

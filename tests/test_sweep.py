@@ -133,7 +133,8 @@ def test_failing_run_is_a_failed_row_and_the_others_complete(paths, tmp_path):
     res = run_sweep(plan, paths, tmp_path, progress=False)
     assert [r["status"] for r in res.rows] == ["ok", "failed", "ok"]
     bad = res.rows[1]
-    assert "phi_limit" in bad["message"] and "plant: doStep" in bad["message"]
+    assert "the beam tilted past plant.phi_limit" in bad["message"]
+    assert "phi_limit" in bad["fmu_message"] and "plant: doStep" in bad["fmu_message"]
     assert bad["stable"] is None and 0 < bad["stopped_at"] < 0.05 and bad["wall_time"] > 0
     assert res.rows[0]["stable"] is True and res.rows[2]["stable"] is True
     stats = sweep_stats(res.rows)
@@ -229,7 +230,8 @@ def test_cli_sweep_prints_counts_writes_record_and_resumes(fmus, tmp_path, capsy
     assert main(args) == 0
     out, err = capsys.readouterr()
     assert "flexible_pd_lowpass: 2 runs: 1 ok, 1 failed; 2 ran in" in out
-    assert "run 1 failed: plant: doStep at t = 0.0" in out and "phi_limit" in out
+    assert "run 1 failed: the beam tilted past plant.phi_limit = 1.571 rad (90 deg) by t = 0.0" \
+        in out
     assert "stable: 1 of 2 finished runs (50.0 %); unstable 0, no verdict 1" in out
     assert "2/2 finished, 1 failed, 0 remaining" in err
     record = json.loads((tmp_path / "sweep.json").read_text())

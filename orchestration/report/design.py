@@ -54,7 +54,8 @@ class DesignReport:
             loops[f"PD + given {filter_text(c.filter_order, c.cutoff, c.filter_damping)}"] = \
                 frequency_response(p, c, w)
         out["design_bode.png"] = figures.loop_bode(
-            w, loops, f"loop broken at the force, L = -K G (nominal beam, {p.n_modes} modes)",
+            w, loops, f"loop broken at the force, L = -K G (PD kp = {c.kp:g}, kd = {c.kd:g}; "
+                      f"nominal beam, {p.n_modes} modes)",
             [(ch.cutoff, "cutoff")])
         s = self.settings
         wcs, roots = root_locus(p, ch, np.union1d(

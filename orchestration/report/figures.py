@@ -1,10 +1,21 @@
-"""Figures of a run: time histories (the paper's Figs. 3, 4, 6, 7) and beam snapshots (Figs. 5, 8)."""
+"""Figures of a run: time histories (the paper's Figs. 3, 4, 6, 7) and beam snapshots (Figs. 5, 8);
+of the paper's sample: the overview, the cantilever mode shapes, the closed-loop roots; of a
+design: Bode plot, root locus, worst case.
+
+Every function returns a matplotlib Figure of its own (no pyplot: the process's backend is left
+alone). Titles say what ran, built from the scene's records (:func:`scene_title`), never from a
+scene's fixed text. Margins are fixed in inches where a figure is drawn on every run (a layout
+engine costs about a second per figure)."""
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
-__all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "loop_bode",
-           "root_locus", "worst_case", "new_figure"]
+__all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "mode_shapes",
+           "root_map", "loop_bode", "root_locus", "worst_case", "new_figure", "scene_title",
+           "plant_text", "controller_text", "initial_text", "loop_text", "outcome_text",
+           "root_text", "bending_band", "DEFLECTION_SCALE"]
 
 
 def new_figure(width: float, height: float):
@@ -19,64 +30,282 @@ def _wrapped(text: str, width: int = 95) -> str:
     return "\n".join(textwrap.wrap(text, width)) if text else ""
 
 
-#: Time-history panels: column -> axis label (SI units; eta_j belong to mass-normalised modes).
+# ---------------------------------------------------------------------- what ran, in words
+#: The physical parameters a title names when a scene changes them from the paper's Table 1
+#: (those of a rigid model leave out what only the beam's bending depends on).
+_PHYSICAL = ("m", "L", "rho", "EA", "E", "EI", "zeta", "g", "gravity_preload", "n_elements")
+_BENDING_ONLY = ("EI", "zeta", "gravity_preload", "n_elements")
+
+
+def root_text(z) -> str:
+    """A root as ``-1.95 ± 153.2j`` (a real root: ``+6.23``)."""
+    z = complex(z)
+    if abs(z.imag) <= 1e-9 * max(1.0, abs(z)):
+        return f"{z.real:+.3g}"
+    return f"{z.real:+.3g} ± {abs(z.imag):.4g}j"
+
+
+def plant_text(scene) -> str:
+    """The plant that ran: rigid or its number of cantilever modes, the fidelity, and the
+    physical parameters that differ from the paper's Table 1."""
+    from dataclasses import fields
+
+    from plant_fmu.params import PlantParams
+
+    p = scene.plant.params
+    table1 = {f.name: f.default for f in fields(PlantParams)}     # no record made for it
+    if p.n_modes == 0:
+        out = "rigid pendulum"
+    else:
+        out = f"flexible beam, {p.n_modes} cantilever mode{'s' if p.n_modes > 1 else ''}"
+    if scene.plant.fidelity == "linear":
+        out += ", linearised plant"
+    changed = [f"{k} = {getattr(p, k):g}" if not isinstance(getattr(p, k), bool)
+               else f"{k} = {str(getattr(p, k)).lower()}"
+               for k in _PHYSICAL if getattr(p, k) != table1[k]
+               and not (p.n_modes == 0 and k in _BENDING_ONLY)]
+    return out + (f" ({', '.join(changed)})" if changed else "")
+
+
+def controller_text(c) -> str:
+    """The control law that ran: ``F_c = -(500 phi_o + 5 omega_o)``, its filter and limit."""
+    terms = [(c.kp, r"\varphi_o"), (c.kd, r"\omega_o"), (c.kx, "x_o")]
+    law = ""
+    for k, sym in terms:
+        if k == 0 and sym == "x_o":
+            continue
+        sign = f" {'-' if k < 0 else '+'} " if law else ("-" if k < 0 else "")
+        law += f"{sign}{abs(k):g}\\,{sym}"
+    out = f"PD $F_c = -({law})$"
+    out += {0: ", no filter",
+            1: f", 1st-order low-pass at {c.cutoff:g} rad/s",
+            2: f", 2nd-order low-pass at {c.cutoff:g} rad/s (damping {c.filter_damping:g})"
+            }[c.filter_order]
+    if math.isfinite(c.force_limit):
+        out += f", $|F_c| \\leq$ {c.force_limit:g} N"
+    return out
+
+
+def initial_text(initial) -> str:
+    """The initial state: ``from phi0 = 30 deg`` (the other initial values when not 0)."""
+    out = f"from $\\varphi_0$ = {math.degrees(initial.phi):.4g} deg"
+    for value, sym, unit in ((initial.x, "x_0", "m"), (initial.x_dot, "\\dot x_0", "m/s"),
+                             (initial.phi_dot, "\\dot\\varphi_0", "rad/s")):
+        if value:
+            out += f", ${sym}$ = {value:g} {unit}"
+    return out
+
+
+def loop_text(scene) -> str:
+    """What the linearised loop predicts: stable (its slowest decay) or which roots grow; the
+    bending root (:func:`~orchestration.studies.analysis.loop_roots`)."""
+    from ..studies.analysis import loop_roots
+
+    r = loop_roots(scene.plant.params, scene.controller)
+
+    def name(z):
+        if r.bending is not None and complex(z) == r.bending:
+            return f"bending root {root_text(z)}"
+        return f"{'real root' if complex(z).imag == 0 else 'root'} {root_text(z)}"
+
+    if r.stable:
+        out = f"linearised loop: stable, slowest decay {-r.max_real_part:.3g} 1/s"
+        if r.bending is not None:
+            out += f"; {name(r.bending)}"
+        return out
+    grow = r.growing()
+    out = "linearised loop: UNSTABLE, " + " and ".join(name(z) for z in grow[:2])
+    out += (" grows" if len(grow) == 1 else f" grow{' (and more)' if len(grow) > 2 else ''}")
+    if r.bending is not None and r.bending.real < 0:
+        out += f"; {name(r.bending)}"
+    return out
+
+
+def outcome_text(summary) -> str:
+    """What the co-simulation did: its stop, or its verdict, and where it left the model's range."""
+    if summary is None:
+        return ""
+    stopped = summary.get("stopped")
+    if stopped:
+        at = f" at t = {stopped['time']:.4g} s" if stopped.get("time") is not None else ""
+        return f"co-simulation STOPPED{at}: {stopped['reason']}"
+    out = "co-simulation: " + {True: "stable (every reliable fit decays)",
+                               False: "UNSTABLE (a reliable fit grows)",
+                               None: "no verdict (no reliable fit)"}[summary.get("stable")]
+    v = summary.get("validity") or {}
+    if v.get("warnings"):
+        out += "; it leaves the model's range"
+    return out
+
+
+def scene_title(scene, summary=None) -> str:
+    """A figure's title, from the records of the scene that ran (and its summary): the plant,
+    the control law, the initial state, the linear prediction, the outcome."""
+    lines = [f"{scene.name}: {plant_text(scene)}",
+             f"{controller_text(scene.controller)}; {initial_text(scene.initial)}",
+             loop_text(scene), outcome_text(summary)]
+    # mathtext is not wrapped (its source is longer than what it draws); plain lines are
+    return "\n".join(line if "$" in line else _wrapped(line, 130) for line in lines if line)
+
+
+def _title_height(title: str) -> float:
+    """Inches a suptitle of ``title`` (fontsize 9) takes, with its margin."""
+    return 0.2 + 0.17 * (title.count("\n") + 1)
+
+
+# ---------------------------------------------------------------------- time histories
+#: Time-history panels: column -> (quantity, unit) of the axis label (SI units; eta_j belong to
+#: mass-normalised modes).
 PANELS = {
-    "phi_o": "tip angle $\\varphi_o$ (rad)",
-    "eta_1": "1st modal coordinate $\\eta_1$ (m kg$^{1/2}$)",
-    "tip_deflection": "tip deflection (m)",
-    "F_c": "force $F_c$ (N)",
-    "x": "cart position $x$ (m)",
+    "phi_o": ("tip angle $\\varphi_o$", "rad"),
+    "eta_1": ("1st modal coord. $\\eta_1$", "m kg$^{1/2}$"),
+    "bending": ("$\\eta_1$ above 60 rad/s:\nenvelope", "m kg$^{1/2}$"),
+    "tip_deflection": ("tip deflection", "m"),
+    "F_c": ("force $F_c$", "N"),
+    "x": ("cart position $x$", "m"),
 }
 
 
+def _scaled(y, quantity: str, unit: str):
+    """``(10^k, axis label)``: values far below 1e-3 or above 1e4 are drawn divided by a power of
+    ten that the label names (no offset text above the axis, where titles sit); else 1."""
+    top = float(np.max(np.abs(y))) if len(y) else 0.0
+    if top == 0.0 or not math.isfinite(top) or 1e-3 <= top < 1e4:
+        return 1.0, f"{quantity} ({unit})"
+    k = int(math.floor(math.log10(top)))
+    return 10.0 ** k, f"{quantity}\n($10^{{{k}}}$ {unit})"
+
+
+def bending_band(t, y, low: float, frequency: float | None = None):
+    """The part of ``y`` (uniform ``t``) above ``low`` rad/s, zero-phase (4th-order Butterworth,
+    forwards and backwards), and its envelope (the largest magnitude within one period of
+    ``frequency``, default ``low``, around each point): the bending oscillation without the slow
+    motion it rides on."""
+    import scipy.signal
+
+    fs = 2 * math.pi / float(t[1] - t[0])
+    if len(y) < 16 or low >= 0.45 * fs:
+        return np.zeros_like(y), np.zeros_like(y)
+    import scipy.ndimage
+
+    hp = scipy.signal.sosfiltfilt(scipy.signal.butter(4, low, "highpass", fs=fs, output="sos"), y)
+    # the envelope: the largest |value| within one period of the band's lowest frequency around
+    # each point (no transform that wraps the run's end onto its start)
+    size = max(3, int(round(fs / (frequency or low))) | 1)
+    return hp, scipy.ndimage.maximum_filter1d(np.abs(hp), size=size, mode="nearest")
+
+
 def time_histories(result, scene, reference=None, summary=None):
-    """The paper's time histories (Figs. 3, 4, 6, 7): tip angle, first modal coordinate, tip
-    deflection, force and cart position against time. The bending panels are left out for a
-    rigid model. With a ``summary`` the fit windows are shaded, the validity bound of the tip
-    deflection drawn and an early stop marked."""
+    """The paper's time histories (Figs. 3, 4, 6, 7): tip angle, first modal coordinate, the
+    envelope of its bending band, tip deflection, force and cart position against time; the
+    bending panels are left out for a rigid model. The title says what ran (:func:`scene_title`).
+
+    With a ``summary``: each fit window is shaded on the trace that was fitted, with the fitted
+    rate: the slow fit on the tip angle, the bending fit on the envelope of ``eta_1``'s bending
+    band (the slow motion ``eta_1`` also carries is not what that fit measures), where the
+    fitted rate is drawn as a line (a straight line on the log scale when it holds); the
+    validity bound of the tip deflection is drawn when the trace comes near it (else stated);
+    an early stop is marked."""
+    from matplotlib.ticker import NullFormatter
+
+    from ..studies.analysis import first_bending_frequency
+    from .summary import BENDING_BAND
+
     t = result["time"]
-    cols = [c for c in PANELS if not (c in ("eta_1", "tip_deflection") and not np.any(result[c]))]
-    height = 1.9 * len(cols) + 1.2
+    flexible = scene.plant.params.n_modes > 0 and np.any(result["eta_1"]) and len(t) >= 16
+    cols = [c for c in PANELS if flexible or c not in ("eta_1", "bending", "tip_deflection")]
+    title = scene_title(scene, summary)
+    top = _title_height(title)
+    height = 1.55 * len(cols) + top + 0.5
     fig = new_figure(9, height)
-    axes = fig.subplots(len(cols), 1, sharex=True)
-    # fixed margins (a layout engine costs a second per figure): 0.95 in at the top for the
-    # two-line title, room for the labels on the left and below
-    fig.subplots_adjust(left=0.1, right=0.98, top=1 - 0.95 / height, bottom=0.55 / height,
-                        hspace=0.12)
-    axes = np.atleast_1d(axes)
-    for ax, col in zip(axes, cols):
-        ax.plot(t, result[col], lw=0.7, color="C0", label="co-simulation")
-        if reference is not None and col in reference.dtype.names:
-            ax.plot(reference["time"], reference[col], "--", lw=0.7, color="C1",
-                    label="monolithic reference")
-        ax.set_ylabel(PANELS[col], fontsize=9)
+    axes = np.atleast_1d(fig.subplots(len(cols), 1, sharex=True))
+    # fixed margins (a layout engine costs a second per figure)
+    fig.subplots_adjust(left=0.11, right=0.98, top=1 - top / height, bottom=0.5 / height,
+                        hspace=0.14)
+    ax_of = dict(zip(cols, axes))
+    for col, ax in ax_of.items():
+        ax.tick_params(labelsize=8)
         ax.grid(alpha=0.3)
+        if col == "bending":
+            ax.set_ylabel(f"{PANELS[col][0]} ({PANELS[col][1]})", fontsize=8)
+            continue
+        factor, label = _scaled(result[col], *PANELS[col])
+        ax.set_ylabel(label, fontsize=8)
+        ax.plot(t, result[col] / factor, lw=0.7, color="C0",
+                label="co-simulation" if reference is not None else None)
+        if reference is not None and col in reference.dtype.names:
+            ax.plot(reference["time"], reference[col] / factor, "--", lw=0.7, color="C1",
+                    label="monolithic reference")
+    if flexible:
+        ax = ax_of["bending"]
+        _, env = bending_band(t, result["eta_1"], BENDING_BAND[0],
+                              first_bending_frequency(scene.plant.params))
+        ax.semilogy(t, np.maximum(env, 1e-300), lw=0.7, color="C0")
+        top_env = float(env.max()) if env.size else 0.0
+        if top_env > 0:
+            # two decades at least (labelled decades, no crowded minor labels), five at most
+            low = min(top_env / 100, max(top_env * 1e-5, float(env[env > 0].min()) * 0.5))
+            ax.set_ylim(low, top_env * 3)
+            ax.yaxis.set_minor_formatter(NullFormatter())
+    legend = {c: reference is not None for c in cols}
     if summary is not None:
-        for key, col in (("slow", "phi_o"), ("bending", "eta_1")):
-            m = summary.get(key)
-            if m and m.get("fit") and col in cols:
-                ax = axes[cols.index(col)]
-                lo, hi = m["fit"]["window"]
-                ax.axvspan(lo, hi, color="C2", alpha=0.12, lw=0,
-                           label=f"fit window ({key})" + ("" if m["reliable"] else ", unreliable"))
-                ax.legend(loc="upper right", fontsize=7)
+        m = summary.get("slow")
+        if m and m.get("fit"):
+            lo, hi = m["fit"]["window"]
+            what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
+                    else "unreliable")
+            ax_of["phi_o"].axvspan(lo, hi, color="C2", alpha=0.12, lw=0,
+                                   label=f"slow fit window: {what}")
+            legend["phi_o"] = True
+        m = summary.get("bending")
+        if flexible and m and m.get("fit"):
+            ax = ax_of["bending"]
+            lo, hi = m["fit"]["window"]
+            f = m["fit"]
+            what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
+                    else "unreliable")
+            ax.axvspan(lo, hi, color="C2", alpha=0.12, lw=0, label=f"bending fit window: {what}")
+            inside = (t >= lo) & (t <= hi)
+            if m["reliable"] and np.any(inside) and env[inside].max() > 0:
+                # the fitted rate through the envelope's level at the window's start
+                period = 2 * math.pi / f["frequency"]
+                first = inside & (t <= lo + period)
+                a0 = float(env[first].max()) if np.any(first) else float(env[inside][0])
+                tt = np.array([lo, hi])
+                ax.semilogy(tt, a0 * np.exp(f["rate"] * (tt - lo)), "--", color="C3", lw=1.0,
+                            label=f"fitted rate {f['rate']:+.3g} 1/s")
+            legend["bending"] = True
         v = summary.get("validity")
-        if v and "tip_deflection" in cols:
-            ax = axes[cols.index("tip_deflection")]
-            for sign in (1, -1):
-                ax.axhline(sign * v["tip_deflection_limit"], color="C3", ls=":", lw=0.8)
-            ax.text(t[0], v["tip_deflection_limit"], " model's range", color="C3", fontsize=7,
-                    va="bottom")
-        if summary.get("stopped"):
+        if v and "tip_deflection" in ax_of:
+            ax = ax_of["tip_deflection"]
+            lim = v["tip_deflection_limit"]
+            reach = float(np.max(np.abs(result["tip_deflection"]))) if len(t) else 0.0
+            if reach >= 0.3 * lim:
+                for sign in (1, -1):
+                    ax.axhline(sign * lim, color="C3", ls=":", lw=0.8,
+                               label=f"model's range ±{lim:.3g} m" if sign > 0 else None)
+                legend["tip_deflection"] = True
+            else:
+                ax.text(0.995, 0.96, f"model's range ±{lim:.3g} m: off this scale",
+                        transform=ax.transAxes, color="C3", fontsize=7, ha="right", va="top")
+        stopped = summary.get("stopped")
+        if stopped and stopped.get("time") is not None:
             for ax in axes:
-                ax.axvline(summary["stopped"]["time"], color="C3", lw=0.8)
-            axes[0].text(summary["stopped"]["time"], axes[0].get_ylim()[1], " stopped",
-                         color="C3", fontsize=8, va="top")
-    if reference is not None:
-        axes[0].legend(loc="upper right", fontsize=7)
-    axes[-1].set_xlabel("time (s)")
-    fig.suptitle(f"{scene.name}\n{_wrapped(scene.description or scene.name)}", fontsize=9)
+                ax.axvline(stopped["time"], color="C3", lw=0.8)
+            axes[0].text(stopped["time"], 0.97, "stopped ", color="C3", fontsize=8, va="top",
+                         ha="right", transform=axes[0].get_xaxis_transform())
+    for col, ax in ax_of.items():
+        if legend[col]:
+            ax.legend(loc="upper left" if col == "tip_deflection" else "upper right", fontsize=7)
+    axes[-1].set_xlabel("time (s)", fontsize=9)
+    fig.suptitle(title, fontsize=9, y=1 - 0.08 / height, va="top")
     return fig
+
+
+# ---------------------------------------------------------------------- shapes
+#: Every shapes figure draws the beam's deflection magnified by this factor (the model's range,
+#: a tip deflection of 5 % of L, is drawn as 25 % of L), so that figures can be compared by eye.
+DEFLECTION_SCALE = 5.0
 
 
 def beam_shape(beam, x, phi, eta, scale: float = 1.0):
@@ -89,110 +318,271 @@ def beam_shape(beam, x, phi, eta, scale: float = 1.0):
     return x + s * b1[0] + w * b2[0], s * b1[1] + w * b2[1]
 
 
-def snapshots(beam, frames, scene):
-    """Beam shapes at several times (the paper's Figs. 5 and 8), two rows of panels; each
-    panel's horizontal axis is the rail in metres, centred on the cart, which is drawn at its
-    position. ``frames``: list of ``(t, x, phi, eta)``. A deflection that would not show (below
-    2 % of L everywhere) is magnified, and the title says by how much."""
-    import math
+def _tip(beam, eta) -> float:
+    n = min(len(eta), beam.shapes.shape[1])
+    return float(beam.shapes[-1, :n] @ np.asarray(eta[:n])) if n else 0.0
 
+
+def snapshots(beam, frames, scene, travel=None):
+    """The beam and the cart at several times (the paper's Figs. 5 and 8), every panel on the
+    same window of the rail, so that the cart's travel shows; lengths to scale, the deflection
+    drawn ``DEFLECTION_SCALE`` times (the same in every shapes figure) and each panel's tip
+    deflection given in mm. ``frames``: list of ``(t, x, phi, eta)``; ``travel``: ``(min, max)``
+    of the cart's position over the run (default: over the frames), drawn on the rail and kept
+    inside the window."""
     from matplotlib.patches import Rectangle
+    from matplotlib.ticker import MaxNLocator
 
     n = len(frames)
-    L = beam.nodes[-1]
-    defl = max((float(np.max(np.abs(beam_shape(beam, 0.0, 0.0, eta)[0]))) for *_, eta in frames),
-               default=0.0)
-    scale = 1.0
-    if 0 < defl < 0.02 * L:
-        scale = 10 ** math.floor(math.log10(0.1 * L / defl))
-    ncol = min(n, 4)
-    nrow = math.ceil(n / ncol)
-    width, height = 2.45 * ncol + 0.4, 2.05 * nrow + 0.5
+    L = float(beam.nodes[-1])
+    rigid = scene.plant.params.n_modes == 0
+    scale = 1.0 if rigid else DEFLECTION_SCALE
+    shapes = [beam_shape(beam, x, phi, eta, scale) for _, x, phi, eta in frames]
+    xs = [x for _, x, _, _ in frames]
+    travel = (min(xs), max(xs)) if travel is None else tuple(travel)
+    x_lo = min([travel[0] - 0.15 * L] + [float(X.min()) for X, _ in shapes]) - 0.1 * L
+    x_hi = max([travel[1] + 0.15 * L] + [float(X.max()) for X, _ in shapes]) + 0.1 * L
+    y_lo = min([-0.15 * L] + [float(Y.min()) for _, Y in shapes]) - 0.05 * L
+    y_hi = max([0.3 * L] + [float(Y.max()) for _, Y in shapes]) + 0.1 * L
+    aspect = (x_hi - x_lo) / (y_hi - y_lo)
+    # fixed inches: panels of the window's aspect, one title line above each, the rail's tick
+    # labels under the last row only; the fewest columns that keep the figure under 8 in tall
+    width, left, right, gap, row_gap, top, bottom = 10.0, 0.6, 0.15, 0.3, 0.3, 0.65, 0.5
+    for ncol in [c for c in (1, 2, 4, 8) if c <= max(n, 1)] or [1]:
+        pw = (width - left - right - gap * (ncol - 1)) / ncol
+        ph = pw / aspect
+        nrow = math.ceil(n / ncol)
+        height = top + bottom + nrow * ph + (nrow - 1) * row_gap
+        if height <= 8.0:
+            break
     fig = new_figure(width, height)
-    axes = fig.subplots(nrow, ncol, squeeze=False)
-    fig.subplots_adjust(left=0.55 / width, right=1 - 0.1 / width, top=1 - 0.45 / height,
-                        bottom=0.45 / height, wspace=0.3, hspace=0.35)
+    axes = fig.subplots(nrow, ncol, squeeze=False, sharex=True, sharey=True)
+    fig.subplots_adjust(left=left / width, right=1 - right / width, top=1 - top / height,
+                        bottom=bottom / height, wspace=gap / pw, hspace=row_gap / ph)
     for ax in axes.flat[n:]:
         ax.set_visible(False)
-    for ax, (t, x, phi, eta) in zip(axes.flat, frames):
-        X, Y = beam_shape(beam, x, phi, eta, scale)
-        rigid = beam_shape(beam, x, phi, [])                 # the floating frame's axis
-        ax.axhline(0.0, color="0.3", lw=0.8)                 # the rail
+    for ax, (t, x, phi, eta), (X, Y) in zip(axes.flat, frames, shapes):
+        ax.axhline(0.0, color="0.3", lw=0.8)                       # the rail
+        ax.plot(travel, [0.0, 0.0], color="C1", lw=4, alpha=0.25, solid_capstyle="butt")
         ax.add_patch(Rectangle((x - 0.15 * L, -0.1 * L), 0.3 * L, 0.1 * L, color="C1"))
-        ax.plot(rigid[0], rigid[1], ":", color="0.5", lw=1)
+        if not rigid:
+            undeformed = beam_shape(beam, x, phi, [])
+            ax.plot(undeformed[0], undeformed[1], ":", color="0.5", lw=1)
         ax.plot(X, Y, color="C0", lw=2)
-        ax.plot([x], [0.0], "o", color="k", ms=3)            # the hinge
-        ax.set_xlim(x - 1.05 * L, x + 1.05 * L)
-        ax.set_ylim(-0.15 * L, 1.1 * L)
-        ax.set_aspect("equal")
-        ax.set_title(f"t = {t:.2f} s, x = {x:+.3f} m", fontsize=8)
+        ax.plot([x], [0.0], "o", color="k", ms=3)                  # the hinge
+        ax.set_xlim(x_lo, x_hi)
+        ax.set_ylim(y_lo, y_hi)
+        ax.set_aspect("equal", adjustable="box")
+        tip = "" if rigid else f", tip {1e3 * _tip(beam, eta):+.1f} mm"
+        ax.set_title(f"t = {t:.3g} s, x = {x:+.2f} m{tip}", fontsize=8, pad=3)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
+    axes[0, 0].xaxis.set_major_locator(MaxNLocator(5))
+    axes[0, 0].yaxis.set_major_locator(MaxNLocator(4))
     for ax in axes[:, 0]:
         ax.set_ylabel("height (m)", fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("rail position (m)", fontsize=8)
-    magnified = f"deflection x {scale:g}" if scale != 1 else "deflection to scale"
-    fig.suptitle(f"{scene.name}: beam shapes (dotted: floating frame; {magnified}; cart and "
-                 "rail to scale)",
-                 fontsize=9)
+    what = ("rigid model: the beam does not bend" if rigid else
+            f"deflection drawn x{scale:g}, its tip value in mm (dotted: the undeformed beam)")
+    fig.suptitle(f"{scene.name}: the beam and the cart at {n} times on one window of the rail "
+                 f"(light band: the cart's travel)\nlengths to scale; {what}", fontsize=9,
+                 y=1 - 0.06 / height, va="top")
     return fig
 
 
+# ---------------------------------------------------------------------- the paper's sample
 def paper_overview(runs):
-    """The paper's sample side by side, one row per run (a :class:`~orchestration.job.Run`): tip
-    angle (Figs. 3, 4, 6) and first modal coordinate (Fig. 7), so that no curve hides another."""
-    results = {r.name: r.result for r in runs}
-    n = len(results)
-    height = 2.3 * n + 0.8
+    """The paper's sample side by side, one row per run (a :class:`~orchestration.job.Run`), each
+    on its own time axis: tip angle (Figs. 3, 4, 6) and, for a flexible model, first modal
+    coordinate (Fig. 7), so that no curve hides another; a rigid run's tip angle spans the row.
+    Each row's title says what ran (:func:`plant_text`, :func:`controller_text`)."""
+    n = len(runs)
+    row_h, top, bottom = 2.05, 0.55, 0.45
+    height = row_h * n + top + bottom
     fig = new_figure(11, height)
-    axes = fig.subplots(n, 2, sharex=True, squeeze=False)
-    fig.subplots_adjust(left=0.07, right=0.99, top=1 - 0.45 / height, bottom=0.5 / height,
-                        wspace=0.18, hspace=0.3)
-    for row, (name, res) in zip(axes, results.items()):
-        row[0].plot(res["time"], res["phi_o"], lw=0.7, color="C0")
-        row[0].set_ylabel("$\\varphi_o$ (rad)", fontsize=9)
-        row[0].set_title(name, fontsize=9, loc="left")
-        if np.any(res["eta_1"]):
-            row[1].plot(res["time"], res["eta_1"], lw=0.7, color="C2")
-        else:
-            row[1].text(0.5, 0.5, "rigid model: no bending", transform=row[1].transAxes,
-                        ha="center", va="center", fontsize=9, color="0.4")
-            row[1].set_yticks([])
-        row[1].set_ylabel("$\\eta_1$ (m kg$^{1/2}$)", fontsize=9)
-        row[1].set_title(name, fontsize=9, loc="left")
+    grid = fig.add_gridspec(n, 2, left=0.07, right=0.99, top=1 - top / height,
+                            bottom=bottom / height, wspace=0.2, hspace=0.55)
+    starts = {f"{r.scene.initial.phi:.6g}" for r in runs}
+    for i, run in enumerate(runs):
+        res, sc = run.result, run.scene
+        flexible = sc.plant.params.n_modes > 0 and len(res) and np.any(res["eta_1"])
+        row = [fig.add_subplot(grid[i, :] if not flexible else grid[i, 0])]
+        if flexible:
+            row.append(fig.add_subplot(grid[i, 1], sharex=row[0]))
+        factor, label = _scaled(res["phi_o"], "$\\varphi_o$", "rad")
+        row[0].plot(res["time"], res["phi_o"] / factor, lw=0.7, color="C0")
+        row[0].set_ylabel(label, fontsize=9)
+        if flexible:
+            factor, label = _scaled(res["eta_1"], "$\\eta_1$", "m kg$^{1/2}$")
+            row[1].plot(res["time"], res["eta_1"] / factor, lw=0.7, color="C2")
+            row[1].set_ylabel(label, fontsize=9)
+        stop = run.summary.get("stopped") if run.summary else None
+        verdict = ("STOPPED" if stop else {True: "stable", False: "UNSTABLE",
+                                           None: "no verdict"}[run.summary.get("stable")])
+        row[0].set_title(f"{sc.name} ({verdict}): {plant_text(sc)}; "
+                         f"{controller_text(sc.controller)}"
+                         + ("" if len(starts) == 1 else f"; {initial_text(sc.initial)}"),
+                         fontsize=8.5, loc="left")
         for ax in row:
             ax.grid(alpha=0.3)
-    for ax in axes[-1]:
-        ax.set_xlabel("time (s)")
-    fig.suptitle("Tang & Ren's sample from phi0 = pi/6: rigid + PD, flexible + PD, flexible + PD "
-                 "+ low-pass", fontsize=10)
+            ax.tick_params(labelsize=8)
+            ax.set_xlabel("time (s)", fontsize=8, labelpad=1)
+            if stop and stop.get("time") is not None:
+                ax.axvline(stop["time"], color="C3", lw=0.8)
+    first = runs[0].scene.initial if runs else None
+    start = f" {initial_text(first)}" if first is not None and len(starts) == 1 else ""
+    fig.suptitle(f"Tip angle and first modal coordinate of each run{start}, each on its own "
+                 "time axis", fontsize=10, y=1 - 0.1 / height, va="top")
+    return fig
+
+
+def mode_shapes(plants):
+    """The cantilever mode shapes a plant uses (:func:`plant_fmu.beam.beam_model`: ``nodes``,
+    ``shapes``, ``slopes``, ``frequencies``), the beam upright as in the snapshots: one panel per
+    plant of ``plants`` (a list of ``(label, PlantParams)``; rigid ones are left out), each mode
+    drawn between the nodes as the finite elements shape it (cubic Hermite, from the nodal
+    deflections and slopes) and scaled to a tip deflection of 1 (the model's mass-normalised
+    shapes differ only in scale), with its frequency. These are the modes clamped at the hinge;
+    the loop's bending root sits near the first bending mode with the hinge free, not near them.
+    """
+    from scipy.interpolate import CubicHermiteSpline
+
+    from plant_fmu.beam import beam_model
+
+    plants = [(label, p) for label, p in plants if p.n_modes > 0]
+    n = max(len(plants), 1)
+    panel, legend_w, left, top, bottom = 3.0, 2.6, 0.65, 0.75, 0.5
+    width = left + n * (panel + legend_w)
+    height = 4.6
+    fig = new_figure(width, height)
+    axes = np.atleast_1d(fig.subplots(1, n, squeeze=False)[0])
+    fig.subplots_adjust(left=left / width, right=1 - legend_w / width, top=1 - top / height,
+                        bottom=bottom / height, wspace=legend_w / panel)
+    for ax, (label, p) in zip(axes, plants):
+        b = beam_model(p)
+        s = np.linspace(0.0, b.nodes[-1], 40 * len(b.nodes))
+        for j in range(p.n_modes):
+            w = CubicHermiteSpline(b.nodes, b.shapes[:, j], b.slopes[:, j])(s)
+            w = w / w[-1] if w[-1] else w / np.max(np.abs(w))
+            f = b.frequencies[j]
+            ax.plot(w, s, lw=1.4, color=f"C{j % 10}",
+                    label=f"mode {j + 1}: {f:.4g} rad/s ({f / (2 * math.pi):.3g} Hz)")
+        ax.axvline(0.0, color="0.3", lw=0.8, ls=":")
+        ax.plot([0.0], [0.0], "o", color="k", ms=4)
+        ax.set_title(_wrapped(label, 42), fontsize=8.5, loc="left")
+        ax.set_xlabel("deflection w (tip = 1)", fontsize=8)
+        ax.set_ylim(-0.02 * p.L, 1.04 * p.L)
+        ax.tick_params(labelsize=8)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7.5, loc="upper left", bbox_to_anchor=(1.03, 1.0), borderaxespad=0)
+    from ..studies.analysis import first_bending_frequency
+    for ax, (label, p) in zip(axes, plants):             # beside the panel, under its legend
+        box = ax.get_position()
+        fig.text(box.x1 + 0.1 / width, box.y0, f"hinge free, the first bending\nmode is at "
+                 f"{first_bending_frequency(p):.4g} rad/s:\nthe loop's bending root is\nnear it",
+                 fontsize=7.5, va="bottom", color="0.3")
+    axes[0].set_ylabel("position along the beam s (m)", fontsize=8)
+    fig.suptitle("The cantilever modes the plant uses\n(floating frame, clamped at the hinge)",
+                 fontsize=10, y=1 - 0.06 / height, va="top")
+    return fig
+
+
+def root_map(scenes):
+    """The closed-loop roots of each scene's linearised loop (:func:`~orchestration.studies.
+    analysis.loop_roots`, the cart's drift roots left aside), upper half-plane: left all of
+    them (real axis symmetric-log), right the part near the imaginary axis up to twice the
+    first bending frequency; each scene's bending root circled and labelled."""
+    from ..studies.analysis import loop_roots
+
+    roots = [(sc, loop_roots(sc.plant.params, sc.controller)) for sc in scenes]
+    width, height = 11.0, 5.2
+    fig = new_figure(width, height)
+    axes = fig.subplots(1, 2)
+    fig.subplots_adjust(left=0.07, right=0.99, top=1 - 0.95 / height, bottom=0.6 / height,
+                        wspace=0.17)
+    markers = "os^Dv<>"
+    wb = [r.bending_frequency for _, r in roots if r.bending_frequency]
+    zoom_hi = 2.0 * max(wb) if wb else 2.0 * max([abs(z.imag) for _, r in roots
+                                                  for z in r.roots] + [10.0])
+    near, labels = [], []
+    for k, (sc, r) in enumerate(roots):
+        up = r.roots[r.roots.imag >= -1e-9]
+        for ax in axes:
+            ax.plot(up.real, np.abs(up.imag), markers[k % len(markers)], color=f"C{k}", ms=6,
+                    mfc="none", mew=1.3, label=f"{sc.name}: "
+                    + ("stable" if r.stable else "UNSTABLE") + f", {sc.plant.params.n_modes} modes"
+                    if ax is axes[0] else None)
+        near += [z for z in up if abs(z.imag) <= zoom_hi]
+        if r.bending is not None:
+            for ax in axes:
+                ax.plot([r.bending.real], [r.bending.imag], "o", color=f"C{k}", ms=14,
+                        mfc="none", mew=1.0, alpha=0.6)
+            axes[1].text(0.02, 0.97 - 0.055 * len(labels), f"{sc.name}: bending root "
+                         f"{root_text(r.bending)}", transform=axes[1].transAxes, fontsize=8,
+                         color=f"C{k}", va="top")
+            labels.append(sc.name)
+    for ax in axes:
+        ax.axvline(0.0, color="C3", lw=0.8)
+        ax.set_xlabel("real part (1/s)", fontsize=9)
+        ax.set_ylabel("imaginary part (rad/s)", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=8)
+    axes[0].set_xscale("symlog", linthresh=1.0)
+    every = np.concatenate([r.roots.real for _, r in roots])
+    axes[0].set_xlim(-1.6 * max(1.0, -every.min()), 1.6 * max(1.0, every.max()))
+    axes[0].set_title("all roots (symmetric log scale of the real part)", fontsize=9)
+    re = [z.real for z in near] or [-1.0, 1.0]
+    lo, hi = min(re + [-1.0]), max(re + [0.5])
+    pad = 0.08 * (hi - lo)
+    axes[1].set_xlim(lo - pad, hi + pad)
+    axes[1].set_ylim(0.0, zoom_hi)
+    axes[1].set_title(f"up to {zoom_hi:.0f} rad/s (large circles: bending roots)", fontsize=9)
+    fig.legend(loc="upper center", ncol=len(roots), fontsize=8.5, frameon=False,
+               bbox_to_anchor=(0.5, 1 - 0.42 / height))
+    fig.suptitle("Closed-loop roots of the linearised loops, upper half-plane (the cart's drift "
+                 "roots at 0 left aside; right of the red line: growing)", fontsize=10,
+                 y=1 - 0.08 / height, va="top")
     return fig
 
 
 def loop_bode(w, loops: dict, title: str, marks=()):
     """Magnitude and phase of loop transfer functions ``{label: L(jw)}`` on ``w`` (rad/s);
-    ``marks``: ``(frequency, label)`` drawn as vertical lines."""
-    fig = new_figure(8, 6.5)
+    ``marks``: ``(frequency, label)`` drawn as vertical lines, labelled inside the axes. The
+    phase is unwrapped; the lines at -180 deg + k 360 deg are where ``L(jw)`` is real and
+    negative (a phase crossover)."""
+    from matplotlib.ticker import MultipleLocator
+    from matplotlib.transforms import blended_transform_factory
+
+    width, height = 8.0, 6.5
+    fig = new_figure(width, height)
     am, ap = fig.subplots(2, 1, sharex=True)
+    fig.subplots_adjust(left=0.8 / width, right=1 - 0.2 / width, top=1 - 0.4 / height,
+                        bottom=0.55 / height, hspace=0.08)
+    phases = []
     for label, L in loops.items():
         am.loglog(w, np.abs(L), lw=0.9, label=label)
-        ap.semilogx(w, np.degrees(np.unwrap(np.angle(L))), lw=0.9, label=label)
+        ph = np.degrees(np.unwrap(np.angle(L)))
+        phases.append(ph)
+        ap.semilogx(w, ph, lw=0.9, label=label)
     am.axhline(1.0, color="0.5", lw=0.6)
-    for ph in (-180.0, 180.0):
-        ap.axhline(ph, color="0.5", lw=0.6)
+    lo, hi = min(p.min() for p in phases), max(p.max() for p in phases)
+    for k in range(math.floor((lo - 180) / 360), math.ceil((hi - 180) / 360) + 1):
+        if lo - 90 <= 180 + 360 * k <= hi + 90:
+            ap.axhline(180.0 + 360 * k, color="0.5", lw=0.6)
+    ap.yaxis.set_major_locator(MultipleLocator(180 if hi - lo <= 1440 else 360))
     for f, label in marks:
         for ax in (am, ap):
             ax.axvline(f, color="0.4", ls=":", lw=0.8)
-        am.annotate(label, (f, am.get_ylim()[1]), fontsize=7, rotation=90, va="top", ha="right")
+        am.text(f, 0.03, f"{label} ", fontsize=7, rotation=90, va="bottom", ha="right",
+                transform=blended_transform_factory(am.transData, am.transAxes))
     am.set_ylabel("|L(jw)|")
     ap.set_ylabel("phase of L(jw) (deg)")
     ap.set_xlabel("frequency (rad/s)")
     am.set_title(title, fontsize=10)
-    am.legend(fontsize=8)
+    am.legend(fontsize=8, loc="lower left")
     for ax in (am, ap):
         ax.grid(alpha=0.3, which="both")
-    fig.tight_layout()
     return fig
 
 
@@ -201,8 +591,11 @@ def root_locus(cutoffs, roots, chosen_cutoff: float, title: str,
     """Closed-loop roots (upper half-plane) as the cutoff varies, coloured by the cutoff; the
     chosen cutoff's roots as stars. Left: all roots; right: the part near the imaginary axis."""
     from matplotlib.colors import LogNorm
-    fig = new_figure(10, 4.6)
+    width, height = 10.0, 4.6
+    fig = new_figure(width, height)
     axes = fig.subplots(1, 2)
+    fig.subplots_adjust(left=0.75 / width, right=1 - 1.05 / width, top=1 - 0.45 / height,
+                        bottom=0.55 / height, wspace=0.2)
     cut = np.repeat(np.asarray(cutoffs)[:, None], roots.shape[1], axis=1)
     up = roots.imag >= 0
     i = int(np.argmin(np.abs(np.asarray(cutoffs) - chosen_cutoff)))
@@ -219,8 +612,9 @@ def root_locus(cutoffs, roots, chosen_cutoff: float, title: str,
     axes[1].set_xlim(*zoom[0])
     axes[1].set_ylim(*zoom[1])
     axes[1].legend(fontsize=8, loc="upper left")
-    fig.colorbar(sc, ax=axes, label="cutoff (rad/s)")
-    fig.suptitle(title, fontsize=10)
+    cax = fig.add_axes([1 - 0.85 / width, 0.55 / height, 0.15 / width, 1 - 1.0 / height])
+    fig.colorbar(sc, cax=cax, label="cutoff (rad/s)")
+    fig.suptitle(title, fontsize=10, y=1 - 0.08 / height, va="top")
     return fig
 
 

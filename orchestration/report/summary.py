@@ -37,14 +37,12 @@ import math
 
 import numpy as np
 
-from plant_fmu.dynamics import plant_model
-
-from ..studies.analysis import closed_loop_matrix
+from ..studies.analysis import closed_loop_matrix, first_bending_frequency
 from ..studies.fit import fit_mode
 
-__all__ = ["SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT", "FIT_RESIDUAL",
-           "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window", "fit_modes",
-           "first_bending_frequency", "validity", "summarize"]
+__all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT",
+           "FIT_RESIDUAL", "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window",
+           "fit_modes", "first_bending_frequency", "validity", "summarize"]
 
 #: Bands (rad/s) of the rigid (slow) and the bending oscillation.
 SLOW_BAND = (0.5, 60.0)
@@ -85,15 +83,6 @@ def linear_window(res: np.ndarray, L: float | None) -> slice:
                 best = (start, i)
             start = None
     return slice(*best)
-
-
-def first_bending_frequency(plant) -> float | None:
-    """The plant's first open-loop oscillation (rad/s): its first bending mode, hinge free."""
-
-    if plant.n_modes == 0:
-        return None
-    lam = np.linalg.eigvals(plant_model(plant).state_space()[0])
-    return float(min(z.imag for z in lam if z.imag > 1.0))
 
 
 def _fit(t, y, key, modes, near=None):
@@ -177,10 +166,75 @@ def validity(res: np.ndarray, scene) -> dict:
     return out
 
 
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|[-+]?inf"
+
+
+def _short(text: str) -> str:
+    """``text`` with every number of more than 4 significant digits printed with 4 (an FMU logs
+    ``repr`` or ``%.17g``: ``0.40400000000000003``)."""
+    import re
+
+    def fmt(m):
+        v = m.group(0)
+        digits = len(re.sub(r"[^0-9]", "", v.split("e")[0].split("E")[0]).lstrip("0"))
+        return format(float(v), ".4g") if digits > 4 else v
+    return re.sub(r"(?<![\w.])\d+\.\d+(?:[eE][-+]?\d+)?", fmt, text)
+
+
+def stop_reason(message: str) -> str:
+    """What stopped a run, in the user's terms (the scene's keys, physical words), from the
+    message of :class:`~orchestration.cosim.slave.CoSimulationError`: which FMU refused which call
+    with which status, and the FMU's log (``|phi| = 1.5797451062103358 exceeds phi_limit = ...;
+    restore a saved FMU state to continue``). A message it does not know is kept, its FMI call
+    and status left out and its numbers shortened. The summary keeps the whole message beside
+    it (``fmu_message``)."""
+    import re
+
+    num = _NUMBER
+    m = re.search(rf"divergence at t = ({num}): \|phi\| = ({num}) exceeds phi_limit = ({num})",
+                  message)
+    if m:
+        t, phi, lim = map(float, m.groups())
+        return (f"the beam tilted past plant.phi_limit = {lim:.4g} rad ({math.degrees(lim):.4g} "
+                f"deg) by t = {t:.4g} s (|phi| = {phi:.4g} rad), where the plant stops")
+    m = re.search(rf"divergence at t = ({num}): \|energy\| = ({num}) exceeds energy_limit = "
+                  rf"({num})", message)
+    if m:
+        t, e, lim = map(float, m.groups())
+        return (f"the plant's energy passed plant.energy_limit = {lim:.4g} J by t = {t:.4g} s "
+                f"(|energy| = {e:.4g} J), where the plant stops")
+    m = re.search(rf"divergence at t = ({num}): the state's norm ({num}) exceeds 1e100", message)
+    if m:
+        return (f"the plant's state blew up by t = {float(m.group(1)):.4g} s (its norm passed "
+                "1e100)")
+    m = re.search(rf"integrator '([^']*)' failed between t = ({num}) and ({num}): (.*?)"
+                  r"(?:; restore a saved FMU state to continue|$)", message)
+    if m:
+        name, t0, t1, why = m.groups()
+        return (f"the plant's integrator (plant.integrator = {name!r}) failed between t = "
+                f"{float(t0):.4g} and {float(t1):.4g} s: {_short(why)}")
+    m = re.search(rf"non-finite input F_c .*? at t = ({num})", message)
+    if m:
+        return f"the controller's force F_c became non-finite at t = {float(m.group(1)):.4g} s"
+    m = re.search(rf"an FMU discarded the step at t = ({num}) even at min_step = ({num})",
+                  message)
+    if m:
+        return (f"the adaptive master could not step on at t = {float(m.group(1)):.4g} s, even "
+                f"at master.min_step = {float(m.group(2)):.4g} s")
+    m = re.match(r"(plant|controller): \w+(?: at t = \S+)? returned \w+: (?:\[\w+\] )?(.*)$",
+                 message, re.S)
+    if m:
+        who, log = m.groups()
+        log = log.replace("; restore a saved FMU state to continue", "")
+        return f"the {who} FMU stopped the run: {_short(log)}"
+    return _short(message)
+
+
 def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
     """Verdict, fitted modes beside the linear ones, validity, largest force and cart travel.
 
-    ``stopped``: ``{"time": t, "reason": text}`` when the run ended early."""
+    ``stopped``: ``{"time": t, "reason": text}`` when the run ended early (with the FMU's own
+    message as ``fmu_message`` when an FMU stopped it, see :func:`stop_reason`)."""
     out = {"completed": stopped is None, "stopped": stopped,
            "max_abs_F_c": float(np.max(np.abs(res["F_c"]))) if len(res) else None,
            "max_abs_x": float(np.max(np.abs(res["x"]))) if len(res) else None}

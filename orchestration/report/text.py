@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["num", "filter_text", "analysis_lines", "mode_text", "run_lines", "design_lines",
+__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "run_lines",
+           "design_lines",
            "sweep_lines"]
 
 
@@ -43,13 +44,56 @@ def analysis_lines(plant, controller, a) -> list[str]:
     verdict = "STABLE" if a.stable else "UNSTABLE"
     note = " (cart drift roots at 0 left aside)" if c.kx == 0 else ""
     out += ["", f"max real part{note}: {a.max_real_part:+.4f}  ->  {verdict}"]
-    m = a.margins
-    if m["nominal_stable"]:
-        out.append(f"gain margin: x{num(m['gain_margin_upper'])} upward (at "
-                   f"{num(m['gain_margin_upper_freq'])} rad/s), x{num(m['gain_margin_lower'])} "
-                   f"downward (at {num(m['gain_margin_lower_freq'])} rad/s)")
-    out.append(f"phase margin: {num(m['phase_margin_deg'])} deg at "
-               f"{num(m['phase_margin_freq'])} rad/s (smallest of all gain crossovers)")
+    out += margin_lines(a.margins)
+    return out
+
+
+def margin_lines(m: dict) -> list[str]:
+    """The margins of :func:`orchestration.studies.analysis.margins`, the same numbers and words
+    as its JSON: the gain range, the phase margin (the smallest phase change at any gain
+    crossover) with every crossover, the delay margin; for an unstable loop, the note instead."""
+    cross = m["gain_crossovers"]
+
+    def change(r):
+        ph = r["phase_change_deg"]
+        return f"{num(abs(ph))} deg {'lag' if ph >= 0 else 'lead'}"
+
+    listed = "; ".join(f"{num(r['frequency'])} rad/s: {change(r)}" for r in cross)
+    if not m["nominal_stable"]:
+        return [m["note"]] + ([f"  gain crossovers (phase change that puts a root on the "
+                               f"imaginary axis): {listed}"] if cross else [])
+
+    def where(db, freq):
+        return (f"{num(db, '+.3g')} dB, " + ("a real root through 0" if freq == 0 else
+                                              f"roots at +-{num(freq)}j"))
+
+    lo, hi = m["gain_margin_lower"], m["gain_margin_upper"]
+    if lo == 0.0 and math.isinf(hi):
+        gain = "gain margin: none needed, the loop is stable for every loop-gain factor > 0"
+    elif lo == 0.0:
+        gain = (f"gain margin: stable for loop-gain factors up to x{num(hi)} "
+                f"({where(m['gain_margin_upper_db'], m['gain_margin_upper_freq'])})")
+    elif math.isinf(hi):
+        gain = (f"gain margin: stable for every loop-gain factor above x{num(lo)} "
+                f"({where(m['gain_margin_lower_db'], m['gain_margin_lower_freq'])}); no gain "
+                "increase destabilises it")
+    else:
+        gain = (f"gain margin: stable for loop-gain factors from x{num(lo)} "
+                f"({where(m['gain_margin_lower_db'], m['gain_margin_lower_freq'])}) to "
+                f"x{num(hi)} ({where(m['gain_margin_upper_db'], m['gain_margin_upper_freq'])})")
+    out = [gain]
+    if not cross:
+        out.append(f"phase margin: inf ({m['note']})")
+        return out
+    pm = (f"phase margin: {num(m['phase_margin_deg'])} deg of {m['phase_margin_sense']} at "
+          f"{num(m['phase_margin_freq'])} rad/s")
+    if len(cross) == 1:
+        out.append(pm + " (the only gain crossover)")
+    else:
+        out += [pm + f", the smallest phase change at any of the {len(cross)} gain crossovers "
+                "that puts a closed-loop root on the imaginary axis:", f"  {listed}"]
+    out.append(f"delay margin: {num(1e3 * m['delay_margin_s'])} ms (its lag reaches the phase "
+               f"change at {num(m['delay_margin_freq'])} rad/s first)")
     return out
 
 
@@ -67,7 +111,7 @@ def mode_text(m) -> str:
 def run_lines(name: str, s: dict, written=()) -> list[str]:
     """A run's summary (:func:`orchestration.report.summary.summarize`) for the terminal."""
     if s["stopped"] is not None:
-        verdict = f"STOPPED at t = {s['stopped']['time']:.6g} s"
+        verdict = f"STOPPED at t = {num(s['stopped']['time'], '.4g')} s"
     else:
         verdict = {True: "stable", False: "UNSTABLE", None: "no verdict (no reliable fit)"}[
             s["stable"]]
@@ -87,9 +131,10 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
     if v and v["warnings"]:
         out += [f"  WARNING, outside the model's range: {w}" for w in v["warnings"]]
     elif v and v["max_abs_tip_deflection"] is not None:
-        out.append(f"  within the model's range (tip deflection at most "
-                   f"{v['max_abs_tip_deflection']:.3g} m, |phi| at most {v['max_abs_phi']:.3g} "
-                   "rad)")
+        d = v["max_abs_tip_deflection"]
+        bend = ("rigid beam" if d == 0 else f"tip deflection at most {d:.3g} m")
+        out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}within the "
+                   f"model's range ({bend}, |phi| at most {v['max_abs_phi']:.3g} rad)")
     if s.get("max_abs_F_c") is not None:
         out.append(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
     if "wall_time" in s:

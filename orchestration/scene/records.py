@@ -38,7 +38,7 @@ from .wiring import Connection, parse_connection
 
 __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", "PlantSetup",
            "MasterSettings", "InitialState", "FidelitySettings", "OutputSettings", "Scene",
-           "DEFAULT_CONNECTIONS", "KEYS"]
+           "DEFAULT_CONNECTIONS", "KEYS", "initial_energy"]
 
 #: The value of ``plant.n_modes`` and ``plant.fidelity`` that lets a run choose the model.
 AUTO = "auto"
@@ -227,6 +227,22 @@ class OutputSettings:
         return int(round(self.stop_time / self.output_interval))
 
 
+def initial_energy(p: PlantParams, initial: InitialState, linear: bool = False) -> float:
+    """The plant's energy ``T + V`` (J) at ``initial``, the beam undeformed (every modal
+    coordinate and rate 0), as the plant FMU computes it (``plant_fmu.dynamics``: the nonlinear
+    model's ``energy``, or with ``linear`` the linearised one's). With ``eta = 0`` only the rigid
+    invariants enter, ``I0 = m + rhoA L``, ``I1 = rhoA L^2/2``, ``I2 = rhoA L^3/3``, so no beam
+    model is built (a scene is read without numpy); a test holds it to the models."""
+    rhoA, L = p.rho * p.EA / p.E, p.L
+    I0, I1, I2 = p.m + rhoA * L, rhoA * L * L / 2, rhoA * L ** 3 / 3
+    phi, xd, phid = initial.phi, initial.x_dot, initial.phi_dot
+    if linear:
+        return (0.5 * I0 * xd * xd - I1 * xd * phid + 0.5 * I2 * phid * phid
+                - 0.5 * p.g * I1 * phi * phi + p.g * I1)
+    return (0.5 * I0 * xd * xd - I1 * xd * phid * math.cos(phi) + 0.5 * I2 * phid * phid
+            + p.g * I1 * math.cos(phi))
+
+
 def _keys() -> dict:
     """scene key -> (record, attribute path): the one map between the dotted keys and the
     records' fields, in the order of a scene file."""
@@ -295,6 +311,7 @@ class Scene:
         if self.fidelity.max_modes > self.plant.beam.n_elements:
             raise ConfigError(f"fidelity.max_modes = {self.fidelity.max_modes} is out of range; "
                               f"allowed: integers 1..{self.plant.beam.n_elements}")
+        self._check_initial_state()
         m, out = self.master, self.output
         if m.step > out.stop_time:
             raise ConfigError(f"master.step = {m.step} exceeds stop_time = {out.stop_time}")
@@ -302,6 +319,25 @@ class Scene:
         if not m.adaptive and (not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 * ratio):
             raise ConfigError(f"output_interval = {out.output_interval} must be a multiple of "
                               f"master.step = {m.step}")
+
+    def _check_initial_state(self):
+        """The initial state within the plant's limits: the plant FMU stops a run whose ``|phi|``
+        exceeds ``plant.phi_limit`` or whose ``|energy|`` exceeds ``plant.energy_limit``, so a
+        scene that starts beyond them would stop at its first step."""
+        phi, lim = self.initial.phi, self.plant.phi_limit
+        if not abs(phi) <= lim:
+            raise ConfigError(f"initial.phi = {phi:.6g} is beyond plant.phi_limit = {lim:.4g} rad "
+                              f"({math.degrees(lim):.4g} deg), where the plant stops a run; "
+                              f"allowed: |initial.phi| <= {lim:.4g}")
+        e_lim = self.plant.energy_limit
+        if math.isfinite(e_lim):
+            energy = initial_energy(self.plant.beam, self.initial,
+                                    linear=self.plant.fidelity == "linear")
+            if not abs(energy) <= e_lim:
+                raise ConfigError(f"the initial state's energy ({energy:.4g} J, from initial.phi, "
+                                  f"initial.x_dot and initial.phi_dot) is beyond "
+                                  f"plant.energy_limit = {e_lim:.4g} J, where the plant stops a "
+                                  "run")
 
     @property
     def resolved(self) -> bool:

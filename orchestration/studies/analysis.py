@@ -29,7 +29,8 @@ from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
 __all__ = ["closed_loop_matrix", "assemble_closed_loop", "loop_transfer", "frequency_response",
-           "analyze", "Analysis", "margins", "max_real_part"]
+           "analyze", "Analysis", "margins", "max_real_part", "first_bending_frequency",
+           "LoopRoots", "loop_roots"]
 
 
 def assemble_closed_loop(A, B, C, controller_ss, gain: float = 1.0) -> np.ndarray:
@@ -69,6 +70,54 @@ def max_real_part(p: PlantParams, c: ControllerParams, gain: float = 1.0) -> flo
     return float(np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c, gain), p)).real.max())
 
 
+def first_bending_frequency(p: PlantParams) -> float | None:
+    """The plant's first open-loop oscillation (rad/s): its first bending mode with the hinge
+    free (152.5 rad/s for the paper's beam; the cantilever's is 26.3 rad/s). The loop's root
+    near it is the one the PD destabilises (MODEL.md); None for the rigid model."""
+    if p.n_modes == 0:
+        return None
+    lam = np.linalg.eigvals(plant_model(p).state_space()[0])
+    return float(min(z.imag for z in lam if z.imag > 1.0))
+
+
+@dataclass(frozen=True)
+class LoopRoots:
+    """The closed-loop roots of a plant and controller, the cart's drift roots left aside (when
+    ``kx = 0``), sorted by frequency; ``bending``: the root nearest the first bending frequency
+    (upper half-plane; None for the rigid model); ``slow``: the lowest oscillatory root below it
+    (the rigid pendulum's), or None."""
+
+    roots: np.ndarray
+    bending: complex | None
+    slow: complex | None
+    bending_frequency: float | None
+
+    @property
+    def max_real_part(self) -> float:
+        return float(self.roots.real.max())
+
+    @property
+    def stable(self) -> bool:
+        return self.max_real_part < 0
+
+    def growing(self) -> list:
+        """The roots in the right half-plane (upper half and real axis), fastest first."""
+        return sorted((z for z in self.roots if z.real >= 0 and z.imag >= 0),
+                      key=lambda z: -z.real)
+
+
+def loop_roots(p: PlantParams, c: ControllerParams) -> LoopRoots:
+    """:class:`LoopRoots` of the linearised closed loop of ``p`` and ``c``."""
+    lam = np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c), p))
+    lam = lam[np.argsort(np.abs(lam.imag), kind="stable")]
+    up = lam[lam.imag > 1e-9]
+    wb = first_bending_frequency(p)
+    bending = complex(up[np.argmin(np.abs(up.imag - wb))]) if wb is not None and len(up) else None
+    below = [z for z in up if wb is None or z.imag < 0.5 * wb]
+    slow = complex(min(below, key=lambda z: z.imag)) if below else None
+    return LoopRoots(lam, bending, slow, wb)
+
+
 def loop_transfer(p: PlantParams, c: ControllerParams) -> control.StateSpace:
     """``L(s) = -K(s) G(s)``: the loop broken at the force, in python-control's convention
     (closed loop = ``L / (1 + L)``)."""
@@ -106,15 +155,32 @@ def _crossings(f, w, v):
 
 
 def margins(p: PlantParams, c: ControllerParams, n_grid: int = 4000) -> dict:
-    """Gain and phase margins of the loop broken at the force.
+    """Gain, phase and delay margins of the loop broken at the force.
 
     python-control's ``stability_margins`` goes through transfer-function polynomials, which
     overflow for the loops with several bending modes; the crossings are therefore found on the
     state-space frequency response ``L(jw)`` (evaluated by python-control), on a dense logarithmic
-    grid refined by Brent's method. The open loop is unstable, so the gain margin has two sides:
-    the loop stays stable for loop-gain factors in ``(gain_margin_lower, gain_margin_upper)``.
-    A phase crossover (``L(jw)`` real and negative) at gain factor ``-1/L(jw)`` is a closed-loop
-    pole on the imaginary axis, which the tests confirm on the closed-loop eigenvalues.
+    grid refined by Brent's method.
+
+    **Gain.** The open loop is unstable, so the gain margin has two sides: the loop stays stable
+    for loop-gain factors in ``(gain_margin_lower, gain_margin_upper)``. A phase crossover
+    (``L(jw)`` real and negative) at gain factor ``-1/L(jw)`` is a closed-loop pole on the
+    imaginary axis, which the tests confirm on the closed-loop eigenvalues.
+
+    **Phase.** The flexible loop crosses ``|L| = 1`` several times (near the slow mode and on
+    each side of a bending resonance). At each gain crossover ``w_i`` the phase change that puts
+    a closed-loop pole at ``j w_i``, ``L(j w_i) e^{-j theta_i} = -1``, is ``theta_i = arg L(j w_i)
+    + 180 deg`` wrapped to ``[-180, 180)``: a lag when positive, a lead when negative. The phase
+    margin is the smallest ``|theta_i|``: the loop with its gain multiplied by ``e^{-j theta}``
+    keeps every closed-loop root in the left half-plane for ``|theta| <`` the margin, and has one
+    on the imaginary axis at the margin (the tests check it on the eigenvalues of that loop).
+    ``gain_crossovers`` lists every crossover with its ``phase_change_deg`` (``theta_i``); the
+    phase margin is the smallest of their magnitudes, by definition the same numbers. The delay
+    margin is the smallest time delay that puts a pole on the axis: ``(theta_i mod 360 deg) /
+    w_i``, the smallest over the crossovers.
+
+    A margin measures how far a *stable* loop is from instability: an unstable closed loop gets
+    none (``None``), and ``note`` says so; its crossovers are still listed.
     """
     L = loop_transfer(p, c)
 
@@ -137,30 +203,46 @@ def margins(p: PlantParams, c: ControllerParams, n_grid: int = 4000) -> dict:
             upper = (k, x)
         elif k < 1 and (lower is None or k > lower[0]):
             lower = (k, x)
-    gain_x = _crossings(lambda x: abs(Ls(x)) - 1.0, w, np.abs(grid) - 1.0)
-    crossings = [[float(x), float((np.degrees(np.angle(Ls(x))) + 360.0) % 360.0 - 180.0)]
-                 for x in gain_x]
+    crossings = []
+    for x in _crossings(lambda x: abs(Ls(x)) - 1.0, w, np.abs(grid) - 1.0):
+        phase = float(np.degrees(np.angle(Ls(x))))
+        change = (phase + 360.0) % 360.0 - 180.0
+        crossings.append({"frequency": float(x), "phase_deg": phase,
+                          "phase_change_deg": change,
+                          "delay_s": math.radians(change % 360.0) / x})
     result = {
         "nominal_stable": bool(nominal_stable),
         "gain_margin_upper": None, "gain_margin_upper_db": None, "gain_margin_upper_freq": None,
         "gain_margin_lower": None, "gain_margin_lower_db": None, "gain_margin_lower_freq": None,
-        "phase_margin_deg": None, "phase_margin_freq": None,
+        "phase_margin_deg": None, "phase_margin_freq": None, "phase_margin_sense": None,
+        "delay_margin_s": None, "delay_margin_freq": None,
         "gain_crossovers": crossings,
+        "note": None,
     }
-    if nominal_stable:
-        if upper is None:
-            result["gain_margin_upper"] = math.inf
-        else:
-            result.update(gain_margin_upper=upper[0], gain_margin_upper_db=20 * math.log10(upper[0]),
-                          gain_margin_upper_freq=upper[1])
-        if lower is None:
-            result["gain_margin_lower"] = 0.0
-        else:
-            result.update(gain_margin_lower=lower[0], gain_margin_lower_db=20 * math.log10(lower[0]),
-                          gain_margin_lower_freq=lower[1])
+    if not nominal_stable:
+        result["note"] = ("no margins: the closed loop is unstable (a margin measures how far a "
+                          "stable loop is from instability)")
+        return result
+    if upper is None:
+        result["gain_margin_upper"] = math.inf
+    else:
+        result.update(gain_margin_upper=upper[0], gain_margin_upper_db=20 * math.log10(upper[0]),
+                      gain_margin_upper_freq=upper[1])
+    if lower is None:
+        result["gain_margin_lower"] = 0.0
+    else:
+        result.update(gain_margin_lower=lower[0], gain_margin_lower_db=20 * math.log10(lower[0]),
+                      gain_margin_lower_freq=lower[1])
     if crossings:
-        x, ph = min(crossings, key=lambda r: abs(r[1]))
-        result.update(phase_margin_deg=ph, phase_margin_freq=x)
+        pm = min(crossings, key=lambda r: abs(r["phase_change_deg"]))
+        dm = min(crossings, key=lambda r: r["delay_s"])
+        result.update(phase_margin_deg=abs(pm["phase_change_deg"]),
+                      phase_margin_freq=pm["frequency"],
+                      phase_margin_sense="lag" if pm["phase_change_deg"] >= 0 else "lead",
+                      delay_margin_s=dm["delay_s"], delay_margin_freq=dm["frequency"])
+    else:
+        result["phase_margin_deg"] = result["delay_margin_s"] = math.inf
+        result["note"] = "|L(jw)| never crosses 1: no phase change or delay destabilises the loop"
     return result
 
 

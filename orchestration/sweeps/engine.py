@@ -72,7 +72,8 @@ def summary_row(summary: dict) -> dict:
     row["steps"] = summary.get("steps")
     row["cosim_time"] = summary.get("wall_time")
     row["stopped_at"] = stopped.get("time")
-    row["message"] = stopped.get("reason")
+    row["message"] = stopped.get("reason")          # in the user's terms
+    row["fmu_message"] = stopped.get("fmu_message")  # the FMU's own, when an FMU stopped it
     return row
 
 
@@ -244,7 +245,8 @@ def read_table(path) -> list[dict]:
     def cell(k, v):
         if v == "":                 # text fields are None when empty, as in the rows
             return None
-        if k in ("message", "key", "status", "model", "validity") or k.endswith("_note"):
+        if k in ("message", "fmu_message", "key", "status", "model", "validity") \
+                or k.endswith("_note"):
             return v
         if v in ("True", "False"):
             return v == "True"

@@ -48,18 +48,21 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
         lin = np.array([r.get("linear_decay_rate") for r in rows if r["status"] == "ok"
                         and r.get("linear_decay_rate") is not None], dtype=float)
         design = design_worst_case(plan)
-        if len(vals):
-            marks = [*vals, *lin, *([] if design is None else [design.decay])]
+        marks = [*vals, *lin, *([] if design is None else [design.decay])]
+        if marks:
             lo, hi = min(marks), max(marks)
             pad = 0.05 * (hi - lo or 1.0)
-            bins = np.linspace(lo - pad, hi + pad, max(10, min(60, int(np.sqrt(len(vals))) * 2)))
-            ax.hist(vals, bins=bins, color="C0", edgecolor="white",
-                    label="co-simulation: -max(fitted rate)")
+            bins = np.linspace(lo - pad, hi + pad,
+                               max(10, min(60, int(np.sqrt(max(len(vals), len(lin)))) * 2)))
+            if len(vals):
+                ax.hist(vals, bins=bins, color="C0", edgecolor="white",
+                        label="co-simulation: -max(fitted rate)")
             if len(lin):
                 ax.hist(lin, bins=bins, histtype="step", color="C1", lw=1.5,
                         label="linearised loop: -max Re(lambda)")
-            ax.axvline(vals.min(), color="C0", lw=1.2, ls=":",
-                       label=f"worst fitted {vals.min():+.4g} 1/s")
+            if len(vals):
+                ax.axvline(vals.min(), color="C0", lw=1.2, ls=":",
+                           label=f"worst fitted {vals.min():+.4g} 1/s")
             if design is not None:
                 ax.axvline(design.decay, color="k", lw=1.2, ls="--",
                            label=f"flexpend design's worst case over the set (linear) "
@@ -67,8 +70,14 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
             if lo - pad < 0 < hi + pad:
                 ax.axvline(0.0, color="r", lw=1, label="0: grows to the left")
             ax.legend(fontsize=8)
+        else:
+            ax.text(0.5, 0.5, "no run has a reliable fit or a linearised loop: no decay rate "
+                    "to show", transform=ax.transAxes,
+                    ha="center", va="center", fontsize=9, color="0.3")
         ax.set_xlabel("decay rate, 1/s")
         ax.set_ylabel("runs")
+        from matplotlib.ticker import MaxNLocator
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         keys = ", ".join(s.key for s in plan.samplers)
         ax.set_title(f"{title}\n{len(rows)} runs ({len(plan.points) // max(plan.n_samples, 1)} "
                      f"x {plan.n_samples} samples of {keys}, seed {plan.seed}); "
@@ -105,8 +114,10 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
         # colours up to the 5th/95th percentile (one outlier does not wash out the rest); the
         # cells of a small grid carry their values
         lim = max(float(np.percentile(np.abs(finite), 95)) if finite.size else 1.0, 1e-12)
+        from matplotlib import colormaps
         im = ax.imshow(np.ma.masked_invalid(grid.T), origin="lower", aspect="auto",
-                       cmap="RdBu", norm=TwoSlopeNorm(vmin=-lim, vcenter=0.0, vmax=lim))
+                       cmap=colormaps["RdBu"].with_extremes(bad="0.8"),
+                       norm=TwoSlopeNorm(vmin=-lim, vcenter=0.0, vmax=lim))
         if grid.size <= 150:
             for (i, j), v in np.ndenumerate(grid):
                 if np.isfinite(v):
