@@ -10,7 +10,6 @@ with the input ``e`` held (zero-order hold), by the matrix exponential of the au
 from __future__ import annotations
 
 import functools
-import math
 import sys
 from dataclasses import dataclass
 
@@ -57,6 +56,11 @@ class ControllerParams:
         set_("filter_damping", check_real("filter_damping", self.filter_damping, low=0.0,
                                           high=100.0))
         set_("force_limit", check_real("force_limit", self.force_limit, low=0.0, allow_inf=True))
+
+    @property
+    def saturates(self) -> bool:
+        """Whether ``force_limit`` limits the force (``NO_LIMIT`` and ``inf`` do not)."""
+        return self.force_limit < NO_LIMIT
 
     def replace(self, **changes) -> "ControllerParams":
         """A copy with ``changes`` applied and validated; unknown names raise TypeError."""

@@ -81,7 +81,7 @@ def controller_text(c) -> str:
             1: f", 1st-order low-pass at {c.cutoff:g} rad/s",
             2: f", 2nd-order low-pass at {c.cutoff:g} rad/s (damping {c.filter_damping:g})"
             }[c.filter_order]
-    if math.isfinite(c.force_limit):
+    if c.saturates:
         out += f", $|F_c| \\leq$ {c.force_limit:g} N"
     return out
 
