@@ -2,15 +2,24 @@
 harness that drives one FMU instance through fmpy's FMU2Slave and records its log messages."""
 from __future__ import annotations
 
-import math
-import shutil
+import os
 
-import pytest
+# One BLAS thread per test process (before numpy is loaded), as the flexpend command sets it: the
+# suite runs in two worker processes on two cores, and a Python host that made pythonfmu calls with
+# scipy's threaded OpenBLAS loaded can abort at exit in libgfortran's destructor (docs/fmus.md,
+# "The exit abort"; never with one BLAS thread).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import math  # noqa: E402
+import shutil  # noqa: E402
+
+import pytest  # noqa: E402
 
 # The checkout's packages are imported in the test process on purpose: the FMUs must not run them
 # (each FMU loads its own copy under a private name; tests/test_fmu_robustness.py checks it).
-import controller_fmu.pd_lowpass  # noqa: F401
-import plant_fmu.dynamics  # noqa: F401
+import controller_fmu.pd_lowpass  # noqa: E402,F401
+import plant_fmu.dynamics  # noqa: E402,F401
 
 
 def _built(**kw) -> dict:
