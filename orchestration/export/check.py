@@ -45,6 +45,7 @@ from fmu_common.kernels import ROOT
 
 from ..report.figures import new_figure
 from ..report.files import save_figure
+from . import places
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
@@ -121,7 +122,9 @@ def find_reference(fmu, ref_dir, must_exist: bool = True) -> dict:
     name. With ``must_exist=False``, where they would go (for ``--write-reference``)."""
     fmu, ref_dir = Path(fmu), Path(ref_dir)
     if not fmu.is_file():
-        raise ReferenceError(f"{fmu}: no such FMU")
+        hint = (f"; `flexpend build` builds flexpend's FMUs into {places.fmu_dir()}"
+                if fmu.suffix == ".fmu" else "")
+        raise ReferenceError(f"{fmu}: no such FMU{hint}")
     names = _model_names(fmu)
     for kind in ("ref", "opt"):
         for name in names:
