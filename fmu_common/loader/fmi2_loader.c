@@ -170,7 +170,18 @@ static struct {
     PyObject *helper;       /* the namespace of resources/flexpend_loader.py */
     LiveState *states;      /* FMU states handed out and not yet freed */
     size_t n_states, cap_states;
+    void (*release_pystate)(void);  /* pythonfmu's finalizePythonInterpreter, for exit */
 } G;
+
+#ifndef _WIN32
+/* At exit, before pythonfmu's static destructors (see where it is registered). */
+static void release_pythonfmu_state(void)
+{
+    void (*release)(void) = G.release_pystate;
+    G.release_pystate = NULL;
+    if (release) release();
+}
+#endif
 
 /* the exception reported by guard.cpp during the current call of this thread */
 static _Thread_local char tls_exception[512];
@@ -916,6 +927,21 @@ static int load_rest(const char *resources, char *why, size_t n)
     RESOLVE_FMU(serialize, "fmi2SerializeFMUstate");
     RESOLVE_FMU(deserialize, "fmi2DeSerializeFMUstate");
     RESOLVE_FMU(do_step, "fmi2DoStep");
+#ifndef _WIN32
+    /* pythonfmu 0.7.0 keeps its interpreter thread's owner in a static std::shared_ptr. At exit
+     * the C++ destructor of that static releases it (an atexit handler), and then the library's
+     * ELF destructor (onLibraryUnload, run later by _dl_fini) assigns nullptr to the destroyed
+     * shared_ptr, which releases the freed control block a second time: a write into freed
+     * memory (valgrind: "Invalid read of size 4" in finalizePythonInterpreter, the block freed
+     * by __run_exit_handlers), which glibc sometimes finds at exit as "corrupted double-linked
+     * list". An atexit handler registered after pythonfmu's library was loaded runs before its
+     * static's destructor: it empties the shared_ptr first (the interpreter thread has already
+     * returned: the interpreter was running before pythonfmu's library was loaded), and both
+     * later releases find nothing to release. This library is pinned (self_path), so the
+     * handler stays valid until exit. */
+    *(void **)&G.release_pystate = lib_sym(h, "finalizePythonInterpreter");
+    if (G.release_pystate) atexit(release_pythonfmu_state);
+#endif
     return 0;
 }
 
