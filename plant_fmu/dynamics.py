@@ -1,4 +1,5 @@
-"""Equations of motion of the cart with a flexible beam (MODEL.md section 4), and their linearisation.
+"""Equations of motion of the cart with a flexible beam (MODEL.md section 4), their exact Jacobian
+and their linearisation.
 
 Generalised coordinates ``q = [x, phi, eta_1..eta_n]``; the state is ``[q, qd]`` (length
 ``2*(n+2)``), the input is the force on the cart ``F_c``. With ``c = cos(phi)``, ``s = sin(phi)``::
@@ -17,6 +18,11 @@ rigid coordinates, which costs O(n).
 
 Outputs: ``x_o = x``, ``phi_o = phi + atan(N'(L) eta)``, ``omega_o = d phi_o/dt``, the tip
 deflection ``N(L) eta``, the modal coordinates and the total energy ``T + V``.
+
+The Jacobian at any state (``jacobian_numpy``, ``output_jacobian_numpy``): ``d qdd/dz = M^-1
+(df/dz - (dM/dz) qdd)`` with ``df/dz`` and ``dM/dz`` by hand, checked against sympy's derivatives
+of the Lagrange equations (``tests/test_lagrange.py``); ``state_space`` is its value at the
+upright rest state.
 
 The hot paths (``rhs``, ``tip_angle``, ``energy`` and the steppers' loops) run the compiled C
 kernel (:mod:`plant_fmu.kernel`, ``native/fp_plant.c``), which receives the invariants computed
@@ -150,6 +156,100 @@ class PlantModel:
         sl = float(self.tip_slope @ x[2:nq])
         sld = float(self.tip_slope @ x[nq + 2:])
         return float(x[1]) + math.atan(sl), float(x[nq + 1]) + sld / (1.0 + sl * sl)
+
+    # ------------------------------------------------------------------ Jacobians
+    def jacobian_numpy(self, x: np.ndarray, u: float):
+        """``(J, b)``: the exact Jacobian of :meth:`rhs_numpy` with respect to the state
+        (``J = d(dx/dt)/dx``, nx x nx) and to the force (``b = d(dx/dt)/dF_c``), at any state.
+
+        From ``M(q) qdd = f(q, qd, u)``: ``d qdd/dz = M^-1 (df/dz - (dM/dz) qdd)``, with ``df/dz``
+        and ``dM/dz`` differentiated by hand below (``tests/test_lagrange.py`` checks them
+        against sympy's derivatives of the Lagrange equations; the kernel's ``fp_jacobian``
+        computes the same by Jacobian-vector products)."""
+        n, nq, nx = self.n, self.nq, self.nx
+        q, qd = x[:nq], x[nq:]
+        phi, eta = q[1], q[2:]
+        phid, etad = qd[1], qd[2:]
+        c, s = math.cos(phi), math.sin(phi)
+        I1, I3, I5, g = self.I1, self.I3, self.I5, self.g
+        I3eta, I3etad = float(I3 @ eta), float(I3 @ etad)
+        a = self.accelerations(q, qd, u)
+        # df/dq (columns x, phi, eta) and df/dqd (columns xd, phid, etad)
+        dfdq = np.zeros((nq, nq))
+        dfdq[0, 1] = -(I1 * c - I3eta * s) * phid * phid - 2.0 * phid * c * I3etad
+        dfdq[1, 1] = g * (I1 * c - I3eta * s)
+        dfdq[2:, 1] = g * c * I3
+        dfdq[0, 2:] = -c * phid * phid * I3
+        dfdq[1, 2:] = -2.0 * phid * etad + g * c * I3
+        dfdq[2:, 2:] = np.diag(phid * phid - self.Kdiag)
+        if self.preload:
+            Kg = self.Kg
+            Kge = Kg @ eta
+            dfdq[1, 1] -= 0.5 * c * float(eta @ Kge)
+            dfdq[2:, 1] -= s * Kge
+            dfdq[1, 2:] -= s * (0.5 * (Kg + Kg.T) @ eta)        # d/deta of 1/2 s eta.Kg.eta
+            dfdq[2:, 2:] += c * Kg
+        dfdv = np.zeros((nq, nq))
+        dfdv[0, 1] = -2.0 * (I1 * s + I3eta * c) * phid - 2.0 * s * I3etad
+        dfdv[1, 1] = -2.0 * float(eta @ etad)
+        dfdv[2:, 1] = 2.0 * phid * eta
+        dfdv[0, 2:] = -2.0 * phid * s * I3
+        dfdv[1, 2:] = -2.0 * phid * eta
+        dfdv[2:, 2:] = -np.diag(self.Ddiag)
+        # (dM/dq_k) qdd, column k: M01 = -I1 c + s I3.eta, M0e = -c I3, M11 = I2 + eta.eta
+        dMa = np.zeros((nq, nq))
+        dm01 = I1 * s + c * I3eta
+        dMa[0, 1] = dm01 * a[1] + s * float(I3 @ a[2:])
+        dMa[1, 1] = dm01 * a[0]
+        dMa[2:, 1] = s * I3 * a[0]
+        dMa[0, 2:] = s * I3 * a[1]
+        dMa[1, 2:] = s * I3 * a[0] + 2.0 * eta * a[1]
+        M = self.mass_matrix(q)
+        J = np.zeros((nx, nx))
+        J[:nq, nq:] = np.eye(nq)
+        J[nq:, :nq] = np.linalg.solve(M, dfdq - dMa)
+        J[nq:, nq:] = np.linalg.solve(M, dfdv)
+        b = np.zeros(nx)
+        b[nq:] = np.linalg.solve(M, np.eye(nq)[:, 0])
+        return J, b
+
+    def output_jacobian_numpy(self, x: np.ndarray) -> np.ndarray:
+        """``C = d(outputs)/dx`` at ``x``: one row per output in the kernel's layout
+        (:data:`plant_fmu.kernel.OUT`: x_o, x_dot, phi_o, omega_o, phi, tip_deflection, energy,
+        eta_1..eta_n). No output depends on the force (no direct feedthrough)."""
+        n, nq, nx = self.n, self.nq, self.nx
+        phi, eta = x[1], x[2:nq]
+        xd, phid, etad = x[nq], x[nq + 1], x[nq + 2:]
+        c, s = math.cos(phi), math.sin(phi)
+        I1, I3, I5, g = self.I1, self.I3, self.I5, self.g
+        I3eta, I3etad = float(I3 @ eta), float(I3 @ etad)
+        C = np.zeros((7 + n, nx))
+        C[0, 0] = 1.0
+        C[1, nq] = 1.0
+        sl, sld = float(self.tip_slope @ eta), float(self.tip_slope @ etad)
+        w = 1.0 + sl * sl
+        C[2, 1] = 1.0
+        C[2, 2:nq] = self.tip_slope / w
+        C[3, nq + 1] = 1.0
+        C[3, nq + 2:] = self.tip_slope / w
+        C[3, 2:nq] = -2.0 * sl * sld / (w * w) * self.tip_slope
+        C[4, 1] = 1.0
+        C[5, 2:nq] = self.tip_defl
+        # energy: T + V of energy_numpy, differentiated
+        dE = C[6]
+        dE[1] = (xd * ((I1 * phid + I3etad) * s + phid * c * I3eta)
+                 - g * (I1 * s + c * I3eta))
+        dE[2:nq] = xd * phid * s * I3 + phid * phid * eta - g * s * I3 + self.Kdiag * eta
+        dE[nq] = self.I0 * xd - (I1 * phid + I3etad) * c + phid * s * I3eta
+        dE[nq + 1] = xd * (-I1 * c + s * I3eta) + phid * (self.I2 + float(eta @ eta)) \
+            + float(I5 @ etad)
+        dE[nq + 2:] = -xd * c * I3 + phid * I5 + etad
+        if self.preload:
+            Kg = self.Kg
+            dE[1] += 0.5 * s * float(eta @ (Kg @ eta))
+            dE[2:nq] -= c * (0.5 * (Kg + Kg.T) @ eta)
+        C[7:, 2:nq] = np.eye(n)
+        return C
 
     def energy(self, x: np.ndarray) -> float:
         """Total energy ``T + V`` (the compiled kernel; same terms as :meth:`energy_numpy`)."""
@@ -299,6 +399,37 @@ class LinearPlantModel:
     def jac(self, t, x, u):
         """The exact Jacobian ``A`` (constant)."""
         return self.A
+
+    def jacobian_numpy(self, x, u):
+        """``(J, b)`` of :meth:`rhs_numpy`: ``A`` and ``B`` by solving ``M0`` (constant)."""
+        nq, nx = self.nq, self.nx
+        J = np.zeros((nx, nx))
+        J[:nq, nq:] = np.eye(nq)
+        J[nq:, :nq] = np.linalg.solve(self.M0, -self.K0)
+        J[nq:, nq:] = np.linalg.solve(self.M0, -self.D0)
+        b = np.zeros(nx)
+        b[nq:] = np.linalg.solve(self.M0, np.eye(nq)[:, 0])
+        return J, b
+
+    def output_jacobian_numpy(self, x):
+        """``C = d(outputs)/dx`` in the kernel's layout (see
+        :meth:`PlantModel.output_jacobian_numpy`): the linear tip angle and the gradient of the
+        quadratic energy ``[K0 q, M0 qd]``."""
+        n, nq, nx = self.n, self.nq, self.nx
+        C = np.zeros((7 + n, nx))
+        C[0, 0] = 1.0
+        C[1, nq] = 1.0
+        C[2, 1] = 1.0
+        C[2, 2:nq] = self.tip_slope
+        C[3, nq + 1] = 1.0
+        C[3, nq + 2:] = self.tip_slope
+        C[4, 1] = 1.0
+        C[5, 2:nq] = self.tip_defl
+        K0s = 0.5 * (self.K0 + self.K0.T)
+        C[6, :nq] = K0s @ x[:nq]
+        C[6, nq:] = self.M0 @ x[nq:]
+        C[7:, 2:nq] = np.eye(n)
+        return C
 
     def tip_angle(self, x):
         return self.kernel.tip(x)

@@ -89,8 +89,26 @@ def _derive(n: int, preload: bool):
     params = [m, mb, I1, I2, g, F, *I3, *I5, *K, *D, *upper(I4), *upper(Kg)]
     args = [*qs, *vs, *params]
     energy = T_num + V.subs(sub_q)
-    return (sp.lambdify(args, M, "numpy"), sp.lambdify(args, f, "numpy"),
-            sp.lambdify(args, energy, "numpy"), n)
+    # The Jacobian's ingredients, differentiated by sympy: df/d(q, qd, F) and dM/dq_k
+    z = [*qs, *vs]
+    dfdz = f.jacobian([*z, F])
+    dMdq = [M.diff(qk) for qk in qs]
+    # The tip angle phi_o = phi + atan(N'(L) eta) and its rate omega_o = d/dt phi_o (by the
+    # chain rule on q(t)), with the tip slopes and deflections as symbols
+    ts = sp.symbols(f"ts0:{n}")
+    td = sp.symbols(f"td0:{n}")
+    phi_o = phi + sp.atan(sum((ts[j] * eta[j] for j in range(n)), sp.Integer(0)))
+    omega_o = phi_o.diff(t)
+    outs = sp.Matrix([x, x.diff(t), phi_o, omega_o, phi,
+                      sum((td[j] * eta[j] for j in range(n)), sp.Integer(0)),
+                      T + V, *eta]).subs(sub).subs(sub_q)
+    out_args = [*z, *params, *ts, *td]
+    lam = lambda e: sp.lambdify(args, e, "numpy")  # noqa: E731
+    return (lam(M), lam(f), lam(energy), n,
+            {"dfdz": lam(dfdz), "dMdq": [lam(d) for d in dMdq], "M": M, "f": f, "args": args,
+             "F": F,
+             "outputs": sp.lambdify(out_args, outs, "numpy"),
+             "doutputs": sp.lambdify(out_args, outs.jacobian(z), "numpy")})
 
 
 @pytest.fixture(scope="module", params=[(1, False), (2, False), (2, True)],
@@ -121,7 +139,7 @@ def _random_states(model, count=20, seed=7):
 
 
 def test_rhs_matches_symbolic_lagrange_equations(case):
-    p, model, (M_f, f_f, _, n) = case
+    p, model, (M_f, f_f, _, n, _) = case
     for q, v, F in _random_states(model):
         args = [*q, *v, *_param_values(p, model, F)]
         qdd = np.linalg.solve(np.array(M_f(*args), dtype=float), np.array(f_f(*args), dtype=float).ravel())
@@ -133,9 +151,77 @@ def test_rhs_matches_symbolic_lagrange_equations(case):
 
 
 def test_mass_matrix_and_energy_match_symbolic(case):
-    p, model, (M_f, _, E_f, n) = case
+    p, model, (M_f, _, E_f, n, _) = case
     for q, v, F in _random_states(model, count=10, seed=11):
         args = [*q, *v, *_param_values(p, model, F)]
         np.testing.assert_allclose(model.mass_matrix(q), np.array(M_f(*args), dtype=float),
                                    rtol=1e-12, atol=1e-12)
         assert model.energy(np.r_[q, v]) == pytest.approx(float(E_f(*args)), rel=1e-12)
+
+
+def _symbolic_jacobian(p, model, sym, q, v, F):
+    """``(J, b)`` of the right-hand side from sympy's derivatives of ``M`` and ``f``:
+    ``d qdd/dz = M^-1 (df/dz - (dM/dz) qdd)``."""
+    M_f, f_f, _, n, d = sym
+    args = [*q, *v, *_param_values(p, model, F)]
+    M = np.array(M_f(*args), dtype=float)
+    qdd = np.linalg.solve(M, np.array(f_f(*args), dtype=float).ravel())
+    nq = n + 2
+    dfdz = np.array(d["dfdz"](*args), dtype=float)            # nq x (2 nq + 1)
+    rhs = dfdz.copy()
+    for k in range(nq):
+        rhs[:, k] -= np.array(d["dMdq"][k](*args), dtype=float) @ qdd
+    da = np.linalg.solve(M, rhs)
+    J = np.zeros((2 * nq, 2 * nq))
+    J[:nq, nq:] = np.eye(nq)
+    J[nq:] = da[:, :2 * nq]
+    b = np.r_[np.zeros(nq), da[:, 2 * nq]]
+    return J, b
+
+
+def test_jacobian_matches_symbolic_derivatives(case):
+    """The hand-differentiated Jacobian of the numpy model (the kernel's specification) against
+    sympy's derivatives of the Lagrange equations, at random deformed, moving, tilted states."""
+    p, model, sym = case
+    for q, v, F in _random_states(model, count=10, seed=13):
+        J_sym, b_sym = _symbolic_jacobian(p, model, sym, q, v, F)
+        J, b = model.jacobian_numpy(np.r_[q, v], F)
+        np.testing.assert_allclose(J, J_sym, rtol=0, atol=1e-10 * np.abs(J_sym).max())
+        np.testing.assert_allclose(b, b_sym, rtol=0, atol=1e-12 * np.abs(b_sym).max())
+
+
+def test_output_jacobian_matches_symbolic_derivatives(case):
+    """The outputs (omega_o derived by sympy as d/dt phi_o) and their Jacobian against the
+    numpy model's and the kernel's."""
+    p, model, sym = case
+    d = sym[4]
+    extra = [*model.tip_slope, *model.tip_defl]
+    for q, v, F in _random_states(model, count=10, seed=17):
+        x = np.r_[q, v]
+        args = [*q, *v, *_param_values(p, model, F), *extra]
+        outs = np.array(d["outputs"](*args), dtype=float).ravel()
+        o = model.outputs(0.0, x)
+        got = np.r_[o["x_o"], o["x_dot"], o["phi_o"], o["omega_o"], x[1], o["tip_deflection"],
+                    o["energy"], o["eta"]]
+        np.testing.assert_allclose(got, outs, rtol=1e-12, atol=1e-12)
+        C_sym = np.array(d["doutputs"](*args), dtype=float)
+        C = model.output_jacobian_numpy(x)
+        np.testing.assert_allclose(C, C_sym, rtol=0, atol=1e-11 * np.abs(C_sym).max())
+
+
+def test_jacobian_of_the_fully_symbolic_accelerations():
+    """n = 1: the accelerations solved symbolically (qdd = M^-1 f, no identity used) and
+    differentiated by sympy, against the numpy model's Jacobian."""
+    p = PlantParams(n_modes=1, gravity_preload=True)
+    model = plant_model(p)
+    d = _derive(1, True)[4]
+    args, nq = d["args"], 3
+    qdd = d["M"].LUsolve(d["f"])
+    z = args[:2 * nq]
+    rhs = sp.Matrix([*z[nq:], *qdd])
+    J_f = sp.lambdify(args, rhs.jacobian([*z, d["F"]]), "numpy")
+    for q, v, F in _random_states(model, count=5, seed=19):
+        J_all = np.array(J_f(*q, *v, *_param_values(p, model, F)), dtype=float)
+        J, b = model.jacobian_numpy(np.r_[q, v], F)
+        np.testing.assert_allclose(J, J_all[:, :2 * nq], rtol=0, atol=1e-10 * np.abs(J).max())
+        np.testing.assert_allclose(b, J_all[:, 2 * nq], rtol=0, atol=1e-12 * np.abs(b).max())
