@@ -212,6 +212,37 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w);
  * is not, -1 either. 1, or 0 with r->why set. */
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized);
 
+/* ---- Jacobians and output derivatives: what each model implements (issue 24) ---------------
+ * Indices, not value references: the core maps value references to them.
+ *   state i   0 .. fpm_model_nx() - 1, in the order the modelDescription declares the states;
+ *   input j   0 .. NU - 1, the native table's inputs in table order (the plant: F_c; the
+ *             controller: phi_o, omega_o, x_o);
+ *   output k  0 .. NY - 1, the table's outputs in table order.
+ * NU and NY follow from the generated table (fpm_vars). */
+
+/* The number of continuous states the FMU declares: a constant of the build (the plant declares
+ * the states of its largest Model-Exchange n_modes; the states of modes beyond the instance's
+ * n_modes stay 0 and have derivative 0). */
+size_t fpm_model_nx(void);
+
+/* The dense linearisation at the model's current time, state and inputs (Model Exchange: the
+ * state and inputs last set; co-simulation: the state reached by the last step, with the inputs
+ * as their polynomial gives them at that time): A = d(der x)/dx (nx x nx), B = d(der x)/du
+ * (nx x NU), C = dy/dx (NY x nx), D = dy/du (NY x NU), row-major, exact (analytic). Any pointer
+ * may be NULL (that block is not wanted). FPM_OK, or FPM_ERROR with a message (not initialised,
+ * a non-finite entry). */
+int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B, double *C,
+                       double *D);
+
+/* The order-th time derivative (1 .. fpm_model_max_output_derivative_order()) of output vr at
+ * the model's current time: exact, for the inputs as their polynomial (value and input
+ * derivatives) gives them at that time. FPM_OK, or FPM_ERROR with a message. */
+int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
+                                double *value);
+/* The highest order fpm_model_output_derivative gives exactly (the modelDescription's
+ * maxOutputDerivativeOrder). */
+int fpm_model_max_output_derivative_order(void);
+
 /* ---- The core (fpm_core.c) ---------------------------------------------------------------- */
 typedef struct fpm_instance fpm_instance;
 /* Sends one message to the host (the adapter's logger). */
