@@ -29,6 +29,7 @@ from plant_fmu import interface as plant_interface
 from plant_fmu.beam import beam_model
 
 from .cosim.master import Master
+from .cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
 from .export import flavour_fmus
 from .report import figures
@@ -180,14 +181,17 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     stopped, interrupted, stats, res = None, False, None, None
     try:
         dirs = unzipdirs or {}
-        slaves["plant"] = Slave(fmus["plant"], "plant", plant_start_values(scene),
-                                unzipdir=dirs.get("plant"))
-        slaves["controller"] = Slave(fmus["controller"], "controller",
-                                     controller_start_values(scene),
-                                     unzipdir=dirs.get("controller"))
+        me = scene.master.interface == "model-exchange"
+        unit = ModelExchangeUnit if me else Slave
         try:
-            master = Master(slaves, scene.connections, RECORD, scene.master)
-        except ValueError as exc:       # a variable the FMUs do not have
+            slaves["plant"] = unit(fmus["plant"], "plant", plant_start_values(scene),
+                                   unzipdir=dirs.get("plant"))
+            slaves["controller"] = unit(fmus["controller"], "controller",
+                                        controller_start_values(scene),
+                                        unzipdir=dirs.get("controller"))
+            master = (ModelExchangeMaster if me else Master)(slaves, scene.connections, RECORD,
+                                                             scene.master)
+        except ValueError as exc:       # a variable the FMUs do not have, no ME interface
             raise ConfigError(f"{scene.name}: {exc}") from None
         if connections_out is not None:
             connections_out.write(f"{scene.name}: connections\n{master.connection_table()}\n")

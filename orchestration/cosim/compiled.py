@@ -116,6 +116,8 @@ def unavailable(coupling, slaves: dict, adaptive: bool) -> str | None:
         fun = s.raw_functions()
         if not fun:
             return f"{name} is not called through fmpy's raw FMI functions (a call logger is set)"
+        if coupling.out_der[name]:
+            return "the extrapolation from output derivatives runs in Python"
         needed = list(_FUNCTIONS[:3])
         if coupling.n_der[name]:
             if not coupling.interpolates[name]:

@@ -18,7 +18,7 @@ import numpy as np
 
 from ..scene.records import MasterSettings
 
-__all__ = ["Coupling", "extrapolation_weights", "weight_table", "derivative_name"]
+__all__ = ["Coupling", "extrapolation_weights", "weight_table", "derivative_name", "taylor_rows"]
 
 
 def derivative_name(variable: str, order: int) -> str:
@@ -41,7 +41,8 @@ class Coupling:
     positions) per source of ``n``), ``n_der[n]`` (input derivative orders ``n`` takes, 0 to 2),
     ``bound_inputs[n]`` (the input variables set on ``n``, derivative variables included),
     ``kinds[n]`` (what the inputs of ``n`` are over a step: ``("average",)`` held, or ``(0, 1[,
-    2])`` values and derivatives at the step's start), ``targets`` (where each source's rows go
+    2])`` values and derivatives at the step's start), ``out_der[n]`` (the time derivatives of its
+    outputs read from ``n`` with every sample: 0, or the extrapolation order), ``targets`` (where each source's rows go
     in the input buffer) and ``correct_startup`` (the first step predicted and corrected)."""
 
     def __init__(self, slaves: dict, connections, record: dict,
@@ -101,14 +102,25 @@ class Coupling:
                         for n in names for src, pos, _ in self.gather[n] for nk in (1, 2, 3)}
         self.kinds = {n: tuple(range(self.n_der[n] + 1)) if self.n_der[n] else ("average",)
                       for n in names}
+        # output derivatives (``master.output_derivatives``): a source whose FMU gives the time
+        # derivatives of its outputs up to the extrapolation order is extrapolated by the
+        # Taylor polynomial at its newest sample instead of the polynomial through past samples
+        self.out_der = {n: self.p if (settings.output_derivatives and self.p >= 1
+                                      and self.outputs[n]
+                                      and slaves[n].output_derivative_order >= self.p) else 0
+                        for n in names}
+        # the first step needs no prediction when every source's polynomial is complete from
+        # one sample (its derivatives)
         self.correct_startup = self.p >= 1 and all(
-            s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values())
+            s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values()) and not all(
+            self.out_der[n] for n in names if self.outputs[n])
 
     def bind(self, slaves: dict):
         """Preallocate every slave's buffers for the signals this coupling exchanges."""
         for n, s in slaves.items():
             s.bind(self.bound_inputs[n], self.outputs[n], self.recorded[n],
-                   derivative_orders=self.n_der[n] if self.interpolates[n] else 0)
+                   derivative_orders=self.n_der[n] if self.interpolates[n] else 0,
+                   output_derivative_orders=self.out_der[n])
 
     def table(self) -> str:
         """The connections as a two-column table (``flexpend run --connections``)."""
@@ -172,13 +184,32 @@ def _weight_rows(tau: tuple, kinds: tuple, scale: float) -> np.ndarray:
     return W
 
 
-class _History:
-    """The last few communication-point values of every connection source."""
+def taylor_rows(delta: float, kinds: tuple, scale: float, order: int) -> np.ndarray:
+    """Rows of weights on ``[y, y', ..., y^(order)]`` at a sample time ``t_s``, for the Taylor
+    polynomial ``y(t_s + r) = sum_j y^(j) r^j / j!`` evaluated from ``t = t_s + delta``: per
+    ``kind``, its average over ``[t, t + scale]`` (``"average"``) or its ``kind``-th time
+    derivative at ``t``."""
+    W = np.zeros((len(kinds), order + 1))
+    for i, kind in enumerate(kinds):
+        for j in range(order + 1):
+            if kind == "average":
+                W[i, j] = ((delta + scale) ** (j + 1) - delta ** (j + 1)) / (
+                    math.factorial(j + 1) * scale)
+            elif j >= kind:
+                W[i, j] = delta ** (j - kind) / math.factorial(j - kind)
+    return W
 
-    def __init__(self, depth: int):
+
+class _History:
+    """The last few communication-point values of every connection source. With ``derivatives``
+    = ``q`` > 0 each sample is the outputs followed by their first ``q`` time derivatives
+    (``(q + 1) * outputs`` values)."""
+
+    def __init__(self, depth: int, derivatives: int = 0):
         self.t: list[float] = []
         self.u: list[np.ndarray] = []
         self.depth = depth
+        self.derivatives = derivatives
 
     def push(self, t, u):
         self.t.append(t)

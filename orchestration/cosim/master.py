@@ -36,7 +36,7 @@ from fmu_common.kernels import KernelError
 
 from ..scene.records import MasterSettings
 from . import compiled as compiled_master
-from .coupling import Coupling, _History, _weight_rows
+from .coupling import Coupling, _History, _weight_rows, taylor_rows
 from .slave import CoSimulationError, RunInterrupted
 
 __all__ = ["RunStats", "Master"]
@@ -111,6 +111,14 @@ class Master:
         """Rows ``kinds`` (``"average"`` over ``[t, t + scale]``, or the ``j``-th derivative at
         ``t``) of the polynomial through the newest ``p + 1`` samples of ``h`` (fewer at the
         start): an array ``len(kinds) x outputs``, derivatives in time units."""
+        if h.derivatives:                   # the Taylor polynomial at the newest sample
+            q = h.derivatives
+            Y = h.u[-1].reshape(q + 1, -1)
+            W = taylor_rows(t - h.t[-1], kinds, scale, q)
+            acc = W[:, 0:1] * Y[0]
+            for j in range(1, q + 1):
+                acc = acc + W[:, j:j + 1] * Y[j]
+            return acc
         k = min(self.coupling.p + 1, len(h.t))
         ts = h.t
         if k == 1:
@@ -224,7 +232,7 @@ class Master:
             if len(hist[src].t) == 0:
                 continue
             pred = self._combination(hist[src], t1, self.h, (0,))[0]
-            actual = new[src]
+            actual = new[src][:len(pred)]
             scale = self.tol * np.maximum(1.0, np.abs(actual))
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
         return err
@@ -263,7 +271,7 @@ class Master:
         try:
             for s in self.slaves.values():
                 s.initialize(t0, stop_time)
-            hist = {n: _History(3) for n in self.slaves}
+            hist = {n: _History(3, self.coupling.out_der[n]) for n in self.slaves}
             cur = self._initial_outputs(t0)
             for n in self.slaves:
                 hist[n].push(t0, cur[n])

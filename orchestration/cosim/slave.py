@@ -76,19 +76,20 @@ class Slave:
         self.interpolates_inputs = (not self.fmi3 and self.md.coSimulation is not None
                                     and bool(self.md.coSimulation.canInterpolateInputs))
         try:
-            if self.fmi3:
-                from fmpy.fmi3 import FMU3Slave
-                cls = FMU3Slave
-            else:
-                cls = FMU2Slave
-            self.fmu = cls(guid=self.md.guid, unzipDirectory=self._unzipdir,
-                           modelIdentifier=self.md.coSimulation.modelIdentifier,
-                           instanceName=name)
+            interface = self._interface_description()
+            self.fmu = self._fmu_class()(guid=self.md.guid, unzipDirectory=self._unzipdir,
+                                         modelIdentifier=interface.modelIdentifier,
+                                         instanceName=name)
             self._instantiate()
         except BaseException:
             self.fmu = None
             self._remove_unzipdir()
             raise
+        #: the highest time derivative of its outputs the FMU gives after a step (FMI's
+        #: maxOutputDerivativeOrder; 0: none)
+        cs = self.md.coSimulation
+        self.output_derivative_order = int(getattr(cs, "maxOutputDerivativeOrder", 0) or 0) \
+            if cs is not None else 0
         self._start_values = dict(start_values or {})
         inputs = {v.name for v in self.md.modelVariables if v.causality == "input"}
         #: True when an output may depend directly on an input (no dependencies declared
@@ -98,6 +99,25 @@ class Slave:
                                for o in self.md.outputs)
 
     # ------------------------------------------------------------------ plumbing
+    #: the FMI interface this class instantiates (``fmi2CoSimulation``; a subclass may take the
+    #: FMU's Model Exchange interface instead)
+    interface = "co-simulation"
+
+    def _interface_description(self):
+        """The modelDescription's element of :attr:`interface` (a ValueError if the FMU lacks
+        it)."""
+        found = self.md.coSimulation if self.interface == "co-simulation" else \
+            self.md.modelExchange
+        if found is None:
+            raise ValueError(f"{self.name}: {self.path} has no {self.interface} interface")
+        return found
+
+    def _fmu_class(self):
+        if self.fmi3:
+            from fmpy.fmi3 import FMU3Slave
+            return FMU3Slave
+        return FMU2Slave
+
     def _instantiate(self):
         from fmpy.fmi2 import (
             calloc,
@@ -208,13 +228,16 @@ class Slave:
         self._call("enterInitializationMode", self.fmu.enterInitializationMode)
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
 
-    def bind(self, inputs, outputs, record=(), derivative_orders: int = 0):
+    def bind(self, inputs, outputs, record=(), derivative_orders: int = 0,
+             output_derivative_orders: int = 0):
         """Preallocate the buffers of the real inputs and outputs exchanged every step, and of
         the outputs only recorded at output points. The hot calls go straight to the FMU's
         ctypes functions (as loaded by fmpy), without fmpy's per-call wrapper; their status is
         checked here. ``derivative_orders`` (1 or 2, on an FMU that interpolates inputs): the
         inputs' time derivatives follow their values in :meth:`set_inputs` and go to
-        ``fmi2SetRealInputDerivatives``."""
+        ``fmi2SetRealInputDerivatives``. ``output_derivative_orders`` (``q``, at most the FMU's
+        :attr:`output_derivative_order`): :meth:`get_outputs` returns the outputs followed by
+        their first ``q`` time derivatives (``fmi2GetRealOutputDerivatives``)."""
         def buffers(names):
             vr = (fmi2ValueReference * len(names))(*[self.vr(n) for n in names])
             val = (fmi2Real * len(names))()
@@ -231,6 +254,28 @@ class Slave:
                                                for _ in inputs])
         self._der_val = (fmi2Real * nd)()
         self._der_np = np.ctypeslib.as_array(self._der_val) if nd else np.zeros(0)
+        q = output_derivative_orders
+        if q > self.output_derivative_order:
+            raise ValueError(f"{self.name}: {q} output derivative orders asked for; the FMU "
+                             f"gives {self.output_derivative_order}")
+        no = self._n_out * q
+        self._n_oder = no
+        self._oder_vr = (fmi2ValueReference * no)(*list(self._out_vr) * q)
+        self._oder_order = (fmi2Integer * no)(*[k for k in range(1, q + 1)
+                                                for _ in range(self._n_out)])
+        self._oder_val = (fmi2Real * no)()
+        self._oder_np = np.ctypeslib.as_array(self._oder_val) if no else np.zeros(0)
+        if no:
+            f, c = self.fmu, self.fmu.component
+            if self.fmi3:
+                self._get_oder_raw = lambda: f.fmi3GetOutputDerivatives(
+                    c, self._oder_vr, no, self._oder_order, self._oder_val, no)
+            else:
+                get = getattr(f, "_functions", {}).get("fmi2GetRealOutputDerivatives") \
+                    if getattr(f, "fmiCallLogger", None) is None else None
+                get = get or f.fmi2GetRealOutputDerivatives
+                self._get_oder_raw = lambda: get(c, self._oder_vr, no, self._oder_order,
+                                                 self._oder_val)
         if self.fmi3:
             self._bind_fmi3()
             return
@@ -297,9 +342,13 @@ class Slave:
             self._checked("setRealInputDerivatives", self._set_derivatives_raw, t=t)
 
     def get_outputs(self, t=None) -> np.ndarray:
-        """The bound outputs (a new array)."""
+        """The bound outputs (a new array), followed by their time derivatives when bound with
+        ``output_derivative_orders``."""
         if self._n_out:
             self._checked("getReal", self._get_outputs_raw, t=t)
+        if self._n_oder:
+            self._checked("getRealOutputDerivatives", self._get_oder_raw, t=t)
+            return np.concatenate((self._out_np, self._oder_np))
         return self._out_np.copy()
 
     def get_recorded(self, t=None) -> np.ndarray:

@@ -44,6 +44,11 @@ __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", 
 AUTO = "auto"
 ALGORITHMS = ("gauss-seidel", "jacobi")
 FIRST = ("controller", "plant")
+#: ``master.interface``: the FMUs stepped as co-simulation slaves, or their Model Exchange
+#: interfaces solved as one system (:mod:`orchestration.cosim.model_exchange`).
+INTERFACES = ("co-simulation", "model-exchange")
+#: ``master.solver``: the stiff solver of the model-exchange master (scipy's).
+SOLVERS = ("radau", "bdf")
 #: Outputs that every model has (0 for the rigid model's deflection), by result column.
 COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
 #: The paper's loop: the sensors to the controller, the force to the plant.
@@ -148,17 +153,29 @@ class MasterSettings:
     input_derivatives: bool = True
     fmus: str = "native"
     compiled: object = "auto"
+    output_derivatives: bool = False
+    interface: str = "co-simulation"
+    solver: str = "radau"
+    rtol: float = 1e-8
+    atol: float = 1e-10
 
     def __post_init__(self):
         _choice("master.algorithm", self.algorithm, ALGORITHMS)
         _choice("master.first", self.first, FIRST)
         _choice("master.fmus", self.fmus, FMU_FLAVOURS)
+        _choice("master.interface", self.interface, INTERFACES)
+        _choice("master.solver", self.solver, SOLVERS)
+        _set(self, "rtol", _checked("master.rtol", check_real, self.rtol, low=1e-14, high=0.1))
+        _set(self, "atol", _checked("master.atol", check_real, self.atol, low=1e-300, high=1e6))
+        if self.interface == "model-exchange" and self.fmus != "native":
+            raise ConfigError(f"master.interface = 'model-exchange' needs master.fmus = 'native' "
+                              f"(the {self.fmus} FMUs are co-simulation only)")
         for name in ("step", "tolerance", "min_step", "max_step"):
             _set(self, name, _checked(f"master.{name}", check_real, getattr(self, name),
                                       low=0.0, high=1e6))
         _set(self, "extrapolation", _checked("master.extrapolation", check_int,
                                              self.extrapolation, low=0, high=2))
-        for name in ("adaptive", "input_derivatives"):
+        for name in ("adaptive", "input_derivatives", "output_derivatives"):
             _set(self, name, _checked(f"master.{name}", check_bool, getattr(self, name)))
         if not (isinstance(self.compiled, bool) or self.compiled == "auto"):
             raise ConfigError(f"master.compiled = {self.compiled!r} is not allowed; allowed: "

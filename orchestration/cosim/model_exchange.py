@@ -1,0 +1,399 @@
+"""The closed loop from Model Exchange FMUs, solved as one system (``master.interface =
+"model-exchange"``): OMSimulator's ME mode, a monolithic reference built from the FMUs themselves.
+
+The continuous states of every FMU form one ODE ``z' = F(t, z)``. One evaluation sets the time and
+the states of every FMU, then, in an order where every source comes before its sinks, reads each
+FMU's connected outputs and sets them on the inputs they feed (an output that depends directly on
+an input, the controller's ``F_c`` without a filter, is read after its inputs are set), and reads
+the state derivatives. A stiff solver of scipy (``Radau`` or ``BDF``, ``master.solver``) integrates
+it at ``master.rtol`` and ``master.atol`` (the latter scaled by each state's nominal value) with
+the exact Jacobian assembled from the FMUs' directional derivatives::
+
+    z' = A z + B u,  y = C z + D u,  u = S y   =>   dF/dz = A + B (I - S D)^-1 S C
+
+(block-diagonal ``A, B, C, D`` of the FMUs' ``d der/d x``, ``d der/d u``, ``d y/d x``,
+``d y/d u``; ``S`` the wiring of the connections). After every accepted step each FMU hears
+``completedIntegratorStep``; its event indicators are watched for a sign change, an event is
+located on the solver's dense output, and the FMUs go through event mode: one that asks to
+terminate (the plant past ``phi_limit``) stops the run as a co-simulation's refused step does,
+with the FMU's message. Output points are read from the dense output (Radau's collocation
+polynomial), the outputs there computed by the FMUs from the interpolated states.
+
+The same results as the co-simulation master: a structured array on the output grid and a
+:class:`~orchestration.cosim.master.RunStats` (``steps``: the solver's steps, ``loop``:
+``"model-exchange (Radau)"``).
+"""
+from __future__ import annotations
+
+import time as _time
+
+import numpy as np
+
+from ..scene.records import SOLVERS, MasterSettings
+from .master import RunStats
+from .slave import CoSimulationError, RunInterrupted, Slave
+
+__all__ = ["ModelExchangeUnit", "ModelExchangeMaster", "solver_class"]
+
+
+def solver_class(name: str):
+    """scipy's solver of ``master.solver`` (imported when a run needs it: scipy.integrate costs
+    a co-simulation's start-up time otherwise)."""
+    from scipy.integrate import BDF, Radau
+    return dict(zip(SOLVERS, (Radau, BDF)))[name]
+
+
+class ModelExchangeUnit(Slave):
+    """One FMU instantiated through its Model Exchange interface (FMI 2.0 or 3.0): the plumbing of
+    :class:`Slave` (start values, the log, one error per failed call, cleanup), plus states,
+    derivatives, event indicators and directional derivatives on preallocated buffers."""
+
+    interface = "model-exchange"
+
+    def _fmu_class(self):
+        if self.fmi3:
+            from fmpy.fmi3 import FMU3Model
+            return FMU3Model
+        from fmpy.fmi2 import FMU2Model
+        return FMU2Model
+
+    def __init__(self, path, name, start_values=None, unzipdir=None):
+        super().__init__(path, name, start_values, unzipdir=unzipdir)
+        self.interpolates_inputs = False
+        md = self.md
+        self.nx = int(md.numberOfContinuousStates)
+        self.nz = int(md.numberOfEventIndicators)
+        self.der_vrs = [u.variable.valueReference for u in md.derivatives]
+        self.state_vrs = [u.variable.derivative.valueReference for u in md.derivatives]
+        self.directional = bool(getattr(md.modelExchange, "providesDirectionalDerivative", False)
+                                or getattr(md.modelExchange, "providesDirectionalDerivatives",
+                                           False))
+        import ctypes
+        dbl = ctypes.c_double
+        self._x = (dbl * max(self.nx, 1))()
+        self._dx = (dbl * max(self.nx, 1))()
+        self._z = (dbl * max(self.nz, 1))()
+        self._x_np = np.ctypeslib.as_array(self._x)[:self.nx]
+        self._dx_np = np.ctypeslib.as_array(self._dx)[:self.nx]
+        self._z_np = np.ctypeslib.as_array(self._z)[:self.nz]
+
+    # ------------------------------------------------------------------ life cycle
+    def initialize(self, t0: float, stop_time: float | None = None):
+        """Initialisation, the event iteration at ``t0`` and continuous-time mode."""
+        super().initialize(t0, stop_time)
+        if self.event_update(t0):
+            raise self.stopped("the initial event iteration asked to terminate", t0)
+        self._call("enterContinuousTimeMode", self.fmu.enterContinuousTimeMode, t=t0)
+
+    def event_update(self, t) -> bool:
+        """The event iteration (``newDiscreteStates`` / ``updateDiscreteStates`` until no new
+        discrete states are needed); True if the FMU asks to terminate."""
+        update = self.fmu.updateDiscreteStates if self.fmi3 else self.fmu.newDiscreteStates
+        for _ in range(100):
+            needed, terminate = self._call("the event iteration", update, t=t)[:2]
+            if terminate:
+                return True
+            if not needed:
+                return False
+        raise self.stopped("the event iteration did not settle in 100 rounds", t)
+
+    def enter_event_mode(self, t):
+        self._call("enterEventMode", self.fmu.enterEventMode, t=t)
+
+    def stopped(self, why: str, t) -> CoSimulationError:
+        """The error that ends a run this FMU asked to terminate, with the FMU's log."""
+        log = "; ".join(self.messages[-3:]) or "no log message"
+        return CoSimulationError(f"{self.name}: {why} at t = {t:.6g}: {log}", status=3, time=t)
+
+    def completed_step(self, t) -> tuple[bool, bool]:
+        """``completedIntegratorStep``: (enter event mode, terminate)."""
+        return self._call("completedIntegratorStep", self.fmu.completedIntegratorStep, True, t=t)
+
+    # ------------------------------------------------------------------ the hot calls
+    def set_time(self, t):
+        self._call("setTime", self.fmu.setTime, t, t=t)
+
+    def states(self) -> np.ndarray:
+        self._call("getContinuousStates", self.fmu.getContinuousStates, self._x, self.nx)
+        return self._x_np.copy()
+
+    def nominals(self) -> np.ndarray:
+        self._call("getNominalsOfContinuousStates", self.fmu.getNominalsOfContinuousStates,
+                   self._x, self.nx)
+        return self._x_np.copy()
+
+    def set_states(self, x, t=None):
+        self._x_np[:] = x
+        self._call("setContinuousStates", self.fmu.setContinuousStates, self._x, self.nx, t=t)
+
+    def derivatives(self, t=None) -> np.ndarray:
+        get = self.fmu.getContinuousStateDerivatives if self.fmi3 else self.fmu.getDerivatives
+        self._call("getDerivatives", get, self._dx, self.nx, t=t)
+        return self._dx_np
+
+    def event_indicators(self, t=None) -> np.ndarray:
+        if self.nz:
+            self._call("getEventIndicators", self.fmu.getEventIndicators, self._z, self.nz, t=t)
+        return self._z_np
+
+    def partials(self, unknowns, knowns, t=None) -> np.ndarray:
+        """``d unknowns / d knowns`` (value references), one directional derivative per known."""
+        out = np.zeros((len(unknowns), len(knowns)))
+        for j, k in enumerate(knowns):
+            out[:, j] = self._call("getDirectionalDerivative", self.fmu.getDirectionalDerivative,
+                                   list(unknowns), [k], [1.0], t=t)
+        return out
+
+
+class ModelExchangeMaster:
+    """The FMUs' states as one ODE (see the module's text). ``units``: name ->
+    :class:`ModelExchangeUnit`; ``connections``, ``record`` and ``settings`` as for
+    :class:`~orchestration.cosim.master.Master`."""
+
+    def __init__(self, units: dict, connections, record: dict,
+                 settings: MasterSettings | None = None):
+        self.settings = settings or MasterSettings()
+        self.units = units
+        self.connections = list(connections)
+        for c in self.connections:
+            for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
+                if fmu not in units:
+                    raise ValueError(f"connection {c}: no FMU named {fmu!r}; FMUs: "
+                                     f"{', '.join(units)}")
+                units[fmu].vr(var)
+        for name, u in units.items():
+            if not u.directional:
+                raise ValueError(f"{name}: {u.path} gives no directional derivatives; the "
+                                 "model-exchange master needs them for its Jacobian")
+        self.record = dict(record)
+        names = list(units)
+        self.inputs = {n: [c for c in self.connections if c.dst == n] for n in names}
+        self.in_vrs = {n: [units[n].vr(c.dst_var) for c in self.inputs[n]] for n in names}
+        self.outputs = {n: sorted({c.src_var for c in self.connections if c.src == n})
+                        for n in names}
+        self.out_vrs = {n: [units[n].vr(v) for v in self.outputs[n]] for n in names}
+        self.order = self._evaluation_order()
+        # offsets of each unit's states in z, of its outputs in y and its inputs in u
+        self.sx, self.sy, self.su = {}, {}, {}
+        nx = ny = nu = 0
+        for n in names:
+            self.sx[n] = slice(nx, nx + units[n].nx)
+            self.sy[n] = slice(ny, ny + len(self.outputs[n]))
+            self.su[n] = slice(nu, nu + len(self.inputs[n]))
+            nx, ny, nu = nx + units[n].nx, ny + len(self.outputs[n]), nu + len(self.inputs[n])
+        self.nx, self.ny, self.nu = nx, ny, nu
+        self.S = np.zeros((nu, ny))                 # u = S y
+        for n in names:
+            for i, c in enumerate(self.inputs[n]):
+                src = c.src
+                self.S[self.su[n].start + i,
+                       self.sy[src].start + self.outputs[src].index(c.src_var)] = 1.0
+        self.recorded = {n: sorted({v for s, v in self.record.values() if s == n})
+                         for n in names}
+        self.rec_vrs = {n: [units[n].vr(v) for v in self.recorded[n]] for n in names}
+        self.evaluations = 0
+        self.jacobians = 0
+        self._y = {n: np.zeros(len(self.outputs[n])) for n in names}
+
+    def _evaluation_order(self):
+        """The units in an order where each one that reads an input in its outputs comes after
+        the sources of that input (a ValueError names an algebraic loop)."""
+        names = list(self.units)
+        feeds = {n: {c.src for c in self.inputs[n]} - {n} for n in names}
+        direct = {n: self.units[n].feedthrough for n in names}
+        order, left = [], list(names)
+        while left:
+            ready = [n for n in left if not direct[n] or feeds[n] <= set(order)]
+            if not ready:
+                raise ValueError("the FMUs' outputs depend on each other's directly (an "
+                                 f"algebraic loop among {', '.join(left)}): the model-exchange "
+                                 "master cannot order them")
+            order.append(ready[0])
+            left.remove(ready[0])
+        return order
+
+    # ------------------------------------------------------------------ the ODE
+    def _set_point(self, t, z):
+        """Time and states of every unit, then the connected outputs and inputs in order."""
+        for n, u in self.units.items():
+            u.set_time(t)
+            if u.nx:
+                u.set_states(z[self.sx[n]], t)
+        for n in self.order:
+            u = self.units[n]
+            if self.inputs[n]:
+                vals = [self._y[c.src][self.outputs[c.src].index(c.src_var)]
+                        for c in self.inputs[n]]
+                self._set_reals(u, self.in_vrs[n], vals, t)
+            if self.outputs[n]:
+                self._y[n] = self._get_reals(u, self.out_vrs[n], t)
+
+    @staticmethod
+    def _set_reals(u, vrs, vals, t):
+        if u.fmi3:
+            u._call("setFloat64", u.fmu.setFloat64, vrs, list(vals), t=t)
+        else:
+            u._call("setReal", u.fmu.setReal, vrs, list(vals), t=t)
+
+    @staticmethod
+    def _get_reals(u, vrs, t):
+        get = u.fmu.getFloat64 if u.fmi3 else u.fmu.getReal
+        return np.array(u._call("getReal", get, vrs, t=t), dtype=float)
+
+    def rhs(self, t, z):
+        self.evaluations += 1
+        self._set_point(t, z)
+        dz = np.empty(self.nx)
+        for n, u in self.units.items():
+            if u.nx:
+                dz[self.sx[n]] = u.derivatives(t)
+        return dz
+
+    def jacobian(self, t, z):
+        """``dF/dz = A + B (I - S D)^-1 S C`` from the units' directional derivatives."""
+        self.jacobians += 1
+        self._set_point(t, z)
+        A = np.zeros((self.nx, self.nx))
+        B = np.zeros((self.nx, self.nu))
+        C = np.zeros((self.ny, self.nx))
+        D = np.zeros((self.ny, self.nu))
+        for n, u in self.units.items():
+            unknowns = u.der_vrs + self.out_vrs[n]
+            knowns = u.state_vrs + self.in_vrs[n]
+            if not unknowns or not knowns:
+                continue
+            P = u.partials(unknowns, knowns, t)
+            k = u.nx
+            sx, sy, su = self.sx[n], self.sy[n], self.su[n]
+            A[sx, sx] = P[:k, :k]
+            B[sx, su] = P[:k, k:]
+            C[sy, sx] = P[k:, :k]
+            D[sy, su] = P[k:, k:]
+        if self.nu == 0:
+            return A
+        dudz = np.linalg.solve(np.eye(self.nu) - self.S @ D, self.S @ C)
+        return A + B @ dudz
+
+    # ------------------------------------------------------------------ the run
+    def run(self, t0: float, stop_time: float, output_interval: float, progress=None, stop=None):
+        """Run from ``t0`` to ``stop_time`` with outputs every ``output_interval``; a structured
+        array (time first) and :class:`RunStats`, as :meth:`Master.run`."""
+        wall = _time.perf_counter()
+        stats = RunStats(loop=f"model-exchange ({self.settings.solver})")
+        n_out = int(round((stop_time - t0) / output_interval))
+        if n_out < 1:
+            raise ValueError(f"stop_time - t0 = {stop_time - t0!r} is shorter than one "
+                             f"output_interval = {output_interval!r}")
+        cols = ["time"] + list(self.record)
+        out = np.zeros(n_out + 1, dtype=[(c, "f8") for c in cols])
+        rows = 0
+        t = t0
+        try:
+            for u in self.units.values():
+                u.initialize(t0, stop_time)
+            z = np.concatenate([u.states() for u in self.units.values()]) if self.nx else \
+                np.zeros(0)
+            nominal = np.concatenate([u.nominals() for u in self.units.values()]) if self.nx \
+                else np.zeros(0)
+            self._store(out, 0, t0, z)
+            rows = 1
+            z_ind = self._indicators(t0, z)
+            solver = solver_class(self.settings.solver)(
+                self.rhs, t0, z, stop_time, rtol=self.settings.rtol,
+                atol=self.settings.atol * np.abs(nominal), jac=self.jacobian,
+                max_step=self.settings.max_step)
+            while rows <= n_out:
+                msg = solver.step()
+                if solver.status == "failed":
+                    raise CoSimulationError(f"the {self.settings.solver} solver failed at t = "
+                                            f"{solver.t:.6g}: {msg}", status=3, time=solver.t)
+                stats.steps += 1
+                t_old, t = solver.t_old, solver.t
+                dense = solver.dense_output()
+                stats.min_step_used = min(stats.min_step_used, t - t_old)
+                stats.max_step_used = max(stats.max_step_used, t - t_old)
+                z_new = self._indicators(t, solver.y)
+                t_event = self._event_time(dense, z_ind, z_new, t_old, t)
+                t_end = t if t_event is None else t_event
+                while rows <= n_out and t0 + rows * output_interval <= t_end + 1e-12 * \
+                        output_interval:
+                    ti = t0 + rows * output_interval
+                    self._store(out, rows, ti, dense(min(ti, t)))
+                    rows += 1
+                    if progress is not None:
+                        progress((rows - 1) / n_out)
+                if t_event is not None:
+                    self._event(t_event, dense(t_event))
+                    # no FMU of this product changes its states at an event; go on from there
+                    solver = solver_class(self.settings.solver)(
+                        self.rhs, t_event, dense(t_event), stop_time, rtol=self.settings.rtol,
+                        atol=self.settings.atol * np.abs(nominal), jac=self.jacobian,
+                        max_step=self.settings.max_step)
+                    z_ind = self._indicators(t_event, dense(t_event))
+                    continue
+                self._set_point(t, solver.y)
+                for name, u in self.units.items():
+                    enter, terminate = u.completed_step(t)
+                    if terminate:
+                        raise u.stopped("completedIntegratorStep asked to terminate", t)
+                    if enter:
+                        self._event(t, solver.y)
+                z_ind = z_new
+                if stop is not None and stop():
+                    raise RunInterrupted(t)
+                if solver.status == "finished" and rows <= n_out:
+                    raise CoSimulationError(f"the solver finished at t = {t:.9g} before the "
+                                            f"last output point", status=3, time=t)
+        except (CoSimulationError, RunInterrupted) as exc:
+            stats.wall_time = _time.perf_counter() - wall
+            exc.result, exc.stats = out[:rows].copy(), stats
+            if exc.time is None:
+                exc.time = t
+            raise
+        stats.wall_time = _time.perf_counter() - wall
+        return out, stats
+
+    def _indicators(self, t, z):
+        self._set_point(t, z)
+        return np.concatenate([u.event_indicators(t).copy() for u in self.units.values()]) \
+            if any(u.nz for u in self.units.values()) else np.zeros(0)
+
+    def _event_time(self, dense, z_old, z_new, t_old, t):
+        """The earliest sign change of an event indicator within the step, located on the dense
+        output to the solver's time resolution; None when none changes sign."""
+        changed = np.flatnonzero((z_old > 0) != (z_new > 0))
+        if changed.size == 0:
+            return None
+        first = t
+        for i in changed:
+            g = (lambda s, i=i: self._indicators(s, dense(s))[i])
+            first = min(first, _brentq(g, t_old, t, xtol=1e-14 * max(1.0, abs(t)),
+                                      rtol=4 * np.finfo(float).eps))
+        return first
+
+    def _event(self, t, z):
+        """Event mode for every unit; the run stops if one asks to terminate."""
+        self._set_point(t, z)
+        for u in self.units.values():
+            u.enter_event_mode(t)
+        for u in self.units.values():
+            if u.event_update(t):
+                raise u.stopped("the event iteration asked to terminate", t)
+        for u in self.units.values():
+            u._call("enterContinuousTimeMode", u.fmu.enterContinuousTimeMode, t=t)
+
+    def _store(self, out, i, t, z):
+        """Row ``i``: time, then the recorded variables at ``(t, z)``."""
+        self._set_point(t, z)
+        vals = {n: dict(zip(self.recorded[n], self._get_reals(self.units[n], self.rec_vrs[n], t)))
+                if self.recorded[n] else {} for n in self.units}
+        out[i] = (t, *(vals[s][v] for s, v in self.record.values()))
+
+    def close(self):
+        for u in self.units.values():
+            u.close()
+
+
+def _brentq(*args, **kwargs):
+    from scipy.optimize import brentq
+    return brentq(*args, **kwargs)
