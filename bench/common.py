@@ -32,6 +32,7 @@ if str(ROOT) not in sys.path:
 
 from orchestration.export import build_fmus  # noqa: E402
 from orchestration.cosim.master import Master
+from orchestration.cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from orchestration.cosim.slave import Slave
 from orchestration.scene.wiring import parse_connection  # noqa: E402
 from orchestration.studies.reference import ClosedLoop, simulate_reference  # noqa: E402
@@ -178,15 +179,18 @@ class CoSim:
         """One run from t = 0: ``(result, stats)``; FMUs instantiated fresh (not timed)."""
         out = self.scene.output
         slaves = {}
+        me = self.scene.master.interface == "model-exchange"
+        unit = ModelExchangeUnit if me else Slave
         try:
-            slaves["plant"] = Slave(self.fmus["plant"], "plant", self._starts[0],
-                                    unzipdir=self._unzip("plant"))
-            slaves["controller"] = Slave(self.fmus["controller"], "controller", self._starts[1],
-                                         unzipdir=self._unzip("controller"))
+            slaves["plant"] = unit(self.fmus["plant"], "plant", self._starts[0],
+                                   unzipdir=self._unzip("plant"))
+            slaves["controller"] = unit(self.fmus["controller"], "controller", self._starts[1],
+                                        unzipdir=self._unzip("controller"))
             if self.trivial:       # the product's dependency structure: the same master work
                 slaves["plant"].feedthrough = False
                 slaves["controller"].feedthrough = True
-            master = Master(slaves, self._connections, self._record, self.scene.master)
+            master = (ModelExchangeMaster if me else Master)(slaves, self._connections,
+                                                             self._record, self.scene.master)
             return master.run(0.0, out.stop_time, out.output_interval)
         finally:
             for s in slaves.values():

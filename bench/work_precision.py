@@ -24,7 +24,11 @@ project can simulate a scene, side by side with scipy's solve_ivp and with the F
   is a list of scene overrides, so a new scene option is one more entry):
   - coupling: Gauss-Seidel and Jacobi, extrapolation 0, 1, 2, and quadratic extrapolation with
     ``master.input_derivatives`` (the polynomial passed to the FMUs), over ``master.step``;
+  - Gauss-Seidel quadratic with the extrapolation built from the FMUs' output derivatives
+    (``master.output_derivatives``), with and without input derivatives, over ``master.step``;
   - the adaptive master over ``master.tolerance``;
+  - the model-exchange master (``master.interface = model-exchange``: the FMUs' states as one
+    ODE, Radau and BDF with the FMUs' directional derivatives) over ``master.rtol``;
   - every plant integrator of ``plant_fmu.integrators.REGISTRY`` over ``plant.step`` (fixed-step
     methods) or ``plant.rtol`` (adaptive ones, ``plant.atol = 1e-3 plant.rtol``), all at one
     coupling (``INTEGRATOR_MASTER``); ``exponential`` integrates the linearised plant
@@ -124,6 +128,30 @@ def coupling_families():
     return out
 
 
+#: the model-exchange master's relative tolerances (atol = 1e-2 rtol times each nominal)
+ME_RTOLS = ([1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10], [1e-4, 1e-7])
+
+
+def output_derivative_families():
+    """Gauss-Seidel with quadratic extrapolation built from the FMUs' output derivatives
+    (``master.output_derivatives``), with and without the polynomial passed as input
+    derivatives."""
+    return [Family("GS quadratic from dy/dt" + (" + du/dt" if du else ""), "coupling", "cosim",
+                   [("master.step", 1.0)], COMM_STEPS,
+                   ["master.algorithm=gauss-seidel", "master.extrapolation=2",
+                    f"master.input_derivatives={'true' if du else 'false'}",
+                    "master.output_derivatives=true"], method="gauss-seidel")
+            for du in (False, True)]
+
+
+def model_exchange_families():
+    """The model-exchange master (the FMUs' states as one ODE) over ``master.rtol``."""
+    return [Family(f"ME master ({solver})", "model exchange", "cosim",
+                   [("master.rtol", 1.0), ("master.atol", 1e-2)], ME_RTOLS,
+                   ["master.interface=model-exchange", f"master.solver={solver}"],
+                   method=solver) for solver in ("radau", "bdf")]
+
+
 def adaptive_families():
     return [Family("adaptive GS linear", "adaptive master", "cosim", [("master.tolerance", 1.0)],
                    TOLERANCES, ["master.adaptive=true", "master.algorithm=gauss-seidel",
@@ -171,7 +199,8 @@ def floor_families():
 
 
 def all_families():
-    return [*coupling_families(), *adaptive_families(), *integrator_families(), *ivp_families(),
+    return [*coupling_families(), *output_derivative_families(), *adaptive_families(),
+            *model_exchange_families(), *integrator_families(), *ivp_families(),
             *floor_families()]
 
 
@@ -455,7 +484,7 @@ def print_summary(scene, s, floor):
 # the figure
 
 GROUP_STYLE = {"coupling": "-", "adaptive master": "-", "plant integrator": "--",
-               "solve_ivp": ":"}
+               "solve_ivp": ":", "model exchange": (0, (5, 1, 1, 1))}
 
 
 def plot(records, scenes, path, title):
