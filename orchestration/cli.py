@@ -179,8 +179,11 @@ def cmd_run(args) -> int:
         out_dir = _output_dir(args.out)
 
         def announce(scene):
-            print(f"{scene.name}: running {scene.output.stop_time:g} s (communication step "
-                  f"{scene.master.step:g} s)", file=sys.stderr, flush=True)
+            m = scene.master
+            how = (f"model exchange, {m.solver} at rtol {m.rtol:g}"
+                   if m.interface == "model-exchange" else f"communication step {m.step:g} s")
+            print(f"{scene.name}: running {scene.output.stop_time:g} s ({how})", file=sys.stderr,
+                  flush=True)
 
         def report(run, written):
             if not args.json:

@@ -138,9 +138,14 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
     if s.get("max_abs_F_c") is not None:
         out.append(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
     if "wall_time" in s:
-        loop = f"; {s['master_loop']} loop" if s.get("master_loop") else ""
-        out.append(f"  wall time: {s['wall_time']:.3g} s ({s['steps']} communication steps, "
-                   f"{s['rejected_steps']} rejected{loop})")
+        loop = s.get("master_loop") or ""
+        if loop.startswith("model-exchange"):
+            out.append(f"  wall time: {s['wall_time']:.3g} s ({s['steps']} solver steps; "
+                       f"{loop})")
+        else:
+            loop = f"; {loop} loop" if loop else ""
+            out.append(f"  wall time: {s['wall_time']:.3g} s ({s['steps']} communication "
+                       f"steps, {s['rejected_steps']} rejected{loop})")
     if "max_error_phi_o" in s:
         out.append(f"  max error against the monolithic reference: phi_o "
                    f"{s['max_error_phi_o']:.3e} rad, eta_1 {s['max_error_eta_1']:.3e} m kg^0.5")
