@@ -11,11 +11,16 @@
   Then, per error target, the fastest point of each that meets it, and the ratios.
 * **fmpy's CVode on the ME plant against the CS plant** (the native FMI 2.0 FlexiblePendulum
   alone, ``fmpy.simulate_fmu``), driven by the committed force history
-  (``tests/reference/FlexiblePendulum/FlexiblePendulum_in.csv``, 1 s, samples every 1 ms) with a
-  1 ms output interval: both interfaces then hold each sample over its millisecond (fmpy applies
-  inputs at communication points), so the reference is the numpy model with that held force,
-  DOP853 at 1e-12 from sample to sample. CVode over ``relative_tolerance``, the CS plant over its
-  RK4 substep ``step``.
+  (``tests/reference/FlexiblePendulum/FlexiblePendulum_in.csv``, 1 s, samples every 1 ms)
+  interpolated linearly, as fmpy's ``Input`` does: the reference is the numpy model under that
+  force, DOP853 at 1e-12 from sample to sample. CVode over ``relative_tolerance``; the CS plant
+  over its RK4 substep ``step``, stepped by hand on fmpy's ``FMU2Slave`` with the force's value
+  and slope at the start of each 1 ms step (``fmi2SetRealInputDerivatives``, which the native
+  plant integrates exactly; fmpy 0.3.32's own ``set_input_derivatives`` fails on this input). fmpy 0.3.32's CVode applies a
+  continuous input in its root function but not in its right-hand side (with the plant's event
+  indicators the derivative then sees the input of the last root evaluation, and CVode stalls
+  or drifts): the bench applies it in the right-hand side too, as ``tests/test_native_me.py``
+  does.
 
 Times are medians of ``--runs`` runs after a warm-up, the compared settings alternated point by
 point so that the machine's load falls on both sides of each ratio. Results:
@@ -92,9 +97,9 @@ def scene_points(fmus, runs, quick):
 
 
 # ---------------------------------------------------------------------- the plant alone
-def held_force_reference(files):
-    """phi_o of the numpy plant (the FMU's defaults) under the force held at each sample over
-    the next millisecond: DOP853 at 1e-12 from sample to sample."""
+def linear_force_reference(files):
+    """phi_o of the numpy plant (the FMU's defaults) under the force interpolated linearly
+    between the samples: DOP853 at 1e-12 from sample to sample."""
     from scipy.integrate import solve_ivp
 
     from plant_fmu.dynamics import PlantModel
@@ -104,14 +109,30 @@ def held_force_reference(files):
     model = PlantModel(PlantParams())
     x = np.zeros(model.nx)
     phi = [model.tip_angle(x)[0]]
-    t = data["time"]
+    t, F = data["time"], data["F_c"]
     for k in range(len(t) - 1):
-        u = float(data["F_c"][k])
-        sol = solve_ivp(lambda s, y, u=u: model.rhs(s, y, u), (t[k], t[k + 1]), x,
-                        method="DOP853", rtol=1e-12, atol=1e-14)
+        slope = (F[k + 1] - F[k]) / (t[k + 1] - t[k])
+
+        def rhs(s, y, k=k, slope=slope):
+            return model.rhs(s, y, F[k] + slope * (s - t[k]))
+        sol = solve_ivp(rhs, (t[k], t[k + 1]), x, method="DOP853", rtol=1e-12, atol=1e-14)
         x = sol.y[:, -1]
         phi.append(model.tip_angle(x)[0])
     return t, np.array(phi)
+
+
+def _fmpy_input_in_rhs():
+    """fmpy 0.3.32's CVode: apply the input at the time of every right-hand side."""
+    from fmpy import sundials
+    orig = sundials.CVodeSolver.f
+    if getattr(orig, "_applies_input", False):
+        return
+
+    def f(self, t, y, ydot, user_data):
+        self.input.apply(t)
+        return orig(self, t, y, ydot, user_data)
+    f._applies_input = True
+    sundials.CVodeSolver.f = f
 
 
 def plant_points(plant_fmu, runs, quick):
@@ -121,7 +142,8 @@ def plant_points(plant_fmu, runs, quick):
     data = np.genfromtxt(files["in"], delimiter=",", names=True)
     signals = np.zeros(len(data), dtype=[("time", "f8"), ("F_c", "f8")])
     signals["time"], signals["F_c"] = data["time"], data["F_c"]
-    t_ref, phi_ref = held_force_reference(files)
+    t_ref, phi_ref = linear_force_reference(files)
+    _fmpy_input_in_rhs()
     unzipped = extract(plant_fmu)
     stop = float(t_ref[-1])
     settings = ([("ModelExchange (fmpy CVode)", "relative_tolerance", v)
@@ -132,11 +154,13 @@ def plant_points(plant_fmu, runs, quick):
         me = label.startswith("Model")
 
         def fn(me=me, value=value):
-            kw = dict(fmi_type="ModelExchange", solver="CVode", relative_tolerance=value) if me \
-                else dict(fmi_type="CoSimulation", start_values={"step": value})
             t0 = time.perf_counter()
-            res = simulate_fmu(unzipped, stop_time=stop, output_interval=1e-3, input=signals,
-                               output=["phi_o"], **kw)
+            if me:
+                res = simulate_fmu(unzipped, stop_time=stop, output_interval=1e-3, input=signals,
+                                   output=["phi_o"], fmi_type="ModelExchange", solver="CVode",
+                                   relative_tolerance=value)
+            else:
+                res = _cs_plant(unzipped, signals, value)
             return time.perf_counter() - t0, res
         med, times, res = median_time(fn, runs)
         phi = np.interp(t_ref, res["time"], res["phi_o"])
@@ -146,6 +170,38 @@ def plant_points(plant_fmu, runs, quick):
         print(f"  {label:42s} {key} = {value:<8g} error {err:9.3g} rad  {med * 1e3:9.2f} ms",
               flush=True)
     return points
+
+
+def _cs_plant(unzipped, signals, step):
+    """The CS plant over the signal's samples (1 ms), value and slope set at each step's
+    start; phi_o at every sample."""
+    from fmpy import read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    md = read_model_description(unzipped)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped,
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="plant")
+    fmu.instantiate()
+    try:
+        fmu.setupExperiment(startTime=0.0)
+        fmu.setReal([vr["step"]], [step])
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+        t, F = signals["time"], signals["F_c"]
+        phi = np.zeros(len(t))
+        for k in range(len(t) - 1):
+            fmu.setReal([vr["F_c"]], [F[k]])
+            fmu.setRealInputDerivatives([vr["F_c"]], [1],
+                                        [(F[k + 1] - F[k]) / (t[k + 1] - t[k])])
+            fmu.doStep(t[k], t[k + 1] - t[k])
+            phi[k + 1] = fmu.getReal([vr["phi_o"]])[0]
+        fmu.terminate()
+    finally:
+        fmu.freeInstance()
+    out = np.zeros(len(t), dtype=[("time", "f8"), ("phi_o", "f8")])
+    out["time"], out["phi_o"] = t, phi
+    return out
 
 
 def at_equal_error(points, targets):
