@@ -238,6 +238,137 @@ int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
     return FPM_OK;
 }
 
+/* ================================================================== Model Exchange (issue 24)
+ * The states [xc_1, xc_2]: the filter state (FPM_NX = 2; beyond the filter order 0 with
+ * derivative 0), with xc' = Af xc + Bf e (controllable canonical form, pd_lowpass.py), e from the
+ * sensors set now (no input derivatives in Model Exchange); F_c = -sat(xc_1) (filter order 0:
+ * -sat(e), direct feedthrough). The state lives where co-simulation keeps it (xc, t; F holds
+ * -sat(xc_1)), so FMU states save and restore it. No event indicators: the saturation acts on
+ * the output alone (xc' has no saturation in it), so F_c stays continuous in time and nothing in
+ * this FMU jumps; an integrator of the plant sees a kink in its input, which it handles as any
+ * other non-smooth input. */
+size_t fpm_model_nz(void) { return FPM_NZ; }
+
+int fpm_model_me_init(fpm_model *m, const fpm_logger *lg)
+{
+    (void)m;
+    (void)lg;
+    return FPM_OK;
+}
+
+int fpm_model_set_time(fpm_model *m, const fpm_logger *lg, double t)
+{
+    if (!(t >= m->t0)) {
+        fpm_log(lg, FPM_ERROR, "time = %.17g is before the start time %.17g", t, m->t0);
+        return FPM_ERROR;
+    }
+    m->t = t;
+    return FPM_OK;
+}
+
+void fpm_model_get_states(const fpm_model *m, double *x)
+{
+    x[0] = m->f.order >= 1 ? m->xc[0] : 0.0;
+    x[1] = m->f.order >= 2 ? m->xc[1] : 0.0;
+}
+
+static double saturated(const fpm_model *m, double F)
+{
+    if (F < -m->f.force_limit) return -m->f.force_limit;
+    if (F > m->f.force_limit) return m->f.force_limit;
+    return F;
+}
+
+int fpm_model_set_states(fpm_model *m, const fpm_logger *lg, const double *x)
+{
+    (void)lg;
+    if (m->f.order >= 1) {                    /* beyond the filter order: not used */
+        m->xc[0] = x[0];
+        m->F = saturated(m, -x[0]);
+    }
+    if (m->f.order >= 2) m->xc[1] = x[1];
+    return FPM_OK;
+}
+
+int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx)
+{
+    double y[9], e[3], wc = m->f.cutoff;
+    int k;
+    dx[0] = dx[1] = 0.0;
+    if (m->f.order == 0) return FPM_OK;
+    for (k = 0; k < 3; k++) y[k] = m->v.real[SENSOR_VRS[k]];
+    for (k = 3; k < 9; k++) y[k] = 0.0;       /* no input derivatives in Model Exchange */
+    if (!(isfinite(y[0]) && isfinite(y[1]) && isfinite(y[2]))) {
+        char bad[256];
+        name_bad(y, bad, sizeof bad);
+        fpm_log(lg, FPM_ERROR, "non-finite input at t = %.17g: %s", m->t, bad);
+        return FPM_ERROR;
+    }
+    fpf_error(&m->f, y, e);
+    if (m->f.order == 1) {
+        dx[0] = wc * (e[0] - m->xc[0]);
+    } else {
+        dx[0] = m->xc[1];
+        dx[1] = wc * wc * (e[0] - m->xc[0]) - 2.0 * m->f.damping * wc * m->xc[1];
+    }
+    if (!(isfinite(dx[0]) && isfinite(dx[1]))) {
+        fpm_log(lg, FPM_ERROR, "the filter's derivative is not finite at t = %.17g (error signal "
+                "%g)", m->t, e[0]);
+        return FPM_ERROR;
+    }
+    return FPM_OK;
+}
+
+/* xc_1: a force, force_limit (or |kp| x 1 rad when unlimited); xc_2: cutoff times that. */
+void fpm_model_nominals(const fpm_model *m, double *nominal)
+{
+    double f = isfinite(m->f.force_limit) ? m->f.force_limit : fabs(m->f.kp);
+    if (!(isfinite(f) && f > 0.0)) f = 1.0;
+    nominal[0] = f;
+    nominal[1] = isfinite(f * m->f.cutoff) && f * m->f.cutoff > 0.0 ? f * m->f.cutoff : 1.0;
+    if (m->f.order < 2) nominal[1] = 1.0;
+    if (m->f.order < 1) nominal[0] = 1.0;
+}
+
+int fpm_model_event_indicators(fpm_model *m, const fpm_logger *lg, double *z)
+{
+    (void)m;
+    (void)lg;
+    (void)z;
+    return FPM_OK;
+}
+
+int fpm_model_event_update(fpm_model *m, const fpm_logger *lg, int *terminate)
+{
+    (void)m;
+    (void)lg;
+    *terminate = 0;
+    return FPM_OK;
+}
+
+int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    const fpm_var *v = &fpm_vars[vr];
+    double a[2];
+    int rc = FPM_OK;
+    if (!m->initialized && !prepare(m, lg)) {
+        fpm_log(lg, FPM_ERROR, "%s cannot be computed: a parameter is bad (above)", v->name);
+        return FPM_ERROR;
+    }
+    if (v->state) {
+        fpm_model_get_states(m, a);
+        *value = a[v->state - 1];
+    } else if (v->der) {
+        rc = fpm_model_derivatives(m, lg, a);
+        *value = a[v->der - 1];
+    } else {
+        fpm_log(lg, FPM_ERROR, "value reference %u is not a Model-Exchange local", vr);
+        return FPM_ERROR;
+    }
+    return rc;
+}
+/* ================================================================== end of Model Exchange */
+
 int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
 {
     double y[9], e[3], F;

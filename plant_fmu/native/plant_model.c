@@ -737,6 +737,207 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
     return FPM_OK;
 }
 
+/* ================================================================== Model Exchange (issue 24)
+ * The states [x, phi, eta_1..eta_8, x_dot, phi_dot, eta_dot_1..eta_dot_8] (FPM_NX = 2 (8 + 2):
+ * the modes of the largest n_modes; the kernel's state, nx = 2 (n + 2), holds the first n modes,
+ * the states of the others stay 0 with derivative 0). Model Exchange keeps its state where
+ * co-simulation keeps it: the stepper's time s.t and state s.y (what FMU states save and restore,
+ * with the checks of a restore), mirrored in y_acc (what the outputs read; out_fresh and
+ * energy_fresh cleared whenever it changes). The derivative is the kernel's right-hand side
+ * fp_rhs at the input F_c set now (no input derivatives in Model Exchange). Event indicators:
+ * the divergence bounds as smooth, finite functions, 1 - (phi/phi_limit)^2 and
+ * 1 - (energy/energy_limit)^2, which cross 0 where a co-simulation step would be refused; at
+ * that event the FMU asks the importer to terminate. */
+#define ME_NQ (FPM_N_ETA + 2)
+#if FPM_NX != 2 * ME_NQ || FPM_N_ETA < FPM_N_MODES_MAX
+#error "the Model-Exchange states of fpm_vars.h are not [q of 8 modes, their rates]"
+#endif
+#define ME_BOUND_TOL 1e-8         /* an indicator at most this is at its bound (the importer's
+                                     root finder stops within its tolerance of the crossing) */
+#define ME_RATIO_MAX 1e150        /* |phi|/phi_limit and |E|/energy_limit clamped: finite */
+
+size_t fpm_model_nz(void) { return FPM_NZ; }
+
+int fpm_model_me_init(fpm_model *m, const fpm_logger *lg)
+{
+    if (2 * (m->n + 2) > FPM_NX) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: n_modes = %d: Model Exchange declares the states of "
+                "at most %d modes", m->n, FPM_NX / 2 - 2);
+        return FPM_ERROR;
+    }
+    return FPM_OK;
+}
+
+/* A new state or time: the outputs follow it. */
+static void me_moved(fpm_model *m)
+{
+    memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
+    m->out_fresh = m->energy_fresh = 0;
+}
+
+int fpm_model_set_time(fpm_model *m, const fpm_logger *lg, double t)
+{
+    if (!(t >= m->t0)) {
+        fpm_log(lg, FPM_ERROR, "time = %.17g is before the start time %.17g", t, m->t0);
+        return FPM_ERROR;
+    }
+    m->s.t = t;
+    m->s.t_base = m->t0;
+    m->s.k = 0;
+    return FPM_OK;
+}
+
+void fpm_model_get_states(const fpm_model *m, double *x)
+{
+    int i, nq = m->nq;
+    for (i = 0; i < FPM_NX; i++) x[i] = 0.0;
+    for (i = 0; i < nq; i++) {
+        x[i] = m->s.y[i];
+        x[ME_NQ + i] = m->s.y[nq + i];
+    }
+}
+
+int fpm_model_set_states(fpm_model *m, const fpm_logger *lg, const double *x)
+{
+    int i, nq = m->nq;
+    (void)lg;
+    for (i = 0; i < nq; i++) {               /* the states of modes beyond n_modes: not used */
+        m->s.y[i] = x[i];
+        m->s.y[nq + i] = x[ME_NQ + i];
+    }
+    me_moved(m);
+    return FPM_OK;
+}
+
+/* The kernel's derivative at y_acc and F_c into dx (FPM_NX doubles). */
+static int me_rhs(fpm_model *m, const fpm_logger *lg, double *dx)
+{
+    double d[NXMAX], u = m->v.real[VR_F_c];
+    int i, nq = m->nq;
+    if (!isfinite(u)) {
+        fpm_log(lg, FPM_ERROR, "the input F_c = %g is not finite at t = %.17g", u, m->s.t);
+        return FPM_ERROR;
+    }
+    fp_rhs(&m->p, m->y_acc, u, d);
+    for (i = 0; i < FPM_NX; i++) dx[i] = 0.0;
+    for (i = 0; i < nq; i++) {
+        dx[i] = d[i];
+        dx[ME_NQ + i] = d[nq + i];
+    }
+    for (i = 0; i < FPM_NX; i++)
+        if (!isfinite(dx[i])) {
+            fpm_log(lg, FPM_ERROR, "the derivative of state %d is not finite at t = %.17g (the "
+                    "state or F_c = %g is too large)", i, m->s.t, u);
+            return FPM_ERROR;
+        }
+    return FPM_OK;
+}
+
+int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx)
+{
+    return me_rhs(m, lg, dx);
+}
+
+static double positive_or_1(double v)
+{
+    return isfinite(v) && v > 0.0 ? v : 1.0;
+}
+
+/* x: L; phi: 1 rad; eta_j: 0.01 L / |N_j(L)| (a tip deflection of 1 % of L); x_dot: sqrt(g L)
+ * and phi_dot: sqrt(g / L), the pendulum's scales (L/s and 1/s when g = 0); eta_dot_j: omega_j
+ * times the nominal of eta_j; the states of modes beyond n_modes: 1. */
+void fpm_model_nominals(const fpm_model *m, double *nominal)
+{
+    double L = m->v.real[VR_L], g = m->p.g;
+    int j;
+    for (j = 0; j < FPM_NX; j++) nominal[j] = 1.0;
+    nominal[0] = positive_or_1(L);
+    nominal[ME_NQ] = positive_or_1(g > 0.0 ? sqrt(g * L) : L);
+    nominal[ME_NQ + 1] = positive_or_1(g > 0.0 ? sqrt(g / L) : 1.0);
+    for (j = 0; j < m->n; j++) {
+        double eta = positive_or_1(0.01 * L / fabs(m->tip_defl[j]));
+        nominal[2 + j] = eta;
+        nominal[ME_NQ + 2 + j] = positive_or_1(sqrt(m->K[j]) * eta);
+    }
+}
+
+static double indicator(double v, double limit)
+{
+    double r = fabs(v) / limit;             /* limit > 0 (initialisation checks it) */
+    if (!(r <= ME_RATIO_MAX)) r = ME_RATIO_MAX;
+    return 1.0 - r * r;
+}
+
+static double me_energy(fpm_model *m)
+{
+    if (!m->energy_fresh) {
+        m->out[FP_OUT_ENERGY] = fp_energy(&m->p, m->y_acc);
+        m->energy_fresh = 1;
+    }
+    return m->out[FP_OUT_ENERGY];
+}
+
+int fpm_model_event_indicators(fpm_model *m, const fpm_logger *lg, double *z)
+{
+    double energy = me_energy(m);
+    if (!isfinite(energy) || !isfinite(m->y_acc[1])) {
+        fpm_log(lg, FPM_ERROR, "the event indicators are not finite at t = %.17g: phi = %g, "
+                "energy = %g", m->s.t, m->y_acc[1], energy);
+        return FPM_ERROR;
+    }
+    z[0] = indicator(m->y_acc[1], m->phi_limit);
+    z[1] = indicator(energy, m->energy_limit);
+    return FPM_OK;
+}
+
+int fpm_model_event_update(fpm_model *m, const fpm_logger *lg, int *terminate)
+{
+    double z[FPM_NZ];
+    int rc = fpm_model_event_indicators(m, lg, z);
+    if (rc != FPM_OK) return rc;
+    if (z[0] <= ME_BOUND_TOL) {
+        fpm_log(lg, FPM_WARNING, "divergence at t = %.17g: |phi| = %.17g reached phi_limit = "
+                "%.17g; the simulation terminates (terminateSimulation)", m->s.t,
+                fabs(m->y_acc[1]), m->phi_limit);
+        *terminate = 1;
+        return FPM_WARNING;
+    }
+    if (z[1] <= ME_BOUND_TOL) {
+        fpm_log(lg, FPM_WARNING, "divergence at t = %.17g: |energy| = %.17g reached energy_limit "
+                "= %.17g; the simulation terminates (terminateSimulation)", m->s.t,
+                fabs(m->out[FP_OUT_ENERGY]), m->energy_limit);
+        *terminate = 1;
+        return FPM_WARNING;
+    }
+    return FPM_OK;
+}
+
+int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    const fpm_var *v = &fpm_vars[vr];
+    double a[FPM_NX > FPM_NZ ? FPM_NX : FPM_NZ];
+    int rc = FPM_OK;
+    if (!m->initialized && !prepare(m, lg)) {
+        fpm_log(lg, FPM_ERROR, "%s cannot be computed: a parameter is bad (above)", v->name);
+        return FPM_ERROR;
+    }
+    if (v->state) {
+        fpm_model_get_states(m, a);
+        *value = a[v->state - 1];
+    } else if (v->der) {
+        rc = me_rhs(m, lg, a);
+        *value = a[v->der - 1];
+    } else if (v->indicator) {
+        rc = fpm_model_event_indicators(m, lg, a);
+        *value = a[v->indicator - 1];
+    } else {
+        fpm_log(lg, FPM_ERROR, "value reference %u is not a Model-Exchange local", vr);
+        return FPM_ERROR;
+    }
+    return rc;
+}
+/* ================================================================== end of Model Exchange */
+
 /* ------------------------------------------------------------------ FMU states */
 int fpm_model_initialized(const fpm_model *m) { return m->initialized; }
 

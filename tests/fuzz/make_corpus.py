@@ -138,7 +138,7 @@ def layout(model: str, strings: dict) -> dict:
     at = {"mode": HEADER, "discarded": HEADER + 4}
     pos = HEADER + 8
     for vr, v in native_variables(table):
-        if v.causality == "output":
+        if v.causality in ("output", "local"):     # calculated: not in a state
             continue
         at[v.name] = pos
         pos += 4 + len(strings.get(v.name, v.start)) if v.type == "String" else 8
