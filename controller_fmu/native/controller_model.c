@@ -319,10 +319,11 @@ int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx)
     return FPM_OK;
 }
 
-/* xc_1: a force, force_limit (or |kp| x 1 rad when unlimited); xc_2: cutoff times that. */
+/* xc_1: a force, |kp| x 1 rad, or force_limit when that is smaller (no limit is the largest
+ * double, never the scale); xc_2: cutoff times that. */
 void fpm_model_nominals(const fpm_model *m, double *nominal)
 {
-    double f = isfinite(m->f.force_limit) ? m->f.force_limit : fabs(m->f.kp);
+    double f = fmin(fabs(m->f.kp), m->f.force_limit);
     if (!(isfinite(f) && f > 0.0)) f = 1.0;
     nominal[0] = f;
     nominal[1] = isfinite(f * m->f.cutoff) && f * m->f.cutoff > 0.0 ? f * m->f.cutoff : 1.0;
