@@ -568,8 +568,8 @@ def _cs_run(m, sig, stop, h, names):
 def test_fmpy_cvode_in_model_exchange_matches_cs_and_the_monolithic_reference(
         paths, me, fmpy_input_in_rhs, version, case):
     """Issue 24, 5: fmpy's CVode on the ME plant (rtol 1e-10) against the CS plant (dopri5 at
-    rtol = atol = 1e-12; 1 ms steps with the input's slope, FMI 2.0, or 0.1 ms steps with the
-    input at the midpoint, FMI 3.0: 0.025 ms steps) and the numpy specification by scipy (DOP853 at 1e-12, the
+    rtol = atol = 1e-12; 1 ms steps with the input's slope, FMI 2.0, or 0.025 ms steps with the
+    input at the midpoint, FMI 3.0) and the numpy specification by scipy (DOP853 at 1e-12, the
     input interpolated linearly as fmpy does). Tolerances (rad, m): ME against the reference
     1e-8, CVode's global error at rtol 1e-10 over 0.6 s of an unstable plant with the kinks of
     the input at every millisecond (measured 1.3e-9, docs/fmus.md); CS against either 5e-8, for
