@@ -828,6 +828,53 @@ def test_cs_directional_derivatives_of_the_outputs_are_central_differences(me, v
     assert np.all(m.directional(rows, ["F_c"], [1.0]) == 0.0)      # no direct feedthrough
 
 
+@HOOKS_PENDING
+@pytest.mark.parametrize("version", [2, 3])
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_controller_directional_derivatives_are_its_state_space(me, version, order):
+    """ME: d(der xc)/d(xc, sensors) = [Af, Bf gains] of PDLowPassModel (zero beyond the filter
+    order), dF_c/dxc_1 = -1 unsaturated (order 0: dF_c/d(sensors) = -gains), and central
+    differences of getDerivatives through the FMI API."""
+    from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+    params = {"filter_order": order, "kx": 2.0, "cutoff": 50.0, "filter_damping": 0.5}
+    m = me(version, CTRL, **params)
+    m.initialize()
+    ref = PDLowPassModel(ControllerParams(**params))
+    m.set(phi_o=0.01, omega_o=-0.02, x_o=0.003)
+    x = np.array([0.2, -1.0])[:max(order, 0)]
+    xs = np.zeros(2)
+    xs[:order] = x
+    m.set_states(xs)
+    ders = ["der(xc_1)", "der(xc_2)"]
+    ins = ["x_o", "phi_o", "omega_o"]            # PDLowPassModel's sensor order
+    for j in range(2):
+        col = m.directional(ders, [f"xc_{j + 1}"], [1.0])
+        want = np.zeros(2)
+        if j < order:
+            want[:order] = ref.Af[:, j]
+        np.testing.assert_allclose(col, want, rtol=1e-14, atol=1e-14)
+        h = 1e-6
+        xp, xm = xs.copy(), xs.copy()
+        xp[j] += h
+        xm[j] -= h
+        m.set_states(xp)
+        dp = m.derivatives()
+        m.set_states(xm)
+        dm = m.derivatives()
+        m.set_states(xs)
+        np.testing.assert_allclose(col, (dp - dm) / (2 * h), rtol=1e-6, atol=1e-6)
+    for j, name in enumerate(ins):
+        col = m.directional(ders, [name], [1.0])
+        want = np.zeros(2)
+        want[:order] = ref.B[:, j] if order else []
+        np.testing.assert_allclose(col, want, rtol=1e-14, atol=1e-14)
+    dF = m.directional(["F_c"], ["xc_1", *ins], [1.0, 0.0, 0.0, 0.0])
+    assert dF[0] == pytest.approx(-1.0 if order else 0.0, abs=1e-14)
+    if order == 0:
+        gains = [m.directional(["F_c"], [name], [1.0])[0] for name in ins]
+        np.testing.assert_allclose(gains, -ref.gains[0], rtol=1e-14)
+
+
 @pytest.mark.parametrize("version", [2, 3])
 def test_directional_derivative_refuses_the_wrong_kinds_with_a_message(me, version):
     m = me(version, PLANT)
