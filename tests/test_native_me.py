@@ -412,6 +412,35 @@ def test_the_me_mode_machine_refuses_calls_out_of_order(me, version):
     assert "F_c" in m.logs[-1][1]
 
 
+@pytest.mark.parametrize("version", [2, 3])
+def test_initialization_mode_gives_the_initial_states_and_derivatives(me, version):
+    """The initial unknowns in initialization mode: the states from the start values and their
+    derivatives (the numpy right-hand side there), before exitInitializationMode."""
+    from plant_fmu.dynamics import PlantModel
+    from plant_fmu.params import PlantParams
+    m = me(version, PLANT, n_modes=1, phi0=0.2, phi_dot0=-0.1, F_c=2.0)
+    if version == 2:
+        m.fmu.enterInitializationMode()
+    else:
+        m.fmu.enterInitializationMode(startTime=0.0)
+    x, dx, z = m.states(), m.derivatives(), m.indicators()
+    ref = PlantModel(PlantParams(n_modes=1))
+    xk = np.zeros(ref.nx)
+    xk[1], xk[ref.nq + 1] = 0.2, -0.1
+    order = [_kernel_names(8).index(s) for s in _kernel_names(1)]
+    assert np.array_equal(x[order], xk) and np.count_nonzero(x) == 2
+    np.testing.assert_allclose(dx[order], ref.rhs_numpy(0.0, xk, 2.0), rtol=1e-12, atol=1e-14)
+    assert z[0] == pytest.approx(1 - (0.2 / (math.pi / 2)) ** 2, rel=1e-15)
+    m.fmu.exitInitializationMode()
+    m2 = me(version, PLANT, n_modes=1, L=-1.0)          # a bad parameter: an error, said
+    if version == 2:
+        m2.fmu.enterInitializationMode()
+    else:
+        m2.fmu.enterInitializationMode(startTime=0.0)
+    assert _status(m2.derivatives) == 3
+    assert any("L = -1" in msg for _, msg in m2.logs)
+
+
 # ---------------------------------------------------------------------- states and derivatives
 @pytest.mark.parametrize("version", [2, 3])
 @pytest.mark.parametrize("fidelity", ["nonlinear", "linear"])
