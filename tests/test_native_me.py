@@ -412,6 +412,35 @@ def test_the_me_mode_machine_refuses_calls_out_of_order(me, version):
     assert "F_c" in m.logs[-1][1]
 
 
+@pytest.mark.parametrize("version", [2, 3])
+def test_initialization_mode_gives_the_initial_states_and_derivatives(me, version):
+    """The initial unknowns in initialization mode: the states from the start values and their
+    derivatives (the numpy right-hand side there), before exitInitializationMode."""
+    from plant_fmu.dynamics import PlantModel
+    from plant_fmu.params import PlantParams
+    m = me(version, PLANT, n_modes=1, phi0=0.2, phi_dot0=-0.1, F_c=2.0)
+    if version == 2:
+        m.fmu.enterInitializationMode()
+    else:
+        m.fmu.enterInitializationMode(startTime=0.0)
+    x, dx, z = m.states(), m.derivatives(), m.indicators()
+    ref = PlantModel(PlantParams(n_modes=1))
+    xk = np.zeros(ref.nx)
+    xk[1], xk[ref.nq + 1] = 0.2, -0.1
+    order = [_kernel_names(8).index(s) for s in _kernel_names(1)]
+    assert np.array_equal(x[order], xk) and np.count_nonzero(x) == 2
+    np.testing.assert_allclose(dx[order], ref.rhs_numpy(0.0, xk, 2.0), rtol=1e-12, atol=1e-14)
+    assert z[0] == pytest.approx(1 - (0.2 / (math.pi / 2)) ** 2, rel=1e-15)
+    m.fmu.exitInitializationMode()
+    m2 = me(version, PLANT, n_modes=1, L=-1.0)          # a bad parameter: an error, said
+    if version == 2:
+        m2.fmu.enterInitializationMode()
+    else:
+        m2.fmu.enterInitializationMode(startTime=0.0)
+    assert _status(m2.derivatives) == 3
+    assert any("L = -1" in msg for _, msg in m2.logs)
+
+
 # ---------------------------------------------------------------------- states and derivatives
 @pytest.mark.parametrize("version", [2, 3])
 @pytest.mark.parametrize("fidelity", ["nonlinear", "linear"])
@@ -568,8 +597,8 @@ def _cs_run(m, sig, stop, h, names):
 def test_fmpy_cvode_in_model_exchange_matches_cs_and_the_monolithic_reference(
         paths, me, fmpy_input_in_rhs, version, case):
     """Issue 24, 5: fmpy's CVode on the ME plant (rtol 1e-10) against the CS plant (dopri5 at
-    rtol = atol = 1e-12; 1 ms steps with the input's slope, FMI 2.0, or 0.1 ms steps with the
-    input at the midpoint, FMI 3.0: 0.025 ms steps) and the numpy specification by scipy (DOP853 at 1e-12, the
+    rtol = atol = 1e-12; 1 ms steps with the input's slope, FMI 2.0, or 0.025 ms steps with the
+    input at the midpoint, FMI 3.0) and the numpy specification by scipy (DOP853 at 1e-12, the
     input interpolated linearly as fmpy does). Tolerances (rad, m): ME against the reference
     1e-8, CVode's global error at rtol 1e-10 over 0.6 s of an unstable plant with the kinks of
     the input at every millisecond (measured 1.3e-9, docs/fmus.md); CS against either 5e-8, for
@@ -828,6 +857,53 @@ def test_cs_directional_derivatives_of_the_outputs_are_central_differences(me, v
     assert np.all(m.directional(rows, ["F_c"], [1.0]) == 0.0)      # no direct feedthrough
 
 
+@HOOKS_PENDING
+@pytest.mark.parametrize("version", [2, 3])
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_controller_directional_derivatives_are_its_state_space(me, version, order):
+    """ME: d(der xc)/d(xc, sensors) = [Af, Bf gains] of PDLowPassModel (zero beyond the filter
+    order), dF_c/dxc_1 = -1 unsaturated (order 0: dF_c/d(sensors) = -gains), and central
+    differences of getDerivatives through the FMI API."""
+    from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+    params = {"filter_order": order, "kx": 2.0, "cutoff": 50.0, "filter_damping": 0.5}
+    m = me(version, CTRL, **params)
+    m.initialize()
+    ref = PDLowPassModel(ControllerParams(**params))
+    m.set(phi_o=0.01, omega_o=-0.02, x_o=0.003)
+    x = np.array([0.2, -1.0])[:max(order, 0)]
+    xs = np.zeros(2)
+    xs[:order] = x
+    m.set_states(xs)
+    ders = ["der(xc_1)", "der(xc_2)"]
+    ins = ["x_o", "phi_o", "omega_o"]            # PDLowPassModel's sensor order
+    for j in range(2):
+        col = m.directional(ders, [f"xc_{j + 1}"], [1.0])
+        want = np.zeros(2)
+        if j < order:
+            want[:order] = ref.Af[:, j]
+        np.testing.assert_allclose(col, want, rtol=1e-14, atol=1e-14)
+        h = 1e-6
+        xp, xm = xs.copy(), xs.copy()
+        xp[j] += h
+        xm[j] -= h
+        m.set_states(xp)
+        dp = m.derivatives()
+        m.set_states(xm)
+        dm = m.derivatives()
+        m.set_states(xs)
+        np.testing.assert_allclose(col, (dp - dm) / (2 * h), rtol=1e-6, atol=1e-6)
+    for j, name in enumerate(ins):
+        col = m.directional(ders, [name], [1.0])
+        want = np.zeros(2)
+        want[:order] = ref.B[:, j] if order else []
+        np.testing.assert_allclose(col, want, rtol=1e-14, atol=1e-14)
+    dF = m.directional(["F_c"], ["xc_1", *ins], [1.0, 0.0, 0.0, 0.0])
+    assert dF[0] == pytest.approx(-1.0 if order else 0.0, abs=1e-14)
+    if order == 0:
+        gains = [m.directional(["F_c"], [name], [1.0])[0] for name in ins]
+        np.testing.assert_allclose(gains, -ref.gains[0], rtol=1e-14)
+
+
 @pytest.mark.parametrize("version", [2, 3])
 def test_directional_derivative_refuses_the_wrong_kinds_with_a_message(me, version):
     m = me(version, PLANT)
@@ -853,32 +929,46 @@ def _output_derivative(m, names, order):
 
 @HOOKS_PENDING
 @pytest.mark.parametrize("version", [2, 3])
-def test_output_derivatives_are_central_differences_of_the_outputs(me, version):
-    """The first and second time derivatives of the outputs at the end of a step against central
-    differences of the outputs of steps of +-h from there (FMU states; dopri5 at 1e-12)."""
-    names = ["x_o", "x_dot", "phi_o", "omega_o", "phi", "tip_deflection", "energy", "eta_1"]
-    m = me(version, PLANT, cs=True, n_modes=2, phi0=0.3, integrator="dopri5", rtol=1e-12,
+def test_output_derivatives_are_the_numpy_specifications_and_the_fmus_steps(me, version):
+    """The first and second time derivatives of every output at the end of a step (held input):
+    against the numpy specification, y' = C(x) f(x, u) (output_jacobian_numpy, rhs_numpy) and
+    y'' = d/dt [C f] by central differences of C f along f (eps = 1e-6); and y' against forward
+    differences of the FMU's own steps from the same state (h = 1e-5, error (omega h)^2)."""
+    from plant_fmu.dynamics import PlantModel
+    from plant_fmu.params import PlantParams
+    n = 2
+    rows = _OUT_ROWS + ["eta_1", "eta_2"]
+    m = me(version, PLANT, cs=True, n_modes=n, phi0=0.3, integrator="dopri5", rtol=1e-12,
            atol=1e-12)
     m.initialize(event=False)
-    m.set(F_c=1.5)
+    u = 1.5
+    m.set(F_c=u)
     for k in range(50):
         m.fmu.doStep(k * 1e-3, 1e-3)
     t = 0.05
-    d1, d2 = _output_derivative(m, names, 1), _output_derivative(m, names, 2)
-    y0 = np.array(m.get(*names))
+    d1 = _output_derivative(m, rows, 1)
+    d2 = _output_derivative(m, rows, 2)
+    ref = PlantModel(PlantParams(n_modes=n))
+    x = np.array(m.get(*_kernel_names(n)))
+
+    def g(z):
+        return ref.output_jacobian_numpy(z) @ ref.rhs_numpy(0.0, z, u)
+    f = ref.rhs_numpy(0.0, x, u)
+    eps = 1e-6
+    want1 = g(x)
+    want2 = (g(x + eps * f) - g(x - eps * f)) / (2 * eps)
+    np.testing.assert_allclose(d1, want1, rtol=1e-9, atol=1e-9 * np.abs(want1).max())
+    np.testing.assert_allclose(d2, want2, rtol=1e-6, atol=1e-6 * np.abs(want2).max())
+    restore = m.fmu.setFMUstate if version == 2 else m.fmu.setFMUState
     state = m.fmu.getFMUstate() if version == 2 else m.fmu.getFMUState()
-    h = 1e-4
-    m.fmu.doStep(t, h)
-    yp = np.array(m.get(*names))
-    (m.fmu.setFMUstate if version == 2 else m.fmu.setFMUState)(state)
-    # y(t - h) from a restored earlier state is not at hand: the backward value by a step of -h
-    # of the time-reversed system is not an FMI call; use the forward three-point formulas
-    m.fmu.doStep(t, 2 * h)
-    yp2 = np.array(m.get(*names))
-    fd1 = (-3 * y0 + 4 * yp - yp2) / (2 * h)
-    fd2 = (y0 - 2 * yp + yp2) / (h * h)
-    np.testing.assert_allclose(d1, fd1, rtol=1e-5, atol=1e-6)
-    np.testing.assert_allclose(d2, fd2, rtol=1e-3, atol=1e-3)
+    y0 = np.array(m.get(*rows))
+    h, ys = 1e-5, []
+    for k in (1, 2):
+        restore(state)
+        m.fmu.doStep(t, k * h)
+        ys.append(np.array(m.get(*rows)))
+    fd1 = (-3 * y0 + 4 * ys[0] - ys[1]) / (2 * h)
+    np.testing.assert_allclose(d1, fd1, rtol=1e-4, atol=1e-4 * np.abs(fd1).max())
 
 
 @HOOKS_PENDING

@@ -653,6 +653,26 @@ static int me_array(fpm_instance *c, const char *fn, const char *what, const voi
     return 1;
 }
 
+/* Before exitInitializationMode (initialization mode: the initial unknowns): the states,
+ * derivatives (kind 1) or event indicators (kind 2) one by one through their variables, which
+ * the model computes from the parameters as they are, as it does the outputs. */
+static int from_variables(fpm_instance *c, const char *fn, int kind, double out[], size_t n)
+{
+    unsigned vr;
+    int rc, worst = FPM_OK;
+    for (vr = 0; vr < FPM_MAX_VARS; vr++) {
+        const fpm_var *v = &fpm_vars[vr];
+        int at = v->name == NULL ? 0 : kind == 0 ? v->state : kind == 1 ? v->der : v->indicator;
+        if (at <= 0 || (size_t)at > n) continue;
+        rc = v->causality == FPM_OUTPUT ? fpm_model_get_output(c->m, &c->lg, vr, &out[at - 1])
+                                         : fpm_model_get_local(c->m, &c->lg, vr, &out[at - 1]);
+        if (rc > FPM_WARNING) return fpm_refuse(c, rc, fn, "not available before "
+                                                "initialisation with these parameters (above)");
+        if (rc > worst) worst = rc;
+    }
+    return worst;
+}
+
 int fpm_me_set_time(fpm_instance *c, const char *fn, int mask, double t)
 {
     INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
@@ -684,9 +704,7 @@ int fpm_me_get_states(fpm_instance *c, const char *fn, int mask, double x[], siz
     INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
     GUARD(c, fn, mask);
     if (!me_array(c, fn, "states", x, nx, fpm_model_nx())) return FPM_ERROR;
-    if (!fpm_model_initialized(c->m))
-        return fpm_refuse(c, FPM_ERROR, fn, "the model is not initialised (the states follow "
-                          "from the parameters at exitInitializationMode)");
+    if (!fpm_model_initialized(c->m)) return from_variables(c, fn, 0, x, nx);
     fpm_model_get_states(c->m, x);
     return FPM_OK;
 }
@@ -698,9 +716,8 @@ int fpm_me_get_derivatives(fpm_instance *c, const char *fn, int mask, double dx[
     INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
     GUARD(c, fn, mask);
     if (!me_array(c, fn, "derivatives", dx, nx, fpm_model_nx())) return FPM_ERROR;
-    if (!fpm_model_initialized(c->m))
-        return fpm_refuse(c, FPM_ERROR, fn, "the model is not initialised");
-    rc = fpm_model_derivatives(c->m, &c->lg, dx);
+    rc = fpm_model_initialized(c->m) ? fpm_model_derivatives(c->m, &c->lg, dx)
+                                     : from_variables(c, fn, 1, dx, nx);
     if (rc > FPM_WARNING) return rc;
     for (i = 0; i < nx; i++)                  /* never: the model checks them */
         if (!isfinite(dx[i])) return fpm_refuse(c, FPM_ERROR, fn, "a derivative is not finite");
@@ -727,8 +744,7 @@ int fpm_me_get_event_indicators(fpm_instance *c, const char *fn, int mask, doubl
     GUARD(c, fn, mask);
     if (!me_array(c, fn, "event indicators", z, nz, fpm_model_nz())) return FPM_ERROR;
     if (nz == 0) return FPM_OK;
-    if (!fpm_model_initialized(c->m))
-        return fpm_refuse(c, FPM_ERROR, fn, "the model is not initialised");
+    if (!fpm_model_initialized(c->m)) return from_variables(c, fn, 2, z, nz);
     return fpm_model_event_indicators(c->m, &c->lg, z);
 }
 
