@@ -1,0 +1,233 @@
+"""The exact Jacobians and output time derivatives of the compiled kernels (issue 24).
+
+Plant (``fp_jacobian``, ``fp_jvp``, ``fp_output_jacobian``, ``fp_output_derivatives``):
+- against the numpy specification (``jacobian_numpy``, ``output_jacobian_numpy``,
+  ``output_derivatives_numpy``; ``tests/test_lagrange.py`` checks those against sympy);
+- against central differences of the kernel's own right-hand side and outputs;
+- the output derivatives against central differences in time along an accurate trajectory
+  driven by a polynomial force (scipy's DOP853 at rtol 1e-13 on the kernel's rhs), and the
+  energy's first derivative (the kernel: the power balance) against the gradient of the energy
+  times dx/dt.
+States: random, deformed (tip slopes up to ~1 rad), moving (mode rates ~ their frequency times
+their amplitude), tilted (|phi| up to 1.2 rad), n_modes 0..8, nonlinear with and without the
+gravity preload and linear.
+
+Tolerances of a central difference are derived from its step: the truncation error of the step
+h is estimated from the same difference at 2h (Richardson: for a second-order difference
+D(2h) - D(h) ~ 3 (D(h) - exact), for the fourth-order one ~ 15 (D(h) - exact)), the rounding
+error is eps times the magnitude of the terms summed, divided by h; the check allows 10 times
+their sum. A wrong derivative misses by O(1) of the entry, far outside.
+
+Controller (``fpf_linearize``, ``fpf_output_derivatives``): against the state space of
+``PDLowPassModel`` (``pd_lowpass.py``) and python-control's realisation of the same transfer
+function, and the output derivatives against the exact continuous response (the filter's matrix
+exponential driven by a polynomial error signal), differentiated by central differences.
+"""
+import math
+
+import numpy as np
+import pytest
+
+from plant_fmu.dynamics import linear_plant_model, plant_model
+from plant_fmu.kernel import OUT
+from plant_fmu.params import PlantParams
+
+EPS = np.finfo(float).eps
+VARIANTS = [("nonlinear", False), ("nonlinear", True), ("linear", False), ("linear", True)]
+
+
+def _model(n, fidelity, preload):
+    p = PlantParams(n_modes=n, gravity_preload=preload)
+    return linear_plant_model(p) if fidelity == "linear" else plant_model(p)
+
+
+def _random_states(m, count, seed):
+    """Deformed, moving, tilted states: |phi| <= 1.2, tip deflections up to ~0.1 L in all,
+    mode rates of the order of their frequency times their amplitude."""
+    rng = np.random.default_rng(seed)
+    n, nq = m.n, m.nq
+    nl = m._nl if hasattr(m, "_nl") else m
+    omega = np.sqrt(nl.Kdiag)
+    for _ in range(count):
+        x = np.zeros(m.nx)
+        x[0] = rng.uniform(-1, 1)
+        x[1] = rng.uniform(-1.2, 1.2)
+        if n:
+            x[2:nq] = 0.1 * rng.standard_normal(n) / np.sqrt(n) / np.abs(nl.tip_defl)
+            x[nq + 2:] = omega * x[2:nq] * rng.standard_normal(n)
+        x[nq] = rng.standard_normal()
+        x[nq + 1] = 3.0 * rng.standard_normal()
+        yield x, 50.0 * rng.standard_normal()
+
+
+def _central(fun, x, k, h):
+    e = np.zeros_like(x)
+    e[k] = h
+    return (fun(x + e) - fun(x - e)) / (2.0 * h)
+
+
+def _check_fd(exact, fun, x, terms, label):
+    """Each column k of ``exact`` (d fun / d x_k) against central differences with the step
+    h_k = eps^(1/3) max(1, |x_k|); ``terms[i]``: the magnitude of what row i sums (rounding)."""
+    for k in range(x.size):
+        h = EPS ** (1 / 3) * max(1.0, abs(x[k]))
+        d1, d2 = _central(fun, x, k, h), _central(fun, x, k, 2 * h)
+        tol = 10.0 * (np.abs(d2 - d1) / 3.0 + 64 * EPS * terms / h) + 1e-300
+        err = np.abs(exact[:, k] - d1)
+        bad = np.nonzero(err > tol)[0]
+        assert bad.size == 0, (f"{label}: column {k}, rows {bad}: exact {exact[bad, k]}, "
+                               f"differences {d1[bad]}, tolerance {tol[bad]}")
+
+
+@pytest.mark.parametrize("fidelity,preload", VARIANTS)
+@pytest.mark.parametrize("n", range(9))
+def test_jacobian_against_numpy_and_differences(n, fidelity, preload):
+    m = _model(n, fidelity, preload)
+    k = m.kernel
+    for x, u in _random_states(m, count=4, seed=100 + n):
+        J, b = k.jacobian(x, u)
+        J_np, b_np = m.jacobian_numpy(x, u)
+        scale = np.abs(J_np).max(axis=1, keepdims=True) + np.abs(b_np)[:, None]
+        # two ways of solving M (the kernel: Schur complement; numpy: LU): they agree to
+        # ~cond(M) eps
+        rtol = 64 * EPS * np.linalg.cond(m.mass_matrix(x[:m.nq]))
+        assert np.all(np.abs(J - J_np) <= rtol * scale), np.abs(J - J_np).max()
+        assert np.all(np.abs(b - b_np) <= rtol * scale[:, 0])
+        # central differences of the kernel's rhs in the state and the force
+        f = k.rhs(x, u)
+        terms = np.abs(f) + np.abs(J_np) @ np.abs(x) + np.abs(b_np) * abs(u)
+        _check_fd(J, lambda z, u=u: k.rhs(z, u), x, terms, f"J ({fidelity}, preload {preload})")
+        _check_fd(b[:, None], lambda v, x=x: k.rhs(x, v[0]), np.array([u]), terms, "b")
+        # the product without forming J
+        v = np.random.default_rng(n).standard_normal(m.nx) * np.maximum(np.abs(x), 1.0)
+        jv = k.jvp(x, u, v, 3.0)
+        expect = J_np @ v + 3.0 * b_np
+        assert np.all(np.abs(jv - expect) <= rtol * (np.abs(J_np) @ np.abs(v) + 3 * np.abs(b_np)))
+
+
+def test_jacobian_is_constant_for_the_linear_model():
+    m = _model(4, "linear", True)
+    J0, b0 = m.kernel.jacobian(np.zeros(m.nx), 0.0)
+    A, B = m.A, m.B[:, 0]
+    np.testing.assert_allclose(J0, A, rtol=0, atol=1e-10 * np.abs(A).max())
+    np.testing.assert_allclose(b0, B, rtol=0, atol=1e-10 * np.abs(B).max())
+    for x, u in _random_states(m, 3, 5):
+        J, b = m.kernel.jacobian(x, u)
+        assert np.array_equal(J, J0) and np.array_equal(b, b0)
+
+
+@pytest.mark.parametrize("fidelity,preload", VARIANTS)
+@pytest.mark.parametrize("n", [0, 1, 2, 5, 8])
+def test_output_jacobian_against_numpy_and_differences(n, fidelity, preload):
+    m = _model(n, fidelity, preload)
+    k = m.kernel
+    for x, _ in _random_states(m, count=4, seed=200 + n):
+        C = k.output_jacobian(x)
+        C_np = m.output_jacobian_numpy(x)
+        assert C.shape == (OUT["eta"] + n, m.nx)
+        scale = np.abs(C_np).max(axis=1, keepdims=True)
+        assert np.all(np.abs(C - C_np) <= 1e-14 * scale + 1e-300)
+        y = k.outputs(x)
+        terms = np.abs(y) + np.abs(C_np) @ np.abs(x)
+        _check_fd(C, k.outputs, x, terms, f"C ({fidelity}, preload {preload})")
+
+
+@pytest.mark.parametrize("fidelity,preload", VARIANTS)
+@pytest.mark.parametrize("n", [0, 1, 3, 8])
+def test_output_derivatives_against_numpy(n, fidelity, preload):
+    m = _model(n, fidelity, preload)
+    for x, u in _random_states(m, count=5, seed=300 + n):
+        du = 1e3 * math.sin(u)
+        d1, d2 = m.kernel.output_derivatives(x, u, du)
+        e1, e2 = m.output_derivatives_numpy(x, u, du)
+        # the scale of row k: the terms of C f and of f^T H f + C (J f + b du)
+        f = m.rhs_numpy(0.0, x, u)
+        J, b = m.jacobian_numpy(x, u)
+        C = m.output_jacobian_numpy(x)
+        s1 = np.abs(C) @ np.abs(f)
+        s2 = np.abs(C) @ (np.abs(J) @ np.abs(f) + np.abs(b) * abs(du)) + np.abs(e2)
+        rtol = 256 * EPS * np.linalg.cond(m.mass_matrix(x[:m.nq]))
+        # the energy's d1: the kernel's power balance against the numpy gradient . f: the
+        # power balance is exact (Lagrange's equations) up to the cancellation in grad E . f
+        assert np.all(np.abs(d1 - e1) <= rtol * s1 + 1e-300), (d1 - e1, s1)
+        assert np.all(np.abs(d2 - e2) <= rtol * s2 + 1e-300), (d2 - e2, s2)
+
+
+@pytest.mark.parametrize("fidelity,preload", VARIANTS)
+@pytest.mark.parametrize("n", [1, 4])
+def test_energy_rate_is_the_power_balance(n, fidelity, preload):
+    """grad E . f = F_c x_dot - etad.D.etad (+ the skew part of Kg, zero here): the identity the
+    kernel's d1 of the energy uses, checked on the kernel's own energy and rhs by central
+    differences of E along f (independent of the output Jacobian)."""
+    m = _model(n, fidelity, preload)
+    k = m.kernel
+    nl = m._nl if fidelity == "linear" else m
+    for x, u in _random_states(m, count=5, seed=400 + n):
+        f = k.rhs(x, u)
+        eta_d = x[m.nq + 2:]
+        power = u * x[m.nq] - float(nl.Ddiag @ (eta_d * eta_d))
+        h = EPS ** (1 / 3) / np.linalg.norm(f / np.maximum(np.abs(x), 1.0))
+
+        def along(t, x=x, f=f):
+            return k.energy(x + t * f)
+
+        fd = (along(h) - along(-h)) / (2 * h)
+        fd2 = (along(2 * h) - along(-2 * h)) / (4 * h)
+        terms = float(np.abs(m.output_jacobian_numpy(x)[OUT["energy"]]) @ np.abs(f))
+        E_terms = abs(k.energy(x)) + terms
+        tol = 10 * (abs(fd2 - fd) / 3 + 64 * EPS * E_terms / h)
+        assert abs(power - fd) <= tol, (power, fd, tol)
+        d1, _ = k.output_derivatives(x, u, 0.0)
+        assert d1[OUT["energy"]] == pytest.approx(power, rel=1e-12, abs=1e-12 * terms)
+
+
+def _trajectory(m, x0, poly, times):
+    """The kernel's rhs integrated by DOP853 at rtol 1e-13 with the force poly(t) = u0 + u1 t +
+    u2 t^2 / 2, the states at ``times`` (each reached by the integrator's steps: t_eval uses the
+    dense output of order 7, far below the tolerance over these short spans)."""
+    from scipy.integrate import solve_ivp
+
+    u0, u1, u2 = poly
+    scale = np.maximum(np.abs(x0), 1e-3 * max(np.abs(x0).max(), 1.0))
+    sol = solve_ivp(lambda t, y: m.kernel.rhs(y, u0 + t * (u1 + 0.5 * t * u2)), (0.0, times[-1]),
+                    x0, method="DOP853", rtol=1e-13, atol=1e-13 * scale, t_eval=times)
+    assert sol.success
+    return sol.y.T
+
+
+def _stencil4(vals, h):
+    """The fourth-order central difference from values at -2h, -h, (0), h, 2h."""
+    return (vals[0] - 8 * vals[1] + 8 * vals[3] - vals[4]) / (12 * h)
+
+
+@pytest.mark.parametrize("fidelity,preload", VARIANTS)
+@pytest.mark.parametrize("n", [0, 2, 8])
+def test_output_derivatives_along_a_trajectory(n, fidelity, preload):
+    """d1 against central differences in time of the outputs, d2 against central differences of
+    d1, along the trajectory of a polynomial force: both at the steps h and 2h (fourth-order
+    stencils), the tolerance from their difference and the integration's tolerance."""
+    m = _model(n, fidelity, preload)
+    k = m.kernel
+    nl = m._nl if fidelity == "linear" else m
+    w_max = float(np.sqrt(nl.Kdiag).max()) if n else 10.0
+    h = 0.02 / w_max                        # ~ 300 steps per period of the fastest mode
+    for x0, u0 in _random_states(m, count=2, seed=500 + n):
+        poly = (u0, 2e3 * np.sign(u0), -4e5)
+        t_c = 10 * h
+        times = t_c + h * np.array([-4, -2, -1, 0, 1, 2, 4], dtype=float)
+        xs = _trajectory(m, x0, poly, times)
+        us = [poly[0] + t * (poly[1] + 0.5 * t * poly[2]) for t in times]
+        dus = [poly[1] + t * poly[2] for t in times]
+        ys = np.array([k.outputs(x) for x in xs])
+        d1s = np.array([k.output_derivatives(x, u, du)[0] for x, u, du in zip(xs, us, dus)])
+        d1, d2 = k.output_derivatives(xs[3], us[3], dus[3])
+        for exact, vals, label in ((d1, ys, "d1"), (d2, d1s, "d2")):
+            fd_h = _stencil4(vals[[1, 2, 3, 4, 5]], h)
+            fd_2h = _stencil4(vals[[0, 1, 3, 5, 6]], 2 * h)
+            # rounding: the integration's relative error (~1e-13 of each state, smooth in t:
+            # differences of it are far smaller) taken at 1e-12 of the values, over h
+            noise = 1e-12 * np.abs(vals).max(axis=0) / h
+            tol = 10 * (np.abs(fd_2h - fd_h) / 15 + noise)
+            bad = np.nonzero(np.abs(exact - fd_h) > tol)[0]
+            assert bad.size == 0, (f"{label} of outputs {bad}: exact {exact[bad]}, "
+                                   f"differences {fd_h[bad]}, tolerance {tol[bad]}")
