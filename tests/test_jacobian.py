@@ -231,3 +231,97 @@ def test_output_derivatives_along_a_trajectory(n, fidelity, preload):
             bad = np.nonzero(np.abs(exact - fd_h) > tol)[0]
             assert bad.size == 0, (f"{label} of outputs {bad}: exact {exact[bad]}, "
                                    f"differences {fd_h[bad]}, tolerance {tol[bad]}")
+
+
+# ---------------------------------------------------------------------- the controller's filter
+def _controller(order, **kw):
+    from controller_fmu.kernel import FilterKernel
+    from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+
+    p = ControllerParams(filter_order=order, kx=2.5, **kw)
+    return PDLowPassModel(p), FilterKernel(p)
+
+
+TABLE = [1, 2, 0]          # the FMU's inputs [phi_o, omega_o, x_o] among pd_lowpass's [x_o, ...]
+
+
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_filter_linearisation_is_the_state_space_of_the_specification(order):
+    import control
+
+    model, k = _controller(order)
+    rng = np.random.default_rng(order)
+    A0, B0, C0, D0 = model.state_space()
+    for _ in range(5):
+        xc, e = rng.standard_normal(2) * 100, rng.standard_normal() * 100
+        A, B, C, D = k.linearize(xc[:order], e)
+        np.testing.assert_array_equal(A, A0)
+        np.testing.assert_allclose(B, B0[:, TABLE], rtol=1e-15, atol=0)
+        np.testing.assert_array_equal(C, C0)
+        np.testing.assert_array_equal(D, D0[:, TABLE])
+        terms = np.abs(A0) @ np.abs(xc[:order]) + np.abs(model.Bf[:, 0] * e)
+        assert np.all(np.abs(k.rhs(xc[:order], e) - (A0 @ xc[:order] + model.Bf[:, 0] * e))
+                      <= 4 * EPS * terms)
+    # python-control's realisation of -H(s) (kp, kd, kx): the same transfer functions
+    p = model.params
+    wc, zf = p.cutoff, p.filter_damping
+    H = {0: control.tf([1.0], [1.0]), 1: control.tf([wc], [1.0, wc]),
+         2: control.tf([wc * wc], [1.0, 2 * zf * wc, wc * wc])}[order]
+    A, B, C, D = k.linearize(np.zeros(order), 0.0)
+    for s in (0.3j * wc, 1j * wc, 5j * wc, 0.5 * wc):
+        got = (C @ np.linalg.solve(s * np.eye(order) - A, B) + D)[0] if order else D[0]
+        want = -complex(H(s)) * np.array([p.kp, p.kd, p.kx])
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_filter_linearisation_when_saturated(order):
+    """Beyond the limit F_c does not depend on the state or the inputs (slope 0); on the limit
+    exactly, the slope of the identity branch (1), as fp_filter.h states."""
+    model, k = _controller(order, force_limit=10.0)
+    A0, B0, C0, D0 = model.state_space()
+    for v, slope in ((25.0, 0.0), (-25.0, 0.0), (10.0, 1.0), (-10.0, 1.0), (9.0, 1.0)):
+        xc = np.array([v, 3.0])[:order]
+        A, B, C, D = k.linearize(xc, v)          # order 0: F_c = -sat(e)
+        np.testing.assert_array_equal(A, A0)
+        np.testing.assert_allclose(B, B0[:, TABLE], rtol=1e-15)
+        np.testing.assert_array_equal(C, slope * C0)
+        np.testing.assert_array_equal(D, slope * D0[:, TABLE])
+        d = k.output_derivatives(xc, v, 7.0, 11.0)
+        if slope == 0.0:
+            assert d == (0.0, 0.0)
+
+
+def _filter_force(model, xc0, e_poly, s):
+    """F_c(s) of the exact continuous response from xc0 at 0 with e(s) = e0 + e1 s + e2 s^2/2
+    (pd_lowpass's exact discretisation over s, which holds for s < 0 too)."""
+    e0, e1, e2 = e_poly
+    if model.nx == 0:
+        lim = model.params.force_limit
+        return min(max(-(e0 + s * (e1 + 0.5 * s * e2)), -lim), lim)
+    Ad, G = model.discretize_polynomial(float(s))
+    return model.output(Ad @ xc0 + G @ np.array(e_poly), None)
+
+
+@pytest.mark.parametrize("limit", [None, 40.0])
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_filter_output_derivatives_against_the_exact_response(order, limit):
+    kw = {} if limit is None else {"force_limit": limit}
+    model, k = _controller(order, **kw)
+    rng = np.random.default_rng(10 + order)
+    h = 1e-3 / model.params.cutoff
+    for _ in range(6):
+        y = rng.standard_normal((3, 3)) * [[0.05], [1.0], [50.0]]   # x_o, phi_o, omega_o; rates
+        e = [model.error_signal(y[:, i]) for i in range(3)]
+        xc0 = rng.standard_normal(order) * 60.0
+        d1, d2 = k.output_derivatives(xc0, *e)
+        F = [_filter_force(model, xc0, e, s * h) for s in (-2, -1, 0, 1, 2)]
+        F2 = [_filter_force(model, xc0, e, s * h) for s in (-4, -2, 0, 2, 4)]
+        for exact, fd_h, fd_2h in (
+                (d1, _stencil4(F, h), _stencil4(F2, 2 * h)),
+                (d2, (-F[0] + 16 * F[1] - 30 * F[2] + 16 * F[3] - F[4]) / (12 * h * h),
+                 (-F2[0] + 16 * F2[1] - 30 * F2[2] + 16 * F2[3] - F2[4]) / (48 * h * h))):
+            scale = max(abs(f) for f in F)
+            tol = 10 * (abs(fd_2h - fd_h) / 15 + 64 * EPS * scale / h ** (1 if exact is d1
+                                                                            else 2))
+            assert abs(exact - fd_h) <= tol, (exact, fd_h, tol)
