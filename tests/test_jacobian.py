@@ -23,7 +23,10 @@ Controller (``fpf_linearize``, ``fpf_output_derivatives``): against the state sp
 function, and the output derivatives against the exact continuous response (the filter's matrix
 exponential driven by a polynomial error signal), differentiated by central differences.
 """
+import json
 import math
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -325,3 +328,137 @@ def test_filter_output_derivatives_against_the_exact_response(order, limit):
             tol = 10 * (abs(fd_2h - fd_h) / 15 + 64 * EPS * scale / h ** (1 if exact is d1
                                                                             else 2))
             assert abs(exact - fd_h) <= tol, (exact, fd_h, tol)
+
+
+# ---------------------------------------------------------------------- the models' hooks
+HOOKS_C = Path(__file__).parent / "native" / "jacobian_hooks.c"
+
+
+@pytest.fixture(scope="module")
+def hooks(tmp_path_factory):
+    """The test host of the hooks for each model, built against its generated fpm_vars.h."""
+    from fmu_common import kernels
+    from orchestration.export.native_fmus import generate_header
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path_factory.mktemp("hooks")
+    exes = {}
+    for name, src, define in (("FlexiblePendulum", "plant_fmu/native/plant_model.c", "PLANT"),
+                              ("PDLowPass", "controller_fmu/native/controller_model.c", "CTRL")):
+        inc = out / name
+        inc.mkdir()
+        (inc / "fpm_vars.h").write_text(generate_header(name, "token"))
+        exe = out / f"hooks_{name}"
+        cmd = [kernels.find_compiler(), *kernels.CFLAGS, "-DFP_API=", "-DFPF_API=",
+               f"-D{define}", f'-DMODEL_C="{root / src}"', f"-I{inc}",
+               *(f"-I{root / d}" for d in ("fmu_common/native", "plant_fmu/native",
+                                            "controller_fmu/native")),
+               "-o", str(exe), str(HOOKS_C), str(root / "fmu_common/native/fpm_guard.c"),
+               str(root / "plant_fmu/native/fp_plant.c"),
+               str(root / "controller_fmu/native/fp_filter.c"), "-lm"]
+        cmd = [c for c in cmd if c != "-fvisibility=hidden"]
+        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        exes[name] = exe
+    return exes
+
+
+def _run_hooks(exe, h, steps, args):
+    proc = subprocess.run([str(exe), repr(h), str(steps), *args], check=False,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    return {d["what"]: d for d in map(json.loads, proc.stdout.splitlines())}
+
+
+def _me_map(n):
+    """Kernel state index -> Model-Exchange index ([q of 8 modes, their rates])."""
+    nq = n + 2
+    return np.r_[np.arange(nq), 10 + np.arange(nq)]
+
+
+@pytest.mark.parametrize("fidelity,preload,integrator", [
+    ("nonlinear", False, "rk4"), ("nonlinear", True, "dopri5"), ("linear", True, "rk4"),
+    ("linear", False, "exponential")])
+@pytest.mark.parametrize("n", [0, 3, 8])
+def test_plant_hooks_are_the_kernel_at_the_models_point(hooks, n, fidelity, preload, integrator):
+    """The plant's fpm_model_jacobian and fpm_model_output_derivative against the kernel at the
+    state the model holds, with the force input_now gives: after initialisation F_c and dF_c set
+    now; after doSteps the last step's polynomial at its end (the step average for the
+    exponential method), also after new inputs are set and after a save and restore."""
+    from plant_fmu.interface import VARIABLES
+
+    F, dF, d2F, h, steps = 30.0, -200.0, 5e3, 2e-3, 3
+    args = [f"n_modes={n}", f"fidelity={fidelity}", f"gravity_preload={int(preload)}",
+            f"integrator={integrator}", "phi0=0.3", "phi_dot0=-1.0", "x_dot0=0.5", "step=1e-4",
+            f"F_c={F}", f"d1:F_c={dF}", f"d2:F_c={d2F}", "after:F_c=-70", "after:d1:F_c=9"]
+    out = _run_hooks(hooks["FlexiblePendulum"], h, steps, args)
+    m = _model(n, fidelity, preload)
+    outputs = [v.name for v in VARIABLES if v.causality == "output"]
+    rows = [OUT[o] if o in OUT else (OUT["eta"] + int(o[4:]) - 1 if o.startswith("eta_") else o)
+            for o in outputs]
+    t0 = h * (steps - 1)
+    u_step = F + h * dF + h * h * d2F / 2 if integrator != "exponential" else \
+        F + h * (dF / 2 + h * d2F / 6)
+    du_step = dF + h * d2F if integrator != "exponential" else 0.0
+    assert t0 >= 0
+    idx = _me_map(n)
+    for what, (u, du) in {"init": (F, dF), "step": (u_step, du_step),
+                          "restored": (u_step, du_step), "after": (u_step, du_step)}.items():
+        o = out[what]
+        assert o["rc"] == 0 and o["nx"] == 20 and o["nu"] == 1 and o["ny"] == len(outputs)
+        x = np.array(o["state"])
+        J, b = m.kernel.jacobian(x, u)
+        A, B = np.zeros((20, 20)), np.zeros((20, 1))
+        A[np.ix_(idx, idx)] = J
+        B[idx, 0] = b
+        Ck = m.kernel.output_jacobian(x)
+        d1k, d2k = m.kernel.output_derivatives(x, u, du)
+        C, d1, d2 = np.zeros((len(outputs), 20)), np.zeros(len(outputs)), np.zeros(len(outputs))
+        for i, r in enumerate(rows):
+            if r < Ck.shape[0] and not (outputs[i] == "tip_deflection" and n == 0):
+                C[i, idx] = Ck[r]
+                d1[i], d2[i] = d1k[r], d2k[r]
+        for got, want in ((o["A"], A), (o["B"], B), (o["C"], C), (o["D"], np.zeros((15, 1))),
+                          (o["d1"], d1), (o["d2"], d2)):
+            want = np.asarray(want).ravel()
+            np.testing.assert_allclose(got, want, rtol=1e-13, atol=1e-13 * np.abs(want).max(),
+                                       err_msg=what)
+    # a restored state answers bit for bit as the original
+    for key in ("A", "B", "C", "D", "d1", "d2", "state", "t"):
+        assert out["restored"][key] == out["step"][key]
+
+
+@pytest.mark.parametrize("order,limit", [(0, None), (1, None), (2, None), (2, 5.0), (0, 5.0)])
+def test_controller_hooks_are_the_kernel_at_the_models_point(hooks, order, limit):
+    from controller_fmu.pd_lowpass import ControllerParams
+
+    y = {"phi_o": (0.02, -0.3, 4.0), "omega_o": (0.5, 2.0, -30.0), "x_o": (0.1, 0.2, 1.0)}
+    after = {"phi_o": -0.5, "omega_o": 7.0, "x_o": 2.0}
+    h, steps = 1e-3, 4
+    args = [f"filter_order={order}", "kx=2.5"] + ([f"force_limit={limit}"] if limit else [])
+    for k, (v, d1, d2) in y.items():
+        args += [f"{k}={v}", f"d1:{k}={d1}", f"d2:{k}={d2}", f"after:{k}={after[k]}"]
+    out = _run_hooks(hooks["PDLowPass"], h, steps, args)
+    kw = {} if limit is None else {"force_limit": limit}
+    _, k = _controller(order, **kw)
+    p = ControllerParams(filter_order=order, kx=2.5, **kw)
+
+    def e_poly(s):                             # the error signal and its rates at s from the set
+        vals = {n: (v + s * (d1 + s * d2 / 2), d1 + s * d2, d2) for n, (v, d1, d2) in y.items()}
+        return [p.kx * vals["x_o"][i] + p.kp * vals["phi_o"][i] + p.kd * vals["omega_o"][i]
+                for i in range(3)]
+
+    for what, e in {"init": e_poly(0.0), "step": e_poly(h), "restored": e_poly(h),
+                    "after": e_poly(h)}.items():
+        o = out[what]
+        assert o["rc"] == 0 and o["nx"] == 2 and o["nu"] == 3 and o["ny"] == 1
+        xc = np.array(o["state"])[:order]
+        A0, B0, C0, D0 = k.linearize(xc, e[0])
+        A, B, C = np.zeros((2, 2)), np.zeros((2, 3)), np.zeros((1, 2))
+        A[:order, :order], B[:order], C[:, :order] = A0, B0, C0
+        d1, d2 = k.output_derivatives(xc, *e)
+        for got, want in ((o["A"], A), (o["B"], B), (o["C"], C), (o["D"], D0), (o["d1"], [d1]),
+                          (o["d2"], [d2])):
+            np.testing.assert_allclose(got, np.ravel(want), rtol=1e-14, atol=0, err_msg=what)
+    for key in ("A", "B", "C", "D", "d1", "d2", "state", "t"):
+        assert out["restored"][key] == out["step"][key]
+    assert out["step"]["t"] == pytest.approx(h * steps)
