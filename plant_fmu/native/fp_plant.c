@@ -466,6 +466,22 @@ int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u
  * (dynamics.py, PlantModel.jacobian_numpy): the vector r = df/dz - (dM/dz) qdd is formed by hand
  * for one column (or one direction) and solved by the Schur complement of the rhs. */
 
+/* 1 if every a[i] is finite: a - a is 0 for a finite a and NaN for an infinity or a NaN; four
+ * independent sums (the check is a quarter of a Jacobian's cost with a branch per entry). */
+static int all_finite_n(const double *a, long n)
+{
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    long i;
+    for (i = 0; i + 3 < n; i += 4) {
+        s0 += a[i] - a[i];
+        s1 += a[i + 1] - a[i + 1];
+        s2 += a[i + 2] - a[i + 2];
+        s3 += a[i + 3] - a[i + 3];
+    }
+    for (; i < n; i++) s0 += a[i] - a[i];
+    return s0 == 0.0 && s1 == 0.0 && s2 == 0.0 && s3 == 0.0;
+}
+
 long fp_jacobian_work_size(const fp_plant *p)
 {
     if (p == NULL) return 0;
@@ -631,10 +647,38 @@ int fp_jacobian(const fp_plant *p, const double *x, double u, double *J, double 
             R(2 + j, col) = -p->D[j];
         }
     }
-    /* solve each column but those of x and xd (zero: nothing depends on them) */
-    for (k = 0; k < nx; k++) {
-        if (k == 0 || k == nq) continue;
-        schur_solve(p, &S, &R(0, k), &R(1, k), &R(2, k), nx);
+    /* solve M Z = R for all columns at once, row by row (contiguous: the Schur complement of
+     * schur_solve with the dot products accumulated over the rows of R) */
+    {
+        double *q0 = work + nx + 2 * n, *q1 = q0 + nx, *r0 = &R(0, 0), *r1 = &R(1, 0);
+        for (k = 0; k < nx; k++) {
+            q0[k] = r0[k];
+            q1[k] = r1[k];
+        }
+        for (j = 0; j < n; j++) {
+            const double *re = &R(2 + j, 0), a3 = S.c * I3[j], a5 = p->I5[j];
+            if (p->preload) {             /* the eta columns are dense (c Kg) */
+                for (k = 0; k < nx; k++) {
+                    q0[k] += a3 * re[k];
+                    q1[k] -= a5 * re[k];
+                }
+            } else {                      /* row eta_j: columns phi, eta_j, phid, etad_j only */
+                const int cols[4] = {1, 2 + j, nq + 1, nq + 2 + j};
+                for (i = 0; i < 4; i++) {
+                    q0[cols[i]] += a3 * re[cols[i]];
+                    q1[cols[i]] -= a5 * re[cols[i]];
+                }
+            }
+        }
+        for (k = 0; k < nx; k++) {
+            r0[k] = S.i00 * q0[k] + S.i01 * q1[k];
+            r1[k] = S.i01 * q0[k] + S.i11 * q1[k];
+        }
+        for (j = 0; j < n; j++) {
+            double *re = &R(2 + j, 0);
+            const double a3 = S.c * I3[j], a5 = p->I5[j];
+            for (k = 0; k < nx; k++) re[k] += a3 * r0[k] - a5 * r1[k];
+        }
     }
 #undef R
     if (b != NULL) {
@@ -644,12 +688,8 @@ int fp_jacobian(const fp_plant *p, const double *x, double u, double *J, double 
         b[nq] = r0;
         b[nq + 1] = r1;
     }
-    for (i = 0; i < nx * nx; i++)
-        if (!isfinite(J[i])) return FP_NONFINITE;
-    if (b != NULL)
-        for (i = 0; i < nx; i++)
-            if (!isfinite(b[i])) return FP_NONFINITE;
-    return FP_OK;
+    return all_finite_n(J, (long)nx * nx) && (b == NULL || all_finite_n(b, nx)) ? FP_OK
+                                                                               : FP_NONFINITE;
 }
 
 /* out = J v + b du: the derivative of dx/dt along the direction v of the state and du of the
