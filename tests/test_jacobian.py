@@ -462,3 +462,43 @@ def test_controller_hooks_are_the_kernel_at_the_models_point(hooks, order, limit
     for key in ("A", "B", "C", "D", "d1", "d2", "state", "t"):
         assert out["restored"][key] == out["step"][key]
     assert out["step"]["t"] == pytest.approx(h * steps)
+
+
+@pytest.mark.parametrize("n,preload", [(1, False), (2, True)])
+def test_output_derivatives_against_sympy(n, preload):
+    """The outputs (T + V for the energy, not the power balance) differentiated twice in time by
+    sympy along q(t) (tests/test_lagrange.py's derivation from the kinematics), evaluated with
+    the accelerations M^-1 f and the jerks M^-1 (df/dz [qd, qdd, dF] - (dM/dt) qdd) from sympy's
+    own M, f and their derivatives."""
+    from test_lagrange import _derive, _param_values
+
+    p = PlantParams(n_modes=n, gravity_preload=preload)
+    m = plant_model(p)
+    M_f, f_f, _, _, d = _derive(n, preload)
+    nq = n + 2
+    rng = np.random.default_rng(600 + n)
+    for x, u in _random_states(m, count=5, seed=600 + n):
+        du = 300.0 * rng.standard_normal()
+        q, v = x[:nq], x[nq:]
+        args = [*q, *v, *_param_values(p, m, u)]
+        M = np.array(M_f(*args), dtype=float)
+        a = np.linalg.solve(M, np.array(f_f(*args), dtype=float).ravel())
+        dfdz = np.array(d["dfdz"](*args), dtype=float)           # columns q, qd, F
+        dMdt = sum(np.array(d["dMdq"][k](*args), dtype=float) * v[k] for k in range(nq))
+        jerk = np.linalg.solve(M, dfdz @ np.r_[v, a, du] - dMdt @ a)
+        d1s, d2s = (np.array(o, dtype=float).ravel() for o in d["time_derivatives"](
+            *args, *m.tip_slope, *m.tip_defl, *a, *jerk))
+        d1, d2 = m.kernel.output_derivatives(x, u, du)
+        e1, e2 = m.output_derivatives_numpy(x, u, du)
+        rows = [OUT[k] for k in ("x_o", "x_dot", "phi_o", "omega_o", "phi", "tip_deflection",
+                                 "energy")] + [OUT["eta"] + j for j in range(n)]
+        # scale: the largest term of each derivative (the energy's: its gradient times f)
+        C = m.output_jacobian_numpy(x)
+        f = m.rhs_numpy(0.0, x, u)
+        J, b = m.jacobian_numpy(x, u)
+        s1 = np.abs(C) @ np.abs(f)
+        s2 = np.abs(C) @ (np.abs(J) @ np.abs(f) + np.abs(b) * abs(du)) + np.abs(d2)
+        rtol = 256 * EPS * np.linalg.cond(M)
+        for got in ((d1, d2), (e1, e2)):
+            assert np.all(np.abs(got[0][rows] - d1s) <= rtol * s1[rows]), (got[0][rows], d1s)
+            assert np.all(np.abs(got[1][rows] - d2s) <= rtol * s2[rows]), (got[1][rows], d2s)
