@@ -25,6 +25,7 @@ exponential driven by a polynomial error signal), differentiated by central diff
 """
 import json
 import math
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -337,11 +338,14 @@ HOOKS_C = Path(__file__).parent / "native" / "jacobian_hooks.c"
 @pytest.fixture(scope="module")
 def hooks(tmp_path_factory):
     """The test host of the hooks for each model, built against its generated fpm_vars.h."""
+    return _build_hooks(tmp_path_factory.mktemp("hooks"))
+
+
+def _build_hooks(out, extra=()):
     from fmu_common import kernels
     from orchestration.export.native_fmus import generate_header
 
     root = Path(__file__).resolve().parents[1]
-    out = tmp_path_factory.mktemp("hooks")
     exes = {}
     for name, src, define in (("FlexiblePendulum", "plant_fmu/native/plant_model.c", "PLANT"),
                               ("PDLowPass", "controller_fmu/native/controller_model.c", "CTRL")):
@@ -349,7 +353,7 @@ def hooks(tmp_path_factory):
         inc.mkdir()
         (inc / "fpm_vars.h").write_text(generate_header(name, "token"))
         exe = out / f"hooks_{name}"
-        cmd = [kernels.find_compiler(), *kernels.CFLAGS, "-DFP_API=", "-DFPF_API=",
+        cmd = [kernels.find_compiler(), *kernels.CFLAGS, *extra, "-DFP_API=", "-DFPF_API=",
                f"-D{define}", f'-DMODEL_C="{root / src}"', f"-I{inc}",
                *(f"-I{root / d}" for d in ("fmu_common/native", "plant_fmu/native",
                                             "controller_fmu/native")),
@@ -502,3 +506,20 @@ def test_output_derivatives_against_sympy(n, preload):
         for got in ((d1, d2), (e1, e2)):
             assert np.all(np.abs(got[0][rows] - d1s) <= rtol * s1[rows]), (got[0][rows], d1s)
             assert np.all(np.abs(got[1][rows] - d2s) <= rtol * s2[rows]), (got[1][rows], d2s)
+
+
+@pytest.mark.skipif(not shutil.which("gcc"), reason="needs gcc")
+def test_hooks_and_kernels_under_address_and_undefined_behaviour_sanitizers(tmp_path):
+    """The hooks' host (every new kernel function of both kernels, both models' hooks, a save
+    and a restore) under ASan and UBSan: any memory error or undefined behaviour aborts."""
+    exes = _build_hooks(tmp_path, ("-O1", "-g", "-fno-omit-frame-pointer",
+                                   "-fsanitize=address,undefined", "-fno-sanitize-recover=all"))
+    for n, fid, pre in ((0, "nonlinear", 0), (8, "nonlinear", 1), (8, "linear", 1)):
+        out = _run_hooks(exes["FlexiblePendulum"], 1e-3, 2, [
+            f"n_modes={n}", f"fidelity={fid}", f"gravity_preload={pre}", "phi0=0.4", "F_c=3",
+            "d1:F_c=10", "after:F_c=1"])
+        assert out["restored"]["A"] == out["step"]["A"]
+    for order in (0, 1, 2):
+        out = _run_hooks(exes["PDLowPass"], 1e-3, 2, [f"filter_order={order}", "phi_o=0.1",
+                                                       "d1:omega_o=3", "after:x_o=1"])
+        assert out["restored"]["d2"] == out["step"]["d2"]
