@@ -16,10 +16,6 @@ import pytest
 
 from fmu_common.variables import derivatives, event_indicators, states
 
-#: The one place that marks the tests of the Jacobian and output-derivative hooks while
-#: fmu_common/native/fpm_pending.c stubs them: drop this marker (and the stubs file) when the
-#: kernels' implementation is merged.
-HOOKS_PENDING = pytest.mark.xfail(strict=False, reason="hooks pending merge")
 
 PLANT, CTRL = "FlexiblePendulum", "PDLowPass"
 
@@ -784,7 +780,6 @@ def _unknowns_knowns(md):
     return ders, states_, outs, ins
 
 
-@HOOKS_PENDING
 @pytest.mark.parametrize("version", [2, 3])
 @pytest.mark.parametrize("n", [0, 2, 8])
 def test_plant_directional_derivatives_are_the_numpy_jacobian_and_central_differences(
@@ -836,7 +831,6 @@ def test_plant_directional_derivatives_are_the_numpy_jacobian_and_central_differ
         np.testing.assert_allclose(col, C[:, j], rtol=1e-9, atol=1e-9 * np.abs(C).max())
 
 
-@HOOKS_PENDING
 @pytest.mark.parametrize("version", [2, 3])
 def test_cs_directional_derivatives_of_the_outputs_are_central_differences(me, version):
     """CS: the outputs after a step with respect to the states the importer may hold, against
@@ -857,7 +851,6 @@ def test_cs_directional_derivatives_of_the_outputs_are_central_differences(me, v
     assert np.all(m.directional(rows, ["F_c"], [1.0]) == 0.0)      # no direct feedthrough
 
 
-@HOOKS_PENDING
 @pytest.mark.parametrize("version", [2, 3])
 @pytest.mark.parametrize("order", [0, 1, 2])
 def test_controller_directional_derivatives_are_its_state_space(me, version, order):
@@ -927,7 +920,6 @@ def _output_derivative(m, names, order):
     return np.array(m.fmu.getOutputDerivatives(m.vr(*names), [order] * len(names)))
 
 
-@HOOKS_PENDING
 @pytest.mark.parametrize("version", [2, 3])
 def test_output_derivatives_are_the_numpy_specifications_and_the_fmus_steps(me, version):
     """The first and second time derivatives of every output at the end of a step (held input):
@@ -971,7 +963,6 @@ def test_output_derivatives_are_the_numpy_specifications_and_the_fmus_steps(me, 
     np.testing.assert_allclose(d1, fd1, rtol=1e-4, atol=1e-4 * np.abs(fd1).max())
 
 
-@HOOKS_PENDING
 @pytest.mark.parametrize("version", [2, 3])
 def test_max_output_derivative_order_is_what_the_binary_gives(me, version):
     """The modelDescription's maxOutputDerivativeOrder (the Python-side constant) is the highest

@@ -59,9 +59,7 @@ ROOT = kernels.ROOT
 #: the FMI layers every native FMU is built from
 SRC = ROOT / "fmu_common" / "native"
 #: the core every native FMU links, under its FMI version's adapter (fmi<version>.c).
-#: fpm_pending.c: temporary stubs of the models' Jacobian and output-derivative hooks (issue 24),
-#: until the kernels' implementation is merged; drop it from here when it is.
-CORE_SOURCES = ("fpm_guard.c", "fpm_core.c", "fpm_pending.c")
+CORE_SOURCES = ("fpm_guard.c", "fpm_core.c")
 #: room in fpm.h's table (FPM_MAX_VARS)
 MAX_VARS = 96
 #: The meshes and modes the native plant carries tables for (the pythonfmu plant computes any).
