@@ -76,6 +76,7 @@ class ModelExchangeUnit(Slave):
         self._x_np = np.ctypeslib.as_array(self._x)[:self.nx]
         self._dx_np = np.ctypeslib.as_array(self._dx)[:self.nx]
         self._z_np = np.ctypeslib.as_array(self._z)[:self.nz]
+        self._bind_hot()
 
     # ------------------------------------------------------------------ life cycle
     def initialize(self, t0: float, stop_time: float | None = None):
@@ -110,8 +111,35 @@ class ModelExchangeUnit(Slave):
         return self._call("completedIntegratorStep", self.fmu.completedIntegratorStep, True, t=t)
 
     # ------------------------------------------------------------------ the hot calls
+    # straight to the FMU's ctypes functions as fmpy loaded them (fmpy's own wrappers when a
+    # call logger is set), on preallocated buffers; the status is checked by Slave._checked
+
+    def _fn(self, name: str):
+        """The FMI function ``fmi2<name>`` or ``fmi3<name>``: raw, or fmpy's checked wrapper."""
+        full = ("fmi3" if self.fmi3 else "fmi2") + name
+        return self.raw_functions().get(full) or getattr(self.fmu, full)
+
+    def _bind_hot(self):
+        c = self.fmu.component
+        f3 = self.fmi3
+        set_time, set_x = self._fn("SetTime"), self._fn("SetContinuousStates")
+        get_dx = self._fn("GetContinuousStateDerivatives" if f3 else "GetDerivatives")
+        get_z = self._fn("GetEventIndicators")
+        x, dx, z, nx, nz = self._x, self._dx, self._z, self.nx, self.nz
+        self._set_time_raw = lambda t: set_time(c, t)
+        self._set_x_raw = lambda: set_x(c, x, nx)
+        self._get_dx_raw = lambda: get_dx(c, dx, nx)
+        self._get_z_raw = lambda: get_z(c, z, nz)
+        self._get_real = self._fn("GetFloat64" if f3 else "GetReal")
+        self._set_real = self._fn("SetFloat64" if f3 else "SetReal")
+        self._dd = self._fn("GetDirectionalDerivative")
+
+    def reals(self, vrs) -> "_Reals":
+        """Preallocated access to the real variables ``vrs`` (value references)."""
+        return _Reals(self, vrs)
+
     def set_time(self, t):
-        self._call("setTime", self.fmu.setTime, t, t=t)
+        self._checked("setTime", self._set_time_raw, t, t=t)
 
     def states(self) -> np.ndarray:
         self._call("getContinuousStates", self.fmu.getContinuousStates, self._x, self.nx)
@@ -124,25 +152,69 @@ class ModelExchangeUnit(Slave):
 
     def set_states(self, x, t=None):
         self._x_np[:] = x
-        self._call("setContinuousStates", self.fmu.setContinuousStates, self._x, self.nx, t=t)
+        self._checked("setContinuousStates", self._set_x_raw, t=t)
 
     def derivatives(self, t=None) -> np.ndarray:
-        get = self.fmu.getContinuousStateDerivatives if self.fmi3 else self.fmu.getDerivatives
-        self._call("getDerivatives", get, self._dx, self.nx, t=t)
+        """The state derivatives (a view, overwritten by the next call)."""
+        self._checked("getDerivatives", self._get_dx_raw, t=t)
         return self._dx_np
 
     def event_indicators(self, t=None) -> np.ndarray:
+        """The event indicators (a view, overwritten by the next call)."""
         if self.nz:
-            self._call("getEventIndicators", self.fmu.getEventIndicators, self._z, self.nz, t=t)
+            self._checked("getEventIndicators", self._get_z_raw, t=t)
         return self._z_np
 
     def partials(self, unknowns, knowns, t=None) -> np.ndarray:
         """``d unknowns / d knowns`` (value references), one directional derivative per known."""
-        out = np.zeros((len(unknowns), len(knowns)))
+        import ctypes
+        nu, nk = len(unknowns), len(knowns)
+        unk = (ctypes.c_uint * max(nu, 1))(*unknowns)
+        one = (ctypes.c_double * 1)(1.0)
+        sens = (ctypes.c_double * max(nu, 1))()
+        out = np.zeros((nu, nk))
+        c = self.fmu.component
         for j, k in enumerate(knowns):
-            out[:, j] = self._call("getDirectionalDerivative", self.fmu.getDirectionalDerivative,
-                                   list(unknowns), [k], [1.0], t=t)
+            kn = (ctypes.c_uint * 1)(k)
+            if self.fmi3:
+                self._checked("getDirectionalDerivative", self._dd, c, unk, nu, kn, 1, one, 1,
+                              sens, nu, t=t)
+            else:
+                self._checked("getDirectionalDerivative", self._dd, c, unk, nu, kn, 1, one,
+                              sens, t=t)
+            out[:, j] = np.ctypeslib.as_array(sens)[:nu]
         return out
+
+
+class _Reals:
+    """Get and set a fixed list of real variables of one unit on preallocated buffers."""
+
+    def __init__(self, unit: ModelExchangeUnit, vrs):
+        import ctypes
+        self.unit = unit
+        self.n = n = len(vrs)
+        self._vr = (ctypes.c_uint * max(n, 1))(*vrs)
+        self._val = (ctypes.c_double * max(n, 1))()
+        self.values = np.ctypeslib.as_array(self._val)[:n]
+        c = unit.fmu.component
+        get, put = unit._get_real, unit._set_real
+        if unit.fmi3:
+            self._get = lambda: get(c, self._vr, n, self._val, n)
+            self._put = lambda: put(c, self._vr, n, self._val, n)
+        else:
+            self._get = lambda: get(c, self._vr, n, self._val)
+            self._put = lambda: put(c, self._vr, n, self._val)
+
+    def get(self, t=None) -> np.ndarray:
+        """The values (a view, overwritten by the next call)."""
+        if self.n:
+            self.unit._checked("getReal", self._get, t=t)
+        return self.values
+
+    def set(self, values, t=None):
+        if self.n:
+            self.values[:] = values
+            self.unit._checked("setReal", self._put, t=t)
 
 
 class ModelExchangeMaster:
@@ -173,6 +245,12 @@ class ModelExchangeMaster:
                         for n in names}
         self.out_vrs = {n: [units[n].vr(v) for v in self.outputs[n]] for n in names}
         self.order = self._evaluation_order()
+        rank = {n: i for i, n in enumerate(self.order)}
+        #: per unit, its inputs whose sources come before it in the order, and the others
+        self._early = {n: [i for i, c in enumerate(self.inputs[n]) if rank[c.src] < rank[n]]
+                       for n in names}
+        self._late = {n: [i for i, c in enumerate(self.inputs[n]) if rank[c.src] >= rank[n]]
+                      for n in names}
         # offsets of each unit's states in z, of its outputs in y and its inputs in u
         self.sx, self.sy, self.su = {}, {}, {}
         nx = ny = nu = 0
@@ -193,7 +271,20 @@ class ModelExchangeMaster:
         self.rec_vrs = {n: [units[n].vr(v) for v in self.recorded[n]] for n in names}
         self.evaluations = 0
         self.jacobians = 0
-        self._y = {n: np.zeros(len(self.outputs[n])) for n in names}
+        # preallocated exchange: all connected outputs in one vector y (unit after unit), each
+        # unit's early and late inputs as (buffer, positions in y)
+        self._yall = np.zeros(ny)
+        self._outs = {n: units[n].reals(self.out_vrs[n]) for n in names}
+        self._recs = {n: units[n].reals(self.rec_vrs[n]) for n in names}
+        src_pos = self.S.argmax(axis=1)             # the output each input reads
+
+        def io(n, which):
+            if not which:
+                return None
+            return (units[n].reals([self.in_vrs[n][i] for i in which]),
+                    np.array([src_pos[self.su[n].start + i] for i in which]))
+        self._early_io = {n: io(n, self._early[n]) for n in names}
+        self._late_io = {n: io(n, self._late[n]) for n in names}
 
     def _evaluation_order(self):
         """The units in an order where each one that reads an input in its outputs comes after
@@ -214,31 +305,25 @@ class ModelExchangeMaster:
 
     # ------------------------------------------------------------------ the ODE
     def _set_point(self, t, z):
-        """Time and states of every unit, then the connected outputs and inputs in order."""
+        """Time and states of every unit, then the connected outputs and inputs: in evaluation
+        order each unit gets the inputs whose sources came before it (all of them, for a unit
+        whose outputs read its inputs) and hands on its outputs; then every unit gets the
+        inputs whose sources came after it."""
         for n, u in self.units.items():
             u.set_time(t)
             if u.nx:
                 u.set_states(z[self.sx[n]], t)
+        y = self._yall
         for n in self.order:
-            u = self.units[n]
-            if self.inputs[n]:
-                vals = [self._y[c.src][self.outputs[c.src].index(c.src_var)]
-                        for c in self.inputs[n]]
-                self._set_reals(u, self.in_vrs[n], vals, t)
-            if self.outputs[n]:
-                self._y[n] = self._get_reals(u, self.out_vrs[n], t)
-
-    @staticmethod
-    def _set_reals(u, vrs, vals, t):
-        if u.fmi3:
-            u._call("setFloat64", u.fmu.setFloat64, vrs, list(vals), t=t)
-        else:
-            u._call("setReal", u.fmu.setReal, vrs, list(vals), t=t)
-
-    @staticmethod
-    def _get_reals(u, vrs, t):
-        get = u.fmu.getFloat64 if u.fmi3 else u.fmu.getReal
-        return np.array(u._call("getReal", get, vrs, t=t), dtype=float)
+            early = self._early_io[n]
+            if early is not None:
+                early[0].set(y[early[1]], t)
+            if self._outs[n].n:
+                y[self.sy[n]] = self._outs[n].get(t)
+        for n in self.order:
+            late = self._late_io[n]
+            if late is not None:
+                late[0].set(y[late[1]], t)
 
     def rhs(self, t, z):
         self.evaluations += 1
@@ -332,7 +417,7 @@ class ModelExchangeMaster:
                     z_ind = self._indicators(t_event, dense(t_event))
                     continue
                 self._set_point(t, solver.y)
-                for name, u in self.units.items():
+                for u in self.units.values():
                     enter, terminate = u.completed_step(t)
                     if terminate:
                         raise u.stopped("completedIntegratorStep asked to terminate", t)
@@ -385,8 +470,8 @@ class ModelExchangeMaster:
     def _store(self, out, i, t, z):
         """Row ``i``: time, then the recorded variables at ``(t, z)``."""
         self._set_point(t, z)
-        vals = {n: dict(zip(self.recorded[n], self._get_reals(self.units[n], self.rec_vrs[n], t)))
-                if self.recorded[n] else {} for n in self.units}
+        vals = {n: dict(zip(self.recorded[n], self._recs[n].get(t).tolist()))
+                for n in self.units}
         out[i] = (t, *(vals[s][v] for s, v in self.record.values()))
 
     def close(self):

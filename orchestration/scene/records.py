@@ -156,8 +156,8 @@ class MasterSettings:
     output_derivatives: bool = False
     interface: str = "co-simulation"
     solver: str = "radau"
-    rtol: float = 1e-8
-    atol: float = 1e-10
+    rtol: float = 1e-6
+    atol: float = 1e-8
 
     def __post_init__(self):
         _choice("master.algorithm", self.algorithm, ALGORITHMS)
