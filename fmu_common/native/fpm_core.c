@@ -19,7 +19,7 @@
 #include <string.h>
 
 #define MAGIC "FPMS"
-#define FORMAT 2u
+#define FORMAT 3u     /* 3: the models save whether a step was taken (issue 24) */
 #define HEADER 24u
 #define STATE_MAGIC 0x46504d5354415445ULL    /* "FPMSTATE": a state this core allocated */
 
