@@ -65,9 +65,7 @@ class ModelExchangeUnit(Slave):
         self.nz = int(md.numberOfEventIndicators)
         self.der_vrs = [u.variable.valueReference for u in md.derivatives]
         self.state_vrs = [u.variable.derivative.valueReference for u in md.derivatives]
-        self.directional = bool(getattr(md.modelExchange, "providesDirectionalDerivative", False)
-                                or getattr(md.modelExchange, "providesDirectionalDerivatives",
-                                           False))
+        self.directional = self._provides_directional_derivatives()
         import ctypes
         dbl = ctypes.c_double
         self._x = (dbl * max(self.nx, 1))()
@@ -77,6 +75,18 @@ class ModelExchangeUnit(Slave):
         self._dx_np = np.ctypeslib.as_array(self._dx)[:self.nx]
         self._z_np = np.ctypeslib.as_array(self._z)[:self.nz]
         self._bind_hot()
+
+    def _provides_directional_derivatives(self) -> bool:
+        """The ModelExchange element's capability flag (fmpy 0.3 reads FMI 2.0's
+        ``providesDirectionalDerivative`` only; FMI 3.0's ``providesDirectionalDerivatives`` is
+        read here from the file)."""
+        if not self.fmi3:
+            return bool(self.md.modelExchange.providesDirectionalDerivative)
+        import os
+        import xml.etree.ElementTree as ET
+        root = ET.parse(os.path.join(self._unzipdir, "modelDescription.xml")).getroot()
+        me = root.find("ModelExchange")
+        return me is not None and me.get("providesDirectionalDerivatives") == "true"
 
     # ------------------------------------------------------------------ life cycle
     def initialize(self, t0: float, stop_time: float | None = None):
