@@ -191,14 +191,15 @@ def stop_reason(message: str) -> str:
     import re
 
     num = _NUMBER
-    m = re.search(rf"divergence at t = ({num}): \|phi\| = ({num}) exceeds phi_limit = ({num})",
-                  message)
+    # "exceeds": a co-simulation step refused; "reached": a Model Exchange event
+    m = re.search(rf"divergence at t = ({num}): \|phi\| = ({num}) (?:exceeds|reached) "
+                  rf"phi_limit = ({num})", message)
     if m:
         t, phi, lim = map(float, m.groups())
         return (f"the beam tilted past plant.phi_limit = {lim:.4g} rad ({math.degrees(lim):.4g} "
                 f"deg) by t = {t:.4g} s (|phi| = {phi:.4g} rad), where the plant stops")
-    m = re.search(rf"divergence at t = ({num}): \|energy\| = ({num}) exceeds energy_limit = "
-                  rf"({num})", message)
+    m = re.search(rf"divergence at t = ({num}): \|energy\| = ({num}) (?:exceeds|reached) "
+                  rf"energy_limit = ({num})", message)
     if m:
         t, e, lim = map(float, m.groups())
         return (f"the plant's energy passed plant.energy_limit = {lim:.4g} J by t = {t:.4g} s "
