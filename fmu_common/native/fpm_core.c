@@ -82,6 +82,15 @@ static int count_vars(int causality)
     return n;
 }
 
+/* The number of the table's continuous states (fpm_var.state). */
+static size_t count_states(void)
+{
+    size_t i, n = 0;
+    for (i = 0; i < FPM_MAX_VARS; i++)
+        if (fpm_vars[i].name != NULL && fpm_vars[i].state) n++;
+    return n;
+}
+
 /* The index of vr among the table's variables of its causality (inputs, outputs). */
 static int index_among(unsigned vr, int causality)
 {
@@ -111,6 +120,12 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
     if (interface != FPM_COSIMULATION && interface != FPM_MODEL_EXCHANGE) {
         fpm_log(&tmp.lg, FPM_ERROR, "%s: unknown FMU type %d (co-simulation or model exchange)",
                 fn, interface);
+        return NULL;
+    }
+    if (fpm_model_nx() != count_states()) {    /* a build whose model and table disagree */
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: %s declares %lu continuous states but its model has "
+                "%lu (a broken build)", fn, fpm_model_name, (unsigned long)count_states(),
+                (unsigned long)fpm_model_nx());
         return NULL;
     }
     if (token == NULL || strcmp(token, fpm_token) != 0) {
