@@ -820,6 +820,19 @@ def test_me_state_get_set_and_serialisation_continue_bit_identically(me, version
         else:
             c.fmu.setFMUstate(c.fmu.deSerializeFMUstate(data))
     assert any("not a state this instance can be in" in msg for _, msg in c.logs[n:])
+    if version == 3:                    # even one in event mode (eventModeUsed), as ME's are
+        from fmpy.fmi3 import FMU3Slave
+        d = FMU3Slave(guid=c.md.guid, unzipDirectory=c.fmu.unzipDirectory,
+                      modelIdentifier=c.md.coSimulation.modelIdentifier, instanceName="e")
+        msgs = []
+        d.instantiate(loggingOn=True, eventModeUsed=True,
+                      logMessage=lambda env, status, cat, msg: msgs.append(msg.decode()))
+        a.fmu.enterEventMode()                        # an ME state in event mode
+        in_event = a.fmu.serializeFMUState(a.fmu.getFMUState())
+        with pytest.raises(Exception):                # noqa: B017 - fmpy's FMICallException
+            d.setFMUState(d.deserializeFMUState(in_event))
+        assert any("a state of an instance of Model Exchange" in msg for msg in msgs), msgs
+        d.freeInstance()
 
 
 # ---------------------------------------------------------------------- directional derivatives

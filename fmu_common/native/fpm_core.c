@@ -415,7 +415,7 @@ static size_t serialize(const fpm_instance *c, unsigned char *out, size_t cap)
     w.p = out;
     w.cap = cap - 8u;
     w.n = HEADER;
-    fpm_put_i32(&w, c->mode);
+    fpm_put_i32(&w, c->mode | c->interface << 8);   /* the mode and the interface */
     fpm_put_i32(&w, c->discarded);
     for (i = 0; i < FPM_MAX_VARS; i++) {
         const fpm_var *var = &fpm_vars[i];
@@ -476,9 +476,18 @@ static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned ch
     r.n = payload;
     fpm_model_reset(c->spare, 0.0);
     v = fpm_model_values(c->spare);
-    if (fpm_get_i32(&r, "the mode", mode) &&
-        !(*mode > 0 && (*mode & (*mode - 1)) == 0 && (*mode & c->modes)))
-        fpm_reject(&r, "the mode %d is not a state this instance can be in", *mode);
+    if (fpm_get_i32(&r, "the mode", mode)) {
+        /* the mode in the low byte, the interface above it: a state of one interface never
+         * restores into an instance of the other (Model Exchange leaves the co-simulation
+         * stepper's data as they were, which a co-simulation step would trust) */
+        int raw = *mode, iface = (int)((unsigned)raw >> 8);
+        *mode = (int)((unsigned)raw & 0xffu);
+        if (!(*mode > 0 && (*mode & (*mode - 1)) == 0 && (*mode & c->modes)))
+            fpm_reject(&r, "the mode %d is not a state this instance can be in", raw);
+        else if (iface != c->interface)
+            fpm_reject(&r, "a state of an instance of %s; this instance is of %s",
+                       interface_name(iface), interface_name(c->interface));
+    }
     fpm_get_int_in(&r, "the refusal flag", 0, 1, discarded);
     if (r.why[0] == '\0' && *discarded && !(*mode & (FPM_STEP | FPM_EVENT | FPM_TERMINATED)))
         fpm_reject(&r, "a refused step in state %s", fpm_mode_name(*mode));
