@@ -540,6 +540,31 @@ def _scipy_plant(start, sig, t_out, fidelity="nonlinear"):
             "phi_o": np.array([model.tip_angle(r)[0] for r in X])}
 
 
+_FMPY_DEFAULT_LOGGER = []
+
+
+@pytest.fixture
+def fmpy_logger():
+    """A logger for fmpy's simulate_fmu, and fmpy 0.3.32's logger proxy put back afterwards:
+    its native proxy keeps the last callback passed with ``logger=`` in a global, which every
+    later FMI 2.0 instance with the default logger then calls after it was freed (a crash at the
+    next message of any FMU). The proxy is pointed at a callback of fmpy's own printLogMessage
+    that lives as long as the process."""
+    from ctypes import byref
+
+    from fmpy.fmi1 import printLogMessage
+    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+    from fmpy.logging import addLoggerProxy
+    logs = []
+    yield logs, lambda *a: logs.append(a[-1].decode() if isinstance(a[-1], bytes)
+                                       else str(a[-1]))
+    if not _FMPY_DEFAULT_LOGGER:
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(printLogMessage)
+        _FMPY_DEFAULT_LOGGER.append(cb)
+    addLoggerProxy(byref(_FMPY_DEFAULT_LOGGER[0]))
+
+
 CASES = {
     # the committed input file (a smooth force), a flexible plant, until before it falls over
     "input_file": ({"n_modes": 4, "phi0": 0.0}, True, 0.6),
@@ -623,7 +648,7 @@ def test_fmpy_cvode_in_model_exchange_matches_cs_and_the_monolithic_reference(
 
 
 @pytest.mark.parametrize("version", [2, 3])
-def test_the_phi_limit_event_terminates_where_cs_refuses_the_step(paths, version):
+def test_the_phi_limit_event_terminates_where_cs_refuses_the_step(paths, fmpy_logger, version):
     """A fall from pi/6: CVode locates where |phi| reaches phi_limit (the event indicator), the
     FMU asks to terminate and says why; the time is where the numpy specification crosses it."""
     import fmpy
@@ -631,13 +656,11 @@ def test_the_phi_limit_event_terminates_where_cs_refuses_the_step(paths, version
 
     from plant_fmu.dynamics import PlantModel
     from plant_fmu.params import PlantParams
-    logs = []
+    logs, logger = fmpy_logger
     res = fmpy.simulate_fmu(paths[version][PLANT], fmi_type="ModelExchange", solver="CVode",
                             relative_tolerance=1e-10, stop_time=2.0,
                             start_values={"n_modes": 1, "phi0": math.pi / 6},
-                            output=["phi"], output_interval=1e-3,
-                            logger=lambda *a: logs.append(a[-1].decode() if isinstance(
-                                a[-1], bytes) else str(a[-1])), debug_logging=False)
+                            output=["phi"], output_interval=1e-3, logger=logger)
     m = PlantModel(PlantParams(n_modes=1))
     x0 = np.zeros(m.nx)
     x0[1] = math.pi / 6
@@ -650,6 +673,30 @@ def test_the_phi_limit_event_terminates_where_cs_refuses_the_step(paths, version
     assert res["time"][-1] == pytest.approx(sol.t_events[0][0], abs=1e-6)
     assert abs(res["phi"][-1]) == pytest.approx(math.pi / 2, abs=1e-6)
     assert any("phi_limit" in msg and "terminates" in msg for msg in logs), logs[-5:]
+
+
+@pytest.mark.parametrize("version", [2, 3])
+def test_the_energy_limit_event_terminates_at_the_bound(paths, fmpy_logger, version):
+    """A constant push raises the energy: CVode stops where |energy| reaches energy_limit, the
+    FMU names the bound; and an instance beyond the modes Model Exchange declares is refused at
+    exitInitializationMode."""
+    import fmpy
+    from fmpy.fmi1 import FMICallException
+    logs, logger = fmpy_logger
+    with pytest.raises(FMICallException):       # (before any call with a logger of ours)
+        fmpy.simulate_fmu(paths[version][PLANT], fmi_type="ModelExchange", stop_time=1e-3,
+                          start_values={"n_modes": 9})
+    e0 = fmpy.simulate_fmu(paths[version][PLANT], fmi_type="ModelExchange", stop_time=1e-3,
+                           start_values={"n_modes": 1}, output=["energy"])["energy"][0]
+    limit = abs(e0) + 0.5
+    res = fmpy.simulate_fmu(paths[version][PLANT], fmi_type="ModelExchange", solver="CVode",
+                            relative_tolerance=1e-10, stop_time=2.0,
+                            start_values={"n_modes": 1, "F_c": 20.0, "energy_limit": limit},
+                            output=["energy", "phi"], output_interval=1e-3, logger=logger)
+    assert res["time"][-1] < 2.0
+    assert abs(res["energy"][-1]) == pytest.approx(limit, rel=1e-6)
+    assert np.all(np.abs(res["phi"]) < math.pi / 2)
+    assert any("energy_limit" in msg and "terminates" in msg for msg in logs), logs[-3:]
 
 
 # ---------------------------------------------------------------------- the controller
@@ -769,6 +816,19 @@ def test_me_state_get_set_and_serialisation_continue_bit_identically(me, version
         else:
             c.fmu.setFMUstate(c.fmu.deSerializeFMUstate(data))
     assert any("not a state this instance can be in" in msg for _, msg in c.logs[n:])
+    if version == 3:                    # even one in event mode (eventModeUsed), as ME's are
+        from fmpy.fmi3 import FMU3Slave
+        d = FMU3Slave(guid=c.md.guid, unzipDirectory=c.fmu.unzipDirectory,
+                      modelIdentifier=c.md.coSimulation.modelIdentifier, instanceName="e")
+        msgs = []
+        d.instantiate(loggingOn=True, eventModeUsed=True,
+                      logMessage=lambda env, status, cat, msg: msgs.append(msg.decode()))
+        a.fmu.enterEventMode()                        # an ME state in event mode
+        in_event = a.fmu.serializeFMUState(a.fmu.getFMUState())
+        with pytest.raises(Exception):                # noqa: B017 - fmpy's FMICallException
+            d.setFMUState(d.deserializeFMUState(in_event))
+        assert any("a state of an instance of Model Exchange" in msg for msg in msgs), msgs
+        d.freeInstance()
 
 
 # ---------------------------------------------------------------------- directional derivatives

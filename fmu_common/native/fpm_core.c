@@ -82,6 +82,15 @@ static int count_vars(int causality)
     return n;
 }
 
+/* The number of the table's continuous states (fpm_var.state). */
+static size_t count_states(void)
+{
+    size_t i, n = 0;
+    for (i = 0; i < FPM_MAX_VARS; i++)
+        if (fpm_vars[i].name != NULL && fpm_vars[i].state) n++;
+    return n;
+}
+
 /* The index of vr among the table's variables of its causality (inputs, outputs). */
 static int index_among(unsigned vr, int causality)
 {
@@ -111,6 +120,12 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
     if (interface != FPM_COSIMULATION && interface != FPM_MODEL_EXCHANGE) {
         fpm_log(&tmp.lg, FPM_ERROR, "%s: unknown FMU type %d (co-simulation or model exchange)",
                 fn, interface);
+        return NULL;
+    }
+    if (fpm_model_nx() != count_states()) {    /* a build whose model and table disagree */
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: %s declares %lu continuous states but its model has "
+                "%lu (a broken build)", fn, fpm_model_name, (unsigned long)count_states(),
+                (unsigned long)fpm_model_nx());
         return NULL;
     }
     if (token == NULL || strcmp(token, fpm_token) != 0) {
@@ -400,7 +415,7 @@ static size_t serialize(const fpm_instance *c, unsigned char *out, size_t cap)
     w.p = out;
     w.cap = cap - 8u;
     w.n = HEADER;
-    fpm_put_i32(&w, c->mode);
+    fpm_put_i32(&w, c->mode | c->interface << 8);   /* the mode and the interface */
     fpm_put_i32(&w, c->discarded);
     for (i = 0; i < FPM_MAX_VARS; i++) {
         const fpm_var *var = &fpm_vars[i];
@@ -461,9 +476,18 @@ static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned ch
     r.n = payload;
     fpm_model_reset(c->spare, 0.0);
     v = fpm_model_values(c->spare);
-    if (fpm_get_i32(&r, "the mode", mode) &&
-        !(*mode > 0 && (*mode & (*mode - 1)) == 0 && (*mode & c->modes)))
-        fpm_reject(&r, "the mode %d is not a state this instance can be in", *mode);
+    if (fpm_get_i32(&r, "the mode", mode)) {
+        /* the mode in the low byte, the interface above it: a state of one interface never
+         * restores into an instance of the other (Model Exchange leaves the co-simulation
+         * stepper's data as they were, which a co-simulation step would trust) */
+        int raw = *mode, iface = (int)((unsigned)raw >> 8);
+        *mode = (int)((unsigned)raw & 0xffu);
+        if (!(*mode > 0 && (*mode & (*mode - 1)) == 0 && (*mode & c->modes)))
+            fpm_reject(&r, "the mode %d is not a state this instance can be in", raw);
+        else if (iface != c->interface)
+            fpm_reject(&r, "a state of an instance of %s; this instance is of %s",
+                       interface_name(iface), interface_name(c->interface));
+    }
     fpm_get_int_in(&r, "the refusal flag", 0, 1, discarded);
     if (r.why[0] == '\0' && *discarded && !(*mode & (FPM_STEP | FPM_EVENT | FPM_TERMINATED)))
         fpm_reject(&r, "a refused step in state %s", fpm_mode_name(*mode));
