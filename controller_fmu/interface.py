@@ -10,11 +10,19 @@ from __future__ import annotations
 
 import dataclasses
 
-from fmu_common.variables import ModelInfo, Variable, parameter, real_input, real_output
+from fmu_common.variables import (ModelInfo, Variable, parameter, real_input, real_local,
+                                  real_output)
 
 from .pd_lowpass import ControllerParams
 
-__all__ = ["VARIABLES", "MODEL", "SENSORS"]
+__all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER"]
+
+#: Model Exchange (the native FMUs only): the filter state xc' = Af xc + Bf e (pd_lowpass.py),
+#: xc_1 the filter's output, xc_2 its rate (order 2); states beyond the filter order stay 0 with
+#: derivative 0.
+STATES = ("xc_1", "xc_2")
+#: The highest order of the exact output derivatives of the native FMUs.
+MAX_OUTPUT_DERIVATIVE_ORDER = 2
 
 #: The sensors the controller reads: name -> (description, unit, unit of the 1st and 2nd time
 #: derivative).
@@ -34,6 +42,7 @@ _PARAMS = {
     "force_limit": ("saturation |F_c| <= force_limit (inf, or the largest double: none)", "N"),
 }
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(ControllerParams)}
+_DER_INITIAL = (*SENSORS, "kp", "kd", "kx", "filter_order", "cutoff", "filter_damping")
 
 #: The table, in value-reference order: the sensors, their first and second time derivatives
 #: (FMI's input derivatives as variables), the force, the parameters.
@@ -47,7 +56,22 @@ VARIABLES: tuple[Variable, ...] = (
     real_output("F_c", "force on the cart", "N", depends_on=tuple(SENSORS),
                 initial_depends_on=(*SENSORS, "kp", "kd", "kx", "filter_order", "force_limit")),
     *(parameter(n, _DEFAULTS[n], d, u, f"controller.{n}") for n, (d, u) in _PARAMS.items()),
+    # Model Exchange: the filter state and its derivatives (no event indicators: the saturation
+    # acts on the output alone, which stays continuous in time; see docs/fmus.md)
+    real_local("xc_1", "filter state 1: the filtered error signal (state; nominal: "
+                       "force_limit, or |kp| x 1 rad when unlimited)", "N", state=True),
+    real_local("xc_2", "filter state 2: the rate of xc_1 (order 2; state; nominal: cutoff "
+                       "times the nominal of xc_1)", "N/s", state=True),
+    real_local("der(xc_1)", "time derivative of xc_1", "N/s", der_of="xc_1",
+               depends_on=tuple(SENSORS), state_depends_on=STATES,
+               initial_depends_on=_DER_INITIAL),
+    real_local("der(xc_2)", "time derivative of xc_2", "N/s2", der_of="xc_2",
+               depends_on=tuple(SENSORS), state_depends_on=STATES,
+               initial_depends_on=_DER_INITIAL),
 )
+# F_c = -sat(xc_1) in Model Exchange (filter order 0: -sat(e), the inputs)
+VARIABLES = tuple(dataclasses.replace(v, state_depends_on=("xc_1",)) if v.name == "F_c" else v
+                  for v in VARIABLES)
 
 MODEL = ModelInfo(
     name="PDLowPass",

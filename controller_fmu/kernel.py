@@ -110,6 +110,37 @@ class FilterKernel:
         g = (_D * 6)(*G.ravel())
         return ctypes.byref(ad), ctypes.byref(g), (ad, g)
 
+    # ------------------------------------------------------------------ continuous time
+    def rhs(self, xc, e: float) -> np.ndarray:
+        """``xc' = Af xc + Bf e`` (``fpf_rhs``; empty for order 0)."""
+        x = (_D * 2)(*np.r_[np.asarray(xc, dtype=float).ravel(), 0.0, 0.0][:2])
+        out = (_D * 2)()
+        if self._lib.fpf_rhs(self._f, x, _D(e), out) != FPF_OK:
+            raise ArithmeticError("rhs: the result is not finite")
+        return np.array(out[:self.order])
+
+    def linearize(self, xc, e: float = 0.0):
+        """``(A, B, C, D)`` at the state ``xc`` and error signal ``e`` (``fpf_linearize``), the
+        inputs in the FMU's order ``[phi_o, omega_o, x_o]``."""
+        n = self.order
+        x = (_D * 2)(*np.r_[np.asarray(xc, dtype=float).ravel(), 0.0, 0.0][:2])
+        A, B = np.zeros((n, n)), np.zeros((n, 3))
+        C, D = np.zeros((1, n)), np.zeros((1, 3))
+        ptr = [ctypes.c_void_p(a.ctypes.data) if a.size else None for a in (A, B, C)]
+        rc = self._lib.fpf_linearize(self._f, x, _D(e), *ptr, ctypes.c_void_p(D.ctypes.data))
+        if rc != FPF_OK:
+            raise ArithmeticError("linearize: the state or error signal is not finite")
+        return A, B, C, D
+
+    def output_derivatives(self, xc, e0: float, e1: float = 0.0, e2: float = 0.0):
+        """``(dF_c/dt, d2F_c/dt2)`` at the state ``xc`` for the error signal ``e0`` with the
+        rates ``e1, e2`` (``fpf_output_derivatives``)."""
+        x = (_D * 2)(*np.r_[np.asarray(xc, dtype=float).ravel(), 0.0, 0.0][:2])
+        d = (_D * 2)()
+        if self._lib.fpf_output_derivatives(self._f, x, _D3(e0, e1, e2), d) != FPF_OK:
+            raise ArithmeticError("output_derivatives: a result is not finite")
+        return d[0], d[1]
+
     def step(self, prepared, e0: float, e1: float = 0.0, e2: float = 0.0):
         """``x <- Ad x + G [e0, e1, e2]`` with the discretisation ``prepared``; returns the
         saturated force ``F_c``, or None (state unchanged) if the result would not be finite."""

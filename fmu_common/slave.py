@@ -96,8 +96,11 @@ class SlaveBase(Fmi2Slave):
         """Register the variables of ``table`` (:mod:`fmu_common.variables`), in its order, so that
         a variable's value reference is its position in the table: parameters are fixed and
         kept in ``self._par``, inputs are attributes of the slave, outputs are read through
-        ``output_getter(name)``."""
-        for index, v in enumerate(table):
+        ``output_getter(name)``. The native FMUs' Model-Exchange variables (``me_only``, at the
+        end of the table) are left out: these FMUs are co-simulation only."""
+        from fmu_common.variables import python_variables
+
+        for index, v in enumerate(python_variables(table)):
             cls = _TYPES[v.type]
             if v.causality == "parameter":
                 self._par[v.name] = v.start

@@ -12,10 +12,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = ["Variable", "ModelInfo", "CAUSALITIES", "TYPES", "parameter", "real_input",
-           "real_output", "native_variables", "by_name", "value_references",
+           "real_output", "real_local", "native_variables", "python_variables", "states",
+           "derivatives", "event_indicators", "by_name", "value_references",
            "parameter_defaults", "start_values"]
 
-CAUSALITIES = ("parameter", "input", "output")
+#: "local": a variable of the native FMUs' Model Exchange interface only (a continuous state
+#: that is no output, a state derivative, an event indicator); see ``Variable.me_only``.
+CAUSALITIES = ("parameter", "input", "output", "local")
 TYPES = {float: "Real", int: "Integer", bool: "Boolean", str: "String"}
 
 
@@ -31,6 +34,14 @@ class Variable:
     variables, which only the pythonfmu FMUs have (the native FMUs take them through
     ``fmi2SetRealInputDerivatives`` and leave these variables out, keeping every other variable's
     value reference).
+
+    Model Exchange (the native FMUs only). ``state``: the variable is a continuous state (its
+    position among the states is its position among the table's states). ``der_of``: this local
+    is the time derivative of the state of that name. ``state_depends_on``: the states an output
+    or a derivative depends on (its ``depends_on`` lists the inputs). ``event_indicator``: a local
+    that is an event indicator. ``me_only``: the variable exists in the native FMUs only: the
+    pythonfmu FMUs (co-simulation only) leave it out; such variables come after every other one,
+    so that the pythonfmu FMUs' value references (positions) stay.
     """
 
     name: str
@@ -45,19 +56,28 @@ class Variable:
     initial_depends_on: tuple = ()
     derivative_of: str | None = None
     derivative_order: int = 0
+    state: bool = False
+    der_of: str | None = None
+    state_depends_on: tuple = ()
+    event_indicator: bool = False
+    me_only: bool = False
 
     def __post_init__(self):
         if self.causality not in CAUSALITIES:
             raise ValueError(f"{self.name}: causality {self.causality!r}; allowed: {CAUSALITIES}")
         if self.type not in TYPES.values():
             raise ValueError(f"{self.name}: type {self.type!r}; allowed: {list(TYPES.values())}")
-        if (self.start is None) != (self.causality == "output"):
-            raise ValueError(f"{self.name}: parameters and inputs have a start value, outputs none")
+        if (self.start is None) != (self.causality in ("output", "local")):
+            raise ValueError(f"{self.name}: parameters and inputs have a start value, outputs "
+                             f"and locals none")
+        if self.causality == "local" and not self.me_only:
+            raise ValueError(f"{self.name}: a local is a Model-Exchange variable (me_only)")
 
     @property
     def initial(self) -> str | None:
-        """FMI's ``initial`` attribute: outputs are calculated, parameters exact."""
-        return {"output": "calculated", "parameter": "exact"}.get(self.causality)
+        """FMI's ``initial`` attribute: outputs and locals are calculated, parameters exact."""
+        return {"output": "calculated", "local": "calculated",
+                "parameter": "exact"}.get(self.causality)
 
 
 @dataclass(frozen=True)
@@ -86,6 +106,45 @@ def real_input(name, description, unit, derivative_of=None, order=0) -> Variable
 def real_output(name, description, unit, depends_on=(), initial_depends_on=()) -> Variable:
     return Variable(name, "output", "Real", description, unit, None, depends_on=depends_on,
                     initial_depends_on=initial_depends_on)
+
+
+def real_local(name, description, unit, *, state=False, der_of=None, depends_on=(),
+               state_depends_on=(), initial_depends_on=(), event_indicator=False) -> Variable:
+    """A Model-Exchange local of the native FMUs: a state, a state derivative or an event
+    indicator."""
+    return Variable(name, "local", "Real", description, unit, None, depends_on=depends_on,
+                    initial_depends_on=initial_depends_on, state=state, der_of=der_of,
+                    state_depends_on=state_depends_on, event_indicator=event_indicator,
+                    me_only=True)
+
+
+def python_variables(table) -> list:
+    """The variables of a pythonfmu FMU (co-simulation only): the table without the native FMUs'
+    Model-Exchange variables (``me_only``, all at the end: every position stays)."""
+    out = [v for v in table if not v.me_only]
+    if list(table[:len(out)]) != out:
+        raise ValueError("the Model-Exchange variables (me_only) must come after every other")
+    return out
+
+
+def states(table) -> list:
+    """The continuous states' names in the order the FMUs declare them: the order of their
+    derivatives in the table."""
+    out = [v.der_of for v in table if v.der_of is not None]
+    if not out:                          # a co-simulation-only table (pythonfmu): no states
+        return []
+    if sorted(out) != sorted(v.name for v in table if v.state):
+        raise ValueError("every state needs one derivative, every derivative a state")
+    return out
+
+
+def derivatives(table) -> list:
+    """The state derivatives' names, in the order of their states."""
+    return [v.name for v in table if v.der_of is not None]
+
+
+def event_indicators(table) -> list:
+    return [v.name for v in table if v.event_indicator]
 
 
 def native_variables(table) -> list:

@@ -251,6 +251,13 @@ class PlantModel:
         C[7:, 2:nq] = np.eye(n)
         return C
 
+    def output_derivatives_numpy(self, x: np.ndarray, u: float, du: float = 0.0):
+        """``(d1, d2)``: the first and second time derivatives of every output (the kernel's
+        layout, as :meth:`output_jacobian_numpy`) at ``x`` with the force ``u`` and its rate
+        ``du`` at that instant (see :func:`_output_derivatives`; the kernel's
+        ``fp_output_derivatives`` computes the same)."""
+        return _output_derivatives(self, x, u, du, linear=False)
+
     def energy(self, x: np.ndarray) -> float:
         """Total energy ``T + V`` (the compiled kernel; same terms as :meth:`energy_numpy`)."""
         return self.kernel.energy(x)
@@ -431,6 +438,10 @@ class LinearPlantModel:
         C[7:, 2:nq] = np.eye(n)
         return C
 
+    def output_derivatives_numpy(self, x, u, du=0.0):
+        """``(d1, d2)`` of the outputs (see :meth:`PlantModel.output_derivatives_numpy`)."""
+        return _output_derivatives(self, x, u, du, linear=True)
+
     def tip_angle(self, x):
         return self.kernel.tip(x)
 
@@ -461,6 +472,46 @@ class LinearPlantModel:
 
     def state_space(self):
         return self.A, self.B, self.C, self.D
+
+
+def _output_derivatives(m, x, u, du, linear):
+    """``(d1, d2)`` of every output (the kernel's layout) of the model ``m`` at ``x`` for the force
+    ``u`` and its rate ``du``.
+
+    ``d1 = C f`` with ``f = dx/dt`` and ``C`` the output Jacobian (the energy's row: its gradient).
+    ``d2 = d/dt (C(x) f(x, u)) = f^T H_k f + C (J f + b du)``, written per output by the chain rule:
+    the outputs linear in ``x`` take ``C g`` with ``g = J f + b du = d^2x/dt^2``; the tip angle
+    ``phi + atan(sl)`` (``sl = N'(L) eta``) and its rate ``omega_o = phid + sld / (1 + sl^2)`` are
+    differentiated once more by hand; the energy's second derivative is that of the power balance
+    ``dE/dt = F_c xd - etad.D.etad + c etad.Kga.eta`` (``Kga`` the skew part of ``Kg``, ``c = cos
+    phi``, 1 in the linear model): the equations are Lagrange's for this energy with the Rayleigh
+    damping and the force on the cart (``tests/test_lagrange.py``), and ``Kg eta``'s skew part is
+    the only force of ``f`` no potential gives.
+    """
+    n, nq = m.n, m.nq
+    f = m.rhs_numpy(0.0, x, u)
+    J, b = m.jacobian_numpy(x, u)
+    g = J @ f + b * du
+    C = m.output_jacobian_numpy(x)
+    d1 = C @ f
+    d2 = C @ g                      # exact for the outputs linear in x
+    qd, a, j3 = x[nq:], f[nq:], g[nq:]
+    ts = m.tip_slope
+    sl, sld, sldd, slddd = (float(ts @ v[2:]) for v in (x[:nq], qd, a, j3))
+    if not linear:
+        w = 1.0 + sl * sl
+        d2[2] = a[1] + sldd / w - 2.0 * sl * sld ** 2 / w ** 2
+        d2[3] = (j3[1] + slddd / w - 6.0 * sl * sld * sldd / w ** 2 - 2.0 * sld ** 3 / w ** 2
+                 + 8.0 * sl * sl * sld ** 3 / w ** 3)
+    eta, etad, etadd = x[2:nq], qd[2:], a[2:]
+    Dd = m.Ddiag if not linear else np.diag(m.D0)[2:]
+    Kg = m.Kg if not linear else m._nl.Kg
+    Kga = 0.5 * (Kg - Kg.T)
+    c, s = (math.cos(x[1]), math.sin(x[1])) if not linear else (1.0, 0.0)
+    d2[6] = (du * qd[0] + u * a[0] - 2.0 * float(Dd @ (etad * etadd))
+             + c * float(etadd @ Kga @ eta) - s * qd[1] * float(etad @ Kga @ eta))
+    assert d1.shape == (7 + n,)
+    return d1, d2
 
 
 def _make_kernel(m: PlantModel, linear: bool):

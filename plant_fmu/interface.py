@@ -21,12 +21,13 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from fmu_common.variables import ModelInfo, Variable, parameter, real_input, real_output
+from fmu_common.variables import (ModelInfo, Variable, parameter, real_input, real_local,
+                                  real_output)
 
 from .params import PlantParams
 
 __all__ = ["VARIABLES", "MODEL", "FMU_SETTINGS", "FIDELITIES", "OUTPUTS", "N_ETA_OUTPUTS",
-           "INITIAL_STATE"]
+           "INITIAL_STATE", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER"]
 
 FIDELITIES = ("nonlinear", "linear")
 
@@ -108,7 +109,90 @@ OUTPUTS = {
 
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(PlantParams)}
 
-#: The table, in value-reference order: inputs, outputs, parameters.
+# ---- Model Exchange (the native FMUs only) -------------------------------------------------
+#: The continuous states of Model Exchange, in the order the FMUs declare them: the generalised
+#: coordinates of N_ETA_OUTPUTS modes (the largest n_modes Model Exchange takes), then their
+#: rates. The states of modes beyond the instance's n_modes stay 0 with derivative 0.
+_ETAS = tuple(f"eta_{j}" for j in range(1, N_ETA_OUTPUTS + 1))
+_ETA_DOTS = tuple(f"eta_dot_{j}" for j in range(1, N_ETA_OUTPUTS + 1))
+STATES = ("x_o", "phi", *_ETAS, "x_dot", "phi_dot", *_ETA_DOTS)
+#: The highest order of the exact output derivatives of the native FMUs
+#: (fpm_model_max_output_derivative_order; maxOutputDerivativeOrder).
+MAX_OUTPUT_DERIVATIVE_ORDER = 2
+#: Nominal values of the states (fmi2GetNominalsOfContinuousStates), physical scales computed
+#: from the parameters at initialisation (docs/fmus.md).
+_NOMINALS = {
+    "x_o": "nominal L (the beam's length)",
+    "phi": "nominal 1 rad",
+    "x_dot": "nominal sqrt(g L) (the pendulum's speed scale; L/s when g = 0)",
+    "phi_dot": "nominal sqrt(g / L) (the pendulum's rate scale; 1/s when g = 0)",
+    "eta": "nominal 0.01 L / |N_j(L)| (a tip deflection of 1 % of L)",
+    "eta_dot": "nominal omega_j times the nominal of eta_j",
+}
+#: Structural dependencies (what the modal coupling gives; tests/test_native_me.py checks them
+#: against the nonzero pattern of PlantModel.jacobian_numpy and output_jacobian_numpy at random
+#: states): the accelerations depend on every state but x and x_dot, and on the force.
+_ACC_STATES = ("phi", *_ETAS, "phi_dot", *_ETA_DOTS)
+_OUTPUT_STATES = {
+    "x_o": ("x_o",), "x_dot": ("x_dot",), "phi_o": ("phi", *_ETAS),
+    "omega_o": (*_ETAS, "phi_dot", *_ETA_DOTS), "tip_deflection": _ETAS,
+    "energy": tuple(s for s in STATES if s != "x_o"), "phi": ("phi",),
+    **{e: (e,) for e in _ETAS},
+}
+#: the parameters the initial accelerations depend on
+_ACC_INITIAL = tuple(f for f in (*(f.name for f in dataclasses.fields(PlantParams)), "fidelity",
+                                 "phi0", "phi_dot0", "x_dot0"))
+
+
+def _me_variables() -> tuple:
+    """The Model-Exchange locals, after every other variable: the states that are no output
+    (phi_dot, eta_dot_j), the derivatives der(<state>) in state order, and the event
+    indicators."""
+    rate = {"x_o": "x_dot", "phi": "phi_dot", **dict(zip(_ETAS, _ETA_DOTS))}
+    unit = {"x_o": "m", "phi": "rad", "x_dot": "m/s", "phi_dot": "rad/s",
+            **{e: ETA_UNIT for e in _ETAS}, **{e: ETA_UNIT + "/s" for e in _ETA_DOTS}}
+    rate_unit = {"m": "m/s", "rad": "rad/s", ETA_UNIT: ETA_UNIT + "/s", "m/s": "m/s2",
+                 "rad/s": "rad/s2", ETA_UNIT + "/s": ETA_UNIT + "/s2"}
+    init = {"x_o": ("x_dot0",), "phi": ("phi_dot0",)}
+    out = [real_local("phi_dot", f"angular rate of phi (state; {_NOMINALS['phi_dot']})", "rad/s",
+                      state=True, initial_depends_on=("phi_dot0",))]
+    out += [real_local(e, f"rate of modal coordinate {j} (state; {_NOMINALS['eta_dot']})",
+                       ETA_UNIT + "/s", state=True)
+            for j, e in enumerate(_ETA_DOTS, 1)]
+    for s in STATES:
+        if s in rate:                      # der(q) = qd
+            out.append(real_local(f"der({s})", f"time derivative of {s}", rate_unit[unit[s]],
+                                  der_of=s, state_depends_on=(rate[s],),
+                                  initial_depends_on=init.get(s, ())))
+        else:                              # the accelerations
+            out.append(real_local(f"der({s})", f"time derivative of {s}", rate_unit[unit[s]],
+                                  der_of=s, depends_on=("F_c",), state_depends_on=_ACC_STATES,
+                                  initial_depends_on=("F_c", *_ACC_INITIAL)))
+    out.append(real_local("phi_limit_indicator", "event indicator of the divergence bound: "
+                          "1 - (phi/phi_limit)^2 (crosses 0 where |phi| reaches phi_limit)", None,
+                          event_indicator=True, state_depends_on=("phi",),
+                          initial_depends_on=("phi0", "phi_limit")))
+    out.append(real_local("energy_limit_indicator", "event indicator of the divergence bound: "
+                          "1 - (energy/energy_limit)^2 (crosses 0 where |energy| reaches "
+                          "energy_limit)", None, event_indicator=True,
+                          state_depends_on=_OUTPUT_STATES["energy"],
+                          initial_depends_on=(*_ENERGY_DEPS, "energy_limit")))
+    return tuple(out)
+
+
+def _with_states(v: Variable) -> Variable:
+    """An output as Model Exchange sees it: a state (x_o, x_dot, phi, eta_j) or not, and the
+    states it depends on."""
+    if v.causality != "output":
+        return v
+    note = _NOMINALS.get("eta" if v.name in _ETAS else v.name)
+    return dataclasses.replace(
+        v, state=v.name in STATES, state_depends_on=_OUTPUT_STATES[v.name],
+        description=v.description + (f" (state; {note})" if v.name in STATES else ""))
+
+
+#: The table, in value-reference order: inputs, outputs, parameters, then the native FMUs'
+#: Model-Exchange locals.
 VARIABLES: tuple[Variable, ...] = (
     real_input("F_c", "horizontal force on the cart (at the start of the step)", "N"),
     real_input("dF_c", "time derivative of F_c at the start of the step (polynomial input; "
@@ -121,6 +205,7 @@ VARIABLES: tuple[Variable, ...] = (
     *(parameter(n, INITIAL_STATE[n][1], d, u, INITIAL_STATE[n][0])
       for n, (d, u) in _INITIAL.items()),
 )
+VARIABLES = tuple(_with_states(v) for v in VARIABLES) + _me_variables()
 
 MODEL = ModelInfo(
     name="FlexiblePendulum",

@@ -2,7 +2,8 @@
 
 :class:`PlantKernel` holds one plant's data (the invariants of :mod:`plant_fmu.beam`, passed in
 ``fp_plant``) and offers what the hot paths need: the right-hand side, the tip angle, the outputs
-and energy, the fixed-substep loop of the explicit methods and the adaptive Dormand-Prince loop.
+and energy, the exact Jacobians and output time derivatives, the fixed-substep loop of the
+explicit methods and the adaptive Dormand-Prince loop.
 :class:`plant_fmu.dynamics.PlantModel` and ``LinearPlantModel`` build one (their ``kernel``); the
 numpy code there stays the specification, and ``tests/test_kernels.py`` holds the two to 1e-12.
 
@@ -84,6 +85,7 @@ def library() -> ctypes.CDLL:
         lib = kernels.load("flexpend_plant", _NATIVE)
         lib.fp_energy.restype = ctypes.c_double
         lib.fp_work_size.restype = ctypes.c_long
+        lib.fp_jacobian_work_size.restype = ctypes.c_long
         for name in ("fp_rhs", "fp_tip", "fp_outputs"):
             getattr(lib, name).restype = None
         _lib = lib
@@ -157,6 +159,8 @@ class PlantKernel:
         self._f_rhs, self._f_energy, self._f_tip = lib.fp_rhs, lib.fp_energy, lib.fp_tip
         self._f_outputs, self._f_fixed = lib.fp_outputs, lib.fp_fixed_steps
         self._f_dopri = lib.fp_dopri_advance
+        self._jwork = np.zeros(lib.fp_jacobian_work_size(self._p))
+        self._pjwork = _addr(self._jwork)
 
     # ------------------------------------------------------------------ evaluations
     def rhs(self, x, u: float) -> np.ndarray:
@@ -187,6 +191,56 @@ class PlantKernel:
             self._out[OUT["energy"]] = math.nan
             self._f_outputs(self._p, self._px, int(bool(energy)), self._pout)
             return self._out.copy()
+
+    # ------------------------------------------------------------------ Jacobians
+    def _check(self, rc, what):
+        if rc == FP_NONFINITE:
+            raise ArithmeticError(f"{what}: a result is not finite")
+        if rc != FP_OK:
+            raise ValueError(f"{what}: bad argument (code {rc})")
+
+    def jacobian(self, x, u: float):
+        """``(J, b)``: ``J = d(dx/dt)/dx`` (nx x nx) and ``b = d(dx/dt)/dF_c`` at ``x`` with the
+        force ``u`` (``fp_jacobian``; the specification is ``jacobian_numpy``)."""
+        J, b = np.empty((self.nx, self.nx)), np.empty(self.nx)
+        with self._lock:
+            self._x[:] = x
+            rc = self._lib.fp_jacobian(self._p, self._px, _D(u), _addr(J), _addr(b),
+                                       self._pjwork)
+        self._check(rc, "jacobian")
+        return J, b
+
+    def jvp(self, x, u: float, v, du: float = 0.0) -> np.ndarray:
+        """``J v + b du`` without forming ``J`` (``fp_jvp``)."""
+        v = _f64(v, (self.nx,))
+        out = np.empty(self.nx)
+        with self._lock:
+            self._x[:] = x
+            rc = self._lib.fp_jvp(self._p, self._px, _D(u), _addr(v), _D(du), _addr(out),
+                                  self._pjwork)
+        self._check(rc, "jvp")
+        return out
+
+    def output_jacobian(self, x) -> np.ndarray:
+        """``C = d(outputs)/dx`` in the layout :data:`OUT` (``fp_output_jacobian``)."""
+        C = np.empty((OUT["eta"] + self.n, self.nx))
+        with self._lock:
+            self._x[:] = x
+            rc = self._lib.fp_output_jacobian(self._p, self._px, _addr(C))
+        self._check(rc, "output_jacobian")
+        return C
+
+    def output_derivatives(self, x, u: float, du: float = 0.0):
+        """``(d1, d2)``: the first and second time derivatives of every output (layout
+        :data:`OUT`) at ``x`` with the force ``u`` and its rate ``du``
+        (``fp_output_derivatives``)."""
+        d1, d2 = np.empty(OUT["eta"] + self.n), np.empty(OUT["eta"] + self.n)
+        with self._lock:
+            self._x[:] = x
+            rc = self._lib.fp_output_derivatives(self._p, self._px, _D(u), _D(du), _addr(d1),
+                                                 _addr(d2), self._pjwork)
+        self._check(rc, "output_derivatives")
+        return d1, d2
 
     # ------------------------------------------------------------------ loops
     def tableau(self, A, B, C, E=None, fsal=False) -> _TableauData:

@@ -99,16 +99,22 @@ def _derive(n: int, preload: bool):
     td = sp.symbols(f"td0:{n}")
     phi_o = phi + sp.atan(sum((ts[j] * eta[j] for j in range(n)), sp.Integer(0)))
     omega_o = phi_o.diff(t)
-    outs = sp.Matrix([x, x.diff(t), phi_o, omega_o, phi,
-                      sum((td[j] * eta[j] for j in range(n)), sp.Integer(0)),
-                      T + V, *eta]).subs(sub).subs(sub_q)
+    outs_t = sp.Matrix([x, x.diff(t), phi_o, omega_o, phi,
+                        sum((td[j] * eta[j] for j in range(n)), sp.Integer(0)), T + V, *eta])
+    outs = outs_t.subs(sub).subs(sub_q)
     out_args = [*z, *params, *ts, *td]
+    # their first and second time derivatives along q(t), with the accelerations acc and the
+    # jerks jerk as symbols (tests/test_jacobian.py gives them their values)
+    jerk = sp.symbols(f"j0:{n + 2}")
+    sub3 = {qi.diff(t, 3): js for qi, js in zip(q, jerk)}
+    d_outs = [outs_t.diff(t, k).subs(sub3).subs(sub).subs(sub_q) for k in (1, 2)]
     lam = lambda e: sp.lambdify(args, e, "numpy")  # noqa: E731
     return (lam(M), lam(f), lam(energy), n,
             {"dfdz": lam(dfdz), "dMdq": [lam(d) for d in dMdq], "M": M, "f": f, "args": args,
              "F": F,
              "outputs": sp.lambdify(out_args, outs, "numpy"),
-             "doutputs": sp.lambdify(out_args, outs.jacobian(z), "numpy")})
+             "doutputs": sp.lambdify(out_args, outs.jacobian(z), "numpy"),
+             "time_derivatives": sp.lambdify([*out_args, *acc, *jerk], d_outs, "numpy")})
 
 
 @pytest.fixture(scope="module", params=[(1, False), (2, False), (2, True)],

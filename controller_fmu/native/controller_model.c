@@ -35,6 +35,9 @@ struct fpm_model {
     double d[2][3];             /* first and second time derivatives of the sensors */
     double xc[2];
     double F;                   /* F_c after the last step, or the last finite F_c */
+    int stepped;                /* a doStep succeeded since initialisation (input_now) */
+    double step_y[9];           /* the sensors' polynomial that step used (sensors() layout) */
+    double step_h;              /* and its length */
     disc cache[2];
     int next;
 };
@@ -91,6 +94,9 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     }
     m->xc[0] = m->xc[1] = 0.0;
     m->F = 0.0;
+    m->stepped = 0;
+    memset(m->step_y, 0, sizeof m->step_y);
+    m->step_h = 0.0;
     m->cache[0].h = m->cache[1].h = -1.0;
     m->t = m->t0;
     return 1;
@@ -117,6 +123,9 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
     fpm_put_f64(w, m->xc[0]);
     fpm_put_f64(w, m->xc[1]);
     fpm_put_f64(w, m->F);
+    fpm_put_i32(w, m->stepped);
+    for (k = 0; k < 9; k++) fpm_put_f64(w, m->step_y[k]);
+    fpm_put_f64(w, m->step_h);
 }
 
 /* A logger that keeps the first error message in a reader's why. */
@@ -129,8 +138,8 @@ static void into_why(void *env, int status, const char *category, const char *me
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
 {
     fpm_logger lg;
-    double t0, t, xc[2], F;
-    int k, init;
+    double t0, t, xc[2], F, step_y[9], step_h;
+    int k, init, stepped;
     lg.emit = into_why;
     lg.env = r;
     fpm_get_finite(r, "t0", &t0);
@@ -146,11 +155,16 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     fpm_get_finite(r, "xc[0]", &xc[0]);
     fpm_get_finite(r, "xc[1]", &xc[1]);
     fpm_get_finite(r, "F_c", &F);
+    fpm_get_int_in(r, "stepped", 0, 1, &stepped);
+    for (k = 0; k < 9; k++) fpm_get_finite(r, "the inputs of the last step", &step_y[k]);
+    fpm_get_finite(r, "the last step's length", &step_h);
     if (r->why[0] != '\0') return 0;
+    if (!(step_h >= 0.0) || (!stepped && step_h != 0.0))
+        return fpm_reject(r, "the last step's length %g is not that of a step", step_h);
     m->t0 = t0;
     m->t = t0;
     if (!init) {                              /* as reset left it (F_c: a feedthrough read) */
-        if (t != t0 || xc[0] != 0.0 || xc[1] != 0.0)
+        if (t != t0 || xc[0] != 0.0 || xc[1] != 0.0 || stepped)
             return fpm_reject(r, "the filter of a model not initialised has moved");
         m->F = F;
         return 1;
@@ -169,6 +183,9 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     m->xc[0] = xc[0];
     m->xc[1] = xc[1];
     m->F = F;
+    m->stepped = stepped;
+    memcpy(m->step_y, step_y, sizeof step_y);
+    m->step_h = step_h;
     return 1;
 }
 
@@ -235,8 +252,143 @@ int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
         m->F = F;
     }
     m->t = t + h;
+    m->stepped = 1;
+    memcpy(m->step_y, y, sizeof m->step_y);
+    m->step_h = h;
     return FPM_OK;
 }
+
+/* ================================================================== Model Exchange (issue 24)
+ * The states [xc_1, xc_2]: the filter state (FPM_NX = 2; beyond the filter order 0 with
+ * derivative 0), with xc' = Af xc + Bf e (controllable canonical form, pd_lowpass.py), e from the
+ * sensors set now (no input derivatives in Model Exchange); F_c = -sat(xc_1) (filter order 0:
+ * -sat(e), direct feedthrough). The state lives where co-simulation keeps it (xc, t; F holds
+ * -sat(xc_1)), so FMU states save and restore it. No event indicators: the saturation acts on
+ * the output alone (xc' has no saturation in it), so F_c stays continuous in time and nothing in
+ * this FMU jumps; an integrator of the plant sees a kink in its input, which it handles as any
+ * other non-smooth input. */
+size_t fpm_model_nz(void) { return FPM_NZ; }
+
+int fpm_model_me_init(fpm_model *m, const fpm_logger *lg)
+{
+    (void)m;
+    (void)lg;
+    return FPM_OK;
+}
+
+int fpm_model_set_time(fpm_model *m, const fpm_logger *lg, double t)
+{
+    if (!(t >= m->t0)) {
+        fpm_log(lg, FPM_ERROR, "time = %.17g is before the start time %.17g", t, m->t0);
+        return FPM_ERROR;
+    }
+    m->t = t;
+    return FPM_OK;
+}
+
+void fpm_model_get_states(const fpm_model *m, double *x)
+{
+    x[0] = m->f.order >= 1 ? m->xc[0] : 0.0;
+    x[1] = m->f.order >= 2 ? m->xc[1] : 0.0;
+}
+
+static double saturated(const fpm_model *m, double F)
+{
+    if (F < -m->f.force_limit) return -m->f.force_limit;
+    if (F > m->f.force_limit) return m->f.force_limit;
+    return F;
+}
+
+int fpm_model_set_states(fpm_model *m, const fpm_logger *lg, const double *x)
+{
+    (void)lg;
+    if (m->f.order >= 1) {                    /* beyond the filter order: not used */
+        m->xc[0] = x[0];
+        m->F = saturated(m, -x[0]);
+    }
+    if (m->f.order >= 2) m->xc[1] = x[1];
+    return FPM_OK;
+}
+
+int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx)
+{
+    double y[9], e[3], wc = m->f.cutoff;
+    int k;
+    dx[0] = dx[1] = 0.0;
+    if (m->f.order == 0) return FPM_OK;
+    for (k = 0; k < 3; k++) y[k] = m->v.real[SENSOR_VRS[k]];
+    for (k = 3; k < 9; k++) y[k] = 0.0;       /* no input derivatives in Model Exchange */
+    if (!(isfinite(y[0]) && isfinite(y[1]) && isfinite(y[2]))) {
+        char bad[256];
+        name_bad(y, bad, sizeof bad);
+        fpm_log(lg, FPM_ERROR, "non-finite input at t = %.17g: %s", m->t, bad);
+        return FPM_ERROR;
+    }
+    fpf_error(&m->f, y, e);
+    if (m->f.order == 1) {
+        dx[0] = wc * (e[0] - m->xc[0]);
+    } else {
+        dx[0] = m->xc[1];
+        dx[1] = wc * wc * (e[0] - m->xc[0]) - 2.0 * m->f.damping * wc * m->xc[1];
+    }
+    if (!(isfinite(dx[0]) && isfinite(dx[1]))) {
+        fpm_log(lg, FPM_ERROR, "the filter's derivative is not finite at t = %.17g (error signal "
+                "%g)", m->t, e[0]);
+        return FPM_ERROR;
+    }
+    return FPM_OK;
+}
+
+/* xc_1: a force, |kp| x 1 rad, or force_limit when that is smaller (no limit is the largest
+ * double, never the scale); xc_2: cutoff times that. */
+void fpm_model_nominals(const fpm_model *m, double *nominal)
+{
+    double f = fmin(fabs(m->f.kp), m->f.force_limit);
+    if (!(isfinite(f) && f > 0.0)) f = 1.0;
+    nominal[0] = f;
+    nominal[1] = isfinite(f * m->f.cutoff) && f * m->f.cutoff > 0.0 ? f * m->f.cutoff : 1.0;
+    if (m->f.order < 2) nominal[1] = 1.0;
+    if (m->f.order < 1) nominal[0] = 1.0;
+}
+
+int fpm_model_event_indicators(fpm_model *m, const fpm_logger *lg, double *z)
+{
+    (void)m;
+    (void)lg;
+    (void)z;
+    return FPM_OK;
+}
+
+int fpm_model_event_update(fpm_model *m, const fpm_logger *lg, int *terminate)
+{
+    (void)m;
+    (void)lg;
+    *terminate = 0;
+    return FPM_OK;
+}
+
+int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    const fpm_var *v = &fpm_vars[vr];
+    double a[2];
+    int rc = FPM_OK;
+    if (!m->initialized && !prepare(m, lg)) {
+        fpm_log(lg, FPM_ERROR, "%s cannot be computed: a parameter is bad (above)", v->name);
+        return FPM_ERROR;
+    }
+    if (v->state) {
+        fpm_model_get_states(m, a);
+        *value = a[v->state - 1];
+    } else if (v->der) {
+        rc = fpm_model_derivatives(m, lg, a);
+        *value = a[v->der - 1];
+    } else {
+        fpm_log(lg, FPM_ERROR, "value reference %u is not a Model-Exchange local", vr);
+        return FPM_ERROR;
+    }
+    return rc;
+}
+/* ================================================================== end of Model Exchange */
 
 int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
 {
@@ -293,3 +445,127 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
             "and 2 of x_o, phi_o, omega_o only (got order %d of value reference %u)", order, vr);
     return FPM_ERROR;
 }
+
+/* ================================================================== Jacobians and output
+ * derivatives (issue 24; fpm.h) on the kernel's fpf_linearize and fpf_output_derivatives.
+ *
+ * States [xc_1, xc_2] (rows and columns beyond the filter order are 0); inputs phi_o, omega_o,
+ * x_o (the table's order, which is fpf_linearize's); the output F_c. The saturation's slope is
+ * that of the branch computing the value: 1 for |v| <= force_limit (the bound included), 0
+ * beyond (fp_filter.h), v = xc_1, or e for filter_order 0. Before initialisation: FPM_ERROR (the
+ * core refuses earlier). */
+#define JAC_NX 2
+
+size_t fpm_model_nx(void) { return JAC_NX; }
+
+int fpm_model_max_output_derivative_order(void) { return 2; }
+
+/* The sensors' values and first and second derivatives now (sensors() layout: x_o, phi_o,
+ * omega_o, then their rates, then their second derivatives): after a doStep, the polynomial that
+ * step used (the inputs and input derivatives at its start) evaluated at its end; otherwise
+ * (after initialisation, and always in Model Exchange, which takes no doStep) the inputs set now
+ * with the input derivatives set now (0 in Model Exchange). "A step was taken" is the flag
+ * stepped, set by a successful doStep, cleared by initialisation, saved with FMU states. 1 if
+ * all are finite. */
+static int input_now(const fpm_model *m, double *y)
+{
+    int k, ok = 1;
+    if (m->stepped) {
+        const double h = m->step_h;
+        for (k = 0; k < 3; k++) {
+            const double y0 = m->step_y[k], y1 = m->step_y[3 + k], y2 = m->step_y[6 + k];
+            y[k] = y0 + h * (y1 + 0.5 * h * y2);
+            y[3 + k] = y1 + h * y2;
+            y[6 + k] = y2;
+        }
+    } else {
+        ok = sensors(m, y);
+    }
+    for (k = 0; k < 9; k++) ok = ok && isfinite(y[k]);
+    return ok;
+}
+
+static int ready_now(const fpm_model *m, const fpm_logger *lg, const char *what, double *e)
+{
+    double y[9];
+    if (!m->initialized) {
+        fpm_log(lg, FPM_ERROR, "%s: the model is not initialised", what);
+        return 0;
+    }
+    if (!input_now(m, y)) {
+        char bad[256];
+        name_bad(y, bad, sizeof bad);
+        fpm_log(lg, FPM_ERROR, "%s: non-finite input at t = %.17g: %s", what, m->t, bad);
+        return 0;
+    }
+    fpf_error(&m->f, y, e);
+    return 1;
+}
+
+int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B, double *C,
+                       double *D)
+{
+    double e[3], a[4], b[6], c[2], d[3];
+    int n = m->f.order, i, j, k = 0, nu = 0, ny = 0;
+    unsigned vr;
+    if (!ready_now(m, lg, "the linearisation", e)) return FPM_ERROR;
+    if (fpf_linearize(&m->f, m->xc, e[0], a, b, c, d) != FPF_OK) {
+        fpm_log(lg, FPM_ERROR, "the linearisation is not finite at t = %.17g (filter state %g, "
+                "%g; error signal %g)", m->t, m->xc[0], m->xc[1], e[0]);
+        return FPM_ERROR;
+    }
+    for (vr = 0; vr < FPM_MAX_VARS; vr++)
+        if (fpm_vars[vr].name != NULL) {
+            nu += fpm_vars[vr].causality == FPM_INPUT;
+            ny += fpm_vars[vr].causality == FPM_OUTPUT;
+        }
+    if (A != NULL) {
+        for (i = 0; i < JAC_NX * JAC_NX; i++) A[i] = 0.0;
+        for (i = 0; i < n; i++)
+            for (j = 0; j < n; j++) A[i * JAC_NX + j] = a[i * n + j];
+    }
+    if (B != NULL) for (i = 0; i < JAC_NX * nu; i++) B[i] = 0.0;
+    if (C != NULL) for (i = 0; i < ny * JAC_NX; i++) C[i] = 0.0;
+    if (D != NULL) for (i = 0; i < ny * nu; i++) D[i] = 0.0;
+    /* the inputs, each at its column of fpf_linearize (phi_o 0, omega_o 1, x_o 2) */
+    for (vr = 0; vr < FPM_MAX_VARS; vr++)
+        if (fpm_vars[vr].name != NULL && fpm_vars[vr].causality == FPM_INPUT) {
+            const int col = vr == VR_phi_o ? 0 : vr == VR_omega_o ? 1 : vr == VR_x_o ? 2 : -1;
+            if (col >= 0) {
+                if (B != NULL)
+                    for (i = 0; i < n; i++) B[i * nu + k] = b[i * 3 + col];
+                if (D != NULL) D[k] = d[col];     /* F_c: the only output (row 0) */
+            }
+            k++;
+        }
+    if (C != NULL)
+        for (j = 0; j < n; j++) C[j] = c[j];
+    for (i = 0; i < n * n; i++)
+        if (!isfinite(a[i])) return FPM_ERROR;
+    return FPM_OK;
+}
+
+int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
+                                double *value)
+{
+    double e[3], d[2];
+    if (vr != VR_F_c) {
+        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
+        return FPM_ERROR;
+    }
+    if (order < 1 || order > 2) {
+        fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c: orders 1 and 2 only", order);
+        return FPM_ERROR;
+    }
+    if (!ready_now(m, lg, "the output derivatives", e)) return FPM_ERROR;
+    if (fpf_output_derivatives(&m->f, m->xc, e, d) != FPF_OK) {
+        fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c is not finite at t = %.17g "
+                "(filter state %g, %g; error signal %g, rates %g, %g)", order, m->t, m->xc[0],
+                m->xc[1], e[0], e[1], e[2]);
+        return FPM_ERROR;
+    }
+    *value = d[order - 1];
+    return FPM_OK;
+}
+/* ================================================================== end of Jacobians and output
+ * derivatives */

@@ -331,3 +331,96 @@ int fpf_step(const fpf_filter *f, const double *Ad, const double *G, const doubl
     *F = saturate(-x0, f->force_limit);
     return FPF_OK;
 }
+
+/* ------------------------------------------------------------------ continuous time (issue 24) */
+/* The saturation's slope at v (fp_filter.h): 1 on the identity branch |v| <= lim, else 0. */
+static double sat_slope(double v, double lim)
+{
+    return fabs(v) <= lim ? 1.0 : 0.0;
+}
+
+int fpf_rhs(const fpf_filter *f, const double *xc, double e, double *dxc)
+{
+    const double wc = f->cutoff;
+    double d0, d1 = 0.0;
+    if (f->order == 0) return isfinite(e) ? FPF_OK : FPF_NONFINITE;
+    if (f->order == 1) {
+        d0 = wc * (e - xc[0]);
+    } else {
+        d0 = xc[1];
+        d1 = (wc * wc) * (e - xc[0]) - (2.0 * f->damping * wc) * xc[1];
+    }
+    if (!isfinite(d0) || !isfinite(d1)) return FPF_NONFINITE;
+    dxc[0] = d0;
+    if (f->order == 2) dxc[1] = d1;
+    return FPF_OK;
+}
+
+int fpf_linearize(const fpf_filter *f, const double *xc, double e, double *A, double *B,
+                  double *C, double *D)
+{
+    const int n = f->order;
+    const double wc = f->cutoff, gains[3] = {f->kp, f->kd, f->kx};   /* phi_o, omega_o, x_o */
+    double sigma;
+    int i, k;
+    if (n == 0) {
+        if (!isfinite(e)) return FPF_NONFINITE;
+        sigma = sat_slope(-e, f->force_limit);
+        if (D != NULL)
+            for (k = 0; k < 3; k++) D[k] = -sigma * gains[k];
+        return FPF_OK;
+    }
+    for (i = 0; i < n; i++)
+        if (!isfinite(xc[i])) return FPF_NONFINITE;
+    sigma = sat_slope(-xc[0], f->force_limit);
+    if (A != NULL) {
+        if (n == 1) {
+            A[0] = -wc;
+        } else {
+            A[0] = 0.0;
+            A[1] = 1.0;
+            A[2] = -(wc * wc);
+            A[3] = -2.0 * f->damping * wc;
+        }
+    }
+    if (B != NULL) {
+        const double bf = n == 1 ? wc : wc * wc;     /* Bf = [wc] or [0, wc^2] */
+        for (k = 0; k < 3; k++) {
+            B[k] = n == 1 ? bf * gains[k] : 0.0;
+            if (n == 2) B[3 + k] = bf * gains[k];
+        }
+    }
+    if (C != NULL) {
+        C[0] = -sigma;
+        if (n == 2) C[1] = 0.0;
+    }
+    if (D != NULL)
+        for (k = 0; k < 3; k++) D[k] = 0.0;
+    return FPF_OK;
+}
+
+int fpf_output_derivatives(const fpf_filter *f, const double *xc, const double *e, double *d)
+{
+    const double wc = f->cutoff;
+    double v, v1, v2, sigma;
+    if (f->order == 0) {
+        v = e[0];
+        v1 = e[1];
+        v2 = e[2];
+    } else if (f->order == 1) {
+        v = xc[0];
+        v1 = wc * (e[0] - xc[0]);
+        v2 = wc * (e[1] - v1);
+    } else {
+        v = xc[0];
+        v1 = xc[1];
+        v2 = (wc * wc) * (e[0] - xc[0]) - (2.0 * f->damping * wc) * xc[1];
+    }
+    if (!(isfinite(v) && isfinite(v1) && isfinite(v2) && isfinite(e[0]) && isfinite(e[1])
+          && isfinite(e[2])))
+        return FPF_NONFINITE;
+    sigma = sat_slope(-v, f->force_limit);
+    d[0] = -sigma * v1;
+    d[1] = -sigma * v2;
+    return FPF_OK;
+}

@@ -34,7 +34,7 @@ extern "C" {
 #endif
 #endif
 
-#define FPF_ABI 1
+#define FPF_ABI 2
 
 #define FPF_OK 0
 #define FPF_BADARG 1      /* an argument is out of range (nothing was done) */
@@ -82,6 +82,37 @@ FPF_API void fpf_error(const fpf_filter *f, const double *y, double *e);
  * xc and *F unchanged. */
 FPF_API int fpf_step(const fpf_filter *f, const double *Ad, const double *G, const double *e,
                      double *xc, double *F);
+
+/* ---- The continuous-time filter, its linearisation and output derivatives (issue 24) --------
+ * The state xc (order doubles) follows xc' = Af xc + Bf e with e = kx x_o + kp phi_o + kd omega_o
+ * and Af, Bf the controllable canonical form above (order 1: xc' = wc (e - xc); order 2:
+ * xc1' = xc2, xc2' = wc^2 (e - xc1) - 2 zf wc xc2); F_c = -sat(xc[0]), and with order 0 (no
+ * state) F_c = -sat(e), a direct feedthrough.
+ *
+ * The saturation sat(v) = min(max(v, -L), L) is differentiated as the branch that computes its
+ * value: slope 1 for |v| <= L (the identity branch, bounds included, where sat(v) = v exactly),
+ * 0 for |v| > L; its second derivative is 0 (piecewise linear). Exactly at the bound this is the
+ * derivative from inside; the one-sided derivative outwards is 0 (a set of measure zero: a state
+ * or error signal exactly equal to the limit). With force_limit = +inf or the largest double
+ * every finite v has slope 1. */
+
+/* dxc = xc' for the error signal e (order doubles; nothing for order 0). FPF_OK, or
+ * FPF_NONFINITE (dxc unchanged) if the result would not be finite. */
+FPF_API int fpf_rhs(const fpf_filter *f, const double *xc, double e, double *dxc);
+
+/* The exact linearisation at the state xc with the error signal e (e only matters for order 0):
+ * A = d xc'/d xc (order x order), B = d xc'/d y (order x 3), C = d F_c/d xc (1 x order),
+ * D = d F_c/d y (1 x 3), row-major, with the inputs y in the FMU's table order
+ * [phi_o, omega_o, x_o] (not fpf_error's). Any pointer may be NULL (not wanted). FPF_OK or
+ * FPF_NONFINITE (xc or e not finite). */
+FPF_API int fpf_linearize(const fpf_filter *f, const double *xc, double e, double *A, double *B,
+                          double *C, double *D);
+
+/* d[0] = dF_c/dt, d[1] = d2F_c/dt2 at the state xc for the error signal given as its value and
+ * time derivatives e = [e, e', e''] at that instant (fpf_error of the sensors' polynomial): exact
+ * (the filter's own equations, and the saturation's slope as above). FPF_OK or FPF_NONFINITE. */
+FPF_API int fpf_output_derivatives(const fpf_filter *f, const double *xc, const double *e,
+                                   double *d);
 
 #ifdef __cplusplus
 }

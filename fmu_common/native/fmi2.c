@@ -1,6 +1,8 @@
 /*
- * fmi2.c - the FMI 2.0 co-simulation interface: signatures, status codes and the modes each call
- * is allowed in (FPM2_MASK_*, FMI 2.0 section 4.2.4), over the version-neutral core (fpm.h).
+ * fmi2.c - the FMI 2.0 interfaces, co-simulation and Model Exchange: signatures, status codes and
+ * the modes each call is allowed in (FPM2_MASK_*, FMI 2.0 section 4.2.4; FPM_ME_MASK_*, section
+ * 3.2.3), over the version-neutral core (fpm.h). A call of the other interface is refused with a
+ * message (the core checks each instance's interface).
  *
  * Input derivatives (canInterpolateInputs): fmi2SetRealInputDerivatives hands the first and
  * second time derivatives of an input to the model, which integrates the input polynomial over
@@ -12,6 +14,13 @@
 #include "fpm.h"
 
 #define S_FMI2 (FPM_INSTANTIATED | FPM_INIT | FPM_STEP | FPM_TERMINATED | FPM_ERROR_MODE)
+#define S_FMI2_ME (FPM_INSTANTIATED | FPM_INIT | FPM_EVENT | FPM_CONTINUOUS | FPM_TERMINATED | \
+                   FPM_ERROR_MODE)
+/* both interfaces (an instance only reaches the modes of its own) */
+#define M_TERMINATE (FPM2_MASK_TERMINATE | FPM_ME_MASK_TERMINATE)
+#define M_SET (FPM2_MASK_SET | FPM_ME_MASK_SET)
+#define M_DIRECTIONAL (FPM_INIT | FPM_EVENT | FPM_CONTINUOUS | FPM_STEP | FPM_TERMINATED | \
+                       FPM_ERROR_MODE)
 #define C ((fpm_instance *)comp)
 
 static const char *const TYPES[4] = {"Real", "Integer", "Boolean", "String"};
@@ -44,9 +53,17 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     (void)fmuResourceLocation;
     (void)visible;
     if (functions != NULL) cb = *functions;
+    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
+        if (cb.logger != NULL)
+            cb.logger(cb.componentEnvironment, instanceName ? instanceName : "?", fmi2Error,
+                      "logStatusError", "fmi2Instantiate: fmuType is neither fmi2ModelExchange "
+                      "nor fmi2CoSimulation");
+        return NULL;
+    }
     return fpm_instantiate("fmi2Instantiate", instanceName, fmuGUID,
                            fmuType == fmi2CoSimulation ? FPM_COSIMULATION : FPM_MODEL_EXCHANGE,
-                           S_FMI2, &cb, sizeof cb, emit, loggingOn ? 1 : 0);
+                           fmuType == fmi2CoSimulation ? S_FMI2 : S_FMI2_ME, &cb, sizeof cb, emit,
+                           loggingOn ? 1 : 0);
 }
 
 void fmi2FreeInstance(fmi2Component comp) { fpm_free_instance(C); }
@@ -70,12 +87,13 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component comp)
 fmi2Status fmi2ExitInitializationMode(fmi2Component comp)
 {
     return (fmi2Status)fpm_exit_init(C, "fmi2ExitInitializationMode", FPM2_MASK_EXIT_INIT,
-                                     FPM_STEP);
+                                     comp != NULL && C->interface == FPM_MODEL_EXCHANGE
+                                         ? FPM_EVENT : FPM_STEP);
 }
 
 fmi2Status fmi2Terminate(fmi2Component comp)
 {
-    return (fmi2Status)fpm_set_mode(C, "fmi2Terminate", FPM2_MASK_TERMINATE, FPM_TERMINATED);
+    return (fmi2Status)fpm_set_mode(C, "fmi2Terminate", M_TERMINATE, FPM_TERMINATED);
 }
 
 fmi2Status fmi2Reset(fmi2Component comp)
@@ -95,7 +113,7 @@ fmi2Status fmi2Reset(fmi2Component comp)
     fmi2Status fmi2##Fn(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,       \
                         const T value[])                                                     \
     {                                                                                        \
-        return (fmi2Status)fpm_set(C, "fmi2" #Fn, FPM2_MASK_SET, vr, nvr, value, type,       \
+        return (fmi2Status)fpm_set(C, "fmi2" #Fn, M_SET, vr, nvr, value, type,               \
                                    layout, TYPES);                                           \
     }
 GET(GetReal, fmi2Real, FPM_REAL, FPM_C_DOUBLE)
@@ -148,9 +166,9 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp, const fmi2ValueRefer
                                         size_t nKnown, const fmi2Real dvKnown[],
                                         fmi2Real dvUnknown[])
 {
-    (void)vUnknown; (void)nUnknown; (void)vKnown; (void)nKnown; (void)dvKnown; (void)dvUnknown;
-    return (fmi2Status)fpm_refuse(C, FPM_ERROR, "fmi2GetDirectionalDerivative", "not provided "
-                                  "by this FMU (providesDirectionalDerivative = false)");
+    return (fmi2Status)fpm_directional_derivative(C, "fmi2GetDirectionalDerivative",
+                                                  M_DIRECTIONAL, vUnknown, nUnknown, vKnown,
+                                                  nKnown, dvKnown, dvUnknown);
 }
 
 /* ------------------------------------------------------------------ co-simulation */
@@ -165,10 +183,8 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueRefere
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[],
                                         size_t nvr, const fmi2Integer order[], fmi2Real value[])
 {
-    (void)vr; (void)order; (void)value;
-    if (nvr == 0 && comp != NULL) return fmi2OK;
-    return (fmi2Status)fpm_refuse(C, FPM_ERROR, "fmi2GetRealOutputDerivatives", "not provided "
-                                  "by this FMU (maxOutputDerivativeOrder = 0)");
+    return (fmi2Status)fpm_output_derivatives(C, "fmi2GetRealOutputDerivatives",
+                                              FPM_STEP | FPM_TERMINATED, vr, nvr, order, value);
 }
 
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real currentCommunicationPoint,
@@ -230,54 +246,86 @@ fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2S
     return (fmi2Status)fpm_refuse(C, FPM_DISCARD, "fmi2GetStringStatus", "not available");
 }
 
-/* ------------------------------------------------------------------ model exchange: not this FMU */
-#define NOT_ME(fn)                                                                           \
-    return (fmi2Status)fpm_refuse(C, FPM_ERROR, fn, "this is a co-simulation FMU (no model " \
-                                  "exchange)")
+/* ------------------------------------------------------------------ model exchange */
+#define ME FPM_MODEL_EXCHANGE
 
-fmi2Status fmi2EnterEventMode(fmi2Component comp) { NOT_ME("fmi2EnterEventMode"); }
+fmi2Status fmi2EnterEventMode(fmi2Component comp)
+{
+    return (fmi2Status)fpm_set_mode_of(C, "fmi2EnterEventMode", ME, FPM_ME_MASK_ENTER_EVENT,
+                                       FPM_EVENT);
+}
+
 fmi2Status fmi2NewDiscreteStates(fmi2Component comp, fmi2EventInfo *info)
 {
-    (void)info;
-    NOT_ME("fmi2NewDiscreteStates");
+    int terminate = 0, rc;
+    if (comp != NULL && info == NULL)
+        return (fmi2Status)fpm_refuse(C, FPM_ERROR, "fmi2NewDiscreteStates", "eventInfo is NULL");
+    rc = fpm_me_update_discrete(C, "fmi2NewDiscreteStates", FPM_ME_MASK_NEW_DISCRETE, &terminate);
+    if (rc > FPM_WARNING) return (fmi2Status)rc;
+    info->newDiscreteStatesNeeded = fmi2False;
+    info->terminateSimulation = terminate ? fmi2True : fmi2False;
+    info->nominalsOfContinuousStatesChanged = fmi2False;
+    info->valuesOfContinuousStatesChanged = fmi2False;
+    info->nextEventTimeDefined = fmi2False;
+    info->nextEventTime = 0.0;
+    return (fmi2Status)rc;
 }
+
 fmi2Status fmi2EnterContinuousTimeMode(fmi2Component comp)
 {
-    NOT_ME("fmi2EnterContinuousTimeMode");
+    return (fmi2Status)fpm_set_mode_of(C, "fmi2EnterContinuousTimeMode", ME,
+                                       FPM_ME_MASK_ENTER_CONTINUOUS, FPM_CONTINUOUS);
 }
+
 fmi2Status fmi2CompletedIntegratorStep(fmi2Component comp, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
                                        fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation)
 {
-    (void)noSetFMUStatePriorToCurrentPoint; (void)enterEventMode; (void)terminateSimulation;
-    NOT_ME("fmi2CompletedIntegratorStep");
+    int terminate = 0, rc;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (comp != NULL && (enterEventMode == NULL || terminateSimulation == NULL))
+        return (fmi2Status)fpm_refuse(C, FPM_ERROR, "fmi2CompletedIntegratorStep",
+                                      "enterEventMode or terminateSimulation is NULL");
+    rc = fpm_me_completed_step(C, "fmi2CompletedIntegratorStep", FPM_ME_MASK_COMPLETED_STEP,
+                               &terminate);
+    if (rc > FPM_WARNING) return (fmi2Status)rc;
+    *enterEventMode = fmi2False;
+    *terminateSimulation = terminate ? fmi2True : fmi2False;
+    return (fmi2Status)rc;
 }
+
 fmi2Status fmi2SetTime(fmi2Component comp, fmi2Real time)
 {
-    (void)time;
-    NOT_ME("fmi2SetTime");
+    return (fmi2Status)fpm_me_set_time(C, "fmi2SetTime", FPM_ME_MASK_SET_TIME, time);
 }
+
 fmi2Status fmi2SetContinuousStates(fmi2Component comp, const fmi2Real x[], size_t nx)
 {
-    (void)x; (void)nx;
-    NOT_ME("fmi2SetContinuousStates");
+    return (fmi2Status)fpm_me_set_states(C, "fmi2SetContinuousStates", FPM_ME_MASK_SET_STATES,
+                                         x, nx);
 }
+
 fmi2Status fmi2GetDerivatives(fmi2Component comp, fmi2Real derivatives[], size_t nx)
 {
-    (void)derivatives; (void)nx;
-    NOT_ME("fmi2GetDerivatives");
+    return (fmi2Status)fpm_me_get_derivatives(C, "fmi2GetDerivatives",
+                                              FPM_ME_MASK_GET_DERIVATIVES, derivatives, nx);
 }
+
 fmi2Status fmi2GetEventIndicators(fmi2Component comp, fmi2Real eventIndicators[], size_t ni)
 {
-    (void)eventIndicators; (void)ni;
-    NOT_ME("fmi2GetEventIndicators");
+    return (fmi2Status)fpm_me_get_event_indicators(C, "fmi2GetEventIndicators",
+                                                   FPM_ME_MASK_GET_DERIVATIVES, eventIndicators,
+                                                   ni);
 }
+
 fmi2Status fmi2GetContinuousStates(fmi2Component comp, fmi2Real x[], size_t nx)
 {
-    (void)x; (void)nx;
-    NOT_ME("fmi2GetContinuousStates");
+    return (fmi2Status)fpm_me_get_states(C, "fmi2GetContinuousStates", FPM_ME_MASK_GET_STATES,
+                                         x, nx);
 }
+
 fmi2Status fmi2GetNominalsOfContinuousStates(fmi2Component comp, fmi2Real x_nominal[], size_t nx)
 {
-    (void)x_nominal; (void)nx;
-    NOT_ME("fmi2GetNominalsOfContinuousStates");
+    return (fmi2Status)fpm_me_get_nominals(C, "fmi2GetNominalsOfContinuousStates",
+                                           FPM_ME_MASK_GET_STATES | FPM_INSTANTIATED, x_nominal,
+                                           nx);
 }

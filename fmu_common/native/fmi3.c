@@ -1,6 +1,7 @@
 /*
- * fmi3.c - the FMI 3.0 co-simulation interface: signatures, status codes and the modes each
- * call is allowed in (FMI 3.0, section 4.2), over the version-neutral core (fpm.h).
+ * fmi3.c - the FMI 3.0 interfaces, co-simulation and Model Exchange: signatures, status codes
+ * and the modes each call is allowed in (FMI 3.0, sections 3.2 and 4.2), over the
+ * version-neutral core (fpm.h). A call of the other interface is refused with a message.
  *
  * Smooth inputs. FMI 3.0 has no fmi2SetRealInputDerivatives: its replacement is the
  * intermediate update mode, in which the FMU calls the importer back at its internal times and
@@ -17,8 +18,11 @@
 #include "fpm.h"
 
 #define S_FMI3 (FPM_INSTANTIATED | FPM_INIT | FPM_EVENT | FPM_STEP | FPM_TERMINATED | FPM_ERROR_MODE)
+#define S_FMI3_ME (FPM_INSTANTIATED | FPM_INIT | FPM_EVENT | FPM_CONTINUOUS | FPM_TERMINATED | \
+                   FPM_ERROR_MODE)
 #define M_ANY FPM_ANY
-#define M_SET (FPM_INSTANTIATED | FPM_INIT | FPM_EVENT | FPM_STEP)
+#define M_SET (FPM_INSTANTIATED | FPM_INIT | FPM_EVENT | FPM_STEP | FPM_CONTINUOUS)
+#define ME FPM_MODEL_EXCHANGE
 #define C ((fpm_instance *)inst)
 
 static const char *const TYPES[4] = {"Float64", "Int32", "Boolean", "String"};
@@ -57,7 +61,8 @@ static fmi3Instance instantiate(const char *fn, fmi3String name, fmi3String toke
     h.log = log;
     h.event_mode_used = eventModeUsed ? 1 : 0;
     return fpm_instantiate(fn, name, token, interface,
-                           eventModeUsed ? S_FMI3 : (S_FMI3 & ~FPM_EVENT), &h, sizeof h, emit,
+                           interface == FPM_MODEL_EXCHANGE ? S_FMI3_ME
+                           : eventModeUsed ? S_FMI3 : (S_FMI3 & ~FPM_EVENT), &h, sizeof h, emit,
                            loggingOn ? 1 : 0);
 }
 
@@ -69,7 +74,7 @@ fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String in
 {
     (void)resourcePath; (void)visible;
     return instantiate("fmi3InstantiateModelExchange", instanceName, instantiationToken,
-                       FPM_MODEL_EXCHANGE, loggingOn, 0, instanceEnvironment, logMessage);
+                       FPM_MODEL_EXCHANGE, loggingOn, 1, instanceEnvironment, logMessage);
 }
 
 fmi3Instance fmi3InstantiateScheduledExecution(
@@ -132,12 +137,14 @@ fmi3Status fmi3EnterEventMode(fmi3Instance inst)
     if (inst != NULL && !((const host3 *)C->host)->event_mode_used)
         return (fmi3Status)fpm_refuse(C, FPM_ERROR, "fmi3EnterEventMode", "the instance was "
                                       "created with eventModeUsed = false (hasEventMode = false)");
-    return (fmi3Status)fpm_set_mode(C, "fmi3EnterEventMode", FPM_STEP | FPM_EVENT, FPM_EVENT);
+    return (fmi3Status)fpm_set_mode(C, "fmi3EnterEventMode",
+                                    FPM_STEP | FPM_EVENT | FPM_CONTINUOUS, FPM_EVENT);
 }
 
 fmi3Status fmi3EnterStepMode(fmi3Instance inst)
 {
-    return (fmi3Status)fpm_set_mode(C, "fmi3EnterStepMode", FPM_EVENT, FPM_STEP);
+    return (fmi3Status)fpm_set_mode_of(C, "fmi3EnterStepMode", FPM_COSIMULATION, FPM_EVENT,
+                                       FPM_STEP);
 }
 
 fmi3Status fmi3UpdateDiscreteStates(fmi3Instance inst, fmi3Boolean *discreteStatesNeedUpdate,
@@ -146,20 +153,26 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance inst, fmi3Boolean *discreteStat
                                     fmi3Boolean *valuesOfContinuousStatesChanged,
                                     fmi3Boolean *nextEventTimeDefined, fmi3Float64 *nextEventTime)
 {
-    int rc = fpm_set_mode(C, "fmi3UpdateDiscreteStates", FPM_EVENT, FPM_EVENT);
-    if (rc != FPM_OK) return (fmi3Status)rc;
+    int terminate = 0, rc;
+    if (inst != NULL && C->interface == FPM_MODEL_EXCHANGE)
+        rc = fpm_me_update_discrete(C, "fmi3UpdateDiscreteStates", FPM_ME_MASK_NEW_DISCRETE,
+                                    &terminate);
+    else
+        rc = fpm_set_mode(C, "fmi3UpdateDiscreteStates", FPM_EVENT, FPM_EVENT);
+    if (rc > FPM_WARNING) return (fmi3Status)rc;
     if (discreteStatesNeedUpdate) *discreteStatesNeedUpdate = fmi3False;
-    if (terminateSimulation) *terminateSimulation = fmi3False;
+    if (terminateSimulation) *terminateSimulation = terminate ? fmi3True : fmi3False;
     if (nominalsOfContinuousStatesChanged) *nominalsOfContinuousStatesChanged = fmi3False;
     if (valuesOfContinuousStatesChanged) *valuesOfContinuousStatesChanged = fmi3False;
     if (nextEventTimeDefined) *nextEventTimeDefined = fmi3False;
     if (nextEventTime) *nextEventTime = 0.0;
-    return fmi3OK;
+    return (fmi3Status)rc;
 }
 
 fmi3Status fmi3Terminate(fmi3Instance inst)
 {
-    return (fmi3Status)fpm_set_mode(C, "fmi3Terminate", FPM_STEP | FPM_EVENT | FPM_ERROR_MODE,
+    return (fmi3Status)fpm_set_mode(C, "fmi3Terminate",
+                                    FPM_STEP | FPM_EVENT | FPM_CONTINUOUS | FPM_ERROR_MODE,
                                     FPM_TERMINATED);
 }
 
@@ -337,7 +350,6 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance inst, const fmi3Byte data[], siz
 /* ------------------------------------------------------------------ not provided */
 #define NOT_PROVIDED(fn, why) return (fmi3Status)fpm_refuse(C, FPM_ERROR, fn, why)
 
-#define CS_ONLY "this is a co-simulation FMU"
 #define NO_CLOCKS "this FMU has no clocks"
 
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance inst, const fmi3ValueReference unknowns[],
@@ -345,9 +357,16 @@ fmi3Status fmi3GetDirectionalDerivative(fmi3Instance inst, const fmi3ValueRefere
                                         size_t nKnowns, const fmi3Float64 seed[], size_t nSeed,
                                         fmi3Float64 sensitivity[], size_t nSensitivity)
 {
-    (void)unknowns; (void)nUnknowns; (void)knowns; (void)nKnowns; (void)seed; (void)nSeed;
-    (void)sensitivity; (void)nSensitivity;
-    NOT_PROVIDED("fmi3GetDirectionalDerivative", "not provided by this FMU");
+    if (inst != NULL && (nSeed != nKnowns || nSensitivity != nUnknowns)) {
+        fpm_log(&C->lg, FPM_ERROR, "fmi3GetDirectionalDerivative: %lu knowns but %lu seeds, %lu "
+                "unknowns but %lu sensitivities (scalar variables only)", (unsigned long)nKnowns,
+                (unsigned long)nSeed, (unsigned long)nUnknowns, (unsigned long)nSensitivity);
+        return fmi3Error;
+    }
+    return (fmi3Status)fpm_directional_derivative(
+        C, "fmi3GetDirectionalDerivative",
+        FPM_INIT | FPM_EVENT | FPM_CONTINUOUS | FPM_STEP | FPM_TERMINATED | FPM_ERROR_MODE,
+        unknowns, nUnknowns, knowns, nKnowns, seed, sensitivity);
 }
 
 fmi3Status fmi3GetAdjointDerivative(fmi3Instance inst, const fmi3ValueReference unknowns[],
@@ -434,7 +453,8 @@ fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance inst)
 
 fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance inst)
 {
-    NOT_PROVIDED("fmi3EnterContinuousTimeMode", CS_ONLY);
+    return (fmi3Status)fpm_set_mode_of(C, "fmi3EnterContinuousTimeMode", ME,
+                                       FPM_ME_MASK_ENTER_CONTINUOUS, FPM_CONTINUOUS);
 }
 
 fmi3Status fmi3CompletedIntegratorStep(fmi3Instance inst,
@@ -442,56 +462,72 @@ fmi3Status fmi3CompletedIntegratorStep(fmi3Instance inst,
                                        fmi3Boolean *enterEventMode,
                                        fmi3Boolean *terminateSimulation)
 {
-    (void)noSetFMUStatePriorToCurrentPoint; (void)enterEventMode; (void)terminateSimulation;
-    NOT_PROVIDED("fmi3CompletedIntegratorStep", CS_ONLY);
+    int terminate = 0, rc;
+    (void)noSetFMUStatePriorToCurrentPoint;
+    if (inst != NULL && (enterEventMode == NULL || terminateSimulation == NULL))
+        return (fmi3Status)fpm_refuse(C, FPM_ERROR, "fmi3CompletedIntegratorStep",
+                                      "enterEventMode or terminateSimulation is NULL");
+    rc = fpm_me_completed_step(C, "fmi3CompletedIntegratorStep", FPM_ME_MASK_COMPLETED_STEP,
+                               &terminate);
+    if (rc > FPM_WARNING) return (fmi3Status)rc;
+    *enterEventMode = fmi3False;
+    *terminateSimulation = terminate ? fmi3True : fmi3False;
+    return (fmi3Status)rc;
 }
 
 fmi3Status fmi3SetTime(fmi3Instance inst, fmi3Float64 time)
 {
-    (void)time;
-    NOT_PROVIDED("fmi3SetTime", CS_ONLY);
+    return (fmi3Status)fpm_me_set_time(C, "fmi3SetTime", FPM_ME_MASK_SET_TIME, time);
 }
 
 fmi3Status fmi3SetContinuousStates(fmi3Instance inst, const fmi3Float64 x[], size_t nx)
 {
-    (void)x; (void)nx;
-    NOT_PROVIDED("fmi3SetContinuousStates", CS_ONLY);
+    return (fmi3Status)fpm_me_set_states(C, "fmi3SetContinuousStates", FPM_ME_MASK_SET_STATES,
+                                         x, nx);
 }
 
 fmi3Status fmi3GetContinuousStateDerivatives(fmi3Instance inst, fmi3Float64 d[], size_t nx)
 {
-    (void)d; (void)nx;
-    NOT_PROVIDED("fmi3GetContinuousStateDerivatives", CS_ONLY);
+    return (fmi3Status)fpm_me_get_derivatives(C, "fmi3GetContinuousStateDerivatives",
+                                              FPM_ME_MASK_GET_DERIVATIVES, d, nx);
 }
 
 fmi3Status fmi3GetEventIndicators(fmi3Instance inst, fmi3Float64 ind[], size_t n)
 {
-    (void)ind; (void)n;
-    NOT_PROVIDED("fmi3GetEventIndicators", CS_ONLY);
+    return (fmi3Status)fpm_me_get_event_indicators(C, "fmi3GetEventIndicators",
+                                                   FPM_ME_MASK_GET_DERIVATIVES, ind, n);
 }
 
 fmi3Status fmi3GetContinuousStates(fmi3Instance inst, fmi3Float64 x[], size_t nx)
 {
-    (void)x; (void)nx;
-    NOT_PROVIDED("fmi3GetContinuousStates", CS_ONLY);
+    return (fmi3Status)fpm_me_get_states(C, "fmi3GetContinuousStates", FPM_ME_MASK_GET_STATES,
+                                         x, nx);
 }
 
 fmi3Status fmi3GetNominalsOfContinuousStates(fmi3Instance inst, fmi3Float64 nominals[], size_t nx)
 {
-    (void)nominals; (void)nx;
-    NOT_PROVIDED("fmi3GetNominalsOfContinuousStates", CS_ONLY);
+    return (fmi3Status)fpm_me_get_nominals(C, "fmi3GetNominalsOfContinuousStates",
+                                           FPM_ME_MASK_GET_STATES | FPM_INSTANTIATED, nominals,
+                                           nx);
 }
 
 fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance inst, size_t *n)
 {
-    (void)n;
-    NOT_PROVIDED("fmi3GetNumberOfEventIndicators", CS_ONLY);
+    if (inst == NULL) return fmi3Error;
+    if (n == NULL) return (fmi3Status)fpm_refuse(C, FPM_ERROR, "fmi3GetNumberOfEventIndicators",
+                                                 "the pointer is NULL");
+    *n = fpm_model_nz();
+    return fmi3OK;
 }
 
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance inst, size_t *n)
 {
-    (void)n;
-    NOT_PROVIDED("fmi3GetNumberOfContinuousStates", CS_ONLY);
+    if (inst == NULL) return fmi3Error;
+    if (n == NULL) return (fmi3Status)fpm_refuse(C, FPM_ERROR,
+                                                 "fmi3GetNumberOfContinuousStates",
+                                                 "the pointer is NULL");
+    *n = fpm_model_nx();
+    return fmi3OK;
 }
 
 fmi3Status fmi3ActivateModelPartition(fmi3Instance inst, fmi3ValueReference clockReference,
@@ -505,9 +541,10 @@ fmi3Status fmi3GetOutputDerivatives(fmi3Instance inst, const fmi3ValueReference 
                                     const fmi3Int32 orders[], fmi3Float64 values[],
                                     size_t nValues)
 {
-    (void)vr; (void)orders; (void)values; (void)nValues;
-    if (nvr == 0 && inst != NULL) return fmi3OK;
-    NOT_PROVIDED("fmi3GetOutputDerivatives", "not provided (maxOutputDerivativeOrder = 0)");
+    if (!counts(inst, "fmi3GetOutputDerivatives", nvr, nValues)) return fmi3Error;
+    return (fmi3Status)fpm_output_derivatives(C, "fmi3GetOutputDerivatives",
+                                              FPM_STEP | FPM_EVENT | FPM_TERMINATED, vr, nvr,
+                                              orders, values);
 }
 
 /* ------------------------------------------------------------------ co-simulation */

@@ -53,8 +53,10 @@ extern "C" {
 #define FPM_PARAMETER 0
 #define FPM_INPUT 1
 #define FPM_OUTPUT 2
+#define FPM_LOCAL 3           /* Model Exchange: a state that is no output, a derivative, an
+                                 event indicator (read only) */
 
-#define FPM_MAX_VARS 48       /* value references 0 .. FPM_MAX_VARS - 1 */
+#define FPM_MAX_VARS 96       /* value references 0 .. FPM_MAX_VARS - 1 */
 #define FPM_STR_MAX 32        /* longest string value, with its terminating 0 */
 #define FPM_MSG_MAX 512       /* longest log message */
 
@@ -75,6 +77,20 @@ extern "C" {
 #define FPM_ANY 127
 #define FPM_FATAL_MODE 128    /* unusable (the pythonfmu loader: pythonfmu's instance broke):
                                  in no mask, only freeInstance */
+
+/* Model Exchange (FMI 2.0 section 3.2.3, FMI 3.0 section 3.2): the modes of its calls. */
+#define FPM_ME_MASK_SET_TIME (FPM_EVENT | FPM_CONTINUOUS)
+#define FPM_ME_MASK_SET_STATES FPM_CONTINUOUS
+#define FPM_ME_MASK_GET_DERIVATIVES (FPM_INIT | FPM_EVENT | FPM_CONTINUOUS | FPM_TERMINATED | \
+                                     FPM_ERROR_MODE)
+#define FPM_ME_MASK_GET_STATES (FPM_INIT | FPM_EVENT | FPM_CONTINUOUS | FPM_TERMINATED | \
+                                FPM_ERROR_MODE)
+#define FPM_ME_MASK_NEW_DISCRETE FPM_EVENT
+#define FPM_ME_MASK_ENTER_EVENT (FPM_EVENT | FPM_CONTINUOUS)
+#define FPM_ME_MASK_ENTER_CONTINUOUS FPM_EVENT
+#define FPM_ME_MASK_COMPLETED_STEP FPM_CONTINUOUS
+#define FPM_ME_MASK_TERMINATE (FPM_EVENT | FPM_CONTINUOUS | FPM_ERROR_MODE)
+#define FPM_ME_MASK_SET (FPM_INSTANTIATED | FPM_INIT | FPM_EVENT | FPM_CONTINUOUS)
 
 /* FMI 2.0 co-simulation: the modes each call is allowed in (the standard's table of section
  * 4.2.4), shared by fmi2.c and the pythonfmu loader. */
@@ -102,6 +118,9 @@ typedef struct fpm_var {
     int causality;            /* FPM_PARAMETER, FPM_INPUT, FPM_OUTPUT */
     double start_real;        /* start of a Real, Integer (exact) or Boolean (0/1) */
     const char *start_string; /* start of a String */
+    int state;                /* 1 + its index among the continuous states, or 0 */
+    int der;                  /* 1 + the index of the state it is the derivative of, or 0 */
+    int indicator;            /* 1 + its index among the event indicators, or 0 */
 } fpm_var;
 
 /* The values of the parameters and inputs, indexed by value reference. */
@@ -243,6 +262,36 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
  * maxOutputDerivativeOrder). */
 int fpm_model_max_output_derivative_order(void);
 
+/* ---- Model Exchange: what each model implements (issue 24) ---------------------------------
+ * The states, derivatives, nominals and event indicators of Model Exchange, by index (the
+ * table's fpm_var.state / .der / .indicator give the value references). The model keeps its
+ * Model-Exchange state in the fields its co-simulation state lives in, so that FMU states save
+ * and restore it with fpm_model_save and fpm_model_load. */
+/* The number of event indicators (a constant of the build). */
+size_t fpm_model_nz(void);
+/* At exitInitializationMode of a Model-Exchange instance, after fpm_model_init: what only Model
+ * Exchange refuses (FPM_ERROR with a message). */
+int fpm_model_me_init(fpm_model *m, const fpm_logger *lg);
+/* The time (fmi2SetTime; finite, the caller checks): FPM_ERROR with a message if the model
+ * refuses it (before its start time). */
+int fpm_model_set_time(fpm_model *m, const fpm_logger *lg, double t);
+/* The states (fpm_model_nx() doubles) get and set; set refuses non-finite values (FPM_ERROR
+ * with a message, nothing changed). */
+void fpm_model_get_states(const fpm_model *m, double *x);
+int fpm_model_set_states(fpm_model *m, const fpm_logger *lg, const double *x);
+/* The derivatives at the current time, states and inputs; FPM_ERROR with a message if an input
+ * or a result is not finite. */
+int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx);
+/* Nominal values of the states (> 0, finite). */
+void fpm_model_nominals(const fpm_model *m, double *nominal);
+/* The event indicators (fpm_model_nz() doubles, finite): FPM_OK or FPM_ERROR with a message. */
+int fpm_model_event_indicators(fpm_model *m, const fpm_logger *lg, double *z);
+/* In event mode (fmi2NewDiscreteStates, fmi3UpdateDiscreteStates): *terminate = 1 (and a
+ * message naming the bound) when the model cannot go on. */
+int fpm_model_event_update(fpm_model *m, const fpm_logger *lg, int *terminate);
+/* The value of a Model-Exchange local vr (a state, a derivative, an event indicator). */
+int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value);
+
 /* ---- The core (fpm_core.c) ---------------------------------------------------------------- */
 typedef struct fpm_instance fpm_instance;
 /* Sends one message to the host (the adapter's logger). */
@@ -255,7 +304,7 @@ struct fpm_instance {
     void *host;                /* the adapter's copy of the host's callbacks (host_size bytes) */
     char name[128];
     int logging_on;
-    int interface;             /* FPM_COSIMULATION (FPM_MODEL_EXCHANGE: the next issue) */
+    int interface;             /* FPM_COSIMULATION or FPM_MODEL_EXCHANGE */
     int modes;                 /* the modes this instance can reach */
     int mode;
     int discarded;             /* the model refused the last doStep (the master should stop) */
@@ -264,6 +313,9 @@ struct fpm_instance {
     size_t state_cap;          /* bytes of a serialised state, at most */
     unsigned char *scratch;    /* state_cap bytes: a state is serialised here, then copied into
                                   a state of its own size */
+    size_t jac_n;              /* doubles in jac */
+    double *jac;               /* the model's linearisation [[A, B], [C, D]] of directional
+                                  derivatives, (nx + NY) x (nx + NU) */
 };
 
 /* A new instance (NULL, logged, if the token is not this FMU's or memory is short). host: the
@@ -306,6 +358,33 @@ int fpm_serialize_state(fpm_instance *c, const char *fn, int mask, const void *s
                         unsigned char *data, size_t size);
 int fpm_deserialize_state(fpm_instance *c, const char *fn, int mask, const unsigned char *data,
                           size_t size, void **state);
+/* Model Exchange (each checks the interface, the mode and its arguments; a refusal is logged). */
+int fpm_me_set_time(fpm_instance *c, const char *fn, int mask, double t);
+int fpm_me_set_states(fpm_instance *c, const char *fn, int mask, const double x[], size_t nx);
+int fpm_me_get_states(fpm_instance *c, const char *fn, int mask, double x[], size_t nx);
+int fpm_me_get_derivatives(fpm_instance *c, const char *fn, int mask, double dx[], size_t nx);
+int fpm_me_get_nominals(fpm_instance *c, const char *fn, int mask, double x[], size_t nx);
+int fpm_me_get_event_indicators(fpm_instance *c, const char *fn, int mask, double z[],
+                                size_t nz);
+/* event mode: *terminate = 1 when the model cannot go on */
+int fpm_me_update_discrete(fpm_instance *c, const char *fn, int mask, int *terminate);
+/* completedIntegratorStep: *terminate as above (the bounds crossed between events) */
+int fpm_me_completed_step(fpm_instance *c, const char *fn, int mask, int *terminate);
+/* A mode change that only an instance of `interface` makes. */
+int fpm_set_mode_of(fpm_instance *c, const char *fn, int interface, int mask, int mode);
+
+/* Directional derivatives (both interfaces): sensitivity = J seed, J the block of the model's
+ * linearisation (fpm_model_jacobian) of the unknowns (derivatives and outputs) with respect to
+ * the knowns (states and inputs). */
+int fpm_directional_derivative(fpm_instance *c, const char *fn, int mask,
+                               const unsigned unknowns[], size_t n_unknowns,
+                               const unsigned knowns[], size_t n_knowns, const double seed[],
+                               double sensitivity[]);
+/* Output derivatives (co-simulation): values[i] = the order[i]-th time derivative of output
+ * vr[i]. */
+int fpm_output_derivatives(fpm_instance *c, const char *fn, int mask, const unsigned vr[],
+                           size_t n, const int order[], double values[]);
+
 /* Log "fn: what" with status (for what an adapter refuses itself); returns status. */
 int fpm_refuse(fpm_instance *c, int status, const char *fn, const char *what);
 

@@ -19,7 +19,7 @@
 #include <string.h>
 
 #define MAGIC "FPMS"
-#define FORMAT 2u
+#define FORMAT 3u     /* 3: the models save whether a step was taken (issue 24) */
 #define HEADER 24u
 #define STATE_MAGIC 0x46504d5354415445ULL    /* "FPMSTATE": a state this core allocated */
 
@@ -62,7 +62,7 @@ static int access_ok(int mode, const unsigned vr[], size_t n, const void *values
         if (vr[i] >= FPM_MAX_VARS) return 0;
         v = &fpm_vars[vr[i]];
         if (v->name == NULL || v->type != type) return 0;
-        if (set && (v->causality == FPM_OUTPUT ||
+        if (set && (v->causality == FPM_OUTPUT || v->causality == FPM_LOCAL ||
                     (v->causality == FPM_PARAMETER && !(mode & FPM_MASK_SET_PARAMETER))))
             return 0;
     }
@@ -72,6 +72,34 @@ static int access_ok(int mode, const unsigned vr[], size_t n, const void *values
 #define ACCESS(c, fn, vr, n, values, type, set, names)                                        \
     (access_ok((c)->mode, vr, n, values, type, set) ||                                        \
      fpm_check_access(&(c)->lg, fn, (c)->mode, vr, n, values, type, set, names))
+
+/* The number of the table's variables of one causality (inputs, outputs). */
+static int count_vars(int causality)
+{
+    int i, n = 0;
+    for (i = 0; i < FPM_MAX_VARS; i++)
+        if (fpm_vars[i].name != NULL && fpm_vars[i].causality == causality) n++;
+    return n;
+}
+
+/* The number of the table's continuous states (fpm_var.state). */
+static size_t count_states(void)
+{
+    size_t i, n = 0;
+    for (i = 0; i < FPM_MAX_VARS; i++)
+        if (fpm_vars[i].name != NULL && fpm_vars[i].state) n++;
+    return n;
+}
+
+/* The index of vr among the table's variables of its causality (inputs, outputs). */
+static int index_among(unsigned vr, int causality)
+{
+    unsigned i;
+    int n = 0;
+    for (i = 0; i < vr; i++)
+        if (fpm_vars[i].name != NULL && fpm_vars[i].causality == causality) n++;
+    return n;
+}
 
 /* ------------------------------------------------------------------ life cycle */
 fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *token,
@@ -89,9 +117,15 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
     tmp.lg.env = &tmp;
     tmp.logging_on = logging_on;
     strncpy(tmp.name, name ? name : "?", sizeof tmp.name - 1);
-    if (interface != FPM_COSIMULATION) {
-        fpm_log(&tmp.lg, FPM_ERROR, "%s: %s is a co-simulation FMU: model exchange is not "
-                "supported", fn, fpm_model_name);
+    if (interface != FPM_COSIMULATION && interface != FPM_MODEL_EXCHANGE) {
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: unknown FMU type %d (co-simulation or model exchange)",
+                fn, interface);
+        return NULL;
+    }
+    if (fpm_model_nx() != count_states()) {    /* a build whose model and table disagree */
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: %s declares %lu continuous states but its model has "
+                "%lu (a broken build)", fn, fpm_model_name, (unsigned long)count_states(),
+                (unsigned long)fpm_model_nx());
         return NULL;
     }
     if (token == NULL || strcmp(token, fpm_token) != 0) {
@@ -105,9 +139,14 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
      * checksum */
     tmp.state_cap = HEADER + 8u + FPM_MAX_VARS * (8u + 4u + FPM_STR_MAX) + fpm_model_size() + 64u
                     + 8u;
-    /* the instance, the host's callbacks, two models and the scratch buffer in one block */
+    /* the dense linearisation of directional derivatives: (nx + NY) x (nx + NU) doubles */
+    tmp.jac_n = (fpm_model_nx() + (size_t)count_vars(FPM_OUTPUT)) *
+                (fpm_model_nx() + (size_t)count_vars(FPM_INPUT));
+    /* the instance, the host's callbacks, two models, the scratch buffer and the Jacobian's
+     * buffer in one block */
     block = (unsigned char *)calloc(1, head + hsize + 2 * ((fpm_model_size() + 15u) / 16u * 16u)
-                                           + tmp.state_cap);
+                                           + (tmp.state_cap + 15u) / 16u * 16u
+                                           + tmp.jac_n * sizeof(double));
     if (block == NULL) {
         fpm_log(&tmp.lg, FPM_ERROR, "%s: out of memory", fn);
         return NULL;
@@ -120,6 +159,7 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
     c->m = (fpm_model *)(block + head + hsize);
     c->spare = (fpm_model *)(block + head + hsize + (fpm_model_size() + 15u) / 16u * 16u);
     c->scratch = block + head + hsize + 2 * ((fpm_model_size() + 15u) / 16u * 16u);
+    c->jac = (double *)(c->scratch + (c->state_cap + 15u) / 16u * 16u);
     c->interface = interface;
     c->modes = modes;
     c->mode = FPM_INSTANTIATED;
@@ -164,6 +204,10 @@ int fpm_exit_init(fpm_instance *c, const char *fn, int mask, int next_mode)
     int rc;
     GUARD(c, fn, mask);
     rc = fpm_model_init(c->m, &c->lg);
+    if (rc <= FPM_WARNING && c->interface == FPM_MODEL_EXCHANGE) {
+        int rc2 = fpm_model_me_init(c->m, &c->lg);
+        if (rc2 > rc) rc = rc2;
+    }
     if (rc > FPM_WARNING) {
         c->mode = FPM_ERROR_MODE;
         return FPM_ERROR;
@@ -177,6 +221,32 @@ int fpm_set_mode(fpm_instance *c, const char *fn, int mask, int mode)
     GUARD(c, fn, mask);
     c->mode = mode;
     return FPM_OK;
+}
+
+static const char *interface_name(int interface)
+{
+    return interface == FPM_MODEL_EXCHANGE ? "Model Exchange" : "co-simulation";
+}
+
+/* 1 if c is an instance of `interface`, else 0 with the refusal logged. */
+static int of_interface(fpm_instance *c, const char *fn, int interface)
+{
+    if (c->interface == interface) return 1;
+    fpm_log(&c->lg, FPM_ERROR, "%s: a call of %s, but this instance of %s was instantiated for "
+            "%s", fn, interface_name(interface), fpm_model_name, interface_name(c->interface));
+    return 0;
+}
+
+#define INTERFACE(c, fn, interface)                                                           \
+    do {                                                                                      \
+        if ((c) == NULL) return FPM_ERROR;                                                    \
+        if (!of_interface(c, fn, interface)) return FPM_ERROR;                                \
+    } while (0)
+
+int fpm_set_mode_of(fpm_instance *c, const char *fn, int interface, int mask, int mode)
+{
+    INTERFACE(c, fn, interface);
+    return fpm_set_mode(c, fn, mask, mode);
 }
 
 int fpm_reset(fpm_instance *c, const char *fn, int mask)
@@ -202,8 +272,10 @@ int fpm_get(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size
     v = fpm_model_values(c->m);
     for (i = 0; i < n; i++) {
         double x = v->real[vr[i]];
-        if (fpm_vars[vr[i]].causality == FPM_OUTPUT) {
-            int rc = fpm_model_get_output(c->m, &c->lg, vr[i], &x);
+        if (fpm_vars[vr[i]].causality == FPM_OUTPUT || fpm_vars[vr[i]].causality == FPM_LOCAL) {
+            int rc = fpm_vars[vr[i]].causality == FPM_OUTPUT
+                         ? fpm_model_get_output(c->m, &c->lg, vr[i], &x)
+                         : fpm_model_get_local(c->m, &c->lg, vr[i], &x);
             if (rc > FPM_WARNING) return rc;
             if (rc > worst) worst = rc;
         }
@@ -257,6 +329,7 @@ int fpm_set_input_derivatives(fpm_instance *c, const char *fn, int mask, const u
 {
     static const char *const TYPES[4] = {"Real", "Integer", "Boolean", "String"};
     size_t i;
+    INTERFACE(c, fn, FPM_COSIMULATION);
     GUARD(c, fn, mask);
     if (!ACCESS(c, fn, vr, n, values, FPM_REAL, 1, TYPES)) return FPM_ERROR;
     if (n > 0 && order == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the order array is NULL");
@@ -277,6 +350,7 @@ int fpm_do_step(fpm_instance *c, const char *fn, int mask, double t, double h)
 {
     double own;
     int rc;
+    INTERFACE(c, fn, FPM_COSIMULATION);
     GUARD(c, fn, mask);
     if (!(h > 0.0) || !isfinite(h) || !isfinite(t) || !isfinite(t + h)) {
         fpm_log(&c->lg, FPM_DISCARD, "%s: communicationStepSize = %.17g at t = %.17g: the step "
@@ -341,11 +415,12 @@ static size_t serialize(const fpm_instance *c, unsigned char *out, size_t cap)
     w.p = out;
     w.cap = cap - 8u;
     w.n = HEADER;
-    fpm_put_i32(&w, c->mode);
+    fpm_put_i32(&w, c->mode | c->interface << 8);   /* the mode and the interface */
     fpm_put_i32(&w, c->discarded);
     for (i = 0; i < FPM_MAX_VARS; i++) {
         const fpm_var *var = &fpm_vars[i];
-        if (var->name == NULL || var->causality == FPM_OUTPUT) continue;
+        if (var->name == NULL || var->causality == FPM_OUTPUT || var->causality == FPM_LOCAL)
+            continue;
         if (var->type == FPM_STRING) fpm_put_str(&w, v->string[i]);
         else fpm_put_f64(&w, v->real[i]);
     }
@@ -401,16 +476,26 @@ static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned ch
     r.n = payload;
     fpm_model_reset(c->spare, 0.0);
     v = fpm_model_values(c->spare);
-    if (fpm_get_i32(&r, "the mode", mode) &&
-        !(*mode > 0 && (*mode & (*mode - 1)) == 0 && (*mode & c->modes)))
-        fpm_reject(&r, "the mode %d is not a state this instance can be in", *mode);
+    if (fpm_get_i32(&r, "the mode", mode)) {
+        /* the mode in the low byte, the interface above it: a state of one interface never
+         * restores into an instance of the other (Model Exchange leaves the co-simulation
+         * stepper's data as they were, which a co-simulation step would trust) */
+        int raw = *mode, iface = (int)((unsigned)raw >> 8);
+        *mode = (int)((unsigned)raw & 0xffu);
+        if (!(*mode > 0 && (*mode & (*mode - 1)) == 0 && (*mode & c->modes)))
+            fpm_reject(&r, "the mode %d is not a state this instance can be in", raw);
+        else if (iface != c->interface)
+            fpm_reject(&r, "a state of an instance of %s; this instance is of %s",
+                       interface_name(iface), interface_name(c->interface));
+    }
     fpm_get_int_in(&r, "the refusal flag", 0, 1, discarded);
     if (r.why[0] == '\0' && *discarded && !(*mode & (FPM_STEP | FPM_EVENT | FPM_TERMINATED)))
         fpm_reject(&r, "a refused step in state %s", fpm_mode_name(*mode));
     for (i = 0; i < FPM_MAX_VARS && r.why[0] == '\0'; i++) {
         const fpm_var *var = &fpm_vars[i];
         double x;
-        if (var->name == NULL || var->causality == FPM_OUTPUT) continue;
+        if (var->name == NULL || var->causality == FPM_OUTPUT || var->causality == FPM_LOCAL)
+            continue;
         if (var->type == FPM_STRING) {
             fpm_get_str(&r, var->name, v->string[i], FPM_STR_MAX);
             continue;
@@ -572,5 +657,261 @@ int fpm_deserialize_state(fpm_instance *c, const char *fn, int mask, const unsig
     memcpy(s->data, data, size);
     s->n = size;
     *out = s;
+    return FPM_OK;
+}
+
+/* ------------------------------------------------------------------ Model Exchange */
+/* The array of a Model-Exchange call: not NULL (when n > 0), and exactly `want` values. */
+static int me_array(fpm_instance *c, const char *fn, const char *what, const void *p, size_t n,
+                    size_t want)
+{
+    if (n != want) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: %lu %s asked for; %s has %lu", fn, (unsigned long)n,
+                what, fpm_model_name, (unsigned long)want);
+        return 0;
+    }
+    if (n > 0 && p == NULL) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: the array of %s is NULL", fn, what);
+        return 0;
+    }
+    return 1;
+}
+
+/* Before exitInitializationMode (initialization mode: the initial unknowns): the states,
+ * derivatives (kind 1) or event indicators (kind 2) one by one through their variables, which
+ * the model computes from the parameters as they are, as it does the outputs. */
+static int from_variables(fpm_instance *c, const char *fn, int kind, double out[], size_t n)
+{
+    unsigned vr;
+    int rc, worst = FPM_OK;
+    for (vr = 0; vr < FPM_MAX_VARS; vr++) {
+        const fpm_var *v = &fpm_vars[vr];
+        int at = v->name == NULL ? 0 : kind == 0 ? v->state : kind == 1 ? v->der : v->indicator;
+        if (at <= 0 || (size_t)at > n) continue;
+        rc = v->causality == FPM_OUTPUT ? fpm_model_get_output(c->m, &c->lg, vr, &out[at - 1])
+                                         : fpm_model_get_local(c->m, &c->lg, vr, &out[at - 1]);
+        if (rc > FPM_WARNING) return fpm_refuse(c, rc, fn, "not available before "
+                                                "initialisation with these parameters (above)");
+        if (rc > worst) worst = rc;
+    }
+    return worst;
+}
+
+int fpm_me_set_time(fpm_instance *c, const char *fn, int mask, double t)
+{
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    if (!isfinite(t)) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: time = %.17g is not finite", fn, t);
+        return FPM_ERROR;
+    }
+    return fpm_model_set_time(c->m, &c->lg, t);
+}
+
+int fpm_me_set_states(fpm_instance *c, const char *fn, int mask, const double x[], size_t nx)
+{
+    size_t i;
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    if (!me_array(c, fn, "states", x, nx, fpm_model_nx())) return FPM_ERROR;
+    for (i = 0; i < nx; i++)
+        if (!isfinite(x[i])) {
+            fpm_log(&c->lg, FPM_ERROR, "%s: state %lu = %g is not finite; the states are "
+                    "unchanged", fn, (unsigned long)i, x[i]);
+            return FPM_ERROR;
+        }
+    return fpm_model_set_states(c->m, &c->lg, x);
+}
+
+int fpm_me_get_states(fpm_instance *c, const char *fn, int mask, double x[], size_t nx)
+{
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    if (!me_array(c, fn, "states", x, nx, fpm_model_nx())) return FPM_ERROR;
+    if (!fpm_model_initialized(c->m)) return from_variables(c, fn, 0, x, nx);
+    fpm_model_get_states(c->m, x);
+    return FPM_OK;
+}
+
+int fpm_me_get_derivatives(fpm_instance *c, const char *fn, int mask, double dx[], size_t nx)
+{
+    size_t i;
+    int rc;
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    if (!me_array(c, fn, "derivatives", dx, nx, fpm_model_nx())) return FPM_ERROR;
+    rc = fpm_model_initialized(c->m) ? fpm_model_derivatives(c->m, &c->lg, dx)
+                                     : from_variables(c, fn, 1, dx, nx);
+    if (rc > FPM_WARNING) return rc;
+    for (i = 0; i < nx; i++)                  /* never: the model checks them */
+        if (!isfinite(dx[i])) return fpm_refuse(c, FPM_ERROR, fn, "a derivative is not finite");
+    return rc;
+}
+
+int fpm_me_get_nominals(fpm_instance *c, const char *fn, int mask, double x[], size_t nx)
+{
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    if (!me_array(c, fn, "nominals", x, nx, fpm_model_nx())) return FPM_ERROR;
+    if (!fpm_model_initialized(c->m)) {       /* before initialisation: the default, 1 */
+        size_t i;
+        for (i = 0; i < nx; i++) x[i] = 1.0;
+        return FPM_OK;
+    }
+    fpm_model_nominals(c->m, x);
+    return FPM_OK;
+}
+
+int fpm_me_get_event_indicators(fpm_instance *c, const char *fn, int mask, double z[], size_t nz)
+{
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    if (!me_array(c, fn, "event indicators", z, nz, fpm_model_nz())) return FPM_ERROR;
+    if (nz == 0) return FPM_OK;
+    if (!fpm_model_initialized(c->m)) return from_variables(c, fn, 2, z, nz);
+    return fpm_model_event_indicators(c->m, &c->lg, z);
+}
+
+int fpm_me_update_discrete(fpm_instance *c, const char *fn, int mask, int *terminate)
+{
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    *terminate = 0;
+    return fpm_model_event_update(c->m, &c->lg, terminate);
+}
+
+int fpm_me_completed_step(fpm_instance *c, const char *fn, int mask, int *terminate)
+{
+    INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
+    GUARD(c, fn, mask);
+    *terminate = 0;
+    return FPM_OK;
+}
+
+/* ------------------------------------------------------------------ directional derivatives */
+/* Where vr sits in the linearisation [[A, B], [C, D]]: as an unknown its row (a derivative:
+ * its state's row of A and B; an output: nx + its index among the outputs), as a known its
+ * column (a state: its column of A and C; an input: nx + its index among the inputs); -1 if it
+ * is not of that kind. */
+static int jac_row(const fpm_instance *c, unsigned vr)
+{
+    const fpm_var *v;
+    if (vr >= FPM_MAX_VARS || (v = &fpm_vars[vr])->name == NULL || v->type != FPM_REAL) return -1;
+    if (v->der && c->interface == FPM_MODEL_EXCHANGE) return v->der - 1;
+    if (v->causality == FPM_OUTPUT) return (int)fpm_model_nx() + index_among(vr, FPM_OUTPUT);
+    return -1;
+}
+
+static int jac_col(unsigned vr)
+{
+    const fpm_var *v;
+    if (vr >= FPM_MAX_VARS || (v = &fpm_vars[vr])->name == NULL || v->type != FPM_REAL) return -1;
+    if (v->state) return v->state - 1;
+    if (v->causality == FPM_INPUT) return (int)fpm_model_nx() + index_among(vr, FPM_INPUT);
+    return -1;
+}
+
+int fpm_directional_derivative(fpm_instance *c, const char *fn, int mask,
+                               const unsigned unknowns[], size_t n_unknowns,
+                               const unsigned knowns[], size_t n_knowns, const double seed[],
+                               double sensitivity[])
+{
+    size_t i, j, nx = fpm_model_nx(), nu = (size_t)count_vars(FPM_INPUT);
+    size_t ny = (size_t)count_vars(FPM_OUTPUT);
+    int want_ab = 0, want_cd = 0, rc;
+    GUARD(c, fn, mask);
+    if ((n_unknowns > 0 && (unknowns == NULL || sensitivity == NULL)) ||
+        (n_knowns > 0 && (knowns == NULL || seed == NULL)))
+        return fpm_refuse(c, FPM_ERROR, fn, "an array is NULL but its length is not 0");
+    for (i = 0; i < n_unknowns; i++) {
+        int r = jac_row(c, unknowns[i]);
+        if (r < 0) {
+            int k = fpm_lookup(unknowns[i]);
+            fpm_log(&c->lg, FPM_ERROR, "%s: unknown %u (%s) is not %s", fn, (unsigned)unknowns[i],
+                    k < 0 ? "no variable" : fpm_vars[k].name,
+                    c->interface == FPM_MODEL_EXCHANGE ? "a state derivative or an output"
+                                                        : "an output");
+            return FPM_ERROR;
+        }
+        if ((size_t)r < nx) want_ab = 1;
+        else want_cd = 1;
+    }
+    for (j = 0; j < n_knowns; j++)
+        if (jac_col(knowns[j]) < 0) {
+            int k = fpm_lookup(knowns[j]);
+            fpm_log(&c->lg, FPM_ERROR, "%s: known %u (%s) is not a continuous state or an input",
+                    fn, (unsigned)knowns[j], k < 0 ? "no variable" : fpm_vars[k].name);
+            return FPM_ERROR;
+        }
+    for (j = 0; j < n_knowns; j++)
+        if (!isfinite(seed[j])) {
+            fpm_log(&c->lg, FPM_ERROR, "%s: the seed of %s is %g (not finite)", fn,
+                    fpm_vars[knowns[j]].name, seed[j]);
+            return FPM_ERROR;
+        }
+    if (n_unknowns == 0) return FPM_OK;
+    if (!fpm_model_initialized(c->m))
+        return fpm_refuse(c, FPM_ERROR, fn, "the model is not initialised (no linearisation "
+                          "before exitInitializationMode)");
+    /* the blocks A (nx x nx), B (nx x nu), C (ny x nx), D (ny x nu), one after the other */
+    {
+        double *A = c->jac, *B = A + nx * nx, *C = B + nx * nu, *D = C + ny * nx;
+        rc = fpm_model_jacobian(c->m, &c->lg, want_ab ? A : NULL, want_ab ? B : NULL,
+                                want_cd ? C : NULL, want_cd ? D : NULL);
+        if (rc > FPM_WARNING) return rc;
+        for (i = 0; i < n_unknowns; i++) {
+            size_t r = (size_t)jac_row(c, unknowns[i]);
+            double acc = 0.0;
+            for (j = 0; j < n_knowns; j++) {
+                size_t k = (size_t)jac_col(knowns[j]);
+                double a = r < nx ? (k < nx ? A[r * nx + k] : B[r * nu + (k - nx)])
+                                  : (k < nx ? C[(r - nx) * nx + k] : D[(r - nx) * nu + (k - nx)]);
+                acc += a * seed[j];
+            }
+            if (!isfinite(acc)) {
+                fpm_log(&c->lg, FPM_ERROR, "%s: the sensitivity of %s is not finite", fn,
+                        fpm_vars[unknowns[i]].name);
+                return FPM_ERROR;
+            }
+            sensitivity[i] = acc;
+        }
+    }
+    return rc;
+}
+
+/* ------------------------------------------------------------------ output derivatives */
+int fpm_output_derivatives(fpm_instance *c, const char *fn, int mask, const unsigned vr[],
+                           size_t n, const int order[], double values[])
+{
+    size_t i;
+    int max = fpm_model_max_output_derivative_order();
+    INTERFACE(c, fn, FPM_COSIMULATION);
+    GUARD(c, fn, mask);
+    if (n > 0 && (vr == NULL || order == NULL || values == NULL))
+        return fpm_refuse(c, FPM_ERROR, fn, "an array is NULL but its length is not 0");
+    for (i = 0; i < n; i++) {
+        int k = fpm_lookup(vr[i]);
+        if (k < 0 || fpm_vars[k].causality != FPM_OUTPUT || fpm_vars[k].type != FPM_REAL) {
+            fpm_log(&c->lg, FPM_ERROR, "%s: value reference %u (%s) is not a Real output", fn,
+                    (unsigned)vr[i], k < 0 ? "no variable" : fpm_vars[k].name);
+            return FPM_ERROR;
+        }
+        if (order[i] < 1 || order[i] > max) {
+            fpm_log(&c->lg, FPM_ERROR, "%s: order %d of %s; this FMU gives orders 1..%d "
+                    "(maxOutputDerivativeOrder)", fn, order[i], fpm_vars[k].name, max);
+            return FPM_ERROR;
+        }
+    }
+    if (n > 0 && !fpm_model_initialized(c->m))
+        return fpm_refuse(c, FPM_ERROR, fn, "the model is not initialised");
+    for (i = 0; i < n; i++) {
+        int rc = fpm_model_output_derivative(c->m, &c->lg, vr[i], order[i], &values[i]);
+        if (rc > FPM_WARNING) return rc;
+        if (!isfinite(values[i])) {
+            fpm_log(&c->lg, FPM_ERROR, "%s: the derivative of order %d of %s is not finite", fn,
+                    order[i], fpm_vars[vr[i]].name);
+            return FPM_ERROR;
+        }
+    }
     return FPM_OK;
 }

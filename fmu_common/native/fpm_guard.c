@@ -92,6 +92,11 @@ int fpm_check_access(const fpm_logger *lg, const char *fn, int mode, const unsig
             fpm_log(lg, FPM_ERROR, "%s: %s is an output; it cannot be set", fn, v->name);
             return 0;
         }
+        if (v->causality == FPM_LOCAL) {
+            fpm_log(lg, FPM_ERROR, "%s: %s is calculated (a Model-Exchange local); it cannot be "
+                    "set%s", fn, v->name, v->state ? " (states: SetContinuousStates)" : "");
+            return 0;
+        }
         if (v->causality == FPM_PARAMETER && !(mode & FPM_MASK_SET_PARAMETER)) {
             fpm_log(lg, FPM_ERROR, "%s: parameter %s is fixed: it can only be set before "
                     "exitInitializationMode (state: %s)", fn, v->name, fpm_mode_name(mode));
@@ -106,7 +111,8 @@ void fpm_start_values(fpm_values *v)
     int i;
     for (i = 0; i < FPM_MAX_VARS; i++) {
         const fpm_var *var = &fpm_vars[i];
-        if (var->name == NULL || var->causality == FPM_OUTPUT) continue;
+        if (var->name == NULL || var->causality == FPM_OUTPUT || var->causality == FPM_LOCAL)
+            continue;
         if (var->type == FPM_STRING) {
             strncpy(v->string[i], var->start_string, FPM_STR_MAX - 1);
             v->string[i][FPM_STR_MAX - 1] = '\0';

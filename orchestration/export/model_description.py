@@ -19,7 +19,8 @@ import sys
 import xml.etree.ElementTree as ET
 
 from controller_fmu import interface as controller_interface
-from fmu_common.variables import native_variables
+from fmu_common.variables import (derivatives, event_indicators, native_variables,
+                                  python_variables, states)
 from plant_fmu import interface as plant_interface
 
 __all__ = ["TABLES", "UNITS", "FMI3_TYPES", "fmi2_model_description", "fmi3_model_description",
@@ -50,6 +51,7 @@ UNITS = {
     "N.m2": {"kg": 1, "m": 3, "s": -2}, "N/rad": {"kg": 1, "m": 1, "s": -2, "rad": -1},
     "N.s/rad": {"kg": 1, "m": 1, "s": -1, "rad": -1}, "N/m": {"kg": 1, "s": -2},
     "m.kg0.5": None,          # modal coordinate of a mass-normalised mode: m sqrt(kg)
+    "m.kg0.5/s": None, "m.kg0.5/s2": None,
 }
 
 
@@ -88,7 +90,28 @@ def _entries(table, native: bool) -> list:
     input-derivative variables, each variable keeping its value reference)."""
     if native:
         return native_variables(table)
-    return list(enumerate(table))
+    return list(enumerate(python_variables(table)))
+
+
+def _me_structure(entries):
+    """What Model Exchange adds to a native FMU's description: the state of each derivative
+    (name -> name), the derivatives in state order, the event indicators."""
+    table = [v for _, v in entries]
+    return ({v.name: v.der_of for v in table if v.der_of}, derivatives(table),
+            event_indicators(table), states(table))
+
+
+def _dependencies(v, native):
+    """The variables an output or derivative depends on: its inputs, and in a native FMU (Model
+    Exchange) its states."""
+    return (*v.depends_on, *(v.state_depends_on if native else ()))
+
+
+def _initial_unknowns(entries, native):
+    """Outputs, then (native) the states and derivatives that are calculated, in table order."""
+    der = {v.der_of for _, v in entries if v.der_of} if native else set()
+    return [v for _, v in entries if v.causality == "output" or
+            (native and (v.der_of is not None or (v.name in der and v.initial)))]
 
 
 def _header(root, model, units, log_categories, used):
@@ -108,27 +131,32 @@ def _header(root, model, units, log_categories, used):
 
 def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
                            co_simulation: dict, log_categories: dict | None = None,
-                           table=None, model=None, native: bool = False) -> bytes:
+                           table=None, model=None, native: bool = False,
+                           model_exchange: dict | None = None) -> bytes:
     """The FMI 2.0 ``modelDescription.xml`` of model ``name`` (a key of :data:`TABLES`).
 
     ``co_simulation``: the attributes of ``<CoSimulation>`` (modelIdentifier, capability flags,
-    as strings); ``log_categories``: name -> description; ``native``: a native FMU's variables
-    (:func:`fmu_common.variables.native_variables`)."""
+    as strings); ``model_exchange``: those of ``<ModelExchange>`` (a native FMU: both
+    interfaces); ``log_categories``: name -> description; ``native``: a native FMU's variables
+    (:func:`fmu_common.variables.native_variables`: with the Model-Exchange locals, states,
+    derivatives and event indicators)."""
     if table is None:
         model, table = TABLES[name]
     entries = _entries(table, native)
+    _, ders, indicators, _ = _me_structure(entries) if native else ({}, [], [], [])
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": model.name, "guid": guid,
         "description": model.description, "version": model.version,
         "generationTool": generation_tool, "generationDateAndTime": generation_date(),
         "variableNamingConvention": "structured",
-        "numberOfEventIndicators": "0"})
+        "numberOfEventIndicators": str(len(indicators))})
+    if model_exchange is not None:
+        ET.SubElement(root, "ModelExchange", model_exchange)
     ET.SubElement(root, "CoSimulation", co_simulation)
     _header(root, model, UNITS, log_categories, _units([v for _, v in entries]))
     mv = ET.SubElement(root, "ModelVariables")
-    index = {}
+    index = {v.name: i + 1 for i, (_, v) in enumerate(entries)}
     for i, (vr, v) in enumerate(entries):
-        index[v.name] = i + 1
         attrs = {"name": v.name, "valueReference": str(vr), "description": v.description,
                  "causality": v.causality, "variability": v.variability}
         if v.initial:
@@ -137,21 +165,32 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
         typ = {}
         if v.type == "Real" and v.unit:
             typ["unit"] = v.unit
+        if v.der_of is not None:
+            typ["derivative"] = str(index[v.der_of])
         if v.start is not None:
             typ["start"] = xml_value(v.start, native)
         ET.SubElement(sv, v.type, typ)
     structure = ET.SubElement(root, "ModelStructure")
     outputs = [v for _, v in entries if v.causality == "output"]
+    byname = {v.name: v for _, v in entries}
 
     def deps(names):
-        return " ".join(str(index[n]) for n in sorted(names, key=index.get))
+        return " ".join(str(index[n]) for n in sorted(set(names), key=index.get))
 
     if outputs:
         node = ET.SubElement(structure, "Outputs")
         for v in outputs:
-            ET.SubElement(node, "Unknown", index=str(index[v.name]), dependencies=deps(v.depends_on))
+            ET.SubElement(node, "Unknown", index=str(index[v.name]),
+                          dependencies=deps(_dependencies(v, native)))
+    if ders:
+        node = ET.SubElement(structure, "Derivatives")
+        for d in ders:
+            ET.SubElement(node, "Unknown", index=str(index[d]),
+                          dependencies=deps(_dependencies(byname[d], native)))
+    initial = _initial_unknowns(entries, native)
+    if initial:
         node = ET.SubElement(structure, "InitialUnknowns")
-        for v in outputs:
+        for v in initial:
             ET.SubElement(node, "Unknown", index=str(index[v.name]),
                           dependencies=deps(v.initial_depends_on))
     ET.indent(root)
@@ -164,18 +203,21 @@ FMI3_TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "Stri
 
 def fmi3_model_description(name: str, token: str, *, generation_tool: str,
                            co_simulation: dict, log_categories: dict | None = None,
-                           table=None, model=None) -> bytes:
+                           table=None, model=None, model_exchange: dict | None = None) -> bytes:
     """The FMI 3.0 ``modelDescription.xml`` of the native FMU of model ``name``: the same variables
     and value references as its FMI 2.0 description, FMI 3.0 types (Float64, Int32), dependencies
     by value reference, and the independent variable ``time`` at the first free reference."""
     if table is None:
         model, table = TABLES[name]
     entries = _entries(table, True)
+    _, ders, indicators, _ = _me_structure(entries)
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "3.0", "modelName": model.name, "instantiationToken": token,
         "description": model.description, "version": model.version,
         "generationTool": generation_tool, "generationDateAndTime": generation_date(),
         "variableNamingConvention": "structured"})
+    if model_exchange is not None:
+        ET.SubElement(root, "ModelExchange", model_exchange)
     ET.SubElement(root, "CoSimulation", co_simulation)
     _header(root, model, UNITS, log_categories,
             sorted({"s", *_units([v for _, v in entries])}))     # "s": the unit of time
@@ -191,6 +233,8 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
             attrs["initial"] = v.initial
         if v.type == "Real" and v.unit:
             attrs["unit"] = v.unit
+        if v.der_of is not None:
+            attrs["derivative"] = str(vrs[v.der_of])
         if v.start is not None and v.type != "String":
             attrs["start"] = xml_value(v.start, True)
         node = ET.SubElement(mv, FMI3_TYPES[v.type], attrs)
@@ -199,14 +243,21 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
     structure = ET.SubElement(root, "ModelStructure")
 
     def deps(names):
-        return " ".join(str(vrs[n]) for n in sorted(names, key=vrs.get))
+        return " ".join(str(vrs[n]) for n in sorted(set(names), key=vrs.get))
 
+    byname = {v.name: v for _, v in entries}
     outputs = [v for _, v in entries if v.causality == "output"]
     for v in outputs:
         ET.SubElement(structure, "Output", valueReference=str(vrs[v.name]),
-                      dependencies=deps(v.depends_on))
-    for v in outputs:
+                      dependencies=deps(_dependencies(v, True)))
+    for d in ders:
+        ET.SubElement(structure, "ContinuousStateDerivative", valueReference=str(vrs[d]),
+                      dependencies=deps(_dependencies(byname[d], True)))
+    for v in _initial_unknowns(entries, True):
         ET.SubElement(structure, "InitialUnknown", valueReference=str(vrs[v.name]),
                       dependencies=deps(v.initial_depends_on))
+    for z in indicators:
+        ET.SubElement(structure, "EventIndicator", valueReference=str(vrs[z]),
+                      dependencies=deps(_dependencies(byname[z], True)))
     ET.indent(root)
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)

@@ -460,3 +460,498 @@ int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u
     }
     return FP_OK;
 }
+
+/* ------------------------------------------------------------------ Jacobians and output
+ * derivatives (issue 24). With z a state or the force, d qdd/dz = M^-1 (df/dz - (dM/dz) qdd)
+ * (dynamics.py, PlantModel.jacobian_numpy): the vector r = df/dz - (dM/dz) qdd is formed by hand
+ * for one column (or one direction) and solved by the Schur complement of the rhs. */
+
+/* 1 if every a[i] is finite: a - a is 0 for a finite a and NaN for an infinity or a NaN; four
+ * independent sums (the check is a quarter of a Jacobian's cost with a branch per entry). */
+static int all_finite_n(const double *a, long n)
+{
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    long i;
+    for (i = 0; i + 3 < n; i += 4) {
+        s0 += a[i] - a[i];
+        s1 += a[i + 1] - a[i + 1];
+        s2 += a[i + 2] - a[i + 2];
+        s3 += a[i + 3] - a[i + 3];
+    }
+    for (; i < n; i++) s0 += a[i] - a[i];
+    return s0 == 0.0 && s1 == 0.0 && s2 == 0.0 && s3 == 0.0;
+}
+
+long fp_jacobian_work_size(const fp_plant *p)
+{
+    if (p == NULL) return 0;
+    return 4L * p->nx;
+}
+
+/* The Schur complement of M at phi (c = cos phi) and eta (I3eta = I3.eta, ee = eta.eta): the 2x2
+ * block [[a00, a01], [a01, a11]] and its inverse, as rhs_nonlinear forms it (the linear model:
+ * c = 1, s = 0, eta = 0). */
+typedef struct schur {
+    double c, i00, i01, i11;   /* inverse of the 2x2 block */
+} schur;
+
+static void schur_at(const fp_plant *p, double c, double s, double I3eta, double ee, schur *S)
+{
+    const double a00 = p->I0 - c * c * p->I3I3;
+    const double a01 = -p->I1 * c + s * I3eta + c * p->I3I5;
+    const double a11 = p->I2 + ee - p->I5I5;
+    const double det = a00 * a11 - a01 * a01;
+    S->c = c;
+    S->i00 = a11 / det;
+    S->i01 = -a01 / det;
+    S->i11 = a00 / det;
+}
+
+/* Solve M z = r in place: r = [r0, r1, re (n, at stride `stride`)] -> z. With
+ * M = [[A, B], [B^T, I]], B^T = [-c I3, I5]: (A - B B^T) z_rig = r_rig - B re, z_e = re - B^T
+ * z_rig. */
+static void schur_solve(const fp_plant *p, const schur *S, double *r0, double *r1, double *re,
+                        long stride)
+{
+    const int n = p->n;
+    double I3re = 0.0, I5re = 0.0, q0, q1, z0, z1;
+    int j;
+    for (j = 0; j < n; j++) {
+        I3re += p->I3[j] * re[j * stride];
+        I5re += p->I5[j] * re[j * stride];
+    }
+    q0 = *r0 + S->c * I3re;
+    q1 = *r1 - I5re;
+    z0 = S->i00 * q0 + S->i01 * q1;
+    z1 = S->i01 * q0 + S->i11 * q1;
+    for (j = 0; j < n; j++) re[j * stride] += S->c * z0 * p->I3[j] - z1 * p->I5[j];
+    *r0 = z0;
+    *r1 = z1;
+}
+
+/* What the columns of the nonlinear model share at one state. */
+typedef struct jac_point {
+    double c, s, phid, I3eta, I3etad, ee, dm01, I3ae;
+    const double *a;        /* qdd (nq) */
+    const double *kge;      /* Kg eta (n), preload */
+    const double *kgse;     /* (Kg + Kg^T)/2 eta (n), preload */
+} jac_point;
+
+static void jac_point_at(const fp_plant *p, const double *x, const double *dx, double *work,
+                         jac_point *P)
+{
+    const int n = p->n, nq = n + 2;
+    int j, k;
+    P->phid = x[nq + 1];
+    P->c = cos(x[1]);
+    P->s = sin(x[1]);
+    P->I3eta = P->I3etad = P->ee = P->I3ae = 0.0;
+    P->a = dx + nq;
+    for (j = 0; j < n; j++) {
+        P->I3eta += p->I3[j] * x[2 + j];
+        P->I3etad += p->I3[j] * x[nq + 2 + j];
+        P->ee += x[2 + j] * x[2 + j];
+        P->I3ae += p->I3[j] * P->a[2 + j];
+    }
+    P->dm01 = p->I1 * P->s + P->c * P->I3eta;
+    P->kge = P->kgse = NULL;
+    if (p->preload) {
+        double *kge = work, *kgse = work + n;
+        for (j = 0; j < n; j++) kge[j] = kgse[j] = 0.0;
+        for (j = 0; j < n; j++)
+            for (k = 0; k < n; k++) {
+                const double g = p->Kg[(size_t)j * n + k];
+                kge[j] += g * x[2 + k];
+                kgse[j] += 0.5 * g * x[2 + k];
+                kgse[k] += 0.5 * g * x[2 + j];
+            }
+        P->kge = kge;
+        P->kgse = kgse;
+    }
+}
+
+int fp_jacobian(const fp_plant *p, const double *x, double u, double *J, double *b, double *work)
+{
+    const int n = p->n, nq = n + 2, nx = p->nx;
+    const double *I3 = p->I3;
+    double *dx = work;            /* nx: dx/dt at x */
+    schur S;
+    int i, j, k;
+    if (x == NULL || J == NULL || work == NULL) return FP_BADARG;
+    for (i = 0; i < nx * nx; i++) J[i] = 0.0;
+    for (i = 0; i < nq; i++) J[(size_t)i * nx + nq + i] = 1.0;     /* d q/dt = qd */
+    /* the rows of qdd: column k of J is written into J[nq.., k] at stride nx, then solved */
+#define R(row, col) J[(size_t)(nq + (row)) * nx + (col)]
+    if (p->linear) {
+        schur_at(p, 1.0, 0.0, 0.0, 0.0, &S);
+        /* -K0 and -D0 by columns (K0: [[0, 0, 0], [0, -g I1, -g I3], [0, -g I3, K - Kg]]) */
+        R(1, 1) = p->g * p->I1;
+        for (j = 0; j < n; j++) {
+            R(2 + j, 1) = p->g * I3[j];
+            R(1, 2 + j) = p->g * I3[j];
+            R(2 + j, 2 + j) = -p->K[j];
+            if (p->preload)
+                for (i = 0; i < n; i++) R(2 + i, 2 + j) += p->Kg[(size_t)i * n + j];
+            R(2 + j, nq + 2 + j) = -p->D[j];
+        }
+    } else {
+        jac_point P;
+        double phid, c, s, phid2;
+        fp_rhs(p, x, u, dx);
+        jac_point_at(p, x, dx, work + nx, &P);
+        phid = P.phid;
+        c = P.c;
+        s = P.s;
+        phid2 = phid * phid;
+        schur_at(p, c, s, P.I3eta, P.ee, &S);
+        {   /* column phi */
+            const double a0 = P.a[0], a1 = P.a[1];
+            double r0 = -(p->I1 * c - P.I3eta * s) * phid2 - 2.0 * phid * c * P.I3etad;
+            double r1 = p->g * (p->I1 * c - P.I3eta * s);
+            r0 -= P.dm01 * a1 + s * P.I3ae;
+            r1 -= P.dm01 * a0;
+            if (p->preload) {
+                double ekge = 0.0;
+                for (j = 0; j < n; j++) ekge += x[2 + j] * P.kge[j];
+                r1 -= 0.5 * c * ekge;
+            }
+            R(0, 1) = r0;
+            R(1, 1) = r1;
+            for (j = 0; j < n; j++) {
+                R(2 + j, 1) = p->g * c * I3[j] - s * I3[j] * a0;
+                if (p->preload) R(2 + j, 1) -= s * P.kge[j];
+            }
+        }
+        for (j = 0; j < n; j++) {   /* columns eta_j */
+            const int col = 2 + j;
+            R(0, col) = -c * phid2 * I3[j] - s * I3[j] * P.a[1];
+            R(1, col) = -2.0 * phid * x[nq + 2 + j] + p->g * c * I3[j]
+                        - (s * I3[j] * P.a[0] + 2.0 * x[2 + j] * P.a[1]);
+            if (p->preload) {
+                R(1, col) -= s * P.kgse[j];
+                for (i = 0; i < n; i++) R(2 + i, col) = c * p->Kg[(size_t)i * n + j];
+            }
+            R(2 + j, col) += phid2 - p->K[j];
+        }
+        {   /* column phid */
+            double eed = 0.0;
+            for (j = 0; j < n; j++) eed += x[2 + j] * x[nq + 2 + j];
+            R(0, nq + 1) = -2.0 * (p->I1 * s + P.I3eta * c) * phid - 2.0 * s * P.I3etad;
+            R(1, nq + 1) = -2.0 * eed;
+            for (j = 0; j < n; j++) R(2 + j, nq + 1) = 2.0 * phid * x[2 + j];
+        }
+        for (j = 0; j < n; j++) {   /* columns etad_j */
+            const int col = nq + 2 + j;
+            R(0, col) = -2.0 * phid * s * I3[j];
+            R(1, col) = -2.0 * phid * x[2 + j];
+            R(2 + j, col) = -p->D[j];
+        }
+    }
+    /* solve M Z = R for all columns at once, row by row (contiguous: the Schur complement of
+     * schur_solve with the dot products accumulated over the rows of R) */
+    {
+        double *q0 = work + nx + 2 * n, *q1 = q0 + nx, *r0 = &R(0, 0), *r1 = &R(1, 0);
+        for (k = 0; k < nx; k++) {
+            q0[k] = r0[k];
+            q1[k] = r1[k];
+        }
+        for (j = 0; j < n; j++) {
+            const double *re = &R(2 + j, 0), a3 = S.c * I3[j], a5 = p->I5[j];
+            if (p->preload) {             /* the eta columns are dense (c Kg) */
+                for (k = 0; k < nx; k++) {
+                    q0[k] += a3 * re[k];
+                    q1[k] -= a5 * re[k];
+                }
+            } else {                      /* row eta_j: columns phi, eta_j, phid, etad_j only */
+                const int cols[4] = {1, 2 + j, nq + 1, nq + 2 + j};
+                for (i = 0; i < 4; i++) {
+                    q0[cols[i]] += a3 * re[cols[i]];
+                    q1[cols[i]] -= a5 * re[cols[i]];
+                }
+            }
+        }
+        for (k = 0; k < nx; k++) {
+            r0[k] = S.i00 * q0[k] + S.i01 * q1[k];
+            r1[k] = S.i01 * q0[k] + S.i11 * q1[k];
+        }
+        for (j = 0; j < n; j++) {
+            double *re = &R(2 + j, 0);
+            const double a3 = S.c * I3[j], a5 = p->I5[j];
+            for (k = 0; k < nx; k++) re[k] += a3 * r0[k] - a5 * r1[k];
+        }
+    }
+#undef R
+    if (b != NULL) {
+        double r0 = 1.0, r1 = 0.0;
+        for (i = 0; i < nx; i++) b[i] = 0.0;
+        schur_solve(p, &S, &r0, &r1, b + nq + 2, 1);
+        b[nq] = r0;
+        b[nq + 1] = r1;
+    }
+    return all_finite_n(J, (long)nx * nx) && (b == NULL || all_finite_n(b, nx)) ? FP_OK
+                                                                               : FP_NONFINITE;
+}
+
+/* out = J v + b du: the derivative of dx/dt along the direction v of the state and du of the
+ * force, without forming J (O(n), O(n^2) with the preload). dx: dx/dt at (x, u); work: 2 n. */
+static void jvp(const fp_plant *p, const double *x, const double *dx, const double *v,
+                double du, double *out, double *work)
+{
+    const int n = p->n, nq = n + 2;
+    const double *I3 = p->I3, *dq = v, *dv = v + nq;
+    double r0, r1, *re = out + nq + 2, I3de = 0.0, I3dv = 0.0;
+    schur S;
+    int i, j;
+    for (i = 0; i < nq; i++) out[i] = v[nq + i];
+    for (j = 0; j < n; j++) {
+        I3de += I3[j] * dq[2 + j];
+        I3dv += I3[j] * dv[2 + j];
+    }
+    if (p->linear) {
+        schur_at(p, 1.0, 0.0, 0.0, 0.0, &S);
+        r0 = du;
+        r1 = p->g * p->I1 * dq[1] + p->g * I3de;
+        for (i = 0; i < n; i++) {
+            re[i] = p->g * I3[i] * dq[1] - p->K[i] * dq[2 + i] - p->D[i] * dv[2 + i];
+            if (p->preload)
+                for (j = 0; j < n; j++) re[i] += p->Kg[(size_t)i * n + j] * dq[2 + j];
+        }
+    } else {
+        jac_point P;
+        double c, s, phid, phid2, a0, a1, eed = 0.0, edv = 0.0, rowsum = 0.0;
+        jac_point_at(p, x, dx, work, &P);
+        c = P.c;
+        s = P.s;
+        phid = P.phid;
+        phid2 = phid * phid;
+        a0 = P.a[0];
+        a1 = P.a[1];
+        schur_at(p, c, s, P.I3eta, P.ee, &S);
+        for (j = 0; j < n; j++) {
+            eed += x[2 + j] * x[nq + 2 + j];
+            edv += x[2 + j] * dv[2 + j];
+            /* row 1 of the eta columns times deta */
+            rowsum += (-2.0 * phid * x[nq + 2 + j] + p->g * c * I3[j] - s * I3[j] * a0
+                       - 2.0 * x[2 + j] * a1 - (p->preload ? s * P.kgse[j] : 0.0)) * dq[2 + j];
+        }
+        {   /* the phi column, times dphi */
+            double rp0 = -(p->I1 * c - P.I3eta * s) * phid2 - 2.0 * phid * c * P.I3etad
+                         - (P.dm01 * a1 + s * P.I3ae);
+            double rp1 = p->g * (p->I1 * c - P.I3eta * s) - P.dm01 * a0;
+            if (p->preload) {
+                double ekge = 0.0;
+                for (j = 0; j < n; j++) ekge += x[2 + j] * P.kge[j];
+                rp1 -= 0.5 * c * ekge;
+            }
+            r0 = rp0 * dq[1] - (c * phid2 + s * a1) * I3de
+                 + (-2.0 * (p->I1 * s + P.I3eta * c) * phid - 2.0 * s * P.I3etad) * dv[1]
+                 - 2.0 * phid * s * I3dv + du;
+            r1 = rp1 * dq[1] + rowsum - 2.0 * eed * dv[1] - 2.0 * phid * edv;
+        }
+        for (i = 0; i < n; i++) {
+            double rp = p->g * c * I3[i] - s * I3[i] * a0;
+            if (p->preload) {
+                double kgd = 0.0;
+                const double *row = p->Kg + (size_t)i * n;
+                for (j = 0; j < n; j++) kgd += row[j] * dq[2 + j];
+                rp -= s * P.kge[i];
+                re[i] = c * kgd;
+            } else {
+                re[i] = 0.0;
+            }
+            re[i] += rp * dq[1] + (phid2 - p->K[i]) * dq[2 + i] + 2.0 * phid * x[2 + i] * dv[1]
+                     - p->D[i] * dv[2 + i];
+        }
+    }
+    schur_solve(p, &S, &r0, &r1, re, 1);
+    out[nq] = r0;
+    out[nq + 1] = r1;
+}
+
+int fp_jvp(const fp_plant *p, const double *x, double u, const double *v, double du, double *out,
+           double *work)
+{
+    const int nx = p->nx;
+    int i;
+    if (x == NULL || v == NULL || out == NULL || work == NULL) return FP_BADARG;
+    fp_rhs(p, x, u, work);
+    jvp(p, x, work, v, du, out, work + nx);
+    for (i = 0; i < nx; i++)
+        if (!isfinite(out[i])) return FP_NONFINITE;
+    return FP_OK;
+}
+
+int fp_output_jacobian(const fp_plant *p, const double *x, double *C)
+{
+    const int n = p->n, nq = n + 2, nx = p->nx, ny = FP_OUT_ETA + n;
+    const double *I3 = p->I3, *I5 = p->I5, *ts = p->tip_slope;
+    const double phi = x[1], xd = x[nq], phid = x[nq + 1];
+    double *dE;
+    int i, j, k;
+    for (i = 0; i < ny * nx; i++) C[i] = 0.0;
+#define CC(row, col) C[(size_t)(row) * nx + (col)]
+    CC(FP_OUT_X, 0) = 1.0;
+    CC(FP_OUT_XDOT, nq) = 1.0;
+    CC(FP_OUT_PHI_O, 1) = 1.0;
+    CC(FP_OUT_OMEGA_O, nq + 1) = 1.0;
+    CC(FP_OUT_PHI, 1) = 1.0;
+    for (j = 0; j < n; j++) {
+        CC(FP_OUT_TIP, 2 + j) = p->tip_defl[j];
+        CC(FP_OUT_ETA + j, 2 + j) = 1.0;
+    }
+    if (p->linear) {
+        for (j = 0; j < n; j++) {
+            CC(FP_OUT_PHI_O, 2 + j) = ts[j];
+            CC(FP_OUT_OMEGA_O, nq + 2 + j) = ts[j];
+        }
+    } else if (n > 0) {
+        double sl = 0.0, sld = 0.0, w;
+        for (j = 0; j < n; j++) {
+            sl += ts[j] * x[2 + j];
+            sld += ts[j] * x[nq + 2 + j];
+        }
+        w = 1.0 + sl * sl;
+        for (j = 0; j < n; j++) {
+            CC(FP_OUT_PHI_O, 2 + j) = ts[j] / w;
+            CC(FP_OUT_OMEGA_O, nq + 2 + j) = ts[j] / w;
+            CC(FP_OUT_OMEGA_O, 2 + j) = -2.0 * sl * sld / (w * w) * ts[j];
+        }
+    }
+    /* the energy's gradient (dynamics.py, output_jacobian_numpy) */
+    dE = C + (size_t)FP_OUT_ENERGY * nx;
+    if (p->linear) {
+        double I3e = 0.0, I3ed = 0.0, I5ed = 0.0;
+        for (j = 0; j < n; j++) {
+            I3e += I3[j] * x[2 + j];
+            I3ed += I3[j] * x[nq + 2 + j];
+            I5ed += I5[j] * x[nq + 2 + j];
+        }
+        /* [K0s q, M0 qd] */
+        dE[1] = -p->g * p->I1 * phi - p->g * I3e;
+        dE[nq] = p->I0 * xd - p->I1 * phid - I3ed;
+        dE[nq + 1] = -p->I1 * xd + p->I2 * phid + I5ed;
+        for (j = 0; j < n; j++) {
+            dE[2 + j] = -p->g * I3[j] * phi + p->K[j] * x[2 + j];
+            if (p->preload)
+                for (k = 0; k < n; k++)
+                    dE[2 + j] -= 0.5 * (p->Kg[(size_t)j * n + k] + p->Kg[(size_t)k * n + j])
+                                 * x[2 + k];
+            dE[nq + 2 + j] = -I3[j] * xd + I5[j] * phid + x[nq + 2 + j];
+        }
+    } else {
+        const double c = cos(phi), s = sin(phi);
+        double I3e = 0.0, I3ed = 0.0, I5ed = 0.0, ee = 0.0;
+        for (j = 0; j < n; j++) {
+            I3e += I3[j] * x[2 + j];
+            I3ed += I3[j] * x[nq + 2 + j];
+            I5ed += I5[j] * x[nq + 2 + j];
+            ee += x[2 + j] * x[2 + j];
+        }
+        dE[1] = xd * ((p->I1 * phid + I3ed) * s + phid * c * I3e) - p->g * (p->I1 * s + c * I3e);
+        dE[nq] = p->I0 * xd - (p->I1 * phid + I3ed) * c + phid * s * I3e;
+        dE[nq + 1] = xd * (-p->I1 * c + s * I3e) + phid * (p->I2 + ee) + I5ed;
+        for (j = 0; j < n; j++) {
+            dE[2 + j] = xd * phid * s * I3[j] + phid * phid * x[2 + j] - p->g * s * I3[j]
+                        + p->K[j] * x[2 + j];
+            dE[nq + 2 + j] = -xd * c * I3[j] + phid * I5[j] + x[nq + 2 + j];
+        }
+        if (p->preload) {
+            double ekge = 0.0;
+            for (j = 0; j < n; j++)
+                for (k = 0; k < n; k++) {
+                    const double g = p->Kg[(size_t)j * n + k];
+                    ekge += x[2 + j] * g * x[2 + k];
+                    dE[2 + j] -= 0.5 * c * g * x[2 + k];
+                    dE[2 + k] -= 0.5 * c * g * x[2 + j];
+                }
+            dE[1] += 0.5 * s * ekge;
+        }
+    }
+#undef CC
+    for (i = 0; i < ny * nx; i++)
+        if (!isfinite(C[i])) return FP_NONFINITE;
+    return FP_OK;
+}
+
+/* (etad.Kg.eta - eta.Kg.etad) / 2 for two vectors a (etad) and e (eta). */
+static double kg_skew(const fp_plant *p, const double *a, const double *e)
+{
+    const int n = p->n;
+    double acc = 0.0;
+    int j, k;
+    for (j = 0; j < n; j++)
+        for (k = 0; k < n; k++) acc += p->Kg[(size_t)j * n + k] * (a[j] * e[k] - e[j] * a[k]);
+    return 0.5 * acc;
+}
+
+int fp_output_derivatives(const fp_plant *p, const double *x, double u, double du, double *d1,
+                          double *d2, double *work)
+{
+    const int n = p->n, nq = n + 2, nx = p->nx, ny = FP_OUT_ETA + n;
+    const double *ts = p->tip_slope, *td = p->tip_defl;
+    double *f = work, *g = work + nx;        /* f = dx/dt, g = d2x/dt2 = J f + b du */
+    const double *qd, *a, *jj;
+    double sl = 0.0, sld = 0.0, sldd = 0.0, slddd = 0.0, tip1 = 0.0, tip2 = 0.0;
+    double P, dP, diss = 0.0, ddiss = 0.0;
+    int i, j;
+    if (x == NULL || d1 == NULL || d2 == NULL || work == NULL) return FP_BADARG;
+    fp_rhs(p, x, u, f);
+    jvp(p, x, f, f, du, g, work + 2 * nx);
+    qd = x + nq;
+    a = f + nq;
+    jj = g + nq;
+    for (j = 0; j < n; j++) {
+        sl += ts[j] * x[2 + j];
+        sld += ts[j] * qd[2 + j];
+        sldd += ts[j] * a[2 + j];
+        slddd += ts[j] * jj[2 + j];
+        tip1 += td[j] * qd[2 + j];
+        tip2 += td[j] * a[2 + j];
+        diss += p->D[j] * qd[2 + j] * qd[2 + j];
+        ddiss += 2.0 * p->D[j] * qd[2 + j] * a[2 + j];
+        d1[FP_OUT_ETA + j] = qd[2 + j];
+        d2[FP_OUT_ETA + j] = a[2 + j];
+    }
+    d1[FP_OUT_X] = qd[0];
+    d2[FP_OUT_X] = a[0];
+    d1[FP_OUT_XDOT] = a[0];
+    d2[FP_OUT_XDOT] = jj[0];
+    d1[FP_OUT_PHI] = qd[1];
+    d2[FP_OUT_PHI] = a[1];
+    d1[FP_OUT_TIP] = tip1;
+    d2[FP_OUT_TIP] = tip2;
+    if (p->linear) {
+        d1[FP_OUT_PHI_O] = qd[1] + sld;
+        d1[FP_OUT_OMEGA_O] = d2[FP_OUT_PHI_O] = a[1] + sldd;
+        d2[FP_OUT_OMEGA_O] = jj[1] + slddd;
+    } else {
+        /* phi_o = phi + atan(sl), omega_o = phid + sld / w, w = 1 + sl^2 */
+        const double w = 1.0 + sl * sl, w2 = w * w, sld2 = sld * sld;
+        d1[FP_OUT_PHI_O] = qd[1] + sld / w;
+        d1[FP_OUT_OMEGA_O] = d2[FP_OUT_PHI_O] = a[1] + sldd / w - 2.0 * sl * sld2 / w2;
+        d2[FP_OUT_OMEGA_O] = jj[1] + slddd / w - 6.0 * sl * sld * sldd / w2 - 2.0 * sld2 * sld / w2
+                             + 8.0 * sl * sl * sld2 * sld / (w2 * w);
+    }
+    /* the energy: the power balance dE/dt = F_c xd - etad.D.etad (+ the power of the skew part of
+     * Kg, c (etad.Kg.eta - eta.Kg.etad) / 2, zero for a symmetric Kg): exact, since the equations
+     * are Lagrange's for the kinetic and potential energies fp_energy sums (MODEL.md, section 4;
+     * tests/test_lagrange.py) with the Rayleigh damping and the force on the cart. */
+    P = u * qd[0] - diss;
+    dP = du * qd[0] + u * a[0] - ddiss;
+    if (p->preload) {
+        const double k1 = kg_skew(p, qd + 2, x + 2), k2 = kg_skew(p, a + 2, x + 2);
+        if (p->linear) {
+            P += k1;
+            dP += k2;
+        } else {
+            const double c = cos(x[1]), s = sin(x[1]);
+            P += c * k1;
+            dP += c * k2 - s * qd[1] * k1;
+        }
+    }
+    d1[FP_OUT_ENERGY] = P;
+    d2[FP_OUT_ENERGY] = dP;
+    for (i = 0; i < ny; i++)
+        if (!isfinite(d1[i]) || !isfinite(d2[i])) return FP_NONFINITE;
+    return FP_OK;
+}

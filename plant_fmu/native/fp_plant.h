@@ -40,7 +40,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, signatures, codes). Bump on any change. */
-#define FP_PLANT_ABI 1
+#define FP_PLANT_ABI 2
 
 /* Return codes. */
 #define FP_OK 0
@@ -164,6 +164,40 @@ FP_API int fp_fixed_steps(const fp_plant *p, int method, const fp_tableau *tab, 
 FP_API int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u,
                             double *t, double t_end, double *y, double *f, fp_adaptive *a,
                             double *work);
+
+/* ---- Jacobians and output derivatives (issue 24) ------------------------------------------
+ * Exact (closed form) at any state, the same formulas as dynamics.py's jacobian_numpy and
+ * output_jacobian_numpy: with M(q) qdd = f(q, qd, u), d qdd/dz = M^-1 (df/dz - (dM/dz) qdd), each
+ * column's right-hand side formed by hand and solved by the Schur complement the rhs uses: O(n)
+ * a column, with or without the preload, so O(n^2) for the whole Jacobian, the size of J. work: fp_jacobian_work_size(p) = 4 nx doubles
+ * (any of these functions). Each returns FP_OK, FP_NONFINITE (a result is not finite; the outputs
+ * are written but must not be used) or FP_BADARG (a NULL pointer). */
+FP_API long fp_jacobian_work_size(const fp_plant *p);
+
+/* J = d(dx/dt)/dx (nx x nx, row-major) and, if b is not NULL, b = d(dx/dt)/du (nx) at x with the
+ * force u (nonlinear or linear model, with or without the preload). Columns of x and x_dot are 0
+ * (nothing depends on them). */
+FP_API int fp_jacobian(const fp_plant *p, const double *x, double u, double *J, double *b,
+                       double *work);
+
+/* out = J v + b du (nx): the derivative of dx/dt along the state direction v and the force rate
+ * du, without forming J (O(n); O(n^2) with the preload). */
+FP_API int fp_jvp(const fp_plant *p, const double *x, double u, const double *v, double du,
+                  double *out, double *work);
+
+/* C = d(outputs)/dx ((FP_OUT_ETA + n) x nx, row-major) at x, in the layout of fp_outputs
+ * (FP_OUT_*; the energy's row is its gradient). No output depends on the force. */
+FP_API int fp_output_jacobian(const fp_plant *p, const double *x, double *C);
+
+/* The first (d1) and second (d2) time derivatives of every output (FP_OUT_ETA + n doubles each,
+ * layout FP_OUT_*) at x, with the force u and its rate du at that instant: d1 = C f(x, u),
+ * d2 = d/dt (C(x) f(x, u)) = f^T H_k f + C (J f + b du), in closed form per output (the chain
+ * rule of phi_o = phi + atan(N'(L) eta) and of omega_o, its rate). The energy's are those of the
+ * power balance dE/dt = u x_dot - etad.D.etad (+ c (etad.Kg.eta - eta.Kg.etad) / 2 with the
+ * preload: the power of Kg's skew part, 0 for a symmetric Kg; c = cos phi, 1 in the linear model),
+ * exact because the equations are Lagrange's for the energies fp_energy sums. */
+FP_API int fp_output_derivatives(const fp_plant *p, const double *x, double u, double du,
+                                 double *d1, double *d2, double *work);
 
 #ifdef __cplusplus
 }

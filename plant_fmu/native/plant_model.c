@@ -80,6 +80,7 @@ struct fpm_model {
     double dF, d2F;             /* fmi2SetRealInputDerivatives of F_c */
     int ready;                  /* prepared from the parameters */
     int initialized;            /* exitInitializationMode succeeded */
+    int stepped;                /* a doStep succeeded since initialisation (input_now) */
     int failed;                 /* refuses to step until a saved state is restored */
     char error[FPM_MSG_MAX];
     /* the plant */
@@ -328,6 +329,7 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     }
     memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
     m->failed = 0;
+    m->stepped = 0;
     m->error[0] = '\0';
     if (!outputs_ok(m, NULL)) {                /* plant_fmu/fmu.py's _build */
         fpm_log(lg, FPM_ERROR, "bad parameter: the initial state (phi0 = %.17g, x0 = %.17g, "
@@ -675,6 +677,7 @@ int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
             return diverged(m, lg, &saved, why);
         }
     }
+    m->stepped = 1;
     return FPM_OK;
 }
 
@@ -737,6 +740,207 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
     return FPM_OK;
 }
 
+/* ================================================================== Model Exchange (issue 24)
+ * The states [x, phi, eta_1..eta_8, x_dot, phi_dot, eta_dot_1..eta_dot_8] (FPM_NX = 2 (8 + 2):
+ * the modes of the largest n_modes; the kernel's state, nx = 2 (n + 2), holds the first n modes,
+ * the states of the others stay 0 with derivative 0). Model Exchange keeps its state where
+ * co-simulation keeps it: the stepper's time s.t and state s.y (what FMU states save and restore,
+ * with the checks of a restore), mirrored in y_acc (what the outputs read; out_fresh and
+ * energy_fresh cleared whenever it changes). The derivative is the kernel's right-hand side
+ * fp_rhs at the input F_c set now (no input derivatives in Model Exchange). Event indicators:
+ * the divergence bounds as smooth, finite functions, 1 - (phi/phi_limit)^2 and
+ * 1 - (energy/energy_limit)^2, which cross 0 where a co-simulation step would be refused; at
+ * that event the FMU asks the importer to terminate. */
+#define ME_NQ (FPM_N_ETA + 2)
+#if FPM_NX != 2 * ME_NQ || FPM_N_ETA < FPM_N_MODES_MAX
+#error "the Model-Exchange states of fpm_vars.h are not [q of 8 modes, their rates]"
+#endif
+#define ME_BOUND_TOL 1e-8         /* an indicator at most this is at its bound (the importer's
+                                     root finder stops within its tolerance of the crossing) */
+#define ME_RATIO_MAX 1e150        /* |phi|/phi_limit and |E|/energy_limit clamped: finite */
+
+size_t fpm_model_nz(void) { return FPM_NZ; }
+
+int fpm_model_me_init(fpm_model *m, const fpm_logger *lg)
+{
+    if (2 * (m->n + 2) > FPM_NX) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: n_modes = %d: Model Exchange declares the states of "
+                "at most %d modes", m->n, FPM_NX / 2 - 2);
+        return FPM_ERROR;
+    }
+    return FPM_OK;
+}
+
+/* A new state or time: the outputs follow it. */
+static void me_moved(fpm_model *m)
+{
+    memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
+    m->out_fresh = m->energy_fresh = 0;
+}
+
+int fpm_model_set_time(fpm_model *m, const fpm_logger *lg, double t)
+{
+    if (!(t >= m->t0)) {
+        fpm_log(lg, FPM_ERROR, "time = %.17g is before the start time %.17g", t, m->t0);
+        return FPM_ERROR;
+    }
+    m->s.t = t;
+    m->s.t_base = m->t0;
+    m->s.k = 0;
+    return FPM_OK;
+}
+
+void fpm_model_get_states(const fpm_model *m, double *x)
+{
+    int i, nq = m->nq;
+    for (i = 0; i < FPM_NX; i++) x[i] = 0.0;
+    for (i = 0; i < nq; i++) {
+        x[i] = m->s.y[i];
+        x[ME_NQ + i] = m->s.y[nq + i];
+    }
+}
+
+int fpm_model_set_states(fpm_model *m, const fpm_logger *lg, const double *x)
+{
+    int i, nq = m->nq;
+    (void)lg;
+    for (i = 0; i < nq; i++) {               /* the states of modes beyond n_modes: not used */
+        m->s.y[i] = x[i];
+        m->s.y[nq + i] = x[ME_NQ + i];
+    }
+    me_moved(m);
+    return FPM_OK;
+}
+
+/* The kernel's derivative at y_acc and F_c into dx (FPM_NX doubles). */
+static int me_rhs(fpm_model *m, const fpm_logger *lg, double *dx)
+{
+    double d[NXMAX], u = m->v.real[VR_F_c];
+    int i, nq = m->nq;
+    if (!isfinite(u)) {
+        fpm_log(lg, FPM_ERROR, "the input F_c = %g is not finite at t = %.17g", u, m->s.t);
+        return FPM_ERROR;
+    }
+    fp_rhs(&m->p, m->y_acc, u, d);
+    for (i = 0; i < FPM_NX; i++) dx[i] = 0.0;
+    for (i = 0; i < nq; i++) {
+        dx[i] = d[i];
+        dx[ME_NQ + i] = d[nq + i];
+    }
+    for (i = 0; i < FPM_NX; i++)
+        if (!isfinite(dx[i])) {
+            fpm_log(lg, FPM_ERROR, "the derivative of state %d is not finite at t = %.17g (the "
+                    "state or F_c = %g is too large)", i, m->s.t, u);
+            return FPM_ERROR;
+        }
+    return FPM_OK;
+}
+
+int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx)
+{
+    return me_rhs(m, lg, dx);
+}
+
+static double positive_or_1(double v)
+{
+    return isfinite(v) && v > 0.0 ? v : 1.0;
+}
+
+/* x: L; phi: 1 rad; eta_j: 0.01 L / |N_j(L)| (a tip deflection of 1 % of L); x_dot: sqrt(g L)
+ * and phi_dot: sqrt(g / L), the pendulum's scales (L/s and 1/s when g = 0); eta_dot_j: omega_j
+ * times the nominal of eta_j; the states of modes beyond n_modes: 1. */
+void fpm_model_nominals(const fpm_model *m, double *nominal)
+{
+    double L = m->v.real[VR_L], g = m->p.g;
+    int j;
+    for (j = 0; j < FPM_NX; j++) nominal[j] = 1.0;
+    nominal[0] = positive_or_1(L);
+    nominal[ME_NQ] = positive_or_1(g > 0.0 ? sqrt(g * L) : L);
+    nominal[ME_NQ + 1] = positive_or_1(g > 0.0 ? sqrt(g / L) : 1.0);
+    for (j = 0; j < m->n; j++) {
+        double eta = positive_or_1(0.01 * L / fabs(m->tip_defl[j]));
+        nominal[2 + j] = eta;
+        nominal[ME_NQ + 2 + j] = positive_or_1(sqrt(m->K[j]) * eta);
+    }
+}
+
+static double indicator(double v, double limit)
+{
+    double r = fabs(v) / limit;             /* limit > 0 (initialisation checks it) */
+    if (!(r <= ME_RATIO_MAX)) r = ME_RATIO_MAX;
+    return 1.0 - r * r;
+}
+
+static double me_energy(fpm_model *m)
+{
+    if (!m->energy_fresh) {
+        m->out[FP_OUT_ENERGY] = fp_energy(&m->p, m->y_acc);
+        m->energy_fresh = 1;
+    }
+    return m->out[FP_OUT_ENERGY];
+}
+
+int fpm_model_event_indicators(fpm_model *m, const fpm_logger *lg, double *z)
+{
+    double energy = me_energy(m);
+    if (!isfinite(energy) || !isfinite(m->y_acc[1])) {
+        fpm_log(lg, FPM_ERROR, "the event indicators are not finite at t = %.17g: phi = %g, "
+                "energy = %g", m->s.t, m->y_acc[1], energy);
+        return FPM_ERROR;
+    }
+    z[0] = indicator(m->y_acc[1], m->phi_limit);
+    z[1] = indicator(energy, m->energy_limit);
+    return FPM_OK;
+}
+
+int fpm_model_event_update(fpm_model *m, const fpm_logger *lg, int *terminate)
+{
+    double z[FPM_NZ];
+    int rc = fpm_model_event_indicators(m, lg, z);
+    if (rc != FPM_OK) return rc;
+    if (z[0] <= ME_BOUND_TOL) {
+        fpm_log(lg, FPM_WARNING, "divergence at t = %.17g: |phi| = %.17g reached phi_limit = "
+                "%.17g; the simulation terminates (terminateSimulation)", m->s.t,
+                fabs(m->y_acc[1]), m->phi_limit);
+        *terminate = 1;
+        return FPM_WARNING;
+    }
+    if (z[1] <= ME_BOUND_TOL) {
+        fpm_log(lg, FPM_WARNING, "divergence at t = %.17g: |energy| = %.17g reached energy_limit "
+                "= %.17g; the simulation terminates (terminateSimulation)", m->s.t,
+                fabs(m->out[FP_OUT_ENERGY]), m->energy_limit);
+        *terminate = 1;
+        return FPM_WARNING;
+    }
+    return FPM_OK;
+}
+
+int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    const fpm_var *v = &fpm_vars[vr];
+    double a[FPM_NX > FPM_NZ ? FPM_NX : FPM_NZ];
+    int rc = FPM_OK;
+    if (!m->initialized && !prepare(m, lg)) {
+        fpm_log(lg, FPM_ERROR, "%s cannot be computed: a parameter is bad (above)", v->name);
+        return FPM_ERROR;
+    }
+    if (v->state) {
+        fpm_model_get_states(m, a);
+        *value = a[v->state - 1];
+    } else if (v->der) {
+        rc = me_rhs(m, lg, a);
+        *value = a[v->der - 1];
+    } else if (v->indicator) {
+        rc = fpm_model_event_indicators(m, lg, a);
+        *value = a[v->indicator - 1];
+    } else {
+        fpm_log(lg, FPM_ERROR, "value reference %u is not a Model-Exchange local", vr);
+        return FPM_ERROR;
+    }
+    return rc;
+}
+/* ================================================================== end of Model Exchange */
+
 /* ------------------------------------------------------------------ FMU states */
 int fpm_model_initialized(const fpm_model *m) { return m->initialized; }
 
@@ -763,6 +967,7 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
     fpm_put_f64(w, s->tu);
     fpm_put_i32(w, s->prev_poly);
     for (i = 0; i < 4; i++) fpm_put_f64(w, s->prev[i]);
+    fpm_put_i32(w, m->stepped);
 }
 
 /* A logger that keeps the first error message in a reader's why. */
@@ -777,7 +982,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     fpm_logger lg;
     stepper s;
     double k, phi, norm2 = 0.0;
-    int init, i;
+    int init, i, stepped = 0;
     const char *bad = "";
     lg.emit = into_why;
     lg.env = r;
@@ -808,6 +1013,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     fpm_get_finite(r, "tu", &s.tu);
     fpm_get_int_in(r, "prev_poly", 0, 1, &s.prev_poly);
     for (i = 0; i < 4; i++) fpm_get_finite(r, "the input the method's data belong to", &s.prev[i]);
+    fpm_get_int_in(r, "stepped", 0, 1, &stepped);
     if (r->why[0] != '\0') return 0;
     /* what legal calls leave: a grid counted from t_base, time not before the start, an
      * adaptive step > 0, and a state that passed the divergence checks */
@@ -826,6 +1032,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     if (!(fabs(phi) <= m->phi_limit))
         return fpm_reject(r, "|phi| = %g exceeds phi_limit = %g", fabs(phi), m->phi_limit);
     m->s = s;
+    m->stepped = stepped;
     memcpy(m->y_acc, s.y, sizeof m->y_acc);   /* the last accepted state is the stepper's */
     if (!outputs_ok(m, &bad)) return fpm_reject(r, "the output %s would not be finite", bad);
     if (!(fabs(m->out[FP_OUT_ENERGY]) <= m->energy_limit))
@@ -833,3 +1040,178 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
                           fabs(m->out[FP_OUT_ENERGY]), m->energy_limit);
     return 1;
 }
+
+/* ================================================================== Jacobians and output
+ * derivatives (issue 24; fpm.h: fpm_model_nx, fpm_model_jacobian, fpm_model_output_derivative)
+ * on the kernel's fp_jacobian, fp_output_jacobian and fp_output_derivatives.
+ *
+ * States (Model Exchange's order): [x, phi, eta_1..eta_8, x_dot, phi_dot, eta_dot_1..eta_dot_8]
+ * (FPM_N_ETA = 8 modes, the largest n_modes); the kernel's state of the instance's n modes maps
+ * into it, and the rows and columns of modes beyond n are 0. Inputs: F_c. Outputs: the table's,
+ * in value-reference order; those of modes beyond n are identically 0 (zero rows, derivatives 0).
+ *
+ * The point: the state y_acc (the state the last step accepted, or the one Model Exchange set)
+ * and the force input_now() gives. Before initialisation: FPM_ERROR (the core refuses earlier). */
+#define JAC_NQ (FPM_N_ETA + 2)
+#define JAC_NX (2 * JAC_NQ)
+#if FPM_N_MODES_MAX > FPM_N_ETA
+#error "the Jacobian's states hold FPM_N_ETA modes"
+#endif
+
+size_t fpm_model_nx(void) { return JAC_NX; }
+
+int fpm_model_max_output_derivative_order(void) { return 2; }
+
+/* The force and its rate at the model's current time: after a doStep, the input polynomial that
+ * step used (the stepper's: F_c and its derivatives at the step's start, or the held step average
+ * of the exponential method), evaluated at the step's end; otherwise (after initialisation, and
+ * always in Model Exchange, which takes no doStep) the input F_c set now and its derivative set
+ * now (fmi2SetRealInputDerivatives; 0 in Model Exchange). "A step was taken" is the flag stepped:
+ * set by a successful doStep, cleared by initialisation, saved and restored with FMU states. */
+static void input_now(const fpm_model *m, double *u, double *du)
+{
+    const stepper *s = &m->s;
+    if (m->stepped) {
+        const double q = s->t - s->tu;
+        if (s->du != 0.0 || s->d2u != 0.0) {
+            *u = s->u + q * (s->du + 0.5 * q * s->d2u);
+            *du = s->du + q * s->d2u;
+        } else {
+            *u = s->u;
+            *du = 0.0;
+        }
+    } else {
+        *u = m->v.real[VR_F_c];
+        *du = m->dF;
+    }
+}
+
+/* The kernel's output row (FP_OUT_*) of output vr; -1: identically 0 (a mode beyond n_modes);
+ * -2: not an output. */
+static int kernel_row(const fpm_model *m, unsigned vr)
+{
+    int j;
+    switch (vr) {
+    case VR_x_o: return FP_OUT_X;
+    case VR_x_dot: return FP_OUT_XDOT;
+    case VR_phi_o: return FP_OUT_PHI_O;
+    case VR_omega_o: return FP_OUT_OMEGA_O;
+    case VR_phi: return FP_OUT_PHI;
+    case VR_tip_deflection: return m->n ? FP_OUT_TIP : -1;
+    case VR_energy: return FP_OUT_ENERGY;
+    default:
+        for (j = 0; j < FPM_N_ETA; j++)
+            if (vr == fpm_eta_vrs[j]) return j < m->n ? FP_OUT_ETA + j : -1;
+    }
+    return -2;
+}
+
+/* The Model-Exchange index of the kernel's state i. */
+static int me_index(const fpm_model *m, int i)
+{
+    return i < m->nq ? i : JAC_NQ + (i - m->nq);
+}
+
+static int jac_ready(const fpm_model *m, const fpm_logger *lg, const char *what, double *u,
+                     double *du)
+{
+    if (!m->initialized) {
+        fpm_log(lg, FPM_ERROR, "%s: the model is not initialised", what);
+        return 0;
+    }
+    input_now(m, u, du);
+    if (!isfinite(*u) || !isfinite(*du)) {
+        fpm_log(lg, FPM_ERROR, "%s: the input F_c = %g (rate %g) is not finite at t = %.17g",
+                what, *u, *du, fpm_model_time(m));
+        return 0;
+    }
+    return 1;
+}
+
+int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B, double *C,
+                       double *D)
+{
+    double J[NXMAX * NXMAX], b[NXMAX], Ck[(FP_OUT_ETA + NMAX) * NXMAX], work[4 * NXMAX];
+    double u, du;
+    int nx = m->nx, i, j, nu = 0, ny = 0;
+    unsigned vr;
+    for (vr = 0; vr < FPM_MAX_VARS; vr++)
+        if (fpm_vars[vr].name != NULL) {
+            nu += fpm_vars[vr].causality == FPM_INPUT;
+            ny += fpm_vars[vr].causality == FPM_OUTPUT;
+        }
+    if (!jac_ready(m, lg, "the linearisation", &u, &du)) return FPM_ERROR;
+    if (A != NULL || B != NULL) {
+        int rc = fp_jacobian(&m->p, m->y_acc, u, J, b, work);
+        if (rc != FP_OK) {
+            fpm_log(lg, FPM_ERROR, "the Jacobian of the derivatives is not finite at t = %.17g "
+                    "(F_c = %g)", fpm_model_time(m), u);
+            return FPM_ERROR;
+        }
+        if (A != NULL) {
+            for (i = 0; i < JAC_NX * JAC_NX; i++) A[i] = 0.0;
+            for (i = 0; i < nx; i++)
+                for (j = 0; j < nx; j++)
+                    A[me_index(m, i) * JAC_NX + me_index(m, j)] = J[i * nx + j];
+        }
+        if (B != NULL) {
+            int k = 0;
+            for (i = 0; i < JAC_NX * nu; i++) B[i] = 0.0;
+            for (vr = 0; vr < FPM_MAX_VARS; vr++)
+                if (fpm_vars[vr].name != NULL && fpm_vars[vr].causality == FPM_INPUT) {
+                    if (vr == VR_F_c)
+                        for (i = 0; i < nx; i++) B[me_index(m, i) * nu + k] = b[i];
+                    k++;
+                }
+        }
+    }
+    if (C != NULL) {
+        int k = 0;
+        if (fp_output_jacobian(&m->p, m->y_acc, Ck) != FP_OK) {
+            fpm_log(lg, FPM_ERROR, "the Jacobian of the outputs is not finite at t = %.17g",
+                    fpm_model_time(m));
+            return FPM_ERROR;
+        }
+        for (i = 0; i < ny * JAC_NX; i++) C[i] = 0.0;
+        for (vr = 0; vr < FPM_MAX_VARS; vr++)
+            if (fpm_vars[vr].name != NULL && fpm_vars[vr].causality == FPM_OUTPUT) {
+                const int row = kernel_row(m, vr);
+                if (row >= 0)
+                    for (j = 0; j < nx; j++) C[k * JAC_NX + me_index(m, j)] = Ck[row * nx + j];
+                k++;
+            }
+    }
+    if (D != NULL)                            /* no output depends on F_c directly */
+        for (i = 0; i < ny * nu; i++) D[i] = 0.0;
+    return FPM_OK;
+}
+
+int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
+                                double *value)
+{
+    double d1[FP_OUT_ETA + NMAX], d2[FP_OUT_ETA + NMAX], work[4 * NXMAX], u, du;
+    int row;
+    if (vr >= FPM_MAX_VARS || (row = kernel_row(m, vr)) == -2) {
+        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
+        return FPM_ERROR;
+    }
+    if (order < 1 || order > 2) {
+        fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s: orders 1 and 2 only", order,
+                fpm_vars[vr].name);
+        return FPM_ERROR;
+    }
+    if (!jac_ready(m, lg, "the output derivatives", &u, &du)) return FPM_ERROR;
+    if (row == -1) {                          /* a mode beyond n_modes: identically 0 */
+        *value = 0.0;
+        return FPM_OK;
+    }
+    if (fp_output_derivatives(&m->p, m->y_acc, u, du, d1, d2, work) != FP_OK) {
+        fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s is not finite at t = %.17g "
+                "(F_c = %g, dF_c = %g)", order, fpm_vars[vr].name, fpm_model_time(m), u, du);
+        return FPM_ERROR;
+    }
+    *value = order == 1 ? d1[row] : d2[row];
+    return FPM_OK;
+}
+/* ================================================================== end of Jacobians and output
+ * derivatives */

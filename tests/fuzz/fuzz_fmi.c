@@ -6,14 +6,17 @@
  * An input is a program: its first byte picks the FMI version, then each byte is an operation
  * with its arguments read from the bytes that follow (doubles from a table of interesting values
  * or raw; value references, counts and NULL arrays; strings). The operations are every call of
- * the co-simulation API, and three that reach past the state's trailer: serialise the current
- * state, edit its bytes at offsets the input chooses, and recompute the checksum (or not) before
- * deserialising and restoring it; and a raw blob from the input with its checksum recomputed.
+ * the co-simulation API, every call of Model Exchange (an instance of either interface: the
+ * calls of the other are refused) with directional and output derivatives, and three that
+ * reach past the state's trailer: serialise the current state, edit its bytes at offsets the
+ * input chooses, and recompute the checksum (or not) before deserialising and restoring it; and
+ * a raw blob from the input with its checksum recomputed.
  *
  * Besides the sanitizers (address, undefined: any report is a finding) and libFuzzer's timeout
  * (a hang), the harness checks the contract of the FMUs and aborts when it is broken:
  *   - every non-OK status comes with at least one log message, with a category and no '%';
- *   - an output read with status OK (or Warning) is finite;
+ *   - an output read with status OK (or Warning) is finite, and so are the states, derivatives,
+ *     nominals (also > 0), event indicators, directional and output derivatives;
  *   - a doStep that returns OK has advanced the FMU's time to exactly t + h.
  */
 #include <math.h>
@@ -129,6 +132,18 @@ static void expect_time(int status, double t, double h, double now, const char *
     }
 }
 
+static void expect_positive(int status, const double *v, size_t n, const char *fn)
+{
+    size_t i;
+    expect_finite(status, v, n, fn);
+    if (status > 1) return;
+    for (i = 0; i < n; i++)
+        if (!(v[i] > 0.0)) {
+            fprintf(stderr, "%s returned status %d with a nominal %g\n", fn, status, v[i]);
+            abort();
+        }
+}
+
 /* ------------------------------------------------------------------ states */
 static uint64_t fnv(const uint8_t *p, size_t n)
 {
@@ -191,7 +206,7 @@ static void run2(input *in)
     char text[3][48];
     int s;
     while (more(in)) {
-        unsigned op = u8(in) % 24;
+        unsigned op = u8(in) % 25;
         unsigned n = u8(in) % 5, k, a, b;
         int nul = n > 0 && u8(in) % 8 == 0;    /* a NULL array with a count */
         for (k = 0; k < 4; k++) {
@@ -331,6 +346,65 @@ static void run2(input *in)
             expect(fmi2SetDebugLogging(c, b & 8, 0, NULL), 1, "fmi2SetDebugLogging");
             break;
         }
+        case 24: {                               /* Model Exchange and the derivatives */
+            double x[FPM_MAX_VARS], out[4];
+            size_t m = (a & 16) ? (size_t)(b % 32) : (a & 32) ? fpm_model_nz() : fpm_model_nx();
+            for (k = 0; k < FPM_MAX_VARS; k++) x[k] = dv[k % 4];
+            switch (a % 13) {
+            case 0: expect(fmi2EnterEventMode(c), 1, "fmi2EnterEventMode"); break;
+            case 1: {
+                fmi2EventInfo info;
+                expect(fmi2NewDiscreteStates(c, b & 1 ? &info : NULL), 1,
+                       "fmi2NewDiscreteStates");
+                break;
+            }
+            case 2:
+                expect(fmi2EnterContinuousTimeMode(c), 1, "fmi2EnterContinuousTimeMode");
+                break;
+            case 3: {
+                fmi2Boolean e1, t1;
+                expect(fmi2CompletedIntegratorStep(c, fmi2True, &e1, b & 1 ? &t1 : NULL), 1,
+                       "fmi2CompletedIntegratorStep");
+                break;
+            }
+            case 4: expect(fmi2SetTime(c, dv[0]), 1, "fmi2SetTime"); break;
+            case 5:
+                expect(fmi2SetContinuousStates(c, nul ? NULL : x, m), 1,
+                       "fmi2SetContinuousStates");
+                break;
+            case 6:
+                s = expect(fmi2GetDerivatives(c, nul ? NULL : x, m), 1, "fmi2GetDerivatives");
+                if (!nul) expect_finite(s, x, m, "fmi2GetDerivatives");
+                break;
+            case 7:
+                s = expect(fmi2GetEventIndicators(c, nul ? NULL : x, m), 1,
+                           "fmi2GetEventIndicators");
+                if (!nul) expect_finite(s, x, m, "fmi2GetEventIndicators");
+                break;
+            case 8:
+                s = expect(fmi2GetContinuousStates(c, nul ? NULL : x, m), 1,
+                           "fmi2GetContinuousStates");
+                if (!nul) expect_finite(s, x, m, "fmi2GetContinuousStates");
+                break;
+            case 9:
+                s = expect(fmi2GetNominalsOfContinuousStates(c, nul ? NULL : x, m), 1,
+                           "fmi2GetNominalsOfContinuousStates");
+                if (!nul) expect_positive(s, x, m, "fmi2GetNominalsOfContinuousStates");
+                break;
+            case 10:
+                s = expect(fmi2GetDirectionalDerivative(c, vr, n % 3, nul ? NULL : vr + 2,
+                                                        n / 2, dv, out), 1,
+                           "fmi2GetDirectionalDerivative");
+                expect_finite(s, out, n % 3, "fmi2GetDirectionalDerivative");
+                break;
+            default:
+                s = expect(fmi2GetRealOutputDerivatives(c, vr, n, nul ? NULL : iv, out), 1,
+                           "fmi2GetRealOutputDerivatives");
+                expect_finite(s, out, n, "fmi2GetRealOutputDerivatives");
+                break;
+            }
+            break;
+        }
         default:
             for (k = 0; k < 2; k++) fmi2FreeFMUstate(c, &slot[k]);
             fmi2FreeInstance(c);
@@ -356,7 +430,7 @@ static void run3(input *in)
     fmi3String sv[4];
     int s;
     while (more(in)) {
-        unsigned op = u8(in) % 22;
+        unsigned op = u8(in) % 23;
         unsigned n = u8(in) % 5, k, nv, a, b;
         int nul = n > 0 && u8(in) % 8 == 0;
         nv = u8(in) % 16 == 0 ? n + 1 : n;     /* a count that does not match, sometimes */
@@ -375,9 +449,13 @@ static void run3(input *in)
         switch (op) {
         case 0:
             if (c != NULL) break;
-            c = fmi3InstantiateCoSimulation("fuzz", a % 16 == 0 ? "{wrong}" : fpm_token,
-                                            "/tmp", fmi3False, b & 1, (b >> 1) & 1,
-                                            fmi3False, NULL, 0, NULL, logger3, NULL);
+            if (b % 8 == 7)                  /* Model Exchange */
+                c = fmi3InstantiateModelExchange("fuzz", a % 16 == 0 ? "{wrong}" : fpm_token,
+                                                 "/tmp", fmi3False, b & 1, NULL, logger3);
+            else
+                c = fmi3InstantiateCoSimulation("fuzz", a % 16 == 0 ? "{wrong}" : fpm_token,
+                                                "/tmp", fmi3False, b & 1, (b >> 1) & 1,
+                                                fmi3False, NULL, 0, NULL, logger3, NULL);
             logged = 0;
             if (c == NULL) return;
             break;
@@ -489,6 +567,66 @@ static void run3(input *in)
         case 20:
             expect(fmi3SetDebugLogging(c, a & 1, 0, NULL), 1, "fmi3SetDebugLogging");
             break;
+        case 22: {                               /* Model Exchange and the derivatives */
+            double x[FPM_MAX_VARS], out[4];
+            size_t m = (a & 16) ? (size_t)(b % 32) : (a & 32) ? fpm_model_nz() : fpm_model_nx();
+            for (k = 0; k < FPM_MAX_VARS; k++) x[k] = dv[k % 4];
+            switch (a % 12) {
+            case 0: expect(fmi3EnterEventMode(c), 1, "fmi3EnterEventMode"); break;
+            case 1:
+                expect(fmi3EnterContinuousTimeMode(c), 1, "fmi3EnterContinuousTimeMode");
+                break;
+            case 2: {
+                fmi3Boolean e1, t1;
+                expect(fmi3CompletedIntegratorStep(c, fmi3True, &e1, b & 1 ? &t1 : NULL), 1,
+                       "fmi3CompletedIntegratorStep");
+                break;
+            }
+            case 3: expect(fmi3SetTime(c, dv[0]), 1, "fmi3SetTime"); break;
+            case 4:
+                expect(fmi3SetContinuousStates(c, nul ? NULL : x, m), 1,
+                       "fmi3SetContinuousStates");
+                break;
+            case 5:
+                s = expect(fmi3GetContinuousStateDerivatives(c, nul ? NULL : x, m), 1,
+                           "fmi3GetContinuousStateDerivatives");
+                if (!nul) expect_finite(s, x, m, "fmi3GetContinuousStateDerivatives");
+                break;
+            case 6:
+                s = expect(fmi3GetEventIndicators(c, nul ? NULL : x, m), 1,
+                           "fmi3GetEventIndicators");
+                if (!nul) expect_finite(s, x, m, "fmi3GetEventIndicators");
+                break;
+            case 7:
+                s = expect(fmi3GetContinuousStates(c, nul ? NULL : x, m), 1,
+                           "fmi3GetContinuousStates");
+                if (!nul) expect_finite(s, x, m, "fmi3GetContinuousStates");
+                break;
+            case 8:
+                s = expect(fmi3GetNominalsOfContinuousStates(c, nul ? NULL : x, m), 1,
+                           "fmi3GetNominalsOfContinuousStates");
+                if (!nul) expect_positive(s, x, m, "fmi3GetNominalsOfContinuousStates");
+                break;
+            case 9: {
+                size_t nn = 0;
+                expect(fmi3GetNumberOfContinuousStates(c, b & 1 ? &nn : NULL), 1, "nx");
+                expect(fmi3GetNumberOfEventIndicators(c, b & 2 ? &nn : NULL), 1, "nz");
+                break;
+            }
+            case 10:
+                s = expect(fmi3GetDirectionalDerivative(c, vr, n % 3, nul ? NULL : vr + 2,
+                                                        n / 2, dv, n / 2, out, n % 3), 1,
+                           "fmi3GetDirectionalDerivative");
+                expect_finite(s, out, n % 3, "fmi3GetDirectionalDerivative");
+                break;
+            default:
+                s = expect(fmi3GetOutputDerivatives(c, vr, n, nul ? NULL : iv, out, n), 1,
+                           "fmi3GetOutputDerivatives");
+                expect_finite(s, out, n, "fmi3GetOutputDerivatives");
+                break;
+            }
+            break;
+        }
         default:
             for (k = 0; k < 2; k++) fmi3FreeFMUState(c, &slot[k]);
             fmi3FreeInstance(c);

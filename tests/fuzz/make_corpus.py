@@ -106,6 +106,30 @@ class Program:
         """Serialise the state, deserialise it, restore it (no edit)."""
         return self.op(17, a=1) if self.version == 2 else self.op(15, a=1, extra=b"\x00")
 
+    def model_exchange(self, reals=(), ints=()):
+        """A Model-Exchange instance through initialisation, then every Model-Exchange call
+        (fuzz_fmi.c's operation 24 / 22: the sub-operation in ``a``) and the derivatives."""
+        v2 = self.version == 2
+        me = 24 if v2 else 22
+        if v2:
+            self.op(0, a=0, b=1)                                # a % 8 == 0: Model Exchange
+            self.op(1, dvs=[0.0, 0.0, 0.0], a=0, b=0)
+            self.op(2)
+        else:
+            self.op(0, a=1, b=7)                                # b % 8 == 7: Model Exchange
+            self.op(1, dvs=[0.0, 0.0, 0.0], a=0, b=0)
+        for vr, x in reals:
+            self.op(6 if v2 else 5, vrs=[vr], dvs=[x], a=1)
+        for vr, x in ints:
+            self.op(7 if v2 else 6, vrs=[vr], ivs=[x])
+        self.op(3 if v2 else 2)
+        subs = ((1, 2, 4, 6, 7 | 32, 8, 9, 10, 11, 5, 3, 0) if v2
+                else (1, 3, 5, 6 | 32, 7, 8, 9, 10, 11, 4, 2, 0))
+        for a in subs:
+            self.op(me, vrs=[3, 4, 5, 0], dvs=[0.5, 1.0, 1.0, 0.0], ivs=[1, 1, 1, 1], n=2, a=a,
+                    b=3)
+        return self
+
     def derivatives(self, vr, order, value):
         return self.op(21, vrs=[vr], ivs=[order], dvs=[value]) if self.version == 2 else self
 
@@ -138,7 +162,7 @@ def layout(model: str, strings: dict) -> dict:
     at = {"mode": HEADER, "discarded": HEADER + 4}
     pos = HEADER + 8
     for vr, v in native_variables(table):
-        if v.causality == "output":
+        if v.causality in ("output", "local"):     # calculated: not in a state
             continue
         at[v.name] = pos
         pos += 4 + len(strings.get(v.name, v.start)) if v.type == "String" else 8
@@ -207,11 +231,13 @@ def seeds(model: str, version: int) -> dict:
             out[f"{integ}"] = (p.derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3)
                                .outputs().step(0.5).step(0.5).outputs())
         out["preload"] = P().start(reals=[(36, 0.3)], ints=[(28, 1)]).step(1e-3).outputs()
+        out["model-exchange"] = P().model_exchange(reals=[(36, 0.3)]).roundtrip()
     else:
         for order in (0, 1, 2):
             p = P().start(reals=[(0, 0.1), (16, 10.0)], ints=[(13, order)])
             out[f"order{order}"] = (p.derivatives(0, 1, 3.0).derivatives(1, 2, -1.0).step(1e-3)
                                     .roundtrip().step(2e-3).outputs())
+        out["model-exchange"] = P().model_exchange(reals=[(0, 0.1)], ints=[(13, 2)]).roundtrip()
     return {f"seed-fmi{version}-{k}": bytes(p.b) for k, p in out.items()}
 
 
