@@ -161,6 +161,12 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     if (r->why[0] != '\0') return 0;
     if (!(step_h >= 0.0) || (!stepped && step_h != 0.0))
         return fpm_reject(r, "the last step's length %g is not that of a step", step_h);
+    for (k = 0; k < 9 && !stepped; k++)
+        if (step_y[k] != 0.0)
+            return fpm_reject(r, "the inputs of a step that was not taken are not 0");
+    if (stepped && r->interface == FPM_MODEL_EXCHANGE)
+        return fpm_reject(r, "a Model-Exchange state cannot hold a communication step's inputs "
+                          "(stepped = 1)");
     m->t0 = t0;
     m->t = t0;
     if (!init) {                              /* as reset left it (F_c: a feedthrough read) */
@@ -540,8 +546,15 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
         }
     if (C != NULL)
         for (j = 0; j < n; j++) C[j] = c[j];
-    for (i = 0; i < n * n; i++)
-        if (!isfinite(a[i])) return FPM_ERROR;
+    for (i = 0; i < n * n + 3 * n + n + 3; i++) {
+        const double v = i < n * n ? a[i] : i < n * n + 3 * n ? b[i - n * n]
+                         : i < n * n + 4 * n ? c[i - n * n - 3 * n] : d[i - n * n - 4 * n];
+        if (!isfinite(v)) {
+            fpm_log(lg, FPM_ERROR, "the linearisation is not finite at t = %.17g (filter "
+                    "state %g, %g)", m->t, m->xc[0], m->xc[1]);
+            return FPM_ERROR;
+        }
+    }
     return FPM_OK;
 }
 

@@ -175,6 +175,8 @@ typedef struct fpm_writer {
 typedef struct fpm_reader {
     const unsigned char *p;
     size_t n, pos;
+    int interface;             /* the instance's (FPM_COSIMULATION, FPM_MODEL_EXCHANGE): a model
+                                  checks what only its legal calls can reach */
     char why[FPM_MSG_MAX];     /* the first thing that was wrong */
 } fpm_reader;
 

@@ -472,6 +472,7 @@ static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned ch
         return FPM_ERROR;
     }
     memset(&r, 0, sizeof r);
+    r.interface = c->interface;
     r.p = in + HEADER;
     r.n = payload;
     fpm_model_reset(c->spare, 0.0);
@@ -785,7 +786,8 @@ int fpm_me_completed_step(fpm_instance *c, const char *fn, int mask, int *termin
     INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
     GUARD(c, fn, mask);
     *terminate = 0;
-    return FPM_OK;
+    /* an importer that does not locate events is told here that a bound was crossed */
+    return fpm_model_event_update(c->m, &c->lg, terminate);
 }
 
 /* ------------------------------------------------------------------ directional derivatives */

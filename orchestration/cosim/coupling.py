@@ -109,6 +109,13 @@ class Coupling:
                                       and self.outputs[n]
                                       and slaves[n].output_derivative_order >= self.p) else 0
                         for n in names}
+        lacking = [n for n in names if settings.output_derivatives and self.p >= 1
+                   and self.outputs[n] and not self.out_der[n]]
+        if lacking:
+            import warnings
+            warnings.warn(f"master.output_derivatives: {', '.join(lacking)} gives no output "
+                          f"derivatives up to order {self.p}; its outputs are extrapolated from "
+                          "past samples", RuntimeWarning, stacklevel=3)
         # the first step needs no prediction when every source's polynomial is complete from
         # one sample (its derivatives)
         self.correct_startup = self.p >= 1 and all(

@@ -21,7 +21,7 @@ polynomial), the outputs there computed by the FMUs from the interpolated states
 
 The same results as the co-simulation master: a structured array on the output grid and a
 :class:`~orchestration.cosim.master.RunStats` (``steps``: the solver's steps, ``loop``:
-``"model-exchange (Radau)"``).
+``"model-exchange (radau)"``). The solver's largest step is ``master.max_step``.
 """
 from __future__ import annotations
 

@@ -167,6 +167,15 @@ class MasterSettings:
         _choice("master.solver", self.solver, SOLVERS)
         _set(self, "rtol", _checked("master.rtol", check_real, self.rtol, low=1e-14, high=0.1))
         _set(self, "atol", _checked("master.atol", check_real, self.atol, low=1e-300, high=1e6))
+        if self.output_derivatives:
+            why = ("the pythonfmu FMUs give none" if self.fmus != "native" else
+                   "a zero-order hold (master.extrapolation = 0) uses no polynomial"
+                   if self.extrapolation == 0 else
+                   "with held inputs the derivatives at a step's end belong to the held value, "
+                   "not to the input (master.input_derivatives = true is needed)"
+                   if not self.input_derivatives else None)
+            if why:
+                raise ConfigError(f"master.output_derivatives = true cannot be used here: {why}")
         if self.interface == "model-exchange" and self.fmus != "native":
             raise ConfigError(f"master.interface = 'model-exchange' needs master.fmus = 'native' "
                               f"(the {self.fmus} FMUs are co-simulation only)")

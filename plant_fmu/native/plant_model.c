@@ -1025,6 +1025,19 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     if (!(s.h_abs > 0.0)) return fpm_reject(r, "h_abs = %g is not positive", s.h_abs);
     if (!m->failed) m->error[0] = '\0';
     s.k = (long)k;
+    if (r->interface == FPM_MODEL_EXCHANGE) {
+        /* Model Exchange: any finite state the importer may set (fpm_model_set_states takes
+         * it, beyond the divergence bounds too: an integrator's trial point), never a doStep's
+         * input polynomial */
+        if (stepped)
+            return fpm_reject(r, "a Model-Exchange state cannot hold a communication step's "
+                              "input (stepped = 1)");
+        m->s = s;
+        m->stepped = 0;
+        memcpy(m->y_acc, s.y, sizeof m->y_acc);
+        m->out_fresh = m->energy_fresh = 0;
+        return 1;
+    }
     for (i = 0; i < m->nx; i++) norm2 += s.y[i] * s.y[i];
     phi = s.y[1];
     if (!(norm2 <= STATE_NORM2_LIMIT))
