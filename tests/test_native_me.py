@@ -558,11 +558,15 @@ def fmpy_logger():
     logs = []
     yield logs, lambda *a: logs.append(a[-1].decode() if isinstance(a[-1], bytes)
                                        else str(a[-1]))
+    # addLoggerProxy stores the struct's logger in its global and puts itself in the struct:
+    # a struct handed to it twice would make the proxy call itself (a stack overflow at the
+    # next message). So a fresh struct each time, around one permanent printLogMessage.
     if not _FMPY_DEFAULT_LOGGER:
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(printLogMessage)
-        _FMPY_DEFAULT_LOGGER.append(cb)
-    addLoggerProxy(byref(_FMPY_DEFAULT_LOGGER[0]))
+        _FMPY_DEFAULT_LOGGER.append(fmi2CallbackLoggerTYPE(printLogMessage))
+    cb = fmi2CallbackFunctions()
+    cb.logger = _FMPY_DEFAULT_LOGGER[0]
+    _FMPY_DEFAULT_LOGGER.append(cb)
+    addLoggerProxy(byref(cb))
 
 
 CASES = {
