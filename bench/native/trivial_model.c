@@ -77,3 +77,77 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     fpm_get_finite(r, "y", &m->y);
     return r->why[0] == '\0';
 }
+
+/* ---- Model Exchange and derivatives (fpm.h, issue 24): the trivial model has no continuous
+ * state, no event indicator and gives no derivatives; a co-simulation FMU only. */
+size_t fpm_model_nx(void) { return 0; }
+size_t fpm_model_nz(void) { return 0; }
+int fpm_model_max_output_derivative_order(void) { return 0; }
+
+static int none(const fpm_logger *lg, const char *what)
+{
+    fpm_log(lg, FPM_ERROR, "the trivial model has no %s", what);
+    return FPM_ERROR;
+}
+
+int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B, double *C,
+                       double *D)
+{
+    (void)m; (void)A; (void)B; (void)C; (void)D;
+    return none(lg, "Jacobian");
+}
+
+int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
+                                double *value)
+{
+    (void)m; (void)vr; (void)order; (void)value;
+    return none(lg, "output derivatives");
+}
+
+int fpm_model_me_init(fpm_model *m, const fpm_logger *lg)
+{
+    (void)m;
+    return none(lg, "Model Exchange interface");
+}
+
+int fpm_model_set_time(fpm_model *m, const fpm_logger *lg, double t)
+{
+    (void)lg;
+    m->t = t;
+    return FPM_OK;
+}
+
+void fpm_model_get_states(const fpm_model *m, double *x) { (void)m; (void)x; }
+
+int fpm_model_set_states(fpm_model *m, const fpm_logger *lg, const double *x)
+{
+    (void)m; (void)lg; (void)x;
+    return FPM_OK;
+}
+
+int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx)
+{
+    (void)m; (void)lg; (void)dx;
+    return FPM_OK;
+}
+
+void fpm_model_nominals(const fpm_model *m, double *nominal) { (void)m; (void)nominal; }
+
+int fpm_model_event_indicators(fpm_model *m, const fpm_logger *lg, double *z)
+{
+    (void)m; (void)lg; (void)z;
+    return FPM_OK;
+}
+
+int fpm_model_event_update(fpm_model *m, const fpm_logger *lg, int *terminate)
+{
+    (void)m; (void)lg;
+    *terminate = 0;
+    return FPM_OK;
+}
+
+int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    (void)m; (void)vr; (void)value;
+    return none(lg, "local variables");
+}
