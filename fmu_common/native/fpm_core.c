@@ -545,18 +545,13 @@ static const state *known(fpm_instance *c, const char *fn, const void *p)
     return s;
 }
 
-int fpm_get_state(fpm_instance *c, const char *fn, int mask, void **out)
+/* n bytes of a serialised state into *out: the state given (FMI: it is overwritten) when it is
+ * large enough, else a state of its own size that replaces it. */
+static int store(fpm_instance *c, const char *fn, void **out, const unsigned char *data,
+                 size_t n)
 {
-    state *s;
-    size_t n;
-    GUARD(c, fn, mask);
-    if (out == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the pointer to the state is NULL");
-    if (*out != NULL && known(c, fn, *out) == NULL) return FPM_ERROR;
-    n = serialize(c, c->scratch, c->state_cap);
-    if (n == 0) return fpm_refuse(c, FPM_ERROR, fn, "the state does not fit its buffer (a bug)");
-    s = (state *)*out;
-    if (s == NULL || s->cap < n) {            /* a state of its own size (FMI: a state given
-                                                 is overwritten) */
+    state *s = (state *)*out;
+    if (s == NULL || s->cap < n) {
         state *fresh = new_state(n);
         if (fresh == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
         if (s != NULL) {
@@ -565,10 +560,21 @@ int fpm_get_state(fpm_instance *c, const char *fn, int mask, void **out)
         }
         s = fresh;
     }
-    memcpy(s->data, c->scratch, n);
+    memcpy(s->data, data, n);
     s->n = n;
     *out = s;
     return FPM_OK;
+}
+
+int fpm_get_state(fpm_instance *c, const char *fn, int mask, void **out)
+{
+    size_t n;
+    GUARD(c, fn, mask);
+    if (out == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the pointer to the state is NULL");
+    if (*out != NULL && known(c, fn, *out) == NULL) return FPM_ERROR;
+    n = serialize(c, c->scratch, c->state_cap);
+    if (n == 0) return fpm_refuse(c, FPM_ERROR, fn, "the state does not fit its buffer (a bug)");
+    return store(c, fn, out, c->scratch, n);
 }
 
 /* Make the spare model the live one. */
@@ -633,7 +639,6 @@ int fpm_serialize_state(fpm_instance *c, const char *fn, int mask, const void *p
 int fpm_deserialize_state(fpm_instance *c, const char *fn, int mask, const unsigned char *data,
                           size_t size, void **out)
 {
-    state *s;
     int mode, discarded;
     GUARD(c, fn, mask);
     if (out == NULL) return fpm_refuse(c, FPM_ERROR, fn, "the pointer to the state is NULL");
@@ -645,20 +650,7 @@ int fpm_deserialize_state(fpm_instance *c, const char *fn, int mask, const unsig
     }
     /* the whole check, by restoring it into the spare model (the live one is not touched) */
     if (restore_into_spare(c, fn, data, size, &mode, &discarded) != FPM_OK) return FPM_ERROR;
-    s = (state *)*out;
-    if (s == NULL || s->cap < size) {
-        state *fresh = new_state(size);
-        if (fresh == NULL) return fpm_refuse(c, FPM_ERROR, fn, "out of memory");
-        if (s != NULL) {
-            s->magic = 0;
-            free(s);
-        }
-        s = fresh;
-    }
-    memcpy(s->data, data, size);
-    s->n = size;
-    *out = s;
-    return FPM_OK;
+    return store(c, fn, out, data, size);
 }
 
 /* ------------------------------------------------------------------ Model Exchange */
