@@ -128,20 +128,12 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
     fpm_put_f64(w, m->step_h);
 }
 
-/* A logger that keeps the first error message in a reader's why. */
-static void into_why(void *env, int status, const char *category, const char *message)
-{
-    (void)category;
-    if (status > FPM_WARNING) fpm_reject((fpm_reader *)env, "%s", message);
-}
-
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
 {
     fpm_logger lg;
     double t0, t, xc[2], F, step_y[9], step_h;
     int k, init, stepped;
-    lg.emit = into_why;
-    lg.env = r;
+    lg = fpm_reader_logger(r);
     fpm_get_finite(r, "t0", &t0);
     fpm_get_finite(r, "t", &t);
     if (!fpm_get_int_in(r, "initialized", 0, 1, &init)) return 0;

@@ -191,6 +191,9 @@ int fpm_get_str(fpm_reader *r, const char *what, char *dst, size_t cap);
 int fpm_get_finite(fpm_reader *r, const char *what, double *x);
 /* Read an integer in lo..hi (0 and why otherwise). */
 int fpm_get_int_in(fpm_reader *r, const char *what, int lo, int hi, int *x);
+/* A logger whose first error message becomes r's reason (the checks of initialisation, run on a
+ * restored state, say why through it). */
+fpm_logger fpm_reader_logger(fpm_reader *r);
 /* Mark the state invalid with a reason (printf format); returns 0. */
 int fpm_reject(fpm_reader *r, const char *fmt, ...)
 #if defined(__GNUC__)

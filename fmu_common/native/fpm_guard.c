@@ -184,6 +184,20 @@ int fpm_reject(fpm_reader *r, const char *fmt, ...)
     return 0;
 }
 
+static void into_why(void *env, int status, const char *category, const char *message)
+{
+    (void)category;
+    if (status > FPM_WARNING) fpm_reject((fpm_reader *)env, "%s", message);
+}
+
+fpm_logger fpm_reader_logger(fpm_reader *r)
+{
+    fpm_logger lg;
+    lg.emit = into_why;
+    lg.env = r;
+    return lg;
+}
+
 static int take(fpm_reader *r, const char *what, size_t k, const unsigned char **b)
 {
     if (r->why[0] != '\0') return 0;

@@ -970,13 +970,6 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
     fpm_put_i32(w, m->stepped);
 }
 
-/* A logger that keeps the first error message in a reader's why. */
-static void into_why(void *env, int status, const char *category, const char *message)
-{
-    (void)category;
-    if (status > FPM_WARNING) fpm_reject((fpm_reader *)env, "%s", message);
-}
-
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
 {
     fpm_logger lg;
@@ -984,8 +977,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     double k, phi, norm2 = 0.0;
     int init, i, stepped = 0;
     const char *bad = "";
-    lg.emit = into_why;
-    lg.env = r;
+    lg = fpm_reader_logger(r);
     fpm_get_finite(r, "t0", &m->t0);
     fpm_get_f64(r, "dF_c", &m->dF);             /* any values: legal calls can set them */
     fpm_get_f64(r, "d2F_c", &m->d2F);
