@@ -18,7 +18,8 @@ import numpy as np
 
 from ..scene.records import MasterSettings
 
-__all__ = ["Coupling", "extrapolation_weights", "weight_table", "derivative_name", "taylor_rows"]
+__all__ = ["Coupling", "extrapolation_weights", "weight_table", "derivative_name", "taylor_rows",
+           "checked_connections", "output_table"]
 
 
 def derivative_name(variable: str, order: int) -> str:
@@ -26,6 +27,29 @@ def derivative_name(variable: str, order: int) -> str:
     that take input derivatives as variables (pythonfmu has no ``fmi2SetRealInputDerivatives``):
     ``dF_c``, ``d2F_c``."""
     return f"{'d' if order == 1 else 'd2'}{variable}"
+
+
+def checked_connections(units: dict, connections) -> list:
+    """``connections`` as a list, each naming FMUs of ``units`` (name -> slave) and variables
+    they have; a ValueError names the first that does not."""
+    connections = list(connections)
+    for c in connections:
+        for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
+            if fmu not in units:
+                raise ValueError(f"connection {c}: no FMU named {fmu!r}; FMUs: "
+                                 f"{', '.join(units)}")
+            units[fmu].vr(var)
+    return connections
+
+
+def output_table(record, t0: float, stop_time: float, output_interval: float) -> np.ndarray:
+    """The zeroed rows of a run's output points: time, then the columns of ``record``; a
+    ValueError when the run is shorter than one output interval."""
+    n_out = int(round((stop_time - t0) / output_interval))
+    if n_out < 1:
+        raise ValueError(f"stop_time - t0 = {stop_time - t0!r} is shorter than one "
+                         f"output_interval = {output_interval!r}")
+    return np.zeros(n_out + 1, dtype=[(c, "f8") for c in ("time", *record)])
 
 
 class Coupling:
@@ -49,13 +73,7 @@ class Coupling:
                  settings: MasterSettings | None = None):
         settings = settings or MasterSettings()
         self.settings = settings
-        self.connections = list(connections)
-        for c in self.connections:
-            for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
-                if fmu not in slaves:
-                    raise ValueError(f"connection {c}: no FMU named {fmu!r}; FMUs: "
-                                     f"{', '.join(slaves)}")
-                slaves[fmu].vr(var)
+        self.connections = checked_connections(slaves, connections)
         self.record = dict(record)
         self.algorithm = settings.algorithm
         names = list(slaves)

@@ -36,7 +36,7 @@ from fmu_common.kernels import KernelError
 
 from ..scene.records import MasterSettings
 from . import compiled as compiled_master
-from .coupling import Coupling, _History, _weight_rows, taylor_rows
+from .coupling import Coupling, _History, _weight_rows, output_table, taylor_rows
 from .slave import CoSimulationError, RunInterrupted
 
 __all__ = ["RunStats", "Master"]
@@ -260,12 +260,8 @@ class Master:
         (and a :class:`RunInterrupted`) carries the rows of the output points reached so far."""
         wall = _time.perf_counter()
         stats = RunStats()
-        n_out = int(round((stop_time - t0) / output_interval))
-        if n_out < 1:
-            raise ValueError(f"stop_time - t0 = {stop_time - t0!r} is shorter than one "
-                             f"output_interval = {output_interval!r}")
-        cols = ["time"] + list(self.record)
-        out = np.zeros(n_out + 1, dtype=[(c, "f8") for c in cols])
+        out = output_table(self.record, t0, stop_time, output_interval)
+        n_out = len(out) - 1
         self._rows = 0
         self._t_reached = t0
         try:

@@ -30,6 +30,7 @@ import time as _time
 import numpy as np
 
 from ..scene.records import SOLVERS, MasterSettings
+from .coupling import checked_connections, output_table
 from .master import RunStats
 from .slave import CoSimulationError, RunInterrupted, Slave
 
@@ -236,13 +237,7 @@ class ModelExchangeMaster:
                  settings: MasterSettings | None = None):
         self.settings = settings or MasterSettings()
         self.units = units
-        self.connections = list(connections)
-        for c in self.connections:
-            for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
-                if fmu not in units:
-                    raise ValueError(f"connection {c}: no FMU named {fmu!r}; FMUs: "
-                                     f"{', '.join(units)}")
-                units[fmu].vr(var)
+        self.connections = checked_connections(units, connections)
         for name, u in units.items():
             if not u.directional:
                 raise ValueError(f"{name}: {u.path} gives no directional derivatives; the "
@@ -375,12 +370,8 @@ class ModelExchangeMaster:
         array (time first) and :class:`RunStats`, as :meth:`Master.run`."""
         wall = _time.perf_counter()
         stats = RunStats(loop=f"model-exchange ({self.settings.solver})")
-        n_out = int(round((stop_time - t0) / output_interval))
-        if n_out < 1:
-            raise ValueError(f"stop_time - t0 = {stop_time - t0!r} is shorter than one "
-                             f"output_interval = {output_interval!r}")
-        cols = ["time"] + list(self.record)
-        out = np.zeros(n_out + 1, dtype=[(c, "f8") for c in cols])
+        out = output_table(self.record, t0, stop_time, output_interval)
+        n_out = len(out) - 1
         rows = 0
         t = t0
         try:
