@@ -330,12 +330,15 @@ def test_a_million_steps_stay_on_the_compiled_loop(pair, unzipped):
         assert np.max(np.abs(r.result[c] - ref[c])) < 1e-9, c
 
 
-def test_a_late_start_keeps_the_integer_grid(pair, unzipped, monkeypatch):
+@pytest.mark.parametrize("sets", [[], ["master.algorithm=jacobi", "master.extrapolation=0",
+                                       "master.input_derivatives=false"]],
+                         ids=["scene", "zero-order-hold"])
+def test_a_late_start_keeps_the_integer_grid(pair, unzipped, monkeypatch, sets):
     """From t0 = 1e4 s the float times put the nodes 1e-9 off their integers from the first step.
     Both loops take their nodes from the step counters: the Python loop's weights are those of
     integer nodes, the compiled loop runs throughout and makes the same FMI calls, each doStep at
     t0 + k h over h; the system being autonomous, the rows are those of a start at 0 (to the
-    FMUs' own time rounding)."""
+    FMUs' own time rounding). The scene's coupling, and the paper's zero-order hold."""
     from orchestration.cosim import master as master_module
     nodes = []
     real = master_module._weight_rows
@@ -345,7 +348,7 @@ def test_a_late_start_keeps_the_integer_grid(pair, unzipped, monkeypatch):
         return real(tau, kinds, scale)
     monkeypatch.setattr(master_module, "_weight_rows", spy)
     t0 = 1e4
-    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.2"])
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.2", *sets])
     h = scene.master.step
     py = tapped_run(scene, unzipped, pair, False, t0=t0)
     assert nodes and all(float(x).is_integer() for tau in nodes for x in tau)
@@ -354,8 +357,9 @@ def test_a_late_start_keeps_the_integer_grid(pair, unzipped, monkeypatch):
     assert c[2] == py[2]
     assert_same_rows(py[0], c[0])
     steps = [rec[:2] for n, f, rec, _ in c[2] if f == "fmi2DoStep" and n == "plant"]
-    # the first step is taken twice (predicted, then corrected)
-    assert steps == [(t0, h)] + [(t0 + k * h, h) for k in range(100)]
+    # with extrapolation the first step is taken twice (predicted, then corrected)
+    first = [(t0, h)] if scene.master.extrapolation else []
+    assert steps == first + [(t0 + k * h, h) for k in range(100)]
     zero = tapped_run(scene, unzipped, pair, True)
     np.testing.assert_array_equal(c[0]["time"], t0 + np.arange(len(c[0])) * 0.002)
     for col in ("x", "phi_o", "F_c", "eta_1"):
