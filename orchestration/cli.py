@@ -29,6 +29,8 @@ so that ``flexpend --version`` or ``flexpend scenes`` start at once.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import errno
 import json
 import os
 import signal
@@ -98,10 +100,18 @@ def _print(lines, file=None):
     print("\n".join(lines), file=file or sys.stdout)
 
 
+#: What the running command holds until it ends (its output folder's lock), released by main().
+_HELD = contextlib.ExitStack()
+
+
 def _output_dir(text: str):
-    """The output folder, created; a path that is a file or cannot be written is a UsageError."""
+    """The output folder, created, and held for this command alone until it ends
+    (:func:`~orchestration.report.files.folder_lock`): a path that is a file, cannot be written
+    or is in use by another run is a UsageError."""
     import tempfile
     from pathlib import Path
+
+    from .report.files import OutputError, folder_lock
 
     out = Path(text)
     if out.exists() and not out.is_dir():
@@ -110,6 +120,9 @@ def _output_dir(text: str):
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):
             pass
+        _HELD.enter_context(folder_lock(out))
+    except OutputError as exc:
+        raise UsageError(f"--out {text}: {exc.strerror.removeprefix(f'{out}: ')}") from None
     except OSError as exc:
         raise UsageError(f"--out {text}: cannot write there ({exc.strerror or exc})") from None
     return out
@@ -490,6 +503,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 
+#: errno of a write that the system refused for want of room or permission
+_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
+
+
+def _output_failure(exc: OSError) -> str | None:
+    """The one line of an output that could not be written (a full disk...), else None."""
+    from .report.files import OutputError
+
+    if isinstance(exc, OutputError):
+        return str(exc)
+    if exc.errno in _WRITE_ERRNOS:
+        return f"cannot write {exc.filename or 'the output'}: {exc.strerror}"
+    return None
+
+
 def main(argv=None) -> int:
     """Run one command; its exit code. Ctrl-C is noted (:class:`Interrupts`) while it runs."""
     global INTERRUPTS
@@ -517,7 +545,13 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("flexpend: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except OSError as exc:
+        if not _output_failure(exc):
+            raise
+        print(f"flexpend: error: {_output_failure(exc)}", file=sys.stderr)
+        return EXIT_USAGE
     finally:
+        _HELD.close()                 # the output folder's lock
         if installed is not None:     # a process that called main() itself gets its own back
             signal.signal(signal.SIGINT, installed)
             INTERRUPTS = None

@@ -1,0 +1,158 @@
+"""The host side's outputs fail cleanly (issue 25): an ``--out`` in use by another run is refused,
+a full disk is one line and exit 2 and destroys no earlier good file, the sweep journal never
+ends on a torn row, and Ctrl-C is 130 at any moment with every temporary folder removed."""
+import contextlib
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from orchestration.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+RUN = ["run", "rigid_pd", "--set", "stop_time=1"]
+SWEEP = ["sweep", "rigid_pd", "--values", "controller.kp=300,400", "--serial"]
+
+
+def one_line_error(err: str, *fragments) -> None:
+    """``err`` (stderr) ends on the one line of an error, which names each of ``fragments``."""
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("flexpend: error: "), err
+    assert sum(ln.startswith("flexpend") for ln in lines) == 1 and "Traceback" not in err, err
+    for f in fragments:
+        assert f in lines[-1], (f, err)
+
+
+def snapshot(folder: Path) -> dict:
+    """name -> bytes of every file in ``folder``."""
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+# ---------------------------------------------------------------------- one run per --out
+@contextlib.contextmanager
+def held_lock(folder: Path):
+    """Hold ``folder/.flexpend.lock`` as another flexpend process would (flock, exclusive)."""
+    import fcntl
+
+    folder.mkdir(parents=True, exist_ok=True)
+    with open(folder / ".flexpend.lock", "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        yield
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="flock is POSIX")
+@pytest.mark.parametrize("command", [RUN, SWEEP], ids=["run", "sweep"])
+def test_an_out_in_use_by_another_run_is_refused_with_one_line(fmus, tmp_path, capsys,
+                                                               command):
+    out = tmp_path / "out"
+    with held_lock(out):
+        assert main([*command, "--set", "stop_time=1", "--out", str(out)]) == 2
+        one_line_error(capsys.readouterr().err, str(out), "in use by another flexpend run")
+        assert sorted(p.name for p in out.iterdir()) == [".flexpend.lock"]   # nothing written
+    # released with the other run: the same command now runs, and releases it in turn
+    assert main([*command, "--set", "stop_time=1", "--out", str(out)]) == 0
+    with held_lock(out):
+        pass
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="flock is POSIX")
+def test_the_lock_is_released_however_its_holder_ends(fmus, tmp_path, capsys):
+    """A holder killed with SIGKILL (no clean-up of its own) leaves the folder free."""
+    out = tmp_path / "out"
+    out.mkdir()
+    with subprocess.Popen(
+            [sys.executable, "-c", "import sys; from orchestration.report.files import "
+             "folder_lock\nwith folder_lock(sys.argv[1]):\n    print('held', flush=True); "
+             "sys.stdin.read()", str(out)],
+            cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) as holder:
+        try:
+            assert holder.stdout.readline().strip() == "held"
+            assert main([*RUN, "--out", str(out)]) == 2
+            one_line_error(capsys.readouterr().err, f"(process {holder.pid})")
+        finally:
+            holder.kill()
+    assert main([*RUN, "--out", str(out)]) == 0
+
+
+# ---------------------------------------------------------------------- a full disk
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 2 MB tmpfs (root on Linux; skipped elsewhere) and a function that fills it up."""
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if sys.platform != "linux" or os.geteuid() != 0 or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=2m", "tmpfs", str(mnt)],
+            capture_output=True).returncode != 0:
+        pytest.skip("needs to mount a small tmpfs (root on Linux)")
+
+    def fill():
+        fd = os.open(mnt / "filler", os.O_WRONLY | os.O_CREAT | os.O_APPEND)
+        try:
+            while True:
+                os.write(fd, b"\0" * 65536)
+        except OSError as exc:
+            assert exc.errno == errno.ENOSPC
+        finally:
+            os.close(fd)
+    try:
+        yield mnt, fill
+    finally:
+        subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+def test_a_full_disk_is_one_line_exit_2_and_keeps_the_earlier_files(fmus, small_disk, capsys):
+    mnt, fill = small_disk
+    out = mnt / "out"
+    assert main([*RUN, "--out", str(out)]) == 0
+    before = snapshot(out)
+    assert {"rigid_pd.csv", "summary.json"} <= set(before)
+    capsys.readouterr()
+    fill()
+    assert main([*RUN, "--set", "controller.kp=400", "--out", str(out)]) == 2
+    one_line_error(capsys.readouterr().err, "No space left on device")
+    assert snapshot(out) == before            # every earlier file intact, no temporary left
+
+
+def test_a_full_disk_in_a_sweep_keeps_the_table_and_a_whole_journal(fmus, small_disk, capsys):
+    mnt, fill = small_disk
+    out = mnt / "out"
+    assert main([*SWEEP, "--set", "stop_time=1", "--out", str(out)]) == 0
+    before = snapshot(out)
+    assert {"sweep.json", "sweep.png", "runs.jsonl"} <= set(before)
+    capsys.readouterr()
+    fill()
+    # the same sweep again (only the table, plot and record to write), then one with new runs
+    for stop_time in (1, 2):
+        assert main([*SWEEP, "--set", f"stop_time={stop_time}", "--out", str(out)]) == 2
+        one_line_error(capsys.readouterr().err, "No space left on device")
+        after = snapshot(out)
+        journal = after.pop("runs.jsonl")
+        assert after == {k: v for k, v in before.items() if k != "runs.jsonl"}
+        # the journal keeps its rows and gains only whole ones (those the disk had room for)
+        assert journal.startswith(before["runs.jsonl"]) and journal.endswith(b"\n")
+        assert all(json.loads(line)["status"] == "ok" for line in journal.splitlines())
+
+
+def test_a_journal_row_is_appended_whole_or_not_at_all(small_disk):
+    """A row that the disk has room for only in part (it crosses into a page the full disk
+    cannot give) is not left torn: the journal keeps its whole rows and says which file."""
+    from orchestration.report.files import OutputError
+    from orchestration.sweeps.engine import Journal
+
+    mnt, fill = small_disk
+    first = {"key": "a", "status": "ok", "pad": ""}
+    first["pad"] = "x" * (4096 - 10 - len(json.dumps(first) + "\n"))   # ends 10 bytes short
+    with Journal(mnt) as journal:
+        journal.append(first)
+    before = (mnt / "runs.jsonl").read_bytes()
+    assert len(before) == 4086
+    fill()
+    with Journal(mnt) as journal, pytest.raises(OutputError, match="runs.jsonl"):
+        journal.append({"key": "b", "status": "ok", "message": "y" * 100})
+    assert (mnt / "runs.jsonl").read_bytes() == before
+    assert Journal(mnt).read() == {"a": first}
