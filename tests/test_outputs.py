@@ -156,3 +156,18 @@ def test_a_journal_row_is_appended_whole_or_not_at_all(small_disk):
         journal.append({"key": "b", "status": "ok", "message": "y" * 100})
     assert (mnt / "runs.jsonl").read_bytes() == before
     assert Journal(mnt).read() == {"a": first}
+
+
+def test_a_full_disk_keeps_the_reference_check_had_written(fmus, small_disk, capsys):
+    """Rewriting a reference with more signals (a bigger file) on a full disk."""
+    import shutil
+
+    mnt, fill = small_disk
+    ref = mnt / "ref"
+    shutil.copytree(ROOT / "tests" / "reference" / "FlexiblePendulum", ref)
+    before = snapshot(ref)
+    fill()
+    assert main(["check", fmus["FlexiblePendulum"], "--reference", str(ref), "--write-reference",
+                 "--outputs", "x_o,x_dot,phi_o,omega_o,tip_deflection,eta_1,energy,phi"]) == 2
+    one_line_error(capsys.readouterr().err, "FlexiblePendulum_ref.csv", "No space left on device")
+    assert snapshot(ref) == before

@@ -44,7 +44,7 @@ import numpy as np
 from fmu_common.kernels import ROOT
 
 from ..report.figures import new_figure
-from ..report.files import save_figure
+from ..report.files import save_figure, write_csv, write_text
 from . import places
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
@@ -434,7 +434,6 @@ def write_reference(fmu, reference, outputs=None) -> dict:
     ``<Model>_ref.csv``, else every output of the FMU). A run that does not complete writes
     nothing (:class:`ReferenceError`)."""
     from fmpy import read_model_description
-    from fmpy.util import write_csv
 
     fmu = Path(fmu)
     files = find_reference(fmu, reference, must_exist=False)
@@ -450,7 +449,7 @@ def write_reference(fmu, reference, outputs=None) -> dict:
         if de.tolerance is not None:
             opt["RelTol"] = float(de.tolerance)
         files["dir"].mkdir(parents=True, exist_ok=True)
-        files["opt"].write_text("".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
     if outputs is None:
         if files["ref"].is_file():
             outputs = list(_read_csv(files["ref"]).dtype.names[1:])
@@ -465,7 +464,7 @@ def write_reference(fmu, reference, outputs=None) -> dict:
     if run.failure is not None:
         raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}")
     files["dir"].mkdir(parents=True, exist_ok=True)
-    write_csv(str(files["ref"]), run.result)
+    write_csv(files["ref"], run.result)
     return files
 
 
@@ -564,8 +563,6 @@ def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start
 def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
     """Regenerate the input files, options and reference results of the project's FMUs (``fmus``:
     name -> path); return the files of each."""
-    from fmpy.util import write_csv
-
     written = {}
     for name, (opt, inputs) in _reference_cases().items():
         files = reference_files(name, ref_dir)
@@ -576,7 +573,7 @@ def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
         arr["time"] = t
         for k, f in inputs.items():
             arr[k] = f(t)
-        write_csv(str(files["in"]), arr)
-        files["opt"].write_text("".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_csv(files["in"], arr)
+        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
         written[name] = write_reference(fmus[name], files["dir"], REFERENCE_OUTPUTS[name])
     return written
