@@ -171,3 +171,14 @@ def test_a_full_disk_keeps_the_reference_check_had_written(fmus, small_disk, cap
                  "--outputs", "x_o,x_dot,phi_o,omega_o,tip_deflection,eta_1,energy,phi"]) == 2
     one_line_error(capsys.readouterr().err, "FlexiblePendulum_ref.csv", "No space left on device")
     assert snapshot(ref) == before
+
+
+def test_a_full_disk_keeps_the_earlier_ssp_export(fmus, small_disk, capsys):
+    mnt, fill = small_disk
+    archive = mnt / "rigid_pd.ssp"
+    archive.write_bytes(b"an earlier archive")
+    fill()
+    assert main(["export", "rigid_pd", "--fmus", "python", "--out", str(archive)]) == 2
+    one_line_error(capsys.readouterr().err, str(archive), "No space left on device")
+    assert sorted(p.name for p in mnt.iterdir()) == ["filler", "rigid_pd.ssp"]
+    assert archive.read_bytes() == b"an earlier archive"

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["OutputError", "atomic_path", "folder_lock", "LOCK_FILE", "write_text",
+__all__ = ["OutputError", "output_error", "atomic_path", "folder_lock", "LOCK_FILE", "write_text",
            "write_json", "write_csv", "save_figure", "json_safe"]
 
 #: The lock file :func:`folder_lock` holds in an output folder.
