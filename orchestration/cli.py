@@ -29,6 +29,7 @@ so that ``flexpend --version`` or ``flexpend scenes`` start at once.
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import errno
 import json
@@ -559,22 +560,37 @@ def main(argv=None) -> int:
 
 def entry():
     """The ``flexpend`` command. Ctrl-C is noted from here on, for the process's whole life, so
-    that it exits with 130 at any moment. After a Ctrl-C the process ends at once (its output
-    flushed): a KeyboardInterrupt that reached code run by an FMU's embedded Python makes the
-    interpreter kill itself with SIGINT at finalisation, and pythonfmu's finalisation can
-    abort (see docs/fmus.md); the data is already written and the FMUs freed."""
-    global INTERRUPTS
+    that it exits with 130 at any moment: while the command runs, after it (its clean-ups at
+    exit: unpacked FMUs, a LocalCluster's folders), and from the last clean-up on a Ctrl-C ends
+    the process at once (a shell reports 130). After a Ctrl-C the process ends right after its
+    clean-ups, its output flushed, without the interpreter's finalisation: a KeyboardInterrupt
+    that reached code run by an FMU's embedded Python makes the interpreter kill itself with
+    SIGINT at finalisation, and pythonfmu's finalisation can abort (see docs/fmus.md); the data
+    is already written and the FMUs freed."""
+    global INTERRUPTS, _EXIT_CODE
     INTERRUPTS = Interrupts()
     signal.signal(signal.SIGINT, INTERRUPTS)
+    atexit.register(_last_clean_up)     # registered first: runs after every other clean-up
     try:
-        code = main()
+        _EXIT_CODE = main()
     except KeyboardInterrupt:
-        code = EXIT_INTERRUPTED
-    if code == EXIT_INTERRUPTED or INTERRUPTS.requested():
-        sys.stdout.flush()
-        sys.stderr.flush()
+        _EXIT_CODE = EXIT_INTERRUPTED
+    sys.exit(_EXIT_CODE)
+
+
+#: The exit code of :func:`entry`'s command (130 also when a Ctrl-C came after it).
+_EXIT_CODE = None
+
+
+def _last_clean_up():
+    """The last thing the ``flexpend`` process does at exit: from here a Ctrl-C kills it at once
+    (nothing is left to clean up); an earlier one makes the exit code 130."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if _EXIT_CODE == EXIT_INTERRUPTED or (INTERRUPTS is not None and INTERRUPTS.requested()):
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):     # closed, or a pipe no one reads
+                stream.flush()
         os._exit(EXIT_INTERRUPTED)
-    sys.exit(code)
 
 
 if __name__ == "__main__":

@@ -182,3 +182,38 @@ def test_a_full_disk_keeps_the_earlier_ssp_export(fmus, small_disk, capsys):
     one_line_error(capsys.readouterr().err, str(archive), "No space left on device")
     assert sorted(p.name for p in mnt.iterdir()) == ["filler", "rigid_pd.ssp"]
     assert archive.read_bytes() == b"an earlier archive"
+
+
+# ---------------------------------------------------------------------- Ctrl-C
+def flexpend(args, tmpdir: Path, *, driver: str = "", **popen):
+    """``flexpend ARGS`` in a subprocess whose temporary folder is ``tmpdir`` (so that whatever
+    it leaves there is seen); ``driver``: Python run first in the process, before
+    :func:`orchestration.cli.entry` (``cli`` is the module)."""
+    code = ("import sys\nfrom orchestration import cli\n" + driver
+            + "\nsys.argv = ['flexpend', *sys.argv[1:]]\ncli.entry()\n")
+    env = dict(os.environ, TMPDIR=str(tmpdir))
+    return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)
+
+
+@pytest.fixture
+def private_tmp(tmp_path):
+    d = tmp_path / "tmp"
+    d.mkdir()
+    return d
+
+
+def test_ctrl_c_after_the_command_while_it_cleans_up_is_130(fmus, private_tmp, tmp_path):
+    """The Ctrl-C comes after the command's work, while the process's clean-ups at exit run
+    (the moment a Ctrl-C after "100 %" exited with 0): the exit code is still 130."""
+    driver = ("import atexit, os, signal\nreal = cli.main\n"
+              "def main(argv=None):\n"
+              "    code = real(argv)\n"
+              "    atexit.register(os.kill, os.getpid(), signal.SIGINT)   # Ctrl-C at exit\n"
+              "    return code\n"
+              "cli.main = main")
+    with flexpend([*RUN, "--out", tmp_path / "out"], private_tmp, driver=driver) as proc:
+        out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and (tmp_path / "out" / "rigid_pd.csv").is_file()
+    assert list(private_tmp.iterdir()) == []
