@@ -317,7 +317,8 @@ def cmd_sweep(args) -> int:
                   samples=args.samples, seed=args.seed, overrides=args.set,
                   reference=args.reference, workers=workers, scheduler=scheduler,
                   serial=args.serial, batch=args.batch, retry_failed=args.retry_failed,
-                  out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor)
+                  out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor,
+                  stop=INTERRUPTS.requested)
     except ValueError as exc:
         if isinstance(exc, ConfigError):
             raise

@@ -217,3 +217,51 @@ def test_ctrl_c_after_the_command_while_it_cleans_up_is_130(fmus, private_tmp, t
     assert proc.returncode == 130, err
     assert "Traceback" not in err and (tmp_path / "out" / "rigid_pd.csv").is_file()
     assert list(private_tmp.iterdir()) == []
+
+
+def interrupt_when(proc, marker: str, *, group: bool = False) -> str:
+    """Send SIGINT to ``proc`` (``group``: to its process group, as a terminal's Ctrl-C does) as
+    soon as ``marker`` appears on its stderr; its whole stderr."""
+    lines = []
+    for line in proc.stderr:
+        lines.append(line)
+        if marker in line and not any(marker in ln for ln in lines[:-1]):
+            if group:
+                os.killpg(proc.pid, signal.SIGINT)
+            else:
+                proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=300)
+    return "".join(lines)
+
+
+def whole_journal(out: Path) -> list:
+    text = (out / "runs.jsonl").read_text() if (out / "runs.jsonl").exists() else ""
+    assert text == "" or text.endswith("\n")
+    return [json.loads(line) for line in text.splitlines()]
+
+
+#: a driver: Ctrl-C while the third run of a sweep runs (in this process: a serial sweep)
+CTRL_C_IN_THIRD_RUN = """
+import os, signal
+from orchestration.sweeps import engine
+real, calls = engine.run_task, []
+def run_task(task):
+    calls.append(1)
+    if len(calls) == 3:
+        os.kill(os.getpid(), signal.SIGINT)
+    return real(task)
+engine.run_task = run_task
+"""
+
+
+def test_ctrl_c_on_a_serial_sweep_stops_it_and_removes_the_unpacked_fmus(fmus, private_tmp,
+                                                                         tmp_path):
+    out = tmp_path / "out"
+    kps = ",".join(str(300 + 10 * i) for i in range(20))
+    with flexpend(["sweep", "rigid_pd", "--values", f"controller.kp={kps}", "--serial",
+                   "--out", out], private_tmp, driver=CTRL_C_IN_THIRD_RUN) as proc:
+        _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "the same command continues the sweep" in err
+    assert list(private_tmp.iterdir()) == []            # no flexpend_fmu_* folder
+    assert [r["run"] for r in whole_journal(out)] == [0, 1, 2]  # the run under way finished

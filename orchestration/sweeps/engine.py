@@ -350,13 +350,16 @@ def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
 
 
 def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int = 1,
-              retry_failed: bool = False, progress=True, plot: bool = True) -> SweepResult:
+              retry_failed: bool = False, progress=True, plot: bool = True,
+              stop=None) -> SweepResult:
     """Run the points of ``plan`` that ``out_dir`` has no finished row for, with ``executor``
     (:mod:`orchestration.sweeps.executor`; ``None``: serially here); write the table and the plot.
 
     ``fmus``: ``{"plant": path, "controller": path}`` for every run, or ``{flavour: {...}}``
     per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
-    must have been opened with ``files=`` these paths)."""
+    must have been opened with ``files=`` these paths). ``stop``: asked before the first run
+    and after each (Ctrl-C); when it returns True the sweep ends with KeyboardInterrupt, every
+    finished run in the journal."""
 
     executor = executor or Executor()
     out_dir = Path(out_dir)
@@ -377,6 +380,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
              for p in todo]
     bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
     t0 = time.perf_counter()
+    if stop is not None and stop():
+        raise KeyboardInterrupt
     with journal:
         for i, result in executor.map(run_task, tasks, batch=batch):
             if isinstance(result, TaskLost):
@@ -386,6 +391,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
             results[row["key"]] = row
             if bar is not None:
                 bar.update(row["status"])
+            if stop is not None and stop():
+                raise KeyboardInterrupt
     seconds = time.perf_counter() - t0
     ordered = [_row(p, results[p.key], plan) for p in plan.points]
     skipped = len({p.key for p in plan.points}) - len(todo)
