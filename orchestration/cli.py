@@ -534,7 +534,7 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
         args.argv = None if argv is None else list(argv)
         code = args.func(args)
-        if INTERRUPTS.requested():    # Ctrl-C after the last safe point: still 130
+        if INTERRUPTS.requested() and code != EXIT_INTERRUPTED:  # after the last safe point
             print("flexpend: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
         return code

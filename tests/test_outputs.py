@@ -265,3 +265,33 @@ def test_ctrl_c_on_a_serial_sweep_stops_it_and_removes_the_unpacked_fmus(fmus, p
     assert "Traceback" not in err and "the same command continues the sweep" in err
     assert list(private_tmp.iterdir()) == []            # no flexpend_fmu_* folder
     assert [r["run"] for r in whole_journal(out)] == [0, 1, 2]  # the run under way finished
+
+
+def test_ctrl_c_while_a_local_cluster_starts_is_130_and_leaves_nothing(fmus, native,
+                                                                       private_tmp, tmp_path):
+    """A terminal's Ctrl-C (SIGINT to the whole process group: the client and the worker
+    processes it is starting) as soon as the client has started a worker process (it crashed
+    the start: a traceback, and dask's folders left in TMPDIR)."""
+    psutil = pytest.importorskip("psutil")
+    pytest.importorskip("distributed")
+
+    def a_worker_started(client):
+        for child in client.children():
+            with contextlib.suppress(psutil.Error):
+                if "spawn_main" in " ".join(child.cmdline()):
+                    return True
+        return False
+
+    kps = ",".join(str(300 + 10 * i) for i in range(40))
+    with flexpend(["sweep", "rigid_pd", "--values", f"controller.kp={kps}", "--workers", "2",
+                   "--out", tmp_path / "out"], private_tmp, start_new_session=True) as proc:
+        client = psutil.Process(proc.pid)
+        while proc.poll() is None and not a_worker_started(client):
+            psutil.wait_procs([client], timeout=0.005)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err
+    for bad in ("Traceback", "leaked", "Error"):
+        assert bad not in err, err
+    assert list(private_tmp.iterdir()) == []            # no dask folder left
+    whole_journal(tmp_path / "out")
