@@ -295,3 +295,21 @@ def test_ctrl_c_while_a_local_cluster_starts_is_130_and_leaves_nothing(fmus, nat
         assert bad not in err, err
     assert list(private_tmp.iterdir()) == []            # no dask folder left
     whole_journal(tmp_path / "out")
+
+
+def test_a_failed_check_leaves_no_unpacked_fmu(fmus, tmp_path, private_tmp, monkeypatch, capsys):
+    """An FMU whose library does not load: fmpy's simulate_fmu raises and keeps the folder it
+    unpacked the FMU into."""
+    import tempfile
+    import zipfile
+
+    broken = tmp_path / "PDLowPass.fmu"
+    with zipfile.ZipFile(fmus["PDLowPass"]) as src, zipfile.ZipFile(broken, "w") as dst:
+        for info in src.infolist():
+            dst.writestr(info, b"not a library" if info.filename.startswith("binaries/")
+                         else src.read(info))
+    monkeypatch.setenv("TMPDIR", str(private_tmp))
+    monkeypatch.setattr(tempfile, "tempdir", str(private_tmp))
+    assert main(["check", str(broken), "--reference", str(ROOT / "tests" / "reference")]) == 1
+    assert "the FMU failed to simulate" in capsys.readouterr().out
+    assert list(private_tmp.iterdir()) == []

@@ -36,6 +36,7 @@ range at every sample, no widening, no outlier.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -214,6 +215,8 @@ def simulate_case(fmu, files: dict, start_values=None, outputs=None, timeout=Non
         _read_csv(files["in"])                       # a malformed input file: ReferenceError
     if outputs is None:
         outputs = list(_read_csv(files["ref"]).dtype.names[1:])
+    # the child's temporary files in ours: fmpy keeps the folder it unpacked the FMU into when
+    # the simulation raises
     with tempfile.TemporaryDirectory(prefix="flexpend_check_") as tmp:
         args = {"fmu": str(Path(fmu).resolve()), "opt": opt, "outputs": list(outputs),
                 "input": str(files["in"].resolve()) if files["in"].is_file() else None,
@@ -221,7 +224,8 @@ def simulate_case(fmu, files: dict, start_values=None, outputs=None, timeout=Non
                 "result": str(Path(tmp) / "result.npy"), "meta": str(Path(tmp) / "meta.json")}
         try:
             proc = subprocess.run([sys.executable, "-I", "-c", _WORKER, json.dumps(args)],
-                                  cwd=tmp, capture_output=True, text=True, timeout=timeout)
+                                  cwd=tmp, capture_output=True, text=True, timeout=timeout,
+                                  env={**os.environ, "TMPDIR": tmp})
         except subprocess.TimeoutExpired:
             return Run(None, f"the simulation did not finish within {timeout:g} s")
         meta_path = Path(args["meta"])
