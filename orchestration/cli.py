@@ -19,9 +19,16 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
 lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written:
-one line naming it); 3 ``flexpend run``: a scene stopped early (an FMU refused to go on; its data
-up to there is written); 130 interrupted by Ctrl-C, at any moment (the data so far is written,
-the FMUs are terminated and freed).
+one line naming it), or an output the system refused (a full disk: one line naming the file;
+every earlier file is kept whole), or an ``--out`` in use by another run; 3 ``flexpend run``: a
+scene stopped early (an FMU refused to go on; its data up to there is written); 130 interrupted
+by Ctrl-C, at any moment (the data so far is written, the FMUs are terminated and freed, every
+temporary folder is removed).
+
+Every output file is written to a temporary name beside it and renamed into place: it is
+complete or absent, and a failed write leaves the earlier file as it was. ``run``, ``design`` and
+``sweep`` hold ``--out/.flexpend.lock`` (an exclusive ``flock``, released however the process
+ends) while they write; a second command into the same ``--out`` meanwhile is refused.
 
 Heavy modules (numpy, scipy, matplotlib, fmpy, dask) are imported by the command that needs them,
 so that ``flexpend --version`` or ``flexpend scenes`` start at once.
