@@ -513,7 +513,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 #: errno of a write that the system refused for want of room or permission
-_WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS}
+_WRITE_ERRNOS = {getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EFBIG", "EROFS")
+                 if hasattr(errno, name)}
 
 
 def _output_failure(exc: OSError) -> str | None:
