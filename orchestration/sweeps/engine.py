@@ -3,6 +3,7 @@ and the statistics (see :mod:`orchestration.sweeps`).
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -19,6 +20,7 @@ import plant_fmu
 
 from ..export import flavour_fmus
 from ..job import run_scene
+from ..report.files import atomic_path, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
 from ..studies.analysis import max_real_part
@@ -168,22 +170,35 @@ class Journal:
 
     def __enter__(self):
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "a+")
-        self._fh.seek(0, os.SEEK_END)
-        if self._fh.tell():                  # start on a fresh line after a torn one
-            self._fh.seek(self._fh.tell() - 1)
-            last = self._fh.read(1)
-            if last != "\n":
-                self._fh.write("\n")
+        try:
+            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_APPEND, 0o644)
+        except OSError as exc:
+            raise output_error(self.path, exc) from None
+        size = os.fstat(self._fd).st_size
+        if size and os.pread(self._fd, 1, size - 1) != b"\n":  # a fresh line after a torn one
+            self._write(b"\n")
         return self
 
     def append(self, row: dict):
-        self._fh.write(json.dumps(row) + "\n")
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
+        """Append ``row`` as one whole line, on disk when this returns."""
+        self._write((json.dumps(row) + "\n").encode())
+
+    def _write(self, data: bytes):
+        """Append ``data`` whole, or (a full disk) not at all: the journal never ends on a torn
+        row of ours."""
+        size = os.fstat(self._fd).st_size
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self._fd, view):]
+            os.fsync(self._fd)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, size)
+            raise output_error(self.path, exc) from None
 
     def __exit__(self, *exc):
-        self._fh.close()
+        os.close(self._fd)
 
 
 def _have_pyarrow() -> bool:
@@ -205,29 +220,28 @@ def write_table(rows, folder: Path, parquet: bool | None = None) -> Path:
     folder = Path(folder)
     cols = _columns(rows)
     parquet = _have_pyarrow() if parquet is None else parquet
-    for stale in ("sweep.parquet", "sweep.csv"):
-        (folder / stale).unlink(missing_ok=True)
-    if parquet:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-        arrays = {}
-        for c in cols:
-            vals = [r.get(c) for r in rows]
-            try:
-                arrays[c] = pa.array(vals)
-            except (pa.ArrowInvalid, pa.ArrowTypeError):
-                arrays[c] = pa.array([None if v is None else str(v) for v in vals])
-        path = folder / "sweep.parquet"
-        pq.write_table(pa.table(arrays), path)
-        return path
-    import csv
-    path = folder / "sweep.csv"
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols)
-        for r in rows:
-            w.writerow(["" if r.get(c) is None else repr(r[c]) if isinstance(r.get(c), float)
-                        else r[c] for c in cols])
+    path = folder / ("sweep.parquet" if parquet else "sweep.csv")
+    with atomic_path(path) as tmp:
+        if parquet:
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+            arrays = {}
+            for c in cols:
+                vals = [r.get(c) for r in rows]
+                try:
+                    arrays[c] = pa.array(vals)
+                except (pa.ArrowInvalid, pa.ArrowTypeError):
+                    arrays[c] = pa.array([None if v is None else str(v) for v in vals])
+            pq.write_table(pa.table(arrays), tmp)
+        else:
+            import csv
+            with open(tmp, "w", newline="") as fh:
+                w = csv.writer(fh)
+                w.writerow(cols)
+                for r in rows:
+                    w.writerow(["" if r.get(c) is None else repr(r[c])
+                                if isinstance(r.get(c), float) else r[c] for c in cols])
+    (folder / ("sweep.csv" if parquet else "sweep.parquet")).unlink(missing_ok=True)  # stale
     return path
 
 
@@ -336,13 +350,16 @@ def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
 
 
 def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int = 1,
-              retry_failed: bool = False, progress=True, plot: bool = True) -> SweepResult:
+              retry_failed: bool = False, progress=True, plot: bool = True,
+              stop=None) -> SweepResult:
     """Run the points of ``plan`` that ``out_dir`` has no finished row for, with ``executor``
     (:mod:`orchestration.sweeps.executor`; ``None``: serially here); write the table and the plot.
 
     ``fmus``: ``{"plant": path, "controller": path}`` for every run, or ``{flavour: {...}}``
     per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
-    must have been opened with ``files=`` these paths)."""
+    must have been opened with ``files=`` these paths). ``stop``: asked before the first run
+    and after each (Ctrl-C); when it returns True the sweep ends with KeyboardInterrupt, every
+    finished run in the journal."""
 
     executor = executor or Executor()
     out_dir = Path(out_dir)
@@ -363,6 +380,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
              for p in todo]
     bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
     t0 = time.perf_counter()
+    if stop is not None and stop():
+        raise KeyboardInterrupt
     with journal:
         for i, result in executor.map(run_task, tasks, batch=batch):
             if isinstance(result, TaskLost):
@@ -372,6 +391,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
             results[row["key"]] = row
             if bar is not None:
                 bar.update(row["status"])
+            if stop is not None and stop():
+                raise KeyboardInterrupt
     seconds = time.perf_counter() - t0
     ordered = [_row(p, results[p.key], plan) for p in plan.points]
     skipped = len({p.key for p in plan.points}) - len(todo)

@@ -24,16 +24,40 @@ back as a :class:`TaskLost` value, so that the caller keeps every other result.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import logging
 import os
+import shutil
+import signal
 import sys
+import tempfile
+import threading
 from pathlib import Path
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
 __all__ = ["Executor", "DaskExecutor", "TaskLost", "open_executor", "worker_file",
            "default_workers", "file_name", "scratch_dir"]
+
+
+@contextlib.contextmanager
+def _sigint_blocked():
+    """SIGINT held back in this thread (the main one) while the block runs, and delivered (to
+    Python's handler) after it; threads and processes started meanwhile keep it blocked."""
+    if threading.current_thread() is not threading.main_thread() or \
+            not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    # multiprocessing's resource tracker, started from a thread, unblocks SIGINT in that thread
+    # (dask's IO loop, which starts the workers): start it here first
+    from multiprocessing import resource_tracker
+    resource_tracker.ensure_running()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 class TaskLost:
@@ -165,16 +189,29 @@ class DaskExecutor(Executor):
         from distributed import Client, LocalCluster
 
         self.cluster = None
+        self.scratch = None
         if scheduler:
             try:
                 self.client = Client(scheduler, timeout="10s")
             except (OSError, TimeoutError) as exc:
                 raise ValueError(f"no dask scheduler at {scheduler!r}: {exc}") from None
         else:
-            self.cluster = LocalCluster(n_workers=workers or default_workers(), processes=True,
-                                        threads_per_worker=1, dashboard_address=":0",
-                                        silence_logs=logging.ERROR)
-            self.client = Client(self.cluster)
+            # the workers' folders in one of ours, removed by close(); a Ctrl-C while the
+            # cluster starts waits until it has started (and then stops the sweep): the
+            # processes it starts inherit the blocked SIGINT, a terminal's Ctrl-C cannot kill
+            # them half-started (they ignore Ctrl-C anyway, see _Setup)
+            self.scratch = tempfile.mkdtemp(prefix="flexpend_dask_")
+            try:
+                with _sigint_blocked():
+                    self.cluster = LocalCluster(
+                        n_workers=workers or default_workers(), processes=True,
+                        threads_per_worker=1, dashboard_address=":0",
+                        silence_logs=logging.ERROR, local_directory=self.scratch,
+                        scheduler_kwargs={"local_directory": self.scratch})
+                    self.client = Client(self.cluster)
+            except BaseException:
+                self.close()
+                raise
         self.scheduler = scheduler
         try:
             blobs = {file_name(f): Path(f).read_bytes() for f in files}
@@ -241,6 +278,9 @@ class DaskExecutor(Executor):
         cluster, self.cluster = self.cluster, None
         if cluster is not None:
             cluster.close()
+        scratch, self.scratch = self.scratch, None
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
 
 
 def open_executor(workers: int | None = None, scheduler: str | None = None, *, paths=(),

@@ -41,7 +41,7 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
           seed: int | None = None, overrides=(), reference: bool = False,
           workers: int | None = None, scheduler: str | None = None, serial: bool = False,
           batch: int = 1, retry_failed: bool = False, out="out/sweep", progress: bool = True,
-          command: str | None = None, on_executor=None) -> Sweep:
+          command: str | None = None, on_executor=None, stop=None) -> Sweep:
     """Run a sweep of ``scene`` into the folder ``out`` (see :mod:`orchestration.sweeps`).
 
     ``grid``, ``values``, ``sample``: the ``--grid``, ``--values``, ``--sample`` items (strings),
@@ -49,7 +49,9 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     grid), ``values={"plant.n_modes": [2, 3, 4]}``, ``sample={"plant.EI": "uniform:800:950"}``
     (or ``sample="design"``). ``workers``: a LocalCluster of that many processes (default: one
     per core); ``scheduler``: the address of a dask scheduler; ``serial``: here, one run after
-    the other. Errors name the bad argument
+    the other. ``stop``: asked before the first run and after each (Ctrl-C): when it returns
+    True the sweep ends with KeyboardInterrupt (the finished runs are in the journal, and the
+    same call continues the sweep). Errors name the bad argument
     (:class:`~orchestration.scene.keys.ConfigError`, a ``ValueError``)."""
     if serial and (workers is not None or scheduler):
         raise ConfigError("serial runs here, without dask: it takes no workers or scheduler")
@@ -82,7 +84,7 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
             on_executor(executor)
     with executor:
         res = run_sweep(plan, fmus, out_dir, executor, batch=batch, retry_failed=retry_failed,
-                        progress=progress)
+                        progress=progress, stop=stop)
     stats = sweep_stats(res.rows)
     design = design_worst_case(plan)
     if design is not None:
