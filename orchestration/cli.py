@@ -149,6 +149,7 @@ def cmd_analyze(args) -> int:
 def cmd_design(args) -> int:
     from .api import design
     from .report.text import design_lines
+    from .sweeps.executor import SchedulerError
 
     scene_items, design_keys = _split_design(args.set)
     workers, scheduler = _executor_args(args)
@@ -156,6 +157,8 @@ def cmd_design(args) -> int:
     try:
         d = design(overrides=scene_items, design=design_keys, workers=workers,
                    scheduler=scheduler, progress=True)
+    except SchedulerError as exc:
+        raise _scheduler_error(exc) from None
     except ConfigError as exc:
         raise _set_error(exc) from None
     d.save(out_dir)
@@ -270,6 +273,11 @@ def cmd_check(args) -> int:
     return 0 if report.passed else EXIT_FAILED
 
 
+def _scheduler_error(exc):
+    """A :class:`~orchestration.sweeps.executor.SchedulerError` in the command's terms."""
+    return UsageError(f"--scheduler {exc.address}: {exc.reason}")
+
+
 def _executor_args(args):
     """``(workers, scheduler)`` of ``--workers``/``--scheduler``."""
     if args.workers is not None and args.workers < 1:
@@ -282,6 +290,7 @@ def _executor_args(args):
 
 def cmd_sweep(args) -> int:
     from .report.text import sweep_lines
+    from .sweeps.executor import SchedulerError
     from .sweeps.job import sweep
 
     if args.serial and (args.workers is not None or args.scheduler):
@@ -304,10 +313,8 @@ def cmd_sweep(args) -> int:
                   reference=args.reference, workers=workers, scheduler=scheduler,
                   serial=args.serial, batch=args.batch, retry_failed=args.retry_failed,
                   out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor)
-    except ValueError as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise UsageError(str(exc)) from None          # an unreachable scheduler
+    except SchedulerError as exc:
+        raise _scheduler_error(exc) from None
     except KeyboardInterrupt:
         print(f"\ninterrupted: the finished runs are in {args.out}/runs.jsonl; the same "
               "command continues the sweep", file=sys.stderr)
