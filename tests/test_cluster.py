@@ -1,16 +1,27 @@
-"""flexpend sweep --scheduler: a peer that is not a dask scheduler (silent, HTTP, garbage, a huge
-frame) or a scheduler without workers is one line and exit 2, within a bounded time
+"""flexpend sweep --scheduler on a real cluster (`dask scheduler` and two `dask worker`
+processes): the table equals the serial one value for value, and a worker killed mid-sweep
+loses no finished run. A peer that is not a dask scheduler (silent, HTTP, garbage, a huge frame)
+or a scheduler without workers is one line and exit 2, within a bounded time
 (orchestration/sweeps/executor.py). Everything listens on 127.0.0.1 only."""
 import contextlib
 import http.server
+import json
+import os
+import signal
 import socket
 import struct
+import subprocess
+import sys
 import threading
+import time
+from pathlib import Path
 
 import pytest
 
 from orchestration.cli import main
 from orchestration.sweeps import executor
+from orchestration.sweeps.engine import Journal, read_table, run_sweep
+from orchestration.sweeps.plan import plan_sweep
 
 SWEEP = ["sweep", "flexible_pd_lowpass", "--values", "controller.kp=500,600",
          "--set", "stop_time=1"]
@@ -107,3 +118,135 @@ def test_scheduler_without_workers_waits_with_a_message_then_one_line(fmus, monk
     assert err.strip().splitlines()[-1] == (
         f"flexpend: error: --scheduler {address}: no worker joined within 1 s (start "
         f"workers with: dask worker {address} --nthreads 1)")
+
+
+# ---------------------------------------------------------------------------- a real cluster
+ROOT = Path(__file__).resolve().parents[1]
+#: runs whose fits are reliable (3 s from 0.05 rad), so that the tables hold numbers to compare
+RELIABLE = ["--set", "stop_time=3", "--set", "initial.phi=0.05"]
+UNTIMED = ("wall_time", "cosim_time")
+
+
+def _until(what, seconds, procs=()):
+    """``what()`` once it is truthy, polling for at most ``seconds`` (a started process that
+    ends early fails at once)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        for p in procs:
+            assert p.poll() is None, f"{p.args} ended with {p.returncode}"
+        value = what()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"not within {seconds} s: {what.__doc__}")
+
+
+@pytest.fixture
+def dask_cluster(tmp_path):
+    """``(address, [worker processes])``: `dask scheduler` and two `dask worker` processes on
+    127.0.0.1 (free ports; one thread each, no nanny, so that killing one kills a worker) running
+    this checkout's packages. Ended whatever the test did."""
+    from distributed import Client
+
+    folder = tmp_path / "dask"
+    folder.mkdir()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]), "OPENBLAS_NUM_THREADS": "1"}
+    procs = []
+
+    def start(*args):
+        log = open(folder / f"{len(procs)}.log", "w")
+        with log:
+            procs.append(subprocess.Popen([sys.executable, "-m", "dask", *args], cwd=folder,
+                                          env=env, stdout=log, stderr=subprocess.STDOUT,
+                                          start_new_session=True))
+        return procs[-1]
+
+    def address():
+        """the scheduler's address in its scheduler file"""
+        try:
+            return json.loads((folder / "scheduler.json").read_text())["address"]
+        except (OSError, ValueError, KeyError):
+            return None
+
+    try:
+        start("scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+              "--scheduler-file", str(folder / "scheduler.json"))
+        addr = _until(address, 60, procs)
+        workers = [start("worker", addr, "--host", "127.0.0.1", "--nthreads", "1", "--no-nanny",
+                         "--no-dashboard", "--name", f"w{i}", "--local-directory",
+                         str(folder / f"w{i}")) for i in range(2)]
+        with Client(addr, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=60)
+        yield addr, workers
+    finally:
+        # the workers are killed (a `dask worker` stopped with SIGTERM can hang in its executor's
+        # shutdown), then the scheduler is stopped, and killed if it does not stop
+        for p in reversed(procs):
+            if p is not procs[0]:
+                p.kill()
+            elif p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+class KillOnFirstRow:
+    """A progress stream that kills ``victim`` (kill -9) when the first finished run is
+    reported, i.e. after it is in the journal; it notes how many rows the journal had then."""
+
+    def __init__(self, victim, journal):
+        self.victim, self.journal, self.rows_at_kill = victim, journal, None
+
+    def write(self, text):
+        if self.rows_at_kill is None:
+            self.rows_at_kill = dict(self.journal.read())
+            os.kill(self.victim.pid, signal.SIGKILL)
+            self.victim.wait(timeout=30)
+
+    def flush(self):
+        pass
+
+
+def table(folder):
+    """The rows of the table a sweep into ``folder`` wrote (sweep.json names it)."""
+    return read_table(json.loads((folder / "sweep.json").read_text())["table"])
+
+
+def untimed(rows):
+    return [{k: v for k, v in r.items() if k not in UNTIMED} for r in rows]
+
+
+def test_sweep_on_a_real_cluster_equals_serial_and_a_killed_worker_loses_nothing(
+        dask_cluster, fmus, tmp_path, capsys):
+    address, workers = dask_cluster
+    # through the command line: the same table as --serial, value for value
+    values = "controller.kp=500,600,700,800"
+    args = ["sweep", "flexible_pd_lowpass", "--values", values, *RELIABLE]
+    assert main([*args, "--scheduler", address, "--out", str(tmp_path / "dask")]) == 0
+    err = capsys.readouterr().err
+    assert f"running on the dask scheduler at {address}, 2 worker processes" in err, err
+    assert main([*args, "--serial", "--out", str(tmp_path / "serial")]) == 0
+    serial = untimed(table(tmp_path / "serial"))
+    assert untimed(table(tmp_path / "dask")) == serial
+    assert all(r["status"] == "ok" and r["decay_rate"] is not None for r in serial)
+
+    # the same runs again, a worker killed (kill -9) once the first one is in: every run
+    # finishes, none is lost, those journalled before the kill are kept as they were, and the
+    # table is the serial one
+    plan = plan_sweep("flexible_pd_lowpass", values=[values], overrides=RELIABLE[1::2])
+    paths = {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
+    out = tmp_path / "killed"
+    kill = KillOnFirstRow(workers[0], Journal(out))
+    with executor.open_executor(scheduler=address, files=list(paths.values())) as ex:
+        res = run_sweep(plan, paths, out, ex, progress=kill, plot=False)
+    assert workers[0].returncode == -signal.SIGKILL and kill.rows_at_kill
+    journal = Journal(out).read()
+    assert sorted(journal) == sorted(p.key for p in plan.points)
+    assert all(r["status"] == "ok" for r in journal.values()), journal
+    assert all(journal[k] == row for k, row in kill.rows_at_kill.items())
+    print(f"{len(kill.rows_at_kill)} of {len(journal)} runs were in when the worker was killed")
+    assert untimed(read_table(res.table)) == serial
