@@ -250,3 +250,40 @@ def test_sweep_on_a_real_cluster_equals_serial_and_a_killed_worker_loses_nothing
     assert all(journal[k] == row for k, row in kill.rows_at_kill.items())
     print(f"{len(kill.rows_at_kill)} of {len(journal)} runs were in when the worker was killed")
     assert untimed(read_table(res.table)) == serial
+
+
+# ---------------------------------------------------------------------------- the dashboard
+@pytest.mark.parametrize("page,works", [(b"<html>the dashboard</html>", True),
+                                        (b"<p>Dask needs bokeh>=3.1.0 for the dashboard.</p>",
+                                         False)])
+def test_dashboard_counts_as_working_only_where_it_is_served_with_bokeh(page, works):
+    class Page(http.server.BaseHTTPRequestHandler):
+        def do_GET(self):
+            self.send_response(200)
+            self.end_headers()
+            self.wfile.write(page)
+
+        def log_message(self, *args):
+            pass
+
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Page)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        assert executor._dashboard_works(f"http://127.0.0.1:{server.server_address[1]}/status") \
+            is works
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert executor._dashboard_works(closed_port().replace("tcp", "http") + "/status") is False
+
+
+def test_dashboard_line_only_where_bokeh_draws_it():
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, processes=False, protocol="tcp://", host="127.0.0.1",
+                      dashboard_address="127.0.0.1:0") as cluster:
+        with executor.DaskExecutor(scheduler=cluster.scheduler_address) as ex:
+            link = ex.client.dashboard_link
+            note = ex.dashboard_note()
+    # the scheduler serves a page at the link either way; without bokeh it only says so
+    assert note == (f"dask dashboard: {link}" if executor._bokeh() else None)
