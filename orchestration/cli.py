@@ -417,7 +417,10 @@ def build_parser() -> argparse.ArgumentParser:
     pw = sub.add_parser("sweep", help="many runs of a scene over a grid or a random sample, "
                                       "on dask.distributed",
                         description="Co-simulate a scene over a grid of keys and/or random "
-                                    "samples, on a dask LocalCluster (or --scheduler); write "
+                                    "samples: serially here, or on a dask LocalCluster where "
+                                    "it wins by the runs' number and expected length against "
+                                    "the cluster's start-up (about 5 s), or on --scheduler; "
+                                    "write "
                                     "<out>/sweep.parquet (or .csv), sweep.png, sweep.json, and "
                                     "runs.jsonl (rerunning into the same --out skips the runs "
                                     "already finished).")
@@ -439,10 +442,17 @@ def build_parser() -> argparse.ArgumentParser:
     pw.add_argument("--reference", action="store_true",
                     help="also solve each run's monolithic reference and report the error")
     pw.add_argument("--workers", type=int, default=None, metavar="N",
-                    help="worker processes of the LocalCluster (default: one per core)")
+                    help="worker processes of a LocalCluster (default: one per core, only "
+                         "where it ends before the serial runs: 5 s + ceil(runs / cores) * "
+                         "(t + 0.02 s) < runs * t, t the expected run length from stop_time "
+                         "/ master.step; see docs/sweeps.md)")
     pw.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="use the dask cluster of this scheduler, e.g. tcp://host:8786")
-    pw.add_argument("--serial", action="store_true", help="run here, one run after the other")
+                    help="use the dask cluster of this scheduler, e.g. tcp://host:8786 (it must "
+                         "answer dask's handshake within 5 s; without workers, one must join "
+                         "within 30 s)")
+    pw.add_argument("--serial", action="store_true",
+                    help="run here, one run after the other (the default where a LocalCluster "
+                         "would not win)")
     pw.add_argument("--batch", type=int, default=1, metavar="N",
                     help="runs per dask task (batch short runs; default 1)")
     pw.add_argument("--retry-failed", action="store_true",

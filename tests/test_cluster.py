@@ -287,3 +287,57 @@ def test_dashboard_line_only_where_bokeh_draws_it():
             note = ex.dashboard_note()
     # the scheduler serves a page at the link either way; without bokeh it only says so
     assert note == (f"dask dashboard: {link}" if executor._bokeh() else None)
+
+
+# ---------------------------------------------------------------------------- the default
+@pytest.mark.parametrize("runs,seconds,serial_time,cluster_time,start", [
+    (4, 0.6, 2.5, 8.2, 0.0),          # issue 25: 4 runs of the 10 s scene on 2 cores
+    (64, 0.092, 12.6, 11.2, 2.8),     # docs/sweeps.md, 64 runs of 2 s
+    (64, 0.69, 46.0, 39.7, 3.9),      # docs/sweeps.md, 64 runs of 10 s
+])
+def test_default_executor_picks_what_was_measured_faster(runs, seconds, serial_time,
+                                                         cluster_time, start):
+    """The rule against measured sweeps on 2 cores (a cluster's time: its sweep plus its start;
+    the issue's 8.2 s includes the start)."""
+    faster = 2 if cluster_time + start < serial_time else 0
+    assert executor.cluster_workers(runs, seconds, cores=2) == faster
+
+
+def test_default_executor_rule():
+    assert executor.cluster_workers(1000, 10.0, cores=1) == 0      # one core: never a cluster
+    assert executor.cluster_workers(1, 1000.0, cores=8) == 0       # one run: nothing to share
+    assert executor.cluster_workers(3, 1000.0, cores=8) == 3       # no more workers than runs
+    # the break-even on 2 cores: start + (runs / 2) * (t + overhead) = runs * t
+    t, start, over = 1.0, executor.CLUSTER_START, executor.TASK_OVERHEAD
+    even = start / (t / 2 - over / 2)                             # 10.2 runs of 1 s
+    assert executor.cluster_workers(int(even) - 1, t, cores=2) == 0
+    assert executor.cluster_workers(int(even) + 3, t, cores=2) == 2
+
+
+def test_expected_run_length_follows_the_scene():
+    from orchestration.scene.schema import load_scene
+    from orchestration.sweeps.plan import expected_run_seconds
+
+    def run(*items, reference=False):
+        return expected_run_seconds(load_scene("flexible_pd_lowpass", list(items)), reference)
+
+    base = run()
+    assert 0.05 < base < 0.5                              # measured: 0.1 s (docs/sweeps.md)
+    # linear in stop_time (the steps, the reference), and growing with the steps
+    for reference in (False, True):
+        one, ten, hundred = (run(f"stop_time={t}", reference=reference) for t in (1, 10, 100))
+        assert hundred - ten == pytest.approx(10 * (ten - one)) and ten > one
+    assert run("master.step=2e-4") > base
+    # the pythonfmu FMUs and the Python loop cost more per step than the compiled loop
+    assert run("master.fmus=python") > run("master.compiled=false") > base
+    assert run(reference=True) > base + 1.0
+
+
+def test_small_sweep_runs_serially_by_default_and_says_why(fmus, tmp_path, capsys):
+    args = ["sweep", "flexible_pd_lowpass", "--values", "controller.kp=500,600",
+            "--set", "stop_time=1", "--out", str(tmp_path)]
+    assert main(args) == 0
+    out, err = capsys.readouterr()
+    assert "running here, one run after the other: a LocalCluster would not win for 2 runs" \
+        in err
+    assert "on serial (this process)" in out

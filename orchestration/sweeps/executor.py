@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import os
 import socket
 import struct
@@ -42,8 +43,8 @@ from pathlib import Path
 from distributed.diagnostics.plugin import WorkerPlugin
 
 __all__ = ["Executor", "DaskExecutor", "TaskLost", "SchedulerError", "open_executor",
-           "probe_scheduler", "worker_file", "default_workers", "file_name", "scratch_dir",
-           "PROBE_TIMEOUT", "WORKER_WAIT"]
+           "probe_scheduler", "worker_file", "default_workers", "cluster_workers", "file_name",
+           "scratch_dir", "PROBE_TIMEOUT", "WORKER_WAIT", "CLUSTER_START", "TASK_OVERHEAD"]
 
 #: Seconds within which a scheduler given by address must answer dask's handshake.
 PROBE_TIMEOUT = 5.0
@@ -78,6 +79,34 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:          # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+#: What a LocalCluster costs before its first result: starting its processes, their imports and
+#: the first FMU load (s; 5.1 s measured for 2 workers on 2 cores, docs/sweeps.md).
+CLUSTER_START = 5.0
+#: What a task costs on dask beyond its own work: scheduling it, sending its row back, the
+#: journal (s; 21 ms measured per run, docs/sweeps.md).
+TASK_OVERHEAD = 0.02
+
+
+def cluster_workers(tasks: int, task_seconds: float, cores: int | None = None) -> int:
+    """How many LocalCluster workers to start for ``tasks`` independent tasks of about
+    ``task_seconds`` each, on ``cores`` cores (default :func:`default_workers`); 0 where a
+    cluster cannot win, and the tasks should run serially here.
+
+    With ``W = min(cores, tasks)`` workers the cluster wins when it ends before the serial
+    runs::
+
+        CLUSTER_START + ceil(tasks / W) * (task_seconds + TASK_OVERHEAD)  <  tasks * task_seconds
+
+    e.g. on 2 cores, 4 runs of 0.6 s: 6.2 s against 2.4 s, serial (measured: 8.2 s against
+    2.5 s); 64 runs of 0.69 s: 28 s against 44 s, 2 workers."""
+    cores = default_workers() if cores is None else cores
+    workers = min(cores, tasks)
+    if workers < 2:
+        return 0
+    cluster = CLUSTER_START + math.ceil(tasks / workers) * (task_seconds + TASK_OVERHEAD)
+    return workers if cluster < tasks * task_seconds else 0
 
 
 def _run_batch(fn, items):
