@@ -272,14 +272,6 @@ def _dashboard_works(link: str, timeout: float = 2.0) -> bool:
         return False
 
 
-def _bokeh() -> bool:
-    try:
-        import bokeh  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 class _Setup(WorkerPlugin):
     """Worker plugin: put ``paths`` first on ``sys.path``, write ``files`` (name -> bytes) into
     the worker's local folder, and (a LocalCluster's workers) ignore Ctrl-C."""
@@ -337,10 +329,10 @@ class DaskExecutor(Executor):
             except (OSError, TimeoutError) as exc:
                 raise SchedulerError(scheduler, " ".join(str(exc).split())) from None
         else:
-            # on this machine only; the dashboard only where bokeh can draw it
+            # on this machine only (the scheduler's HTTP server too: a free port on 127.0.0.1)
             self.cluster = LocalCluster(n_workers=workers or default_workers(), processes=True,
                                         threads_per_worker=1, host="127.0.0.1",
-                                        dashboard_address="127.0.0.1:0" if _bokeh() else None,
+                                        dashboard_address="127.0.0.1:0",
                                         silence_logs=logging.ERROR)
             self.client = Client(self.cluster)
         try:
