@@ -18,7 +18,8 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
-lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written:
+lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written, a
+``--scheduler`` that does not answer as a dask scheduler within 5 s or has no worker within 30 s:
 one line naming it); 3 ``flexpend run``: a scene stopped early (an FMU refused to go on; its data
 up to there is written); 130 interrupted by Ctrl-C, at any moment (the data so far is written,
 the FMUs are terminated and freed).
@@ -387,7 +388,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="check the chosen filter's worst case on a dask LocalCluster of N "
                          "processes (default: here; worth it for a fine design.check_levels)")
     pd.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="check it on the dask cluster of this scheduler")
+                    help="check it on the dask cluster of this scheduler (it must answer "
+                         "dask's handshake within 5 s)")
     pd.set_defaults(func=cmd_design)
 
     pr = sub.add_parser("run", help="co-simulate scenes (default: the paper's three)",
