@@ -55,6 +55,8 @@ def fake_service(kind):
                 conn.sendall(bytes(range(7, 250)) * 4)
             elif kind == "huge":            # a frame header announcing 2**62 bytes
                 conn.sendall(struct.pack("Q", 2 ** 62) + b"\0" * 64)
+            elif kind == "framed":          # a small message of dask's framing, not msgpack
+                conn.sendall(struct.pack("QQQ", 40, 1, 24) + b"\xc1" * 24)
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
@@ -85,6 +87,7 @@ def one_line_error(capsys) -> str:
     ("http", "did not answer within 1 s"),
     ("garbage", "not a dask scheduler"),
     ("huge", "not a dask scheduler"),
+    ("framed", "not a dask scheduler: its first message does not decode"),
 ])
 def test_scheduler_that_is_not_dask_is_one_line_exit_2(kind, fragment, fmus, monkeypatch,
                                                        capsys, tmp_path):
