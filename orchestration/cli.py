@@ -18,7 +18,8 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
-lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written:
+lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written, a
+``--scheduler`` that does not answer as a dask scheduler within 5 s or has no worker within 30 s:
 one line naming it), or an output the system refused (a full disk: one line naming the file;
 every earlier file is kept whole), or an ``--out`` in use by another run; 3 ``flexpend run``: a
 scene stopped early (an FMU refused to go on; its data up to there is written); 130 interrupted
@@ -170,6 +171,7 @@ def cmd_analyze(args) -> int:
 def cmd_design(args) -> int:
     from .api import design
     from .report.text import design_lines
+    from .sweeps.executor import SchedulerError
 
     scene_items, design_keys = _split_design(args.set)
     workers, scheduler = _executor_args(args)
@@ -177,6 +179,8 @@ def cmd_design(args) -> int:
     try:
         d = design(overrides=scene_items, design=design_keys, workers=workers,
                    scheduler=scheduler, progress=True)
+    except SchedulerError as exc:
+        raise _scheduler_error(exc) from None
     except ConfigError as exc:
         raise _set_error(exc) from None
     d.save(out_dir)
@@ -291,6 +295,11 @@ def cmd_check(args) -> int:
     return 0 if report.passed else EXIT_FAILED
 
 
+def _scheduler_error(exc):
+    """A :class:`~orchestration.sweeps.executor.SchedulerError` in the command's terms."""
+    return UsageError(f"--scheduler {exc.address}: {exc.reason}")
+
+
 def _executor_args(args):
     """``(workers, scheduler)`` of ``--workers``/``--scheduler``."""
     if args.workers is not None and args.workers < 1:
@@ -303,6 +312,7 @@ def _executor_args(args):
 
 def cmd_sweep(args) -> int:
     from .report.text import sweep_lines
+    from .sweeps.executor import SchedulerError
     from .sweeps.job import sweep
 
     if args.serial and (args.workers is not None or args.scheduler):
@@ -326,6 +336,8 @@ def cmd_sweep(args) -> int:
                   serial=args.serial, batch=args.batch, retry_failed=args.retry_failed,
                   out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor,
                   stop=INTERRUPTS.requested)
+    except SchedulerError as exc:
+        raise _scheduler_error(exc) from None
     except ValueError as exc:
         if isinstance(exc, ConfigError):
             raise
@@ -402,7 +414,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="check the chosen filter's worst case on a dask LocalCluster of N "
                          "processes (default: here; worth it for a fine design.check_levels)")
     pd.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="check it on the dask cluster of this scheduler")
+                    help="check it on the dask cluster of this scheduler (it must answer "
+                         "dask's handshake within 5 s)")
     pd.set_defaults(func=cmd_design)
 
     pr = sub.add_parser("run", help="co-simulate scenes (default: the paper's three)",
@@ -432,7 +445,10 @@ def build_parser() -> argparse.ArgumentParser:
     pw = sub.add_parser("sweep", help="many runs of a scene over a grid or a random sample, "
                                       "on dask.distributed",
                         description="Co-simulate a scene over a grid of keys and/or random "
-                                    "samples, on a dask LocalCluster (or --scheduler); write "
+                                    "samples: serially here, or on a dask LocalCluster where "
+                                    "it wins by the runs' number and expected length against "
+                                    "the cluster's start-up (about 5 s), or on --scheduler; "
+                                    "write "
                                     "<out>/sweep.parquet (or .csv), sweep.png, sweep.json, and "
                                     "runs.jsonl (rerunning into the same --out skips the runs "
                                     "already finished).")
@@ -454,10 +470,17 @@ def build_parser() -> argparse.ArgumentParser:
     pw.add_argument("--reference", action="store_true",
                     help="also solve each run's monolithic reference and report the error")
     pw.add_argument("--workers", type=int, default=None, metavar="N",
-                    help="worker processes of the LocalCluster (default: one per core)")
+                    help="worker processes of a LocalCluster (default: one per core, only "
+                         "where it ends before the serial runs: 5 s + ceil(runs / cores) * "
+                         "(t + 0.02 s) < runs * t, t the expected run length from stop_time "
+                         "/ master.step; see docs/sweeps.md)")
     pw.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="use the dask cluster of this scheduler, e.g. tcp://host:8786")
-    pw.add_argument("--serial", action="store_true", help="run here, one run after the other")
+                    help="use the dask cluster of this scheduler, e.g. tcp://host:8786 (it must "
+                         "answer dask's handshake within 5 s; without workers, one must join "
+                         "within 30 s)")
+    pw.add_argument("--serial", action="store_true",
+                    help="run here, one run after the other (the default where a LocalCluster "
+                         "would not win)")
     pw.add_argument("--batch", type=int, default=1, metavar="N",
                     help="runs per dask task (batch short runs; default 1)")
     pw.add_argument("--retry-failed", action="store_true",

@@ -28,7 +28,8 @@ from .executor import Executor, TaskLost, file_name, scratch_dir, worker_file
 from .plan import Point, SweepPlan
 from .plot import plot_sweep
 
-__all__ = ["summary_row", "linear_decay_rate", "model_sources_digest", "run_task", "Journal",
+__all__ = ["summary_row", "verdict_of", "linear_decay_rate", "model_sources_digest", "run_task",
+           "Journal",
            "write_table", "read_table", "SweepProgress", "SweepResult", "fmus_for", "pending",
            "run_sweep", "sweep_stats"]
 
@@ -41,6 +42,16 @@ DONE = ("ok", "failed")
 
 
 # ---------------------------------------------------------------------------- one run
+#: A finished run's ``verdict``: what its fits say (``stable`` True, False, None).
+VERDICTS = {True: "stable", False: "unstable", None: "no verdict"}
+
+
+def verdict_of(row: dict) -> str:
+    """``stable``, ``unstable``, or ``no verdict``: no fit is reliable (too short a run, too few
+    periods in the linear range) or the run stopped early. No verdict is not "unstable"."""
+    return VERDICTS[row.get("stable")]
+
+
 def summary_row(summary: dict) -> dict:
     """The table's fields of one run, from its summary (:func:`orchestration.report.summary.summarize`
     and :func:`orchestration.job.run_scene`): the one place that knows the summary's layout.
@@ -50,6 +61,7 @@ def summary_row(summary: dict) -> dict:
     left the model's range (``validity`` says how)."""
     stopped = summary.get("stopped") or {}
     row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable")}
+    row["verdict"] = verdict_of(row)
     rates = []
     for key in ("slow", "bending"):
         mode = summary.get(key) or {}
@@ -142,8 +154,9 @@ def run_task(task) -> dict:
                       unzipdirs={role: _extracted(p) for role, p in paths.items()})
         row = summary_row(r.summary)
         row["linear_decay_rate"] = linear_decay_rate(r.scene)
+        row["linear_stable"] = row["linear_decay_rate"] > 0
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, never the end of a sweep
-        row = {"status": "failed", "message": _one_line(exc)}
+        row = {"status": "failed", "verdict": verdict_of({}), "message": _one_line(exc)}
     row["wall_time"] = time.perf_counter() - t0
     return row
 
@@ -332,6 +345,8 @@ def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
     if plan.samplers:
         row["sample"] = point.sample
     row.update((k, v) for k, v in result.items() if k not in row and k != "sample")
+    if row.get("status") in DONE:               # a journal of an older flexpend has no verdict
+        row.setdefault("verdict", verdict_of(row))
     return row
 
 
@@ -404,8 +419,13 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
 
 
 def sweep_stats(rows) -> dict:
-    """Counts, the fraction of stable runs and the decay rates (worst, median, best) of the
-    finished runs."""
+    """Counts, the verdicts and the decay rates (worst, median, best) of the finished runs.
+
+    ``stable``, ``unstable``, ``no_verdict``: the finished runs' verdicts (:func:`verdict_of`);
+    ``no_fit``: the runs that completed without a reliable fit (the failed ones stopped early);
+    ``stable_fraction``: stable among the runs with a verdict (None without any);
+    ``linear_stable``, ``linear_unstable``: the linearised loops of the completed runs, and
+    ``no_fit_linear_stable``: those stable among the runs without a reliable fit."""
     n = len(rows)
     ok = [r for r in rows if r["status"] == "ok"]
     decays = [r for r in ok if r.get("decay_rate") is not None]
@@ -416,16 +436,21 @@ def sweep_stats(rows) -> dict:
            "invalid": sum(r.get("valid") is False for r in rows)}
     finished = out["ok"] + out["failed"]
     out["no_verdict"] = finished - out["stable"] - out["unstable"]
-    out["stable_fraction"] = out["stable"] / finished if finished else None
+    no_fit = [r for r in ok if r.get("stable") is None]
+    out["no_fit"] = len(no_fit)
+    judged = out["stable"] + out["unstable"]
+    out["stable_fraction"] = out["stable"] / judged if judged else None
+    lin = [r for r in ok if r.get("linear_decay_rate") is not None]
+    out["linear_stable"] = sum(r["linear_decay_rate"] > 0 for r in lin)
+    out["linear_unstable"] = len(lin) - out["linear_stable"]
+    out["no_fit_linear_stable"] = sum((r.get("linear_decay_rate") or 0) > 0 for r in no_fit)
     if decays:
         worst = min(decays, key=lambda r: r["decay_rate"])
         vals = [r["decay_rate"] for r in decays]
         out.update(worst_decay_rate=worst["decay_rate"], worst_run=worst["run"],
                    median_decay_rate=float(np.median(vals)), best_decay_rate=max(vals))
-    lin = [r for r in ok if r.get("linear_decay_rate") is not None]
     if lin:
         worst = min(lin, key=lambda r: r["linear_decay_rate"])
         out.update(worst_linear_decay_rate=worst["linear_decay_rate"],
                    worst_linear_run=worst["run"])
     return out
-
