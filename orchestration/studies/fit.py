@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["matrix_pencil", "Oscillation", "dominant_oscillation", "ModeFit", "fit_mode"]
+__all__ = ["matrix_pencil", "Oscillation", "dominant_oscillation", "ModeFit", "fit_mode",
+           "PERIODS", "SAMPLES_PER_PERIOD", "HANKEL_COLUMNS"]
 
 
 def matrix_pencil(y, dt: float, order: int, pencil: float = 0.33):
@@ -72,8 +73,9 @@ def dominant_oscillation(t, y, band, order: int = 12):
 @dataclass(frozen=True)
 class ModeFit:
     """The fit of one oscillation: its rate (1/s) and frequency (rad/s), its RMS contribution
-    over the window, the model order used, the relative RMS residual of the whole fit and the
-    window (s)."""
+    over the window, the model order used, the relative RMS residual of the whole fit, the
+    window (s), and the fit's uncertainty: how far the rate and the frequency move when only the
+    first or only the second half of the window is fitted (None when a half is too short)."""
 
     rate: float
     frequency: float
@@ -81,70 +83,205 @@ class ModeFit:
     order: int
     residual: float
     window: tuple
+    rate_uncertainty: float | None = None
+    frequency_uncertainty: float | None = None
+
+
+#: The window of a fit, in periods of the band's highest frequency.
+PERIODS = 80
+#: Samples per period of the band's half-width after decimation.
+SAMPLES_PER_PERIOD = 4
+#: Columns of the Hankel matrix (at most; a third of the samples when fewer).
+HANKEL_COLUMNS = 24
+#: Fewest samples left after decimation (a short window is decimated less).
+MIN_SAMPLES = 48
+#: ``near``: the band kept around that frequency, relative.
+NEAR = 0.3
+#: Boxcar stages of the decimating filter, and differences taken before a band away from 0.
+_STAGES, _DIFFERENCES = 3, 2
+
+
+def _decimate(x, q: int):
+    """``x`` through ``_STAGES`` boxcars of ``q`` samples, then every ``q``-th sample (the
+    valid part only). A sum of exponentials stays one, with the same poles."""
+    for _ in range(_STAGES):
+        c = np.cumsum(np.concatenate(([0.0], x)))
+        x = (c[q:] - c[:-q]) / q
+    return x[::q]
+
+
+def _pencil(x, max_order: int, residual: float, order: int | None = None):
+    """Matrix pencil of ``x`` (real: orders 2, 4, ...; complex: 1, 2, ...): the lowest order
+    whose exponentials reproduce ``x`` to a quarter of ``residual`` (else the highest, or
+    ``order``); ``(log z, amplitudes, order, relative RMS residual, the exponentials)``."""
+    N = x.size
+    top = order or max_order
+    L = max(top + 1, min(N // 3, HANKEL_COLUMNS))
+    if N - L < top:
+        raise ValueError(f"{N} samples are too few for order {top}")
+    Y = np.lib.stride_tricks.sliding_window_view(x, L + 1)
+    _, sv, Vh = np.linalg.svd(Y, full_matrices=False)
+    rank = int(np.sum(sv > sv[0] * 1e-10))
+    k = np.arange(N)[:, None]
+    scale = float(np.sqrt(np.mean(np.abs(x) ** 2)))
+    step = 1 if np.iscomplexobj(x) else 2
+    best = None
+    for o in ([order] if order else range(step, max_order + 1, step)):
+        m = min(o, rank)
+        V = Vh[:m].T                   # the rows of Vh span the rows of the Hankel matrix
+        z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+        logz = np.log(z[np.abs(z) > 0])
+        # each exponential scaled to a largest magnitude of 1 over the window: a growing pole
+        # would otherwise dwarf the others and wreck the least squares
+        Z = np.exp(k * logz[None, :] - np.maximum(0.0, (N - 1) * logz.real)[None, :])
+        amp = np.linalg.lstsq(Z, x.astype(complex), rcond=None)[0]
+        res = float(np.sqrt(np.mean(np.abs(Z @ amp - x) ** 2)) / scale)
+        if best is None or res < best[3]:
+            best = (logz, amp, m, res, Z)
+        if res <= 0.25 * residual or m == rank:
+            break
+    return best
+
+
+def _one_oscillation(x, others, lz):
+    """The one exponential ``exp(k lz)`` (with its conjugate when ``x`` is real) that fits
+    ``x`` best in least squares beside the columns ``others`` (the fit's other exponentials);
+    ``lz`` is the start. Gauss-Newton on (Re lz, Im lz) with the amplitudes projected out."""
+    real = not np.iscomplexobj(x)
+    k = np.arange(x.size)
+    Q = np.linalg.qr(others)[0] if others.shape[1] else None
+
+    def out(v):
+        return v if Q is None else v - Q @ (Q.conj().T @ v)
+
+    xp = out(x.astype(complex))
+
+    def r(p):
+        e = np.exp(k * complex(p[0], p[1]))
+        E = out(np.column_stack([e, e.conj()]) if real else e[:, None])
+        G = E.conj().T
+        a = np.linalg.solve(G @ E, G @ xp)
+        d = E @ a - xp
+        return np.concatenate([d.real, d.imag])
+
+    p = np.array([lz.real, lz.imag])
+    h = 1e-7 * (1.0 + np.abs(p))
+    for _ in range(10):
+        r0 = r(p)
+        J = np.column_stack([(r(p + h * np.eye(2)[j]) - r0) / h[j] for j in range(2)])
+        dp = np.linalg.solve(J.T @ J, -(J.T @ r0))
+        p = p + dp
+        if np.all(np.abs(dp) <= 1e-10 * (1.0 + np.abs(p))):
+            break
+    return complex(p[0], p[1])
+
+
+def _pick(fit, dt, centre, lo, hi, gain, target=None):
+    """The oscillation in ``[lo, hi)`` with the largest contribution (or the one nearest the
+    frequency ``target``), and that contribution. Poles closer to it than the window resolves
+    (2 pi / its length) are one oscillation whose frequency drifts (a slow amplitude makes the
+    bending frequency wander): they are replaced by the one oscillation that fits best."""
+    logz, amp, _, _, Z = fit
+    s = logz / dt + 1j * centre
+    contrib = np.abs(amp / gain(s)) * np.sqrt(np.mean(np.abs(Z) ** 2, axis=0))
+    inside = [i for i in range(s.size) if lo <= s[i].imag < hi]
+    if not inside:
+        return None
+    i0 = (max(inside, key=lambda i: contrib[i]) if target is None else
+          min(inside, key=lambda i: abs(s[i].imag - target)))
+    span = (Z.shape[0] - 1) * dt
+    near = [i for i in inside if abs(s[i].imag - s[i0].imag) < 2 * math.pi / span]
+    if len(near) == 1:
+        return s[i0], float(contrib[i0])
+    x = Z @ amp                        # the fitted signal, then without the merged poles
+    real = np.allclose(x.imag, 0.0, atol=1e-12 * np.abs(x).max())
+    drop = set(near)
+    if real:                           # and without their conjugates
+        drop |= {j for j in range(s.size) for i in near
+                 if abs(logz[j] - np.conj(logz[i])) <= 1e-9 * (1 + abs(logz[i]))}
+    keep = [j for j in range(s.size) if j not in drop]
+    lz = _one_oscillation(x.real if real else x, Z[:, keep], logz[i0])
+    return lz / dt + 1j * centre, float(np.sum(contrib[near]))
 
 
 def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
-             max_samples: int = 1500, near: float | None = None) -> ModeFit | None:
+             near: float | None = None, periods: float = PERIODS) -> ModeFit | None:
     """The largest oscillation of ``y`` with frequency in ``band`` (rad/s), or None; with
     ``near``, the largest within 30 % of that frequency.
 
-    A band with a finite upper edge (the slow oscillation) is first rid of faster content by a
-    zero-phase low-pass (4th-order Butterworth at the edge, ``sosfiltfilt``), then
-    subsampled to about 10 samples per period of that frequency; the window is cut to
-    ``max_samples`` samples (its start is kept). The matrix pencil of the lowest order (2, 4, ...
-    ``max_order``) that reproduces it to ``residual`` (relative RMS) is kept; if none does, that
-    of ``max_order`` (judge the fit by its ``residual``). The largest oscillation is the pole
-    with the largest RMS contribution over the window.
-    """
-    import scipy.signal
+    The fit sees only the band, decimated to it, over a window of ``periods`` periods of the
+    band's highest frequency (its start is kept):
 
+    * a band from near 0 (the slow oscillation): ``y`` low-passed and decimated to
+      ``SAMPLES_PER_PERIOD`` samples per period of the band's top;
+    * a band around ``near`` (the bending oscillation): ``y`` differenced twice (the slow
+      motion it rides on falls by ``(w dt)^2``), shifted down by the band's centre (times
+      ``exp(-i w_c t)``) and decimated to ``SAMPLES_PER_PERIOD`` samples per period of the
+      band's half-width, a complex signal.
+
+    The decimating filter is three boxcars of the decimation's length: a sum of exponentials
+    stays a sum of exponentials with the same poles (no transient is added, none is cut), so the
+    fitted rates and frequencies are those of ``y``. The matrix pencil (Hankel matrix of at most
+    ``HANKEL_COLUMNS`` columns) of the lowest order (up to ``max_order``) that reproduces the
+    decimated signal to a quarter of ``residual`` (relative RMS) is kept (``residual`` reports how
+    well; judge the fit by it). The largest oscillation is the pole in the band with the largest
+    RMS contribution to ``y`` over the window; poles closer to it than the window resolves are
+    merged into the one oscillation that fits them best. The uncertainty is how far the rate and
+    frequency move when each half of the window is fitted alone, at the same order.
+    """
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     if y.size < 8:
         return None
     dt = float(t[1] - t[0])
-    fs = 2 * np.pi / dt                      # rad/s
+    fs = 2 * math.pi / dt                    # rad/s
     lo, hi = band
-    nyq = 0.5 * fs
-    y = y - y.mean()
-    if math.isfinite(hi) and hi < 0.9 * nyq:
-        y = scipy.signal.sosfiltfilt(scipy.signal.butter(4, hi, fs=fs, output="sos"), y)
-    if math.isfinite(hi):
-        q = max(1, int(fs / (10 * hi)))
-        t, y = t[::q], y[::q]
-        dt = float(t[1] - t[0])
-    t, y = t[:max_samples], y[:max_samples]
-    scale = float(np.sqrt(np.mean(y * y)))
-    if scale == 0.0 or y.size < 8:
+    if near is not None:
+        lo, hi = max(lo, (1 - NEAR) * near), min(hi, (1 + NEAR) * near)
+    hi = min(hi, 0.5 * fs)
+    if not lo < hi:
         return None
-    N = y.size
-    Lp = max(max_order + 1, N // 3)
-    Y = np.lib.stride_tricks.sliding_window_view(y, Lp + 1)
-    _, sv, Vh = np.linalg.svd(Y, full_matrices=False)
-    rank = int(np.sum(sv > sv[0] * 1e-10))
-    k = np.arange(N)[:, None]
-    for order in range(2, max_order + 1, 2):
-        m = min(order, rank)
-        V = Vh[:m].conj().T
-        z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
-        z = z[np.abs(z) > 0]
-        # each exponential scaled to a largest magnitude of 1 over the window: a growing pole
-        # would otherwise dwarf the others and wreck the least squares
-        logz = np.log(z)
-        Z = np.exp(k * logz[None, :] - np.maximum(0.0, (N - 1) * logz.real)[None, :])
-        amp = np.linalg.lstsq(Z, y.astype(complex), rcond=None)[0]
-        res = float(np.sqrt(np.mean(np.abs(Z @ amp - y) ** 2)) / scale)
-        if res <= residual or m == rank:
-            break
-    s = np.log(z) / dt
-    contrib = np.abs(amp) * np.sqrt(np.mean(np.abs(Z) ** 2, axis=0))
-    pick = None
-    for si, ci in zip(s, contrib):
-        if not lo <= si.imag < hi or (near is not None and abs(si.imag - near) > 0.3 * near):
-            continue
-        if pick is None or ci > pick[1]:
-            pick = (si, ci)
+    n = min(y.size, int(periods * 2 * math.pi / (hi * dt)) + 1)
+    t, y = t[:n], y[:n] - y[:n].mean()
+    if near is not None:
+        centre, half = 0.5 * (lo + hi), 0.65 * (hi - lo)
+        x = np.diff(y, _DIFFERENCES) * np.exp(-1j * centre * dt * np.arange(n - _DIFFERENCES))
+    else:
+        centre, half, x = 0.0, hi, y
+    q = max(1, min(int(fs / (SAMPLES_PER_PERIOD * half)), x.size // (MIN_SAMPLES + _STAGES)))
+    if q > 1:
+        x = _decimate(x, q)
+    if x.size < 8 or not np.any(x):
+        return None
+
+    def gain(s):
+        """What the differences and the boxcars multiply the pole ``s``'s amplitude by."""
+        g = np.ones(s.size, dtype=complex)
+        if near is not None:
+            g *= (np.exp(s * dt) - 1) ** _DIFFERENCES
+        if q > 1:
+            zb = np.exp((s - 1j * centre) * dt)
+            g *= ((1 - zb ** -q) / (q * (1 - zb ** -1))) ** _STAGES
+        return g
+
+    whole = _pencil(x, max_order, residual)
+    pick = _pick(whole, q * dt, centre, lo, hi, gain)
     if pick is None:
         return None
-    return ModeFit(float(pick[0].real), float(pick[0].imag), float(2.0 * pick[1]), m, res,
-                   (float(t[0]), float(t[-1])))
+    s, size = pick
+    halves = []
+    for part in (x[:x.size // 2], x[x.size // 2:]):
+        try:
+            h = _pick(_pencil(part, max_order, residual, order=whole[2]), q * dt, centre, lo, hi,
+                      gain, target=s.imag)
+        except (ValueError, np.linalg.LinAlgError):
+            h = None
+        if h is None:
+            break
+        halves.append(h[0])
+    du = df = None
+    if len(halves) == 2:
+        du = max(abs(h.real - s.real) for h in halves)
+        df = max(abs(h.imag - s.imag) for h in halves)
+    return ModeFit(float(s.real), float(s.imag), float(2.0 * size), whole[2], whole[3],
+                   (float(t[0]), float(t[-1])), du, df)
