@@ -75,7 +75,8 @@ class ModeFit:
     """The fit of one oscillation: its rate (1/s) and frequency (rad/s), its RMS contribution
     over the window, the model order used, the relative RMS residual of the whole fit, the
     window (s), and the fit's uncertainty: how far the rate and the frequency move when only the
-    first or only the second half of the window is fitted (None when a half is too short)."""
+    first or only the second half of the window is fitted, or the whole at the next order (None
+    when a half is too short)."""
 
     rate: float
     frequency: float
@@ -113,7 +114,8 @@ def _decimate(x, q: int):
 def _pencil(x, max_order: int, residual: float, order: int | None = None):
     """Matrix pencil of ``x`` (real: orders 2, 4, ...; complex: 1, 2, ...): the lowest order
     whose exponentials reproduce ``x`` to a quarter of ``residual`` (else the highest, or
-    ``order``); ``(log z, amplitudes, order, relative RMS residual, the exponentials)``."""
+    ``order``); ``(log z, amplitudes, order, relative RMS residual, the exponentials, the same
+    five of the next order or None)``."""
     N = x.size
     top = order or max_order
     L = max(top + 1, min(N // 3, HANKEL_COLUMNS))
@@ -125,9 +127,11 @@ def _pencil(x, max_order: int, residual: float, order: int | None = None):
     k = np.arange(N)[:, None]
     scale = float(np.sqrt(np.mean(np.abs(x) ** 2)))
     step = 1 if np.iscomplexobj(x) else 2
-    best = None
+    fits = []
     for o in ([order] if order else range(step, max_order + 1, step)):
         m = min(o, rank)
+        if fits and m == fits[-1][2]:
+            break
         V = Vh[:m].T                   # the rows of Vh span the rows of the Hankel matrix
         z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
         logz = np.log(z[np.abs(z) > 0])
@@ -136,11 +140,12 @@ def _pencil(x, max_order: int, residual: float, order: int | None = None):
         Z = np.exp(k * logz[None, :] - np.maximum(0.0, (N - 1) * logz.real)[None, :])
         amp = np.linalg.lstsq(Z, x.astype(complex), rcond=None)[0]
         res = float(np.sqrt(np.mean(np.abs(Z @ amp - x) ** 2)) / scale)
-        if best is None or res < best[3]:
-            best = (logz, amp, m, res, Z)
-        if res <= 0.25 * residual or m == rank:
-            break
-    return best
+        fits.append((logz, amp, m, res, Z))
+        if len(fits) >= 2 and fits[-2][3] <= 0.25 * residual:
+            break                      # the one after the first good enough, for its spread
+    good = [i for i, f in enumerate(fits) if f[3] <= 0.25 * residual]
+    i = good[0] if good else min(range(len(fits)), key=lambda j: fits[j][3])
+    return fits[i] + (fits[i + 1] if i + 1 < len(fits) else None,)
 
 
 def _one_oscillation(x, others, lz):
@@ -181,7 +186,7 @@ def _pick(fit, dt, centre, lo, hi, gain, target=None):
     frequency ``target``), and that contribution. Poles closer to it than the window resolves
     (2 pi / its length) are one oscillation whose frequency drifts (a slow amplitude makes the
     bending frequency wander): they are replaced by the one oscillation that fits best."""
-    logz, amp, _, _, Z = fit
+    logz, amp, _, _, Z = fit[:5]
     s = logz / dt + 1j * centre
     contrib = np.abs(amp / gain(s)) * np.sqrt(np.mean(np.abs(Z) ** 2, axis=0))
     inside = [i for i in range(s.size) if lo <= s[i].imag < hi]
@@ -227,7 +232,8 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
     well; judge the fit by it). The largest oscillation is the pole in the band with the largest
     RMS contribution to ``y`` over the window; poles closer to it than the window resolves are
     merged into the one oscillation that fits them best. The uncertainty is how far the rate and
-    frequency move when each half of the window is fitted alone, at the same order.
+    frequency move when each half of the window is fitted alone, at the same order, or the
+    whole window at the next order.
     """
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
@@ -269,6 +275,8 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
     if pick is None:
         return None
     s, size = pick
+    others = [] if whole[5] is None else [_pick(whole[5], q * dt, centre, lo, hi, gain,
+                                               target=s.imag)]
     halves = []
     for part in (x[:x.size // 2], x[x.size // 2:]):
         try:
@@ -281,7 +289,8 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
         halves.append(h[0])
     du = df = None
     if len(halves) == 2:
-        du = max(abs(h.real - s.real) for h in halves)
-        df = max(abs(h.imag - s.imag) for h in halves)
+        moved = halves + [o[0] for o in others if o is not None]
+        du = max(abs(h.real - s.real) for h in moved)
+        df = max(abs(h.imag - s.imag) for h in moved)
     return ModeFit(float(s.real), float(s.imag), float(2.0 * size), whole[2], whole[3],
                    (float(t[0]), float(t[-1])), du, df)
