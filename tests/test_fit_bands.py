@@ -33,14 +33,47 @@ def test_recovers_the_slow_and_the_bending_poles(dt, noise):
         assert f.residual <= 0.02
 
 
-@pytest.mark.xfail(strict=True, reason="known: the stated uncertainty (halves, next order) can "
-                   "fall short of the bias left by unmodelled out-of-band leakage (1.2e-3 against "
-                   "1.0e-3 rad/s here)")
-def test_the_stated_uncertainty_covers_the_error_of_a_clean_signal():
+@pytest.mark.parametrize("dt", [1e-3, 2e-3])
+def test_the_stated_uncertainty_covers_the_error_of_a_clean_signal(dt):
+    """What leaks in from outside the band and is left unmodelled (the fit stops at a residual
+    of 0.5 %) biases the poles; the stated uncertainty covers that bias."""
+    t = np.arange(0, 6, dt)
+    for f, rate, freq in ((fit_mode(t, signal(t), (60.0, math.pi / dt), near=152.5), -1.95, 153.2),
+                          (fit_mode(t, signal(t), (0.5, 60.0)), -0.765, 10.13)):
+        assert abs(f.rate - rate) <= f.rate_uncertainty
+        assert abs(f.frequency - freq) <= f.frequency_uncertainty
+
+
+@pytest.mark.parametrize("dt", [1e-2, 2e-3])
+def test_an_amplitude_dependent_frequency_gives_the_small_amplitude_pole(dt):
+    """A pendulum's frequency moves with its amplitude squared: w(t) = w0 + c A(t)^2 with
+    A = a exp(sigma t) (the paper scenes' slow oscillation, from |phi| = 0.2 rad, starts 1.6 %
+    below its linear frequency). Expanded, exp(i phase) is a sum of poles sigma + 2 k sigma +
+    i w0: the linearised loop's is the k = 0 one, the largest; merging its neighbours into one
+    oscillation would report the amplitude-weighted mean frequency (10.09 here)."""
+    sigma, w0, a, c = -0.765, 10.13, 0.2, -4.0
+    t = np.arange(0, 8.6, dt)
+    y = a * np.exp(sigma * t) * np.cos(w0 * t + c * a**2 * np.expm1(2 * sigma * t) / (2 * sigma))
+    f = fit_mode(t, y, (0.5, 60.0))
+    assert abs(f.frequency - w0) <= f.frequency_uncertainty
+    assert f.frequency == pytest.approx(w0, rel=1e-4) and f.rate == pytest.approx(sigma, rel=1e-3)
+
+
+@pytest.mark.parametrize("pencil", [0.4, 0.5])
+def test_the_fit_moves_within_its_uncertainty_across_the_pencil_range(monkeypatch, pencil):
+    """Hua & Sarkar's pencil parameter, L from N/3 to N/2 (the range of least variance): the
+    fit does not depend on where in it the Hankel matrix is cut, beyond its uncertainty."""
+    import orchestration.studies.fit as fit
+
     t = np.arange(0, 6, 1e-3)
-    bend = fit_mode(t, signal(t), (60.0, math.pi / 1e-3), near=152.5)
-    assert abs(bend.rate + 1.95) <= bend.rate_uncertainty
-    assert abs(bend.frequency - 153.2) <= bend.frequency_uncertainty
+    y = signal(t, 1e-5)
+    fits = {}
+    for p in (fit.PENCIL, pencil):
+        monkeypatch.setattr(fit, "PENCIL", p)
+        fits[p] = (fit_mode(t, y, (0.5, 60.0)), fit_mode(t, y, (60.0, math.pi / 1e-3), near=152.5))
+    for a, b in zip(*fits.values()):
+        assert abs(a.rate - b.rate) <= a.rate_uncertainty
+        assert abs(a.frequency - b.frequency) <= a.frequency_uncertainty
 
 
 def test_a_growing_bending_mode_under_a_large_slow_motion():

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["matrix_pencil", "Oscillation", "dominant_oscillation", "ModeFit", "fit_mode",
-           "PERIODS", "SAMPLES_PER_PERIOD", "HANKEL_COLUMNS"]
+           "PERIODS", "SAMPLES_PER_PERIOD", "PENCIL"]
 
 
 def matrix_pencil(y, dt: float, order: int, pencil: float = 0.33):
@@ -74,9 +74,10 @@ def dominant_oscillation(t, y, band, order: int = 12):
 class ModeFit:
     """The fit of one oscillation: its rate (1/s) and frequency (rad/s), its RMS contribution
     over the window, the model order used, the relative RMS residual of the whole fit, the
-    window (s), and the fit's uncertainty: how far the rate and the frequency move when only the
-    first or only the second half of the window is fitted, or the whole at the next order (None
-    when a half is too short)."""
+    window (s), and the fit's uncertainty: the largest of how far the rate and the frequency move
+    when only the first or only the second half of the window is fitted, or the whole at the
+    next order, how far the fit's residual can move them, and how far a drifting frequency
+    strays over the window (None when a half is too short)."""
 
     rate: float
     frequency: float
@@ -92,8 +93,11 @@ class ModeFit:
 PERIODS = 80
 #: Samples per period of the band's half-width after decimation.
 SAMPLES_PER_PERIOD = 4
-#: Columns of the Hankel matrix (at most; a third of the samples when fewer).
-HANKEL_COLUMNS = 24
+#: The pencil parameter: the Hankel matrix has ``PENCIL * N`` columns for ``N`` samples.
+PENCIL = 1 / 3
+#: Singular values below this fraction of the largest are not counted in the Hankel matrix's
+#: rank (what the Gram matrix resolves: its eigenvalues carry errors of 1e-16 of the largest).
+RANK_TOL = 3e-7
 #: Fewest samples left after decimation (a short window is decimated less).
 MIN_SAMPLES = 48
 #: ``near``: the band kept around that frequency, relative.
@@ -114,16 +118,19 @@ def _decimate(x, q: int):
 def _pencil(x, max_order: int, residual: float, order: int | None = None):
     """Matrix pencil of ``x`` (real: orders 2, 4, ...; complex: 1, 2, ...): the lowest order
     whose exponentials reproduce ``x`` to a quarter of ``residual`` (else the highest, or
-    ``order``); ``(log z, amplitudes, order, relative RMS residual, the exponentials, the same
-    five of the next order or None)``."""
+    ``order``); ``(log z, amplitudes, order, relative RMS residual, the exponentials, the
+    residual's norm, the same six of the next order or None)``."""
     N = x.size
     top = order or max_order
-    L = max(top + 1, min(N // 3, HANKEL_COLUMNS))
+    L = max(top + 1, int(PENCIL * N))
     if N - L < top:
         raise ValueError(f"{N} samples are too few for order {top}")
     Y = np.lib.stride_tricks.sliding_window_view(x, L + 1)
-    _, sv, Vh = np.linalg.svd(Y, full_matrices=False)
-    rank = int(np.sum(sv > sv[0] * 1e-10))
+    # the row space of the Hankel matrix from its Gram matrix (a tenth of the cost of the SVD;
+    # exact for the few largest singular values, which are all a fit of at most max_order uses)
+    lam, E = np.linalg.eigh(Y.conj().T @ Y)
+    lam, E = lam[::-1], E[:, ::-1].conj()
+    rank = int(np.sum(lam > lam[0] * RANK_TOL ** 2))
     k = np.arange(N)[:, None]
     scale = float(np.sqrt(np.mean(np.abs(x) ** 2)))
     step = 1 if np.iscomplexobj(x) else 2
@@ -132,15 +139,15 @@ def _pencil(x, max_order: int, residual: float, order: int | None = None):
         m = min(o, rank)
         if fits and m == fits[-1][2]:
             break
-        V = Vh[:m].T                   # the rows of Vh span the rows of the Hankel matrix
+        V = E[:, :m]                   # spans the rows of the Hankel matrix
         z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
         logz = np.log(z[np.abs(z) > 0])
         # each exponential scaled to a largest magnitude of 1 over the window: a growing pole
         # would otherwise dwarf the others and wreck the least squares
         Z = np.exp(k * logz[None, :] - np.maximum(0.0, (N - 1) * logz.real)[None, :])
         amp = np.linalg.lstsq(Z, x.astype(complex), rcond=None)[0]
-        res = float(np.sqrt(np.mean(np.abs(Z @ amp - x) ** 2)) / scale)
-        fits.append((logz, amp, m, res, Z))
+        err = float(np.linalg.norm(Z @ amp - x))
+        fits.append((logz, amp, m, err / (scale * math.sqrt(N)), Z, err))
         if len(fits) >= 2 and fits[-2][3] <= 0.25 * residual:
             break                      # the one after the first good enough, for its spread
     good = [i for i, f in enumerate(fits) if f[3] <= 0.25 * residual]
@@ -148,45 +155,23 @@ def _pencil(x, max_order: int, residual: float, order: int | None = None):
     return fits[i] + (fits[i + 1] if i + 1 < len(fits) else None,)
 
 
-def _one_oscillation(x, others, lz):
-    """The one exponential ``exp(k lz)`` (with its conjugate when ``x`` is real) that fits
-    ``x`` best in least squares beside the columns ``others`` (the fit's other exponentials);
-    ``lz`` is the start. Gauss-Newton on (Re lz, Im lz) with the amplitudes projected out."""
-    real = not np.iscomplexobj(x)
-    k = np.arange(x.size)
-    Q = np.linalg.qr(others)[0] if others.shape[1] else None
-
-    def out(v):
-        return v if Q is None else v - Q @ (Q.conj().T @ v)
-
-    xp = out(x.astype(complex))
-
-    def r(p):
-        e = np.exp(k * complex(p[0], p[1]))
-        E = out(np.column_stack([e, e.conj()]) if real else e[:, None])
-        G = E.conj().T
-        a = np.linalg.solve(G @ E, G @ xp)
-        d = E @ a - xp
-        return np.concatenate([d.real, d.imag])
-
-    p = np.array([lz.real, lz.imag])
-    h = 1e-7 * (1.0 + np.abs(p))
-    for _ in range(10):
-        r0 = r(p)
-        J = np.column_stack([(r(p + h * np.eye(2)[j]) - r0) / h[j] for j in range(2)])
-        dp = np.linalg.solve(J.T @ J, -(J.T @ r0))
-        p = p + dp
-        if np.all(np.abs(dp) <= 1e-10 * (1.0 + np.abs(p))):
-            break
-    return complex(p[0], p[1])
-
-
 def _pick(fit, dt, centre, lo, hi, gain, target=None):
     """The oscillation in ``[lo, hi)`` with the largest contribution (or the one nearest the
-    frequency ``target``), and that contribution. Poles closer to it than the window resolves
-    (2 pi / its length) are one oscillation whose frequency drifts (a slow amplitude makes the
-    bending frequency wander): they are replaced by the one oscillation that fits best."""
-    logz, amp, _, _, Z = fit[:5]
+    frequency ``target``), that contribution, and its spread (complex: rate, frequency).
+
+    A mode whose frequency moves with an amplitude, ``w0 + c A(t)^2`` with ``A ~ exp(d t / 2)``
+    (a pendulum's own amplitude; the slow motion's, for the bending frequency), is a chain of
+    poles ``s0 + k d``, ``k = 0, 1, ...``, at nearly one frequency, with amplitudes like
+    ``p^k / k!`` for a phase excursion ``p`` over the window. When the picked pole carries more
+    than twice the rest of its chain (the poles closer to it in frequency than the window
+    resolves, 2 pi / its length; ``p`` below about 0.4 rad), it is the ``k = 0`` term, the
+    small-amplitude (linearised) pole, and is kept alone: merging its neighbours would report
+    the amplitude-weighted mean frequency, biased to the large-amplitude start. Otherwise no
+    pole is that term: the chain is one oscillation whose frequency drifts, reported by the
+    slopes of its log-magnitude and phase over the window, its spread the farthest the
+    instantaneous values stray from them. The spread is at least what the fit's residual can
+    move the pole by (to first order, the residual all along the pole's derivative)."""
+    logz, amp, _, _, Z, err = fit[:6]
     s = logz / dt + 1j * centre
     contrib = np.abs(amp / gain(s)) * np.sqrt(np.mean(np.abs(Z) ** 2, axis=0))
     inside = [i for i in range(s.size) if lo <= s[i].imag < hi]
@@ -196,17 +181,24 @@ def _pick(fit, dt, centre, lo, hi, gain, target=None):
           min(inside, key=lambda i: abs(s[i].imag - target)))
     span = (Z.shape[0] - 1) * dt
     near = [i for i in inside if abs(s[i].imag - s[i0].imag) < 2 * math.pi / span]
-    if len(near) == 1:
-        return s[i0], float(contrib[i0])
-    x = Z @ amp                        # the fitted signal, then without the merged poles
-    real = np.allclose(x.imag, 0.0, atol=1e-12 * np.abs(x).max())
-    drop = set(near)
-    if real:                           # and without their conjugates
-        drop |= {j for j in range(s.size) for i in near
-                 if abs(logz[j] - np.conj(logz[i])) <= 1e-9 * (1 + abs(logz[i]))}
-    keep = [j for j in range(s.size) if j not in drop]
-    lz = _one_oscillation(x.real if real else x, Z[:, keep], logz[i0])
-    return lz / dt + 1j * centre, float(np.sum(contrib[near]))
+    # what the residual can move the pole by, at most (to first order): the residual all along
+    # the pole's derivative, ``k a z^k``, once what the fit's exponentials absorb is removed
+    dz = amp[i0] * np.arange(Z.shape[0]) * Z[:, i0]
+    Q = np.linalg.qr(Z)[0]
+    bound = err / max(np.linalg.norm(dz - Q @ (Q.conj().T @ dz)), 1e-300) / dt
+    if len(near) == 1 or sum(contrib[i] for i in near if i != i0) < 0.5 * contrib[i0]:
+        return s[i0], float(contrib[i0]), complex(bound, bound)
+    # the drifting oscillation: the poles' sum (one-sided, the analytic signal of the cluster);
+    # its rate and frequency are the slopes of its log-magnitude and of its phase over the
+    # window (a least-squares single exponential would take the drift for extra decay)
+    xc = Z[:, near] @ amp[near]
+    k = np.arange(xc.size)
+    logmag, phase = np.log(np.abs(xc)), np.unwrap(np.angle(xc))
+    (r, _), (w, _) = np.polyfit(k, logmag, 1), np.polyfit(k, phase, 1)
+    # how far the instantaneous rate and frequency stray from those over the window
+    drift = complex(np.abs(np.gradient(logmag) - r).max(), np.abs(np.gradient(phase) - w).max())
+    return (complex(r, w) / dt + 1j * centre, float(np.sum(contrib[near])),
+            complex(max(drift.real / dt, bound), max(drift.imag / dt, bound)))
 
 
 def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
@@ -226,13 +218,17 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
 
     The decimating filter is three boxcars of the decimation's length: a sum of exponentials
     stays a sum of exponentials with the same poles (no transient is added, none is cut), so the
-    fitted rates and frequencies are those of ``y``. The matrix pencil (Hankel matrix of at most
-    ``HANKEL_COLUMNS`` columns) of the lowest order (up to ``max_order``) that reproduces the
-    decimated signal to a quarter of ``residual`` (relative RMS) is kept (``residual`` reports how
-    well; judge the fit by it). The largest oscillation is the pole in the band with the largest
-    RMS contribution to ``y`` over the window; poles closer to it than the window resolves are
-    merged into the one oscillation that fits them best. The uncertainty is how far the rate and
-    frequency move when each half of the window is fitted alone, at the same order, or the
+    fitted rates and frequencies are those of ``y``. The window holds ``PERIODS *
+    SAMPLES_PER_PERIOD`` samples or fewer whatever the output interval (about 320 for the slow
+    band, 100 for the bending band), so the Hankel matrix stays small while its ``PENCIL * N``
+    columns sit where Hua & Sarkar's pencil parameter gives the least variance (``N/3`` to
+    ``N/2``; the fit moves within its uncertainty across that range). The matrix pencil of the lowest order that reproduces the decimated signal to a
+    quarter of ``residual`` (relative RMS) is kept (``residual`` reports how well; judge the
+    fit by it). The largest oscillation is the pole in the band with the largest RMS
+    contribution to ``y`` over the window, or the drifting oscillation its close neighbours
+    make with it (see :func:`_pick`). The uncertainty is the largest of: its spread (the
+    drift, and what the residual can move it by), and how far the rate and frequency move
+    when each half of the window is fitted alone, at the same order, or the
     whole window at the next order.
     """
     t = np.asarray(t, dtype=float)
@@ -274,8 +270,8 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
     pick = _pick(whole, q * dt, centre, lo, hi, gain)
     if pick is None:
         return None
-    s, size = pick
-    others = [] if whole[5] is None else [_pick(whole[5], q * dt, centre, lo, hi, gain,
+    s, size, spread = pick
+    others = [] if whole[6] is None else [_pick(whole[6], q * dt, centre, lo, hi, gain,
                                                target=s.imag)]
     halves = []
     for part in (x[:x.size // 2], x[x.size // 2:]):
@@ -290,7 +286,7 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
     du = df = None
     if len(halves) == 2:
         moved = halves + [o[0] for o in others if o is not None]
-        du = max(abs(h.real - s.real) for h in moved)
-        df = max(abs(h.imag - s.imag) for h in moved)
+        du = max([abs(h.real - s.real) for h in moved] + [spread.real])
+        df = max([abs(h.imag - s.imag) for h in moved] + [spread.imag])
     return ModeFit(float(s.real), float(s.imag), float(2.0 * size), whole[2], whole[3],
                    (float(t[0]), float(t[-1])), du, df)
