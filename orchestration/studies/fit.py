@@ -218,9 +218,9 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.02,
 
     The decimating filter is three boxcars of the decimation's length: a sum of exponentials
     stays a sum of exponentials with the same poles (no transient is added, none is cut), so the
-    fitted rates and frequencies are those of ``y``. The window holds ``PERIODS *
-    SAMPLES_PER_PERIOD`` samples or fewer whatever the output interval (about 320 for the slow
-    band, 100 for the bending band), so the Hankel matrix stays small while its ``PENCIL * N``
+    fitted rates and frequencies are those of ``y``. The window holds about ``PERIODS *
+    SAMPLES_PER_PERIOD`` samples whatever the output interval (up to twice as many where the
+    decimation rounds down: 320 to 420 for the slow band, about 100 for the bending band), so the Hankel matrix stays small while its ``PENCIL * N``
     columns sit where Hua & Sarkar's pencil parameter gives the least variance (``N/3`` to
     ``N/2``; the fit moves within its uncertainty across that range). The matrix pencil of the lowest order that reproduces the decimated signal to a
     quarter of ``residual`` (relative RMS) is kept (``residual`` reports how well; judge the
