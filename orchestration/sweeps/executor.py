@@ -357,7 +357,10 @@ class DaskExecutor(Executor):
             # cluster starts waits until it has started (and then stops the sweep): the
             # processes it starts inherit the blocked SIGINT, a terminal's Ctrl-C cannot kill
             # them half-started (they ignore Ctrl-C anyway, see _Setup); on this machine only
-            # (the scheduler's HTTP server too: a free port on 127.0.0.1)
+            # (the scheduler's HTTP server too: a free port on 127.0.0.1). Its processes log
+            # only what is critical: a worker whose heartbeat meets the scheduler closing (a
+            # Ctrl-C, or any close under load) logs an ERROR with a traceback, and what does go
+            # wrong reaches the sweep anyway (a task's exception, or a lost run in the table)
             self.scratch = tempfile.mkdtemp(prefix="flexpend_dask_")
             try:
                 with _sigint_blocked():
@@ -365,7 +368,7 @@ class DaskExecutor(Executor):
                         n_workers=workers or default_workers(), processes=True,
                         threads_per_worker=1, host="127.0.0.1",
                         dashboard_address="127.0.0.1:0",
-                        silence_logs=logging.ERROR, local_directory=self.scratch,
+                        silence_logs=logging.CRITICAL, local_directory=self.scratch,
                         scheduler_kwargs={"local_directory": self.scratch})
                     self.client = Client(self.cluster)
             except BaseException:
