@@ -80,7 +80,10 @@ def _typed(key: str, value):
     makes one column of floats, and the same scene key whichever way it was given)."""
     default = known_keys()[key]
     if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:         # beyond the largest double: the key's own check says so
+            return value
     return value
 
 
