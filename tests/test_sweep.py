@@ -337,6 +337,5 @@ def test_an_immutable_journal_is_one_line(finished, tmp_path, capsys):
     finally:
         subprocess.run(["chattr", "-i", str(journal)], capture_output=True)
     assert code == 2, (stdout, err)
-    *before, last = err.strip().splitlines()
-    assert last.startswith("flexpend: error: ") and "runs.jsonl: cannot be written" in last
-    assert [line.split(":")[0] for line in before] == ["sweep of rigid_pd"]     # the plan's line
+    assert err.startswith("flexpend: error: ") and "runs.jsonl: cannot be written" in err
+    assert len(err.strip().splitlines()) == 1

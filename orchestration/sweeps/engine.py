@@ -155,13 +155,18 @@ class SweepFolderError(ValueError):
 
 def check_folder(folder) -> None:
     """Refuse, before any run, a folder where something other than a file stands in place of
-    one of the sweep's files (:data:`FILES`): a sweep would run, then fail to write it."""
+    one of the sweep's files (:data:`FILES`), or a journal that cannot be appended to (read-only,
+    immutable): a sweep would run, then fail to write."""
     for name in FILES:
         path = Path(folder) / name
         if path.exists() and not path.is_file():
             what = "a folder" if path.is_dir() else "not a regular file"
             raise SweepFolderError(f"{path}: {what} where the sweep writes its {name}; move it "
                                    "away or choose another --out")
+    journal = Path(folder) / JOURNAL
+    if journal.exists() and not os.access(journal, os.R_OK | os.W_OK):
+        raise SweepFolderError(f"{journal}: cannot be written (read-only or immutable); the "
+                               "sweep appends its finished runs there")
 
 
 #: The fields of a journal row and the types they hold (or null); other fields are the swept
@@ -218,12 +223,7 @@ class Journal:
 
     def __enter__(self):
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        check_folder(self.path.parent)
-        try:
-            self._fh = open(self.path, "a+")
-        except OSError as exc:
-            raise SweepFolderError(f"{self.path}: cannot be written ({exc.strerror or exc})") \
-                from None
+        self._fh = open(self.path, "a+")
         self._fh.seek(0, os.SEEK_END)
         if self._fh.tell():                  # start on a fresh line after a torn one
             self._fh.seek(self._fh.tell() - 1)
