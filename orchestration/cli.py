@@ -19,9 +19,11 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
 lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written:
-one line naming it); 3 ``flexpend run``: a scene stopped early (an FMU refused to go on; its data
-up to there is written); 130 interrupted by Ctrl-C, at any moment (the data so far is written,
-the FMUs are terminated and freed).
+one line naming it), or a limit of the machine that the command cannot work within (too few file
+handles, ``ulimit -n``; too little memory, ``ulimit -v``: one line naming the limit); 3
+``flexpend run``: a scene stopped early (an FMU refused to go on; its data up to there is
+written); 130 interrupted by Ctrl-C, at any moment (the data so far is written, the FMUs are
+terminated and freed).
 
 Heavy modules (numpy, scipy, matplotlib, fmpy, dask) are imported by the command that needs them,
 so that ``flexpend --version`` or ``flexpend scenes`` start at once.
@@ -271,13 +273,74 @@ def cmd_check(args) -> int:
 
 
 def _executor_args(args):
-    """``(workers, scheduler)`` of ``--workers``/``--scheduler``."""
+    """``(workers, scheduler)`` of ``--workers``/``--scheduler``; a LocalCluster of ``--workers``
+    processes is checked against the process's limits first (:func:`_cluster_limits`)."""
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed; allowed: an integer >= 1")
     if args.workers is not None and args.scheduler:
         raise UsageError("--workers starts a LocalCluster, --scheduler uses an existing one: "
                          "give one of them")
+    if args.workers is not None:
+        _cluster_limits(args.workers)
     return args.workers, args.scheduler
+
+
+#: What a LocalCluster of W worker processes needs (measured with 2 and 4 workers: its nannies
+#: fail to start below about 48 and 96 open files; its client crashes with 1 GiB of address
+#: space per process and runs with 2 GiB).
+CLUSTER_FILES_BASE, CLUSTER_FILES_PER_WORKER = 64, 16
+CLUSTER_ADDRESS_SPACE = 2 << 30
+
+
+def _cluster_limits(workers: int) -> None:
+    """Raise the soft limit of open files to what a LocalCluster of ``workers`` needs, where the
+    hard limit allows; a UsageError naming the limit where it does not, or where the address
+    space (``ulimit -v``) is too small for dask's processes."""
+    import resource
+
+    need = CLUSTER_FILES_BASE + CLUSTER_FILES_PER_WORKER * workers
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < need:
+        if hard == resource.RLIM_INFINITY or hard >= need:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+        else:
+            raise UsageError(f"too few file handles for a LocalCluster of {workers} workers: it "
+                             f"needs about {need}, this process may open {hard} (ulimit -n); "
+                             "raise the limit, give fewer --workers or run --serial")
+    space = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if space != resource.RLIM_INFINITY and space < CLUSTER_ADDRESS_SPACE:
+        raise UsageError(f"too little memory for a LocalCluster: each of its processes needs "
+                         f"about {CLUSTER_ADDRESS_SPACE >> 20} MiB of address space, this "
+                         f"process may use {space >> 20} MiB (ulimit -v); raise the limit or "
+                         "run --serial")
+
+
+def _machine_limit(exc: BaseException) -> str | None:
+    """The one line of a failure that a limit of the machine caused, found anywhere in the
+    exception's chain (a library may wrap it: dask's "Nanny failed to start", an ImportError
+    of a library that could not be mapped): too many open files, or out of memory. None for
+    any other failure."""
+    import errno
+    import resource
+
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in (errno.EMFILE, errno.ENFILE):
+            if exc.errno == errno.ENFILE:
+                return "too many open files on this system (its file table is full)"
+            soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+            return f"too many open files: this process may open {soft} (ulimit -n); raise the limit"
+        if (isinstance(exc, MemoryError)
+                or (isinstance(exc, OSError) and exc.errno == errno.ENOMEM)
+                or (isinstance(exc, ImportError) and "failed to map segment" in str(exc))):
+            space = resource.getrlimit(resource.RLIMIT_AS)[0]
+            if space == resource.RLIM_INFINITY:
+                return "out of memory"
+            return (f"out of memory: this process may use {space >> 20} MiB of address space "
+                    "(ulimit -v); raise the limit")
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def cmd_sweep(args) -> int:
@@ -517,6 +580,12 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("flexpend: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except Exception as exc:          # a limit of the machine, however it surfaced
+        line = _machine_limit(exc)
+        if line is None:
+            raise
+        print(f"flexpend: error: {line}", file=sys.stderr)
+        return EXIT_USAGE
     finally:
         if installed is not None:     # a process that called main() itself gets its own back
             signal.signal(signal.SIGINT, installed)
