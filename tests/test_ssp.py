@@ -213,6 +213,13 @@ BAD = {
                   "plant.n_modes = -2 is out of range"),
     "start time": (dict(edit=('startTime="0"', 'startTime="1"')),
                    "startTime = 1: flexpend runs from 0"),
+    # libcosim's step (an annotation: no schema checks it); tracebacks before (ValueError,
+    # ZeroDivisionError, OverflowError)
+    **{f"step {v}": (dict(edit=('baseStepSize="0.002"', f'baseStepSize="{v}"')),
+                     f"osp:FixedStepAlgorithm baseStepSize = {v!r}: allowed: a positive number")
+       for v in ("abc", "0", "-0.002", "NaN", "INF")},
+    "step 1e-320": (dict(edit=('baseStepSize="0.002"', 'baseStepSize="1e-320"')),
+                    "must be a positive multiple of output_interval = 1e-320"),
 }
 
 

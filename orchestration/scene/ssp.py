@@ -494,7 +494,8 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
             if note.get("type") == OSP_ANNOTATION:
                 fs = note.find(f"{_q('osp', 'Algorithm')}/{_q('osp', 'FixedStepAlgorithm')}")
                 if fs is not None and fs.get("baseStepSize") is not None:
-                    osp_step = float(fs.get("baseStepSize"))
+                    osp_step = _positive(label, "osp:FixedStepAlgorithm baseStepSize",
+                                         fs.get("baseStepSize"))
             elif note.get("type") == SCENE_ANNOTATION:
                 sc = note.find(_q("fp", "Scene"))
                 if sc is not None:
@@ -506,7 +507,8 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
         values["master.step"] = osp_step
         dt = OutputSettings().output_interval
         ratio = dt / osp_step
-        if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
+        if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 * ratio \
+                or round(ratio) < 1:
             values["output_interval"] = osp_step
     description = system.get("description") or root.get("description")
     if description:
@@ -521,6 +523,17 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
     fmus = {role[n]: p for n, (p, _) in info.items()}
     components = {role[n]: n for n in info}
     return SspSystem(path, scene, fmus, components, tmpdir)
+
+
+def _positive(label, what, text) -> float:
+    """``text`` as a positive finite number (an annotation's value: no schema checks it)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise SspError(f"{label}: {what} = {text!r}: allowed: a positive number")
+    return value
 
 
 def _scene_keys() -> dict:
