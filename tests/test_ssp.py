@@ -238,9 +238,15 @@ def test_a_bad_ssp_gives_one_line_and_exit_2(fmus, tmp_path, case):
 
 
 def test_not_an_archive_and_no_file_give_one_line(tmp_path):
+    import os
+
     (tmp_path / "x.ssp").write_text("hello")
+    os.mkfifo(tmp_path / "fifo.ssp")                  # was "no such file"
+    (tmp_path / "zero.ssp").symlink_to("/dev/zero")
     for path, fragment in ((tmp_path / "x.ssp", "not an SSP archive"),
-                           (tmp_path / "none.ssp", "no such file")):
+                           (tmp_path / "none.ssp", "no such file"),
+                           (tmp_path / "fifo.ssp", "fifo.ssp: not a regular file"),
+                           (tmp_path / "zero.ssp", "zero.ssp: not a regular file")):
         code, _, err = flexpend("run", str(path))
         assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
 

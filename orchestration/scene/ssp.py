@@ -335,7 +335,7 @@ def read_ssp(path, overrides=()) -> SspSystem:
     path = Path(path)
     label = path.name
     if not path.is_file():
-        raise SspError(f"{label}: no such file")
+        raise SspError(f"{label}: not a regular file" if path.exists() else f"{label}: no such file")
     try:
         zf = zipfile.ZipFile(path)
     except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
