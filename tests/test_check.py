@@ -280,3 +280,16 @@ def test_a_bomb_fmu_is_refused_before_fmpy_reads_it(tmp_path):
     assert code == 2, out + err
     assert "Bomb.fmu: member 'modelDescription.xml' inflates " in err and "the limit is 100 times" \
         in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_window_beyond_the_samples_is_the_whole_signal():
+    """--window 99999999999999999999: an OverflowError traceback in scipy before; a window wider
+    than the signal is the whole signal, as a window of 2n + 1 samples is."""
+    from orchestration.export.check import Rule, band
+
+    t = np.linspace(0.0, 1.0, 101)
+    y = np.sin(7.0 * t)
+    wide = band(t, y, Rule(0.1, 10 ** 20, 0.1))
+    assert np.array_equal(wide[0], band(t, y, Rule(0.1, 2 * y.size + 1, 0.1))[0])
+    assert np.all(wide[0] == y.min() - 0.1 * np.ptp(y))
+    assert np.all(wide[1] == y.max() + 0.1 * np.ptp(y))

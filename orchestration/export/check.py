@@ -362,8 +362,9 @@ def band(t_ref, y_ref, rule: Rule):
     span = hi_ref - lo_ref
     w = rule.tolerance * (span if span > 0 else max(abs(lo_ref), 1.0))
     if rule.window > 1:
-        lower = minimum_filter1d(y_ref, size=rule.window) - w
-        upper = maximum_filter1d(y_ref, size=rule.window) + w
+        size = min(rule.window, 2 * y_ref.size + 1)    # wider than the signal: all of it
+        lower = minimum_filter1d(y_ref, size=size) - w
+        upper = maximum_filter1d(y_ref, size=size) + w
     else:
         lower, upper = y_ref - w, y_ref + w
     return lower, upper, w
