@@ -194,7 +194,15 @@ def _die_on_three(i):
     (["--grid", "controller.kp=1:2"], "--grid expects KEY=START:STOP:NUM[:log]"),
     (["--grid", "controller.kpp=1:2:3"], "unknown key 'controller.kpp'; did you mean "
                                          "'controller.kp'?"),
-    (["--grid", "controller.kp=1:2:0"], "NUM must be an integer >= 1"),
+    (["--grid", "controller.kp=1:2:0"], "NUM must be an integer 1..100000"),
+    # too many runs: numpy's "Maximum allowed size exceeded", or minutes of planning, before
+    (["--grid", "controller.kp=1:2:99999999999999999999"], "NUM must be an integer 1..100000"),
+    (["--sample", "plant.EI=uniform:800:900", "--samples", "99999999999999999999"],
+     "--samples 99999999999999999999 is not allowed; allowed: an integer 1..100000"),
+    (["--grid", "controller.kp=1:2:1000", "--grid", "controller.kd=1:2:1000"],
+     "the sweep has 1000000 runs; allowed: at most 100000 in one sweep"),
+    (["--grid", "controller.kp=1:2:1000", "--sample", "plant.EI=uniform:800:900", "--samples",
+      "1000"], "the sweep has 1000000 runs"),
     (["--grid", "controller.kp=0:2:3:log"], "a log grid needs START and STOP > 0"),
     (["--grid", "plant.n_modes=1:2:3"], "plant.n_modes takes integers; the grid gives 1.5"),
     (["--values", "master.algorithm=jacobi,"], "an empty value"),
