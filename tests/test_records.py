@@ -149,6 +149,24 @@ def test_extreme_values_of_every_numeric_key_are_taken_or_one_line(key, text, ba
     assert got == value and type(got) in (int, float)
 
 
+@pytest.mark.parametrize("text", EXTREMES)
+def test_extreme_values_of_every_numeric_design_key_are_taken_or_one_line(text):
+    """The design.* keys of flexpend design and --sample design, likewise."""
+    from orchestration.scene.keys import parse_value
+    from orchestration.studies.design import DESIGN_DEFAULTS, design_settings
+
+    value = parse_value(text)
+    for key, default in DESIGN_DEFAULTS.items():
+        if isinstance(default, bool) or not isinstance(default, (int, float)):
+            continue
+        try:
+            got = design_settings({key: value})[key]
+        except ConfigError as exc:
+            assert "\n" not in str(exc) and len(str(exc)) < 400 and key in str(exc), str(exc)
+            continue
+        assert got == value and not (isinstance(value, float) and math.isnan(value))
+
+
 def test_extreme_values_on_the_command_line_are_one_line_exit_2(capsys):
     """run --set and sweep --values: one line, exit 2. Failed before for the integer beyond a
     double (an OverflowError traceback in sweep --values)."""
