@@ -175,8 +175,9 @@ class CoSim:
         self._connections = ([parse_connection(c) for c in DEFAULT_CONNECTIONS] if trivial
                              else scene.connections)
 
-    def run(self):
-        """One run from t = 0: ``(result, stats)``; FMUs instantiated fresh (not timed)."""
+    def run(self, progress=None):
+        """One run from t = 0: ``(result, stats)``; FMUs instantiated fresh (not timed).
+        ``progress``: called with the fraction done, as ``flexpend run``'s bar is."""
         out = self.scene.output
         slaves = {}
         me = self.scene.master.interface == "model-exchange"
@@ -191,7 +192,7 @@ class CoSim:
                 slaves["controller"].feedthrough = True
             master = (ModelExchangeMaster if me else Master)(slaves, self._connections,
                                                              self._record, self.scene.master)
-            return master.run(0.0, out.stop_time, out.output_interval)
+            return master.run(0.0, out.stop_time, out.output_interval, progress=progress)
         finally:
             for s in slaves.values():
                 s.close()

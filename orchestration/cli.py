@@ -18,12 +18,20 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
-lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written:
-one line naming it), or a limit of the machine that the command cannot work within (too few file
-handles, ``ulimit -n``; too little memory, ``ulimit -v``: one line naming the limit); 3
-``flexpend run``: a scene stopped early (an FMU refused to go on; its data up to there is
-written); 130 interrupted by Ctrl-C, at any moment (the data so far is written, the FMUs are
-terminated and freed).
+lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written, a
+``--scheduler`` that does not answer as a dask scheduler within 5 s or has no worker within 30 s:
+one line naming it), or an output the system refused (a full disk: one line naming the file;
+every earlier file is kept whole), or an ``--out`` in use by another run, or a limit of the
+machine that the command cannot work within (too few file handles, ``ulimit -n``; too little
+memory, ``ulimit -v``: one line naming the limit); 3 ``flexpend run``: a scene stopped early (an
+FMU refused to go on; its data up to there is written); 130 interrupted by Ctrl-C, at any moment
+(the data so far is written, the FMUs are terminated and freed, every temporary folder is
+removed).
+
+Every output file is written to a temporary name beside it and renamed into place: it is
+complete or absent, and a failed write leaves the earlier file as it was. ``run``, ``design`` and
+``sweep`` hold ``--out/.flexpend.lock`` (an exclusive ``flock``, released however the process
+ends) while they write; a second command into the same ``--out`` meanwhile is refused.
 
 Heavy modules (numpy, scipy, matplotlib, fmpy, dask) are imported by the command that needs them,
 so that ``flexpend --version`` or ``flexpend scenes`` start at once.
@@ -31,6 +39,9 @@ so that ``flexpend --version`` or ``flexpend scenes`` start at once.
 from __future__ import annotations
 
 import argparse
+import atexit
+import contextlib
+import errno
 import json
 import os
 import signal
@@ -100,10 +111,18 @@ def _print(lines, file=None):
     print("\n".join(lines), file=file or sys.stdout)
 
 
+#: What the running command holds until it ends (its output folder's lock), released by main().
+_HELD = contextlib.ExitStack()
+
+
 def _output_dir(text: str):
-    """The output folder, created; a path that is a file or cannot be written is a UsageError."""
+    """The output folder, created, and held for this command alone until it ends
+    (:func:`~orchestration.report.files.folder_lock`): a path that is a file, cannot be written
+    or is in use by another run is a UsageError."""
     import tempfile
     from pathlib import Path
+
+    from .report.files import OutputError, folder_lock
 
     out = Path(text)
     if out.exists() and not out.is_dir():
@@ -112,6 +131,9 @@ def _output_dir(text: str):
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):
             pass
+        _HELD.enter_context(folder_lock(out))
+    except OutputError as exc:
+        raise UsageError(f"--out {text}: {exc.strerror.removeprefix(f'{out}: ')}") from None
     except OSError as exc:
         raise UsageError(f"--out {text}: cannot write there ({exc.strerror or exc})") from None
     return out
@@ -151,6 +173,7 @@ def cmd_analyze(args) -> int:
 def cmd_design(args) -> int:
     from .api import design
     from .report.text import design_lines
+    from .sweeps.executor import SchedulerError
 
     scene_items, design_keys = _split_design(args.set)
     workers, scheduler = _executor_args(args)
@@ -158,6 +181,8 @@ def cmd_design(args) -> int:
     try:
         d = design(overrides=scene_items, design=design_keys, workers=workers,
                    scheduler=scheduler, progress=True)
+    except SchedulerError as exc:
+        raise _scheduler_error(exc) from None
     except ConfigError as exc:
         raise _set_error(exc) from None
     d.save(out_dir)
@@ -272,6 +297,11 @@ def cmd_check(args) -> int:
     return 0 if report.passed else EXIT_FAILED
 
 
+def _scheduler_error(exc):
+    """A :class:`~orchestration.sweeps.executor.SchedulerError` in the command's terms."""
+    return UsageError(f"--scheduler {exc.address}: {exc.reason}")
+
+
 def _executor_args(args):
     """``(workers, scheduler)`` of ``--workers``/``--scheduler``; a LocalCluster of ``--workers``
     processes is checked against the process's limits first (:func:`_cluster_limits`)."""
@@ -345,6 +375,7 @@ def _machine_limit(exc: BaseException) -> str | None:
 
 def cmd_sweep(args) -> int:
     from .report.text import sweep_lines
+    from .sweeps.executor import SchedulerError
     from .sweeps.job import sweep
 
     if args.serial and (args.workers is not None or args.scheduler):
@@ -366,7 +397,10 @@ def cmd_sweep(args) -> int:
                   samples=args.samples, seed=args.seed, overrides=args.set,
                   reference=args.reference, workers=workers, scheduler=scheduler,
                   serial=args.serial, batch=args.batch, retry_failed=args.retry_failed,
-                  out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor)
+                  out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor,
+                  stop=INTERRUPTS.requested)
+    except SchedulerError as exc:
+        raise _scheduler_error(exc) from None
     except ValueError as exc:
         if isinstance(exc, ConfigError):
             raise
@@ -443,7 +477,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="check the chosen filter's worst case on a dask LocalCluster of N "
                          "processes (default: here; worth it for a fine design.check_levels)")
     pd.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="check it on the dask cluster of this scheduler")
+                    help="check it on the dask cluster of this scheduler (it must answer "
+                         "dask's handshake within 5 s)")
     pd.set_defaults(func=cmd_design)
 
     pr = sub.add_parser("run", help="co-simulate scenes (default: the paper's three)",
@@ -473,7 +508,10 @@ def build_parser() -> argparse.ArgumentParser:
     pw = sub.add_parser("sweep", help="many runs of a scene over a grid or a random sample, "
                                       "on dask.distributed",
                         description="Co-simulate a scene over a grid of keys and/or random "
-                                    "samples, on a dask LocalCluster (or --scheduler); write "
+                                    "samples: serially here, or on a dask LocalCluster where "
+                                    "it wins by the runs' number and expected length against "
+                                    "the cluster's start-up (about 5 s), or on --scheduler; "
+                                    "write "
                                     "<out>/sweep.parquet (or .csv), sweep.png, sweep.json, and "
                                     "runs.jsonl (rerunning into the same --out skips the runs "
                                     "already finished).")
@@ -495,10 +533,17 @@ def build_parser() -> argparse.ArgumentParser:
     pw.add_argument("--reference", action="store_true",
                     help="also solve each run's monolithic reference and report the error")
     pw.add_argument("--workers", type=int, default=None, metavar="N",
-                    help="worker processes of the LocalCluster (default: one per core)")
+                    help="worker processes of a LocalCluster (default: one per core, only "
+                         "where it ends before the serial runs: 5 s + ceil(runs / cores) * "
+                         "(t + 0.02 s) < runs * t, t the expected run length from stop_time "
+                         "/ master.step; see docs/sweeps.md)")
     pw.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                    help="use the dask cluster of this scheduler, e.g. tcp://host:8786")
-    pw.add_argument("--serial", action="store_true", help="run here, one run after the other")
+                    help="use the dask cluster of this scheduler, e.g. tcp://host:8786 (it must "
+                         "answer dask's handshake within 5 s; without workers, one must join "
+                         "within 30 s)")
+    pw.add_argument("--serial", action="store_true",
+                    help="run here, one run after the other (the default where a LocalCluster "
+                         "would not win)")
     pw.add_argument("--batch", type=int, default=1, metavar="N",
                     help="runs per dask task (batch short runs; default 1)")
     pw.add_argument("--retry-failed", action="store_true",
@@ -553,6 +598,22 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 
+#: errno of a write that the system refused for want of room or permission
+_WRITE_ERRNOS = {getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EFBIG", "EROFS")
+                 if hasattr(errno, name)}
+
+
+def _output_failure(exc: OSError) -> str | None:
+    """The one line of an output that could not be written (a full disk...), else None."""
+    from .report.files import OutputError
+
+    if isinstance(exc, OutputError):
+        return str(exc)
+    if exc.errno in _WRITE_ERRNOS:
+        return f"cannot write {exc.filename or 'the output'}: {exc.strerror}"
+    return None
+
+
 def main(argv=None) -> int:
     """Run one command; its exit code. Ctrl-C is noted (:class:`Interrupts`) while it runs."""
     global INTERRUPTS
@@ -567,7 +628,7 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
         args.argv = None if argv is None else list(argv)
         code = args.func(args)
-        if INTERRUPTS.requested():    # Ctrl-C after the last safe point: still 130
+        if INTERRUPTS.requested() and code != EXIT_INTERRUPTED:  # after the last safe point
             print("flexpend: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
         return code
@@ -580,13 +641,14 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("flexpend: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except Exception as exc:          # a limit of the machine, however it surfaced
-        line = _machine_limit(exc)
+    except Exception as exc:          # a full disk, a limit of the machine, however it surfaced
+        line = (_output_failure(exc) if isinstance(exc, OSError) else None) or _machine_limit(exc)
         if line is None:
             raise
         print(f"flexpend: error: {line}", file=sys.stderr)
         return EXIT_USAGE
     finally:
+        _HELD.close()                 # the output folder's lock
         if installed is not None:     # a process that called main() itself gets its own back
             signal.signal(signal.SIGINT, installed)
             INTERRUPTS = None
@@ -594,22 +656,37 @@ def main(argv=None) -> int:
 
 def entry():
     """The ``flexpend`` command. Ctrl-C is noted from here on, for the process's whole life, so
-    that it exits with 130 at any moment. After a Ctrl-C the process ends at once (its output
-    flushed): a KeyboardInterrupt that reached code run by an FMU's embedded Python makes the
-    interpreter kill itself with SIGINT at finalisation, and pythonfmu's finalisation can
-    abort (see docs/fmus.md); the data is already written and the FMUs freed."""
-    global INTERRUPTS
+    that it exits with 130 at any moment: while the command runs, after it (its clean-ups at
+    exit: unpacked FMUs, a LocalCluster's folders), and from the last clean-up on a Ctrl-C ends
+    the process at once (a shell reports 130). After a Ctrl-C the process ends right after its
+    clean-ups, its output flushed, without the interpreter's finalisation: a KeyboardInterrupt
+    that reached code run by an FMU's embedded Python makes the interpreter kill itself with
+    SIGINT at finalisation, and pythonfmu's finalisation can abort (see docs/fmus.md); the data
+    is already written and the FMUs freed."""
+    global INTERRUPTS, _EXIT_CODE
     INTERRUPTS = Interrupts()
     signal.signal(signal.SIGINT, INTERRUPTS)
+    atexit.register(_last_clean_up)     # registered first: runs after every other clean-up
     try:
-        code = main()
+        _EXIT_CODE = main()
     except KeyboardInterrupt:
-        code = EXIT_INTERRUPTED
-    if code == EXIT_INTERRUPTED or INTERRUPTS.requested():
-        sys.stdout.flush()
-        sys.stderr.flush()
+        _EXIT_CODE = EXIT_INTERRUPTED
+    sys.exit(_EXIT_CODE)
+
+
+#: The exit code of :func:`entry`'s command (130 also when a Ctrl-C came after it).
+_EXIT_CODE = None
+
+
+def _last_clean_up():
+    """The last thing the ``flexpend`` process does at exit: from here a Ctrl-C kills it at once
+    (nothing is left to clean up); an earlier one makes the exit code 130."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    if _EXIT_CODE == EXIT_INTERRUPTED or (INTERRUPTS is not None and INTERRUPTS.requested()):
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):     # closed, or a pipe no one reads
+                stream.flush()
         os._exit(EXIT_INTERRUPTED)
-    sys.exit(code)
 
 
 if __name__ == "__main__":

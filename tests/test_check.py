@@ -254,22 +254,6 @@ def test_references_are_looked_up_only_inside_the_reference_folder(fmus, tmp_pat
     assert code == 0 and "empty/FlexiblePendulum/FlexiblePendulum_ref.csv" in out, out + err
 
 
-def test_a_failed_check_leaves_no_unpacked_fmu(fmus, tmp_path, monkeypatch):
-    """The FMU was unpacked by fmpy.simulate_fmu into the temp folder, and left there when the
-    simulation raised. Failed before (one tmp* folder left per failed check)."""
-    import tempfile
-
-    from orchestration.export.check import check_fmu
-
-    tmp = tmp_path / "tmp"
-    tmp.mkdir()
-    monkeypatch.setenv("TMPDIR", str(tmp))
-    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
-    report = check_fmu(fmus["FlexiblePendulum"], REFERENCES, start_values={"n_modes": -1})
-    assert not report.passed and "n_modes = -1 is out of range" in report.failure
-    assert list(tmp.iterdir()) == []
-
-
 def test_a_bomb_fmu_is_refused_before_fmpy_reads_it(tmp_path):
     """Failed before: fmpy inflated the 8 MiB modelDescription.xml to read the model's name."""
     import zipfile

@@ -5,10 +5,10 @@ through the crate's instance API (Jacobi, held inputs, ``h`` = 1 ms exactly), in
 environment (no ``PYTHON*`` variables, system ``PATH``).
 
 * 2 s of closed loop match the fmpy master's Jacobi run to 1e-12, as the C host's do
-  (``tests/test_native_fmus.py``). They are not bit-identical, and neither is the C host: the
-  master steps by ``t1 - t0`` = ``(k + 1) h - k h``, which differs from ``h`` by an ulp from the
-  ninth step on, and the controller discretises its filter for each ``h`` it is given; the Rust
-  host stepping by ``t1 - t0`` reproduces the master bit for bit (checked by hand, 2026-11).
+  (``tests/test_native_fmus.py``). They are not bit-identical, and neither is the C host (up to
+  6e-13 in F_c, from the ninth step on). The step size is not the cause: since issue 25 the
+  master steps every FMU by ``h`` from ``t0 + k h``, as these hosts do; the cause
+  is not yet known.
 * The Rust and the C host give the same bits (the crate passes the calls through unchanged).
 * An FMU's message reaches the crate's logger callback (``fmi-sys``'s C shim and ``log``) and
   the host prints it; the host lives.

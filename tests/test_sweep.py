@@ -240,7 +240,8 @@ def test_cli_sweep_prints_counts_writes_record_and_resumes(fmus, tmp_path, capsy
     assert "flexible_pd_lowpass: 2 runs: 1 ok, 1 failed; 2 ran in" in out
     assert "run 1 failed: the beam tilted past plant.phi_limit = 1.571 rad (90 deg) by t = 0.0" \
         in out
-    assert "stable: 1 of 2 finished runs (50.0 %); unstable 0, no verdict 1" in out
+    assert "verdicts of the 2 finished runs: 1 stable (100.0 % of those with a verdict), 0 " \
+           "unstable, 1 no verdict (1 stopped early)" in out
     assert "2/2 finished, 1 failed, 0 remaining" in err
     record = json.loads((tmp_path / "sweep.json").read_text())
     assert record["stats"]["ok"] == 1 and record["grid"] == {"controller.kp": [600.0, 1e5]}

@@ -32,14 +32,11 @@ __all__ = ["unavailable", "load", "CompiledRun", "KERNEL"]
 KERNEL = "flexpend_master"
 
 # results of fm_run and the calls of fail_call (fm_master.h)
-_DONE, _FAILED, _STOPPED, _OFFGRID, _BADARG = range(5)
+_DONE, _FAILED, _STOPPED, _BADARG = range(4)
 _CALLS = {1: "setReal", 2: "setRealInputDerivatives", 3: "doStep", 4: "getReal",
           5: "getFMUstate", 6: "setFMUstate", 7: "freeFMUstate"}
 #: wall time between two returns to Python (progress, signal handlers)
 CHUNK_SECONDS = 0.02
-#: the largest distance of an extrapolation node from its integer that the C loop takes (Python
-#: rounds the nodes to 9 decimals: within 1e-10 they are the integers the weights were made for)
-GRID_TOL = 1e-10
 #: the FMI 2.0 functions the loop calls (fm_slave's function pointers, in order)
 _FUNCTIONS = ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep", "fmi2SetRealInputDerivatives",
               "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate")
@@ -63,7 +60,7 @@ class _Slave(ctypes.Structure):
 class _Master(ctypes.Structure):
     _fields_ = [("n_slaves", ctypes.c_int), ("gauss_seidel", ctypes.c_int), ("p", ctypes.c_int),
                 ("correct_startup", ctypes.c_int), ("slaves", _P), ("order", _P),
-                ("t0", ctypes.c_double), ("h", ctypes.c_double), ("grid_tol", ctypes.c_double),
+                ("t0", ctypes.c_double), ("h", ctypes.c_double),
                 ("total", ctypes.c_longlong),
                 ("m", ctypes.c_longlong), ("weights", _P), ("n_cols", ctypes.c_int),
                 ("pad_", ctypes.c_int), ("col_slave", _P), ("col_rec", _P), ("col_index", _P),
@@ -140,8 +137,8 @@ class CompiledRun:
     """One fixed-step run in C of ``coupling`` over ``slaves``, from the signals' history ``hist``
     after the initial outputs, writing the rows of ``out`` (row 0 written).
 
-    ``run(...)`` takes the steps (all, or up to a step whose nodes leave the integer grid) and
-    returns the number of steps taken; failures and interruptions raise as in the Python loop.
+    ``run(...)`` takes the steps and returns their number; failures and interruptions raise as in
+    the Python loop.
     :attr:`steps` and :attr:`rows_written` say how far it got, however it ended.
     """
 
@@ -210,7 +207,7 @@ class CompiledRun:
         st.p, st.correct_startup = cp.p, int(cp.correct_startup)
         st.slaves = ctypes.addressof(self.slaves)
         st.order = buf([index[n] for n in cp.order])
-        st.t0, st.h, st.grid_tol, st.total, st.m = t0, cp.h, GRID_TOL, total, m
+        st.t0, st.h, st.total, st.m = t0, cp.h, total, m
         self.weights = weight_table()
         st.weights = self.weights.ctypes.data
         st.n_cols = len(cols)
@@ -219,8 +216,7 @@ class CompiledRun:
         st.k, st.rows = 0, 1
 
     def run(self, stats, progress=None, stop=None) -> int:
-        """Take the steps; the number taken (``total`` unless the grid forced a handover, then
-        :meth:`history` gives the signals' history for the Python loop)."""
+        """Take the steps; their number (``total``)."""
         st, m = self.struct, self.m
         raised = []
         if stop is not None:
@@ -255,8 +251,6 @@ class CompiledRun:
                     name = list(self.py_slaves)[st.fail_slave]
                     t = st.fail_time if st.fail_timed else None
                     raise self.py_slaves[name].error(_CALLS[st.fail_call], st.fail_status, t)
-                if rc == _OFFGRID:
-                    return st.k
                 raise CoSimulationError(f"the compiled master refused its arguments (fm_run "
                                         f"returned {rc}); master.compiled = false runs the "
                                         f"Python loop")
@@ -273,11 +267,3 @@ class CompiledRun:
     def t_reached(self) -> float:
         """The time of the last step taken (``t0`` before the first)."""
         return self.t0 + self.steps * self.coupling.h
-
-    def history(self, hist):
-        """Copy the signals' history into ``hist`` (name -> ``_History``) for the Python loop."""
-        for i, n in enumerate(self.py_slaves):
-            c, h = self.slaves[i], self.hist[n]
-            hist[n].t = [self.t0 + j * self.coupling.h
-                         for j in range(c.newest - c.count + 1, c.newest + 1)]
-            hist[n].u = [h[j, :c.n_out].copy() for j in range(c.count)]

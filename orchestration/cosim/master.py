@@ -22,6 +22,10 @@ compared with the source's actual output there (the coupling error the step made
 weighted error exceeds 1 is rolled back through the FMU states and retried with a smaller step,
 within ``[min_step, max_step]``. Output points are hit exactly: times are ``t0 + k*dt`` from
 integers.
+
+The time grid: at a fixed step the signals' history is stamped with the step counters (the
+extrapolation nodes are integers, their weights computed once, however long the run) and the FMUs
+step from ``t0 + k*h`` over ``h``, as FMPy does; with an adaptive step it is stamped in seconds.
 """
 from __future__ import annotations
 
@@ -102,19 +106,28 @@ class Master:
             raise ValueError(f"compiled = True, but {self.compiled_unavailable}")
         #: the loop :meth:`run` uses: "compiled" or "python"
         self.loop = "compiled" if compiled and not self.compiled_unavailable else "python"
+        #: the history's clock: a sample stamped ``a`` is at ``_origin + a * _unit`` seconds
+        #: (:meth:`run` sets it: steps from t0 at a fixed step, seconds with an adaptive one)
+        self._origin, self._unit = 0.0, 1.0
 
     def connection_table(self) -> str:
         return self.coupling.table()
 
     # ------------------------------------------------------------------ stepping
-    def _combination(self, h: "_History", t: float, scale: float, kinds: tuple):
+    def _time(self, a) -> float:
+        """The time in seconds of the history's stamp ``a``."""
+        return self._origin + a * self._unit
+
+    def _combination(self, h: "_History", t, scale, kinds: tuple):
         """Rows ``kinds`` (``"average"`` over ``[t, t + scale]``, or the ``j``-th derivative at
         ``t``) of the polynomial through the newest ``p + 1`` samples of ``h`` (fewer at the
-        start): an array ``len(kinds) x outputs``, derivatives in time units."""
+        start): an array ``len(kinds) x outputs``, derivatives in seconds. ``t`` and ``scale``
+        are on the history's clock (:meth:`_time`): at a fixed step the nodes are integers."""
+        unit = self._unit
         if h.derivatives:                   # the Taylor polynomial at the newest sample
             q = h.derivatives
             Y = h.u[-1].reshape(q + 1, -1)
-            W = taylor_rows(t - h.t[-1], kinds, scale, q)
+            W = taylor_rows((t - h.t[-1]) * unit, kinds, scale * unit, q)
             acc = W[:, 0:1] * Y[0]
             for j in range(1, q + 1):
                 acc = acc + W[:, j:j + 1] * Y[j]
@@ -128,7 +141,7 @@ class Master:
         else:
             tau = (round((ts[-3] - t) / scale, 9), round((ts[-2] - t) / scale, 9),
                    round((ts[-1] - t) / scale, 9))
-        W = _weight_rows(tau, kinds, scale)
+        W = _weight_rows(tau, kinds, scale * unit)
         if k == 1:
             return W * h.u[-1]
         # summed left to right, one rounding per operation (a matrix product would go to BLAS,
@@ -149,15 +162,15 @@ class Master:
         return buf
 
     def _held_inputs(self, dst, hist, t0, t1):
-        """Input values for ``dst`` over ``[t0, t1]``: the polynomials' step averages, held; or,
-        for a slave taking input derivatives, the polynomials at ``t0`` and their derivatives
-        (the FMU integrates the polynomial over its step)."""
+        """Input values for ``dst`` over ``[t0, t1]`` (on the history's clock): the polynomials'
+        step averages, held; or, for a slave taking input derivatives, the polynomials at ``t0``
+        and their derivatives (the FMU integrates the polynomial over its step)."""
         return self._fill(dst, hist, t0, t1 - t0, self.coupling.kinds[dst])
 
     def _point_inputs(self, dst, hist, t1):
         """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there; only
         the first ``len(self.coupling.inputs[dst])`` entries, the values, are meant)."""
-        return self._fill(dst, hist, t1, self.h, (0,))
+        return self._fill(dst, hist, t1, self.h / self._unit, (0,))
 
     def _outputs_after_step(self, n, hist, t1):
         """Outputs of slave ``n`` at ``t1``. A feedthrough slave's output read right after
@@ -165,26 +178,28 @@ class Master:
         inputs are first moved to their values at ``t1``, so that every sample of the history
         belongs to its time stamp."""
         s = self.slaves[n]
+        t = self._time(t1)
         if s.feedthrough and self.coupling.inputs[n]:
-            s.set_inputs(self._point_inputs(n, hist, t1), t1, n=len(self.coupling.inputs[n]))
-        return s.get_outputs(t1)
+            s.set_inputs(self._point_inputs(n, hist, t1), t, n=len(self.coupling.inputs[n]))
+        return s.get_outputs(t)
 
     def _macro_step(self, hist, t0, t1):
-        """One communication step; returns the new outputs of every slave."""
-        h = t1 - t0
+        """One communication step from ``t0`` to ``t1`` on the history's clock; returns the new
+        outputs of every slave."""
+        ta, h = self._time(t0), (t1 - t0) * self._unit
         new = {}
         if self.coupling.algorithm == "jacobi":
             for n in self.coupling.order:
-                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), t0)
+                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), ta)
             for n in self.coupling.order:
-                self.slaves[n].do_step(t0, h)
+                self.slaves[n].do_step(ta, h)
             for n in self.coupling.order:
                 new[n] = self._outputs_after_step(n, hist, t1)
         else:
             pushed, replaced = [], []
             for n in self.coupling.order:
-                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), t0)
-                self.slaves[n].do_step(t0, h)
+                self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), ta)
+                self.slaves[n].do_step(ta, h)
                 new[n] = self._outputs_after_step(n, hist, t1)
                 # later slaves interpolate between t0 and t1
                 if hist[n].t and hist[n].t[-1] == t1:   # a predicted sample (_startup_step)
@@ -264,13 +279,15 @@ class Master:
         n_out = len(out) - 1
         self._rows = 0
         self._t_reached = t0
+        # the history's clock: steps from t0 at a fixed step, seconds with an adaptive one
+        self._origin, self._unit = (0.0, 1.0) if self.adaptive else (t0, self.h)
         try:
             for s in self.slaves.values():
                 s.initialize(t0, stop_time)
             hist = {n: _History(3, self.coupling.out_der[n]) for n in self.slaves}
             cur = self._initial_outputs(t0)
             for n in self.slaves:
-                hist[n].push(t0, cur[n])
+                hist[n].push(t0 if self.adaptive else 0, cur[n])
             self._store(out, 0, t0, cur)
             if self.adaptive:
                 self._run_adaptive(t0, output_interval, n_out, out, hist, cur, stats, progress,
@@ -281,32 +298,17 @@ class Master:
                     raise ValueError(f"output_interval = {output_interval} is not a multiple of "
                                      f"step = {self.h}")
                 total = n_out * m
-                k0 = 0
                 if self.loop == "compiled":
                     stats.loop = "compiled"
                     run = compiled_master.CompiledRun(self.coupling, self.slaves, hist, t0, m,
                                                       total, out)
                     try:
-                        k0 = run.run(stats, progress, stop)
+                        run.run(stats, progress, stop)
                     finally:
                         self._rows = max(self._rows, run.rows_written)
                         self._t_reached = run.t_reached
-                    if k0 < total:       # a node left the integer grid: Python goes on
-                        run.history(hist)
-                        stats.loop = f"compiled, then python from step {k0}"
-                for k in range(k0, total):
-                    ta, tb = t0 + k * self.h, t0 + (k + 1) * self.h
-                    cur = self._step(hist, ta, tb)
-                    for n in self.slaves:
-                        hist[n].push(tb, cur[n])
-                    stats.steps += 1
-                    self._t_reached = tb
-                    if (k + 1) % m == 0:
-                        self._store(out, (k + 1) // m, tb, cur)
-                        if progress is not None:
-                            progress((k + 1) / total)
-                    if stop is not None and stop():
-                        raise RunInterrupted(tb)
+                else:
+                    self._run_fixed(t0, m, total, out, hist, stats, progress, stop)
                 stats.min_step_used = stats.max_step_used = self.h
         except (CoSimulationError, RunInterrupted) as exc:
             stats.wall_time = _time.perf_counter() - wall
@@ -316,6 +318,23 @@ class Master:
             raise
         stats.wall_time = _time.perf_counter() - wall
         return out, stats
+
+    def _run_fixed(self, t0, m, total, out, hist, stats, progress, stop):
+        """The fixed-step loop in Python (the compiled loop's twin): ``total`` steps of ``h``
+        from ``t0``, the history stamped with the step counters, a row every ``m`` steps."""
+        for k in range(total):
+            tb = t0 + (k + 1) * self.h
+            cur = self._step(hist, k, k + 1)
+            for n in self.slaves:
+                hist[n].push(k + 1, cur[n])
+            stats.steps += 1
+            self._t_reached = tb
+            if (k + 1) % m == 0:
+                self._store(out, (k + 1) // m, tb, cur)
+                if progress is not None:
+                    progress((k + 1) / total)
+            if stop is not None and stop():
+                raise RunInterrupted(tb)
 
     def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress, stop=None):
         h = min(self.h, self.max_step)

@@ -36,6 +36,7 @@ range at every sample, no widening, no outlier.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,7 +45,7 @@ import numpy as np
 from fmu_common.kernels import ROOT
 
 from ..report.figures import new_figure
-from ..report.files import save_figure
+from ..report.files import save_figure, write_csv, write_text
 from ..scene import archive
 from . import places
 
@@ -236,9 +237,10 @@ def simulate_case(fmu, files: dict, start_values=None, outputs=None, timeout=Non
         _read_csv(files["in"])                       # a malformed input file: ReferenceError
     if outputs is None:
         outputs = list(_read_csv(files["ref"]).dtype.names[1:])
+    # the FMU unpacked, and the child's temporary files, in our folder, removed however the run
+    # ends (fmpy keeps the folder it unpacked an FMU into when the simulation raises); unpacked
+    # here, within the archive limits
     with tempfile.TemporaryDirectory(prefix="flexpend_check_") as tmp:
-        # unpacked here (within the archive limits), so that it goes with this folder however
-        # the run ends; fmpy's own unpacking is left behind when the simulation raises
         fmu = Path(fmu)
         if not fmu.is_dir():
             try:
@@ -251,7 +253,8 @@ def simulate_case(fmu, files: dict, start_values=None, outputs=None, timeout=Non
                 "result": str(Path(tmp) / "result.npy"), "meta": str(Path(tmp) / "meta.json")}
         try:
             proc = subprocess.run([sys.executable, "-I", "-c", _WORKER, json.dumps(args)],
-                                  cwd=tmp, capture_output=True, text=True, timeout=timeout)
+                                  cwd=tmp, capture_output=True, text=True, timeout=timeout,
+                                  env={**os.environ, "TMPDIR": tmp})
         except subprocess.TimeoutExpired:
             return Run(None, f"the simulation did not finish within {timeout:g} s")
         meta_path = Path(args["meta"])
@@ -465,7 +468,6 @@ def write_reference(fmu, reference, outputs=None) -> dict:
     ``<Model>_ref.csv``, else every output of the FMU). A run that does not complete writes
     nothing (:class:`ReferenceError`)."""
     from fmpy import read_model_description
-    from fmpy.util import write_csv
 
     fmu = Path(fmu)
     files = find_reference(fmu, reference, must_exist=False)
@@ -481,7 +483,7 @@ def write_reference(fmu, reference, outputs=None) -> dict:
         if de.tolerance is not None:
             opt["RelTol"] = float(de.tolerance)
         files["dir"].mkdir(parents=True, exist_ok=True)
-        files["opt"].write_text("".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
     if outputs is None:
         if files["ref"].is_file():
             outputs = list(_read_csv(files["ref"]).dtype.names[1:])
@@ -496,7 +498,7 @@ def write_reference(fmu, reference, outputs=None) -> dict:
     if run.failure is not None:
         raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}")
     files["dir"].mkdir(parents=True, exist_ok=True)
-    write_csv(str(files["ref"]), run.result)
+    write_csv(files["ref"], run.result)
     return files
 
 
@@ -595,8 +597,6 @@ def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start
 def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
     """Regenerate the input files, options and reference results of the project's FMUs (``fmus``:
     name -> path); return the files of each."""
-    from fmpy.util import write_csv
-
     written = {}
     for name, (opt, inputs) in _reference_cases().items():
         files = reference_files(name, ref_dir)
@@ -607,7 +607,7 @@ def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
         arr["time"] = t
         for k, f in inputs.items():
             arr[k] = f(t)
-        write_csv(str(files["in"]), arr)
-        files["opt"].write_text("".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_csv(files["in"], arr)
+        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
         written[name] = write_reference(fmus[name], files["dir"], REFERENCE_OUTPUTS[name])
     return written

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..report.files import output_error
 from ..scene.ssp import write_ssp
 from ..studies.fidelity import select_model
 from . import flavour_fmus
@@ -31,6 +32,9 @@ def export_scene(scene, flavour: str = "native", out=None, progress=None) -> Exp
     if not scene.resolved:
         scene, model = select_model(scene, progress)
     path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
-    write_ssp(scene, fmus, path, model=model)
+    try:
+        write_ssp(scene, fmus, path, model=model)       # complete or absent
+    except OSError as exc:                              # a full disk: an OutputError naming it
+        raise output_error(path, exc) from None
     return ExportResult(path, scene, model, fmus)
 

@@ -105,7 +105,9 @@ def _fit(t, y, key, modes, near=None):
                          f"no oscillation near the first bending mode ({near:.0f} rad/s)")
         return entry
     entry["fit"] = {"rate": f.rate, "frequency": f.frequency, "residual": f.residual,
-                    "window": list(f.window), "order": f.order}
+                    "window": list(f.window), "order": f.order,
+                    "rate_uncertainty": f.rate_uncertainty,
+                    "frequency_uncertainty": f.frequency_uncertainty}
     if modes is not None and len(modes):
         near = modes[np.argmin(np.abs(modes.imag - f.frequency))]
         if abs(near.imag - f.frequency) <= FREQUENCY_MATCH * near.imag:

@@ -8,8 +8,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "run_lines",
-           "design_lines",
-           "sweep_lines"]
+           "design_lines", "verdict_lines", "sweep_lines"]
 
 
 def num(v, spec=".4g") -> str:
@@ -195,6 +194,34 @@ def design_lines(d) -> list[str]:
     return out
 
 
+def verdict_lines(stats) -> list[str]:
+    """A sweep's verdicts (:func:`orchestration.sweeps.engine.sweep_stats`): stable, unstable
+    and "no verdict" apart, and, for the runs without a reliable fit, what the linearised loop
+    says instead."""
+    finished = stats["ok"] + stats["failed"]
+    if not finished:
+        return []
+    share = stats["stable_fraction"]
+    why = "; ".join(f"{n} {text}" for n, text in ((stats["no_fit"], "without a reliable fit"),
+                                                  (stats["failed"], "stopped early")) if n)
+    out = [f"  verdicts of the {finished} finished run{'s' if finished != 1 else ''}: "
+           f"{stats['stable']} stable"
+           + (f" ({100 * share:.1f} % of those with a verdict)" if share is not None else "")
+           + f", {stats['unstable']} unstable, {stats['no_verdict']} no verdict"
+           + (f" ({why})" if why else "")
+           + (f"; {stats['invalid']} left the model's range" if stats["invalid"] else "")]
+    n, k = stats["no_fit"], stats["no_fit_linear_stable"]
+    if n:
+        runs = "the run" if n == 1 else f"the {n} runs"
+        every = "" if n == 1 else " in both" if n == 2 else f" in all {n}"
+        linear = f"stable{every}" if k == n else f"unstable{every}" if k == 0 else \
+            f"stable in {k} of them, unstable in {n - k}"
+        out.append(f"  no verdict from {runs} without a reliable fit (too short, or too few "
+                   f"periods in the linear range: the table's slow_note, bending_note); the "
+                   f"linearised loop is {linear}")
+    return out
+
+
 def sweep_lines(plan, res, stats, executor) -> list[str]:
     """A sweep's counts, verdicts and decay rates (:func:`orchestration.sweeps.engine.
     sweep_stats`)."""
@@ -204,11 +231,7 @@ def sweep_lines(plan, res, stats, executor) -> list[str]:
            + (f"; {res.ran} ran in {res.seconds:.1f} s on {executor.describe()}" if res.ran
               else "; 0 ran")
            + (f", {res.skipped} were already done" if res.skipped else "")]
-    if stats["stable_fraction"] is not None:
-        out.append(f"  stable: {stats['stable']} of {stats['ok'] + stats['failed']} finished runs "
-                   f"({100 * stats['stable_fraction']:.1f} %); unstable {stats['unstable']}, no "
-                   f"verdict {stats['no_verdict']} (stopped early, or no reliable fit)"
-                   + (f"; {stats['invalid']} left the model's range" if stats["invalid"] else ""))
+    out += verdict_lines(stats)
     if "worst_decay_rate" in stats:
         worst = res.rows[stats["worst_run"]]
         where = ", ".join(f"{k} = {num(worst[k]) if isinstance(worst[k], float) else worst[k]}"

@@ -3,6 +3,7 @@ and the statistics (see :mod:`orchestration.sweeps`).
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -19,6 +20,7 @@ import plant_fmu
 
 from ..export import flavour_fmus
 from ..job import run_scene
+from ..report.files import atomic_path, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
 from ..studies.analysis import max_real_part
@@ -26,7 +28,8 @@ from .executor import Executor, TaskLost, file_name, scratch_dir, worker_file
 from .plan import Point, SweepPlan
 from .plot import plot_sweep
 
-__all__ = ["summary_row", "linear_decay_rate", "model_sources_digest", "run_task", "Journal",
+__all__ = ["summary_row", "verdict_of", "linear_decay_rate", "model_sources_digest", "run_task",
+           "Journal",
            "write_table", "read_table", "SweepProgress", "SweepResult", "fmus_for", "pending",
            "run_sweep", "sweep_stats", "SweepFolderError", "check_folder", "FILES"]
 
@@ -41,6 +44,16 @@ DONE = ("ok", "failed")
 
 
 # ---------------------------------------------------------------------------- one run
+#: A finished run's ``verdict``: what its fits say (``stable`` True, False, None).
+VERDICTS = {True: "stable", False: "unstable", None: "no verdict"}
+
+
+def verdict_of(row: dict) -> str:
+    """``stable``, ``unstable``, or ``no verdict``: no fit is reliable (too short a run, too few
+    periods in the linear range) or the run stopped early. No verdict is not "unstable"."""
+    return VERDICTS[row.get("stable")]
+
+
 def summary_row(summary: dict) -> dict:
     """The table's fields of one run, from its summary (:func:`orchestration.report.summary.summarize`
     and :func:`orchestration.job.run_scene`): the one place that knows the summary's layout.
@@ -50,6 +63,7 @@ def summary_row(summary: dict) -> dict:
     left the model's range (``validity`` says how)."""
     stopped = summary.get("stopped") or {}
     row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable")}
+    row["verdict"] = verdict_of(row)
     rates = []
     for key in ("slow", "bending"):
         mode = summary.get(key) or {}
@@ -142,8 +156,9 @@ def run_task(task) -> dict:
                       unzipdirs={role: _extracted(p) for role, p in paths.items()})
         row = summary_row(r.summary)
         row["linear_decay_rate"] = linear_decay_rate(r.scene)
+        row["linear_stable"] = row["linear_decay_rate"] > 0
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, never the end of a sweep
-        row = {"status": "failed", "message": _one_line(exc)}
+        row = {"status": "failed", "verdict": verdict_of({}), "message": _one_line(exc)}
     row["wall_time"] = time.perf_counter() - t0
     return row
 
@@ -223,22 +238,35 @@ class Journal:
 
     def __enter__(self):
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._fh = open(self.path, "a+")
-        self._fh.seek(0, os.SEEK_END)
-        if self._fh.tell():                  # start on a fresh line after a torn one
-            self._fh.seek(self._fh.tell() - 1)
-            last = self._fh.read(1)
-            if last != "\n":
-                self._fh.write("\n")
+        try:
+            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_APPEND, 0o644)
+        except OSError as exc:
+            raise output_error(self.path, exc) from None
+        size = os.fstat(self._fd).st_size
+        if size and os.pread(self._fd, 1, size - 1) != b"\n":  # a fresh line after a torn one
+            self._write(b"\n")
         return self
 
     def append(self, row: dict):
-        self._fh.write(json.dumps(row) + "\n")
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
+        """Append ``row`` as one whole line, on disk when this returns."""
+        self._write((json.dumps(row) + "\n").encode())
+
+    def _write(self, data: bytes):
+        """Append ``data`` whole, or (a full disk) not at all: the journal never ends on a torn
+        row of ours."""
+        size = os.fstat(self._fd).st_size
+        try:
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self._fd, view):]
+            os.fsync(self._fd)
+        except OSError as exc:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, size)
+            raise output_error(self.path, exc) from None
 
     def __exit__(self, *exc):
-        self._fh.close()
+        os.close(self._fd)
 
 
 def _have_pyarrow() -> bool:
@@ -260,29 +288,28 @@ def write_table(rows, folder: Path, parquet: bool | None = None) -> Path:
     folder = Path(folder)
     cols = _columns(rows)
     parquet = _have_pyarrow() if parquet is None else parquet
-    for stale in ("sweep.parquet", "sweep.csv"):
-        (folder / stale).unlink(missing_ok=True)
-    if parquet:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-        arrays = {}
-        for c in cols:
-            vals = [r.get(c) for r in rows]
-            try:
-                arrays[c] = pa.array(vals)
-            except (pa.ArrowInvalid, pa.ArrowTypeError):
-                arrays[c] = pa.array([None if v is None else str(v) for v in vals])
-        path = folder / "sweep.parquet"
-        pq.write_table(pa.table(arrays), path)
-        return path
-    import csv
-    path = folder / "sweep.csv"
-    with open(path, "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(cols)
-        for r in rows:
-            w.writerow(["" if r.get(c) is None else repr(r[c]) if isinstance(r.get(c), float)
-                        else r[c] for c in cols])
+    path = folder / ("sweep.parquet" if parquet else "sweep.csv")
+    with atomic_path(path) as tmp:
+        if parquet:
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+            arrays = {}
+            for c in cols:
+                vals = [r.get(c) for r in rows]
+                try:
+                    arrays[c] = pa.array(vals)
+                except (pa.ArrowInvalid, pa.ArrowTypeError):
+                    arrays[c] = pa.array([None if v is None else str(v) for v in vals])
+            pq.write_table(pa.table(arrays), tmp)
+        else:
+            import csv
+            with open(tmp, "w", newline="") as fh:
+                w = csv.writer(fh)
+                w.writerow(cols)
+                for r in rows:
+                    w.writerow(["" if r.get(c) is None else repr(r[c])
+                                if isinstance(r.get(c), float) else r[c] for c in cols])
+    (folder / ("sweep.csv" if parquet else "sweep.parquet")).unlink(missing_ok=True)  # stale
     return path
 
 
@@ -373,6 +400,8 @@ def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
     if plan.samplers:
         row["sample"] = point.sample
     row.update((k, v) for k, v in result.items() if k not in row and k != "sample")
+    if row.get("status") in DONE:               # a journal of an older flexpend has no verdict
+        row.setdefault("verdict", verdict_of(row))
     return row
 
 
@@ -392,13 +421,16 @@ def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
 
 
 def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int = 1,
-              retry_failed: bool = False, progress=True, plot: bool = True) -> SweepResult:
+              retry_failed: bool = False, progress=True, plot: bool = True,
+              stop=None) -> SweepResult:
     """Run the points of ``plan`` that ``out_dir`` has no finished row for, with ``executor``
     (:mod:`orchestration.sweeps.executor`; ``None``: serially here); write the table and the plot.
 
     ``fmus``: ``{"plant": path, "controller": path}`` for every run, or ``{flavour: {...}}``
     per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
-    must have been opened with ``files=`` these paths)."""
+    must have been opened with ``files=`` these paths). ``stop``: asked before the first run
+    and after each (Ctrl-C); when it returns True the sweep ends with KeyboardInterrupt, every
+    finished run in the journal."""
 
     executor = executor or Executor()
     out_dir = Path(out_dir)
@@ -419,6 +451,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
              for p in todo]
     bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
     t0 = time.perf_counter()
+    if stop is not None and stop():
+        raise KeyboardInterrupt
     with journal:
         for i, result in executor.map(run_task, tasks, batch=batch):
             if isinstance(result, TaskLost):
@@ -428,6 +462,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
             results[row["key"]] = row
             if bar is not None:
                 bar.update(row["status"])
+            if stop is not None and stop():
+                raise KeyboardInterrupt
     seconds = time.perf_counter() - t0
     ordered = [_row(p, results[p.key], plan) for p in plan.points]
     skipped = len({p.key for p in plan.points}) - len(todo)
@@ -439,8 +475,13 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
 
 
 def sweep_stats(rows) -> dict:
-    """Counts, the fraction of stable runs and the decay rates (worst, median, best) of the
-    finished runs."""
+    """Counts, the verdicts and the decay rates (worst, median, best) of the finished runs.
+
+    ``stable``, ``unstable``, ``no_verdict``: the finished runs' verdicts (:func:`verdict_of`);
+    ``no_fit``: the runs that completed without a reliable fit (the failed ones stopped early);
+    ``stable_fraction``: stable among the runs with a verdict (None without any);
+    ``linear_stable``, ``linear_unstable``: the linearised loops of the completed runs, and
+    ``no_fit_linear_stable``: those stable among the runs without a reliable fit."""
     n = len(rows)
     ok = [r for r in rows if r["status"] == "ok"]
     decays = [r for r in ok if r.get("decay_rate") is not None]
@@ -451,16 +492,21 @@ def sweep_stats(rows) -> dict:
            "invalid": sum(r.get("valid") is False for r in rows)}
     finished = out["ok"] + out["failed"]
     out["no_verdict"] = finished - out["stable"] - out["unstable"]
-    out["stable_fraction"] = out["stable"] / finished if finished else None
+    no_fit = [r for r in ok if r.get("stable") is None]
+    out["no_fit"] = len(no_fit)
+    judged = out["stable"] + out["unstable"]
+    out["stable_fraction"] = out["stable"] / judged if judged else None
+    lin = [r for r in ok if r.get("linear_decay_rate") is not None]
+    out["linear_stable"] = sum(r["linear_decay_rate"] > 0 for r in lin)
+    out["linear_unstable"] = len(lin) - out["linear_stable"]
+    out["no_fit_linear_stable"] = sum((r.get("linear_decay_rate") or 0) > 0 for r in no_fit)
     if decays:
         worst = min(decays, key=lambda r: r["decay_rate"])
         vals = [r["decay_rate"] for r in decays]
         out.update(worst_decay_rate=worst["decay_rate"], worst_run=worst["run"],
                    median_decay_rate=float(np.median(vals)), best_decay_rate=max(vals))
-    lin = [r for r in ok if r.get("linear_decay_rate") is not None]
     if lin:
         worst = min(lin, key=lambda r: r["linear_decay_rate"])
         out.update(worst_linear_decay_rate=worst["linear_decay_rate"],
                    worst_linear_run=worst["run"])
     return out
-

@@ -9,8 +9,8 @@ from pathlib import Path
 from ..report.files import write_json
 from ..scene.keys import ConfigError, toml_value
 from .engine import fmus_for, pending, run_sweep, sweep_stats
-from .executor import Executor, default_workers, open_executor
-from .plan import design_worst_case, plan_sweep
+from .executor import CLUSTER_START, Executor, cluster_workers, default_workers, open_executor
+from .plan import design_worst_case, expected_run_seconds, plan_sweep
 
 __all__ = ["Sweep", "sweep"]
 
@@ -41,15 +41,19 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
           seed: int | None = None, overrides=(), reference: bool = False,
           workers: int | None = None, scheduler: str | None = None, serial: bool = False,
           batch: int = 1, retry_failed: bool = False, out="out/sweep", progress: bool = True,
-          command: str | None = None, on_executor=None) -> Sweep:
+          command: str | None = None, on_executor=None, stop=None) -> Sweep:
     """Run a sweep of ``scene`` into the folder ``out`` (see :mod:`orchestration.sweeps`).
 
     ``grid``, ``values``, ``sample``: the ``--grid``, ``--values``, ``--sample`` items (strings),
     or dicts: ``grid={"controller.kp": (300, 700, 5)}`` (a fourth item ``"log"`` for a geometric
     grid), ``values={"plant.n_modes": [2, 3, 4]}``, ``sample={"plant.EI": "uniform:800:950"}``
-    (or ``sample="design"``). ``workers``: a LocalCluster of that many processes (default: one
-    per core); ``scheduler``: the address of a dask scheduler; ``serial``: here, one run after
-    the other. Errors name the bad argument
+    (or ``sample="design"``). ``workers``: a LocalCluster of that many processes; ``scheduler``:
+    the address of a dask scheduler; ``serial``: here, one run after the other. Given none of
+    them, a LocalCluster of one process per core where it wins against the serial runs, by the
+    rule of :func:`~orchestration.sweeps.executor.cluster_workers` on the runs' expected length
+    (:func:`~orchestration.sweeps.plan.expected_run_seconds`), else serial. ``stop``: asked before the first run and after each
+    (Ctrl-C): when it returns True the sweep ends with KeyboardInterrupt (the finished runs are
+    in the journal, and the same call continues the sweep). Errors name the bad argument
     (:class:`~orchestration.scene.keys.ConfigError`, a ``ValueError``)."""
     if serial and (workers is not None or scheduler):
         raise ConfigError("serial runs here, without dask: it takes no workers or scheduler")
@@ -71,18 +75,27 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
         print(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
               + (f", {done} already finished in {out_dir}" if done else ""), file=sys.stderr)
     fmus = fmus_for(plan)
+    if not (serial or scheduler or workers is not None or todo == 0):
+        seconds = sum(expected_run_seconds(p.scene, plan.reference) for p in plan.points) \
+            / len(plan.points)
+        workers = cluster_workers(todo, seconds) or None
+        serial = workers is None
+        if serial and progress:
+            print(f"running here, one run after the other: a LocalCluster would not win "
+                  f"for {todo} run{'s' if todo != 1 else ''} of about {seconds:.2g} s on "
+                  f"{default_workers()} core{'s' if default_workers() != 1 else ''} (it "
+                  f"takes about {CLUSTER_START:g} s to start; --workers N starts one anyway)",
+                  file=sys.stderr)
     if serial or todo == 0:
         executor = Executor()
     else:
-        if workers is None and not scheduler:
-            workers = min(default_workers(), todo)
         executor = open_executor(workers, scheduler,
                                  files=[f for pair in fmus.values() for f in pair.values()])
         if on_executor is not None:
             on_executor(executor)
     with executor:
         res = run_sweep(plan, fmus, out_dir, executor, batch=batch, retry_failed=retry_failed,
-                        progress=progress)
+                        progress=progress, stop=stop)
     stats = sweep_stats(res.rows)
     design = design_worst_case(plan)
     if design is not None:

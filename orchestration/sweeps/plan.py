@@ -24,7 +24,7 @@ from ..studies.design import (
 
 __all__ = ["DESIGN_KEYS", "DISTRIBUTIONS", "Axis", "Sampler", "parse_grid", "parse_values",
            "parse_sample", "draw_samples", "Point", "SweepPlan", "run_key", "plan_sweep",
-           "design_worst_case"]
+           "design_worst_case", "expected_run_seconds"]
 
 
 #: scene key -> the uncertainty set's parameter (``flexpend design``)
@@ -309,6 +309,34 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
     return SweepPlan(base, axes, samplers, n_samples or 0, seed, reference, points,
                      list(overrides), uncertainty,
                      settings["design.check_levels"] if uncertainty is not None else 5)
+
+
+# ---------------------------------------------------------------------------- run length
+#: What a run costs besides its steps: loading its FMUs, the summary's fits (s).
+RUN_FIXED = 0.1
+#: One communication step (s): the native FMUs on the compiled loop, on the Python loop
+#: (``master.compiled = false``), the pythonfmu FMUs.
+STEP_COST = {"compiled": 2e-6, "native": 5e-5, "python": 1e-4}
+#: Model exchange, per simulated second (s).
+MODEL_EXCHANGE_SECOND = 0.35
+#: The monolithic reference (``--reference``): once, and per simulated second (s).
+REFERENCE_FIXED, REFERENCE_SECOND = 1.0, 0.15
+
+
+def expected_run_seconds(scene: Scene, reference: bool = False) -> float:
+    """About how long one run of ``scene`` takes on one core, from its length
+    (``stop_time / master.step`` steps, or ``stop_time`` on model exchange) and the constants
+    above, measured on the 2-core machine of docs/sweeps.md (the 10 s filtered scene: 0.1 s).
+    It decides whether a sweep starts a cluster (:func:`~orchestration.sweeps.executor.
+    cluster_workers`); it is no prediction to rely on."""
+    m, stop = scene.master, scene.output.stop_time
+    if m.interface == "model-exchange":
+        work = MODEL_EXCHANGE_SECOND * stop
+    else:
+        kind = "python" if m.fmus == "python" else "native" if m.compiled is False \
+            else "compiled"
+        work = stop / m.step * STEP_COST[kind]
+    return RUN_FIXED + work + (REFERENCE_FIXED + REFERENCE_SECOND * stop if reference else 0.0)
 
 
 # ---------------------------------------------------------------------------- plots

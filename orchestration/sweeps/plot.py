@@ -1,4 +1,6 @@
-"""The sweep's figure: a heat map, a line plot or a histogram of the decay rates.
+"""The sweep's figure: a heat map, line plots or a histogram of the decay rates. Each counts the
+runs' verdicts with "no verdict" (no reliable fit, or stopped early) apart from "unstable", and
+each quantity has an axis of its own, with its unit.
 """
 from __future__ import annotations
 
@@ -11,7 +13,11 @@ from ..report.figures import new_figure
 from ..report.files import save_figure
 from .plan import SweepPlan, design_worst_case
 
-__all__ = ["plot_sweep"]
+__all__ = ["plot_sweep", "sweep_figure", "verdict_text"]
+
+#: The verdict strip of a line plot: category -> (colour, marker), in the strip's order.
+_STRIP = {"stable": ("C2", "o"), "unstable": ("C3", "v"), "no verdict": ("0.5", "s"),
+          "stopped early": ("k", "x"), "lost": ("m", "d")}
 
 
 def _label(v) -> str:
@@ -28,22 +34,66 @@ def _ticks(ax, axis, values, which):
     getattr(ax, f"set_{which}label")(axis.key + (" (log grid)" if axis.log else ""))
 
 
-def _decay(r):
-    v = r.get("decay_rate") if r["status"] == "ok" else None
+def _value(r, column):
+    """A run's value of ``column``, NaN where it has none: a fit only from a completed run, the
+    linearised loop's from any run that had one."""
+    v = r.get(column) if r["status"] == "ok" or "linear" in column else None
     return math.nan if v is None else v
 
 
+def _category(r) -> str:
+    """A run's place in the verdict strip."""
+    if r["status"] in ("failed", "lost"):
+        return "stopped early" if r["status"] == "failed" else "lost"
+    return r.get("verdict") or "no verdict"
+
+
+def verdict_text(rows) -> str:
+    """``verdicts: 3 stable, 1 unstable, 2 no verdict (1 without a reliable fit, 1 stopped
+    early)``."""
+    cats = [_category(r) for r in rows]
+    why = ", ".join(f"{n} {text}" for n, text in
+                    ((cats.count("no verdict"), "without a reliable fit"),
+                     (cats.count("stopped early"), "stopped early")) if n)
+    lost = cats.count("lost")
+    return (f"verdicts: {cats.count('stable')} stable, {cats.count('unstable')} unstable, "
+            f"{cats.count('no verdict') + cats.count('stopped early')} no verdict"
+            + (f" ({why})" if why else "") + (f", {lost} lost" if lost else ""))
+
+
+def _lines(ax, x, rows, series, ylabel):
+    """Plot the ``(column, label, style)`` series that have a value; label the axis; a legend
+    of the plotted ones only. False when none had a value."""
+    drawn = False
+    for col, label, style in series:
+        y = [_value(r, col) for r in rows]
+        if any(math.isfinite(v) for v in y):
+            ax.plot(x, y, style, ms=4, lw=1.2, label=label)
+            drawn = True
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.grid(alpha=0.3)
+    if drawn:
+        ax.legend(fontsize=7)
+    return drawn
+
+
 def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
-    """Heat map (2 swept axes), line plot (1 axis) or histogram (a sample) of the decay rate
-    ``-max(fitted rate)``; failed runs marked. None when the sweep has no such shape."""
+    """Write :func:`sweep_figure` to ``path``; None when the sweep has no such figure."""
+    fig = sweep_figure(plan, rows)
+    return None if fig is None else save_figure(fig, path)
+
+
+def sweep_figure(plan: SweepPlan, rows):
+    """Heat map (2 swept axes), line plots (1 axis) or histogram (a sample) of the decay rate
+    ``-max(fitted rate)``, the verdicts counted in the title; None when the sweep has no such
+    shape."""
 
     title = f"flexpend sweep {plan.scene.name}" + (
         f" ({' '.join('--set ' + o for o in plan.overrides)})" if plan.overrides else "")
-    failed = [r for r in rows if r["status"] != "ok"]
     if plan.samplers:
         fig = new_figure(8, 5)
         ax = fig.subplots()
-        vals = np.array([_decay(r) for r in rows])
+        vals = np.array([_value(r, "decay_rate") for r in rows])
         vals = vals[np.isfinite(vals)]
         lin = np.array([r.get("linear_decay_rate") for r in rows if r["status"] == "ok"
                         and r.get("linear_decay_rate") is not None], dtype=float)
@@ -81,33 +131,46 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
         keys = ", ".join(s.key for s in plan.samplers)
         ax.set_title(f"{title}\n{len(rows)} runs ({len(plan.points) // max(plan.n_samples, 1)} "
                      f"x {plan.n_samples} samples of {keys}, seed {plan.seed}); "
-                     f"{len(failed)} failed, {len(rows) - len(failed) - len(vals)} without a fit",
-                     fontsize=9)
+                     f"{verdict_text(rows)}", fontsize=9)
     elif len(plan.axes) == 1:
         axis = plan.axes[0]
-        fig = new_figure(8, 5)
-        ax = fig.subplots()
         x = np.arange(len(axis.values))
-        for col, label, style in (("decay_rate", "decay rate -max(fitted rate)", "k-o"),
-                                  ("linear_decay_rate", "linearised loop: -max Re(lambda)",
-                                   "k:"),
-                                  ("slow_rate", "slow (rigid) rate, fitted", "C0--s"),
-                                  ("bending_rate", "bending rate, fitted", "C1--^")):
-            y = [math.nan if r["status"] != "ok" or r.get(col) is None else r[col] for r in rows]
-            ax.plot(x, y, style, ms=4, lw=1.2, label=label)
-        bad = [i for i, r in enumerate(rows) if r["status"] != "ok"]
-        if bad:
-            ax.plot(bad, [0.0] * len(bad), "rx", ms=9, mew=2, label="failed run")
-        ax.axhline(0.0, color="0.5", lw=0.8)
-        _ticks(ax, axis, axis.values, "x")
-        ax.set_ylabel("1/s")
-        ax.legend(fontsize=8)
-        ax.grid(alpha=0.3)
-        ax.set_title(title, fontsize=9)
+        panels = [
+            ([("decay_rate", "co-simulation: -max(fitted rate)", "k-o"),
+              ("linear_decay_rate", "linearised loop: -max Re(lambda)", "k:")],
+             "decay rate, 1/s\n(> 0: decays)"),
+            ([("slow_rate", "fitted", "C0-s"), ("slow_rate_linear", "linearised loop", "C0:")],
+             "slow (rigid) mode:\nrate Re(lambda), 1/s"),
+            ([("bending_rate", "fitted", "C1-^"),
+              ("bending_rate_linear", "linearised loop", "C1:")],
+             "bending mode:\nrate Re(lambda), 1/s")]
+        # a mode's panel only where some run has that mode (fitted or linear)
+        panels = panels[:1] + [pn for pn in panels[1:] if any(
+            math.isfinite(_value(r, col)) for r in rows for col, _, _ in pn[0])]
+        fig = new_figure(8, 2.2 * len(panels) + 1.6)
+        axes = fig.subplots(len(panels) + 1, 1, sharex=True,
+                            gridspec_kw={"height_ratios": [3] * len(panels) + [1.3]})
+        for ax, (series, ylabel) in zip(axes, panels):
+            if not _lines(ax, x, rows, series, ylabel):
+                ax.text(0.5, 0.5, "no run has a value", transform=ax.transAxes, ha="center",
+                        va="center", fontsize=8, color="0.4")
+        axes[0].axhline(0.0, color="0.5", lw=0.8)
+        strip = axes[-1]
+        cats = [c for c in _STRIP if c != "lost" or any(r["status"] == "lost" for r in rows)]
+        for i, r in enumerate(rows):
+            colour, marker = _STRIP[_category(r)]
+            strip.plot(i, cats.index(_category(r)), marker, color=colour, ms=6)
+        strip.set_yticks(range(len(cats)))
+        strip.set_yticklabels(cats, fontsize=7)
+        strip.set_ylim(len(cats) - 0.5, -0.5)
+        strip.set_ylabel("verdict", fontsize=8)
+        strip.grid(alpha=0.3, axis="x")
+        _ticks(strip, axis, axis.values, "x")
+        axes[0].set_title(f"{title}\n{verdict_text(rows)}", fontsize=9)
     elif len(plan.axes) == 2:
         from matplotlib.colors import TwoSlopeNorm
         ax0, ax1 = plan.axes
-        grid = np.array([_decay(r) for r in rows]).reshape(len(ax0.values), len(ax1.values))
+        grid = np.array([_value(r, "decay_rate") for r in rows]).reshape(len(ax0.values), len(ax1.values))
         fig = new_figure(9, 6.5)
         ax = fig.subplots()
         finite = grid[np.isfinite(grid)]
@@ -123,17 +186,20 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
                 if np.isfinite(v):
                     ax.text(i, j, f"{v:+.3g}", ha="center", va="center", fontsize=7,
                             color="w" if abs(v) > 0.6 * lim else "k")
-        for r in failed:
+        for r in rows:
             i, j = divmod(r["run"], len(ax1.values))
-            ax.plot(i, j, "kx", ms=9, mew=2)
+            if r["status"] != "ok":
+                ax.plot(i, j, "kx", ms=9, mew=2)
+            elif not np.isfinite(grid[i, j]) and grid.size <= 150:
+                ax.text(i, j, "no\nverdict", ha="center", va="center", fontsize=6,
+                        color="0.25")
         _ticks(ax, ax0, ax0.values, "x")
         _ticks(ax, ax1, ax1.values, "y")
         fig.colorbar(im, ax=ax, extend="both",
                      label="decay rate -max(fitted rate), 1/s (red: grows)")
-        ax.set_title(title + "\nx: failed run; grey: no fit", fontsize=9)
+        ax.set_title(f"{title}\n{verdict_text(rows)}\ngrey: no verdict (no reliable fit); "
+                     "x: stopped early", fontsize=9)
     else:
         return None
     fig.tight_layout()
-    return save_figure(fig, path)
-    return path
-
+    return fig

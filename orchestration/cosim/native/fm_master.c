@@ -95,21 +95,22 @@ static double combine(const fm_slave *s, const double *w, int nodes, int idx)
     return acc;
 }
 
-/* _fill: the inputs of slave `d` from its sources' polynomials about step index `kt` (time `t`,
- * time unit `scale`): the held values (`held`: the step averages, or the values and the
- * derivatives at t when the slave takes input derivatives), or the values at t alone. */
-static int fill(const fm_master *m, fm_slave *d, long long kt, double scale, int held)
+/* _fill: the inputs of slave `d` from its sources' polynomials about step index `kt`: the held
+ * values (`held`: the step averages, or the values and the derivatives at kt when the slave
+ * takes input derivatives), or the values at kt alone. The nodes are the step indices' offsets
+ * from kt, integers however long the run. */
+static int fill(const fm_master *m, fm_slave *d, long long kt, int held)
 {
     double wd[2][3];
     double pw[2] = {0.0, 0.0};
     int i, r;
     int rows = held && d->n_der ? d->n_der : 0;
     if (rows) {
-        /* numpy: w / scale ** kd, Python's ** being libm's pow (the exponent is volatile so
+        /* numpy: w / h ** kd, Python's ** being libm's pow (the exponent is volatile so
          * that the compiler does not turn pow(x, 2) into x * x) */
         volatile double one = 1.0, two = 2.0;
-        pw[0] = pow(scale, one);
-        if (rows > 1) pw[1] = pow(scale, two);
+        pw[0] = pow(m->h, one);
+        if (rows > 1) pw[1] = pow(m->h, two);
     }
     for (i = 0; i < d->n_in; i++) {
         const fm_slave *s = &m->slaves[d->in_src[i]];
@@ -135,29 +136,13 @@ static int fill(const fm_master *m, fm_slave *d, long long kt, double scale, int
     return 1;
 }
 
-/* Whether every node step k can read is within grid_tol of its integer, as Python computes the
- * nodes: (t_j - t_k) / (t_k+1 - t_k) for the held inputs, (t_j - t_k+1) / h for the point ones. */
-static int on_grid(const fm_master *m, long long k)
-{
-    double ta = t_of(m, k), tb = t_of(m, k + 1), scale = tb - ta;
-    long long j = k - 2 > 0 ? k - 2 : 0;
-    for (; j <= k + 1; j++) {
-        double tj = t_of(m, j);
-        double qa = (tj - ta) / scale, qb = (tj - tb) / m->h;
-        if (!(fabs(qa - (double)(j - k)) <= m->grid_tol) ||
-            !(fabs(qb - (double)(j - k - 1)) <= m->grid_tol))
-            return 0;
-    }
-    return 1;
-}
-
 /* ---------------------------------------------------------------------- one step */
 /* Slave.set_inputs with the held inputs (values, then derivatives), at ta. */
-static int set_held(fm_master *m, int n, long long k, double ta, double scale)
+static int set_held(fm_master *m, int n, long long k, double ta)
 {
     fm_slave *d = &m->slaves[n];
     int st;
-    if (!fill(m, d, k, scale, 1)) return FM_BADARG;
+    if (!fill(m, d, k, 1)) return FM_BADARG;
     if (d->n_in) {
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
         if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, ta);
@@ -170,10 +155,10 @@ static int set_held(fm_master *m, int n, long long k, double ta, double scale)
     return FM_DONE;
 }
 
-static int do_step(fm_master *m, int n, double ta, double h)
+static int do_step(fm_master *m, int n, double ta)
 {
     fm_slave *d = &m->slaves[n];
-    int st = d->do_step(d->c, ta, h, 1);
+    int st = d->do_step(d->c, ta, m->h, 1);
     if (st > 1) return fail(m, n, FM_CALL_DO_STEP, st, 1, ta);
     return FM_DONE;
 }
@@ -184,7 +169,7 @@ static int outputs_after_step(fm_master *m, int n, long long k, double tb)
     fm_slave *d = &m->slaves[n];
     int st;
     if (d->feedthrough && d->n_in) {
-        if (!fill(m, d, k + 1, m->h, 0)) return FM_BADARG;
+        if (!fill(m, d, k + 1, 0)) return FM_BADARG;
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
         if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, tb);
     }
@@ -195,16 +180,16 @@ static int outputs_after_step(fm_master *m, int n, long long k, double tb)
     return FM_DONE;
 }
 
-/* _macro_step: every slave's new outputs in its new_val. */
+/* _macro_step: every slave's new outputs in its new_val; the FMUs step from t0 + k h over h. */
 static int macro_step(fm_master *m, long long k)
 {
-    double ta = t_of(m, k), tb = t_of(m, k + 1), h = tb - ta;
+    double ta = t_of(m, k), tb = t_of(m, k + 1);
     int i, rc;
     if (!m->gauss_seidel) {
         for (i = 0; i < m->n_slaves; i++)
-            if ((rc = set_held(m, m->order[i], k, ta, h)) != FM_DONE) return rc;
+            if ((rc = set_held(m, m->order[i], k, ta)) != FM_DONE) return rc;
         for (i = 0; i < m->n_slaves; i++)
-            if ((rc = do_step(m, m->order[i], ta, h)) != FM_DONE) return rc;
+            if ((rc = do_step(m, m->order[i], ta)) != FM_DONE) return rc;
         for (i = 0; i < m->n_slaves; i++)
             if ((rc = outputs_after_step(m, m->order[i], k, tb)) != FM_DONE) return rc;
         return FM_DONE;
@@ -215,8 +200,8 @@ static int macro_step(fm_master *m, long long k)
     for (i = 0; i < m->n_slaves; i++) {
         int n = m->order[i];
         fm_slave *s = &m->slaves[n];
-        if ((rc = set_held(m, n, k, ta, h)) != FM_DONE) return rc;
-        if ((rc = do_step(m, n, ta, h)) != FM_DONE) return rc;
+        if ((rc = set_held(m, n, k, ta)) != FM_DONE) return rc;
+        if ((rc = do_step(m, n, ta)) != FM_DONE) return rc;
         if ((rc = outputs_after_step(m, n, k, tb)) != FM_DONE) return rc;
         if (s->count > 0 && s->newest == k + 1) {
             double *u = s->hist + (s->count - 1) * s->n_out;
@@ -304,7 +289,7 @@ static int check(const fm_master *m)
     int i, j;
     if (!m || !m->slaves || !m->order || !m->weights || m->n_slaves < 1 || m->p < 0 ||
         m->p > 2 || m->m < 1 || m->total < 0 || m->k < 0 || (m->n_cols && !m->out) ||
-        !(m->h > 0.0) || !(m->grid_tol >= 0.0 && m->grid_tol <= 1e-10))
+        !(m->h > 0.0))
         return 0;
     for (i = 0; i < m->n_slaves; i++) {
         const fm_slave *s = &m->slaves[i];
@@ -338,7 +323,6 @@ FM_API int fm_run(fm_master *m, long long k_end)
     while (m->k < k_end) {
         long long k = m->k;
         double tb = t_of(m, k + 1);
-        if (!on_grid(m, k)) return FM_OFFGRID;
         if (m->correct_startup && m->slaves[m->order[0]].count == 1)
             rc = startup_step(m, k);
         else

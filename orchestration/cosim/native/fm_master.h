@@ -13,14 +13,12 @@
  *   the Python loop makes, in the same order, with the same arguments.
  * - The arithmetic is the Python master's, operation for operation: the extrapolation weights
  *   come from Python (the same cached solutions of the same Vandermonde systems), the
- *   derivative rows are divided by pow(scale, order) as numpy divides them, and the combinations
+ *   derivative rows are divided by pow(h, order) as numpy divides them, and the combinations
  *   are summed left to right with no contraction (compiled with -ffp-contract=off), as the
  *   Python master sums them. The results are bit-identical.
- * - The time grid is t0 + k h from integers, as in Python. Python rounds the extrapolation nodes
- *   (t_j - t) / scale to 9 decimals, which gives the integers the weights were computed for
- *   while the grid's rounding error is small; a step where a node is further than grid_tol
- *   from its integer is not taken (FM_OFFGRID, before any FMU call): the caller goes on in
- *   Python from there.
+ * - The time grid is t0 + k h from integers, as in Python: the FMUs step from t0 + k h over h,
+ *   and the extrapolation nodes are the offsets of the samples' step indices, integers however
+ *   long the run (the Python loop stamps its history with the step counters too).
  * - Every FMI status above fmi2Warning ends the run with FM_FAILED and names the slave, the call,
  *   its status and its time (the caller raises the Python master's CoSimulationError).
  */
@@ -42,14 +40,13 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FM_ABI 1
+#define FM_ABI 2
 
 /* Results of fm_run(). */
 #define FM_DONE 0       /* the steps up to k_end are taken */
 #define FM_FAILED 1     /* an FMI call returned a status above fmi2Warning: see fail_* */
 #define FM_STOPPED 2    /* the stop callback asked to stop after step k */
-#define FM_OFFGRID 3    /* step k would read a node off the integer grid: nothing was done */
-#define FM_BADARG 4     /* the struct is inconsistent (nothing was done) */
+#define FM_BADARG 3     /* the struct is inconsistent (nothing was done) */
 
 /* The FMI calls, as reported in fail_call. */
 #define FM_CALL_SET_REAL 1       /* fmi2SetReal (inputs) */
@@ -122,8 +119,6 @@ typedef struct fm_master {
     const int *order;                 /* in: (n_slaves) coupling order (Gauss-Seidel: first...) */
     double t0;                        /* in: start time */
     double h;                         /* in: communication step */
-    double grid_tol;                  /* in: the largest distance of a node from its integer
-                                             (1e-10; Python rounds the nodes to 9 decimals) */
     long long total;                  /* in: steps of the run */
     long long m;                      /* in: steps per output interval */
     const double *weights;            /* in: [3: newest node -1, 0, 1][3: nodes 1..3]
@@ -150,8 +145,8 @@ FM_API size_t fm_sizeof_slave(void);
 FM_API size_t fm_sizeof_master(void);
 
 /* Take steps m->k .. k_end - 1 (at most m->total), storing a row at every multiple of m->m and
- * asking m->go_on after every step. Returns FM_DONE, FM_FAILED, FM_STOPPED, FM_OFFGRID or
- * FM_BADARG; m->k and m->rows say how far it got. */
+ * asking m->go_on after every step. Returns FM_DONE, FM_FAILED, FM_STOPPED or FM_BADARG; m->k
+ * and m->rows say how far it got. */
 FM_API int fm_run(fm_master *m, long long k_end);
 
 #ifdef __cplusplus
