@@ -17,16 +17,20 @@ def check_real(name: str, value, *, low=None, high=None, low_open=True, high_ope
     """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise TypeError(f"{name} must be a real number, got {value!r}")
-    value = float(value)
+    lo = "-inf" if low is None else low
+    hi = "inf" if high is None else high
+    allowed = f"{'(' if low_open else '['}{lo}, {hi}{')' if high_open else ']'}"
+    try:
+        value = float(value)
+    except OverflowError:         # an integer beyond the largest double
+        raise ValueError(f"{name} = an integer of {len(str(abs(value)))} digits is out of range; "
+                         f"allowed: {allowed}") from None
     ok = not math.isnan(value) and (math.isfinite(value) or (allow_inf and value == math.inf))
     if low is not None:
         ok = ok and (value > low if low_open else value >= low)
     if high is not None:
         ok = ok and (value < high if high_open else value <= high)
     if not ok:
-        lo = "-inf" if low is None else low
-        hi = "inf" if high is None else high
-        allowed = f"{'(' if low_open else '['}{lo}, {hi}{')' if high_open else ']'}"
         raise ValueError(f"{name} = {value!r} is out of range; allowed: {allowed}")
     return value
 
@@ -40,7 +44,8 @@ def check_int(name: str, value, *, low: int, high: int) -> int:
     if not isinstance(value, int):
         raise TypeError(f"{name} must be an integer, got {value!r}")
     if not low <= value <= high:
-        raise ValueError(f"{name} = {value} is out of range; allowed: integers {low}..{high}")
+        shown = value if abs(value) < 10 ** 20 else f"an integer of {len(str(abs(value)))} digits"
+        raise ValueError(f"{name} = {shown} is out of range; allowed: integers {low}..{high}")
     return value
 
 

@@ -21,10 +21,12 @@ Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable o
 lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written, a
 ``--scheduler`` that does not answer as a dask scheduler within 5 s or has no worker within 30 s:
 one line naming it), or an output the system refused (a full disk: one line naming the file;
-every earlier file is kept whole), or an ``--out`` in use by another run; 3 ``flexpend run``: a
-scene stopped early (an FMU refused to go on; its data up to there is written); 130 interrupted
-by Ctrl-C, at any moment (the data so far is written, the FMUs are terminated and freed, every
-temporary folder is removed).
+every earlier file is kept whole), or an ``--out`` in use by another run, or a limit of the
+machine that the command cannot work within (too few file handles, ``ulimit -n``; too little
+memory, ``ulimit -v``: one line naming the limit); 3 ``flexpend run``: a scene stopped early (an
+FMU refused to go on; its data up to there is written); 130 interrupted by Ctrl-C, at any moment
+(the data so far is written, the FMUs are terminated and freed, every temporary folder is
+removed).
 
 Every output file is written to a temporary name beside it and renamed into place: it is
 complete or absent, and a failed write leaves the earlier file as it was. ``run``, ``design`` and
@@ -301,13 +303,74 @@ def _scheduler_error(exc):
 
 
 def _executor_args(args):
-    """``(workers, scheduler)`` of ``--workers``/``--scheduler``."""
+    """``(workers, scheduler)`` of ``--workers``/``--scheduler``; a LocalCluster of ``--workers``
+    processes is checked against the process's limits first (:func:`_cluster_limits`)."""
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed; allowed: an integer >= 1")
     if args.workers is not None and args.scheduler:
         raise UsageError("--workers starts a LocalCluster, --scheduler uses an existing one: "
                          "give one of them")
+    if args.workers is not None:
+        _cluster_limits(args.workers)
     return args.workers, args.scheduler
+
+
+#: What a LocalCluster of W worker processes needs (measured with 2 and 4 workers: its nannies
+#: fail to start below about 48 and 96 open files; its client crashes with 1 GiB of address
+#: space per process and runs with 2 GiB).
+CLUSTER_FILES_BASE, CLUSTER_FILES_PER_WORKER = 64, 16
+CLUSTER_ADDRESS_SPACE = 2 << 30
+
+
+def _cluster_limits(workers: int) -> None:
+    """Raise the soft limit of open files to what a LocalCluster of ``workers`` needs, where the
+    hard limit allows; a UsageError naming the limit where it does not, or where the address
+    space (``ulimit -v``) is too small for dask's processes."""
+    import resource
+
+    need = CLUSTER_FILES_BASE + CLUSTER_FILES_PER_WORKER * workers
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < need:
+        if hard == resource.RLIM_INFINITY or hard >= need:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+        else:
+            raise UsageError(f"too few file handles for a LocalCluster of {workers} workers: it "
+                             f"needs about {need}, this process may open {hard} (ulimit -n); "
+                             "raise the limit, give fewer --workers or run --serial")
+    space = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if space != resource.RLIM_INFINITY and space < CLUSTER_ADDRESS_SPACE:
+        raise UsageError(f"too little memory for a LocalCluster: each of its processes needs "
+                         f"about {CLUSTER_ADDRESS_SPACE >> 20} MiB of address space, this "
+                         f"process may use {space >> 20} MiB (ulimit -v); raise the limit or "
+                         "run --serial")
+
+
+def _machine_limit(exc: BaseException) -> str | None:
+    """The one line of a failure that a limit of the machine caused, found anywhere in the
+    exception's chain (a library may wrap it: dask's "Nanny failed to start", an ImportError
+    of a library that could not be mapped): too many open files, or out of memory. None for
+    any other failure."""
+    import errno
+    import resource
+
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in (errno.EMFILE, errno.ENFILE):
+            if exc.errno == errno.ENFILE:
+                return "too many open files on this system (its file table is full)"
+            soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+            return f"too many open files: this process may open {soft} (ulimit -n); raise the limit"
+        if (isinstance(exc, MemoryError)
+                or (isinstance(exc, OSError) and exc.errno == errno.ENOMEM)
+                or (isinstance(exc, ImportError) and "failed to map segment" in str(exc))):
+            space = resource.getrlimit(resource.RLIMIT_AS)[0]
+            if space == resource.RLIM_INFINITY:
+                return "out of memory"
+            return (f"out of memory: this process may use {space >> 20} MiB of address space "
+                    "(ulimit -v); raise the limit")
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def cmd_sweep(args) -> int:
@@ -578,10 +641,11 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("flexpend: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except OSError as exc:
-        if not _output_failure(exc):
+    except Exception as exc:          # a full disk, a limit of the machine, however it surfaced
+        line = (_output_failure(exc) if isinstance(exc, OSError) else None) or _machine_limit(exc)
+        if line is None:
             raise
-        print(f"flexpend: error: {_output_failure(exc)}", file=sys.stderr)
+        print(f"flexpend: error: {line}", file=sys.stderr)
         return EXIT_USAGE
     finally:
         _HELD.close()                 # the output folder's lock

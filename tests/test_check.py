@@ -213,3 +213,67 @@ def test_bad_input_one_line_exit_2(fmus, tmp_path, args, fragment):
     code, out, err = check(*args)
     assert code == 2 and fragment in err, err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+# ---------------------------------------------------------------------- the host side's faults
+def renamed_model(fmu, dest, model_name):
+    """A copy of ``fmu`` whose modelDescription.xml gives ``model_name`` as its modelName."""
+    import re
+    import zipfile
+
+    with zipfile.ZipFile(fmu) as src, zipfile.ZipFile(dest, "w", zipfile.ZIP_DEFLATED) as out:
+        for info in src.infolist():
+            data = src.read(info)
+            if info.filename == "modelDescription.xml":
+                data, n = re.subn(rb'modelName="[^"]*"', f'modelName="{model_name}"'.encode(), data)
+                assert n == 1
+            out.writestr(info, data)
+    return dest
+
+
+@pytest.mark.parametrize("where", ["absolute", "dotdot"])
+def test_references_are_looked_up_only_inside_the_reference_folder(fmus, tmp_path, where):
+    """An FMU whose modelName is a path names the reference it is compared against: with an
+    empty --reference it was compared with a reference outside and PASSED. Failed before the
+    names were sanitised (exit 0)."""
+    shutil.copytree(REFERENCES / "FlexiblePendulum", tmp_path / "outside")
+    (tmp_path / "empty").mkdir()
+    name = (str(tmp_path / "outside" / "FlexiblePendulum") if where == "absolute"
+            else "../outside/FlexiblePendulum")
+    fmu = renamed_model(fmus["FlexiblePendulum"], tmp_path / "Evil.fmu", name)
+    assert read_model_description(str(fmu)).modelName == name
+    code, out, err = check(fmu, "--reference", tmp_path / "empty")
+    assert code == 2, out + err
+    assert "PASSED" not in out and err.startswith(f"flexpend: error: {tmp_path / 'empty'}: no "
+                                                  "reference of Evil.fmu (Evil_ref.csv or "
+                                                  "FlexiblePendulum_ref.csv, ")
+    assert len(err.strip().splitlines()) == 1
+    # the same reference inside the folder, under a plain name, is found and passes
+    shutil.copytree(REFERENCES / "FlexiblePendulum", tmp_path / "empty" / "FlexiblePendulum")
+    code, out, err = check(fmu, "--reference", tmp_path / "empty")
+    assert code == 0 and "empty/FlexiblePendulum/FlexiblePendulum_ref.csv" in out, out + err
+
+
+def test_a_bomb_fmu_is_refused_before_fmpy_reads_it(tmp_path):
+    """Failed before: fmpy inflated the 8 MiB modelDescription.xml to read the model's name."""
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "Bomb.fmu", "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("modelDescription.xml", bytes(8 << 20))
+    code, out, err = check(tmp_path / "Bomb.fmu", "--reference", REFERENCES)
+    assert code == 2, out + err
+    assert "Bomb.fmu: member 'modelDescription.xml' inflates " in err and "the limit is 100 times" \
+        in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_window_beyond_the_samples_is_the_whole_signal():
+    """--window 99999999999999999999: an OverflowError traceback in scipy before; a window wider
+    than the signal is the whole signal, as a window of 2n + 1 samples is."""
+    from orchestration.export.check import Rule, band
+
+    t = np.linspace(0.0, 1.0, 101)
+    y = np.sin(7.0 * t)
+    wide = band(t, y, Rule(0.1, 10 ** 20, 0.1))
+    assert np.array_equal(wide[0], band(t, y, Rule(0.1, 2 * y.size + 1, 0.1))[0])
+    assert np.all(wide[0] == y.min() - 0.1 * np.ptp(y))
+    assert np.all(wide[1] == y.max() + 0.1 * np.ptp(y))

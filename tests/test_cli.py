@@ -84,3 +84,102 @@ def test_run_bad_wiring_one_line_exit_2(fmus, tmp_path):
                          "--set", 'connections=["plant.phi_oo -> controller.phi_o"]')
     assert code == 2 and "plant has no variable 'phi_oo'" in err
     assert len(err.strip().splitlines()) == 1
+
+
+# ---------------------------------------------------------------------- limits of the machine
+def _limited(limits: dict, *args, timeout=300):
+    """``flexpend ARGS`` in a child process whose resource limits (soft and hard) are
+    ``limits`` ({resource.RLIMIT_*: value}), as after ``ulimit -n`` or ``ulimit -v``."""
+    import resource
+
+    def apply():
+        for which, value in limits.items():
+            resource.setrlimit(which, (value, value))
+    proc = subprocess.run([sys.executable, "-m", "orchestration.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout, preexec_fn=apply)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def test_too_few_file_handles_for_a_local_cluster_is_one_line(tmp_path):
+    """ulimit -n 32 with --workers 2: the LocalCluster's nannies failed to start (dask's logged
+    tracebacks, then RuntimeError: Nanny failed to start). Failed before."""
+    import resource
+
+    code, out, err = _limited({resource.RLIMIT_NOFILE: 32}, "sweep", "rigid_pd", "--values",
+                              "controller.kp=500,600", "--set", "stop_time=0.5", "--workers", "2",
+                              "--out", tmp_path / "sweep")
+    assert code == 2, (out, err)
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("flexpend: error: too few file handles for a LocalCluster of 2 "
+                          "workers: it needs about 96, this process may open 32 (ulimit -n)")
+    assert not (tmp_path / "sweep" / "runs.jsonl").exists()
+
+
+def test_too_little_address_space_for_a_local_cluster_is_one_line(tmp_path):
+    """ulimit -v 1 GiB with --workers 2 crashed the client (a segmentation fault). Failed
+    before."""
+    import resource
+
+    code, out, err = _limited({resource.RLIMIT_AS: 1 << 30}, "sweep", "rigid_pd", "--values",
+                              "controller.kp=500,600", "--set", "stop_time=0.5", "--workers", "2",
+                              "--out", tmp_path / "sweep")
+    assert code == 2, (out, err)
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("flexpend: error: too little memory for a LocalCluster: each of its "
+                          "processes needs about 2048 MiB of address space, this process may use "
+                          "1024 MiB (ulimit -v)")
+
+
+@pytest.mark.parametrize("mib", [200, 256])
+def test_out_of_memory_is_one_line(tmp_path, mib):
+    """ulimit -v 256 MB: an ImportError (a library that could not be mapped), a traceback
+    before. (Closer to what a run needs, about 400 MiB, the failure moves: a MemoryError at 300,
+    a std::bad_alloc at 350, both caught; OpenBLAS aborting the process at 320 is not.)"""
+    import resource
+
+    code, out, err = _limited({resource.RLIMIT_AS: mib << 20}, "run", "rigid_pd", "--set",
+                              "stop_time=0.5", "--out", tmp_path / "out")
+    assert code == 2, (out, err)
+    *_, last = err.strip().splitlines()
+    assert "Traceback" not in err and last == (
+        f"flexpend: error: out of memory: this process may use {mib} MiB of address space "
+        "(ulimit -v); raise the limit"), err
+
+
+def test_a_process_out_of_file_handles_is_one_line(monkeypatch, capsys):
+    """An EMFILE anywhere (here: the scene file cannot be opened), whatever wraps it."""
+    import errno
+    import resource
+
+    from orchestration.scene import schema
+
+    def no_handles(*args, **kw):
+        try:
+            raise OSError(errno.EMFILE, "Too many open files")
+        except OSError as exc:
+            raise RuntimeError("something failed to start") from exc
+    monkeypatch.setattr(schema, "_read_toml", no_handles)
+    assert main(["run", str(schema.SCENE_DIR / "rigid_pd.toml")]) == 2
+    soft = resource.getrlimit(resource.RLIMIT_NOFILE)[0]
+    assert capsys.readouterr().err == (f"flexpend: error: too many open files: this process may "
+                                       f"open {soft} (ulimit -n); raise the limit\n")
+
+
+def test_the_soft_limit_of_open_files_is_raised_for_a_cluster():
+    """Where the hard limit allows, --workers raises the soft one (ulimit -S -n) instead of
+    refusing: 64 + 16 per worker."""
+    import resource
+
+    from orchestration import cli
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 128:
+        pytest.skip("the hard limit of open files is below 128 here")
+    try:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (64, hard))
+        cli._cluster_limits(4)
+        assert resource.getrlimit(resource.RLIMIT_NOFILE) == (64 + 16 * 4, hard)
+        cli._cluster_limits(1)                                   # never lowered
+        assert resource.getrlimit(resource.RLIMIT_NOFILE)[0] == 128
+    finally:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))

@@ -213,6 +213,13 @@ BAD = {
                   "plant.n_modes = -2 is out of range"),
     "start time": (dict(edit=('startTime="0"', 'startTime="1"')),
                    "startTime = 1: flexpend runs from 0"),
+    # libcosim's step (an annotation: no schema checks it); tracebacks before (ValueError,
+    # ZeroDivisionError, OverflowError)
+    **{f"step {v}": (dict(edit=('baseStepSize="0.002"', f'baseStepSize="{v}"')),
+                     f"osp:FixedStepAlgorithm baseStepSize = {v!r}: allowed: a positive number")
+       for v in ("abc", "0", "-0.002", "NaN", "INF")},
+    "step 1e-320": (dict(edit=('baseStepSize="0.002"', 'baseStepSize="1e-320"')),
+                    "must be a positive multiple of output_interval = 1e-320"),
 }
 
 
@@ -231,9 +238,15 @@ def test_a_bad_ssp_gives_one_line_and_exit_2(fmus, tmp_path, case):
 
 
 def test_not_an_archive_and_no_file_give_one_line(tmp_path):
+    import os
+
     (tmp_path / "x.ssp").write_text("hello")
+    os.mkfifo(tmp_path / "fifo.ssp")                  # was "no such file"
+    (tmp_path / "zero.ssp").symlink_to("/dev/zero")
     for path, fragment in ((tmp_path / "x.ssp", "not an SSP archive"),
-                           (tmp_path / "none.ssp", "no such file")):
+                           (tmp_path / "none.ssp", "no such file"),
+                           (tmp_path / "fifo.ssp", "fifo.ssp: not a regular file"),
+                           (tmp_path / "zero.ssp", "zero.ssp: not a regular file")):
         code, _, err = flexpend("run", str(path))
         assert code == 2 and fragment in err and len(err.strip().splitlines()) == 1
 
@@ -276,3 +289,109 @@ def test_an_infinite_value_the_fmu_does_not_have_is_written_as_INF(fmus, tmp_pat
     assert bound_values(ssd_root(path), "plant")["phi_limit"] == ("Real", "INF")
     with read_ssp(path) as system:
         assert math.isinf(system.scene.config["plant.phi_limit"])
+
+
+# ---------------------------------------------------------------------- archives within limits
+def deflated(members: dict) -> bytes:
+    """A zip (deflated) of ``{name: bytes}``, in memory."""
+    import io
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    return buf.getvalue()
+
+
+def declaring(data: bytes, member: str, size: int) -> bytes:
+    """The zip ``data`` with the inflated size of ``member`` in its table of contents (the
+    central directory) set to ``size``: a header that lies, as a crafted archive's may."""
+    import struct
+
+    name = member.encode()
+    at = data.index(b"PK\x01\x02")
+    while True:
+        n = struct.unpack_from("<H", data, at + 28)[0]
+        if data[at + 46:at + 46 + n] == name:
+            break
+        at = data.index(b"PK\x01\x02", at + 4)
+    return data[:at + 24] + struct.pack("<I", size) + data[at + 28:]
+
+
+ZEROS = bytes(8 << 20)            # 8 MiB of zeros deflate to 8 kB: a ratio of about 1000
+
+
+def test_an_ssp_zip_bomb_is_refused_before_it_is_inflated(fmus, tmp_path):
+    """Failed before the archive limits: the 8 MiB member was inflated whole, then refused as
+    'not a readable FMU' (a 2.4 MB bomb of 2 x 1.2 GB took 19 s and 2.1 GB of memory)."""
+    path = tmp_path / "bomb.ssp"
+    path.write_bytes(deflated({SSD_NAME: (FOREIGN / SSD_NAME).read_bytes(),
+                               "resources/regulator.ssv":
+                                   (FOREIGN / "resources" / "regulator.ssv").read_bytes(),
+                               "resources/FlexiblePendulum.fmu":
+                                   Path(fmus["FlexiblePendulum"]).read_bytes(),
+                               "resources/PDLowPass.fmu": ZEROS}))
+    code, out, err = flexpend("run", str(path), "--out", str(tmp_path / "out"))
+    assert code == 2, (out, err)
+    assert err.startswith("flexpend: error: bomb.ssp: member 'resources/PDLowPass.fmu' inflates ")
+    assert "the limit is 100 times for a member over 1 MiB" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_an_fmu_inside_an_ssp_is_bounded_too(fmus, tmp_path):
+    """The FMU (itself a zip) stored in the SSP is checked before fmpy reads its model
+    description. Failed before: the 8 MiB modelDescription.xml was inflated and parsed."""
+    path = foreign_archive(fmus, tmp_path / "nested.ssp",
+                           extra={"resources/PDLowPass.fmu":
+                                  deflated({"modelDescription.xml": ZEROS})}.items())
+    with pytest.raises(ValueError, match=r"^nested.ssp: component 'Regulator': "
+                                         r"resources/PDLowPass.fmu: member 'modelDescription.xml' "
+                                         r"inflates 10\d\d times"):
+        read_ssp(path)
+
+
+def test_a_declared_size_beyond_the_limit_is_refused_unread(fmus, tmp_path):
+    """A table of contents that declares 300 MiB for a small member: refused on the declared
+    size, before reading. Failed before: the member was read (its real 8 kB)."""
+    from orchestration.scene import archive
+
+    data = deflated({SSD_NAME: (FOREIGN / SSD_NAME).read_bytes(),
+                     "resources/regulator.ssv":
+                         (FOREIGN / "resources" / "regulator.ssv").read_bytes(),
+                     "resources/FlexiblePendulum.fmu": Path(fmus["FlexiblePendulum"]).read_bytes(),
+                     "resources/PDLowPass.fmu": bytes(8000)})
+    path = tmp_path / "liar.ssp"
+    path.write_bytes(declaring(data, "resources/PDLowPass.fmu", 300 << 20))
+    with zipfile.ZipFile(path) as zf:
+        assert zf.getinfo("resources/PDLowPass.fmu").file_size == 300 << 20
+    assert archive.MAX_MEMBER_BYTES == 256 << 20
+    with pytest.raises(ValueError, match=r"^liar.ssp: member 'resources/PDLowPass.fmu' inflates "
+                                         r"to 300 MiB; the limit is 256 MiB per member"):
+        read_ssp(path)
+
+
+def test_too_many_members_or_too_much_in_total_is_refused(fmus, tmp_path, monkeypatch):
+    """Failed before: any number of members and any total were read."""
+    from orchestration.scene import archive
+
+    path = foreign_archive(fmus, tmp_path / "many.ssp",
+                           extra=[(f"resources/doc/{i}.txt", b"") for i in range(10_000)])
+    with pytest.raises(ValueError, match=r"^many.ssp: 10004 members; the limit is 10000$"):
+        read_ssp(path)
+    path = foreign_archive(fmus, tmp_path / "large.ssp")
+    with zipfile.ZipFile(path) as zf:
+        total = sum(i.file_size for i in zf.infolist())
+    monkeypatch.setattr(archive, "MAX_TOTAL_BYTES", total - 1)
+    with pytest.raises(ValueError, match=r"^large.ssp: the members inflate to more than "
+                                         r"[0-9.]+ (MiB|bytes) together; that is the limit$"):
+        read_ssp(path)
+
+
+def test_fmpy_parameter_set_reads_within_the_limits(fmus, tmp_path):
+    from orchestration.scene.ssp import fmpy_parameter_set
+
+    path = foreign_archive(fmus, tmp_path / "nested.ssp",
+                           extra={"resources/PDLowPass.fmu":
+                                  deflated({"modelDescription.xml": ZEROS})}.items())
+    with pytest.raises(ValueError, match="member 'modelDescription.xml' inflates 10\\d\\d times"):
+        fmpy_parameter_set(path)

@@ -194,7 +194,15 @@ def _die_on_three(i):
     (["--grid", "controller.kp=1:2"], "--grid expects KEY=START:STOP:NUM[:log]"),
     (["--grid", "controller.kpp=1:2:3"], "unknown key 'controller.kpp'; did you mean "
                                          "'controller.kp'?"),
-    (["--grid", "controller.kp=1:2:0"], "NUM must be an integer >= 1"),
+    (["--grid", "controller.kp=1:2:0"], "NUM must be an integer 1..100000"),
+    # too many runs: numpy's "Maximum allowed size exceeded", or minutes of planning, before
+    (["--grid", "controller.kp=1:2:99999999999999999999"], "NUM must be an integer 1..100000"),
+    (["--sample", "plant.EI=uniform:800:900", "--samples", "99999999999999999999"],
+     "--samples 99999999999999999999 is not allowed; allowed: an integer 1..100000"),
+    (["--grid", "controller.kp=1:2:1000", "--grid", "controller.kd=1:2:1000"],
+     "the sweep has 1000000 runs; allowed: at most 100000 in one sweep"),
+    (["--grid", "controller.kp=1:2:1000", "--sample", "plant.EI=uniform:800:900", "--samples",
+      "1000"], "the sweep has 1000000 runs"),
     (["--grid", "controller.kp=0:2:3:log"], "a log grid needs START and STOP > 0"),
     (["--grid", "plant.n_modes=1:2:3"], "plant.n_modes takes integers; the grid gives 1.5"),
     (["--values", "master.algorithm=jacobi,"], "an empty value"),
@@ -241,3 +249,102 @@ def test_cli_sweep_prints_counts_writes_record_and_resumes(fmus, tmp_path, capsy
     assert main(args) == 0
     out, err = capsys.readouterr()
     assert "2 already finished" in err and "; 0 ran, 2 were already done" in out
+
+
+# ---------------------------------------------------------------------- a damaged sweep folder
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A finished 2-run sweep's folder (runs.jsonl, the table, sweep.json, sweep.png)."""
+    out = tmp_path_factory.mktemp("finished")
+    assert main(_SMALL + ["--out", str(out)]) == 0
+    return out
+
+
+_SMALL = ["sweep", "rigid_pd", "--values", "controller.kp=500,600", "--set", "stop_time=0.5",
+          "--serial"]
+
+
+def _rerun(finished, tmp_path, capsys, damage):
+    import shutil
+
+    out = tmp_path / "sweep"
+    shutil.copytree(finished, out)
+    capsys.readouterr()
+    damage(out)
+    code = main(_SMALL + ["--out", str(out)])
+    stdout, err = capsys.readouterr()
+    assert "Traceback" not in err
+    return code, stdout, err
+
+
+def _row0(edit):
+    """A damage that rewrites the journal's first row (a dict) with ``edit``; bytes are
+    written as they are."""
+    import json
+
+    def damage(out):
+        lines = (out / "runs.jsonl").read_bytes().splitlines()
+        row = edit(json.loads(lines[0]))
+        lines[0] = row if isinstance(row, bytes) else json.dumps(row).encode()
+        (out / "runs.jsonl").write_bytes(b"\n".join(lines) + b"\n")
+    return damage
+
+
+@pytest.mark.parametrize("damage", [
+    _row0(lambda r: json_bytes(r).replace(b'"status"', b'"st\xffatus"')),
+    _row0(lambda r: {**r, "key": [1, 2]}),
+    _row0(lambda r: {**r, "key": 7}),
+    _row0(lambda r: {**r, "decay_rate": "fast"}),
+    _row0(lambda r: {**r, "stable": "yes"}),
+    _row0(lambda r: {**r, "status": None}),
+    _row0(lambda r: [r]),
+], ids=["invalid UTF-8", "key a list", "key a number", "decay_rate a string",
+        "stable a string", "status null", "not an object"])
+def test_a_damaged_journal_row_is_rerun(finished, tmp_path, capsys, damage):
+    """A journal row that is not a sound row (invalid UTF-8, a key that is not a string, a
+    field of the wrong type) counts as not finished: its run is rerun, the other is kept.
+    Failed before with tracebacks (UnicodeDecodeError, unhashable list, a str compared with a
+    float in the statistics) or by trusting the row."""
+    code, stdout, err = _rerun(finished, tmp_path, capsys, damage)
+    assert code == 0, err
+    assert "1 already finished" in err and "; 1 ran in " in stdout, stdout
+    assert ", 1 were already done" in stdout
+    assert Journal(tmp_path / "sweep").read().keys() == Journal(finished).read().keys()
+
+
+def json_bytes(row) -> bytes:
+    import json
+
+    return json.dumps(row).encode()
+
+
+@pytest.mark.parametrize("name", ["runs.jsonl", "sweep.parquet", "sweep.csv", "sweep.json",
+                                  "sweep.png"])
+def test_a_folder_in_place_of_a_sweep_file_is_one_line(finished, tmp_path, capsys, name):
+    """Failed before: IsADirectoryError tracebacks (runs.jsonl, the tables) or a sweep that ran
+    and then could not write its record."""
+    def damage(out):
+        (out / name).unlink(missing_ok=True)
+        (out / name).mkdir()
+    code, stdout, err = _rerun(finished, tmp_path, capsys, damage)
+    assert code == 2, (stdout, err)
+    assert err.startswith("flexpend: error: ") and f"{name}: a folder" in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_an_immutable_journal_is_one_line(finished, tmp_path, capsys):
+    """chattr +i (root cannot write it either). Failed before: a PermissionError traceback."""
+    import subprocess
+
+    journal = tmp_path / "sweep" / "runs.jsonl"
+
+    def damage(out):
+        if subprocess.run(["chattr", "+i", str(journal)], capture_output=True).returncode:
+            pytest.skip("chattr +i is not available here")
+    try:
+        code, stdout, err = _rerun(finished, tmp_path, capsys, damage)
+    finally:
+        subprocess.run(["chattr", "-i", str(journal)], capture_output=True)
+    assert code == 2, (stdout, err)
+    assert err.startswith("flexpend: error: ") and "runs.jsonl: cannot be written" in err
+    assert len(err.strip().splitlines()) == 1

@@ -46,6 +46,7 @@ from fmu_common.kernels import ROOT
 
 from ..report.figures import new_figure
 from ..report.files import save_figure, write_csv, write_text
+from ..scene import archive
 from . import places
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
@@ -103,18 +104,39 @@ def _files(d: Path, name: str) -> dict:
             "model": name, "dir": d}
 
 
+def _plain_name(name) -> bool:
+    """Whether ``name`` is one plain file name (no folder, not ``.`` or ``..``, no drive): the
+    only model names a reference is looked up by, so that the FMU cannot choose a path."""
+    return (isinstance(name, str) and name.strip(".") != ""
+            and not any(c in name for c in "/\\:\0"))
+
+
 def _model_names(fmu: Path) -> list[str]:
+    """The names the reference of ``fmu`` may have: its file's, its model identifier, its model
+    name; only those that are plain file names (:func:`_plain_name`)."""
     from fmpy import read_model_description
 
+    _check_archive(fmu)
     try:
         md = read_model_description(str(fmu), validate=False)
     except Exception as exc:  # noqa: BLE001 - any reason the FMU cannot be read
         raise ReferenceError(f"{fmu}: not a readable FMU: {exc}") from None
-    names = [fmu.stem]
-    for n in (getattr(md.coSimulation, "modelIdentifier", None), md.modelName):
-        if n and n not in names:
+    names = []
+    for n in (fmu.stem, getattr(md.coSimulation, "modelIdentifier", None), md.modelName):
+        if _plain_name(n) and n not in names:
             names.append(n)
+    if not names:
+        raise ReferenceError(f"{fmu}: neither its file name, nor its model identifier, nor its "
+                             "model name is a plain file name to look its reference up by")
     return names
+
+
+def _check_archive(fmu: Path) -> None:
+    """The archive limits (:mod:`orchestration.scene.archive`), before anything inflates it."""
+    try:
+        archive.check_fmu_archive(fmu, str(fmu))
+    except archive.ArchiveError as exc:
+        raise ReferenceError(str(exc)) from None
 
 
 def find_reference(fmu, ref_dir, must_exist: bool = True) -> dict:
@@ -215,10 +237,17 @@ def simulate_case(fmu, files: dict, start_values=None, outputs=None, timeout=Non
         _read_csv(files["in"])                       # a malformed input file: ReferenceError
     if outputs is None:
         outputs = list(_read_csv(files["ref"]).dtype.names[1:])
-    # the child's temporary files in ours: fmpy keeps the folder it unpacked the FMU into when
-    # the simulation raises
+    # the FMU unpacked, and the child's temporary files, in our folder, removed however the run
+    # ends (fmpy keeps the folder it unpacked an FMU into when the simulation raises); unpacked
+    # here, within the archive limits
     with tempfile.TemporaryDirectory(prefix="flexpend_check_") as tmp:
-        args = {"fmu": str(Path(fmu).resolve()), "opt": opt, "outputs": list(outputs),
+        fmu = Path(fmu)
+        if not fmu.is_dir():
+            try:
+                fmu = archive.extract(fmu, Path(tmp) / "fmu", str(fmu))
+            except archive.ArchiveError as exc:
+                raise ReferenceError(str(exc)) from None
+        args = {"fmu": str(fmu.resolve()), "opt": opt, "outputs": list(outputs),
                 "input": str(files["in"].resolve()) if files["in"].is_file() else None,
                 "start_values": dict(start_values or {}),
                 "result": str(Path(tmp) / "result.npy"), "meta": str(Path(tmp) / "meta.json")}
@@ -336,8 +365,9 @@ def band(t_ref, y_ref, rule: Rule):
     span = hi_ref - lo_ref
     w = rule.tolerance * (span if span > 0 else max(abs(lo_ref), 1.0))
     if rule.window > 1:
-        lower = minimum_filter1d(y_ref, size=rule.window) - w
-        upper = maximum_filter1d(y_ref, size=rule.window) + w
+        size = min(rule.window, 2 * y_ref.size + 1)    # wider than the signal: all of it
+        lower = minimum_filter1d(y_ref, size=size) - w
+        upper = maximum_filter1d(y_ref, size=size) + w
     else:
         lower, upper = y_ref - w, y_ref + w
     return lower, upper, w

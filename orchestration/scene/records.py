@@ -38,7 +38,7 @@ from .wiring import Connection, parse_connection
 
 __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", "PlantSetup",
            "MasterSettings", "InitialState", "FidelitySettings", "OutputSettings", "Scene",
-           "DEFAULT_CONNECTIONS", "KEYS", "initial_energy"]
+           "DEFAULT_CONNECTIONS", "KEYS", "initial_energy", "MAX_DESCRIPTION"]
 
 #: The value of ``plant.n_modes`` and ``plant.fidelity`` that lets a run choose the model.
 AUTO = "auto"
@@ -51,6 +51,8 @@ INTERFACES = ("co-simulation", "model-exchange")
 SOLVERS = ("radau", "bdf")
 #: Outputs that every model has (0 for the rigid model's deflection), by result column.
 COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
+#: The longest ``description`` (characters): a line or two of text, not a document.
+MAX_DESCRIPTION = 1000
 #: The paper's loop: the sensors to the controller, the force to the plant.
 DEFAULT_CONNECTIONS = (
     "plant.x_o -> controller.x_o",
@@ -334,6 +336,9 @@ class Scene:
         _set(self, "connections", _connections(self.connections))
         if not isinstance(self.description, str):
             raise ConfigError("description must be a string")
+        if len(self.description) > MAX_DESCRIPTION:
+            raise ConfigError(f"description: {len(self.description)} characters; allowed: at most "
+                              f"{MAX_DESCRIPTION}")
         if self.fidelity.max_modes > self.plant.beam.n_elements:
             raise ConfigError(f"fidelity.max_modes = {self.fidelity.max_modes} is out of range; "
                               f"allowed: integers 1..{self.plant.beam.n_elements}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import re
 from pathlib import Path
 
 import tomllib
@@ -123,8 +124,8 @@ def scene_from_config(name: str, values: dict, overrides=None) -> Scene:
     try:
         return _build(name, cfg)
     except ConfigError as exc:
-        if any(str(exc).startswith(k + " ") for k, _ in pairs):
-            raise OverrideError(f"--set: {exc}") from None
+        if any(re.search(rf"(?<![\w.]){re.escape(k)}(?![\w.])", str(exc)) for k, _ in pairs):
+            raise OverrideError(f"--set: {exc}") from None     # a check that involves a --set key
         raise
 
 

@@ -40,12 +40,14 @@ import re
 import shutil
 import tempfile
 import zipfile
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from controller_fmu import interface as controller_interface
 from plant_fmu import interface as plant_interface
 
+from . import archive
 from .keys import ConfigError, parse_value, toml_value
 from .records import OutputSettings
 from .schema import scene_from_config, start_values
@@ -333,16 +335,16 @@ def read_ssp(path, overrides=()) -> SspSystem:
     path = Path(path)
     label = path.name
     if not path.is_file():
-        raise SspError(f"{label}: no such file")
+        raise SspError(f"{label}: not a regular file" if path.exists() else f"{label}: no such file")
     try:
         zf = zipfile.ZipFile(path)
-    except (zipfile.BadZipFile, OSError) as exc:
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
         raise SspError(f"{label}: not an SSP archive (a zip file): {exc}") from None
-    with zf:
-        names = set(zf.namelist())
+    with zf, _as_ssp_error():
+        names = {i.filename for i in archive.members(zf, label)}    # the limits, before reading
         if SSD_NAME not in names:
             raise SspError(f"{label}: the archive has no {SSD_NAME}")
-        root = _parse_xml(label, SSD_NAME, zf.read(SSD_NAME))
+        root = _parse_xml(label, SSD_NAME, archive.read_member(zf, SSD_NAME, label))
         version = root.get("version") or ""
         if not re.fullmatch(r"1\.[0-9]+(-.*)?", version):
             raise SspError(f"{label}: SSD version {version!r}: flexpend reads SSP 1.x")
@@ -363,6 +365,15 @@ def read_ssp(path, overrides=()) -> SspSystem:
         except BaseException:
             shutil.rmtree(tmpdir, ignore_errors=True)
             raise
+
+
+@contextmanager
+def _as_ssp_error():
+    """An archive beyond its limits (:mod:`.archive`) as an :class:`SspError`."""
+    try:
+        yield
+    except archive.ArchiveError as exc:
+        raise SspError(str(exc)) from None
 
 
 def _parse_xml(label, member, data):
@@ -390,8 +401,9 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
         if member not in names:
             raise SspError(f"{label}: component {name!r} names the FMU {source!r}, which the "
                            "archive does not contain")
-        dest = Path(tmpdir) / f"{len(info)}_{Path(member).name}"
-        dest.write_bytes(zf.read(member))
+        dest = archive.copy_member(zf, member, Path(tmpdir) / f"{len(info)}_{Path(member).name}",
+                                   label)
+        archive.check_fmu_archive(dest, f"{label}: component {name!r}: {source}")
         try:
             md = read_model_description(str(dest), validate=False)
         except Exception as exc:  # noqa: BLE001 - any reason the FMU cannot be read
@@ -482,7 +494,8 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
             if note.get("type") == OSP_ANNOTATION:
                 fs = note.find(f"{_q('osp', 'Algorithm')}/{_q('osp', 'FixedStepAlgorithm')}")
                 if fs is not None and fs.get("baseStepSize") is not None:
-                    osp_step = float(fs.get("baseStepSize"))
+                    osp_step = _positive(label, "osp:FixedStepAlgorithm baseStepSize",
+                                         fs.get("baseStepSize"))
             elif note.get("type") == SCENE_ANNOTATION:
                 sc = note.find(_q("fp", "Scene"))
                 if sc is not None:
@@ -494,7 +507,8 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
         values["master.step"] = osp_step
         dt = OutputSettings().output_interval
         ratio = dt / osp_step
-        if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
+        if not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 * ratio \
+                or round(ratio) < 1:
             values["output_interval"] = osp_step
     description = system.get("description") or root.get("description")
     if description:
@@ -509,6 +523,17 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
     fmus = {role[n]: p for n, (p, _) in info.items()}
     components = {role[n]: n for n in info}
     return SspSystem(path, scene, fmus, components, tmpdir)
+
+
+def _positive(label, what, text) -> float:
+    """``text`` as a positive finite number (an annotation's value: no schema checks it)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise SspError(f"{label}: {what} = {text!r}: allowed: a positive number")
+    return value
 
 
 def _scene_keys() -> dict:
@@ -538,7 +563,7 @@ def _bindings(label, zf, names, element):
             if b.get("sourceBase", "SSD") != "SSD" or member not in names:
                 raise SspError(f"{label}: {where}: the parameter file {source!r} is not in the "
                                "archive")
-            ssv = _parse_xml(label, member, zf.read(member))
+            ssv = _parse_xml(label, member, archive.read_member(zf, member, label))
             sets.append((ssv, f"{where} ({member})"))
         for pset in b.findall(f"{_q('ssd', 'ParameterValues')}/{_q('ssv', 'ParameterSet')}"):
             sets.append((pset, where))
@@ -571,12 +596,15 @@ def fmpy_parameter_set(path):
     from fmpy import read_model_description
     from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
 
+    label = Path(path).name
+    with archive.checked_archive(path):              # the limits, before fmpy reads it
+        pass
     ssd = read_ssd(str(path))
     out = ParameterSet(name="flexpend")
-    with zipfile.ZipFile(path) as zf, tempfile.TemporaryDirectory() as tmp:
+    with archive.checked_archive(path) as (zf, _), tempfile.TemporaryDirectory() as tmp:
         for comp in ssd.system.elements:
-            fmu = Path(tmp) / Path(comp.source).name
-            fmu.write_bytes(zf.read(comp.source))
+            fmu = archive.copy_member(zf, comp.source, Path(tmp) / Path(comp.source).name, label)
+            archive.check_fmu_archive(fmu, f"{label}: {comp.source}")
             starts = {v.name: v.start for v in
                       read_model_description(str(fmu), validate=False).modelVariables}
             for binding in comp.parameterBindings:

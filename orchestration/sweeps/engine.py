@@ -31,10 +31,12 @@ from .plot import plot_sweep
 __all__ = ["summary_row", "verdict_of", "linear_decay_rate", "model_sources_digest", "run_task",
            "Journal",
            "write_table", "read_table", "SweepProgress", "SweepResult", "fmus_for", "pending",
-           "run_sweep", "sweep_stats"]
+           "run_sweep", "sweep_stats", "SweepFolderError", "check_folder", "FILES"]
 
 
 JOURNAL = "runs.jsonl"
+#: The files a sweep writes into its folder.
+FILES = (JOURNAL, "sweep.parquet", "sweep.csv", "sweep.json", "sweep.png")
 
 
 #: statuses of a finished run (a lost run is rerun by the next sweep into the same folder)
@@ -162,6 +164,50 @@ def run_task(task) -> dict:
 
 
 # ---------------------------------------------------------------------------- journal, table
+class SweepFolderError(ValueError):
+    """A sweep folder whose files cannot be read or written (one line naming the file)."""
+
+
+def check_folder(folder) -> None:
+    """Refuse, before any run, a folder where something other than a file stands in place of
+    one of the sweep's files (:data:`FILES`), or a journal that cannot be appended to (read-only,
+    immutable): a sweep would run, then fail to write."""
+    for name in FILES:
+        path = Path(folder) / name
+        if path.exists() and not path.is_file():
+            what = "a folder" if path.is_dir() else "not a regular file"
+            raise SweepFolderError(f"{path}: {what} where the sweep writes its {name}; move it "
+                                   "away or choose another --out")
+    journal = Path(folder) / JOURNAL
+    if journal.exists() and not os.access(journal, os.R_OK | os.W_OK):
+        raise SweepFolderError(f"{journal}: cannot be written (read-only or immutable); the "
+                               "sweep appends its finished runs there")
+
+
+#: The fields of a journal row and the types they hold (or null); other fields are the swept
+#: keys (taken from the plan, not from the row) and texts.
+_NUMBERS = ("run", "sample", "decay_rate", "linear_decay_rate", "max_abs_F_c", "max_abs_x",
+            "max_error_phi_o", "max_error_eta_1", "steps", "cosim_time", "stopped_at",
+            "wall_time", *(f"{m}_{q}" for m in ("slow", "bending")
+                           for q in ("rate", "frequency", "rate_linear")))
+_FLAGS = ("stable", "valid")
+_TEXTS = ("message", "fmu_message", "model", "validity", "slow_note", "bending_note")
+
+
+def _sound(row) -> bool:
+    """Whether a journal line's JSON is a row as :func:`_row` writes it."""
+    if not (isinstance(row, dict) and isinstance(row.get("key"), str)
+            and row.get("status") in (*DONE, "lost")):
+        return False
+    for name, types in ((_NUMBERS, (int, float)), (_FLAGS, (bool,)), (_TEXTS, (str,))):
+        for k in name:
+            v = row.get(k)
+            if v is not None and (not isinstance(v, types) or (bool not in types
+                                                               and isinstance(v, bool))):
+                return False
+    return True
+
+
 class Journal:
     """``DIR/runs.jsonl``: one JSON row per finished run, appended and flushed at once."""
 
@@ -169,16 +215,25 @@ class Journal:
         self.path = Path(folder) / JOURNAL
 
     def read(self) -> dict:
-        """key -> the newest row of that key (a torn last line, from a kill, is skipped)."""
+        """key -> the newest row of that key. A line that is not a sound row (a torn last line
+        from a kill, invalid UTF-8, a field of the wrong type) is skipped: its run counts as not
+        finished and is run again."""
         rows = {}
-        if self.path.is_file():
-            for line in self.path.read_text().splitlines():
-                try:
-                    row = json.loads(line)
-                except ValueError:
-                    continue
-                if isinstance(row, dict) and "key" in row:
-                    rows[row["key"]] = row
+        if not self.path.exists():
+            return rows
+        check_folder(self.path.parent)
+        try:
+            data = self.path.read_bytes()
+        except OSError as exc:
+            raise SweepFolderError(f"{self.path}: cannot be read ({exc.strerror or exc})") \
+                from None
+        for line in data.splitlines():
+            try:
+                row = json.loads(line)
+            except ValueError:                # not JSON, or not UTF-8
+                continue
+            if _sound(row):
+                rows[row["key"]] = row
         return rows
 
     def __enter__(self):
@@ -358,6 +413,7 @@ def fmus_for(plan: SweepPlan) -> dict:
 
 def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
     """How many runs of ``plan`` have no finished row in ``out_dir`` yet."""
+    check_folder(out_dir)
     results = Journal(Path(out_dir)).read()
     done_status = ("ok",) if retry_failed else DONE
     return len({p.key for p in plan.points

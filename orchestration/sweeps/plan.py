@@ -63,6 +63,11 @@ def _known_key(key: str, option: str) -> str:
     return key
 
 
+#: The most runs one sweep plans (each run's scene is validated here, about 0.5 ms each: 100,000
+#: take about a minute; a sweep of more is several sweeps into the same folder).
+MAX_RUNS = 100_000
+
+
 def _split(item: str, option: str, form: str) -> tuple[str, str]:
     key, sep, spec = item.partition("=")
     if not sep or not key.strip() or not spec.strip():
@@ -80,7 +85,10 @@ def _typed(key: str, value):
     makes one column of floats, and the same scene key whichever way it was given)."""
     default = known_keys()[key]
     if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:         # beyond the largest double: the key's own check says so
+            return value
     return value
 
 
@@ -101,8 +109,8 @@ def parse_grid(item: str) -> Axis:
     for name, v in (("START", start), ("STOP", stop)):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise ConfigError(f"--grid {item!r}: {name} must be a finite number, got {v!r}")
-    if isinstance(num, bool) or not isinstance(num, int) or num < 1:
-        raise ConfigError(f"--grid {item!r}: NUM must be an integer >= 1, got {num!r}")
+    if isinstance(num, bool) or not isinstance(num, int) or num < 1 or num > MAX_RUNS:
+        raise ConfigError(f"--grid {item!r}: NUM must be an integer 1..{MAX_RUNS}, got {num!r}")
     if log and (start <= 0 or stop <= 0):
         raise ConfigError(f"--grid {item!r}: a log grid needs START and STOP > 0")
     values = [_clean(v) for v in (np.geomspace if log else np.linspace)(start, stop, num)]
@@ -251,8 +259,12 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
         raise ConfigError("--sample needs --samples N")
     if n_samples is not None and not samplers:
         raise ConfigError("--samples needs --sample KEY=DIST")
-    if n_samples is not None and (isinstance(n_samples, bool) or n_samples < 1):
-        raise ConfigError(f"--samples {n_samples} is not allowed; allowed: an integer >= 1")
+    if n_samples is not None and (isinstance(n_samples, bool) or not 1 <= n_samples <= MAX_RUNS):
+        raise ConfigError(f"--samples {n_samples} is not allowed; allowed: an integer "
+                          f"1..{MAX_RUNS}")
+    runs = math.prod(len(a.values) for a in axes) * (n_samples or 1)
+    if runs > MAX_RUNS:
+        raise ConfigError(f"the sweep has {runs} runs; allowed: at most {MAX_RUNS} in one sweep")
     if seed is not None and seed < 0:
         raise ConfigError(f"--seed {seed} is not allowed; allowed: an integer >= 0")
     swept = [a.key for a in axes] + [s.key for s in samplers]
