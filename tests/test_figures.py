@@ -136,6 +136,28 @@ def test_bending_fit_is_shaded_on_the_bending_band_not_on_the_slow_motion(paper_
     assert slope == pytest.approx(run.summary["bending"]["rate"], rel=0.05)
 
 
+@pytest.mark.parametrize("dt", [0.002, 0.00025, 0.01])
+def test_bending_band_is_scipys_zero_phase_butterworth_and_running_maximum(dt):
+    """The band and its envelope, computed without scipy.signal and scipy.ndimage (their imports
+    cost most of a run), are what those give: ``sosfiltfilt`` of a 4th-order Butterworth
+    high-pass and ``maximum_filter1d``, on a random walk with a decaying bending oscillation."""
+    import scipy.ndimage
+    import scipy.signal
+
+    t = np.arange(3001) * dt
+    y = (np.random.default_rng(7).standard_normal(t.size).cumsum() * 1e-3
+         + 1e-2 * np.exp(-2 * t) * np.sin(150 * t) + 0.3 * np.cos(10 * t))
+    hp, env = figures.bending_band(t, y, 60.0, 152.5)
+    fs = 2 * np.pi / dt
+    ref = scipy.signal.sosfiltfilt(scipy.signal.butter(4, 60.0, "highpass", fs=fs,
+                                                       output="sos"), y)
+    size = max(3, int(round(fs / 152.5)) | 1)
+    assert np.max(np.abs(hp - ref)) <= 1e-10 * np.max(np.abs(ref))
+    assert np.max(np.abs(env - scipy.ndimage.maximum_filter1d(np.abs(ref), size=size,
+                                                              mode="nearest"))) \
+        <= 1e-10 * np.max(np.abs(ref))
+
+
 @pytest.mark.parametrize("name", PAPER_SCENES)
 def test_run_figures_labels_fit(paper_runs, name):
     run = paper_runs[name]
