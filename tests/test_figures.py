@@ -158,6 +158,35 @@ def test_bending_band_is_scipys_zero_phase_butterworth_and_running_maximum(dt):
         <= 1e-10 * np.max(np.abs(ref))
 
 
+def test_saving_makes_only_the_ticks_in_view_and_draws_the_same(paper_runs):
+    """Inside ``ticks_in_view`` (where ``save_figure`` saves) the figure draws pixel for pixel as
+    without it, matplotlib makes no tick beyond the view, and the locators are put back."""
+    def draw(fig):
+        FigureCanvasAgg(fig)
+        fig.canvas.draw()
+        ticks = sum(len(getattr(ax, a).majorTicks) + len(getattr(ax, a).minorTicks)
+                    for ax in fig.axes for a in ("xaxis", "yaxis"))
+        return np.asarray(fig.canvas.buffer_rgba()).copy(), ticks
+
+    run = paper_runs["flexible_pd_lowpass"]
+    for make in (run.plot, run.plot_shapes, lambda: figures.paper_overview(
+            list(paper_runs.values()))):
+        plain, plain_ticks = draw(make())
+        fig = make()
+        locators = [(a.get_major_locator(), a.get_minor_locator())
+                    for ax in fig.axes for a in (ax.xaxis, ax.yaxis)]
+        with figures.ticks_in_view(fig):
+            image, ticks = draw(fig)
+            for ax in fig.axes:
+                for axis, lim in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+                    locs = axis.get_majorticklocs()
+                    assert np.all((locs >= min(lim) - 1e-9) & (locs <= max(lim) + 1e-9))
+        assert np.array_equal(image, plain)
+        assert ticks < plain_ticks
+        assert locators == [(a.get_major_locator(), a.get_minor_locator())
+                            for ax in fig.axes for a in (ax.xaxis, ax.yaxis)]
+
+
 @pytest.mark.parametrize("name", PAPER_SCENES)
 def test_run_figures_labels_fit(paper_runs, name):
     run = paper_runs[name]

@@ -79,6 +79,8 @@ def write_csv(path, result: np.ndarray) -> Path:
 
 def save_figure(fig, path, dpi: int = 110) -> Path:
     """Write a matplotlib Figure as PNG (or the format of the path's suffix)."""
-    with atomic_path(path) as tmp:
+    from .figures import ticks_in_view
+
+    with atomic_path(path) as tmp, ticks_in_view(fig):
         fig.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip(".") or "png")
     return Path(path)
