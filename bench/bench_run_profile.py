@@ -1,0 +1,169 @@
+"""Where a warm ``flexpend run`` (the three scenes of the paper) spends its time, before and after.
+
+    python bench/bench_run_profile.py [--before REV] [--runs 5] [--json FILE]
+
+Each checkout (this one, and with ``--before`` the commit ``REV`` checked out into a temporary
+git worktree, removed at the end) runs ``flexpend run --out TMP`` in a new process ``--runs``
+times after one warm-up run (which builds its FMUs and kernels when missing, so that the timed
+runs are warm); the processes of the two checkouts alternate, so that the load of the machine
+falls on both alike. Each process times its own phases, each phase's time exclusive of the
+phases nested in it:
+
+* ``imports``: every ``import`` statement (``builtins.__import__``), wherever it runs;
+* ``stepping``: the masters' ``run`` (the co-simulation, compiled or Python loop);
+* ``summary (fits)``: ``summarize`` (the fitted modes, the verdict, the validity);
+* ``figures``: drawing the figures (:mod:`orchestration.report.figures`) and writing them;
+* ``CSV``: writing the results' CSV files;
+* ``FMUs up to date``: finding the FMUs built and up to date;
+* ``other``: the rest of the process's wall time (the interpreter's start, reading the scenes,
+  opening the FMUs, the text).
+
+Printed: the medians per phase and of the whole process's wall time, side by side, and the
+median wall time of ``python3 -c "import numpy, scipy, matplotlib, fmpy"`` timed in the same
+loop, with the ratio of each ``flexpend run`` to it.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: The child: ``python -c _CHILD ROOT OUT``; prints one JSON line of seconds per phase.
+_CHILD = r'''
+import builtins, json, os, sys, time
+t_start = time.perf_counter()
+root, out = sys.argv[1:3]
+sys.path.insert(0, root)
+totals, stack = {}, []
+
+def timed(category, fn):
+    def wrapper(*args, **kwargs):
+        t0 = time.perf_counter()
+        stack.append(0.0)                      # time of the phases nested in this one
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            dt = time.perf_counter() - t0
+            nested = stack.pop()
+            totals[category] = totals.get(category, 0.0) + dt - nested
+            if stack:
+                stack[-1] += dt
+    wrapper.__wrapped__ = fn
+    return wrapper
+
+builtins.__import__ = timed("imports", builtins.__import__)
+import orchestration.cli as cli
+import orchestration.job as job
+from orchestration.cosim import master, model_exchange
+from orchestration.report import figures
+for cls in (master.Master, model_exchange.ModelExchangeMaster):
+    cls.run = timed("stepping", cls.run)
+job.summarize = timed("summary (fits)", job.summarize)
+job.save_figure = timed("figures", job.save_figure)
+for name in ("time_histories", "snapshots", "paper_overview", "mode_shapes", "root_map"):
+    setattr(figures, name, timed("figures", getattr(figures, name)))
+job.write_csv = timed("CSV", job.write_csv)
+job.flavour_fmus = timed("FMUs up to date", job.flavour_fmus)
+with open(os.devnull, "w") as null:
+    sys.stdout, sys.stderr = null, null
+    code = cli.main(["run", "--out", out])
+    sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__
+assert code == 0, code
+totals["in process"] = time.perf_counter() - t_start
+print(json.dumps(totals))
+'''
+PHASES = ("imports", "stepping", "summary (fits)", "figures", "CSV", "FMUs up to date", "other")
+IMPORTS = "import numpy, scipy, matplotlib, fmpy"
+
+
+def _env() -> dict:
+    env = dict(os.environ)
+    env.pop("PYTHONPATH", None)
+    env.pop("FLEXPEND_HOME", None)        # each checkout builds into its own build/
+    return env
+
+
+def run_once(root: Path, out: Path) -> dict:
+    """One ``flexpend run`` of ``root`` in a new process: seconds per phase and ``wall``."""
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", _CHILD, str(root), str(out)], cwd=root,
+                          capture_output=True, text=True, env=_env())
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"flexpend run in {root} failed:\n{proc.stdout}\n{proc.stderr}")
+    phases = json.loads(proc.stdout.strip().splitlines()[-1])
+    phases["other"] = wall - sum(v for k, v in phases.items() if k in PHASES)
+    phases["wall"] = wall
+    return phases
+
+
+def imports_once() -> float:
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", IMPORTS], check=True, env=_env())
+    return time.perf_counter() - t0
+
+
+def profile(checkouts: dict, runs: int) -> dict:
+    """``{label: {phase: median seconds}}`` for ``{label: checkout root}``, and the imports'."""
+    samples = {label: [] for label in checkouts}
+    samples[IMPORTS] = []
+    with tempfile.TemporaryDirectory(prefix="flexpend_profile_") as tmp:
+        for i in range(runs + 1):                       # the first round warms up
+            for label, root in checkouts.items():
+                r = run_once(root, Path(tmp) / label.replace(" ", "_"))
+                if i:
+                    samples[label].append(r)
+            t = imports_once()
+            if i:
+                samples[IMPORTS].append({"wall": t})
+    return {label: {k: statistics.median(s.get(k, 0.0) for s in rows)
+                    for k in (*PHASES, "wall") if k in rows[0] or k in PHASES}
+            for label, rows in samples.items()}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--before", metavar="REV", help="also profile this commit (a temporary "
+                                                    "git worktree)")
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--json", type=Path)
+    a = ap.parse_args(argv)
+    checkouts, tmp = {}, None
+    try:
+        if a.before:
+            tmp = Path(tempfile.mkdtemp(prefix="flexpend_before_"))
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach",
+                            str(tmp / "before"), a.before], check=True)
+            checkouts[f"before ({a.before})"] = tmp / "before"
+        checkouts["after (this checkout)" if a.before else "this checkout"] = ROOT
+        res = profile(checkouts, a.runs)
+    finally:
+        if tmp is not None:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
+                            str(tmp / "before")], check=False)
+            shutil.rmtree(tmp, ignore_errors=True)
+    base = res[IMPORTS]["wall"]
+    labels = [k for k in res if k != IMPORTS]
+    print(f"warm `flexpend run` (three scenes), median of {a.runs} processes, s")
+    print("| phase | " + " | ".join(labels) + " |")
+    print("|---" * (len(labels) + 1) + "|")
+    for ph in (*PHASES, "wall"):
+        print(f"| {ph if ph != 'wall' else 'whole process'} | "
+              + " | ".join(f"{res[k][ph]:.3f}" for k in labels) + " |")
+    print(f"| whole process / `python3 -c \"{IMPORTS}\"` ({base:.3f} s) | "
+          + " | ".join(f"{res[k]['wall'] / base:.1f}x" for k in labels) + " |")
+    if a.json:
+        a.json.write_text(json.dumps(res, indent=1))
+
+
+if __name__ == "__main__":
+    main()
