@@ -6,7 +6,8 @@ Each checkout (this one, and with ``--before`` the commit ``REV`` checked out in
 git worktree, removed at the end) runs ``flexpend run --out TMP`` in a new process ``--runs``
 times after one warm-up run (which builds its FMUs and kernels when missing, so that the timed
 runs are warm); the processes of the two checkouts alternate, so that the load of the machine
-falls on both alike. Each process times its own phases, each phase's time exclusive of the
+falls on both alike. Each process times its own phases in CPU seconds (the machines are shared:
+under load, wall time stretches and CPU time much less), each phase's time exclusive of the
 phases nested in it:
 
 * ``imports``: every ``import`` statement (``builtins.__import__``), wherever it runs;
@@ -15,18 +16,19 @@ phases nested in it:
 * ``figures``: drawing the figures (:mod:`orchestration.report.figures`) and writing them;
 * ``CSV``: writing the results' CSV files;
 * ``FMUs up to date``: finding the FMUs built and up to date;
-* ``other``: the rest of the process's wall time (the interpreter's start, reading the scenes,
+* ``other``: the rest of the process's CPU time (the interpreter's start, reading the scenes,
   opening the FMUs, the text).
 
-Printed: the medians per phase and of the whole process's wall time, side by side, and the
-median wall time of ``python3 -c "import numpy, scipy, matplotlib, fmpy"`` timed in the same
-loop, with the ratio of each ``flexpend run`` to it.
+Printed: the medians per phase and of the whole process's CPU and wall time, side by side, and
+those of ``python3 -c "import numpy, scipy, matplotlib, fmpy"`` timed in the same loop, with
+the ratio of each ``flexpend run`` to it.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -40,19 +42,18 @@ ROOT = Path(__file__).resolve().parent.parent
 #: The child: ``python -c _CHILD ROOT OUT``; prints one JSON line of seconds per phase.
 _CHILD = r'''
 import builtins, json, os, sys, time
-t_start = time.perf_counter()
 root, out = sys.argv[1:3]
 sys.path.insert(0, root)
 totals, stack = {}, []
 
 def timed(category, fn):
     def wrapper(*args, **kwargs):
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         stack.append(0.0)                      # time of the phases nested in this one
         try:
             return fn(*args, **kwargs)
         finally:
-            dt = time.perf_counter() - t0
+            dt = time.process_time() - t0
             nested = stack.pop()
             totals[category] = totals.get(category, 0.0) + dt - nested
             if stack:
@@ -78,7 +79,6 @@ with open(os.devnull, "w") as null:
     code = cli.main(["run", "--out", out])
     sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__
 assert code == 0, code
-totals["in process"] = time.perf_counter() - t_start
 print(json.dumps(totals))
 '''
 PHASES = ("imports", "stepping", "summary (fits)", "figures", "CSV", "FMUs up to date", "other")
@@ -92,24 +92,32 @@ def _env() -> dict:
     return env
 
 
-def run_once(root: Path, out: Path) -> dict:
-    """One ``flexpend run`` of ``root`` in a new process: seconds per phase and ``wall``."""
+def _child(args, cwd=None) -> tuple[float, float, str]:
+    """Run ``args``: (wall seconds, CPU seconds of the process, its stdout)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", _CHILD, str(root), str(out)], cwd=root,
-                          capture_output=True, text=True, env=_env())
+    proc = subprocess.run(args, cwd=cwd, capture_output=True, text=True, env=_env())
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
-        raise RuntimeError(f"flexpend run in {root} failed:\n{proc.stdout}\n{proc.stderr}")
-    phases = json.loads(proc.stdout.strip().splitlines()[-1])
-    phases["other"] = wall - sum(v for k, v in phases.items() if k in PHASES)
-    phases["wall"] = wall
+        raise RuntimeError(f"{' '.join(map(str, args))} failed:\n{proc.stdout}\n{proc.stderr}")
+    cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime
+    return wall, cpu, proc.stdout
+
+
+def run_once(root: Path, out: Path) -> dict:
+    """One ``flexpend run`` of ``root`` in a new process: CPU seconds per phase, ``cpu`` and
+    ``wall`` of the whole process."""
+    wall, cpu, stdout = _child([sys.executable, "-c", _CHILD, str(root), str(out)], root)
+    phases = json.loads(stdout.strip().splitlines()[-1])
+    phases["other"] = cpu - sum(v for k, v in phases.items() if k in PHASES)
+    phases.update(cpu=cpu, wall=wall)
     return phases
 
 
-def imports_once() -> float:
-    t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-c", IMPORTS], check=True, env=_env())
-    return time.perf_counter() - t0
+def imports_once() -> dict:
+    wall, cpu, _ = _child([sys.executable, "-c", IMPORTS])
+    return {"cpu": cpu, "wall": wall}
 
 
 def profile(checkouts: dict, runs: int) -> dict:
@@ -124,9 +132,9 @@ def profile(checkouts: dict, runs: int) -> dict:
                     samples[label].append(r)
             t = imports_once()
             if i:
-                samples[IMPORTS].append({"wall": t})
+                samples[IMPORTS].append(t)
     return {label: {k: statistics.median(s.get(k, 0.0) for s in rows)
-                    for k in (*PHASES, "wall") if k in rows[0] or k in PHASES}
+                    for k in (*PHASES, "cpu", "wall") if k in rows[0] or label != IMPORTS}
             for label, rows in samples.items()}
 
 
@@ -151,16 +159,18 @@ def main(argv=None):
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
                             str(tmp / "before")], check=False)
             shutil.rmtree(tmp, ignore_errors=True)
-    base = res[IMPORTS]["wall"]
+    base = res[IMPORTS]
     labels = [k for k in res if k != IMPORTS]
-    print(f"warm `flexpend run` (three scenes), median of {a.runs} processes, s")
+    print(f"warm `flexpend run` (three scenes), median of {a.runs} processes, CPU s")
     print("| phase | " + " | ".join(labels) + " |")
     print("|---" * (len(labels) + 1) + "|")
-    for ph in (*PHASES, "wall"):
-        print(f"| {ph if ph != 'wall' else 'whole process'} | "
-              + " | ".join(f"{res[k][ph]:.3f}" for k in labels) + " |")
-    print(f"| whole process / `python3 -c \"{IMPORTS}\"` ({base:.3f} s) | "
-          + " | ".join(f"{res[k]['wall'] / base:.1f}x" for k in labels) + " |")
+    for ph in PHASES:
+        print(f"| {ph} | " + " | ".join(f"{res[k][ph]:.3f}" for k in labels) + " |")
+    for key in ("cpu", "wall"):
+        print(f"| whole process, {key} | " + " | ".join(f"{res[k][key]:.3f}" for k in labels)
+              + " |")
+        print(f"| {key} / `python3 -c \"{IMPORTS}\"` ({base[key]:.3f} s) | "
+              + " | ".join(f"{res[k][key] / base[key]:.1f}x" for k in labels) + " |")
     if a.json:
         a.json.write_text(json.dumps(res, indent=1))
 
