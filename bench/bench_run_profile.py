@@ -2,11 +2,11 @@
 
     python bench/bench_run_profile.py [--before REV] [--runs 5] [--json FILE]
 
-Each checkout (this one, and with ``--before`` the commit ``REV`` checked out into a temporary
-git worktree, removed at the end) runs ``flexpend run --out TMP`` in a new process ``--runs``
-times after one warm-up run (which builds its FMUs and kernels when missing, so that the timed
-runs are warm); the processes of the two checkouts alternate, so that the load of the machine
-falls on both alike. Each process times its own phases in CPU seconds (the machines are shared:
+This checkout, or with ``--before`` the commits ``REV`` and ``HEAD`` each checked out into a
+fresh temporary git worktree (removed at the end), runs ``flexpend run --out TMP`` in a new
+process ``--runs`` times after one warm-up run (the FMUs and the compiled loop are built then:
+in a fresh worktree, that first run is the cold start, reported too); the processes of the two
+checkouts alternate, so that the load of the machine falls on both alike. Each process times its own phases in CPU seconds (the machines are shared:
 under load, wall time stretches and CPU time much less), each phase's time exclusive of the
 phases nested in it:
 
@@ -121,21 +121,35 @@ def imports_once() -> dict:
 
 
 def profile(checkouts: dict, runs: int) -> dict:
-    """``{label: {phase: median seconds}}`` for ``{label: checkout root}``, and the imports'."""
+    """``{label: {phase: median seconds}}`` for ``{label: checkout root}``, and the imports'; the
+    first round warms up, and is kept as ``cold`` (its CPU and wall time): the first run of a
+    fresh checkout builds its FMUs and compiled loop."""
     samples = {label: [] for label in checkouts}
     samples[IMPORTS] = []
+    cold = {}
     with tempfile.TemporaryDirectory(prefix="flexpend_profile_") as tmp:
-        for i in range(runs + 1):                       # the first round warms up
+        for i in range(runs + 1):
             for label, root in checkouts.items():
                 r = run_once(root, Path(tmp) / label.replace(" ", "_"))
                 if i:
                     samples[label].append(r)
+                else:
+                    cold[label] = {"cpu": r["cpu"], "wall": r["wall"]}
             t = imports_once()
             if i:
                 samples[IMPORTS].append(t)
-    return {label: {k: statistics.median(s.get(k, 0.0) for s in rows)
-                    for k in (*PHASES, "cpu", "wall") if k in rows[0] or label != IMPORTS}
-            for label, rows in samples.items()}
+    out = {label: {k: statistics.median(s.get(k, 0.0) for s in rows)
+                   for k in (*PHASES, "cpu", "wall") if k in rows[0] or label != IMPORTS}
+           for label, rows in samples.items()}
+    for label, c in cold.items():
+        out[label]["cold"] = c
+    return out
+
+
+def _worktree(folder: Path, rev: str) -> Path:
+    subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach", str(folder),
+                    rev], check=True)
+    return folder
 
 
 def main(argv=None):
@@ -145,20 +159,20 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--json", type=Path)
     a = ap.parse_args(argv)
-    checkouts, tmp = {}, None
+    checkouts, tmp = {}, Path(tempfile.mkdtemp(prefix="flexpend_checkouts_"))
     try:
-        if a.before:
-            tmp = Path(tempfile.mkdtemp(prefix="flexpend_before_"))
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "-q", "--detach",
-                            str(tmp / "before"), a.before], check=True)
-            checkouts[f"before ({a.before})"] = tmp / "before"
-        checkouts["after (this checkout)" if a.before else "this checkout"] = ROOT
+        if a.before:        # two fresh checkouts: their first runs are cold, side by side
+            checkouts[f"before ({a.before})"] = _worktree(tmp / "before", a.before)
+            checkouts["after (HEAD)"] = _worktree(tmp / "after", "HEAD")
+        else:
+            checkouts["this checkout"] = ROOT
         res = profile(checkouts, a.runs)
     finally:
-        if tmp is not None:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
-                            str(tmp / "before")], check=False)
-            shutil.rmtree(tmp, ignore_errors=True)
+        for root in checkouts.values():
+            if root != ROOT:
+                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
+                                str(root)], check=False)
+        shutil.rmtree(tmp, ignore_errors=True)
     base = res[IMPORTS]
     labels = [k for k in res if k != IMPORTS]
     print(f"warm `flexpend run` (three scenes), median of {a.runs} processes, CPU s")
@@ -171,6 +185,10 @@ def main(argv=None):
               + " |")
         print(f"| {key} / `python3 -c \"{IMPORTS}\"` ({base[key]:.3f} s) | "
               + " | ".join(f"{res[k][key] / base[key]:.1f}x" for k in labels) + " |")
+    if a.before:
+        print("| first run of a fresh checkout (cold: builds the FMUs), cpu / wall | "
+              + " | ".join(f"{res[k]['cold']['cpu']:.2f} / {res[k]['cold']['wall']:.2f}"
+                           for k in labels) + " |")
     if a.json:
         a.json.write_text(json.dumps(res, indent=1))
 
