@@ -169,8 +169,7 @@ def test_saving_makes_only_the_ticks_in_view_and_draws_the_same(paper_runs):
         return np.asarray(fig.canvas.buffer_rgba()).copy(), ticks
 
     run = paper_runs["flexible_pd_lowpass"]
-    for make in (run.plot, run.plot_shapes, lambda: figures.paper_overview(
-            list(paper_runs.values()))):
+    for make in (run.plot, lambda: figures.paper_overview(list(paper_runs.values()))):
         plain, plain_ticks = draw(make())
         fig = make()
         locators = [(a.get_major_locator(), a.get_minor_locator())
@@ -251,6 +250,23 @@ def test_shapes_draw_the_deflection_at_the_stated_scale(paper_runs):
     np.testing.assert_allclose(drawn_x, expected)
     tip = beam.shapes[-1] @ np.asarray(eta)
     assert f"tip {1e3 * tip:+.1f} mm" in ax.get_title()
+
+
+def test_shapes_make_ticks_only_where_they_are_labelled(paper_runs):
+    """The panels share one grid (the rail window's, drawn in each panel); ticks, each costing
+    about a millisecond to make, only on the axes that carry labels: the rail position under the
+    last row, the height on the left column."""
+    fig = paper_runs["flexible_pd"].plot_shapes()
+    drawn(fig)
+    panels = np.array(fig.axes).reshape(2, 4)
+    for (row, col), ax in np.ndenumerate(panels):
+        assert bool(len(ax.get_xticks())) == (row == 1)
+        assert bool(len(ax.get_yticks())) == (col == 0)
+        for c, c0 in zip(ax.collections, panels[0, 0].collections, strict=True):
+            np.testing.assert_array_equal(c.get_segments(), c0.get_segments())  # one grid
+    made = sum(len(ax.xaxis.majorTicks) + len(ax.yaxis.majorTicks) for ax in fig.axes)
+    labelled = 4 * len(panels[1, 0].get_xticks()) + 2 * len(panels[0, 0].get_yticks())
+    assert made <= labelled + 16              # matplotlib keeps one tick object on each axis
 
 
 def test_shapes_leave_no_blank_band(paper_runs):
