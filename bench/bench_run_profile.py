@@ -89,6 +89,8 @@ def _env() -> dict:
     env = dict(os.environ)
     env.pop("PYTHONPATH", None)
     env.pop("FLEXPEND_HOME", None)        # each checkout builds into its own build/
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        env.setdefault(var, "1")          # as flexpend sets it, for the imports' process too
     return env
 
 
