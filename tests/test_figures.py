@@ -136,6 +136,56 @@ def test_bending_fit_is_shaded_on_the_bending_band_not_on_the_slow_motion(paper_
     assert slope == pytest.approx(run.summary["bending"]["rate"], rel=0.05)
 
 
+@pytest.mark.parametrize("dt", [0.002, 0.00025, 0.01])
+def test_bending_band_is_scipys_zero_phase_butterworth_and_running_maximum(dt):
+    """The band and its envelope, computed without scipy.signal and scipy.ndimage (their imports
+    cost most of a run), are what those give: ``sosfiltfilt`` of a 4th-order Butterworth
+    high-pass and ``maximum_filter1d``, on a random walk with a decaying bending oscillation."""
+    import scipy.ndimage
+    import scipy.signal
+
+    t = np.arange(3001) * dt
+    y = (np.random.default_rng(7).standard_normal(t.size).cumsum() * 1e-3
+         + 1e-2 * np.exp(-2 * t) * np.sin(150 * t) + 0.3 * np.cos(10 * t))
+    hp, env = figures.bending_band(t, y, 60.0, 152.5)
+    fs = 2 * np.pi / dt
+    ref = scipy.signal.sosfiltfilt(scipy.signal.butter(4, 60.0, "highpass", fs=fs,
+                                                       output="sos"), y)
+    size = max(3, int(round(fs / 152.5)) | 1)
+    assert np.max(np.abs(hp - ref)) <= 1e-10 * np.max(np.abs(ref))
+    assert np.max(np.abs(env - scipy.ndimage.maximum_filter1d(np.abs(ref), size=size,
+                                                              mode="nearest"))) \
+        <= 1e-10 * np.max(np.abs(ref))
+
+
+def test_saving_makes_only_the_ticks_in_view_and_draws_the_same(paper_runs):
+    """Inside ``ticks_in_view`` (where ``save_figure`` saves) the figure draws pixel for pixel as
+    without it, matplotlib makes no tick beyond the view, and the locators are put back."""
+    def draw(fig):
+        FigureCanvasAgg(fig)
+        fig.canvas.draw()
+        ticks = sum(len(getattr(ax, a).majorTicks) + len(getattr(ax, a).minorTicks)
+                    for ax in fig.axes for a in ("xaxis", "yaxis"))
+        return np.asarray(fig.canvas.buffer_rgba()).copy(), ticks
+
+    run = paper_runs["flexible_pd_lowpass"]
+    for make in (run.plot, lambda: figures.paper_overview(list(paper_runs.values()))):
+        plain, plain_ticks = draw(make())
+        fig = make()
+        locators = [(a.get_major_locator(), a.get_minor_locator())
+                    for ax in fig.axes for a in (ax.xaxis, ax.yaxis)]
+        with figures.ticks_in_view(fig):
+            image, ticks = draw(fig)
+            for ax in fig.axes:
+                for axis, lim in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+                    locs = axis.get_majorticklocs()
+                    assert np.all((locs >= min(lim) - 1e-9) & (locs <= max(lim) + 1e-9))
+        assert np.array_equal(image, plain)
+        assert ticks < plain_ticks
+        assert locators == [(a.get_major_locator(), a.get_minor_locator())
+                            for ax in fig.axes for a in (ax.xaxis, ax.yaxis)]
+
+
 @pytest.mark.parametrize("name", PAPER_SCENES)
 def test_run_figures_labels_fit(paper_runs, name):
     run = paper_runs[name]
@@ -200,6 +250,23 @@ def test_shapes_draw_the_deflection_at_the_stated_scale(paper_runs):
     np.testing.assert_allclose(drawn_x, expected)
     tip = beam.shapes[-1] @ np.asarray(eta)
     assert f"tip {1e3 * tip:+.1f} mm" in ax.get_title()
+
+
+def test_shapes_make_ticks_only_where_they_are_labelled(paper_runs):
+    """The panels share one grid (the rail window's, drawn in each panel); ticks, each costing
+    about a millisecond to make, only on the axes that carry labels: the rail position under the
+    last row, the height on the left column."""
+    fig = paper_runs["flexible_pd"].plot_shapes()
+    drawn(fig)
+    panels = np.array(fig.axes).reshape(2, 4)
+    for (row, col), ax in np.ndenumerate(panels):
+        assert bool(len(ax.get_xticks())) == (row == 1)
+        assert bool(len(ax.get_yticks())) == (col == 0)
+        for c, c0 in zip(ax.collections, panels[0, 0].collections, strict=True):
+            np.testing.assert_array_equal(c.get_segments(), c0.get_segments())  # one grid
+    made = sum(len(ax.xaxis.majorTicks) + len(ax.yaxis.majorTicks) for ax in fig.axes)
+    labelled = 4 * len(panels[1, 0].get_xticks()) + 2 * len(panels[0, 0].get_yticks())
+    assert made <= labelled + 16              # matplotlib keeps one tick object on each axis
 
 
 def test_shapes_leave_no_blank_band(paper_runs):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -175,6 +176,119 @@ def test_the_build_says_what_it_built_and_what_it_skipped(tmp_path, monkeypatch,
         assert not any("win64" in n for n in zf.namelist())
     native_fmus.build_native_fmu("PDLowPass", 2, tmp_path)        # up to date: nothing said
     assert capsys.readouterr().err == ""
+
+
+mingw = pytest.mark.skipif(shutil.which("x86_64-w64-mingw32-gcc") is None,
+                           reason="needs the mingw-w64 cross-compiler")
+
+
+def _zip(path) -> dict:
+    with zipfile.ZipFile(path) as zf:
+        return {n: zf.read(n) for n in zf.namelist()}
+
+
+@mingw
+def test_a_run_builds_the_hosts_binary_and_a_build_adds_the_missing_ones(tmp_path, capsys):
+    """Issue 25: the first run builds only what it runs (the host's binary); ``flexpend build``
+    (every platform) then counts the FMU stale for what it misses, compiles that alone and keeps
+    the host's binary; an FMU with both is up to date for a run and for a build."""
+    from orchestration.export import native_fmus
+
+    path = native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, platforms=["linux64"])
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"PDLowPass (FMI 2): built linux64 (binaries/linux64/PDLowPass.so) with "
+        f"{shutil.which('cc') or shutil.which('gcc')}"]
+    first = _zip(path)
+    assert sorted(n for n in first if n.startswith("binaries/")) == [
+        "binaries/linux64/PDLowPass.so"]
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, platforms=["linux64"])
+    assert capsys.readouterr().err == ""                            # up to date for a run
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path)          # a build: every platform
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("PDLowPass (FMI 2): built win64 ")
+    both = _zip(path)
+    assert "binaries/win64/PDLowPass.dll" in both
+    assert both["binaries/linux64/PDLowPass.so"] == first["binaries/linux64/PDLowPass.so"]
+    guid = [re.search(rb'guid="([^"]+)"', z["modelDescription.xml"]).group(1)
+            for z in (first, both)]
+    assert guid[0] == guid[1]                                       # the same build, one GUID
+    for platforms in (None, ["linux64"], ["win64"]):
+        native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, platforms=platforms)
+        assert capsys.readouterr().err == ""
+
+
+@mingw
+def test_an_fmu_missing_a_binary_its_stamp_names_is_stale_for_it(tmp_path, capsys):
+    """Staleness counts the binaries an FMU holds, not those its stamp names."""
+    from orchestration.export import native_fmus
+
+    path = native_fmus.build_native_fmu("PDLowPass", 2, tmp_path)
+    entries = _zip(path)
+    del entries["binaries/win64/PDLowPass.dll"]                     # the stamp still names it
+    with zipfile.ZipFile(path, "w") as zf:
+        for n, data in entries.items():
+            zf.writestr(n, data)
+    capsys.readouterr()
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, platforms=["linux64"])
+    assert capsys.readouterr().err == ""                            # a run has what it needs
+    native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, platforms=["linux64", "win64"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("PDLowPass (FMI 2): built win64 ")
+    assert "binaries/win64/PDLowPass.dll" in _zip(path)
+
+
+@mingw
+def test_a_failed_compilation_leaves_the_fmu_as_it_was_and_no_partial_file(tmp_path,
+                                                                          monkeypatch):
+    from orchestration.export import BuildError, build_fmus, native_fmus
+
+    path = native_fmus.build_native_fmu("PDLowPass", 2, tmp_path, platforms=["linux64"])
+    before = path.read_bytes()
+    real = native_fmus.compile_command
+
+    def broken(name, fmi_version, platform, *args, **kwargs):
+        cmd = real(name, fmi_version, platform, *args, **kwargs)
+        return cmd + ["-fno-such-option"] if platform == "win64" else cmd
+    monkeypatch.setattr(native_fmus, "compile_command", broken)
+    with pytest.raises(BuildError, match="compiling PDLowPass .FMI 2. for win64 failed"):
+        build_fmus(tmp_path, ["PDLowPass"], flavour="native")
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in path.parent.iterdir()) == ["PDLowPass.fmu"]
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: one compiler at a time")
+def test_the_binaries_are_compiled_at_once(tmp_path, monkeypatch):
+    """Issue 25: the two FMUs' compilers run together (each waits at a barrier for the other:
+    compiled one after the other, the first would wait in vain), not one after the other."""
+    import threading
+
+    from orchestration.export import native_fmus
+
+    barrier = threading.Barrier(2, timeout=120)
+    real = subprocess.run
+
+    def run(cmd, *args, **kwargs):
+        barrier.wait()
+        return real(cmd, *args, **kwargs)
+    monkeypatch.setattr(native_fmus.subprocess, "run", run)
+    paths = native_fmus.build_native_fmus(tmp_path, platforms=["linux64"])
+    assert sorted(paths) == ["FlexiblePendulum", "PDLowPass"]
+    assert all(p.is_file() for p in paths.values())
+
+
+def test_a_run_asks_for_the_hosts_binaries_and_an_export_for_every_platform(monkeypatch):
+    import orchestration.export as export
+    from fmu_common.kernels import host_platform
+
+    asked = []
+    monkeypatch.setattr(export, "build_fmus", lambda **kw: asked.append(kw) or {
+        "FlexiblePendulum": "p", "PDLowPass": "c"})
+    export.flavour_fmus("native")
+    export.flavour_fmus("native", portable=True)
+    export.flavour_fmus("python")
+    assert asked == [{"flavour": "native", "platforms": [host_platform()]},
+                     {"flavour": "native", "platforms": None},
+                     {"flavour": "python", "platforms": None}]
 
 
 VDM_ARTIFACT = "org.into-cps.vdmcheck.fmi2:vdmcheck2:1.1.3:zip:distribution-{}"

@@ -5,7 +5,8 @@
 :mod:`.python_fmus` builds the pythonfmu FMUs (FMI 2.0; only when their sources changed) into
 ``build/fmus/``; :mod:`.native_fmus` the native ones (C, FMI 2.0 and 3.0, linux64 and win64) into
 ``build/fmus/native/fmi2/`` and ``build/fmus/native/fmi3/``;
-:func:`flavour_fmus` gives the FMU pair of a flavour by name (``python``, ``native``);
+:func:`flavour_fmus` gives the FMU pair of a flavour by name (``python``, ``native``), for a run
+(the native FMUs need only the host's binaries) or an archive (every platform);
 :mod:`.ssp` writes a scene as an SSP 1.0 archive and reads one back (``flexpend export``,
 ``flexpend run FILE.ssp``);
 :mod:`.check` regresses an FMU against reference results in the FMI cross-check layout and writes
@@ -27,13 +28,14 @@ __all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "flavour_fmus
 
 
 def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = "python",
-               fmi_version: int = 2) -> dict:
+               fmi_version: int = 2, platforms=None) -> dict:
     """Build (if stale) the FMUs of a flavour and return ``{model name: path}``.
 
     ``flavour``: ``"python"`` (pythonfmu, FMI 2.0 only; ``out_dir`` default ``build/fmus``) or
     ``"native"`` (C; ``fmi_version`` 2 or 3; ``out_dir`` default ``build/fmus/native``, the FMUs in
-    its ``fmi2``/``fmi3`` folder). Raises :class:`BuildError` when a build fails and ValueError
-    on a bad argument."""
+    its ``fmi2``/``fmi3`` folder). ``platforms`` (native): the binaries each FMU must have (default:
+    every platform this machine builds; :func:`.native_fmus.build_native_fmus`). Raises
+    :class:`BuildError` when a build fails and ValueError on a bad argument."""
     if flavour not in FMU_FLAVOURS:
         raise ValueError(f"flavour = {flavour!r}; allowed: {', '.join(FMU_FLAVOURS)}")
     if fmi_version not in (2, 3) or (flavour == "python" and fmi_version != 2):
@@ -43,7 +45,7 @@ def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = 
             return build_python(Path(out_dir) if out_dir else None, names, force)
         try:
             return build_native_fmus(Path(out_dir) if out_dir else None, names, force,
-                                     fmi_version)
+                                     fmi_version, platforms)
         except NativeBuildError as exc:
             raise BuildError(str(exc)) from None
 
@@ -53,10 +55,15 @@ def fmu_pair(paths: dict) -> dict:
     return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
 
 
-def flavour_fmus(flavour: str) -> dict:
+def flavour_fmus(flavour: str, *, portable: bool = False) -> dict:
     """``{"plant": path, "controller": path}``: the FMI 2.0 FMUs a scene of ``master.fmus =
-    flavour`` runs on, built if missing or stale."""
-    return fmu_pair(build_fmus(flavour=flavour))
+    flavour`` runs on, built if missing or stale. A run needs the native FMUs' binaries for this
+    machine alone: they are all that is built for it (an FMU that has them is up to date);
+    ``portable`` (an archive to hand on): those of every platform this machine builds."""
+    from fmu_common.kernels import host_platform
+
+    platforms = None if portable or flavour != "native" else [host_platform()]
+    return fmu_pair(build_fmus(flavour=flavour, platforms=platforms))
 
 
 # ---------------------------------------------------------------------- command line

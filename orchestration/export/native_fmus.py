@@ -1,6 +1,7 @@
 """Build the native FMUs: FlexiblePendulum and PDLowPass in C, FMI 2.0 and FMI 3.0 co-simulation.
 
-    build_native_fmus(out_dir=build/fmus/native, fmi_version=2) -> {"FlexiblePendulum": path, ...}
+    build_native_fmus(out_dir=build/fmus/native, fmi_version=2, platforms=None)
+        -> {"FlexiblePendulum": path, "PDLowPass": path}
 
 Each FMU is compiled from
 
@@ -25,9 +26,12 @@ floating-point contraction, hidden visibility: only the FMI functions are export
 against libc and libm alone (``-static-libgcc`` on Windows). The FMI headers are fmpy's copy of
 the standard's (``fmpy/c-code``). ``modelDescription.xml`` comes from
 :mod:`.model_description`. An FMU is rebuilt only when the digest of its inputs (sources, table,
-build scripts, platforms) changes. A build says what it built on stderr: one line per platform
-compiled, and one line naming the missing cross-compiler of a platform it skipped (win64 without
-mingw-w64).
+build scripts) changes, or when it lacks a binary asked for: a run asks for the host's alone
+(:func:`orchestration.export.flavour_fmus`), ``flexpend build`` and ``flexpend export`` for
+every platform this machine builds; the binaries an FMU has from the same sources are kept, the
+missing ones compiled, all of them at once (one compiler process each, as many as there are
+cores). A build says what it built on stderr: one line per binary compiled, and one line naming
+the missing cross-compiler of a platform it skipped (win64 without mingw-w64).
 """
 from __future__ import annotations
 
@@ -40,6 +44,8 @@ import sys
 import tempfile
 import uuid
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from fmu_common import kernels
@@ -68,7 +74,7 @@ N_MODES_MAX = 8
 #: substeps (or accepted adaptive steps) per doStep beyond which a step is discarded
 MAX_SUBSTEPS = 1_000_000
 #: Bump when the build changes in a way its inputs do not show.
-BUILD_FORMAT = 1
+BUILD_FORMAT = 2
 STAMP = "resources/flexpend_build.json"
 
 #: model -> (its FMU glue in C, in the native folder of its first kernel; the kernels it links)
@@ -207,9 +213,9 @@ def _inputs(name: str) -> list[Path]:
     return files
 
 
-def source_digest(name: str, fmi_version: int, platforms) -> str:
-    """sha256 of everything an FMU is built from."""
-    h = hashlib.sha256(f"{BUILD_FORMAT} {name} fmi{fmi_version} {' '.join(platforms)} "
+def source_digest(name: str, fmi_version: int) -> str:
+    """sha256 of everything an FMU is built from (the same for each of its platforms)."""
+    h = hashlib.sha256(f"{BUILD_FORMAT} {name} fmi{fmi_version} "
                        f"{NE_MAX} {N_MODES_MAX} {MAX_SUBSTEPS} {kernels.CFLAGS}\n".encode())
     for path in _inputs(name):
         h.update(path.relative_to(ROOT).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
@@ -222,12 +228,18 @@ def _token(name: str, digest: str) -> str:
         + "}"
 
 
-def _fmu_digest(path: Path) -> str | None:
+def _built(path: Path, name: str, fmi_version: int) -> tuple[str | None, list]:
+    """The digest of the sources the FMU at ``path`` was built from (its stamp; None when it has
+    none) and the platforms its stamp names whose binary it holds."""
     try:
         with zipfile.ZipFile(path) as zf:
-            return json.loads(zf.read(STAMP))["digest"]
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
-        return None
+            stamp = json.loads(zf.read(STAMP))
+            held = set(zf.namelist())
+        platforms = [p for p in stamp["platforms"]
+                     if p in PLATFORMS and _binary(name, fmi_version, p) in held]
+        return str(stamp["digest"]), platforms
+    except (OSError, KeyError, TypeError, ValueError, zipfile.BadZipFile):
+        return None, []
 
 
 def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: Path,
@@ -266,60 +278,116 @@ def skipped_platforms() -> dict:
     return out
 
 
-def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = None,
-                     force: bool = False, platforms=None) -> Path:
-    """Build one native FMU into ``out_dir/fmi<version>/`` unless it is up to date; say on
-    stderr what was built (one line per platform) and which platform was skipped and why."""
+def _binary(name: str, fmi_version: int, platform: str) -> str:
+    """The zip entry of ``name``'s binary for ``platform``."""
+    suffix = ".dll" if platform.startswith("win") else ".so"
+    return f"binaries/{PLATFORMS[platform][0 if fmi_version == 2 else 1]}/{name}{suffix}"
+
+
+@dataclass
+class _Build:
+    """One FMU to (re)build: the platforms it will have, those to compile, the binaries kept."""
+    name: str
+    fmi_version: int
+    target: Path
+    digest: str
+    platforms: list
+    compile: list
+    kept: dict = field(default_factory=dict)        # zip entry -> bytes, from the FMU replaced
+
+
+def _plan(name: str, fmi_version: int, out_dir: Path, force: bool, platforms) -> _Build | None:
+    """What building ``name`` needs, None when its FMU is up to date: built from the same sources
+    (its stamp's digest) with a binary for every platform of ``platforms``. The binaries it
+    already has from the same sources are kept, and only the missing ones compiled."""
     if name not in MODELS:
         raise ValueError(f"unknown FMU {name!r}; known: {', '.join(MODELS)}")
-    if fmi_version not in (2, 3):
-        raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
-    out_dir = Path(out_dir or places.native_fmu_dir()) / f"fmi{fmi_version}"
-    target = out_dir / f"{name}.fmu"
-    skipped = skipped_platforms() if platforms is None else {}
-    platforms = kernels.available_platforms() if platforms is None else list(platforms)
-    digest = source_digest(name, fmi_version, platforms)
-    if not force and _fmu_digest(target) == digest:
-        return target
-    token = _token(name, digest)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix=f"flexpend_native_{name}_") as tmp:
+    for plat in platforms:
+        if plat not in PLATFORMS:
+            raise NativeBuildError(f"no native FMU build for platform {plat}")
+    target = out_dir / f"fmi{fmi_version}" / f"{name}.fmu"
+    digest = source_digest(name, fmi_version)
+    built, have = (None, []) if force else _built(target, name, fmi_version)
+    if built != digest:
+        have = []
+    if all(p in have for p in platforms):
+        return None
+    build = _Build(name, fmi_version, target, digest,
+                   [*have, *(p for p in platforms if p not in have)],
+                   [p for p in platforms if p not in have])
+    try:
+        with zipfile.ZipFile(target) as zf:
+            build.kept = {e: zf.read(e) for e in (_binary(name, fmi_version, p) for p in have)}
+    except (OSError, KeyError, zipfile.BadZipFile):     # changed since it was read: build all
+        build.platforms, build.compile, build.kept = list(platforms), list(platforms), {}
+    return build
+
+
+def _compile(build: _Build, platform: str, gen: Path, tmp: Path) -> tuple[str, bytes, str]:
+    """Compile ``build``'s binary for ``platform``: (zip entry, bytes, the compiler)."""
+    cc = kernels.find_compiler(platform)
+    entry = _binary(build.name, build.fmi_version, platform)
+    lib = tmp / f"fmi{build.fmi_version}-{platform}-{Path(entry).name}"
+    cmd = compile_command(build.name, build.fmi_version, platform, lib, gen, cc)
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise NativeBuildError(f"compiling {build.name} (FMI {build.fmi_version}) for "
+                               f"{platform} failed:\n{' '.join(cmd)}\n{proc.stdout}{proc.stderr}")
+    return entry, lib.read_bytes(), cc
+
+
+def _build_all(builds: list) -> None:
+    """Compile every missing binary of ``builds`` at once (one compiler process per binary, as
+    many at a time as there are cores), then write each FMU: complete, or not at all."""
+    with tempfile.TemporaryDirectory(prefix="flexpend_native_") as tmp:
         tmp = Path(tmp)
-        gen = tmp / "gen"
-        gen.mkdir()
-        (gen / "fpm_vars.h").write_text(generate_header(name, token))
-        entries = {}
-        for plat in platforms:
-            if plat not in PLATFORMS:
-                raise NativeBuildError(f"no native FMU build for platform {plat}")
-            cc = kernels.find_compiler(plat)
-            suffix = ".dll" if plat.startswith("win") else ".so"
-            lib = tmp / f"{plat}{suffix}"
-            cmd = compile_command(name, fmi_version, plat, lib, gen, cc)
-            proc = subprocess.run(cmd, capture_output=True, text=True)
-            if proc.returncode != 0:
-                raise NativeBuildError(f"compiling {name} (FMI {fmi_version}) for {plat} failed:\n"
-                                       f"{' '.join(cmd)}\n{proc.stdout}{proc.stderr}")
-            folder = PLATFORMS[plat][0 if fmi_version == 2 else 1]
-            entries[f"binaries/{folder}/{name}{suffix}"] = lib.read_bytes()
-            _say(f"{name} (FMI {fmi_version}): built {plat} (binaries/{folder}/{name}{suffix}) "
-                 f"with {cc}")
-        for plat, why in skipped.items():
-            _say(f"{name} (FMI {fmi_version}): {plat} skipped: {why} (Debian: apt-get install "
-                 f"gcc-mingw-w64-x86-64); the FMU has no {plat} binary")
-        entries["modelDescription.xml"] = _model_description(name, fmi_version, token)
-        entries[STAMP] = json.dumps({"model": name, "fmi_version": fmi_version,
-                                     "digest": digest, "platforms": platforms}).encode()
-        built = tmp / f"{name}.fmu"
-        with zipfile.ZipFile(built, "w", zipfile.ZIP_DEFLATED) as zf:
-            for fname, data in entries.items():
-                zf.writestr(fname, data)
-        fd, part = tempfile.mkstemp(prefix=f".{name}.", suffix=".part", dir=out_dir)
-        os.close(fd)
+        jobs = {}
+        with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
+            for b in builds:
+                gen = tmp / f"gen-{b.name}-fmi{b.fmi_version}"
+                gen.mkdir()
+                (gen / "fpm_vars.h").write_text(generate_header(b.name, _token(b.name, b.digest)))
+                for plat in b.compile:
+                    jobs[b.name, b.fmi_version, plat] = pool.submit(_compile, b, plat, gen, tmp)
+            done = {key: job.result() for key, job in jobs.items()}    # the first error raises
+        for b in builds:
+            binaries = dict(b.kept)
+            for plat in b.compile:
+                entry, data, cc = done[b.name, b.fmi_version, plat]
+                binaries[entry] = data
+                _say(f"{b.name} (FMI {b.fmi_version}): built {plat} ({entry}) with {cc}")
+            _write_fmu(b, binaries, tmp)
+
+
+def _write_fmu(b: _Build, binaries: dict, tmp: Path) -> None:
+    """Write ``b``'s FMU (``binaries``: zip entry -> bytes) to a temporary name beside its place,
+    then rename it into place."""
+    token = _token(b.name, b.digest)
+    entries = {e: binaries[e] for e in (_binary(b.name, b.fmi_version, p) for p in b.platforms)}
+    entries["modelDescription.xml"] = _model_description(b.name, b.fmi_version, token)
+    entries[STAMP] = json.dumps({"model": b.name, "fmi_version": b.fmi_version,
+                                 "digest": b.digest, "platforms": b.platforms}).encode()
+    built = tmp / f"{b.name}-fmi{b.fmi_version}.fmu"
+    with zipfile.ZipFile(built, "w", zipfile.ZIP_DEFLATED) as zf:
+        for fname, data in entries.items():
+            zf.writestr(fname, data)
+    b.target.parent.mkdir(parents=True, exist_ok=True)
+    fd, part = tempfile.mkstemp(prefix=f".{b.name}.", suffix=".part", dir=b.target.parent)
+    os.close(fd)
+    try:
         shutil.copyfile(built, part)
         os.chmod(part, 0o644)
-        os.replace(part, target)
-    return target
+        os.replace(part, b.target)
+    finally:
+        if os.path.exists(part):
+            os.unlink(part)
+
+
+def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = None,
+                     force: bool = False, platforms=None) -> Path:
+    """Build one native FMU into ``out_dir/fmi<version>/`` unless it is up to date
+    (:func:`build_native_fmus`)."""
+    return build_native_fmus(out_dir, [name], force, fmi_version, platforms)[name]
 
 
 def _model_description(name: str, fmi_version: int, token: str) -> bytes:
@@ -362,13 +430,34 @@ def max_output_derivative_order(name: str) -> int:
 
 
 def build_native_fmus(out_dir: Path | None = None, names=None, force: bool = False,
-                      fmi_version: int = 2) -> dict:
-    """Build (if stale) the native FMUs of one FMI version; ``{name: path}``."""
+                      fmi_version: int = 2, platforms=None) -> dict:
+    """Build the native FMUs of one FMI version that are missing or stale; ``{name: path}``.
+
+    ``platforms``: the binaries each FMU must have (default: every platform this machine can
+    build, the host's and those whose cross-compiler is installed; a missing cross-compiler is
+    said on stderr). An FMU built from the same sources that has them is up to date, whatever
+    other binaries it has; one that misses some gets them compiled and keeps those it has; one
+    built from other sources is built anew for ``platforms``. Every binary to compile is
+    compiled at once (:func:`_build_all`); each FMU is written complete or not at all. Says on
+    stderr one line per binary compiled."""
+    if fmi_version not in (2, 3):
+        raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
     names = list(MODELS) if names is None else list(names)
     unknown = sorted(set(names) - set(MODELS))
     if unknown:
         raise ValueError(f"unknown FMU(s) {', '.join(unknown)}; known: {', '.join(MODELS)}")
+    out_dir = Path(out_dir or places.native_fmu_dir())
     try:
-        return {n: build_native_fmu(n, fmi_version, out_dir, force) for n in names}
+        skipped = skipped_platforms() if platforms is None else {}
+        platforms = kernels.available_platforms() if platforms is None else list(platforms)
+        builds = [b for b in (_plan(n, fmi_version, out_dir, force, platforms) for n in names)
+                  if b is not None]
+        if builds:
+            _build_all(builds)
+            for b in builds:
+                for plat, why in skipped.items():
+                    _say(f"{b.name} (FMI {fmi_version}): {plat} skipped: {why} (Debian: apt-get "
+                         f"install gcc-mingw-w64-x86-64); the FMU has no {plat} binary")
     except kernels.CompilerNotFound as exc:
         raise NativeBuildError(str(exc)) from None
+    return {n: out_dir / f"fmi{fmi_version}" / f"{n}.fmu" for n in names}

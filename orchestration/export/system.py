@@ -27,7 +27,7 @@ def export_scene(scene, flavour: str = "native", out=None, progress=None) -> Exp
     ``"python"``); ``plant.n_modes``/``plant.fidelity``
     ``"auto"`` are chosen first (:func:`orchestration.studies.fidelity.select_model`), and the chosen
     model is written."""
-    fmus = flavour_fmus(flavour)
+    fmus = flavour_fmus(flavour, portable=True)
     model = None
     if not scene.resolved:
         scene, model = select_model(scene, progress)

@@ -143,16 +143,20 @@ def write_json(path, obj) -> Path:
 
 
 def write_csv(path, result: np.ndarray) -> Path:
-    """A structured array as CSV, the columns named in a header (fmpy's format)."""
-    from fmpy.util import write_csv as _write_csv
-
-    with atomic_path(path) as tmp:
-        _write_csv(str(tmp), result)
-    return Path(path)
+    """A structured array of float columns as CSV, the columns named in a header: fmpy's format
+    (``fmpy.util.write_csv``: quoted names, each number as Python prints it, the shortest text
+    that reads back to the same float), written in one block."""
+    names = result.dtype.names
+    rows = np.column_stack([result[c] for c in names]).tolist() if len(result) else []
+    text = ",".join(f'"{n}"' for n in names) + "\n" \
+        + "".join(",".join(map(repr, row)) + "\n" for row in rows)
+    return write_text(path, text)
 
 
 def save_figure(fig, path, dpi: int = 110) -> Path:
     """Write a matplotlib Figure as PNG (or the format of the path's suffix)."""
-    with atomic_path(path) as tmp:
+    from .figures import ticks_in_view
+
+    with atomic_path(path) as tmp, ticks_in_view(fig):
         fig.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip(".") or "png")
     return Path(path)

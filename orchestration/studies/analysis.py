@@ -18,15 +18,17 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
-import scipy.optimize
 
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.beam import beam_model
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
+
+if TYPE_CHECKING:
+    import control
 
 __all__ = ["closed_loop_matrix", "assemble_closed_loop", "loop_transfer", "frequency_response",
            "analyze", "Analysis", "margins", "max_real_part", "first_bending_frequency",
@@ -121,6 +123,8 @@ def loop_roots(p: PlantParams, c: ControllerParams) -> LoopRoots:
 def loop_transfer(p: PlantParams, c: ControllerParams) -> control.StateSpace:
     """``L(s) = -K(s) G(s)``: the loop broken at the force, in python-control's convention
     (closed loop = ``L / (1 + L)``)."""
+    import control          # here: python-control (with scipy.signal) costs 0.7 s to import
+
     A, B, C, D = plant_model(p).state_space()
     if c.kx == 0.0:
         # The cart's position and velocity are then neither fed back nor felt by the other
@@ -150,6 +154,8 @@ def frequency_response(p: PlantParams, c: ControllerParams, w) -> np.ndarray:
 def _crossings(f, w, v):
     """Roots of the real function ``f`` whose values on the grid ``w`` are ``v``, refined by
     Brent's method."""
+    import scipy.optimize
+
     idx = np.nonzero(np.sign(v[:-1]) * np.sign(v[1:]) < 0)[0]
     return [scipy.optimize.brentq(f, w[i], w[i + 1], xtol=1e-12, rtol=1e-13) for i in idx]
 

@@ -7,7 +7,6 @@ master's results (:data:`COLUMNS`), on the same output grid.
 from __future__ import annotations
 
 import numpy as np
-import scipy.integrate
 
 from controller_fmu.pd_lowpass import PDLowPassModel
 from plant_fmu.dynamics import linear_plant_model, plant_model
@@ -67,6 +66,8 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
 
     Raises ``RuntimeError`` if the solver fails (the message is scipy's).
     """
+    import scipy.integrate      # here: a run without ``--reference`` does not need it
+
     loop = ClosedLoop(scene)
     t_end, dt = scene.output.stop_time, scene.output.output_interval
     n_out = int(round(t_end / dt))
