@@ -658,7 +658,7 @@ def entry():
     """The ``flexpend`` command. Ctrl-C is noted from here on, for the process's whole life, so
     that it exits with 130 at any moment: while the command runs, after it (its clean-ups at
     exit: unpacked FMUs, a LocalCluster's folders), and from the last clean-up on a Ctrl-C ends
-    the process at once (a shell reports 130). After a Ctrl-C the process ends right after its
+    the process at once, with 130. After a Ctrl-C the process ends right after its
     clean-ups, its output flushed, without the interpreter's finalisation: a KeyboardInterrupt
     that reached code run by an FMU's embedded Python makes the interpreter kill itself with
     SIGINT at finalisation, and pythonfmu's finalisation can abort (see docs/fmus.md); the data
@@ -679,14 +679,20 @@ _EXIT_CODE = None
 
 
 def _last_clean_up():
-    """The last thing the ``flexpend`` process does at exit: from here a Ctrl-C kills it at once
-    (nothing is left to clean up); an earlier one makes the exit code 130."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    """The last thing the ``flexpend`` process does at exit: from here a Ctrl-C ends it at once
+    with 130 (nothing is left to clean up; the default action would end it by the signal, which
+    a shell shows as 130 but a parent process sees as -2); an earlier one makes the exit code
+    130."""
+    signal.signal(signal.SIGINT, _exit_interrupted)
     if _EXIT_CODE == EXIT_INTERRUPTED or (INTERRUPTS is not None and INTERRUPTS.requested()):
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(Exception):     # closed, or a pipe no one reads
-                stream.flush()
-        os._exit(EXIT_INTERRUPTED)
+        _exit_interrupted()
+
+
+def _exit_interrupted(*_signal):
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):     # closed, or a pipe no one reads
+            stream.flush()
+    os._exit(EXIT_INTERRUPTED)
 
 
 if __name__ == "__main__":
