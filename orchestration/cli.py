@@ -680,19 +680,28 @@ _EXIT_CODE = None
 
 def _last_clean_up():
     """The last thing the ``flexpend`` process does at exit: from here a Ctrl-C ends it at once
-    with 130 (nothing is left to clean up; the default action would end it by the signal, which
-    a shell shows as 130 but a parent process sees as -2); an earlier one makes the exit code
-    130."""
+    with 130 (nothing is left to clean up), and an earlier one makes the exit code 130. The
+    process ends here, its output flushed, without the interpreter's finalisation: that puts
+    back the default action of SIGINT, which would end the process by the signal (a shell shows
+    130, a parent process -2), and it has nothing of ours left to do. A command that ended in a
+    traceback (no exit code) is left to the interpreter."""
     signal.signal(signal.SIGINT, _exit_interrupted)
     if _EXIT_CODE == EXIT_INTERRUPTED or (INTERRUPTS is not None and INTERRUPTS.requested()):
         _exit_interrupted()
+    if isinstance(_EXIT_CODE, int):
+        _flush()
+        os._exit(_EXIT_CODE)
 
 
 def _exit_interrupted(*_signal):
+    _flush()
+    os._exit(EXIT_INTERRUPTED)
+
+
+def _flush():
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):     # closed, or a pipe no one reads
             stream.flush()
-    os._exit(EXIT_INTERRUPTED)
 
 
 if __name__ == "__main__":
