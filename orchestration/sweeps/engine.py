@@ -17,7 +17,9 @@ import numpy as np
 import controller_fmu
 import plant_fmu
 
+from ..cosim.pool import SlavePool
 from ..export import flavour_fmus
+from ..export.native_fmus import GENERATION_TOOL
 from ..job import run_scene
 from ..scene.keys import parse_value
 from ..scene.records import Scene
@@ -124,6 +126,25 @@ def _extracted(path: str) -> str:
     return _EXTRACTED[path]
 
 
+def _resets_fully(slave) -> bool:
+    """The native FMUs' reset restores the state after instantiation (not pythonfmu's)."""
+    return slave.md.generationTool == GENERATION_TOOL
+
+
+_POOL: list = []
+
+
+def _pool() -> SlavePool:
+    """This process's FMU instances, reused by every run (:mod:`orchestration.cosim.pool`) and
+    freed when the process exits."""
+    if not _POOL:
+        import atexit
+
+        _POOL.append(SlavePool(_resets_fully))
+        atexit.register(_POOL[0].close)
+    return _POOL[0]
+
+
 def run_task(task) -> dict:
     """Run one point on a worker (or here): ``(scene, reference, fmus, sources)``;
     ``fmus`` maps ``plant``/``controller`` to ``(shipped name, client path)``, ``sources`` is the
@@ -137,7 +158,7 @@ def run_task(task) -> dict:
             raise RuntimeError("this worker's flexpend model sources differ from the client's: "
                                "install the client's version on the workers")
         r = run_scene(scene, paths, reference=reference, progress=False,
-                      unzipdirs={role: _extracted(p) for role, p in paths.items()})
+                      unzipdirs={role: _extracted(p) for role, p in paths.items()}, pool=_pool())
         row = summary_row(r.summary)
         row["linear_decay_rate"] = linear_decay_rate(r.scene)
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, never the end of a sweep

@@ -1,0 +1,92 @@
+"""A sweep's worker reuses its FMU instances between runs (orchestration/cosim/pool.py): the
+native FMUs are reset with fmi2Reset and given the next run's parameters, and the rows are those
+of fresh instances, value for value."""
+import pytest
+
+from orchestration.cosim.pool import SlavePool
+from orchestration.cosim.slave import Slave
+from orchestration.sweeps import engine
+from orchestration.sweeps.engine import run_sweep
+from orchestration.sweeps.plan import plan_sweep
+
+TIMES = ("wall_time", "cosim_time")
+
+
+@pytest.fixture(scope="module")
+def pair(native):
+    return {"plant": native["FlexiblePendulum"], "controller": native["PDLowPass"]}
+
+
+def untimed(rows):
+    return [{k: v for k, v in r.items() if k not in TIMES} for r in rows]
+
+
+def sweep(plan, pair, folder, monkeypatch, pool):
+    """The rows of ``plan`` run serially with ``pool`` as the worker's pool (None: every run
+    makes and frees its own instances, as ``flexpend run`` does)."""
+    monkeypatch.setattr(engine, "_pool", lambda: pool)
+    res = run_sweep(plan, pair, folder, progress=False, plot=False)
+    return res.rows
+
+
+# the plant's size (modes), its parameters and the controller change from run to run; kp = 1e5
+# drives the beam past phi_limit (the FMU refuses a step: the next run resets an instance in
+# error), and the model-exchange runs reuse their instances too
+PLAN = dict(values=["controller.kp=1e5,500,650", "plant.n_modes=3,2"],
+            samples=["plant.EI=uniform:800:950"], n_samples=1, seed=3,
+            overrides=["stop_time=1", "initial.phi=0.05"])
+
+
+def test_reused_instances_give_the_rows_of_fresh_ones(pair, tmp_path, monkeypatch):
+    plan = plan_sweep("flexible_pd_lowpass", **PLAN)
+    assert len(plan.points) == 6
+    fresh = sweep(plan, pair, tmp_path / "fresh", monkeypatch, None)
+    pool = SlavePool(engine._resets_fully)
+    reused = sweep(plan, pair, tmp_path / "reused", monkeypatch, pool)
+    assert [r["status"] for r in fresh] == ["failed", "failed", "ok", "ok", "ok", "ok"]
+    assert "phi_limit" in fresh[0]["message"]
+    # every run after the first took both instances from the pool, reset
+    assert (pool.created, pool.reused) == (2, 2 * (len(plan.points) - 1))
+    assert untimed(reused) == untimed(fresh)
+    pool.close()
+
+
+def test_model_exchange_instances_are_reused_too(pair, tmp_path, monkeypatch):
+    plan = plan_sweep("flexible_pd_lowpass", values=["controller.kp=500,650"],
+                      overrides=["stop_time=0.1", "initial.phi=0.05",
+                                 "master.interface=model-exchange"])
+    fresh = sweep(plan, pair, tmp_path / "fresh", monkeypatch, None)
+    pool = SlavePool(engine._resets_fully)
+    reused = sweep(plan, pair, tmp_path / "reused", monkeypatch, pool)
+    assert (pool.created, pool.reused) == (2, 2)
+    assert [r["status"] for r in fresh] == ["ok", "ok"]
+    assert untimed(reused) == untimed(fresh)
+    pool.close()
+
+
+def test_a_reuse_without_reset_would_be_caught(pair, tmp_path, monkeypatch):
+    """The comparison above can fail: instances handed on without fmi2Reset (only new start
+    values) do not give the fresh rows."""
+    plan = plan_sweep("flexible_pd_lowpass", values=["controller.kp=500,650"],
+                      overrides=["stop_time=0.5", "initial.phi=0.05"])
+    fresh = sweep(plan, pair, tmp_path / "fresh", monkeypatch, None)
+
+    def no_reset(self, start_values=None):
+        self.messages.clear()
+        self._start_values = dict(start_values or {})
+    monkeypatch.setattr(Slave, "reset", no_reset)
+    wrong = sweep(plan, pair, tmp_path / "wrong", monkeypatch, SlavePool(engine._resets_fully))
+    assert untimed(wrong)[0] == untimed(fresh)[0]
+    assert untimed(wrong)[1] != untimed(fresh)[1]
+
+
+def test_pythonfmu_instances_are_not_reused(fmus, tmp_path, monkeypatch):
+    """pythonfmu's fmi2Reset is not known to restore the state after instantiation: its
+    instances are freed after each run."""
+    pair = {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
+    plan = plan_sweep("flexible_pd_lowpass", values=["controller.kp=500,650"],
+                      overrides=["stop_time=0.05"])
+    pool = SlavePool(engine._resets_fully)
+    rows = sweep(plan, pair, tmp_path, monkeypatch, pool)
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    assert (pool.created, pool.reused, pool._idle) == (4, 0, {})
