@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from ..studies.analysis import closed_loop_matrix, first_bending_frequency
+from ..studies.analysis import closed_loop_eigenvalues, first_bending_frequency
 from ..studies.fit import fit_mode
 
 __all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT",
@@ -64,7 +64,7 @@ _SIGNALS = {"slow": ("phi_o", SLOW_BAND), "bending": ("eta_1", BENDING_BAND)}
 def linear_modes(scene) -> np.ndarray:
     """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop."""
 
-    lam = np.linalg.eigvals(closed_loop_matrix(scene.plant.params, scene.controller))
+    lam = closed_loop_eigenvalues(scene.plant.params, scene.controller)
     return lam[lam.imag > 1e-9]
 
 
