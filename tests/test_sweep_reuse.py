@@ -108,3 +108,20 @@ def test_journal_is_flushed_per_row_and_synced_at_the_end(tmp_path, monkeypatch)
             assert len(Journal(tmp_path).read()) == k + 1
         assert synced == []
     assert len(synced) == 1 and sorted(Journal(tmp_path).read()) == list("01234")
+
+
+def test_a_task_runs_with_blas_on_one_thread():
+    """Every task runs with numpy's and scipy's BLAS on one thread (the executor's limit), and
+    the limit ends with the task."""
+    import scipy.linalg  # noqa: F401 - scipy's BLAS loaded, as in a sweep
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from orchestration.sweeps.executor import Executor
+
+    def blas_threads(_):
+        return sorted(i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas")
+    with threadpool_limits(limits=2, user_api="blas"):
+        inside = [v for _, v in Executor().map(blas_threads, [0, 1])]
+        after = blas_threads(None)
+    assert len(inside[0]) >= 1 and inside == [[1] * len(inside[0])] * 2
+    assert after == [2] * len(after)
