@@ -125,3 +125,29 @@ def test_a_task_runs_with_blas_on_one_thread():
         after = blas_threads(None)
     assert len(inside[0]) >= 1 and inside == [[1] * len(inside[0])] * 2
     assert after == [2] * len(after)
+
+
+def test_linear_window_is_the_first_longest_stretch():
+    """The summary's linear window (numpy, for the cost of a sweep run) against a plain scan."""
+    import itertools
+
+    import numpy as np
+
+    from orchestration.report.summary import LINEAR_PHI, linear_window
+
+    def scan(ok):
+        best, i = (0, 0), 0
+        for v, run in itertools.groupby(ok):
+            n = len(list(run))
+            if v and n > best[1] - best[0]:
+                best = (i, i + n)
+            i += n
+        return slice(*best)
+    rng = np.random.default_rng(5)
+    cases = [np.zeros(0, bool), np.zeros(7, bool), np.ones(7, bool),
+             np.array([1, 1, 0, 1, 1, 0, 1], bool), np.array([0, 1, 1, 0, 1, 1], bool)]
+    cases += [rng.random(n) < q for n in (1, 2, 50, 5000) for q in (0.2, 0.5, 0.9)]
+    for ok in cases:
+        res = np.zeros(len(ok), dtype=[("time", "f8"), ("phi_o", "f8")])
+        res["phi_o"] = np.where(ok, 0.5, 2.0) * LINEAR_PHI
+        assert linear_window(res, None) == scan(ok.tolist()), ok
