@@ -170,9 +170,10 @@ def run_task(task) -> dict:
 # ---------------------------------------------------------------------------- journal, table
 class Journal:
     """``DIR/runs.jsonl``: one JSON row per finished run, appended and flushed at once (a killed
-    process loses no finished row); synced to the disk at most every :attr:`SYNC_EVERY` seconds
-    and at the end (an ``fsync`` per row cost a third of a 10 ms run): a crash of the machine
-    may lose the rows of the last second, which the next sweep into the folder reruns."""
+    process loses no finished row); synced to the disk with the first row :attr:`SYNC_EVERY`
+    seconds or more after the last sync, and at the end (an ``fsync`` per row cost a third of a
+    10 ms run): a crash of the machine may lose the rows since the last sync, which the next
+    sweep into the folder reruns."""
 
     SYNC_EVERY = 1.0
 
