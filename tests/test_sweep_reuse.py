@@ -151,3 +151,24 @@ def test_linear_window_is_the_first_longest_stretch():
         res = np.zeros(len(ok), dtype=[("time", "f8"), ("phi_o", "f8")])
         res["phi_o"] = np.where(ok, 0.5, 2.0) * LINEAR_PHI
         assert linear_window(res, None) == scan(ok.tolist()), ok
+
+
+def test_a_rebuilt_fmu_is_extracted_again(native, tmp_path):
+    """A worker's extraction (and so its pooled instances) is keyed by the FMU's file and its
+    content's stamp: an FMU rebuilt at the same path (a changed model, in a long-lived Python
+    session) is extracted again, not run from the old folder."""
+    import os
+    import shutil
+    from pathlib import Path
+
+    fmu = tmp_path / "Model.fmu"
+    shutil.copy(native["PDLowPass"], fmu)
+    first = engine._extracted(str(fmu))
+    assert engine._extracted(str(fmu)) == first
+    shutil.copy(native["FlexiblePendulum"], fmu)               # rebuilt: other content
+    st = os.stat(fmu)
+    os.utime(fmu, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    second = engine._extracted(str(fmu))
+    assert second != first
+    assert (Path(second) / "binaries").is_dir() and \
+        "FlexiblePendulum" in (Path(second) / "modelDescription.xml").read_text()
