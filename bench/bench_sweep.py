@@ -12,8 +12,9 @@ against the serial path, and dask's overhead per task.
   time split into stepping (the master's wall time), fits, linear analysis, FMU load and
   instantiation, and the rest; medians, and each run's total over its own stepping.
 * **Runs per second per core** of ``flexpend sweep flexible_pd_lowpass --sample design`` (the
-  same runs through ``run_sweep``, no plot), serially and on a LocalCluster of ``--workers``,
-  for both checkouts, against the compiled loop's own limit: 1 / the runs' median stepping time.
+  same runs through ``run_sweep``, no plot), serially and on a LocalCluster of ``--workers``
+  (one run per task, and a batch that makes four tasks a worker: 8 runs), for both checkouts, against the compiled loop's own limit: 1 / the
+  runs' median stepping time.
 
 The study of dask (with ``--quick``, skipped):
 
@@ -98,8 +99,14 @@ def measure(tree: Path, *args) -> dict:
 
 def sweep_runs(args, out) -> None:
     """The profile of a sweep run and the runs per second per core, for each checkout."""
-    runs, warmup, rounds, n_sweep, reps = (6, 2, 1, 8, 1) if args.quick else \
+    runs, warmup, rounds, n_sweep, reps = (6, 2, 1, 16, 1) if args.quick else \
         (16, 3, args.reps, 64, args.reps)
+    # (workers, batch): four tasks a worker when batched
+    configs = [(0, 1), (args.workers, 1), (args.workers, max(2, n_sweep // (4 * args.workers)))]
+
+    def label(conf):
+        w, b = conf
+        return "serial" if w == 0 else f"LocalCluster({w})" + (f", --batch {b}" if b > 1 else "")
     with checkout(args.before) as before:
         trees = {"before": before, "after": ROOT} if before is not None else {"after": ROOT}
         if before is not None:
@@ -114,34 +121,32 @@ def sweep_runs(args, out) -> None:
                       flush=True)
         split = {name: {"median_s": medians(rows)} for name, rows in pooled.items()}
         rate = {}
-        for workers in (0, args.workers):
+        for conf in configs:
             for name, tree in trees.items():
-                rate[(name, workers)] = r = measure(tree, "sweep", "--runs", n_sweep,
-                                                    "--workers", workers, "--reps", reps)
-                print(f"sweep {name} on {workers or 'serial'}: {r['runs_per_s_per_core']:.1f} "
+                rate[(name, conf)] = r = measure(tree, "sweep", "--runs", n_sweep, "--workers",
+                                                 conf[0], "--batch", conf[1], "--reps", reps)
+                print(f"sweep {name}, {label(conf)}: {r['runs_per_s_per_core']:.1f} "
                       "runs/s/core", flush=True)
     out["run_split"] = {k: v["median_s"] for k, v in split.items()}
     out["run_split_runs"] = runs * rounds
-    out["runs_per_s_per_core"] = {f"{name} {'serial' if w == 0 else f'{w} workers'}": r
-                                  for (name, w), r in rate.items()}
+    out["runs_per_s_per_core"] = {f"{name}, {label(conf)}": r for (name, conf), r in rate.items()}
     names = list(trees)
     print(f"\nA sweep run of the 10 s filtered scene ({runs} design samples after {warmup} "
           f"warm-up runs, {rounds} rounds, medians), ms:")
     print(f"{'':28s}" + "".join(f"{n:>10s}" for n in names))
     rows = [(k, k) for k in PARTS] + [("total", "total"), ("without the fits", "without_fits")]
-    for label, key in rows:
-        print(f"{label:28s}" + "".join(f"{1e3 * split[n]['median_s'][key]:10.2f}"
+    for text, key in rows:
+        print(f"{text:28s}" + "".join(f"{1e3 * split[n]['median_s'][key]:10.2f}"
                                        for n in names))
-    for label, key in (("total / stepping", "x_stepping"),
+    for text, key in (("total / stepping", "x_stepping"),
                        ("without fits / stepping", "x_stepping_without_fits")):
-        print(f"{label:28s}" + "".join(f"{split[n]['median_s'][key]:10.2f}" for n in names))
+        print(f"{text:28s}" + "".join(f"{split[n]['median_s'][key]:10.2f}" for n in names))
     print(f"\nRuns per second per core, --sample design ({n_sweep} runs, median of {reps}):")
     print(f"{'':28s}" + "".join(f"{n:>10s}" for n in names) + f"{'limit':>10s}")
-    for w in (0, args.workers):
-        label = "serial" if w == 0 else f"LocalCluster({w})"
-        limit = rate[(names[-1], w)]["limit_runs_per_s"]
-        print(f"{label:28s}" + "".join(f"{rate[(n, w)]['runs_per_s_per_core']:10.1f}"
-                                       for n in names) + f"{limit:10.1f}")
+    for conf in configs:
+        limit = rate[(names[-1], conf)]["limit_runs_per_s"]
+        print(f"{label(conf):28s}" + "".join(f"{rate[(n, conf)]['runs_per_s_per_core']:10.1f}"
+                                             for n in names) + f"{limit:10.1f}")
     print("(limit: 1 / the median stepping time of the runs, in the processes that ran them, "
           "after)")
 

@@ -18,7 +18,8 @@ Prints one JSON object.
   over its own stepping, with and without the fits.
 * **sweep**: ``run_sweep`` of ``--runs`` design samples into a fresh folder (no plot), serially
   or on a LocalCluster of ``--workers`` processes (started and warmed up by one sweep first,
-  untimed); runs per second per core (``runs / seconds / workers``), median over ``--reps``.
+  untimed; ``--batch`` runs per task); runs per second per core (``runs / seconds / workers``),
+  median over ``--reps``.
 """
 from __future__ import annotations
 
@@ -120,21 +121,21 @@ def medians(rows) -> dict:
     return med
 
 
-def sweep(runs: int, workers: int, reps: int) -> dict:
+def sweep(runs: int, workers: int, reps: int, batch: int = 1) -> dict:
     from orchestration.sweeps.engine import fmus_for, run_sweep
     from orchestration.sweeps.executor import DaskExecutor, Executor
 
     plan = design_plan(runs)
     fmus = fmus_for(plan)
     files = [f for pair in fmus.values() for f in pair.values()]
-    out = {"runs": runs, "workers": workers}
+    out = {"runs": runs, "workers": workers, "batch": batch}
     ex = Executor() if workers == 0 else DaskExecutor(workers=workers, files=files)
     cores = max(1, workers)
     with ex:
         times, stepping = [], []
         for rep in range(reps + 1):                 # the first: warm-up (imports, FMU loads)
             with tempfile.TemporaryDirectory(prefix="flexpend_bench_sweep_") as d:
-                res = run_sweep(plan, fmus, d, ex, progress=False, plot=False)
+                res = run_sweep(plan, fmus, d, ex, batch=batch, progress=False, plot=False)
             bad = [r for r in res.rows if r["status"] not in ("ok", "failed")]
             assert not bad, bad[0].get("message")
             if rep:
@@ -154,11 +155,12 @@ def main(argv=None):
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--workers", type=int, default=0, help="0: serial")
     ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--batch", type=int, default=1, help="runs per task (on dask)")
     args = ap.parse_args(argv)
     import orchestration
     where = os.path.dirname(os.path.dirname(os.path.abspath(orchestration.__file__)))
     out = split(args.runs, args.warmup) if args.what == "split" else \
-        sweep(args.runs, args.workers, args.reps)
+        sweep(args.runs, args.workers, args.reps, args.batch)
     out["checkout"] = where
     print(json.dumps(out))
     return 0
