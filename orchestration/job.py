@@ -165,28 +165,33 @@ def check_wiring(scene: Scene, fmus: dict) -> None:
 
 def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bool = True,
               connections_out=None, stop=None, snapshot_times=None,
-              unzipdirs: dict | None = None) -> Run:
+              unzipdirs: dict | None = None, pool=None) -> Run:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
 
     ``stop``: a callable asked after every communication step; when it returns True the run
     ends as if an FMU had stopped it, and :attr:`Run.interrupted` is True. ``unzipdirs`` (the
     keys of ``fmus``): folders where the FMUs are already unpacked, reused and left as they are
-    (a sweep unpacks once per process). ``connections_out``: a stream for the connection
-    table."""
+    (a sweep unpacks once per process). ``pool``: a
+    :class:`~orchestration.cosim.pool.SlavePool` that gives the FMU instances and takes them back
+    (a sweep's runs reuse them); without one they are made here and freed at the end.
+    ``connections_out``: a stream for the connection table."""
     model = None
     if not scene.resolved:
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
+    reusable = False                # the instances may serve another run (pool)
     try:
         dirs = unzipdirs or {}
         me = scene.master.interface == "model-exchange"
         unit = ModelExchangeUnit if me else Slave
+        make = unit if pool is None else \
+            (lambda path, role, values, unzipdir: pool.acquire(unit, path, role, values, unzipdir))
         try:
-            slaves["plant"] = unit(fmus["plant"], "plant", plant_start_values(scene),
+            slaves["plant"] = make(fmus["plant"], "plant", plant_start_values(scene),
                                    unzipdir=dirs.get("plant"))
-            slaves["controller"] = unit(fmus["controller"], "controller",
+            slaves["controller"] = make(fmus["controller"], "controller",
                                         controller_start_values(scene),
                                         unzipdir=dirs.get("controller"))
             master = (ModelExchangeMaster if me else Master)(slaves, scene.connections, RECORD,
@@ -199,18 +204,24 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
         try:
             res, stats = master.run(0.0, scene.output.stop_time, scene.output.output_interval,
                                     progress=bar, stop=stop)
+            reusable = True
         except CoSimulationError as exc:
             res, stats = exc.result, exc.stats
             stopped = {"time": exc.time, "reason": stop_reason(str(exc)),
                        "fmu_message": str(exc)}
+            reusable = exc.status != 4          # fmi2Fatal: the instance is unusable
         except RunInterrupted as exc:
             res, stats, interrupted = exc.result, exc.stats, True
             stopped = {"time": exc.time, "reason": "interrupted (Ctrl-C)"}
+            reusable = True
         if bar is not None and stopped is not None:
             bar.close()
     finally:
         for s in slaves.values():
-            s.close()
+            if pool is None:
+                s.close()
+            else:
+                pool.release(s, reusable)
     if res is None:
         res = np.zeros(0, dtype=[(c, "f8") for c in ("time", *RECORD)])
     n_eta = min(scene.plant.params.n_modes, 8)

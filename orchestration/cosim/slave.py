@@ -228,6 +228,15 @@ class Slave:
         self._call("enterInitializationMode", self.fmu.enterInitializationMode)
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
 
+    def reset(self, start_values: dict | None = None):
+        """Back to the state after instantiation (``fmi2Reset``/``fmi3Reset``), with new start
+        values for the next :meth:`initialize` and an empty log: the instance and its loaded
+        library serve another run (:class:`~orchestration.cosim.pool.SlavePool`). Only as good as
+        the FMU's reset: a pool reuses only FMUs whose reset is known to be complete."""
+        self._call("reset", self.fmu.reset)
+        self.messages.clear()
+        self._start_values = dict(start_values or {})
+
     def bind(self, inputs, outputs, record=(), derivative_orders: int = 0,
              output_derivative_orders: int = 0):
         """Preallocate the buffers of the real inputs and outputs exchanged every step, and of

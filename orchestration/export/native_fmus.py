@@ -59,7 +59,7 @@ from .model_description import TABLES, fmi2_model_description, fmi3_model_descri
 
 __all__ = ["MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PLATFORMS",
            "build_native_fmus", "build_native_fmu", "generate_header", "fmi_include_dir",
-           "source_digest", "NativeBuildError"]
+           "source_digest", "NativeBuildError", "GENERATION_TOOL"]
 
 ROOT = kernels.ROOT
 #: the FMI layers every native FMU is built from
@@ -76,6 +76,9 @@ MAX_SUBSTEPS = 1_000_000
 #: Bump when the build changes in a way its inputs do not show.
 BUILD_FORMAT = 2
 STAMP = "resources/flexpend_build.json"
+#: the modelDescription's generationTool of every native FMU (whose fmi2Reset/fmi3Reset restores
+#: the state after instantiation: fpm_reset in fpm_core.c)
+GENERATION_TOOL = "flexpend native FMU (C)"
 
 #: model -> (its FMU glue in C, in the native folder of its first kernel; the kernels it links)
 MODELS = {
@@ -398,7 +401,7 @@ def _model_description(name: str, fmi_version: int, token: str) -> bytes:
               "canSerializeFMUstate" if fmi_version == 2 else "canSerializeFMUState": "true",
               "providesDirectionalDerivative" if fmi_version == 2 else
               "providesDirectionalDerivatives": "true"}
-    tool = "flexpend native FMU (C)"
+    tool = GENERATION_TOOL
     order = str(max_output_derivative_order(name))
     me = dict(common)
     del me["canHandleVariableCommunicationStepSize"]

@@ -37,7 +37,7 @@ import math
 
 import numpy as np
 
-from ..studies.analysis import closed_loop_matrix, first_bending_frequency
+from ..studies.analysis import closed_loop_eigenvalues, first_bending_frequency
 from ..studies.fit import fit_mode
 
 __all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT",
@@ -64,7 +64,7 @@ _SIGNALS = {"slow": ("phi_o", SLOW_BAND), "bending": ("eta_1", BENDING_BAND)}
 def linear_modes(scene) -> np.ndarray:
     """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop."""
 
-    lam = np.linalg.eigvals(closed_loop_matrix(scene.plant.params, scene.controller))
+    lam = closed_loop_eigenvalues(scene.plant.params, scene.controller)
     return lam[lam.imag > 1e-9]
 
 
@@ -74,15 +74,12 @@ def linear_window(res: np.ndarray, L: float | None) -> slice:
     ok = np.abs(phi) <= LINEAR_PHI
     if L is not None and "tip_deflection" in res.dtype.names:
         ok &= np.abs(res["tip_deflection"]) <= TIP_DEFLECTION_LIMIT * L
-    best, start = (0, 0), None
-    for i, v in enumerate(np.append(ok, False)):
-        if v and start is None:
-            start = i
-        elif not v and start is not None:
-            if i - start > best[1] - best[0]:
-                best = (start, i)
-            start = None
-    return slice(*best)
+    edges = np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))
+    starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    if not starts.size:
+        return slice(0, 0)
+    i = int(np.argmax(ends - starts))          # the first of the longest
+    return slice(int(starts[i]), int(ends[i]))
 
 
 def _fit(t, y, key, modes, near=None):

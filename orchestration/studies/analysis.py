@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -32,6 +33,7 @@ if TYPE_CHECKING:
 
 __all__ = ["closed_loop_matrix", "assemble_closed_loop", "loop_transfer", "frequency_response",
            "analyze", "Analysis", "margins", "max_real_part", "first_bending_frequency",
+           "closed_loop_eigenvalues",
            "LoopRoots", "loop_roots"]
 
 
@@ -47,13 +49,35 @@ def assemble_closed_loop(A, B, C, controller_ss, gain: float = 1.0) -> np.ndarra
     return np.concatenate([top, bottom], axis=-2)
 
 
+#: plants and loops whose linear analyses are kept (a sweep's runs share plants or loops)
+_CACHE = 1024
+
+
+@lru_cache(maxsize=_CACHE)
+def _plant_state_space(p: PlantParams) -> tuple:
+    """``plant_model(p).state_space()``, once per plant (read-only arrays)."""
+    out = plant_model(p).state_space()
+    for m in out:
+        m.setflags(write=False)
+    return out
+
+
 def closed_loop_matrix(p: PlantParams, c: ControllerParams, gain: float = 1.0) -> np.ndarray:
     """The closed-loop state matrix (plant states first, then the filter states).
 
     ``gain`` multiplies the controller's output (for margin scans); 1 is the nominal loop.
     """
-    A, B, C, _ = plant_model(p).state_space()
+    A, B, C, _ = _plant_state_space(p)
     return assemble_closed_loop(A, B, C, PDLowPassModel(c).state_space(), gain)
+
+
+@lru_cache(maxsize=_CACHE)
+def closed_loop_eigenvalues(p: PlantParams, c: ControllerParams) -> np.ndarray:
+    """All eigenvalues of :func:`closed_loop_matrix` (the cart's drift roots included), once
+    per loop (a read-only array)."""
+    lam = np.linalg.eigvals(closed_loop_matrix(p, c))
+    lam.setflags(write=False)
+    return lam
 
 
 def _drift_free(Acl: np.ndarray, p: PlantParams) -> np.ndarray:
@@ -67,18 +91,20 @@ def _drift_free(Acl: np.ndarray, p: PlantParams) -> np.ndarray:
     return Acl[..., keep, :][..., keep]
 
 
+@lru_cache(maxsize=_CACHE)
 def max_real_part(p: PlantParams, c: ControllerParams, gain: float = 1.0) -> float:
     """Largest real part of the closed loop's eigenvalues, the cart's drift roots left aside."""
     return float(np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c, gain), p)).real.max())
 
 
+@lru_cache(maxsize=_CACHE)
 def first_bending_frequency(p: PlantParams) -> float | None:
     """The plant's first open-loop oscillation (rad/s): its first bending mode with the hinge
     free (152.5 rad/s for the paper's beam; the cantilever's is 26.3 rad/s). The loop's root
     near it is the one the PD destabilises (MODEL.md); None for the rigid model."""
     if p.n_modes == 0:
         return None
-    lam = np.linalg.eigvals(plant_model(p).state_space()[0])
+    lam = np.linalg.eigvals(_plant_state_space(p)[0])
     return float(min(z.imag for z in lam if z.imag > 1.0))
 
 

@@ -138,9 +138,21 @@ def _run_batch(fn, items):
     runs, and a BLAS routine's rounding can depend on its thread count (a matrix-pencil fit
     differed in the 13th digit between 2 threads and 1), so the serial path and the workers
     compute alike."""
-    from threadpoolctl import threadpool_limits
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _blas().limit(limits=1, user_api="blas"):
         return [fn(item) for item in items]
+
+
+_BLAS: list = []
+
+
+def _blas():
+    """threadpoolctl's controller of this process's BLAS libraries, found once (finding them
+    costs several milliseconds, most of a short run's own time): those loaded when the first task
+    runs, numpy's and scipy's, which the tasks' modules import."""
+    if not _BLAS:
+        from threadpoolctl import ThreadpoolController
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0]
 
 
 class Executor:
