@@ -9,6 +9,7 @@ engine costs about a second per figure)."""
 from __future__ import annotations
 
 import math
+import re
 from contextlib import contextmanager
 
 import numpy as np
@@ -16,7 +17,8 @@ import numpy as np
 __all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "mode_shapes",
            "root_map", "loop_bode", "root_locus", "worst_case", "new_figure", "scene_title",
            "plant_text", "controller_text", "initial_text", "loop_text", "outcome_text",
-           "root_text", "bending_band", "DEFLECTION_SCALE", "ticks_in_view"]
+           "root_text", "bending_band", "DEFLECTION_SCALE", "ticks_in_view", "plain_log_labels",
+           "SUPERSCRIPT"]
 
 
 def new_figure(width: float, height: float):
@@ -53,6 +55,34 @@ def ticks_in_view(fig):
     finally:
         for ticker, locator in reversed(saved):
             ticker.locator = locator
+
+
+#: Digits and signs as Unicode superscripts: ``"-2".translate(SUPERSCRIPT) == "⁻²"``.
+SUPERSCRIPT = str.maketrans("-−0123456789", "⁻⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def plain_log_labels(axis) -> None:
+    """Label a log or symlog ``axis`` (after its scale is set) as matplotlib does, but in plain
+    Unicode (``10⁻²``, ``2×10⁻³``, ``−10¹``) instead of mathtext: a figure drawn
+    without mathtext never builds matplotlib's mathtext parser (about 0.3 s in a process)."""
+    from matplotlib.ticker import LogFormatter, LogFormatterSciNotation
+
+    class Plain(LogFormatterSciNotation):
+        def __call__(self, x, pos=None):
+            text = super().__call__(x, pos)
+            math_ = re.fullmatch(r"\$\\mathdefault\{(.*)\}\$", text)
+            if math_ is None:
+                return text
+            body = re.sub(r"\^\{([^}]*)\}", lambda m: m.group(1).translate(SUPERSCRIPT),
+                          math_.group(1))
+            return body.replace("\\times", "×").replace("-", "−")
+
+    for which in ("major", "minor"):
+        f = getattr(axis, f"get_{which}_formatter")()
+        if isinstance(f, LogFormatter):                 # the same settings, plain labels
+            plain = Plain.__new__(Plain)
+            plain.__dict__.update(vars(f))
+            getattr(axis, f"set_{which}_formatter")(plain)
 
 
 def _wrapped(text: str, width: int = 95) -> str:
@@ -98,31 +128,31 @@ def plant_text(scene) -> str:
 
 
 def controller_text(c) -> str:
-    """The control law that ran: ``F_c = -(500 phi_o + 5 omega_o)``, its filter and limit."""
-    terms = [(c.kp, r"\varphi_o"), (c.kd, r"\omega_o"), (c.kx, "x_o")]
+    """The control law that ran: ``Fc = -(500 φₒ + 5 ωₒ)``, its filter and limit."""
+    terms = [(c.kp, "φₒ"), (c.kd, "ωₒ"), (c.kx, "xₒ")]
     law = ""
     for k, sym in terms:
-        if k == 0 and sym == "x_o":
+        if k == 0 and sym == "xₒ":
             continue
         sign = f" {'-' if k < 0 else '+'} " if law else ("-" if k < 0 else "")
-        law += f"{sign}{abs(k):g}\\,{sym}"
-    out = f"PD $F_c = -({law})$"
+        law += f"{sign}{abs(k):g} {sym}"
+    out = f"PD Fc = -({law})"
     out += {0: ", no filter",
             1: f", 1st-order low-pass at {c.cutoff:g} rad/s",
             2: f", 2nd-order low-pass at {c.cutoff:g} rad/s (damping {c.filter_damping:g})"
             }[c.filter_order]
     if c.saturates:
-        out += f", $|F_c| \\leq$ {c.force_limit:g} N"
+        out += f", |Fc| ≤ {c.force_limit:g} N"
     return out
 
 
 def initial_text(initial) -> str:
-    """The initial state: ``from phi0 = 30 deg`` (the other initial values when not 0)."""
-    out = f"from $\\varphi_0$ = {math.degrees(initial.phi):.4g} deg"
-    for value, sym, unit in ((initial.x, "x_0", "m"), (initial.x_dot, "\\dot x_0", "m/s"),
-                             (initial.phi_dot, "\\dot\\varphi_0", "rad/s")):
+    """The initial state: ``from φ₀ = 30 deg`` (the other initial values when not 0)."""
+    out = f"from φ₀ = {math.degrees(initial.phi):.4g} deg"
+    for value, sym, unit in ((initial.x, "x₀", "m"), (initial.x_dot, "ẋ₀", "m/s"),
+                             (initial.phi_dot, "φ̇₀", "rad/s")):
         if value:
-            out += f", ${sym}$ = {value:g} {unit}"
+            out += f", {sym} = {value:g} {unit}"
     return out
 
 
@@ -174,8 +204,7 @@ def scene_title(scene, summary=None) -> str:
     lines = [f"{scene.name}: {plant_text(scene)}",
              f"{controller_text(scene.controller)}; {initial_text(scene.initial)}",
              loop_text(scene), outcome_text(summary)]
-    # mathtext is not wrapped (its source is longer than what it draws); plain lines are
-    return "\n".join(line if "$" in line else _wrapped(line, 130) for line in lines if line)
+    return "\n".join(_wrapped(line, 130) for line in lines if line)
 
 
 def _title_height(title: str) -> float:
@@ -185,14 +214,14 @@ def _title_height(title: str) -> float:
 
 # ---------------------------------------------------------------------- time histories
 #: Time-history panels: column -> (quantity, unit) of the axis label (SI units; eta_j belong to
-#: mass-normalised modes).
+#: mass-normalised modes, in m kg^(1/2)); symbols in plain Unicode, no mathtext.
 PANELS = {
-    "phi_o": ("tip angle $\\varphi_o$", "rad"),
-    "eta_1": ("1st modal coord. $\\eta_1$", "m kg$^{1/2}$"),
-    "bending": ("$\\eta_1$ above 60 rad/s:\nenvelope", "m kg$^{1/2}$"),
+    "phi_o": ("tip angle φₒ", "rad"),
+    "eta_1": ("1st modal coord. η₁", "m·kg½"),
+    "bending": ("η₁ above 60 rad/s:\nenvelope", "m·kg½"),
     "tip_deflection": ("tip deflection", "m"),
-    "F_c": ("force $F_c$", "N"),
-    "x": ("cart position $x$", "m"),
+    "F_c": ("force Fc", "N"),
+    "x": ("cart position x", "m"),
 }
 
 
@@ -203,7 +232,7 @@ def _scaled(y, quantity: str, unit: str):
     if top == 0.0 or not math.isfinite(top) or 1e-3 <= top < 1e4:
         return 1.0, f"{quantity} ({unit})"
     k = int(math.floor(math.log10(top)))
-    return 10.0 ** k, f"{quantity}\n($10^{{{k}}}$ {unit})"
+    return 10.0 ** k, f"{quantity}\n(10{str(k).translate(SUPERSCRIPT)} {unit})"
 
 
 def _highpass(n_fft: int, dt: float, low: float, order: int = 4) -> np.ndarray:
@@ -303,6 +332,7 @@ def time_histories(result, scene, reference=None, summary=None):
             low = min(top_env / 100, max(top_env * 1e-5, float(env[env > 0].min()) * 0.5))
             ax.set_ylim(low, top_env * 3)
             ax.yaxis.set_minor_formatter(NullFormatter())
+        plain_log_labels(ax.yaxis)
     legend = {c: reference is not None for c in cols}
     if summary is not None:
         m = summary.get("slow")
@@ -328,7 +358,7 @@ def time_histories(result, scene, reference=None, summary=None):
                 first = inside & (t <= lo + period)
                 a0 = float(env[first].max()) if np.any(first) else float(env[inside][0])
                 tt = np.array([lo, hi])
-                ax.semilogy(tt, a0 * np.exp(f["rate"] * (tt - lo)), "--", color="C3", lw=1.0,
+                ax.plot(tt, a0 * np.exp(f["rate"] * (tt - lo)), "--", color="C3", lw=1.0,
                             label=f"fitted rate {f['rate']:+.3g} 1/s")
             legend["bending"] = True
         v = summary.get("validity")
@@ -477,11 +507,11 @@ def paper_overview(runs):
         row = [fig.add_subplot(grid[i, :] if not flexible else grid[i, 0])]
         if flexible:
             row.append(fig.add_subplot(grid[i, 1], sharex=row[0]))
-        factor, label = _scaled(res["phi_o"], "$\\varphi_o$", "rad")
+        factor, label = _scaled(res["phi_o"], "φₒ", PANELS["phi_o"][1])
         row[0].plot(res["time"], res["phi_o"] / factor, lw=0.7, color="C0")
         row[0].set_ylabel(label, fontsize=9)
         if flexible:
-            factor, label = _scaled(res["eta_1"], "$\\eta_1$", "m kg$^{1/2}$")
+            factor, label = _scaled(res["eta_1"], "η₁", PANELS["eta_1"][1])
             row[1].plot(res["time"], res["eta_1"] / factor, lw=0.7, color="C2")
             row[1].set_ylabel(label, fontsize=9)
         stop = run.summary.get("stopped") if run.summary else None
@@ -604,6 +634,7 @@ def root_map(scenes):
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=8)
     axes[0].set_xscale("symlog", linthresh=1.0)
+    plain_log_labels(axes[0].xaxis)
     every = np.concatenate([r.roots.real for _, r in roots])
     axes[0].set_xlim(-1.6 * max(1.0, -every.min()), 1.6 * max(1.0, every.max()))
     axes[0].set_title("all roots (symmetric log scale of the real part)", fontsize=9)
