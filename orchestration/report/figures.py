@@ -474,7 +474,7 @@ def snapshots(beam, frames, scene, travel=None):
         ax.set_ylim(y_lo, y_hi)
         ax.set_aspect("equal", adjustable="box")
         tip = "" if rigid else f", tip {1e3 * _tip(beam, eta):+.1f} mm"
-        ax.set_title(f"t = {t:.3g} s, x = {x:+.2f} m{tip}", fontsize=8, pad=3)
+        ax.set_title(f"t = {t:.3g} s, x = {x:+.2f} m{tip}", fontsize=8, pad=3, y=1.0)
         ax.tick_params(labelsize=7)
     for ax in axes[:, 0]:
         ax.set_ylabel("height (m)", fontsize=8)
@@ -520,7 +520,7 @@ def paper_overview(runs):
         row[0].set_title(f"{sc.name} ({verdict}): {plant_text(sc)}; "
                          f"{controller_text(sc.controller)}"
                          + ("" if len(starts) == 1 else f"; {initial_text(sc.initial)}"),
-                         fontsize=8.5, loc="left")
+                         fontsize=8.5, loc="left", y=1.0)
         for ax in row:
             ax.grid(alpha=0.3)
             ax.tick_params(labelsize=8)
@@ -575,7 +575,7 @@ def mode_shapes(plants):
                     label=f"mode {j + 1}: {f:.4g} rad/s ({f / (2 * math.pi):.3g} Hz)")
         ax.axvline(0.0, color="0.3", lw=0.8, ls=":")
         ax.plot([0.0], [0.0], "o", color="k", ms=4)
-        ax.set_title(_wrapped(label, 42), fontsize=8.5, loc="left")
+        ax.set_title(_wrapped(label, 42), fontsize=8.5, loc="left", y=1.0)
         ax.set_xlabel("deflection w (tip = 1)", fontsize=8)
         ax.set_ylim(-0.02 * p.L, 1.04 * p.L)
         ax.tick_params(labelsize=8)
@@ -637,13 +637,14 @@ def root_map(scenes):
     plain_log_labels(axes[0].xaxis)
     every = np.concatenate([r.roots.real for _, r in roots])
     axes[0].set_xlim(-1.6 * max(1.0, -every.min()), 1.6 * max(1.0, every.max()))
-    axes[0].set_title("all roots (symmetric log scale of the real part)", fontsize=9)
+    axes[0].set_title("all roots (symmetric log scale of the real part)", fontsize=9, y=1.0)
     re = [z.real for z in near] or [-1.0, 1.0]
     lo, hi = min(re + [-1.0]), max(re + [0.5])
     pad = 0.08 * (hi - lo)
     axes[1].set_xlim(lo - pad, hi + pad)
     axes[1].set_ylim(0.0, zoom_hi)
-    axes[1].set_title(f"up to {zoom_hi:.0f} rad/s (large circles: bending roots)", fontsize=9)
+    axes[1].set_title(f"up to {zoom_hi:.0f} rad/s (large circles: bending roots)", fontsize=9,
+                      y=1.0)
     fig.legend(loc="upper center", ncol=len(roots), fontsize=8.5, frameon=False,
                bbox_to_anchor=(0.5, 1 - 0.42 / height))
     fig.suptitle("Closed-loop roots of the linearised loops, upper half-plane (the cart's drift "
