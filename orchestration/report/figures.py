@@ -5,7 +5,8 @@ design: Bode plot, root locus, worst case.
 Every function returns a matplotlib Figure of its own (no pyplot: the process's backend is left
 alone). Titles say what ran, built from the scene's records (:func:`scene_title`), never from a
 scene's fixed text. Margins are fixed in inches where a figure is drawn on every run (a layout
-engine costs about a second per figure)."""
+engine costs about a second per figure); symbols are plain Unicode (``φₒ``, ``10⁻²``), never
+mathtext, whose parser a run would otherwise build."""
 from __future__ import annotations
 
 import math
