@@ -73,7 +73,7 @@ def test_titles_follow_overridden_gains_and_modes():
     """`--set controller.kp=5` must not be titled '-500 phi_o'; `--set plant.n_modes=1` must not
     say '4 cantilever modes ... 151 rad/s grows' (its bending root is -0.052 +- 226.7j)."""
     kp5 = figures.scene_title(load_scene("rigid_pd", {"controller.kp": 5}))
-    assert "-(5\\,\\varphi_o + 5\\,\\omega_o)" in kp5 and "500" not in kp5
+    assert "-(5 φₒ + 5 ωₒ)" in kp5 and "500" not in kp5
     assert "UNSTABLE" in kp5 and "real root +6.23 grows" in kp5
     one = figures.scene_title(load_scene("flexible_pd", {"plant.n_modes": 1}))
     assert "flexible beam, 1 cantilever mode\n" in one
@@ -92,10 +92,10 @@ def test_titles_follow_overridden_gains_and_modes():
 
 @pytest.mark.parametrize("overrides,fragments", [
     ({"controller.filter_order": 1, "controller.cutoff": 130}, ["1st-order low-pass at 130 rad/s"]),
-    ({"controller.filter_order": 0, "controller.kx": -2}, ["no filter", "- 2\\,x_o"]),
+    ({"controller.filter_order": 0, "controller.kx": -2}, ["no filter", "- 2 xₒ"]),
     ({"controller.force_limit": 300}, ["2nd-order low-pass at 97.3 rad/s (damping 0.1)",
-                                       "$|F_c| \\leq$ 300 N"]),
-    ({"initial.phi": 0.1, "initial.x_dot": 0.5}, ["= 5.73 deg", "$\\dot x_0$ = 0.5 m/s"]),
+                                       "|Fc| ≤ 300 N"]),
+    ({"initial.phi": 0.1, "initial.x_dot": 0.5}, ["= 5.73 deg", "ẋ₀ = 0.5 m/s"]),
     ({"plant.EI": 900, "plant.fidelity": "linear"}, ["linearised plant", "EI = 900"]),
 ])
 def test_title_names_filter_limit_start_and_changed_parameters(overrides, fragments):
@@ -356,6 +356,34 @@ def test_flexpend_run_writes_the_paper_figures_beside_the_overview(paper_runs, t
     assert all(p.stat().st_size > 10_000 for p in written)
     rigid_only = paper_figures([paper_runs["rigid_pd"]], tmp_path / "rigid")
     assert [p.name for p in rigid_only] == ["paper_overview.png", "root_map.png"]
+
+
+def test_run_figures_use_no_mathtext(paper_runs, tmp_path, monkeypatch):
+    """The nine figures of ``flexpend run`` write their symbols in plain Unicode (tip angle
+    phi_o as "\u03c6\u2092", decades as "10\u207b\u00b2"): matplotlib never parses mathtext
+    while it draws and saves them (its parser's grammar alone costs about 0.3 s to build), and
+    no text drawn holds a "$"."""
+    from matplotlib.mathtext import MathTextParser
+
+    parsed = []
+    parse = MathTextParser.parse
+    monkeypatch.setattr(MathTextParser, "parse",
+                        lambda self, s, *a, **k: parsed.append(s) or parse(self, s, *a, **k))
+    made = []
+    monkeypatch.setattr(figures, "new_figure",
+                        lambda *a, new=figures.new_figure: made.append(new(*a)) or made[-1])
+    written = [p for name in PAPER_SCENES for p in paper_runs[name].save(tmp_path)]
+    written += paper_figures([paper_runs[n] for n in PAPER_SCENES], tmp_path)
+    assert sum(p.suffix == ".png" for p in written) == 9 == len(made)
+    assert parsed == []
+    dollars = [t.get_text() for fig in made for t in texts(fig) if "$" in t.get_text()]
+    assert dollars == []
+    # the test sees mathtext where there is some
+    fig = figures.new_figure(2, 1)
+    fig.text(0.1, 0.5, "$\\eta_1$")
+    from orchestration.report.files import save_figure
+    save_figure(fig, tmp_path / "math.png")
+    assert set(parsed) == {"$\\eta_1$"}
 
 
 def test_figures_leave_the_backend_alone(paper_runs, tmp_path):

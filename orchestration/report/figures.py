@@ -5,10 +5,12 @@ design: Bode plot, root locus, worst case.
 Every function returns a matplotlib Figure of its own (no pyplot: the process's backend is left
 alone). Titles say what ran, built from the scene's records (:func:`scene_title`), never from a
 scene's fixed text. Margins are fixed in inches where a figure is drawn on every run (a layout
-engine costs about a second per figure)."""
+engine costs about a second per figure); symbols are plain Unicode (``φₒ``, ``10⁻²``), never
+mathtext, whose parser a run would otherwise build."""
 from __future__ import annotations
 
 import math
+import re
 from contextlib import contextmanager
 
 import numpy as np
@@ -16,7 +18,8 @@ import numpy as np
 __all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "mode_shapes",
            "root_map", "loop_bode", "root_locus", "worst_case", "new_figure", "scene_title",
            "plant_text", "controller_text", "initial_text", "loop_text", "outcome_text",
-           "root_text", "bending_band", "DEFLECTION_SCALE", "ticks_in_view"]
+           "root_text", "bending_band", "DEFLECTION_SCALE", "ticks_in_view", "plain_log_labels",
+           "SUPERSCRIPT"]
 
 
 def new_figure(width: float, height: float):
@@ -53,6 +56,34 @@ def ticks_in_view(fig):
     finally:
         for ticker, locator in reversed(saved):
             ticker.locator = locator
+
+
+#: Digits and signs as Unicode superscripts: ``"-2".translate(SUPERSCRIPT) == "⁻²"``.
+SUPERSCRIPT = str.maketrans("-−0123456789", "⁻⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def plain_log_labels(axis) -> None:
+    """Label a log or symlog ``axis`` (after its scale is set) as matplotlib does, but in plain
+    Unicode (``10⁻²``, ``2×10⁻³``, ``−10¹``) instead of mathtext: a figure drawn
+    without mathtext never builds matplotlib's mathtext parser (about 0.3 s in a process)."""
+    from matplotlib.ticker import LogFormatter, LogFormatterSciNotation
+
+    class Plain(LogFormatterSciNotation):
+        def __call__(self, x, pos=None):
+            text = super().__call__(x, pos)
+            math_ = re.fullmatch(r"\$\\mathdefault\{(.*)\}\$", text)
+            if math_ is None:
+                return text
+            body = re.sub(r"\^\{([^}]*)\}", lambda m: m.group(1).translate(SUPERSCRIPT),
+                          math_.group(1))
+            return body.replace("\\times", "×").replace("-", "−")
+
+    for which in ("major", "minor"):
+        f = getattr(axis, f"get_{which}_formatter")()
+        if isinstance(f, LogFormatter):                 # the same settings, plain labels
+            plain = Plain.__new__(Plain)
+            plain.__dict__.update(vars(f))
+            getattr(axis, f"set_{which}_formatter")(plain)
 
 
 def _wrapped(text: str, width: int = 95) -> str:
@@ -98,31 +129,31 @@ def plant_text(scene) -> str:
 
 
 def controller_text(c) -> str:
-    """The control law that ran: ``F_c = -(500 phi_o + 5 omega_o)``, its filter and limit."""
-    terms = [(c.kp, r"\varphi_o"), (c.kd, r"\omega_o"), (c.kx, "x_o")]
+    """The control law that ran: ``Fc = -(500 φₒ + 5 ωₒ)``, its filter and limit."""
+    terms = [(c.kp, "φₒ"), (c.kd, "ωₒ"), (c.kx, "xₒ")]
     law = ""
     for k, sym in terms:
-        if k == 0 and sym == "x_o":
+        if k == 0 and sym == "xₒ":
             continue
         sign = f" {'-' if k < 0 else '+'} " if law else ("-" if k < 0 else "")
-        law += f"{sign}{abs(k):g}\\,{sym}"
-    out = f"PD $F_c = -({law})$"
+        law += f"{sign}{abs(k):g} {sym}"
+    out = f"PD Fc = -({law})"
     out += {0: ", no filter",
             1: f", 1st-order low-pass at {c.cutoff:g} rad/s",
             2: f", 2nd-order low-pass at {c.cutoff:g} rad/s (damping {c.filter_damping:g})"
             }[c.filter_order]
     if c.saturates:
-        out += f", $|F_c| \\leq$ {c.force_limit:g} N"
+        out += f", |Fc| ≤ {c.force_limit:g} N"
     return out
 
 
 def initial_text(initial) -> str:
-    """The initial state: ``from phi0 = 30 deg`` (the other initial values when not 0)."""
-    out = f"from $\\varphi_0$ = {math.degrees(initial.phi):.4g} deg"
-    for value, sym, unit in ((initial.x, "x_0", "m"), (initial.x_dot, "\\dot x_0", "m/s"),
-                             (initial.phi_dot, "\\dot\\varphi_0", "rad/s")):
+    """The initial state: ``from φ₀ = 30 deg`` (the other initial values when not 0)."""
+    out = f"from φ₀ = {math.degrees(initial.phi):.4g} deg"
+    for value, sym, unit in ((initial.x, "x₀", "m"), (initial.x_dot, "ẋ₀", "m/s"),
+                             (initial.phi_dot, "φ̇₀", "rad/s")):
         if value:
-            out += f", ${sym}$ = {value:g} {unit}"
+            out += f", {sym} = {value:g} {unit}"
     return out
 
 
@@ -174,8 +205,7 @@ def scene_title(scene, summary=None) -> str:
     lines = [f"{scene.name}: {plant_text(scene)}",
              f"{controller_text(scene.controller)}; {initial_text(scene.initial)}",
              loop_text(scene), outcome_text(summary)]
-    # mathtext is not wrapped (its source is longer than what it draws); plain lines are
-    return "\n".join(line if "$" in line else _wrapped(line, 130) for line in lines if line)
+    return "\n".join(_wrapped(line, 130) for line in lines if line)
 
 
 def _title_height(title: str) -> float:
@@ -185,14 +215,14 @@ def _title_height(title: str) -> float:
 
 # ---------------------------------------------------------------------- time histories
 #: Time-history panels: column -> (quantity, unit) of the axis label (SI units; eta_j belong to
-#: mass-normalised modes).
+#: mass-normalised modes, in m kg^(1/2)); symbols in plain Unicode, no mathtext.
 PANELS = {
-    "phi_o": ("tip angle $\\varphi_o$", "rad"),
-    "eta_1": ("1st modal coord. $\\eta_1$", "m kg$^{1/2}$"),
-    "bending": ("$\\eta_1$ above 60 rad/s:\nenvelope", "m kg$^{1/2}$"),
+    "phi_o": ("tip angle φₒ", "rad"),
+    "eta_1": ("1st modal coord. η₁", "m·kg½"),
+    "bending": ("η₁ above 60 rad/s:\nenvelope", "m·kg½"),
     "tip_deflection": ("tip deflection", "m"),
-    "F_c": ("force $F_c$", "N"),
-    "x": ("cart position $x$", "m"),
+    "F_c": ("force Fc", "N"),
+    "x": ("cart position x", "m"),
 }
 
 
@@ -203,7 +233,7 @@ def _scaled(y, quantity: str, unit: str):
     if top == 0.0 or not math.isfinite(top) or 1e-3 <= top < 1e4:
         return 1.0, f"{quantity} ({unit})"
     k = int(math.floor(math.log10(top)))
-    return 10.0 ** k, f"{quantity}\n($10^{{{k}}}$ {unit})"
+    return 10.0 ** k, f"{quantity}\n(10{str(k).translate(SUPERSCRIPT)} {unit})"
 
 
 def _highpass(n_fft: int, dt: float, low: float, order: int = 4) -> np.ndarray:
@@ -303,6 +333,7 @@ def time_histories(result, scene, reference=None, summary=None):
             low = min(top_env / 100, max(top_env * 1e-5, float(env[env > 0].min()) * 0.5))
             ax.set_ylim(low, top_env * 3)
             ax.yaxis.set_minor_formatter(NullFormatter())
+        plain_log_labels(ax.yaxis)
     legend = {c: reference is not None for c in cols}
     if summary is not None:
         m = summary.get("slow")
@@ -328,7 +359,7 @@ def time_histories(result, scene, reference=None, summary=None):
                 first = inside & (t <= lo + period)
                 a0 = float(env[first].max()) if np.any(first) else float(env[inside][0])
                 tt = np.array([lo, hi])
-                ax.semilogy(tt, a0 * np.exp(f["rate"] * (tt - lo)), "--", color="C3", lw=1.0,
+                ax.plot(tt, a0 * np.exp(f["rate"] * (tt - lo)), "--", color="C3", lw=1.0,
                             label=f"fitted rate {f['rate']:+.3g} 1/s")
             legend["bending"] = True
         v = summary.get("validity")
@@ -444,7 +475,7 @@ def snapshots(beam, frames, scene, travel=None):
         ax.set_ylim(y_lo, y_hi)
         ax.set_aspect("equal", adjustable="box")
         tip = "" if rigid else f", tip {1e3 * _tip(beam, eta):+.1f} mm"
-        ax.set_title(f"t = {t:.3g} s, x = {x:+.2f} m{tip}", fontsize=8, pad=3)
+        ax.set_title(f"t = {t:.3g} s, x = {x:+.2f} m{tip}", fontsize=8, pad=3, y=1.0)
         ax.tick_params(labelsize=7)
     for ax in axes[:, 0]:
         ax.set_ylabel("height (m)", fontsize=8)
@@ -477,11 +508,11 @@ def paper_overview(runs):
         row = [fig.add_subplot(grid[i, :] if not flexible else grid[i, 0])]
         if flexible:
             row.append(fig.add_subplot(grid[i, 1], sharex=row[0]))
-        factor, label = _scaled(res["phi_o"], "$\\varphi_o$", "rad")
+        factor, label = _scaled(res["phi_o"], "φₒ", PANELS["phi_o"][1])
         row[0].plot(res["time"], res["phi_o"] / factor, lw=0.7, color="C0")
         row[0].set_ylabel(label, fontsize=9)
         if flexible:
-            factor, label = _scaled(res["eta_1"], "$\\eta_1$", "m kg$^{1/2}$")
+            factor, label = _scaled(res["eta_1"], "η₁", PANELS["eta_1"][1])
             row[1].plot(res["time"], res["eta_1"] / factor, lw=0.7, color="C2")
             row[1].set_ylabel(label, fontsize=9)
         stop = run.summary.get("stopped") if run.summary else None
@@ -490,7 +521,7 @@ def paper_overview(runs):
         row[0].set_title(f"{sc.name} ({verdict}): {plant_text(sc)}; "
                          f"{controller_text(sc.controller)}"
                          + ("" if len(starts) == 1 else f"; {initial_text(sc.initial)}"),
-                         fontsize=8.5, loc="left")
+                         fontsize=8.5, loc="left", y=1.0)
         for ax in row:
             ax.grid(alpha=0.3)
             ax.tick_params(labelsize=8)
@@ -545,7 +576,7 @@ def mode_shapes(plants):
                     label=f"mode {j + 1}: {f:.4g} rad/s ({f / (2 * math.pi):.3g} Hz)")
         ax.axvline(0.0, color="0.3", lw=0.8, ls=":")
         ax.plot([0.0], [0.0], "o", color="k", ms=4)
-        ax.set_title(_wrapped(label, 42), fontsize=8.5, loc="left")
+        ax.set_title(_wrapped(label, 42), fontsize=8.5, loc="left", y=1.0)
         ax.set_xlabel("deflection w (tip = 1)", fontsize=8)
         ax.set_ylim(-0.02 * p.L, 1.04 * p.L)
         ax.tick_params(labelsize=8)
@@ -604,15 +635,17 @@ def root_map(scenes):
         ax.grid(alpha=0.3)
         ax.tick_params(labelsize=8)
     axes[0].set_xscale("symlog", linthresh=1.0)
+    plain_log_labels(axes[0].xaxis)
     every = np.concatenate([r.roots.real for _, r in roots])
     axes[0].set_xlim(-1.6 * max(1.0, -every.min()), 1.6 * max(1.0, every.max()))
-    axes[0].set_title("all roots (symmetric log scale of the real part)", fontsize=9)
+    axes[0].set_title("all roots (symmetric log scale of the real part)", fontsize=9, y=1.0)
     re = [z.real for z in near] or [-1.0, 1.0]
     lo, hi = min(re + [-1.0]), max(re + [0.5])
     pad = 0.08 * (hi - lo)
     axes[1].set_xlim(lo - pad, hi + pad)
     axes[1].set_ylim(0.0, zoom_hi)
-    axes[1].set_title(f"up to {zoom_hi:.0f} rad/s (large circles: bending roots)", fontsize=9)
+    axes[1].set_title(f"up to {zoom_hi:.0f} rad/s (large circles: bending roots)", fontsize=9,
+                      y=1.0)
     fig.legend(loc="upper center", ncol=len(roots), fontsize=8.5, frameon=False,
                bbox_to_anchor=(0.5, 1 - 0.42 / height))
     fig.suptitle("Closed-loop roots of the linearised loops, upper half-plane (the cart's drift "

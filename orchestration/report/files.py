@@ -153,10 +153,18 @@ def write_csv(path, result: np.ndarray) -> Path:
     return write_text(path, text)
 
 
+#: zlib's level for PNG files: 3 encodes in 0.7 times the time of PIL's default 6, for files
+#: 4 % larger (the nine figures of ``flexpend run``: 0.13 s CPU, not 0.18 s; level 1 is no
+#: faster and makes them 7 % larger).
+PNG_COMPRESS_LEVEL = 3
+
+
 def save_figure(fig, path, dpi: int = 110) -> Path:
     """Write a matplotlib Figure as PNG (or the format of the path's suffix)."""
     from .figures import ticks_in_view
 
+    fmt = Path(path).suffix.lstrip(".") or "png"
+    extra = {"pil_kwargs": {"compress_level": PNG_COMPRESS_LEVEL}} if fmt == "png" else {}
     with atomic_path(path) as tmp, ticks_in_view(fig):
-        fig.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip(".") or "png")
+        fig.savefig(tmp, dpi=dpi, format=fmt, **extra)
     return Path(path)
