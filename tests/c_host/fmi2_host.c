@@ -151,11 +151,11 @@ int main(int argc, char **argv)
     for (long i = 0; i < steps; ++i) {
         double ta = i * H, tb = (i + 1) * H;
         CHECK(k.set_real(k.c, c_in, 3, y), 11)
-        CHECK(k.do_step(k.c, ta, tb - ta, 1), 9)
+        CHECK(k.do_step(k.c, ta, H, 1), 9)
         CHECK(k.set_real(k.c, c_in, 3, y), 11)   /* inputs at tb (held): feedthrough slave */
         CHECK(k.get_real(k.c, &c_out, 1, &F), 11)
         CHECK(p.set_real(p.c, &p_in, 1, &F), 11)
-        CHECK(p.do_step(p.c, ta, tb - ta, 1), 9)
+        CHECK(p.do_step(p.c, ta, H, 1), 9)
         CHECK(p.get_real(p.c, p_out, 3, y), 11)
         if ((i + 1) % every == 0) printf("%.17g %.17g %.17g %.17g %.17g\n", tb, y[0], y[1], y[2], F);
     }

@@ -61,11 +61,11 @@ public class Loop {
         for (long i = 0; i < steps; ++i) {
             double ta = i * h, tb = (i + 1) * h;
             c.writeReal(cin, y);
-            if (!c.doStep(ta, tb - ta)) System.exit(9);
+            if (!c.doStep(ta, h)) System.exit(9);
             c.writeReal(cin, y);
             c.readReal(cout, f);
             p.writeReal(pin, f);
-            if (!p.doStep(ta, tb - ta)) System.exit(9);
+            if (!p.doStep(ta, h)) System.exit(9);
             p.readReal(pout, y);
             if ((i + 1) % every == 0) out.append(tb + " " + y[0] + " " + y[1] + " " + y[2] + " " + f[0] + "\n");
         }
