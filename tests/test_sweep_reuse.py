@@ -1,6 +1,8 @@
 """A sweep's worker reuses its FMU instances between runs (orchestration/cosim/pool.py): the
 native FMUs are reset with fmi2Reset and given the next run's parameters, and the rows are those
 of fresh instances, value for value."""
+import sys
+
 import pytest
 
 from orchestration.cosim.pool import SlavePool
@@ -172,3 +174,37 @@ def test_a_rebuilt_fmu_is_extracted_again(native, tmp_path):
     assert second != first
     assert (Path(second) / "binaries").is_dir() and \
         "FlexiblePendulum" in (Path(second) / "modelDescription.xml").read_text()
+
+
+def loaded(library) -> bool:
+    """Whether this process has ``library`` (a shared library's file) mapped."""
+    from pathlib import Path
+    return str(Path(library).resolve()) in Path("/proc/self/maps").read_text()
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads the process's memory map (Linux)")
+@pytest.mark.parametrize("role", ["controller", "plant"])
+def test_closing_an_instance_leaves_the_library_of_another_one(pair, tmp_path, role):
+    """Instances of one unpacked folder share one loaded library, counted by the dynamic loader
+    (one dlopen each): closing one must unload it once. A second unload (fmpy's freeInstance
+    already calls freeLibrary) unloaded the library under a pooled instance, whose next fmi2Reset
+    jumped into unmapped code: a sweep's worker segfaulted after a run without the pool (or a
+    closed instance) of the folder its pool's instances came from."""
+    from fmpy import extract, platform, sharedLibraryExtension
+
+    from orchestration.cosim.model_exchange import ModelExchangeUnit
+    from orchestration.cosim.slave import describe
+
+    folder = extract(pair[role], unzipdir=tmp_path / "fmu")
+    library = tmp_path / "fmu" / "binaries" / platform / \
+        (describe(pair[role]).coSimulation.modelIdentifier + sharedLibraryExtension)
+    assert library.is_file()
+    for unit in (Slave, ModelExchangeUnit):
+        kept = unit(pair[role], role, {}, unzipdir=folder)
+        other = unit(pair[role], role, {}, unzipdir=folder)
+        other.close()
+        assert loaded(library)                  # before kept.reset(), which would segfault
+        kept.reset({})
+        kept.initialize(0.0, 1.0)
+        kept.close()
+        assert not loaded(library)              # and every load undone

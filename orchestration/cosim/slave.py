@@ -388,7 +388,10 @@ class Slave:
 
     def close(self):
         """``terminate`` and ``freeInstance``, then remove the folder the FMU was extracted to
-        (when this slave extracted it); safe to call twice and after a failure."""
+        (when this slave extracted it); safe to call twice and after a failure. The library is
+        unloaded once (fmpy's ``freeInstance`` does it): the instances of one folder share one
+        loaded library, counted by the dynamic loader, and a second ``dlclose`` would unload it
+        under another instance (a pooled one: :mod:`orchestration.cosim.pool`)."""
         if self.fmu is None:
             self._remove_unzipdir()
             return
@@ -398,12 +401,8 @@ class Slave:
         except Exception:  # noqa: BLE001 - an FMU in error may refuse terminate; still free it
             pass
         try:
-            fmu.freeInstance()
+            fmu.freeInstance()          # fmpy's: fmi2FreeInstance, then freeLibrary (dlclose)
         finally:
-            try:
-                fmu.freeLibrary()
-            except Exception:  # noqa: BLE001
-                pass
             self._remove_unzipdir()
 
     def _remove_unzipdir(self):
