@@ -373,6 +373,41 @@ def _machine_limit(exc: BaseException) -> str | None:
     return None
 
 
+#: The least address space (``ulimit -v``) a command starts with: below it numpy's OpenBLAS
+#: cannot allocate its buffers and ends the process itself (exit 1, a line of its own), or a
+#: library cannot be mapped at all; a run of a paper scene needs about 200 MiB.
+MIN_ADDRESS_SPACE = 192 << 20
+
+
+def _address_space_floor() -> str | None:
+    """The one line refusing a process whose address space is below :data:`MIN_ADDRESS_SPACE`
+    (checked before numpy is imported), else None."""
+    try:
+        import resource
+    except ImportError:               # not even this small library could be mapped
+        return ("out of memory: this process cannot map its libraries (ulimit -v); raise the "
+                "limit")
+    space = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if space == resource.RLIM_INFINITY or space >= MIN_ADDRESS_SPACE:
+        return None
+    return (f"out of memory: this process may use {space >> 20} MiB of address space (ulimit "
+            f"-v); flexpend needs at least {MIN_ADDRESS_SPACE >> 20} MiB")
+
+
+def _memory_hint(exc: BaseException) -> str:
+    """``; ... ulimit -v`` when a failure without an errno (a library's own message: PIL's
+    "codec configuration error" when zlib gets no memory) came under an address-space limit."""
+    import resource
+
+    cause = exc.__cause__ or exc.__context__ or exc
+    space = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if space == resource.RLIM_INFINITY or getattr(cause, "errno", None) is not None \
+            or "ulimit" in str(exc):
+        return ""
+    return (f" (this process may use {space >> 20} MiB of address space, ulimit -v: raise the "
+            "limit if that is too little)")
+
+
 def cmd_sweep(args) -> int:
     from .report.text import sweep_lines
     from .sweeps.executor import SchedulerError
@@ -625,6 +660,10 @@ def main(argv=None) -> int:
         except ValueError:            # not the main thread: Ctrl-C is not ours to handle
             installed = None
     try:
+        floor = _address_space_floor()
+        if floor is not None:
+            print(f"flexpend: error: {floor}", file=sys.stderr)
+            return EXIT_USAGE
         args = build_parser().parse_args(argv)
         args.argv = None if argv is None else list(argv)
         code = args.func(args)
@@ -645,6 +684,7 @@ def main(argv=None) -> int:
         line = (_output_failure(exc) if isinstance(exc, OSError) else None) or _machine_limit(exc)
         if line is None:
             raise
+        line += _memory_hint(exc)
         print(f"flexpend: error: {line}", file=sys.stderr)
         return EXIT_USAGE
     finally:

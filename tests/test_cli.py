@@ -130,20 +130,40 @@ def test_too_little_address_space_for_a_local_cluster_is_one_line(tmp_path):
                           "1024 MiB (ulimit -v)")
 
 
-@pytest.mark.parametrize("mib", [200, 256])
+@pytest.mark.parametrize("mib", [100, 128, 160])
+def test_too_little_address_space_is_one_line(tmp_path, mib):
+    """ulimit -v below the floor: one line before numpy is imported (at 100 MiB the `resource`
+    module's own library could not be mapped, a traceback; at 128 OpenBLAS ended the process
+    with exit 1 and a line of its own)."""
+    import resource
+
+    from orchestration.cli import MIN_ADDRESS_SPACE
+
+    assert mib << 20 < MIN_ADDRESS_SPACE
+    code, out, err = _limited({resource.RLIMIT_AS: mib << 20}, "run", "rigid_pd", "--set",
+                              "stop_time=0.5", "--out", tmp_path / "out")
+    assert code == 2, (out, err)
+    assert err == (f"flexpend: error: out of memory: this process may use {mib} MiB of address "
+                   f"space (ulimit -v); flexpend needs at least {MIN_ADDRESS_SPACE >> 20} MiB\n")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("mib", [200, 224, 256])
 def test_out_of_memory_is_one_line(tmp_path, mib):
-    """ulimit -v 256 MB: an ImportError (a library that could not be mapped), a traceback
-    before. (Closer to what a run needs, about 400 MiB, the failure moves: a MemoryError at 300,
-    a std::bad_alloc at 350, both caught; OpenBLAS aborting the process at 320 is not.)"""
+    """ulimit -v just above the floor, around what a run needs: the run fits (exit 0), or it
+    fails in one line that names the limit, exit 2 (an ImportError of a library that could not
+    be mapped, a MemoryError, PIL's "codec configuration error" when zlib gets no memory, all
+    tracebacks or misleading before). Which of the two depends on the libraries' footprint."""
     import resource
 
     code, out, err = _limited({resource.RLIMIT_AS: mib << 20}, "run", "rigid_pd", "--set",
                               "stop_time=0.5", "--out", tmp_path / "out")
-    assert code == 2, (out, err)
-    *_, last = err.strip().splitlines()
-    assert "Traceback" not in err and last == (
-        f"flexpend: error: out of memory: this process may use {mib} MiB of address space "
-        "(ulimit -v); raise the limit"), err
+    assert code in (0, 2), (out, err)
+    assert "Traceback" not in err, err
+    if code == 2:
+        *_, last = err.strip().splitlines()
+        assert last.startswith("flexpend: error: ") and f"{mib} MiB of address space" in last \
+            and "ulimit -v" in last, err
 
 
 def test_a_process_out_of_file_handles_is_one_line(monkeypatch, capsys):
