@@ -130,7 +130,7 @@ def sweep_figure(plan: SweepPlan, rows):
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         keys = ", ".join(s.key for s in plan.samplers)
         ax.set_title(f"{title}\n{len(rows)} runs ({len(plan.points) // max(plan.n_samples, 1)} "
-                     f"x {plan.n_samples} samples of {keys}, seed {plan.seed}); "
+                     f"x {plan.n_samples} samples of {keys}, seed {plan.seed})\n"
                      f"{verdict_text(rows)}", fontsize=9)
     elif len(plan.axes) == 1:
         axis = plan.axes[0]
