@@ -57,6 +57,8 @@ def fake_service(kind):
                 conn.sendall(struct.pack("Q", 2 ** 62) + b"\0" * 64)
             elif kind == "framed":          # a small message of dask's framing, not msgpack
                 conn.sendall(struct.pack("QQQ", 40, 1, 24) + b"\xc1" * 24)
+            elif kind == "pickle":          # dask's framing around a pickle for loads() to run
+                conn.sendall(_framed(_pickled_message()))
 
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
@@ -67,6 +69,27 @@ def fake_service(kind):
         listener.close()
         for conn in held:
             conn.close()
+
+
+class _Mark:
+    """Unpickling it writes the file PICKLED_MARK names: the proof that a peer's pickle ran."""
+
+    def __reduce__(self):
+        return (Path(os.environ["PICKLED_MARK"]).write_text, ("the peer's pickle ran",))
+
+
+def _pickled_message() -> bytes:
+    """A first frame as distributed's protocol writes a pickled value: {"__Pickled__": ...}."""
+    import pickle
+
+    import msgpack
+
+    return msgpack.packb({"op": "x", "__Pickled__": pickle.dumps(_Mark())}, use_bin_type=True)
+
+
+def _framed(frame: bytes) -> bytes:
+    body = struct.pack("QQ", 1, len(frame)) + frame
+    return struct.pack("Q", len(body)) + body
 
 
 def closed_port() -> str:
@@ -88,15 +111,32 @@ def one_line_error(capsys) -> str:
     ("garbage", "not a dask scheduler"),
     ("huge", "not a dask scheduler"),
     ("framed", "not a dask scheduler: its first message does not decode"),
+    ("pickle", "not a dask scheduler: its first message is not a dask handshake"),
 ])
 def test_scheduler_that_is_not_dask_is_one_line_exit_2(kind, fragment, fmus, monkeypatch,
                                                        capsys, tmp_path):
+    """Also nothing logged (distributed's loads logged a CRITICAL traceback of a frame that did
+    not decode, through a handler capsys does not see) and nothing of the peer's run (it
+    unpickled the peer's pickle)."""
+    import logging
+
     monkeypatch.setattr(executor, "PROBE_TIMEOUT", 1.0)
-    with fake_service(kind) as address:
-        code = main([*SWEEP, "--scheduler", address, "--out", str(tmp_path)])
+    mark = tmp_path / "pickled"
+    monkeypatch.setenv("PICKLED_MARK", str(mark))
+    logged = []
+    handler = logging.Handler()
+    handler.emit = logged.append
+    logging.getLogger("distributed").addHandler(handler)
+    try:
+        with fake_service(kind) as address:
+            code = main([*SWEEP, "--scheduler", address, "--out", str(tmp_path / "out")])
+    finally:
+        logging.getLogger("distributed").removeHandler(handler)
     line = one_line_error(capsys)
     assert code == 2
     assert f"--scheduler {address}: " in line and fragment in line, line
+    assert [r.getMessage() for r in logged] == []
+    assert not mark.exists()
 
 
 def test_scheduler_nobody_listens_is_one_line_exit_2(fmus, capsys, tmp_path):

@@ -241,15 +241,18 @@ def _receive(sock, n: int, deadline: float) -> bytes:
 
 
 def _handshake_of(data: bytes) -> dict:
-    """The peer's handshake from the bytes of its first message, or :class:`_NotDask`."""
-    from distributed.protocol import loads
+    """The peer's handshake from the bytes of its first message, or :class:`_NotDask`. The first
+    frame is decoded as plain msgpack: distributed's ``loads`` would unpickle what the peer put
+    in it (code of the peer's choosing, run here) and log a traceback of what does not decode."""
+    import msgpack
     from distributed.protocol.utils import unpack_frames
 
     (frames,) = struct.unpack_from("Q", data)
     if not 1 <= frames <= (len(data) - 8) // 8:
         raise _NotDask(f"its first message announces {frames} frames")
     try:
-        msg = loads(unpack_frames(data), deserialize=False)
+        msg = msgpack.unpackb(unpack_frames(data)[0], use_list=False, raw=False,
+                              strict_map_key=False)
     except Exception as exc:  # noqa: BLE001 - any decoding failure means "not dask"
         raise _NotDask(f"its first message does not decode ({type(exc).__name__})") from None
     if not isinstance(msg, dict) or "python" not in msg:
