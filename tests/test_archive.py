@@ -39,6 +39,18 @@ def test_extract_refuses_a_member_outside_the_folder(tmp_path, name):
     assert not list(tmp_path.rglob("evil.txt"))
 
 
+@pytest.mark.parametrize("names", [("a", "a/b"), ("x/", "x"), ("d" * 300,)],
+                         ids=["file-then-folder", "folder-then-file", "name-too-long"])
+def test_a_member_that_cannot_be_a_file_there_is_one_line(tmp_path, names):
+    """Members whose names collide as file and folder, or a name longer than the file system
+    takes: an ArchiveError naming the member (raw FileExistsError, IsADirectoryError and
+    ENAMETOOLONG before, a traceback of flexpend check)."""
+    src = tmp_path / "a.zip"
+    src.write_bytes(zipped({n: b"" if n.endswith("/") else b"data" for n in names}))
+    with pytest.raises(archive.ArchiveError, match=r"^a.zip: member '.*' cannot be unpacked: "):
+        archive.extract(src, tmp_path / "out")
+
+
 def test_a_member_is_never_inflated_past_its_declared_size(tmp_path):
     """The table of contents says 100 bytes, the member holds 50,000: reading stops at 100 (and
     the damage is then one line, not an exception of zipfile or zlib)."""

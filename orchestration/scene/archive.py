@@ -17,6 +17,8 @@ ratio is checked when it is large. Every refusal is an :class:`ArchiveError` (a
 """
 from __future__ import annotations
 
+import errno
+
 import zipfile
 import zlib
 from contextlib import contextmanager
@@ -156,9 +158,21 @@ def extract(path, dest, label: str | None = None) -> Path:
     with checked_archive(path, label) as (zf, infos):
         for info in infos:
             target = dest / _safe_name(info.filename, label)
-            if info.is_dir():
-                target.mkdir(parents=True, exist_ok=True)
-                continue
-            target.parent.mkdir(parents=True, exist_ok=True)
-            copy_member(zf, info, target, label)
+            try:
+                if info.is_dir():
+                    target.mkdir(parents=True, exist_ok=True)
+                    continue
+                target.parent.mkdir(parents=True, exist_ok=True)
+                copy_member(zf, info, target, label)
+            except OSError as exc:
+                if exc.errno in _FULL:      # a full disk stays a full disk
+                    raise
+                # a member that cannot be a file there: its name also a folder of another
+                # member's ('a' and 'a/b'), too long for the file system...
+                raise ArchiveError(f"{label}: member {info.filename!r} cannot be unpacked: "
+                                   f"{exc.strerror or exc}") from None
     return dest
+
+
+#: errno of a write refused for want of room: not the archive's fault
+_FULL = {getattr(errno, n) for n in ("ENOSPC", "EDQUOT", "EFBIG") if hasattr(errno, n)}
