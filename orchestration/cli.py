@@ -304,45 +304,20 @@ def _scheduler_error(exc):
 
 def _executor_args(args):
     """``(workers, scheduler)`` of ``--workers``/``--scheduler``; a LocalCluster of ``--workers``
-    processes is checked against the process's limits first (:func:`_cluster_limits`)."""
+    processes is checked against the process's limits first
+    (:func:`~orchestration.sweeps.executor.cluster_limits`)."""
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed; allowed: an integer >= 1")
     if args.workers is not None and args.scheduler:
         raise UsageError("--workers starts a LocalCluster, --scheduler uses an existing one: "
                          "give one of them")
     if args.workers is not None:
-        _cluster_limits(args.workers)
+        from .sweeps.executor import cluster_limits
+
+        problem = cluster_limits(args.workers)
+        if problem:
+            raise UsageError(f"{problem}; raise the limit, give fewer --workers or run --serial")
     return args.workers, args.scheduler
-
-
-#: What a LocalCluster of W worker processes needs (measured with 2 and 4 workers: its nannies
-#: fail to start below about 48 and 96 open files; its client crashes with 1 GiB of address
-#: space per process and runs with 2 GiB).
-CLUSTER_FILES_BASE, CLUSTER_FILES_PER_WORKER = 64, 16
-CLUSTER_ADDRESS_SPACE = 2 << 30
-
-
-def _cluster_limits(workers: int) -> None:
-    """Raise the soft limit of open files to what a LocalCluster of ``workers`` needs, where the
-    hard limit allows; a UsageError naming the limit where it does not, or where the address
-    space (``ulimit -v``) is too small for dask's processes."""
-    import resource
-
-    need = CLUSTER_FILES_BASE + CLUSTER_FILES_PER_WORKER * workers
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    if soft != resource.RLIM_INFINITY and soft < need:
-        if hard == resource.RLIM_INFINITY or hard >= need:
-            resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
-        else:
-            raise UsageError(f"too few file handles for a LocalCluster of {workers} workers: it "
-                             f"needs about {need}, this process may open {hard} (ulimit -n); "
-                             "raise the limit, give fewer --workers or run --serial")
-    space = resource.getrlimit(resource.RLIMIT_AS)[0]
-    if space != resource.RLIM_INFINITY and space < CLUSTER_ADDRESS_SPACE:
-        raise UsageError(f"too little memory for a LocalCluster: each of its processes needs "
-                         f"about {CLUSTER_ADDRESS_SPACE >> 20} MiB of address space, this "
-                         f"process may use {space >> 20} MiB (ulimit -v); raise the limit or "
-                         "run --serial")
 
 
 def _machine_limit(exc: BaseException) -> str | None:

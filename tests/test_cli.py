@@ -185,21 +185,47 @@ def test_a_process_out_of_file_handles_is_one_line(monkeypatch, capsys):
                                        f"open {soft} (ulimit -n); raise the limit\n")
 
 
+def test_a_cluster_the_default_rule_picks_is_checked_too(fmus, monkeypatch, capsys, tmp_path):
+    """With no executor option, where the rule would start a LocalCluster that does not fit the
+    process's limits (here: an address space below what dask's processes need), the sweep runs
+    here, saying why (before, only --workers was checked: the client crashed at 1 GiB)."""
+    import resource
+
+    from orchestration.cli import main
+    from orchestration.sweeps import executor, job
+
+    monkeypatch.setattr(job, "cluster_workers", lambda runs, seconds: 2)
+    soft, hard = resource.getrlimit(resource.RLIMIT_AS)
+    space = 1 << 50 if hard == resource.RLIM_INFINITY else hard
+    monkeypatch.setattr(executor, "CLUSTER_ADDRESS_SPACE", space + 1)
+    resource.setrlimit(resource.RLIMIT_AS, (space, hard))
+    try:
+        code = main(["sweep", "rigid_pd", "--values", "controller.kp=500,600", "--set",
+                     "stop_time=0.5", "--out", str(tmp_path / "out")])
+    finally:
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert ("running here, one run after the other: too little memory for a LocalCluster: each "
+            f"of its processes needs about {(space + 1) >> 20} MiB of address space") in err, err
+    assert "LocalCluster, 2 worker" not in err
+
+
 def test_the_soft_limit_of_open_files_is_raised_for_a_cluster():
     """Where the hard limit allows, --workers raises the soft one (ulimit -S -n) instead of
     refusing: 64 + 16 per worker."""
     import resource
 
-    from orchestration import cli
+    from orchestration.sweeps import executor
 
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if hard != resource.RLIM_INFINITY and hard < 128:
         pytest.skip("the hard limit of open files is below 128 here")
     try:
         resource.setrlimit(resource.RLIMIT_NOFILE, (64, hard))
-        cli._cluster_limits(4)
+        assert executor.cluster_limits(4) is None
         assert resource.getrlimit(resource.RLIMIT_NOFILE) == (64 + 16 * 4, hard)
-        cli._cluster_limits(1)                                   # never lowered
+        assert executor.cluster_limits(1) is None                # never lowered
         assert resource.getrlimit(resource.RLIMIT_NOFILE)[0] == 128
     finally:
         resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))

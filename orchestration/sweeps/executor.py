@@ -260,6 +260,37 @@ def _handshake_of(data: bytes) -> dict:
     return msg
 
 
+#: What a LocalCluster of W worker processes needs (measured with 2 and 4 workers: its nannies
+#: fail to start below about 48 and 96 open files; its client crashes with 1 GiB of address
+#: space per process and runs with 2 GiB).
+CLUSTER_FILES_BASE, CLUSTER_FILES_PER_WORKER = 64, 16
+CLUSTER_ADDRESS_SPACE = 2 << 30
+
+
+def cluster_limits(workers: int) -> str | None:
+    """Whether a LocalCluster of ``workers`` processes fits this process's limits: the soft
+    limit of open files is raised to what it needs where the hard limit allows (never lowered);
+    else, or where the address space (``ulimit -v``) is too small for dask's processes, the
+    problem in words (None when it fits). Every LocalCluster is checked (:class:`DaskExecutor`),
+    and the default rule of a sweep runs serially where one would not fit."""
+    import resource
+
+    need = CLUSTER_FILES_BASE + CLUSTER_FILES_PER_WORKER * workers
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < need:
+        if hard == resource.RLIM_INFINITY or hard >= need:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+        else:
+            return (f"too few file handles for a LocalCluster of {workers} workers: it needs "
+                    f"about {need}, this process may open {hard} (ulimit -n)")
+    space = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if space != resource.RLIM_INFINITY and space < CLUSTER_ADDRESS_SPACE:
+        return (f"too little memory for a LocalCluster: each of its processes needs about "
+                f"{CLUSTER_ADDRESS_SPACE >> 20} MiB of address space, this process may use "
+                f"{space >> 20} MiB (ulimit -v)")
+    return None
+
+
 def probe_scheduler(address: str, timeout: float | None = None) -> None:
     """Check that a dask scheduler answers at ``address`` within ``timeout`` seconds (default
     :data:`PROBE_TIMEOUT`): connect, send dask's handshake and read the peer's, at most
@@ -376,6 +407,9 @@ class DaskExecutor(Executor):
             # only what is critical: a worker whose heartbeat meets the scheduler closing (a
             # Ctrl-C, or any close under load) logs an ERROR with a traceback, and what does go
             # wrong reaches the sweep anyway (a task's exception, or a lost run in the table)
+            problem = cluster_limits(workers or default_workers())
+            if problem:
+                raise ValueError(f"{problem}; raise the limit, or run the sweep serially")
             self.scratch = tempfile.mkdtemp(prefix="flexpend_dask_")
             try:
                 with _sigint_blocked():

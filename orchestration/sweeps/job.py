@@ -9,7 +9,8 @@ from pathlib import Path
 from ..report.files import write_json
 from ..scene.keys import ConfigError, toml_value
 from .engine import fmus_for, pending, run_sweep, sweep_stats
-from .executor import CLUSTER_START, Executor, cluster_workers, default_workers, open_executor
+from .executor import (CLUSTER_START, Executor, cluster_limits, cluster_workers, default_workers,
+                       open_executor)
 from .plan import design_worst_case, expected_run_seconds, plan_sweep
 
 __all__ = ["Sweep", "sweep"]
@@ -79,8 +80,13 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
         seconds = sum(expected_run_seconds(p.scene, plan.reference) for p in plan.points) \
             / len(plan.points)
         workers = cluster_workers(todo, seconds) or None
+        problem = workers and cluster_limits(workers)
+        if problem:
+            workers = None
+            if progress:
+                print(f"running here, one run after the other: {problem}", file=sys.stderr)
         serial = workers is None
-        if serial and progress:
+        if serial and progress and not problem:
             print(f"running here, one run after the other: a LocalCluster would not win "
                   f"for {todo} run{'s' if todo != 1 else ''} of about {seconds:.2g} s on "
                   f"{default_workers()} core{'s' if default_workers() != 1 else ''} (it "
