@@ -39,9 +39,10 @@ def output_error(path, exc: OSError) -> OutputError:
 
 
 class atomic_path:
-    """``with atomic_path(path) as tmp:`` write ``tmp``; on success it replaces ``path``, on any
-    exception it is removed and ``path`` is left as it was (an OSError is raised as an
-    :class:`OutputError` naming ``path``)."""
+    """``with atomic_path(path) as tmp:`` write ``tmp``; on success it is synced to the disk and
+    replaces ``path`` (so after a crash of the machine ``path`` is the old file or the new one,
+    whole), on any exception it is removed and ``path`` is left as it was (an OSError is raised
+    as an :class:`OutputError` naming ``path``)."""
 
     def __init__(self, path, suffix: str = ""):
         self.path = Path(path)
@@ -61,6 +62,11 @@ class atomic_path:
         if exc_type is None:
             try:
                 os.chmod(self.tmp, 0o644)
+                fd = os.open(self.tmp, os.O_RDONLY)
+                try:
+                    os.fsync(fd)
+                finally:
+                    os.close(fd)
                 os.replace(self.tmp, self.path)
                 return False
             except OSError as failed:
