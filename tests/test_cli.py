@@ -185,6 +185,33 @@ def test_a_process_out_of_file_handles_is_one_line(monkeypatch, capsys):
                                        f"open {soft} (ulimit -n); raise the limit\n")
 
 
+@pytest.mark.parametrize("failure", ["MemoryError", "ENOMEM", "unmapped library"])
+def test_a_process_out_of_memory_is_one_line(failure, monkeypatch, capsys):
+    """Out of memory anywhere, however it surfaces (a MemoryError, an OSError ENOMEM, an
+    ImportError of a library that could not be mapped), whatever wraps it: one line, exit 2."""
+    import errno
+    import resource
+
+    from orchestration.scene import schema
+
+    def no_memory(*args, **kw):
+        try:
+            if failure == "MemoryError":
+                raise MemoryError()
+            if failure == "ENOMEM":
+                raise OSError(errno.ENOMEM, "Cannot allocate memory")
+            raise ImportError("libx.so: failed to map segment from shared object")
+        except Exception as exc:
+            raise RuntimeError("something failed to start") from exc
+    monkeypatch.setattr(schema, "_read_toml", no_memory)
+    assert main(["run", str(schema.SCENE_DIR / "rigid_pd.toml")]) == 2
+    space = resource.getrlimit(resource.RLIMIT_AS)[0]
+    limit = ("" if space == resource.RLIM_INFINITY else
+             f": this process may use {space >> 20} MiB of address space (ulimit -v); raise the "
+             "limit")
+    assert capsys.readouterr().err == f"flexpend: error: out of memory{limit}\n"
+
+
 def test_a_cluster_the_default_rule_picks_is_checked_too(fmus, monkeypatch, capsys, tmp_path):
     """With no executor option, where the rule would start a LocalCluster that does not fit the
     process's limits (here: an address space below what dask's processes need), the sweep runs
