@@ -339,10 +339,10 @@ def _machine_limit(exc: BaseException) -> str | None:
         if (isinstance(exc, MemoryError)
                 or (isinstance(exc, OSError) and exc.errno == errno.ENOMEM)
                 or (isinstance(exc, ImportError) and "failed to map segment" in str(exc))):
-            space = resource.getrlimit(resource.RLIMIT_AS)[0]
-            if space == resource.RLIM_INFINITY:
+            mib = _address_space_mib()
+            if mib is None:
                 return "out of memory"
-            return (f"out of memory: this process may use {space >> 20} MiB of address space "
+            return (f"out of memory: this process may use {mib} MiB of address space "
                     "(ulimit -v); raise the limit")
         exc = exc.__cause__ or exc.__context__
     return None
@@ -358,29 +358,33 @@ def _address_space_floor() -> str | None:
     """The one line refusing a process whose address space is below :data:`MIN_ADDRESS_SPACE`
     (checked before numpy is imported), else None."""
     try:
-        import resource
-    except ImportError:               # not even this small library could be mapped
+        mib = _address_space_mib()
+    except ImportError:               # not even the small `resource` library could be mapped
         return ("out of memory: this process cannot map its libraries (ulimit -v); raise the "
                 "limit")
-    space = resource.getrlimit(resource.RLIMIT_AS)[0]
-    if space == resource.RLIM_INFINITY or space >= MIN_ADDRESS_SPACE:
+    if mib is None or mib >= MIN_ADDRESS_SPACE >> 20:
         return None
-    return (f"out of memory: this process may use {space >> 20} MiB of address space (ulimit "
-            f"-v); flexpend needs at least {MIN_ADDRESS_SPACE >> 20} MiB")
+    return (f"out of memory: this process may use {mib} MiB of address space (ulimit -v); "
+            f"flexpend needs at least {MIN_ADDRESS_SPACE >> 20} MiB")
 
 
 def _memory_hint(exc: BaseException) -> str:
     """``; ... ulimit -v`` when a failure without an errno (a library's own message: PIL's
     "codec configuration error" when zlib gets no memory) came under an address-space limit."""
+    cause = exc.__cause__ or exc.__context__ or exc
+    mib = _address_space_mib()
+    if mib is None or getattr(cause, "errno", None) is not None or "ulimit" in str(exc):
+        return ""
+    return (f" (this process may use {mib} MiB of address space, ulimit -v: raise the limit if "
+            "that is too little)")
+
+
+def _address_space_mib() -> int | None:
+    """This process's limit of address space (``ulimit -v``) in MiB, None when unlimited."""
     import resource
 
-    cause = exc.__cause__ or exc.__context__ or exc
     space = resource.getrlimit(resource.RLIMIT_AS)[0]
-    if space == resource.RLIM_INFINITY or getattr(cause, "errno", None) is not None \
-            or "ulimit" in str(exc):
-        return ""
-    return (f" (this process may use {space >> 20} MiB of address space, ulimit -v: raise the "
-            "limit if that is too little)")
+    return None if space == resource.RLIM_INFINITY else space >> 20
 
 
 def cmd_sweep(args) -> int:
