@@ -57,6 +57,12 @@ class RunStats:
     rejected_times: list = field(default_factory=list)
     #: which loop stepped: "compiled" (orchestration/cosim/native/fm_master.c) or "python"
     loop: str = "python"
+    #: master.algorithm = "implicit" (orchestration/cosim/implicit.py): the interface's
+    #: iterations summed over the steps and the most in one step; the FMU steps spent on
+    #: difference Jacobians
+    iterations: int = 0
+    max_iterations: int = 0
+    jacobian_steps: int = 0
 
 
 class Master:
@@ -94,6 +100,12 @@ class Master:
                         for n in slaves}
         #: why the compiled loop cannot run these FMUs (None: it can)
         self.compiled_unavailable = compiled_master.unavailable(coupling, slaves, self.adaptive)
+        #: the strongly coupled step (master.algorithm = "implicit"), None otherwise
+        self.implicit = None
+        if settings.algorithm == "implicit":
+            from .implicit import InterfaceIteration
+            self.implicit = InterfaceIteration(self)
+            self.compiled_unavailable = "master.algorithm = 'implicit' runs in Python"
         if compiled and not self.compiled_unavailable:
             try:
                 compiled_master.load()       # before any run
@@ -236,6 +248,8 @@ class Master:
         return new
 
     def _step(self, hist, t0, t1):
+        if self.implicit is not None:
+            return self.implicit.step(hist, t0, t1)
         if self.coupling.correct_startup and len(hist[self.coupling.order[0]].t) == 1:
             return self._startup_step(hist, t0, t1)
         return self._macro_step(hist, t0, t1)
@@ -275,6 +289,8 @@ class Master:
         (and a :class:`RunInterrupted`) carries the rows of the output points reached so far."""
         wall = _time.perf_counter()
         stats = RunStats()
+        if self.implicit is not None:               # a new run: no Jacobian, no counts
+            self.implicit = type(self.implicit)(self)
         out = output_table(self.record, t0, stop_time, output_interval)
         n_out = len(out) - 1
         self._rows = 0
@@ -311,13 +327,21 @@ class Master:
                     self._run_fixed(t0, m, total, out, hist, stats, progress, stop)
                 stats.min_step_used = stats.max_step_used = self.h
         except (CoSimulationError, RunInterrupted) as exc:
+            self._count_iterations(stats)
             stats.wall_time = _time.perf_counter() - wall
             exc.result, exc.stats = out[:self._rows].copy(), stats
             if exc.time is None:
                 exc.time = self._t_reached
             raise
+        self._count_iterations(stats)
         stats.wall_time = _time.perf_counter() - wall
         return out, stats
+
+    def _count_iterations(self, stats):
+        if self.implicit is not None:
+            it = self.implicit
+            stats.iterations, stats.max_iterations = it.iterations, it.max_iterations
+            stats.jacobian_steps = it.jacobian_steps
 
     def _run_fixed(self, t0, m, total, out, hist, stats, progress, stop):
         """The fixed-step loop in Python (the compiled loop's twin): ``total`` steps of ``h``

@@ -42,7 +42,10 @@ __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", 
 
 #: The value of ``plant.n_modes`` and ``plant.fidelity`` that lets a run choose the model.
 AUTO = "auto"
-ALGORITHMS = ("gauss-seidel", "jacobi")
+ALGORITHMS = ("gauss-seidel", "jacobi", "implicit")
+#: ``master.implicit_jacobian``: how the implicit master updates the interface
+#: (:mod:`orchestration.cosim.implicit`): Newton on the step's sensitivity, or IQN-ILS.
+IMPLICIT_JACOBIANS = ("newton", "iqn-ils")
 FIRST = ("controller", "plant")
 #: ``master.interface``: the FMUs stepped as co-simulation slaves, or their Model Exchange
 #: interfaces solved as one system (:mod:`orchestration.cosim.model_exchange`).
@@ -160,9 +163,20 @@ class MasterSettings:
     solver: str = "radau"
     rtol: float = 1e-6
     atol: float = 1e-8
+    implicit_tolerance: float = 1e-9
+    max_iterations: int = 20
+    implicit_jacobian: str = "newton"
 
     def __post_init__(self):
         _choice("master.algorithm", self.algorithm, ALGORITHMS)
+        _choice("master.implicit_jacobian", self.implicit_jacobian, IMPLICIT_JACOBIANS)
+        _set(self, "implicit_tolerance", _checked("master.implicit_tolerance", check_real,
+                                                  self.implicit_tolerance, low=1e-15, high=1.0))
+        _set(self, "max_iterations", _checked("master.max_iterations", check_int,
+                                              self.max_iterations, low=1, high=1000))
+        if self.algorithm == "implicit" and self.adaptive:
+            raise ConfigError("master.algorithm = 'implicit' takes a fixed step; "
+                              "master.adaptive = true is not allowed with it")
         _choice("master.first", self.first, FIRST)
         _choice("master.fmus", self.fmus, FMU_FLAVOURS)
         _choice("master.interface", self.interface, INTERFACES)
@@ -171,6 +185,8 @@ class MasterSettings:
         _set(self, "atol", _checked("master.atol", check_real, self.atol, low=1e-300, high=1e6))
         if self.output_derivatives:
             why = ("the pythonfmu FMUs give none" if self.fmus != "native" else
+                   "the implicit master interpolates between the step's samples"
+                   if self.algorithm == "implicit" else
                    "a zero-order hold (master.extrapolation = 0) uses no polynomial"
                    if self.extrapolation == 0 else
                    "with held inputs the derivatives at a step's end belong to the held value, "

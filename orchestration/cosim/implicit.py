@@ -1,0 +1,189 @@
+"""The strongly coupled communication step (``master.algorithm = "implicit"``).
+
+Each step ``[t_k, t_k+1]`` iterates the interface: the unknowns ``u`` are every exchanged output
+at ``t_k+1``. An iterate is pushed as the sources' sample at ``t_k+1``, so that every FMU's
+inputs over the step are the polynomial through its source's samples up to ``t_k+1``
+(``master.extrapolation`` = 1: the line between ``t_k`` and ``t_k+1``; 2: the parabola through
+``t_k-1 .. t_k+1``; 0: the value at ``t_k+1``, held), passed as input derivatives (or held as the
+step average) exactly as the explicit couplings pass theirs. Every FMU then steps from the
+step's start (its FMU state restored) and gives its outputs at ``t_k+1``: ``G(u)``. The step is
+converged when ``|G(u) - u| <= implicit_tolerance * max(1, |G(u)|)`` for every output (the
+adaptive master's scaling of its error); the FMUs are then at ``t_k+1`` with the inputs ``u``
+and their outputs ``G(u)`` are the new samples. ``master.max_iterations`` evaluations of ``G``
+without convergence stop the run with one line naming the time and the residual.
+
+The update (``master.implicit_jacobian``):
+
+* ``"newton"``: ``u <- u - (J - I)^-1 (G(u) - u)`` with ``J = dG/du``, the sensitivity of the
+  FMUs' outputs at ``t_k+1`` to the interface values they were driven with over the step. A
+  co-simulation FMU's directional derivatives (FMI 2.0 ``fmi2GetDirectionalDerivative`` on the
+  co-simulation interface) give the outputs' partial derivatives at one instant, not the
+  sensitivity of a step, so ``J`` is formed by forward differences of the FMU step through state
+  restore: one extra step of the FMUs fed by a source per exchanged output of that source. ``J``
+  is kept from step to step and formed again only when an iteration fails to cut the residual
+  tenfold (for a linear plant at a fixed step ``G`` is affine with a constant ``J``: it is
+  formed once).
+* ``"iqn-ils"``: interface quasi-Newton with an inverse Jacobian from least squares (Degroote,
+  Bathe and Vierendeels 2009; preCICE's IQN-ILS). It needs no derivative from the FMUs: from the
+  differences ``V`` of the residuals and ``W`` of the outputs ``G`` between the iterates,
+  ``alpha = argmin |V alpha + r|`` and ``u <- G(u) + W alpha``; the columns of the last
+  :data:`REUSED_STEPS` steps are reused (preCICE's reused time windows); without any column the
+  first update is a relaxed fixed-point step ``u + INITIAL_RELAXATION r``.
+
+The first guess of a step is the sources' polynomials extrapolated to ``t_k+1``.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .slave import CoSimulationError
+
+__all__ = ["InterfaceIteration", "REUSED_STEPS", "INITIAL_RELAXATION"]
+
+#: IQN-ILS: the steps whose difference columns are reused
+REUSED_STEPS = 8
+#: IQN-ILS: the relaxation of the first update when no column is known
+INITIAL_RELAXATION = 0.5
+#: Newton: the forward-difference step, relative to max(1, |u|)
+_FD_STEP = 1e-6
+
+
+class InterfaceIteration:
+    """The implicit step of ``master`` (a :class:`~orchestration.cosim.master.Master`); its
+    counters feed :class:`~orchestration.cosim.master.RunStats` (``iterations``,
+    ``max_iterations``, ``jacobian_steps``)."""
+
+    def __init__(self, master):
+        self.m = master
+        c = master.coupling
+        s = master.settings
+        self.tol, self.cap, self.method = s.implicit_tolerance, s.max_iterations, \
+            s.implicit_jacobian
+        #: the slaves whose outputs are exchanged, and each one's slice of ``u``
+        self.sources = [n for n in c.order if c.outputs[n]]
+        sizes = [len(c.outputs[n]) for n in self.sources]
+        ends = np.cumsum([0] + sizes)
+        self.slices = {n: slice(int(a), int(b)) for n, a, b in zip(self.sources, ends, ends[1:])}
+        self.size = int(ends[-1])
+        #: the slaves fed by each source
+        self.consumers = {n: [d for d in c.order if any(x.src == n for x in c.inputs[d])]
+                          for n in self.sources}
+        self.J = None
+        self._V, self._W = [], []        # IQN-ILS: columns per past step (lists of arrays)
+        self.iterations = self.max_iterations = self.jacobian_steps = 0
+
+    # ------------------------------------------------------------------ one evaluation of G
+    def _evaluate(self, hist, snaps, states, t0, t1, u, names):
+        """The outputs at ``t1`` of ``names`` stepped from their states at ``t0`` with the
+        interface ``u`` as the sources' samples at ``t1``; a dict name -> outputs."""
+        m = self.m
+        ta, h = m._time(t0), (t1 - t0) * m._unit
+        for n in self.sources:
+            hist[n].restore(snaps[n])
+            hist[n].push(t1, u[self.slices[n]])
+        try:
+            for n in names:
+                s = m.slaves[n]
+                s.set_state(states[n])
+                s.set_inputs(m._held_inputs(n, hist, t0, t1), ta)
+                s.do_step(ta, h)
+            return {n: m._outputs_after_step(n, hist, t1) for n in names}
+        finally:
+            for n in self.sources:
+                hist[n].restore(snaps[n])
+
+    def _residual(self, g, u):
+        """The scaled residual: ``max |g - u| / (tol * max(1, |g|))``."""
+        if not self.size:
+            return 0.0
+        return float(np.max(np.abs(g - u) / (self.tol * np.maximum(1.0, np.abs(g)))))
+
+    def _stack(self, new):
+        return np.concatenate([new[n][:self.slices[n].stop - self.slices[n].start]
+                               for n in self.sources]) if self.size else np.zeros(0)
+
+    # ------------------------------------------------------------------ updates
+    def _jacobian(self, hist, snaps, states, t0, t1, u, g):
+        """``dG/du`` by forward differences of the step (only the consumers of the perturbed
+        source step again)."""
+        J = np.zeros((self.size, self.size))
+        for src in self.sources:
+            names = self.consumers[src]
+            for j in range(self.slices[src].start, self.slices[src].stop):
+                d = _FD_STEP * max(1.0, abs(u[j]))
+                up = u.copy()
+                up[j] += d
+                out = self._evaluate(hist, snaps, states, t0, t1, up, names)
+                self.jacobian_steps += len(names)
+                col = g.copy()
+                for n in names:
+                    if n in self.slices:
+                        col[self.slices[n]] = out[n][:self.slices[n].stop - self.slices[n].start]
+                J[:, j] = (col - g) / d
+        return J
+
+    def _iqn(self, u, g, r, V, W):
+        """The IQN-ILS update from this step's columns ``V``, ``W`` and the reused ones."""
+        cols_v = [v for step in self._V for v in step] + V
+        cols_w = [w for step in self._W for w in step] + W
+        if not cols_v:
+            return u + INITIAL_RELAXATION * r
+        Vm, Wm = np.column_stack(cols_v), np.column_stack(cols_w)
+        scale = 1.0 / np.maximum(1.0, np.abs(g))
+        alpha = np.linalg.lstsq(Vm * scale[:, None], -r * scale, rcond=1e-12)[0]
+        return g + Wm @ alpha
+
+    # ------------------------------------------------------------------ the step
+    def step(self, hist, t0, t1) -> dict:
+        """One converged communication step from ``t0`` to ``t1`` (the history's clock); the
+        new outputs of every slave (the caller pushes them)."""
+        m = self.m
+        order = m.coupling.order
+        snaps = {n: hist[n].snapshot() for n in m.slaves}
+        states = {n: s.get_state() for n, s in m.slaves.items()}
+        try:
+            u = self._stack({n: m._combination(hist[n], t1, m.h / m._unit, (0,))[0]
+                             for n in self.sources})
+            V, W = [], []
+            prev = None                  # (r, g) of the previous iteration (IQN-ILS)
+            err_prev, fresh = math.inf, False
+            for it in range(1, self.cap + 1):
+                new = self._evaluate(hist, snaps, states, t0, t1, u, order)
+                g = self._stack(new)
+                r = g - u
+                err = self._residual(g, u)
+                if err <= 1.0:
+                    self._count(it)
+                    if self.method == "iqn-ils" and V:
+                        self._V = (self._V + [V])[-REUSED_STEPS:]
+                        self._W = (self._W + [W])[-REUSED_STEPS:]
+                    return new
+                if it == self.cap:
+                    break
+                if self.method == "newton":
+                    if self.J is None or (err > 0.1 * err_prev and not fresh):
+                        self.J = self._jacobian(hist, snaps, states, t0, t1, u, g)
+                        fresh = True
+                    u = u - np.linalg.solve(self.J - np.eye(self.size), r)
+                else:
+                    if prev is not None:
+                        V.append(r - prev[0])
+                        W.append(g - prev[1])
+                    prev = (r, g)
+                    u = self._iqn(u, g, r, V, W)
+                err_prev = err
+            self._count(self.cap)
+            ta = m._time(t1)
+            raise CoSimulationError(
+                f"master.algorithm = 'implicit': the interface did not converge by t = {ta:.6g} "
+                f"in master.max_iterations = {self.cap} iterations (residual {err:.3g} times "
+                f"master.implicit_tolerance = {self.tol:g})", time=m._time(t0))
+        finally:
+            for n, s in m.slaves.items():
+                s.free_state(states[n])
+
+    def _count(self, it):
+        self.iterations += it
+        self.max_iterations = max(self.max_iterations, it)
