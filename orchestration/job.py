@@ -35,7 +35,7 @@ from .export import flavour_fmus
 from .report import figures
 from .report.files import save_figure, write_csv, write_json
 from .report.progress import Progress
-from .report.summary import stop_reason, summarize
+from .report.summary import iteration_counts, stop_reason, summarize
 from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
@@ -232,7 +232,7 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     summary = summarize(res, scene, stopped)
     if stats is not None:
         summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected,
-                       master_loop=stats.loop)
+                       master_loop=stats.loop, **iteration_counts(stats))
     if model is not None:
         summary["model"] = model
     out = Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)

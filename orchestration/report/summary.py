@@ -42,6 +42,7 @@ from ..studies.fit import fit_mode
 
 __all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT",
            "FIT_RESIDUAL", "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window",
+           "iteration_counts",
            "fit_modes", "first_bending_frequency", "validity", "summarize"]
 
 #: Bands (rad/s) of the rigid (slow) and the bending oscillation.
@@ -228,6 +229,17 @@ def stop_reason(message: str) -> str:
         log = log.replace("; restore a saved FMU state to continue", "")
         return f"the {who} FMU stopped the run: {_short(log)}"
     return _short(message)
+
+
+def iteration_counts(stats) -> dict:
+    """The implicit master's interface iterations per communication step (``mean``, ``max``)
+    and the FMU steps its difference Jacobians took, from a run's
+    :class:`~orchestration.cosim.master.RunStats`; empty for the explicit couplings."""
+    if not stats.iterations:
+        return {}
+    return {"iterations_per_step_mean": stats.iterations / max(stats.steps, 1),
+            "iterations_per_step_max": stats.max_iterations,
+            "jacobian_steps": stats.jacobian_steps}
 
 
 def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:

@@ -145,6 +145,10 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
             loop = f"; {loop} loop" if loop else ""
             out.append(f"  wall time: {s['wall_time']:.3g} s ({s['steps']} communication "
                        f"steps, {s['rejected_steps']} rejected{loop})")
+        if "iterations_per_step_mean" in s:
+            out.append(f"  interface iterations per step: mean {s['iterations_per_step_mean']:.3g}"
+                       f", max {s['iterations_per_step_max']} (implicit master; "
+                       f"{s['jacobian_steps']} FMU steps on difference Jacobians)")
     if "max_error_phi_o" in s:
         out.append(f"  max error against the monolithic reference: phi_o "
                    f"{s['max_error_phi_o']:.3e} rad, eta_1 {s['max_error_eta_1']:.3e} m kg^0.5")
