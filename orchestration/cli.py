@@ -4,6 +4,8 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
+    flexpend stability SCENE [--set key=value ...] [--json]
+                                                        the largest stable communication steps
     flexpend design [--set key=value ...] [--json] [--out DIR] [--workers N | --scheduler ADDR]
                                                         robust low-pass filter design
     flexpend sweep SCENE [--grid ...] [--values ...] [--sample ... --samples N] [--workers N]
@@ -167,6 +169,18 @@ def cmd_analyze(args) -> int:
         print(_json(a.to_json()))
     else:
         _print(analysis_lines(a.plant, a.controller, a))
+    return 0
+
+
+def cmd_stability(args) -> int:
+    from .api import stability
+    from .report.text import stability_lines
+
+    r = stability(args.scene, args.set)
+    if args.json:
+        print(_json({"scene": r["scene"], "couplings": r["couplings"]}))
+    else:
+        _print(stability_lines(r))
     return 0
 
 
@@ -477,6 +491,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a parameter, e.g. plant.n_modes=4 or controller.cutoff=150")
     pa.add_argument("--json", action="store_true", help="print the result as JSON")
     pa.set_defaults(func=cmd_analyze)
+
+    pt = sub.add_parser("stability", help="the largest stable communication step per coupling",
+                        description="The largest communication step at which the linearised "
+                                    "co-simulation is stable (rho of the step's transition matrix "
+                                    "= 1), for the scene's coupling and every coupling the master "
+                                    "offers, and the plant method's substep limit.")
+    pt.add_argument("scene", metavar="SCENE", help="a scene name or a path to a .toml file")
+    pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene key, e.g. controller.cutoff=150")
+    pt.add_argument("--json", action="store_true", help="print the result as JSON")
+    pt.set_defaults(func=cmd_stability)
 
     pd = sub.add_parser("design", help="robust design of the low-pass filter",
                         description="Search the filter order, cutoff and damping for the largest "

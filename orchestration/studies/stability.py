@@ -69,11 +69,13 @@ from plant_fmu.dynamics import plant_model
 from plant_fmu.integrators.genalpha import genalpha_parameters
 from plant_fmu.params import PlantParams
 
-from ..cosim.coupling import extrapolation_weights
+from ..scene.keys import ConfigError
 
 __all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", "substep_matrix",
            "plant_step_map", "plant_polynomial_step_map", "controller_polynomial_step_map",
-           "scene_coupling",
+           "scene_coupling", "COUPLING_ORDERS", "couplings", "critical_step", "stability_report",
+           "substep_limit", "assumptions",
+           "step_warning",
            "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
            "first_crossing", "critical_value", "highest_mode", "sdof_matrix",
            "substep_spectral_radius", "integrator_step_limit", "observed_spectral_radius",
@@ -83,7 +85,11 @@ __all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", 
 METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau", "exponential")
 #: the methods the plant FMU runs with fixed substeps (dopri5 and radau are adaptive in the FMU)
 FIXED_STEP_METHODS = ("euler", "symplectic_euler", "rk4", "genalpha", "exponential")
-ALGORITHMS = ("jacobi", "gauss-seidel")
+#: the couplings the master offers, data for :func:`couplings`: per ``master.algorithm`` the
+#: values of ``master.first`` whose maps differ (another algorithm is one line here, with its map
+#: in :func:`transition_matrix`)
+COUPLING_ORDERS = {"jacobi": ("controller",), "gauss-seidel": ("controller", "plant")}
+ALGORITHMS = tuple(COUPLING_ORDERS)
 #: the coupling schemes of the stability map: (label, algorithm, first FMU)
 SCHEMES = (("jacobi", "jacobi", "controller"),
            ("gs-controller-first", "gauss-seidel", "controller"),
@@ -690,3 +696,123 @@ def observed_spectral_radius(signals, rows: int | None = None, rtol: float = 1e-
     """``max |pole|`` of :func:`hankel_poles`: the growth factor per sample of the slowest
     decaying (or fastest growing) mode the samples show."""
     return float(np.max(np.abs(hankel_poles(signals, rows, rtol))))
+
+
+# ---------------------------------------------------------------------- every coupling of a scene
+#: the range of communication steps searched for the first crossing of rho = 1 (s)
+STEP_RANGE = (1e-5, 1.0)
+#: points per decade of that search: rho(Phi) can exceed 1 in narrow windows (a mode resonating
+#: with the step; 6 % wide for Jacobi with linear Taylor extrapolation on the filtered scene), so
+#: the grid's ratio (1.047) is finer than any seen; a narrower window can be missed
+GRID_PER_DECADE = 50
+
+
+def couplings(master) -> list[dict]:
+    """Every coupling the master offers for ``master`` (a
+    :class:`~orchestration.scene.records.MasterSettings`: its FMUs decide whether output
+    derivatives are offered): :func:`transition_matrix`'s keywords, each allowed by
+    ``MasterSettings``' rules (input derivatives only with a polynomial, ``p >= 1``)."""
+    from dataclasses import replace
+    out = []
+    for algorithm, firsts in COUPLING_ORDERS.items():
+        for first in firsts:
+            for p in (0, 1, 2):
+                for ind in ((False, True) if p else (False,)):
+                    for outd in ((False, True) if ind else (False,)):
+                        try:
+                            replace(master, algorithm=algorithm, first=first, extrapolation=p,
+                                    input_derivatives=ind, output_derivatives=outd)
+                        except ConfigError:
+                            continue
+                        out.append({"algorithm": algorithm, "first": first, "extrapolation": p,
+                                    "input_derivatives": ind, "output_derivatives": outd})
+    return out
+
+
+def critical_step(p: PlantParams, c: ControllerParams, *, integrator: str = "rk4",
+                  substep: float = 2.5e-4, hi: float | None = None, **coupling):
+    """The largest communication step below which every step is stable: the first ``H`` where
+    ``rho(Phi)`` reaches 1 (a log grid of :data:`GRID_PER_DECADE` over :data:`STEP_RANGE`, or up
+    to ``hi``, refined by Brent's method); ``None`` if it never does there, ``0.0`` if the loop is unstable already at
+    the smallest step (the continuous closed loop is). ``coupling``: :func:`transition_matrix`'s
+    keywords."""
+    lo = STEP_RANGE[0]
+    hi = STEP_RANGE[1] if hi is None else hi
+    f = lambda H: spectral_radius(transition_matrix(  # noqa: E731
+        p, c, H, integrator=integrator, substep=substep, **coupling))
+    if f(lo) >= 1.0:
+        return 0.0
+    return critical_value(f, lo, hi, n=max(8, int(GRID_PER_DECADE * math.log10(hi / lo))))
+
+
+def _scene_model(scene):
+    """``(p, c, integrator, substep)`` of a scene whose co-simulation has a transition matrix;
+    a ValueError saying why not."""
+    if scene.master.adaptive or scene.master.interface != "co-simulation":
+        scene_coupling(scene)                          # its ValueError
+    if not scene.plant.resolved:
+        raise ValueError("plant.n_modes or plant.fidelity = 'auto': a run chooses the model; "
+                         "set them to predict")
+    if scene.plant.integrator not in FIXED_STEP_METHODS:
+        raise ValueError(f"plant.integrator = {scene.plant.integrator!r} is adaptive in the "
+                         f"plant FMU: no fixed transition matrix; allowed: "
+                         f"{', '.join(FIXED_STEP_METHODS)}")
+    return scene.plant.params, scene.controller, scene.plant.integrator, scene.plant.step
+
+
+def substep_limit(p: PlantParams, method: str):
+    """The largest plant substep for which ``method`` is stable on every damped or undamped mode
+    of the linearised plant (:func:`integrator_step_limit` on each eigenvalue with ``Re <= 0``;
+    a growing mode's growth is the plant's own); ``None`` when it is stable at every step
+    (A-stable methods)."""
+    lam = np.linalg.eigvals(plant_model(p).state_space()[0])
+    lam = lam[(lam.imag >= 0) & (lam.real <= 0) & (np.abs(lam) > 0)]
+    limits = [integrator_step_limit(method, complex(v)) for v in lam]
+    limits = [v for v in limits if v is not None]
+    return min(limits) if limits else None
+
+
+def assumptions(scene) -> list[str]:
+    """What the prediction of a scene assumes, one sentence each (empty: it is exact)."""
+    out = []
+    if scene.plant.fidelity != "linear":
+        out.append("the plant is linearised at the upright rest state (plant.fidelity = "
+                   "'nonlinear': large motions shift the limits)")
+    if scene.controller.saturates:
+        out.append("the force does not saturate (controller.force_limit)")
+    return out
+
+
+def stability_report(scene) -> dict:
+    """For the scene's own coupling and for every coupling the master offers (:func:`couplings`):
+    the largest stable communication step (:func:`critical_step`), and the plant method's
+    substep limit (:func:`substep_limit`; ``None``: A-stable). ``{"scene": {"coupling", "critical_step", "substep_limit"}, "couplings": [{...,
+    "critical_step"}, ...]}``; a ValueError for a scene without a transition matrix."""
+    p, c, integrator, h = _scene_model(scene)
+    own = scene_coupling(scene)
+    model = dict(integrator=integrator, substep=h)
+    rows = [{**k, "critical_step": critical_step(p, c, **model, **k)}
+            for k in couplings(scene.master)]
+    return {"scene": {"coupling": {**own, "step": scene.master.step},
+                      "critical_step": critical_step(p, c, **model, **own),
+                      "substep_limit": substep_limit(p, integrator)},
+            "couplings": rows}
+
+
+def step_warning(scene) -> str | None:
+    """One line when the scene's communication step is beyond the largest stable step of its
+    coupling (:func:`critical_step`, searched up to the step only), else ``None`` (also for a
+    scene without a transition matrix)."""
+    try:
+        p, c, integrator, h = _scene_model(scene)
+    except ValueError:
+        return None
+    H = scene.master.step
+    Hc = critical_step(p, c, integrator=integrator, substep=h, hi=max(H, STEP_RANGE[0] * 2),
+                       **scene_coupling(scene))
+    if not Hc or Hc >= H:       # stable, or unstable at every step: not the step's doing
+        return None
+    where = ("the linearised loop is unstable at every step" if Hc == 0.0 else
+             f"its coupling's predicted largest stable step is {Hc:.4g} s")
+    return (f"master.step = {H:g} s is beyond the stability limit: {where} (flexpend stability "
+            f"{scene.name})")
