@@ -210,7 +210,7 @@ def cmd_design(args) -> int:
 def cmd_run(args) -> int:
     from .job import EXIT_INTERRUPTED as JOB_INTERRUPTED
     from .job import EXIT_STOPPED as JOB_STOPPED
-    from .job import load_job, run_job
+    from .job import load_job, run_job, step_warning
     from .report.text import run_lines
     from .scene.schema import PAPER_SCENES
 
@@ -225,6 +225,9 @@ def cmd_run(args) -> int:
                    if m.interface == "model-exchange" else f"communication step {m.step:g} s")
             print(f"{scene.name}: running {scene.output.stop_time:g} s ({how})", file=sys.stderr,
                   flush=True)
+            warning = step_warning(scene)
+            if warning:
+                print(f"{scene.name}: warning: {warning}", file=sys.stderr, flush=True)
 
         def report(run, written):
             if not args.json:
