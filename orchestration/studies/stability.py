@@ -57,6 +57,7 @@ outputs), which is what the tests and ``bench/stability_map.py`` compare with ``
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -77,7 +78,7 @@ __all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", 
            "substep_limit", "assumptions",
            "step_warning",
            "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
-           "first_crossing", "critical_value", "highest_mode", "sdof_matrix",
+           "first_crossing", "first_instability", "critical_value", "highest_mode", "sdof_matrix",
            "substep_spectral_radius", "integrator_step_limit", "observed_spectral_radius",
            "hankel_poles", "LinearPlant", "SCHEMES"]
 
@@ -270,8 +271,10 @@ POLYNOMIAL_METHODS = ("euler", "symplectic_euler", "rk4")
 def _shift(h: float, m: int) -> np.ndarray:
     """The Taylor coefficients ``[u, u', u'']`` (``m`` inputs each) moved ``h`` ahead: the exact
     flow of the nilpotent dynamics ``u' = u'``, ``u'' ' = 0``."""
-    I = np.eye(m)
-    return np.block([[I, h * I, 0.5 * h * h * I], [0 * I, I, h * I], [0 * I, 0 * I, I]])
+    T = np.eye(3 * m)
+    T[:m, m:2 * m] = T[m:2 * m, 2 * m:] = h * np.eye(m)
+    T[:m, 2 * m:] = 0.5 * h * h * np.eye(m)
+    return T
 
 
 def _at(s: float, m: int) -> np.ndarray:
@@ -368,6 +371,11 @@ def linear_plant(p: PlantParams, drift_free: bool = True) -> LinearPlant:
     and then ``C``'s ``x_o`` row is zero."""
     if not isinstance(p, PlantParams):
         raise TypeError(f"p must be a PlantParams, got {type(p).__name__}")
+    return _linear_plant(p, bool(drift_free))
+
+
+@functools.lru_cache(maxsize=64)
+def _linear_plant(p: PlantParams, drift_free: bool) -> LinearPlant:
     A, B, C, _ = plant_model(p).state_space()
     nq = p.n_modes + 2
     keep = np.arange(A.shape[0])
@@ -612,6 +620,38 @@ def first_crossing(f, grid, level: float = 1.0, xtol_rel: float = 1e-6):
     return None
 
 
+def first_instability(f, grid, level: float = 1.0, xtol_rel: float = 1e-6):
+    """The first ``x`` where ``f`` reaches ``level``, ``f`` evaluated on the increasing ``grid``
+    up to the first point at or above ``level``, and also inside a window between grid points:
+    at every discrete local maximum of ``f`` before that point, ``f`` is maximised on the two
+    intervals beside it (bounded Brent); the first window found, or else the grid's crossing,
+    is refined by Brent's method. ``None`` if ``f`` stays below ``level``. A window whose bump
+    is narrower than the grid's spacing is not seen."""
+    grid = np.asarray(grid, dtype=float)
+    vals = []
+    for xv in grid:
+        vals.append(f(float(xv)))
+        if vals[-1] >= level:
+            break
+    crossed = vals[-1] >= level
+
+    def refine(a, b):
+        return float(scipy.optimize.brentq(lambda s: f(s) - level, a, b, xtol=xtol_rel * a,
+                                           rtol=4 * _EPS))
+
+    for i in range(1, len(vals) - 1):
+        if vals[i] >= vals[i - 1] and vals[i] >= vals[i + 1]:
+            a, b = float(grid[i - 1]), float(grid[i + 1])
+            top = scipy.optimize.minimize_scalar(lambda s: -f(s), bounds=(a, b),
+                                                 method="bounded",
+                                                 options={"xatol": xtol_rel * a})
+            if -top.fun >= level:
+                return refine(a, float(top.x))
+    if crossed and len(vals) >= 2:
+        return refine(float(grid[len(vals) - 2]), float(grid[len(vals) - 1]))
+    return None
+
+
 def critical_value(f, lo: float, hi: float, n: int = 60, level: float = 1.0):
     """The first crossing of ``f = level`` (from below) on a log grid of ``n`` points in
     ``[lo, hi]``, refined; ``None`` if none."""
@@ -700,11 +740,11 @@ def observed_spectral_radius(signals, rows: int | None = None, rtol: float = 1e-
 
 # ---------------------------------------------------------------------- every coupling of a scene
 #: the range of communication steps searched for the first crossing of rho = 1 (s)
-STEP_RANGE = (1e-5, 1.0)
-#: points per decade of that search: rho(Phi) can exceed 1 in narrow windows (a mode resonating
-#: with the step; 6 % wide for Jacobi with linear Taylor extrapolation on the filtered scene), so
-#: the grid's ratio (1.047) is finer than any seen; a narrower window can be missed
-GRID_PER_DECADE = 50
+STEP_RANGE = (1e-4, 1.0)
+#: points per decade of that search: rho(Phi) exceeds 1 in narrow windows too (an eigenvalue's
+#: modulus bumping over 1: 4 % wide for Jacobi with linear Taylor extrapolation on the filtered
+#: scene, at 13.2 ms), so the grid's ratio is 1.2 %; a window narrower than that can be missed
+GRID_PER_DECADE = 500
 
 
 def couplings(master) -> list[dict]:
@@ -742,7 +782,11 @@ def critical_step(p: PlantParams, c: ControllerParams, *, integrator: str = "rk4
         p, c, H, integrator=integrator, substep=substep, **coupling))
     if f(lo) >= 1.0:
         return 0.0
-    return critical_value(f, lo, hi, n=max(8, int(GRID_PER_DECADE * math.log10(hi / lo))))
+    # the grid's points are lo * 10^(j / GRID_PER_DECADE), whatever hi (the same points for
+    # every search), then hi
+    j = np.arange(int(math.floor(GRID_PER_DECADE * math.log10(hi / lo) + 1e-9)) + 1)
+    grid = np.unique(np.append(lo * 10.0 ** (j / GRID_PER_DECADE), hi))
+    return first_instability(f, grid)
 
 
 def _scene_model(scene):
