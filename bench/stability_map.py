@@ -366,11 +366,13 @@ def _observed_rho(name, coupling, H, paths):
 
 
 def _table_row(item):
-    """One coupling on one scene: the predicted largest stable step and the observed one (the
-    first step, on the same log grid from TABLE_LOW, where the real FMUs' co-simulation grows,
-    refined by Brent's method on the observed growth factor)."""
+    """One coupling on one scene: the predicted largest stable step and the observed one: the
+    first step where the real FMUs' co-simulation grows, searched as the prediction is
+    (``first_instability`` on the same grid points, from TABLE_LOW) on the observed growth
+    factor."""
     from orchestration.scene.schema import load_scene
-    from orchestration.studies.stability import GRID_PER_DECADE, critical_step
+    from orchestration.studies.stability import (GRID_PER_DECADE, critical_step,
+                                                 first_instability)
     from orchestration.sweeps.executor import worker_file
     name, coupling, fmus = item
     paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
@@ -380,7 +382,7 @@ def _table_row(item):
     f = lambda H: _observed_rho(name, coupling, H, paths)  # noqa: E731
     # the prediction's points (STEP_RANGE[0] * 10^(j / GRID_PER_DECADE)) from TABLE_LOW
     grid = TABLE_LOW * 10.0 ** (np.arange(3 * GRID_PER_DECADE + 1) / GRID_PER_DECADE)
-    obs = 0.0 if f(TABLE_LOW) >= 1 else first_crossing(f, grid)
+    obs = 0.0 if f(TABLE_LOW) >= 1 else first_instability(f, grid)
     return {"scene": name, **coupling, "predicted": pred, "observed": obs}
 
 
