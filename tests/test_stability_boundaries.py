@@ -1,6 +1,7 @@
 """The co-simulation's stability boundaries: the transition matrix of one communication step
-(orchestration/studies/stability.py) against independent computations, and the real FMUs on the master
-at three points just inside and three just outside each predicted boundary.
+(orchestration/studies/stability.py) against independent computations, and the real (native) FMUs on
+the master at three points just inside and three just outside each predicted boundary, for held
+inputs and for polynomial ones (input derivatives, Taylor extrapolation from output derivatives).
 
 Observation: the co-simulation's output samples (one per communication step) of a small motion
 (initial.phi = 1e-3) are realised as a linear system (block-Hankel matrix, Kung's method); its
@@ -21,9 +22,10 @@ import pytest
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from orchestration.studies.analysis import max_real_part
 from orchestration.job import run_scene
-from orchestration.scene.schema import scene_from_config
+from orchestration.scene.schema import load_scene, scene_from_config
 from orchestration.studies.stability import (FIXED_STEP_METHODS, METHODS, POLYNOMIAL_METHODS,
-                                             controller_polynomial_step_map, critical_value,
+                                             controller_polynomial_step_map, critical_step,
+                                             critical_value,
                                              highest_mode, integrator_step_limit, linear_plant,
                                              observed_spectral_radius,
                                              plant_polynomial_step_map, plant_step_map,
@@ -292,6 +294,51 @@ def test_cosimulation_step_limit(paths, step_limits, alg, first, e, fidelity, fa
     if fidelity == "linear":
         assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
             (predicted, observed)
+
+
+#: boundaries of polynomial couplings on the filtered scene (flexible_pd_lowpass, its filter 97.3
+#: rad/s, damping 0.1): (algorithm, first, extrapolation, output derivatives), all with input
+#: derivatives; the first is the scenes' default coupling (14.6 ms), the third the largest step
+POLYNOMIAL_LIMITS = [("gauss-seidel", "controller", 2, False),
+                     ("gauss-seidel", "controller", 2, True),
+                     ("gauss-seidel", "controller", 1, False),
+                     ("gauss-seidel", "plant", 1, True)]
+
+
+def _filtered(H, alg, first, e, out_der):
+    sets = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
+            "plant.fidelity": "linear", "master.step": H, "output_interval": H,
+            "stop_time": N_STEPS * H, "master.algorithm": alg, "master.first": first,
+            "master.extrapolation": e, "master.input_derivatives": "true",
+            "master.output_derivatives": str(out_der).lower()}
+    return load_scene("flexible_pd_lowpass", [f"{k}={v}" for k, v in sets.items()])
+
+
+@pytest.fixture(scope="module")
+def polynomial_limits():
+    sc = load_scene("flexible_pd_lowpass")
+    return {(alg, first, e, o): critical_step(
+        sc.plant.params, sc.controller, algorithm=alg, first=first, extrapolation=e,
+        input_derivatives=True, output_derivatives=o) for alg, first, e, o in POLYNOMIAL_LIMITS}
+
+
+@pytest.mark.parametrize("factor", FACTORS)
+@pytest.mark.parametrize("alg,first,e,out_der", POLYNOMIAL_LIMITS,
+                         ids=["default-gs-quadratic", "gs-quadratic-taylor", "gs-linear",
+                              "gs-plant-first-linear-taylor"])
+def test_polynomial_coupling_step_limit(paths, polynomial_limits, alg, first, e, out_der,
+                                        factor):
+    """The native FMUs on the master at three steps on each side of the predicted largest stable
+    step of a coupling with input (and output) derivatives: the observed growth factor is the
+    predicted spectral radius, and the verdict flips at the boundary."""
+    Hc = polynomial_limits[alg, first, e, out_der]
+    scene = _filtered(factor * Hc, alg, first, e, out_der)
+    predicted = spectral_radius(scene_transition_matrix(scene))
+    assert (predicted < 1) == (factor < 1), predicted      # a clean boundary at this margin
+    observed = _observe(scene, paths)
+    assert (observed < 1) == (predicted < 1), (predicted, observed)
+    assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
+        (predicted, observed)
 
 
 # ---------------------------------------------------------------------- the plant's substep limit
