@@ -45,7 +45,7 @@ from controller_fmu.pd_lowpass import ControllerParams  # noqa: E402
 from plant_fmu.dynamics import plant_model  # noqa: E402
 from plant_fmu.integrators import make_stepper  # noqa: E402
 from plant_fmu.params import PlantParams  # noqa: E402
-from orchestration.studies.stability import (SCHEMES as HELD_SCHEMES, first_crossing,
+from orchestration.studies.stability import (SCHEMES as HELD_SCHEMES,
                                              highest_mode,
                                              integrator_step_limit, linear_plant,
                                              observed_spectral_radius,
@@ -59,7 +59,7 @@ DEFAULT_CUTOFF = 150.0
 #: the map's rows: (label, algorithm, first FMU, input derivatives); the last is the scenes'
 #: default coupling (its p = 2 panel; at p = 0 input derivatives change nothing)
 SCHEMES = tuple((label, alg, first, False) for label, alg, first in HELD_SCHEMES) + (
-    ("gs-controller-first, input derivatives", "gauss-seidel", "controller", True),)
+    ("gs-input-derivatives", "gauss-seidel", "controller", True),)
 
 
 def log(msg):
@@ -127,12 +127,12 @@ def predicted_map(p, Hs, cutoffs, substep, ex):
 
 
 def _critical_step(item):
+    from orchestration.studies.stability import critical_step
     p, alg, first, e, ind, substep = item
     c = ControllerParams(cutoff=DEFAULT_CUTOFF, filter_damping=0.5)
-    grid = np.geomspace(2e-4, 4e-2, 240)
-    return first_crossing(lambda H: spectral_radius(
-        transition_matrix(p, c, H, algorithm=alg, first=first, extrapolation=e,
-                          input_derivatives=ind, substep=substep)), grid)
+    Hc = critical_step(p, c, algorithm=alg, first=first, extrapolation=e, input_derivatives=ind,
+                       substep=substep, hi=4e-2)
+    return Hc or None
 
 
 def critical_steps(p, substep, ex):
