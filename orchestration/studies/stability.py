@@ -539,7 +539,7 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
                                step_index=0, plant_map=plant_map, _predictor=True)
         Yold, Fold = [Mp[iy[0]], Y[0]], [Mp[iF[0]], F[0]]
         old = dict(newest=True)
-        s_old = s_new = 2
+        s_new = 2
     else:
         Yold, Fold, old = Y[:s_old], F[:s_old], {}
 
