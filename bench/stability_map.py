@@ -2,6 +2,7 @@
 
     python bench/stability_map.py            # the full map (a few minutes on one core)
     python bench/stability_map.py --quick    # a coarse map (under a minute)
+    python bench/stability_map.py --table    # the largest stable step per coupling, 2 scenes
 
 1. Map over the communication step H and the filter cutoff (2nd-order filter, damping 0.5, PD
    500/5, n_modes = 4, plant RK4 with substep 2.5e-4), one panel per coupling scheme (Jacobi,
@@ -44,15 +45,21 @@ from controller_fmu.pd_lowpass import ControllerParams  # noqa: E402
 from plant_fmu.dynamics import plant_model  # noqa: E402
 from plant_fmu.integrators import make_stepper  # noqa: E402
 from plant_fmu.params import PlantParams  # noqa: E402
-from orchestration.studies.stability import (SCHEMES, first_crossing, highest_mode,
+from orchestration.studies.stability import (SCHEMES as HELD_SCHEMES,
+                                             highest_mode,
                                              integrator_step_limit, linear_plant,
-                                             observed_spectral_radius, plant_step_map,
+                                             observed_spectral_radius,
+                                             plant_polynomial_step_map,
                                              spectral_radius, substep_matrix,
                                              substep_spectral_radius, transition_matrix)
 
 METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau")
 OBSERVED = ["phi_o", "omega_o", "F_c", "phi", "eta_1", "eta_2", "eta_3", "eta_4"]
 DEFAULT_CUTOFF = 150.0
+#: the map's rows: (label, algorithm, first FMU, input derivatives); the last is the scenes'
+#: default coupling (its p = 2 panel; at p = 0 input derivatives change nothing)
+SCHEMES = tuple((label, alg, first, False) for label, alg, first in HELD_SCHEMES) + (
+    ("gs-input-derivatives", "gauss-seidel", "controller", True),)
 
 
 def log(msg):
@@ -101,15 +108,15 @@ def _predicted_row(item):
     """rho[scheme, extrapolation, cutoff] at one communication step H."""
     p, H, cutoffs, substep = item
     plant = linear_plant(p)
-    pm = plant_step_map("rk4", plant.A, plant.B, plant.nq, float(H), substep)
+    pm = plant_polynomial_step_map("rk4", plant.A, plant.B, plant.nq, float(H), substep)
     rho = np.empty((len(SCHEMES), 3, len(cutoffs)))
-    for s, (_, alg, first) in enumerate(SCHEMES):
+    for s, (_, alg, first, ind) in enumerate(SCHEMES):
         for e in range(3):
             for j, wc in enumerate(cutoffs):
                 c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
                 rho[s, e, j] = spectral_radius(transition_matrix(
                     p, c, float(H), algorithm=alg, first=first, extrapolation=e,
-                    substep=substep, plant_map=pm))
+                    input_derivatives=ind, substep=substep, plant_map=pm))
     return rho
 
 
@@ -120,27 +127,27 @@ def predicted_map(p, Hs, cutoffs, substep, ex):
 
 
 def _critical_step(item):
-    p, alg, first, e, substep = item
+    from orchestration.studies.stability import critical_step
+    p, alg, first, e, ind, substep = item
     c = ControllerParams(cutoff=DEFAULT_CUTOFF, filter_damping=0.5)
-    grid = np.geomspace(2e-4, 4e-2, 240)
-    return first_crossing(lambda H: spectral_radius(
-        transition_matrix(p, c, H, algorithm=alg, first=first, extrapolation=e,
-                          substep=substep)), grid)
+    Hc = critical_step(p, c, algorithm=alg, first=first, extrapolation=e, input_derivatives=ind,
+                       substep=substep, hi=4e-2)
+    return Hc or None
 
 
 def critical_steps(p, substep, ex):
-    cases = [(label, alg, first, e) for label, alg, first in SCHEMES for e in range(3)]
-    Hcs = run_tasks(ex, _critical_step, [(p, alg, first, e, substep)
-                                         for _, alg, first, e in cases], "critical steps")
+    cases = [(label, alg, first, e, ind) for label, alg, first, ind in SCHEMES for e in range(3)]
+    Hcs = run_tasks(ex, _critical_step, [(p, alg, first, e, ind, substep)
+                                         for _, alg, first, e, ind in cases], "critical steps")
     out = {}
-    for (label, _, _, e), Hc in zip(cases, Hcs):
+    for (label, _, _, e, _), Hc in zip(cases, Hcs):
         out[f"{label} p={e}"] = Hc
         log(f"critical H at cutoff {DEFAULT_CUTOFF:g}: {label:20s} p={e}: "
             f"{'none below 40 ms' if Hc is None else f'{Hc * 1e3:.4f} ms'}")
     return out
 
 
-def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
+def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes, ind=False):
     from orchestration.job import run_scene
     from orchestration.scene.schema import scene_from_config
     scene = scene_from_config("stability_map", {
@@ -148,7 +155,7 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
         "controller.filter_damping": 0.5, "initial.phi": 1e-3, "master.step": float(H),
         "output_interval": float(H), "stop_time": n_steps * float(H), "master.algorithm": alg,
         "master.first": first, "master.extrapolation": e, "plant.fidelity": "nonlinear",
-        "master.input_derivatives": False})
+        "master.input_derivatives": ind})
     r = run_scene(scene, paths, progress=False)
     if r.summary["stopped"] is not None:   # diverged (phi beyond pi/2, energy beyond 1e6): grows
         return math.inf, r.summary["stopped"]["reason"]
@@ -159,12 +166,13 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes):
 def _observed_point(item):
     """One point of the map: the predicted radius and the observed co-simulation."""
     from orchestration.sweeps.executor import worker_file
-    p, fmus, label, alg, first, e, H, wc, substep, n_steps = item
+    p, fmus, label, alg, first, e, ind, H, wc, substep, n_steps = item
     paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
     c = ControllerParams(cutoff=float(wc), filter_damping=0.5)
     pred = spectral_radius(transition_matrix(p, c, float(H), algorithm=alg, first=first,
-                                             extrapolation=e, substep=substep))
-    obs, failure = observe_cosim(paths, alg, first, e, H, wc, n_steps, p.n_modes)
+                                             extrapolation=e, input_derivatives=ind,
+                                             substep=substep))
+    obs, failure = observe_cosim(paths, alg, first, e, H, wc, n_steps, p.n_modes, ind)
     return {"scheme": label, "extrapolation": e, "H": float(H), "cutoff": float(wc),
             "rho_predicted": pred, "rho_observed": obs, "agree": (obs < 1) == (pred < 1),
             "failure": failure}
@@ -172,8 +180,9 @@ def _observed_point(item):
 
 def observed_map(p, Hs, cutoffs, substep, n_steps, ex, fmus):
     """``fmus``: role -> (shipped name, path), see orchestration.sweeps.executor.worker_file."""
-    items = [(p, fmus, label, alg, first, e, float(H), float(wc), substep, n_steps)
-             for label, alg, first in SCHEMES for e in range(3) for H in Hs for wc in cutoffs]
+    items = [(p, fmus, label, alg, first, e, ind, float(H), float(wc), substep, n_steps)
+             for label, alg, first, ind in SCHEMES for e in range(3) for H in Hs
+             for wc in cutoffs]
     return run_tasks(ex, _observed_point, items, "observed co-simulations")
 
 
@@ -248,11 +257,12 @@ def plot_map(path, Hs, cutoffs, rho, observed, crit):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
-    fig, axes = plt.subplots(3, 3, figsize=(15, 12), sharex=True, sharey=True)
+    fig, axes = plt.subplots(len(SCHEMES), 3, figsize=(15, 4 * len(SCHEMES)), sharex=True,
+                             sharey=True)
     # the rate per second of the slowest-decaying mode, log(rho)/H, clipped
     L = np.log(np.clip(rho, 1e-300, None)) / Hs[None, None, :, None]
     norm = TwoSlopeNorm(vmin=-3.0, vcenter=0.0, vmax=3.0)
-    for s, (label, _, _) in enumerate(SCHEMES):
+    for s, (label, _, _, _) in enumerate(SCHEMES):
         for e in range(3):
             ax = axes[s, e]
             im = ax.pcolormesh(Hs * 1e3, cutoffs, L[s, e].T, cmap="RdBu_r", norm=norm,
@@ -277,7 +287,7 @@ def plot_map(path, Hs, cutoffs, rho, observed, crit):
             ax.set_xscale("log")
             ax.set_title(f"{label}, p = {e}" + (f": H_c = {Hc * 1e3:.2f} ms" if Hc else ""),
                          fontsize=9)
-            if s == 2:
+            if s == len(SCHEMES) - 1:
                 ax.set_xlabel("communication step H, ms")
             if e == 0:
                 ax.set_ylabel("filter cutoff, rad/s")
@@ -328,10 +338,94 @@ def write_csv(path, rows):
         w.writerows(rows)
 
 
+# ---------------------------------------------------------------------- 3. the table per coupling
+TABLE_SCENES = ("flexible_pd_lowpass", "rigid_pd")
+#: the observation: the FMU's linear plant (its samples are exactly a linear system's, so the
+#: observed growth equals rho(Phi) to rounding), a small motion, nothing stops the run
+OBSERVE_SETS = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
+                "plant.fidelity": "linear"}
+TABLE_STEPS = 60            # communication steps per observed run
+TABLE_LOW = 1e-3            # the observed search starts here (s)
+
+
+def _observed_rho(name, coupling, H, paths):
+    """The observed growth factor per step of scene ``name`` with ``coupling`` at step ``H``."""
+    from orchestration.job import run_scene
+    from orchestration.scene.schema import load_scene
+    sets = {**OBSERVE_SETS, "master.step": H, "output_interval": H, "stop_time": TABLE_STEPS * H,
+            **{f"master.{k}": v for k, v in coupling.items()}}
+    scene = load_scene(name, [f"{k}={str(v).lower() if isinstance(v, bool) else v}"
+                              for k, v in sets.items()])
+    r = run_scene(scene, paths, progress=False)
+    if r.summary["stopped"] is not None:
+        return math.inf
+    Y = np.column_stack([r.result[c] for c in OBSERVED if c in r.result.dtype.names])
+    if not np.all(np.abs(Y) < 1e100):     # overflowing (or past it): it grows
+        return math.inf
+    return observed_spectral_radius(Y[scene.master.extrapolation + 2:], rtol=1e-8)
+
+
+def _table_row(item):
+    """One coupling on one scene: the predicted largest stable step and the observed one: the
+    first step where the real FMUs' co-simulation grows, searched as the prediction is
+    (``first_instability`` on the same grid points, from TABLE_LOW) on the observed growth
+    factor."""
+    from orchestration.scene.schema import load_scene
+    from orchestration.studies.stability import (GRID_PER_DECADE, critical_step,
+                                                 first_instability)
+    from orchestration.sweeps.executor import worker_file
+    name, coupling, fmus = item
+    paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
+    scene = load_scene(name)
+    pred = critical_step(scene.plant.params, scene.controller, integrator=scene.plant.integrator,
+                         substep=scene.plant.step, **coupling)
+    f = lambda H: _observed_rho(name, coupling, H, paths)  # noqa: E731
+    # the prediction's points (STEP_RANGE[0] * 10^(j / GRID_PER_DECADE)) from TABLE_LOW
+    grid = TABLE_LOW * 10.0 ** (np.arange(3 * GRID_PER_DECADE + 1) / GRID_PER_DECADE)
+    obs = 0.0 if f(TABLE_LOW) >= 1 else first_instability(f, grid)
+    return {"scene": name, **coupling, "predicted": pred, "observed": obs}
+
+
+def _ms(v):
+    return "stable to 1 s" if v is None else "unstable" if v == 0 else f"{v * 1e3:.4g}"
+
+
+def stability_table(out, ex, fmus):
+    """The largest stable communication step per coupling on the filtered and the rigid scene,
+    predicted and observed: stability_table.json and stability_table.md, the table printed."""
+    from orchestration.report.text import coupling_text
+    from orchestration.scene.schema import load_scene
+    from orchestration.studies.stability import couplings
+    items = [(name, k, fmus) for name in TABLE_SCENES
+             for k in couplings(load_scene(name).master)]
+    rows = run_tasks(ex, _table_row, items, "stability table")
+    by = {(r["scene"], coupling_text(r)): r for r in rows}
+    keys = list(dict.fromkeys(coupling_text(r) for r in rows))
+    head = ("| coupling | " + " | ".join(f"{n}: predicted (ms) | observed (ms)"
+                                        for n in TABLE_SCENES) + " |")
+    lines = [head, "|" + "---|" * (1 + 2 * len(TABLE_SCENES))]
+    for k in keys:
+        cells = [f"{_ms(by[n, k]['predicted'])} | {_ms(by[n, k]['observed'])}"
+                 for n in TABLE_SCENES]
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    table = "\n".join(lines) + "\n"
+    (out / "stability_table.md").write_text(table)
+    (out / "stability_table.json").write_text(json.dumps(rows, indent=2))
+    print(table)
+    worst = max(abs(r["observed"] / r["predicted"] - 1) for r in rows
+                if r["predicted"] and r["observed"])
+    print(f"largest relative difference observed/predicted: {worst:.2e}")
+    print(f"wrote {out}/stability_table.md, stability_table.json")
+    return 0
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="coarse grids (under a minute)")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"), help="output folder")
+    ap.add_argument("--table", action="store_true",
+                    help="only the table of the largest stable step per coupling on the filtered "
+                         "and the rigid scene, predicted and observed (docs/stability.md)")
     ap.add_argument("--no-observe", action="store_true",
                     help="predicted map and limits only (no co-simulations)")
     ap.add_argument("--workers", type=int, default=None, metavar="N",
@@ -348,7 +442,7 @@ def main(argv=None):
         return 2
     from orchestration.export import build_fmus
     from orchestration.sweeps.executor import file_name, open_executor
-    built = build_fmus()
+    built = build_fmus(flavour="native")
     fmu_paths = {"plant": built["FlexiblePendulum"], "controller": built["PDLowPass"]}
     fmus = {role: (file_name(path), str(path)) for role, path in fmu_paths.items()}
     try:
@@ -360,6 +454,8 @@ def main(argv=None):
     log(f"running on {ex.describe()}" + (f"; dask dashboard {ex.dashboard}"
                                          if ex.dashboard else ""))
     with ex:
+        if args.table:
+            return stability_table(out, ex, fmus)
         return _study(args, out, ex, fmus)
 
 
@@ -381,7 +477,7 @@ def _study(args, out, ex, fmus):
     write_csv(out / "stability_map.csv", [
         {"scheme": lab, "extrapolation": e, "H": float(H), "cutoff": float(wc),
          "rho": float(rho[s, e, i, j])}
-        for s, (lab, _, _) in enumerate(SCHEMES) for e in range(3)
+        for s, (lab, _, _, _) in enumerate(SCHEMES) for e in range(3)
         for i, H in enumerate(Hs) for j, wc in enumerate(cutoffs)])
     observed = [] if args.no_observe else observed_map(p, Ho, co, substep, 120, ex, fmus)
     if observed:

@@ -26,7 +26,7 @@ from .studies.design import DESIGN_DEFAULTS, design_filter, design_settings
 from .sweeps.executor import open_executor
 from .sweeps.job import Sweep, sweep
 
-__all__ = ["load_scene", "simulate", "analyze", "design", "sweep", "build_fmus", "Scene", "Run",
+__all__ = ["load_scene", "simulate", "analyze", "stability", "design", "sweep", "build_fmus", "Scene", "Run",
            "Analysis", "DesignReport", "Sweep"]
 
 
@@ -49,6 +49,23 @@ def analyze(scene=None, overrides=None) -> Analysis:
     dict of scene keys (``{"plant.n_modes": 3, "controller.filter_order": 0}``)."""
     sc = _resolved(scene, overrides, "analyze")
     return _analyze(sc.plant.params, sc.controller)
+
+
+def stability(scene=None, overrides=None) -> dict:
+    """The largest stable communication step of the scene's coupling and of every coupling the
+    master offers, and the plant method's substep limit (``flexpend stability``;
+    :func:`orchestration.studies.stability.stability_report`), with ``"assumes"``: what the
+    prediction assumes (:func:`~orchestration.studies.stability.assumptions`). A ConfigError
+    for a scene whose co-simulation has no transition matrix (adaptive, Model Exchange, an
+    adaptive plant method)."""
+    from .studies.stability import assumptions, stability_report
+
+    sc = _resolved(scene, overrides, "stability")
+    try:
+        report = stability_report(sc)
+    except ValueError as exc:
+        raise ConfigError(f"{sc.name}: no prediction: {exc}") from None
+    return {**report, "name": sc.name, "assumes": assumptions(sc)}
 
 
 def design(scene=None, overrides=None, *, design: dict | None = None, workers: int | None = None,

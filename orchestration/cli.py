@@ -4,6 +4,8 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
+    flexpend stability SCENE [--set key=value ...] [--json]
+                                                        the largest stable communication steps
     flexpend design [--set key=value ...] [--json] [--out DIR] [--workers N | --scheduler ADDR]
                                                         robust low-pass filter design
     flexpend sweep SCENE [--grid ...] [--values ...] [--sample ... --samples N] [--workers N]
@@ -170,6 +172,18 @@ def cmd_analyze(args) -> int:
     return 0
 
 
+def cmd_stability(args) -> int:
+    from .api import stability
+    from .report.text import stability_lines
+
+    r = stability(args.scene, args.set)
+    if args.json:
+        print(_json({"scene": r["scene"], "couplings": r["couplings"]}))
+    else:
+        _print(stability_lines(r))
+    return 0
+
+
 def cmd_design(args) -> int:
     from .api import design
     from .report.text import design_lines
@@ -196,7 +210,7 @@ def cmd_design(args) -> int:
 def cmd_run(args) -> int:
     from .job import EXIT_INTERRUPTED as JOB_INTERRUPTED
     from .job import EXIT_STOPPED as JOB_STOPPED
-    from .job import load_job, run_job
+    from .job import load_job, run_job, step_warning
     from .report.text import run_lines
     from .scene.schema import PAPER_SCENES
 
@@ -211,6 +225,9 @@ def cmd_run(args) -> int:
                    if m.interface == "model-exchange" else f"communication step {m.step:g} s")
             print(f"{scene.name}: running {scene.output.stop_time:g} s ({how})", file=sys.stderr,
                   flush=True)
+            warning = step_warning(scene)
+            if warning:
+                print(f"{scene.name}: warning: {warning}", file=sys.stderr, flush=True)
 
         def report(run, written):
             if not args.json:
@@ -477,6 +494,17 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a parameter, e.g. plant.n_modes=4 or controller.cutoff=150")
     pa.add_argument("--json", action="store_true", help="print the result as JSON")
     pa.set_defaults(func=cmd_analyze)
+
+    pt = sub.add_parser("stability", help="the largest stable communication step per coupling",
+                        description="The largest communication step at which the linearised "
+                                    "co-simulation is stable (rho of the step's transition matrix "
+                                    "= 1), for the scene's coupling and every coupling the master "
+                                    "offers, and the plant method's substep limit.")
+    pt.add_argument("scene", metavar="SCENE", help="a scene name or a path to a .toml file")
+    pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a scene key, e.g. controller.cutoff=150")
+    pt.add_argument("--json", action="store_true", help="print the result as JSON")
+    pt.set_defaults(func=cmd_stability)
 
     pd = sub.add_parser("design", help="robust design of the low-pass filter",
                         description="Search the filter order, cutoff and damping for the largest "

@@ -44,6 +44,7 @@ from .studies.fidelity import select_model
 from .studies.reference import COLUMNS, simulate_reference
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
+           "step_warning",
            "check_wiring", "plant_start_values", "controller_start_values", "RECORD",
            "EXIT_STOPPED", "EXIT_INTERRUPTED"]
 
@@ -412,3 +413,47 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
         if not job.runs:
             write_json(out / "summary.json", {})
     return job
+
+
+#: the predictions of :func:`step_warning` kept (the newest)
+_WARNINGS_KEPT = 256
+
+
+def step_warning(scene) -> str | None:
+    """One line when the scene's communication step is beyond its coupling's predicted largest
+    stable step (:func:`orchestration.studies.stability.step_warning`), else None. Kept in
+    ``<home>/stability_warnings.json`` (:func:`orchestration.export.places.home`) by the scene's
+    plant, controller and master and the predicting module's source: a warm ``flexpend run``
+    neither imports scipy nor searches the step again. A cache that cannot be read or written
+    is only not used."""
+    import hashlib
+    import json
+
+    from .export.places import home
+
+    source = Path(__file__).resolve().parent / "studies" / "stability.py"
+    try:
+        key = hashlib.sha256(repr((scene.plant, scene.controller, scene.master)).encode()
+                             + source.read_bytes()).hexdigest()
+    except OSError:
+        key = None
+    path = home() / "stability_warnings.json"
+    try:
+        kept = json.loads(path.read_text())
+        if not isinstance(kept, dict):
+            kept = {}
+    except (OSError, ValueError):
+        kept = {}
+    if key in kept:
+        return kept[key]
+    from .studies.stability import step_warning as predict
+
+    text = predict(scene)
+    if key is not None:
+        kept.pop(key, None)
+        kept[key] = text
+        try:
+            write_json(path, dict(list(kept.items())[-_WARNINGS_KEPT:]))
+        except OSError:
+            pass
+    return text

@@ -1,6 +1,7 @@
 """The co-simulation's stability boundaries: the transition matrix of one communication step
-(orchestration/studies/stability.py) against independent computations, and the real FMUs on the master
-at three points just inside and three just outside each predicted boundary.
+(orchestration/studies/stability.py) against independent computations, and the real (native) FMUs on
+the master at three points just inside and three just outside each predicted boundary, for held
+inputs and for polynomial ones (input derivatives, Taylor extrapolation from output derivatives).
 
 Observation: the co-simulation's output samples (one per communication step) of a small motion
 (initial.phi = 1e-3) are realised as a linear system (block-Hankel matrix, Kung's method); its
@@ -21,10 +22,13 @@ import pytest
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from orchestration.studies.analysis import max_real_part
 from orchestration.job import run_scene
-from orchestration.scene.schema import scene_from_config
-from orchestration.studies.stability import (METHODS, critical_value, highest_mode,
-                                             integrator_step_limit, linear_plant,
-                                             observed_spectral_radius, plant_step_map,
+from orchestration.scene.schema import load_scene, scene_from_config
+from orchestration.studies.stability import (FIXED_STEP_METHODS, METHODS, POLYNOMIAL_METHODS,
+                                             controller_polynomial_step_map, critical_step,
+                                             critical_value,
+                                             highest_mode, integrator_step_limit, linear_plant,
+                                             observed_spectral_radius,
+                                             plant_polynomial_step_map, plant_step_map,
                                              scene_transition_matrix, spectral_radius,
                                              transition_matrix)
 from plant_fmu.dynamics import linear_plant_model
@@ -43,8 +47,10 @@ N_STEPS = 60
 
 
 @pytest.fixture(scope="module")
-def paths(fmus):
-    return {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
+def paths(native):
+    """The native FMUs (the scenes' default, master.fmus = "native"; they give output
+    derivatives)."""
+    return {"plant": native["FlexiblePendulum"], "controller": native["PDLowPass"]}
 
 
 def _scene(**values):
@@ -89,6 +95,54 @@ def test_plant_step_map_is_the_steppers_map(method):
     probed = np.array(cols).T
     np.testing.assert_allclose(np.hstack([Phi, Gamma]), probed, rtol=0,
                                atol=1e-12 * np.abs(probed).max())
+
+
+@pytest.mark.parametrize("method", FIXED_STEP_METHODS)
+def test_polynomial_plant_map_is_the_steppers_map(method):
+    """The plant's map for a polynomial input (FMI's input derivatives) equals the real stepper
+    given ``set_input(u, du, d2u)`` (the RK stages at their stage times), or, for the methods
+    that hold an input, given the polynomial's average over the step (as the plant FMU's
+    do_step): probed column by column, off the substep grid."""
+    p = PlantParams(n_modes=2)
+    m = linear_plant_model(p)
+    H, h = 1.1e-3, 2.5e-4
+    Phi, Gamma = plant_polynomial_step_map(method, m.A, m.B, m.nq, H, h)
+    cols = []
+    for i in range(m.nx + 3):
+        y0, u = np.zeros(m.nx), np.zeros(3)
+        if i < m.nx:
+            y0[i] = 1.0
+        else:
+            u[i - m.nx] = 1.0
+        st = make_stepper(method, m, 0.0, y0, h=h)
+        if method in POLYNOMIAL_METHODS:
+            st.set_input(*u, t=0.0)
+        else:
+            st.u = u[0] + H * (0.5 * u[1] + H * u[2] / 6.0)
+        assert st.advance(H) == (True, None)
+        cols.append(st.y)
+    probed = np.array(cols).T
+    np.testing.assert_allclose(np.hstack([Phi, Gamma]), probed, rtol=0,
+                               atol=1e-12 * np.abs(probed).max())
+    with pytest.raises(ValueError, match="dopri5"):
+        plant_polynomial_step_map("dopri5", m.A, m.B, m.nq, H, h)
+
+
+def test_controller_polynomial_map_is_the_filter_driven_by_the_polynomial():
+    """The controller's map for polynomial sensors against the filter's ODE driven by the
+    polynomial error signal, integrated by scipy to 1e-12."""
+    from scipy.integrate import solve_ivp
+    c = ControllerParams(kx=3.0)
+    ctrl = PDLowPassModel(c)
+    H = 7e-3
+    Ad, G = controller_polynomial_step_map(c, H)
+    xc0, y = np.array([0.3, -2.0]), np.array([[0.1, 0.2, -0.5], [1.0, -3.0, 2.0],
+                                               [20.0, 5.0, -7.0]])   # y, y', y''
+    e = ctrl.gains[0] @ y.T
+    sol = solve_ivp(lambda s, xc: ctrl.Af @ xc + ctrl.Bf[:, 0] * (e[0] + e[1] * s
+                                                                  + e[2] * s * s / 2),
+                    (0, H), xc0, rtol=1e-12, atol=1e-14, method="DOP853")
+    np.testing.assert_allclose(Ad @ xc0 + G @ y.ravel(), sol.y[:, -1], rtol=1e-9)
 
 
 def test_stability_functions_at_known_limits():
@@ -137,39 +191,68 @@ def test_gauss_seidel_orders_have_one_spectrum(p_extra):
         np.testing.assert_allclose(big[0], big[1], atol=1e-9)
 
 
+def _hand_stepped(scene, n_rows, H):
+    """The samples ``(phi_o, omega_o, x_o, F_c)`` of the transition matrices stepped by hand from
+    the master's consistent initial outputs (with output derivatives: the initial ones, the
+    input derivatives 0), as ``transition_matrix`` lays out ``z``."""
+    m = scene.master
+    p_extra, taylor = m.extrapolation, m.output_derivatives
+    plant = linear_plant(scene.plant.params, drift_free=False)
+    ctrl = PDLowPassModel(scene.controller)
+    Ac, Bc, Cc, Dc = ctrl.state_space()
+    x0 = linear_plant_model(scene.plant.params).initial_state(phi=1e-3)
+    nx, nc, P = len(x0), ctrl.nx, p_extra + 1
+    y0 = plant.C @ x0
+    F0 = (Dc @ y0)[0]                         # F_c(0): -e(0) without filter, else 0
+    z = np.zeros(nx + nc + 3 * P + P)
+    z[:nx] = x0
+    iy, iF = nx + nc, nx + nc + 3 * P
+    z[iy:iy + 3] = y0
+    z[iF] = F0
+    if taylor:                                # the FMUs' initial output derivatives
+        d1 = plant.A @ x0 + plant.B[:, 0] * F0
+        dc = Bc @ y0                          # xc(0) = 0, the sensors' derivatives 0
+        ders = [(plant.C @ d1, (Cc @ dc)[0]), (plant.C @ plant.A @ d1, (Cc @ Ac @ dc)[0])]
+        for j in range(1, P):
+            z[iy + 3 * j:iy + 3 * j + 3], z[iF + j] = ders[j - 1]
+    rows = []
+    for k in range(n_rows):
+        x_o, phi_o, omega_o = plant.C @ z[:nx]
+        rows.append((phi_o, omega_o, x_o, z[iF]))
+        z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
+    return np.array(rows)
+
+
+#: the couplings of the hand-stepped comparison: (extrapolation, input derivatives, output
+#: derivatives, plant integrator); the scenes' default is (2, True, False, "rk4")
+COUPLINGS = [(0, False, False, "rk4"), (1, False, False, "rk4"), (2, False, False, "rk4"),
+             (1, True, False, "rk4"), (2, True, False, "rk4"), (1, True, True, "rk4"),
+             (2, True, True, "rk4"), (2, True, False, "symplectic_euler"),
+             (2, True, False, "euler"), (2, True, True, "exponential")]
+
+
 @pytest.mark.parametrize("filter_order", [2, 0])
 @pytest.mark.parametrize("algorithm,first", [("jacobi", "controller"),
                                              ("gauss-seidel", "controller"),
                                              ("gauss-seidel", "plant")])
-@pytest.mark.parametrize("p_extra", [0, 1, 2])
+@pytest.mark.parametrize("p_extra,in_der,out_der,method", COUPLINGS,
+                         ids=[f"p{c[0]}{'-in' if c[1] else ''}{'-out' if c[2] else ''}-{c[3]}"
+                              for c in COUPLINGS])
 def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, algorithm, first,
-                                                           p_extra):
+                                                           p_extra, in_der, out_der, method):
     """The linear map stepped by hand (start-up steps with fewer samples included) against the
     master with the real FMUs and the linear plant: every sample of phi_o, omega_o, x and F_c, at
-    a step off the plant's substep grid (4 substeps of 2.5e-4 and one of 1e-4)."""
+    a step off the plant's substep grid (4 substeps of 2.5e-4 and one of 1e-4), for held and
+    polynomial inputs (input derivatives) and Taylor extrapolation (output derivatives)."""
     H = 1.1e-3
     scene = _scene(**{"master.step": H, "master.algorithm": algorithm, "master.first": first,
-                      "master.extrapolation": p_extra, "plant.fidelity": "linear",
-                      "plant.n_modes": 2, "controller.filter_order": filter_order,
-                      "controller.kx": 3.0, "n_steps": 25})
+                      "master.extrapolation": p_extra, "master.input_derivatives": in_der,
+                      "master.output_derivatives": out_der, "plant.integrator": method,
+                      "plant.fidelity": "linear", "plant.n_modes": 2,
+                      "controller.filter_order": filter_order, "controller.kx": 3.0,
+                      "n_steps": 25})
     res = run_scene(scene, paths, progress=False).result
-    plant = linear_plant(scene.plant.params, drift_free=False)
-    ctrl = PDLowPassModel(scene.controller)
-    x0 = linear_plant_model(scene.plant.params).initial_state(phi=1e-3)
-    nx, nc, P = len(x0), ctrl.nx, p_extra + 1
-    # z = [x, xc, y_k..y_k-p, F_k..F_k-p]; the consistent initial outputs, no older samples
-    z = np.zeros(nx + nc + 3 * P + P)
-    z[:nx] = x0
-    z[nx + nc:nx + nc + 3] = plant.C @ x0
-    iF = nx + nc + 3 * P
-    z[iF] = (ctrl.D @ plant.C @ x0)[0]           # F_c(0): -e(0) without filter, else 0
-    rows = []
-    for k in range(len(res)):
-        x_o, phi_o, omega_o = plant.C @ z[:nx]
-        rows.append((phi_o, omega_o, x_o, z[iF]))
-        z = transition_matrix(scene.plant.params, scene.controller, H, algorithm=algorithm, first=first,
-                              extrapolation=p_extra, drift_free=False, step_index=k) @ z
-    hand = np.array(rows)
+    hand = _hand_stepped(scene, len(res), H)
     for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
         scale = np.abs(res[col]).max()
         np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
@@ -211,6 +294,51 @@ def test_cosimulation_step_limit(paths, step_limits, alg, first, e, fidelity, fa
     if fidelity == "linear":
         assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
             (predicted, observed)
+
+
+#: boundaries of polynomial couplings on the filtered scene (flexible_pd_lowpass, its filter 97.3
+#: rad/s, damping 0.1): (algorithm, first, extrapolation, output derivatives), all with input
+#: derivatives; the first is the scenes' default coupling (14.6 ms), the third the largest step
+POLYNOMIAL_LIMITS = [("gauss-seidel", "controller", 2, False),
+                     ("gauss-seidel", "controller", 2, True),
+                     ("gauss-seidel", "controller", 1, False),
+                     ("gauss-seidel", "plant", 1, True)]
+
+
+def _filtered(H, alg, first, e, out_der):
+    sets = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
+            "plant.fidelity": "linear", "master.step": H, "output_interval": H,
+            "stop_time": N_STEPS * H, "master.algorithm": alg, "master.first": first,
+            "master.extrapolation": e, "master.input_derivatives": "true",
+            "master.output_derivatives": str(out_der).lower()}
+    return load_scene("flexible_pd_lowpass", [f"{k}={v}" for k, v in sets.items()])
+
+
+@pytest.fixture(scope="module")
+def polynomial_limits():
+    sc = load_scene("flexible_pd_lowpass")
+    return {(alg, first, e, o): critical_step(
+        sc.plant.params, sc.controller, algorithm=alg, first=first, extrapolation=e,
+        input_derivatives=True, output_derivatives=o) for alg, first, e, o in POLYNOMIAL_LIMITS}
+
+
+@pytest.mark.parametrize("factor", FACTORS)
+@pytest.mark.parametrize("alg,first,e,out_der", POLYNOMIAL_LIMITS,
+                         ids=["default-gs-quadratic", "gs-quadratic-taylor", "gs-linear",
+                              "gs-plant-first-linear-taylor"])
+def test_polynomial_coupling_step_limit(paths, polynomial_limits, alg, first, e, out_der,
+                                        factor):
+    """The native FMUs on the master at three steps on each side of the predicted largest stable
+    step of a coupling with input (and output) derivatives: the observed growth factor is the
+    predicted spectral radius, and the verdict flips at the boundary."""
+    Hc = polynomial_limits[alg, first, e, out_der]
+    scene = _filtered(factor * Hc, alg, first, e, out_der)
+    predicted = spectral_radius(scene_transition_matrix(scene))
+    assert (predicted < 1) == (factor < 1), predicted      # a clean boundary at this margin
+    observed = _observe(scene, paths)
+    assert (observed < 1) == (predicted < 1), (predicted, observed)
+    assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
+        (predicted, observed)
 
 
 # ---------------------------------------------------------------------- the plant's substep limit

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "run_lines",
-           "design_lines", "verdict_lines", "sweep_lines"]
+           "design_lines", "verdict_lines", "sweep_lines", "coupling_text", "stability_lines"]
 
 
 def num(v, spec=".4g") -> str:
@@ -155,6 +155,50 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
     if written:
         out.append(f"  wrote {', '.join(str(w) for w in written)}")
     return out
+
+
+def coupling_text(k: dict) -> str:
+    """A coupling (``transition_matrix``'s keywords) in words."""
+    alg = k["algorithm"] + (f" ({k['first']} first)" if k["algorithm"] == "gauss-seidel" else "")
+    if not k["extrapolation"]:
+        how = "zero-order hold"
+    else:
+        how = f"extrapolation {k['extrapolation']}, " + (
+            "input derivatives" if k["input_derivatives"] else "held average")
+        how += ", output derivatives" if k["output_derivatives"] else ""
+    return f"{alg}, {how}"
+
+
+def _step_text(H) -> str:
+    if H is None:
+        return "stable up to 1 s"
+    if H == 0:
+        return "unstable at every step"
+    return f"{num(H * 1e3)} ms"
+
+
+def stability_lines(r: dict) -> list[str]:
+    """``flexpend stability``: the scene's coupling, its largest stable communication step and
+    the plant's substep limit; then every coupling the master offers, and the one allowing the
+    largest step (:func:`orchestration.api.stability`)."""
+    sc = r["scene"]
+    k = sc["coupling"]
+    h = sc["substep_limit"]
+    lines = [f"{r['name']}: the linear co-simulation's largest stable communication step "
+             "(rho(Phi) = 1)"]
+    lines += [f"  assumes {a}" for a in r["assumes"]]
+    lines += [f"  its coupling: {coupling_text(k)}, master.step = {num(k['step'] * 1e3)} ms",
+              f"    largest stable step: {_step_text(sc['critical_step'])}",
+              "    plant substep limit: " + ("none (A-stable)" if h is None else
+                                             f"{num(h * 1e3)} ms")]
+    rows = r["couplings"]
+    w = max(len(coupling_text(c)) for c in rows)
+    lines.append("  every coupling:")
+    lines += [f"    {coupling_text(c):<{w}}  {_step_text(c['critical_step'])}" for c in rows]
+    key = lambda c: math.inf if c["critical_step"] is None else c["critical_step"]  # noqa: E731
+    best = max(rows, key=key)
+    lines.append(f"  the largest step: {coupling_text(best)} ({_step_text(best['critical_step'])})")
+    return lines
 
 
 def design_lines(d) -> list[str]:

@@ -7,23 +7,42 @@ master (:mod:`orchestration.cosim.master`) is a linear map ``z_{k+1} = Phi z_k``
     z = [x, xc, y_k, y_{k-1} .. y_{k-p}, F_k, F_{k-1} .. F_{k-p}]
 
 (plant state, filter state, the sensor and force samples the extrapolation of order ``p`` uses).
-``Phi`` models what the master does, step by step:
+With output derivatives (``master.output_derivatives``) the registers are the newest samples
+and their first ``p`` time derivatives instead, ``[y_k, y'_k, .., F_k, F'_k, ..]``. ``Phi`` models
+what the master does, step by step:
 
-* each FMU's input is held over ``doStep``: the step average of the polynomial through the last
-  ``p + 1`` samples of its source (:func:`orchestration.cosim.coupling.extrapolation_weights`), fewer at
-  the start;
-* Gauss-Seidel: the second FMU gets the polynomial through the newest samples *including* the first
-  FMU's output at ``t_k+1`` (an interpolation);
+* each source's polynomial is the one through the last ``p + 1`` samples (fewer at the start), or
+  the Taylor polynomial of the newest sample and its derivatives (output derivatives); both are
+  carried as the polynomial's Taylor coefficients ``[u, u', u'']`` at ``t_k``;
+* each FMU gets over ``doStep`` either the step average of that polynomial, held
+  (:func:`orchestration.cosim.coupling.extrapolation_weights`), or (``input_derivatives``, ``p >=
+  1``) its value and its derivatives up to ``min(p, 2)`` at ``t_k`` (FMI's input derivatives);
+* Gauss-Seidel: the second FMU gets the polynomial through the newest samples *including* the
+  first FMU's output at ``t_k+1`` (an interpolation), or the Taylor polynomial of that output;
 * the controller declares direct feedthrough, so before its output is read its inputs are set to
-  the sources' polynomials evaluated at ``t_k+1`` (extrapolated from the samples up to ``t_k``,
-  except after the plant stepped first in Gauss-Seidel, when they are the new samples themselves);
-  only with ``filter_order = 0`` does ``F_c`` depend on them;
-* the controller advances its filter exactly (zero-order hold, ``PDLowPassModel.discretize``);
+  their polynomial's value at ``t_k+1``; only with ``filter_order = 0`` does ``F_c`` depend on
+  them;
+* the controller advances its filter exactly for its input polynomial (held: a constant),
+  :func:`controller_polynomial_step_map` (the filter driven by a chain of integrators, one matrix
+  exponential);
 * the plant FMU advances with its internal method on the substep grid of
   :class:`plant_fmu.integrators.base.Stepper` (whole substeps ``h``, then one shortened substep
-  when ``H`` is not a multiple of ``h``), the input held: for a linear method on a linear plant one
-  substep is a matrix, e.g. RK4's ``R(hA) = I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24`` with its
-  input term (:func:`substep_matrix`).
+  when ``H`` is not a multiple of ``h``), :func:`plant_polynomial_step_map`: the Runge-Kutta
+  stages (and symplectic Euler's substep start) evaluate the input polynomial at their times (the
+  polynomial's coefficients are states with the nilpotent dynamics ``d/dt [u, u', u''] = [u', u'',
+  0]``, moved exactly from substep to substep), while ``genalpha`` and ``exponential`` hold its
+  step average, as the FMUs do; for a linear method on a linear plant one substep is a matrix,
+  e.g. RK4's ``R(hA) = I + hA + (hA)^2/2 + (hA)^3/6 + (hA)^4/24`` with its input terms
+  (:func:`substep_matrix` for a held input);
+* with output derivatives, the FMUs' derivatives at ``t_k+1`` are those of their linear systems
+  driven by the input polynomial of the step just taken, evaluated at its end (as the native FMUs
+  compute them).
+
+Two public step maps are the building blocks (a scheme other than the explicit ones, e.g. an
+iterated one, is composed from them): :func:`plant_polynomial_step_map` ``(Phi, Gamma)`` with
+``x(t+H) = Phi x(t) + Gamma [u, u', u'']`` for the plant FMU's method, and
+:func:`controller_polynomial_step_map` ``(Ad, G)`` with ``xc(t+H) = Ad xc(t) + G [y, y', y'']``
+(``F_c = C xc + D y`` with :class:`~controller_fmu.pd_lowpass.PDLowPassModel`'s ``C, D``).
 
 The spectral radius ``rho(Phi)`` decides: the co-simulation of the linearised loop decays iff
 ``rho < 1``. With ``kx = 0`` the cart's position and velocity are neither fed back nor felt by the
@@ -38,6 +57,7 @@ outputs), which is what the tests and ``bench/stability_map.py`` compare with ``
 """
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -50,11 +70,15 @@ from plant_fmu.dynamics import plant_model
 from plant_fmu.integrators.genalpha import genalpha_parameters
 from plant_fmu.params import PlantParams
 
-from ..cosim.coupling import extrapolation_weights
+from ..scene.keys import ConfigError
 
-__all__ = ["METHODS", "FIXED_STEP_METHODS", "ALGORITHMS", "substep_matrix", "plant_step_map",
+__all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", "substep_matrix",
+           "plant_step_map", "plant_polynomial_step_map", "controller_polynomial_step_map",
+           "scene_coupling", "COUPLING_ORDERS", "couplings", "critical_step", "stability_report",
+           "substep_limit", "assumptions",
+           "step_warning",
            "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
-           "first_crossing", "critical_value", "highest_mode", "sdof_matrix",
+           "first_crossing", "first_instability", "critical_value", "highest_mode", "sdof_matrix",
            "substep_spectral_radius", "integrator_step_limit", "observed_spectral_radius",
            "hankel_poles", "LinearPlant", "SCHEMES"]
 
@@ -62,7 +86,11 @@ __all__ = ["METHODS", "FIXED_STEP_METHODS", "ALGORITHMS", "substep_matrix", "pla
 METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau", "exponential")
 #: the methods the plant FMU runs with fixed substeps (dopri5 and radau are adaptive in the FMU)
 FIXED_STEP_METHODS = ("euler", "symplectic_euler", "rk4", "genalpha", "exponential")
-ALGORITHMS = ("jacobi", "gauss-seidel")
+#: the couplings the master offers, data for :func:`couplings`: per ``master.algorithm`` the
+#: values of ``master.first`` whose maps differ (another algorithm is one line here, with its map
+#: in :func:`transition_matrix`)
+COUPLING_ORDERS = {"jacobi": ("controller",), "gauss-seidel": ("controller", "plant")}
+ALGORITHMS = tuple(COUPLING_ORDERS)
 #: the coupling schemes of the stability map: (label, algorithm, first FMU)
 SCHEMES = (("jacobi", "jacobi", "controller"),
            ("gs-controller-first", "gauss-seidel", "controller"),
@@ -235,6 +263,96 @@ def plant_step_map(method: str, A, B, nq: int, H: float, h: float, rho_inf: floa
     return T[:n, :n], T[:n, n:]
 
 
+#: plant methods that evaluate the input polynomial at their stage times (the others, genalpha
+#: and exponential, hold its average over the communication step: the FMUs' do_step)
+POLYNOMIAL_METHODS = ("euler", "symplectic_euler", "rk4")
+
+
+def _shift(h: float, m: int) -> np.ndarray:
+    """The Taylor coefficients ``[u, u', u'']`` (``m`` inputs each) moved ``h`` ahead: the exact
+    flow of the nilpotent dynamics ``u' = u'``, ``u'' ' = 0``."""
+    T = np.eye(3 * m)
+    T[:m, m:2 * m] = T[m:2 * m, 2 * m:] = h * np.eye(m)
+    T[:m, 2 * m:] = 0.5 * h * h * np.eye(m)
+    return T
+
+
+def _at(s: float, m: int) -> np.ndarray:
+    """The row block evaluating ``u(s) = u + u' s + u'' s^2 / 2`` from ``[u, u', u'']``."""
+    I = np.eye(m)
+    return np.hstack([I, s * I, 0.5 * s * s * I])
+
+
+def _polynomial_substep(method, A, B, nq, h):
+    """One substep ``h`` of ``method`` on ``x' = A x + B u(s)`` as a matrix on ``[x, w]``, ``w`` the
+    input's Taylor coefficients ``[u, u', u'']`` at the substep's start (moved to its end): the
+    Runge-Kutta stages evaluate ``u`` at ``s = c_i h``, symplectic Euler at ``s = 0``."""
+    n, m = B.shape
+    N = n + 3 * m
+    X = np.hstack([np.eye(n), np.zeros((n, 3 * m))])          # selects x
+    Wsel = np.hstack([np.zeros((3 * m, n)), np.eye(3 * m)])   # selects w
+    S = np.zeros((N, N))
+    S[n:] = _shift(h, m) @ Wsel
+    if method == "symplectic_euler":
+        qd = X[nq:] + h * (A[nq:] @ X + B[nq:] @ _at(0.0, m) @ Wsel)
+        S[nq:n] = qd
+        S[:nq] = X[:nq] + h * qd[:n - nq]
+        return S
+    a, b = _tableau(method)
+    c = a.sum(axis=1)
+    K = []
+    for i in range(b.size):
+        Y = X + h * sum((a[i, j] * K[j] for j in range(i) if a[i, j]), np.zeros((n, N)))
+        K.append(A @ Y + B @ _at(c[i] * h, m) @ Wsel)
+    S[:n] = X + h * sum(bi * Ki for bi, Ki in zip(b, K))
+    return S
+
+
+def plant_polynomial_step_map(method: str, A, B, nq: int, H: float, h: float,
+                              rho_inf: float = 0.8):
+    """``(Phi, Gamma)``: the plant FMU's state after one communication step ``H`` when its input
+    is the polynomial ``u(t + s) = u + u' s + u'' s^2 / 2`` (FMI's input derivatives):
+    ``x(t + H) = Phi x(t) + Gamma @ [u, u', u'']`` (``Gamma`` has ``3 m`` columns, the ``m``
+    values, then the first and the second derivatives). The methods of
+    :data:`POLYNOMIAL_METHODS` evaluate the polynomial at their stage times on the substep grid
+    of :func:`plant_step_map`; ``genalpha`` and ``exponential`` hold its average over ``H`` (as
+    the plant FMUs do). A held input is ``[u, 0, 0]``. ValueError for a method that is no fixed
+    linear map in the FMU (``dopri5``, ``radau``: adaptive there)."""
+    if method not in FIXED_STEP_METHODS:
+        raise ValueError(f"method = {method!r}: the plant FMU's step is a fixed linear map only "
+                         f"for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau run adaptively "
+                         f"in the FMU)")
+    if method not in POLYNOMIAL_METHODS:
+        Phi, G = plant_step_map(method, A, B, nq, H, h, rho_inf)
+        return Phi, np.hstack([G, 0.5 * H * G, H * H / 6.0 * G])
+    for name, val in (("H", H), ("h", h)):
+        if not (isinstance(val, (int, float)) and val > 0 and math.isfinite(val)):
+            raise ValueError(f"{name} = {val!r}; allowed: a finite number > 0")
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float).reshape(A.shape[0], -1)
+    n = A.shape[0]
+    T = np.eye(n + 3 * B.shape[1])
+    for count, size in _substeps(H, h):
+        T = np.linalg.matrix_power(_polynomial_substep(method, A, B, nq, size), count) @ T
+    return T[:n, :n], T[:n, n:]
+
+
+def controller_polynomial_step_map(c: ControllerParams, H: float):
+    """``(Ad, G)``: the controller FMU's filter state after one communication step ``H`` when its
+    sensors are the polynomials ``y(t + s) = y + y' s + y'' s^2 / 2``: ``xc(t + H) = Ad xc(t) + G
+    @ [y, y', y'']`` (``y = [x_o, phi_o, omega_o]``; ``G`` has 9 columns), exact (the filter
+    driven by a chain of integrators, one matrix exponential:
+    :meth:`~controller_fmu.pd_lowpass.PDLowPassModel.discretize_polynomial`). Held sensors are
+    ``[y, 0, 0]``. The force is ``F_c = C xc + D y`` (:class:`PDLowPassModel`)."""
+    if not isinstance(c, ControllerParams):
+        raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
+    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
+        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+    ctrl = PDLowPassModel(c)
+    Ad, G = ctrl.discretize_polynomial(float(H))
+    return Ad, np.hstack([G[:, j:j + 1] @ ctrl.gains for j in range(3)])
+
+
 # ---------------------------------------------------------------------- the plant, drift-free
 @dataclass(frozen=True)
 class LinearPlant:
@@ -253,6 +371,11 @@ def linear_plant(p: PlantParams, drift_free: bool = True) -> LinearPlant:
     and then ``C``'s ``x_o`` row is zero."""
     if not isinstance(p, PlantParams):
         raise TypeError(f"p must be a PlantParams, got {type(p).__name__}")
+    return _linear_plant(p, bool(drift_free))
+
+
+@functools.lru_cache(maxsize=64)
+def _linear_plant(p: PlantParams, drift_free: bool) -> LinearPlant:
     A, B, C, _ = plant_model(p).state_space()
     nq = p.n_modes + 2
     keep = np.arange(A.shape[0])
@@ -266,23 +389,25 @@ def linear_plant(p: PlantParams, drift_free: bool = True) -> LinearPlant:
 
 
 # ---------------------------------------------------------------------- the macro step
-def _point_weights(s: int) -> np.ndarray:
-    """Weights (newest sample first) of the polynomial through ``s`` samples at
-    ``t_k, t_k-1, ...`` evaluated one step ahead, at ``t_k+1`` (Lagrange)."""
-    nodes = -np.arange(s, dtype=float)          # in steps, newest first
-    w = np.ones(s)
-    for i in range(s):
-        for j in range(s):
-            if j != i:
-                w[i] *= (1.0 - nodes[j]) / (nodes[i] - nodes[j])
-    return w
+def _taylor_of_samples(nodes, H: float) -> np.ndarray:
+    """``W`` (3 x s): the Taylor coefficients ``[u, u', u'']`` at ``t_k`` (derivatives in
+    seconds) of the polynomial through ``s`` samples at ``nodes`` (in steps from ``t_k``, newest
+    first) are ``W @ samples``; the coefficients beyond its degree are 0."""
+    s = len(nodes)
+    M = np.array([[float(t) ** j / math.factorial(j) for j in range(s)] for t in nodes])
+    W = np.zeros((3, s))
+    W[:s] = np.linalg.inv(M)[:3]
+    return W / (H ** np.arange(3.0))[:, None]
 
 
-def _avg_weights(s: int, shift: int) -> np.ndarray:
-    """Weights (newest first) of the step average over ``[t_k, t_k+1]`` of the polynomial through
-    ``s`` samples ending at ``t_k+shift`` (the master's :func:`extrapolation_weights`)."""
-    times = np.arange(shift - s + 1, shift + 1, dtype=float)   # oldest first, in steps
-    return extrapolation_weights(times, 0.0, 1.0)[::-1]
+def _taylor_moved(q: int, delta: float) -> np.ndarray:
+    """``W`` (3 x q+1): the Taylor coefficients at ``t_k`` from the value and ``q`` derivatives
+    at ``t_k + delta`` (seconds), the polynomial of degree ``q`` (output derivatives)."""
+    W = np.zeros((3, q + 1))
+    for i in range(min(3, q + 1)):
+        for j in range(i, q + 1):
+            W[i, j] = (-delta) ** (j - i) / math.factorial(j - i)
+    return W
 
 
 def _check_scheme(algorithm, first, extrapolation):
@@ -296,20 +421,27 @@ def _check_scheme(algorithm, first, extrapolation):
 
 def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
                       algorithm: str = "gauss-seidel", first: str = "controller",
-                      extrapolation: int = 0, integrator: str = "rk4", substep: float = 2.5e-4,
-                      drift_free: bool = True, step_index: int | None = None,
-                      plant_map=None, _predictor: bool = False) -> np.ndarray:
+                      extrapolation: int = 0, input_derivatives: bool = False,
+                      output_derivatives: bool = False, integrator: str = "rk4",
+                      substep: float = 2.5e-4, drift_free: bool = True,
+                      step_index: int | None = None, plant_map=None,
+                      _predictor: bool = False) -> np.ndarray:
     """``Phi`` with ``z_{k+1} = Phi z_k`` for one communication step ``H`` of the master.
 
     ``z = [x, xc, y_k .. y_k-p, F_k .. F_k-p]`` (``x`` without the cart's position and velocity
-    when ``drift_free`` and ``kx = 0``). ``step_index = k`` gives the map of the ``k``-th step,
-    when fewer than ``p + 1`` samples exist (``None``: the steady map). ``plant_map`` may pass a
-    precomputed :func:`plant_step_map` ``(Phi_p, Gamma_p)`` for the same plant and ``H``.
+    when ``drift_free`` and ``kx = 0``); with ``output_derivatives`` the registers are the
+    newest samples and their ``p`` time derivatives instead, ``[y_k, y'_k .., F_k, F'_k ..]``.
+    ``input_derivatives``: the FMUs get the polynomial's value and derivatives at ``t_k`` (orders
+    up to ``min(p, 2)``) instead of its held step average. ``step_index = k`` gives the map of the
+    ``k``-th step, when fewer than ``p + 1`` samples exist (``None``: the steady map).
+    ``plant_map`` may pass a precomputed :func:`plant_polynomial_step_map` for the same plant
+    and ``H`` (or :func:`plant_step_map`'s, for held inputs only).
 
-    With extrapolation (``p >= 1``) the master predicts the first step with held inputs, rolls
-    it back and takes it again with the inputs interpolated between ``t_0`` and the predicted
-    samples at ``t_1`` (:meth:`orchestration.cosim.master.Master._startup_step`); ``step_index = 0``
-    gives that corrected map.
+    With extrapolation from past samples (``p >= 1``, no output derivatives) the master predicts
+    the first step with held inputs, rolls it back and takes it again with the inputs
+    interpolated between ``t_0`` and the predicted samples at ``t_1``
+    (:meth:`orchestration.cosim.master.Master._startup_step`); ``step_index = 0`` gives that
+    corrected map.
     """
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
@@ -322,15 +454,24 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
     if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
         raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
+    if output_derivatives and not (input_derivatives and extrapolation >= 1):
+        raise ValueError("output_derivatives = True needs input_derivatives = True and "
+                         "extrapolation >= 1 (as master.output_derivatives)")
+    n_der = min(extrapolation, 2) if input_derivatives else 0
+    taylor = bool(output_derivatives)
     plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
     if plant_map is None:
-        plant_map = plant_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
+        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
     Pp, Gp = plant_map
+    if Gp.shape[1] == 1:            # a held-input map
+        if n_der:
+            raise ValueError("plant_map is a held-input map (plant_step_map); input derivatives "
+                             "need plant_polynomial_step_map's")
+        Gp = np.hstack([Gp, np.zeros((Gp.shape[0], 2))])
     ctrl = PDLowPassModel(c)
-    Ad, Bd = ctrl.discretize(float(H))
-    Bd = Bd.reshape(-1, 1) @ ctrl.gains                  # xc' = Ad xc + Bd y (y held)
-    Cc, Dc = ctrl.C, ctrl.D                              # F = Cc xc + Dc y
-    C = plant.C
+    Ad, Gc = controller_polynomial_step_map(c, float(H))
+    Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
+    A, B, C = plant.A, plant.B, plant.C
     nx, nc, ny, P = Pp.shape[0], ctrl.nx, C.shape[0], extrapolation + 1
     # state layout
     ix = slice(0, nx)
@@ -340,70 +481,94 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     iF = [slice(o + j, o + j + 1) for j in range(P)]
     N = o + P
     I = np.eye(N)
-    k = math.inf if step_index is None else step_index
+    k = math.inf if step_index is None or taylor else step_index
     s_old = int(min(P, k + 1))      # samples up to t_k
     s_new = int(min(P, k + 2))      # samples up to t_k+1 (the second FMU of Gauss-Seidel)
-
-    def comb(weights, rows, newest=None):
-        """sum_j w_j rows[j] (newest first); ``newest`` replaces rows[0] and shifts the rest."""
-        rows = rows if newest is None else [newest] + rows[:-1]
-        return sum(w * r for w, r in zip(weights, rows))
-
-    Y = [I[s] for s in iy]          # rows selecting y_k, y_k-1, ...
+    Y = [I[s] for s in iy]          # the registers: y_k, y_k-1, ... (or y_k, y'_k, ...)
     F = [I[s] for s in iF]
     x, xc = I[ix], I[ic]
-    wE = _avg_weights(s_old, 0)     # extrapolation over [t_k, t_k+1] from samples up to t_k
-    wI = _avg_weights(s_new, 1)     # interpolation with the sample at t_k+1
-    wP = _point_weights(s_old)      # point value at t_k+1 from samples up to t_k
+    avg = np.array([1.0, H / 2, H * H / 6])   # the step average of the Taylor polynomial
+    end = np.array([1.0, H, H * H / 2])       # its value at t_k+1
 
-    def plant_step(u):
-        return Pp @ x + Gp @ u
+    def dot(w, rows):
+        return sum((wi * r for wi, r in zip(w, rows) if wi), np.zeros_like(rows[0]))
 
-    def ctrl_step(ybar):
-        return Ad @ xc + Bd @ ybar
+    def coefficients(rows, newest=False):
+        """The Taylor coefficients at ``t_k`` (three row blocks) of the polynomial through the
+        registers ``rows`` (newest first); ``newest``: ``rows[0]`` is the new sample at t_k+1."""
+        if taylor:
+            W = _taylor_moved(P - 1, H if newest else 0.0)
+        else:
+            W = _taylor_of_samples([j + (1 if newest else 0) for j in range(0, -len(rows), -1)],
+                                   H)
+        return [dot(W[i], rows) for i in range(3)]
 
-    if step_index == 0 and P >= 2 and not _predictor:
+    def fmu_input(a):
+        """What the FMU gets over the step, as Taylor coefficients at t_k: the held average, or
+        the value and ``n_der`` derivatives."""
+        if not n_der:
+            return [dot(avg, a), 0 * a[0], 0 * a[0]]
+        return [a[j] if j <= n_der else 0 * a[0] for j in range(3)]
+
+    def plant_step(a):
+        u = fmu_input(a)
+        x1 = Pp @ x + sum(Gp[:, j:j + 1] @ u[j] for j in range(3))
+        if integrator not in POLYNOMIAL_METHODS:       # the FMU holds the average
+            u = [dot(avg, u), 0 * u[0], 0 * u[0]]
+        ue, due = dot(end, u), u[1] + H * u[2]          # the stepper's input at t_k+1
+        d1 = A @ x1 + B @ ue
+        return x1, [C @ x1, C @ d1, C @ (A @ d1 + B @ due)][:P if taylor else 1]
+
+    def ctrl_step(a):
+        u = fmu_input(a)
+        xc1 = Ad @ xc + sum(Gc[:, 3 * j:3 * j + 3] @ u[j] for j in range(3))
+        # the force at t_k+1: the sensors moved to their polynomial's value there
+        out = [Cc @ xc1 + Dc @ dot(end, a)]
+        if taylor:     # the FMU's derivatives: its step's input polynomial at the step's end
+            ye, dye, d2ye = dot(end, u), u[1] + H * u[2], u[2]
+            d1 = Ac @ xc1 + Bc @ ye
+            out += [Cc @ d1 + Dc @ dye, Cc @ (Ac @ d1 + Bc @ dye) + Dc @ d2ye][:P - 1]
+        return xc1, out
+
+    if step_index == 0 and P >= 2 and not taylor and not _predictor:
         # the corrected first step: the predicted samples at t_1 (the map of the held step) stand
         # in for the newest samples; the first FMU interpolates through them and t_0
         Mp = transition_matrix(p, c, H, algorithm=algorithm, first=first,
-                               extrapolation=extrapolation, integrator=integrator,
-                               substep=substep, drift_free=drift_free, step_index=0,
-                               plant_map=plant_map, _predictor=True)
-        yP, FP = Mp[iy[0]], Mp[iF[0]]
-        w2 = _avg_weights(2, 1)
-        Y = [yP] + Y[:P - 1]        # sample registers as the master sees them: t_1 (predicted),
-        F = [FP] + F[:P - 1]        # t_0, ...
-        wE, wI, wP = w2, w2, np.array([1.0])
-        s_corr = True
+                               extrapolation=extrapolation, input_derivatives=input_derivatives,
+                               integrator=integrator, substep=substep, drift_free=drift_free,
+                               step_index=0, plant_map=plant_map, _predictor=True)
+        Yold, Fold = [Mp[iy[0]], Y[0]], [Mp[iF[0]], F[0]]
+        old = dict(newest=True)
+        s_new = 2
     else:
-        s_corr = False
+        Yold, Fold, old = Y[:s_old], F[:s_old], {}
 
     if algorithm == "jacobi":
-        x1 = plant_step(comb(wE, F))
-        xc1 = ctrl_step(comb(wE, Y))
-        y1 = C @ x1
-        F1 = Cc @ xc1 + Dc @ comb(wP, Y)
+        x1, ys = plant_step(coefficients(Fold, **old))
+        xc1, Fs = ctrl_step(coefficients(Yold, **old))
     elif first == "controller":
-        xc1 = ctrl_step(comb(wE, Y))
-        F1 = Cc @ xc1 + Dc @ comb(wP, Y)
-        # the second FMU: through the first FMU's new sample at t_1 (which replaces a predicted one)
-        x1 = plant_step(comb(wI, [F1, I[iF[0]]]) if s_corr else comb(wI, F, newest=F1))
-        y1 = C @ x1
+        xc1, Fs = ctrl_step(coefficients(Yold, **old))
+        # the second FMU: through the first FMU's new sample at t_1 (which replaces a predicted
+        # one)
+        x1, ys = plant_step(coefficients(Fs if taylor else [Fs[0]] + F[:s_new - 1],
+                                         newest=True))
     else:
-        x1 = plant_step(comb(wE, F))
-        y1 = C @ x1
-        xc1 = ctrl_step(comb(wI, [y1, I[iy[0]]]) if s_corr else comb(wI, Y, newest=y1))
-        F1 = Cc @ xc1 + Dc @ y1     # the polynomial at its own node t_k+1: the sample itself
-    if s_corr:                      # the registers hold the true samples again
-        Y, F = [I[s] for s in iy], [I[s] for s in iF]
+        x1, ys = plant_step(coefficients(Fold, **old))
+        xc1, Fs = ctrl_step(coefficients(ys if taylor else [ys[0]] + Y[:s_new - 1],
+                                         newest=True))
     Phi = np.zeros((N, N))
     Phi[ix] = x1
     Phi[ic] = xc1
-    Phi[iy[0]] = y1
-    Phi[iF[0]] = F1
-    for j in range(1, P):
-        Phi[iy[j]] = Y[j - 1]
-        Phi[iF[j]] = F[j - 1]
+    if taylor:
+        for j in range(P):
+            Phi[iy[j]] = ys[j]
+            Phi[iF[j]] = Fs[j]
+    else:
+        Phi[iy[0]] = ys[0]
+        Phi[iF[0]] = Fs[0]
+        for j in range(1, P):
+            Phi[iy[j]] = Y[j - 1]
+            Phi[iF[j]] = F[j - 1]
     return Phi
 
 
@@ -413,16 +578,30 @@ def spectral_radius(M: np.ndarray) -> float:
 
 
 def scene_transition_matrix(scene, H: float | None = None, step_index=None, drift_free=True):
-    """:func:`transition_matrix` for a scene's plant, controller and master (its step,
-    algorithm, first FMU and extrapolation; the plant's integrator and substep)."""
+    """:func:`transition_matrix` for a scene's plant, controller and master (its step and
+    coupling, :func:`scene_coupling`; the plant's integrator and substep)."""
+    m = scene.master
+    return transition_matrix(scene.plant.params, scene.controller, m.step if H is None else H,
+                             **scene_coupling(scene), integrator=scene.plant.integrator,
+                             substep=scene.plant.step, drift_free=drift_free,
+                             step_index=step_index)
+
+
+def scene_coupling(scene) -> dict:
+    """The scene's coupling as :func:`transition_matrix`'s keywords (``algorithm``, ``first``,
+    ``extrapolation``, ``input_derivatives``, ``output_derivatives``); a ValueError for a master
+    that has no transition matrix (adaptive, or Model Exchange)."""
     m = scene.master
     if m.adaptive:
         raise ValueError("master.adaptive = true: an adaptive master has no fixed transition "
                          "matrix; allowed: false")
-    return transition_matrix(scene.plant.params, scene.controller, m.step if H is None else H,
-                             algorithm=m.algorithm, first=m.first, extrapolation=m.extrapolation,
-                             integrator=scene.plant.integrator, substep=scene.plant.step,
-                             drift_free=drift_free, step_index=step_index)
+    if m.interface != "co-simulation":
+        raise ValueError(f"master.interface = {m.interface!r} integrates the plant and the "
+                         "controller as one system: no communication step to predict; allowed: "
+                         "'co-simulation'")
+    return {"algorithm": m.algorithm, "first": m.first, "extrapolation": m.extrapolation,
+            "input_derivatives": m.input_derivatives and m.extrapolation >= 1,
+            "output_derivatives": m.output_derivatives}
 
 
 # ---------------------------------------------------------------------- boundaries
@@ -438,6 +617,38 @@ def first_crossing(f, grid, level: float = 1.0, xtol_rel: float = 1e-6):
             return float(scipy.optimize.brentq(lambda s: f(s) - level, a, b,
                                                xtol=xtol_rel * a, rtol=4 * _EPS))
         prev = (float(xv), v)
+    return None
+
+
+def first_instability(f, grid, level: float = 1.0, xtol_rel: float = 1e-6):
+    """The first ``x`` where ``f`` reaches ``level``, ``f`` evaluated on the increasing ``grid``
+    up to the first point at or above ``level``, and also inside a window between grid points:
+    at every discrete local maximum of ``f`` before that point, ``f`` is maximised on the two
+    intervals beside it (bounded Brent); the first window found, or else the grid's crossing,
+    is refined by Brent's method. ``None`` if ``f`` stays below ``level``. A window whose bump
+    is narrower than the grid's spacing is not seen."""
+    grid = np.asarray(grid, dtype=float)
+    vals = []
+    for xv in grid:
+        vals.append(f(float(xv)))
+        if vals[-1] >= level:
+            break
+    crossed = vals[-1] >= level
+
+    def refine(a, b):
+        return float(scipy.optimize.brentq(lambda s: f(s) - level, a, b, xtol=xtol_rel * a,
+                                           rtol=4 * _EPS))
+
+    for i in range(1, len(vals) - 1):
+        if vals[i] >= vals[i - 1] and vals[i] >= vals[i + 1]:
+            a, b = float(grid[i - 1]), float(grid[i + 1])
+            top = scipy.optimize.minimize_scalar(lambda s: -f(s), bounds=(a, b),
+                                                 method="bounded",
+                                                 options={"xatol": xtol_rel * a})
+            if -top.fun >= level:
+                return refine(a, float(top.x))
+    if crossed and len(vals) >= 2:
+        return refine(float(grid[len(vals) - 2]), float(grid[len(vals) - 1]))
     return None
 
 
@@ -525,3 +736,127 @@ def observed_spectral_radius(signals, rows: int | None = None, rtol: float = 1e-
     """``max |pole|`` of :func:`hankel_poles`: the growth factor per sample of the slowest
     decaying (or fastest growing) mode the samples show."""
     return float(np.max(np.abs(hankel_poles(signals, rows, rtol))))
+
+
+# ---------------------------------------------------------------------- every coupling of a scene
+#: the range of communication steps searched for the first crossing of rho = 1 (s)
+STEP_RANGE = (1e-4, 1.0)
+#: points per decade of that search: rho(Phi) exceeds 1 in narrow windows too (an eigenvalue's
+#: modulus bumping over 1: 4 % wide for Jacobi with linear Taylor extrapolation on the filtered
+#: scene, at 13.2 ms), so the grid's ratio is 1.2 %; a window narrower than that can be missed
+GRID_PER_DECADE = 500
+
+
+def couplings(master) -> list[dict]:
+    """Every coupling the master offers for ``master`` (a
+    :class:`~orchestration.scene.records.MasterSettings`: its FMUs decide whether output
+    derivatives are offered): :func:`transition_matrix`'s keywords, each allowed by
+    ``MasterSettings``' rules (input derivatives only with a polynomial, ``p >= 1``)."""
+    from dataclasses import replace
+    out = []
+    for algorithm, firsts in COUPLING_ORDERS.items():
+        for first in firsts:
+            for p in (0, 1, 2):
+                for ind in ((False, True) if p else (False,)):
+                    for outd in ((False, True) if ind else (False,)):
+                        try:
+                            replace(master, algorithm=algorithm, first=first, extrapolation=p,
+                                    input_derivatives=ind, output_derivatives=outd)
+                        except ConfigError:
+                            continue
+                        out.append({"algorithm": algorithm, "first": first, "extrapolation": p,
+                                    "input_derivatives": ind, "output_derivatives": outd})
+    return out
+
+
+def critical_step(p: PlantParams, c: ControllerParams, *, integrator: str = "rk4",
+                  substep: float = 2.5e-4, hi: float | None = None, **coupling):
+    """The largest communication step below which every step is stable: the first ``H`` where
+    ``rho(Phi)`` reaches 1 (a log grid of :data:`GRID_PER_DECADE` over :data:`STEP_RANGE`, or up
+    to ``hi``, refined by Brent's method); ``None`` if it never does there, ``0.0`` if the loop is unstable already at
+    the smallest step (the continuous closed loop is). ``coupling``: :func:`transition_matrix`'s
+    keywords."""
+    lo = STEP_RANGE[0]
+    hi = STEP_RANGE[1] if hi is None else hi
+    f = lambda H: spectral_radius(transition_matrix(  # noqa: E731
+        p, c, H, integrator=integrator, substep=substep, **coupling))
+    if f(lo) >= 1.0:
+        return 0.0
+    # the grid's points are lo * 10^(j / GRID_PER_DECADE), whatever hi (the same points for
+    # every search), then hi
+    j = np.arange(int(math.floor(GRID_PER_DECADE * math.log10(hi / lo) + 1e-9)) + 1)
+    grid = np.unique(np.append(lo * 10.0 ** (j / GRID_PER_DECADE), hi))
+    return first_instability(f, grid)
+
+
+def _scene_model(scene):
+    """``(p, c, integrator, substep)`` of a scene whose co-simulation has a transition matrix;
+    a ValueError saying why not."""
+    if scene.master.adaptive or scene.master.interface != "co-simulation":
+        scene_coupling(scene)                          # its ValueError
+    if not scene.plant.resolved:
+        raise ValueError("plant.n_modes or plant.fidelity = 'auto': a run chooses the model; "
+                         "set them to predict")
+    if scene.plant.integrator not in FIXED_STEP_METHODS:
+        raise ValueError(f"plant.integrator = {scene.plant.integrator!r} is adaptive in the "
+                         f"plant FMU: no fixed transition matrix; allowed: "
+                         f"{', '.join(FIXED_STEP_METHODS)}")
+    return scene.plant.params, scene.controller, scene.plant.integrator, scene.plant.step
+
+
+def substep_limit(p: PlantParams, method: str):
+    """The largest plant substep for which ``method`` is stable on every damped or undamped mode
+    of the linearised plant (:func:`integrator_step_limit` on each eigenvalue with ``Re <= 0``;
+    a growing mode's growth is the plant's own); ``None`` when it is stable at every step
+    (A-stable methods)."""
+    lam = np.linalg.eigvals(plant_model(p).state_space()[0])
+    lam = lam[(lam.imag >= 0) & (lam.real <= 0) & (np.abs(lam) > 0)]
+    limits = [integrator_step_limit(method, complex(v)) for v in lam]
+    limits = [v for v in limits if v is not None]
+    return min(limits) if limits else None
+
+
+def assumptions(scene) -> list[str]:
+    """What the prediction of a scene assumes, one sentence each (empty: it is exact)."""
+    out = []
+    if scene.plant.fidelity != "linear":
+        out.append("the plant is linearised at the upright rest state (plant.fidelity = "
+                   "'nonlinear': large motions shift the limits)")
+    if scene.controller.saturates:
+        out.append("the force does not saturate (controller.force_limit)")
+    return out
+
+
+def stability_report(scene) -> dict:
+    """For the scene's own coupling and for every coupling the master offers (:func:`couplings`):
+    the largest stable communication step (:func:`critical_step`), and the plant method's
+    substep limit (:func:`substep_limit`; ``None``: A-stable). ``{"scene": {"coupling", "critical_step", "substep_limit"}, "couplings": [{...,
+    "critical_step"}, ...]}``; a ValueError for a scene without a transition matrix."""
+    p, c, integrator, h = _scene_model(scene)
+    own = scene_coupling(scene)
+    model = dict(integrator=integrator, substep=h)
+    rows = [{**k, "critical_step": critical_step(p, c, **model, **k)}
+            for k in couplings(scene.master)]
+    return {"scene": {"coupling": {**own, "step": scene.master.step},
+                      "critical_step": critical_step(p, c, **model, **own),
+                      "substep_limit": substep_limit(p, integrator)},
+            "couplings": rows}
+
+
+def step_warning(scene) -> str | None:
+    """One line when the scene's communication step is beyond the largest stable step of its
+    coupling (:func:`critical_step`, searched up to the step only), else ``None`` (also for a
+    scene without a transition matrix)."""
+    try:
+        p, c, integrator, h = _scene_model(scene)
+    except ValueError:
+        return None
+    H = scene.master.step
+    Hc = critical_step(p, c, integrator=integrator, substep=h, hi=max(H, STEP_RANGE[0] * 2),
+                       **scene_coupling(scene))
+    if not Hc or Hc >= H:       # stable, or unstable at every step: not the step's doing
+        return None
+    where = ("the linearised loop is unstable at every step" if Hc == 0.0 else
+             f"its coupling's predicted largest stable step is {Hc:.4g} s")
+    return (f"master.step = {H:g} s is beyond the stability limit: {where} (flexpend stability "
+            f"{scene.name})")
