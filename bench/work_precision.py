@@ -27,6 +27,9 @@ project can simulate a scene, side by side with scipy's solve_ivp and with the F
   - Gauss-Seidel quadratic with the extrapolation built from the FMUs' output derivatives
     (``master.output_derivatives``, with input derivatives), over ``master.step``;
   - the adaptive master over ``master.tolerance``;
+  - the implicit master (``master.algorithm = implicit``, Newton and IQN-ILS; quadratic
+    interpolation passed as input derivatives) over ``master.step``, up to steps where every
+    explicit coupling diverges;
   - the model-exchange master (``master.interface = model-exchange``: the FMUs' states as one
     ODE, Radau and BDF with the FMUs' directional derivatives) over ``master.rtol``;
   - every plant integrator of ``plant_fmu.integrators.REGISTRY`` over ``plant.step`` (fixed-step
@@ -157,6 +160,18 @@ def adaptive_families():
                    method="gauss-seidel")]
 
 
+#: the implicit master's communication steps, (full, quick): beyond the explicit couplings' limits
+IMPLICIT_STEPS = ([*COMM_STEPS[0], 5e-2, 1e-1], [1e-3, 2e-2, 1e-1])
+
+
+def implicit_families():
+    """The strongly coupled master over ``master.step`` (``orchestration/cosim/implicit.py``)."""
+    return [Family(f"implicit ({name})", "implicit master", "cosim", [("master.step", 1.0)],
+                   IMPLICIT_STEPS, ["master.algorithm=implicit", f"master.implicit_jacobian={j}",
+                                    "master.extrapolation=2", "master.input_derivatives=true"],
+                   method="implicit") for j, name in (("newton", "Newton"), ("iqn-ils", "IQN-ILS"))]
+
+
 #: the plant integrators only the pythonfmu FlexiblePendulum has (the native one refuses them at
 #: initialisation, naming the ones it has: plant_fmu/native/plant_model.c); their curves always run on
 #: the pythonfmu pair, and say so
@@ -198,6 +213,7 @@ def floor_families():
 
 def all_families():
     return [*coupling_families(), *output_derivative_families(), *adaptive_families(),
+            *implicit_families(),
             *model_exchange_families(), *integrator_families(), *ivp_families(),
             *floor_families()]
 
@@ -349,7 +365,8 @@ class Runner:
     @staticmethod
     def _cosim(cosim):
         result, stats = cosim.run()
-        return stats.wall_time, (result, {"steps": stats.steps, "rejected": stats.rejected})
+        return stats.wall_time, (result, {"steps": stats.steps, "rejected": stats.rejected,
+                                          "iterations": stats.iterations})
 
     @staticmethod
     def _monolithic(scene, method, rtol):
