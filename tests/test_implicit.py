@@ -17,11 +17,17 @@ import math
 import numpy as np
 import pytest
 
+from controller_fmu.pd_lowpass import PDLowPassModel
 from orchestration.job import simulate
 from orchestration.scene.keys import ConfigError
 from orchestration.scene.records import MasterSettings
+from orchestration.scene.schema import load_scene, scene_from_config
 from orchestration.studies.reference import simulate_reference
-from orchestration.studies.stability import observed_spectral_radius
+from orchestration.studies.stability import (critical_step, implicit_transition_matrix,
+                                             linear_plant, observed_spectral_radius,
+                                             scene_coupling, scene_transition_matrix,
+                                             spectral_radius, transition_matrix)
+from plant_fmu.dynamics import linear_plant_model
 
 SCENE = "flexible_pd_lowpass"
 #: the largest stable communication step of the scene's own explicit coupling (s)
@@ -31,6 +37,9 @@ SMALL = {"initial.phi": 1e-3, "plant.phi_limit": math.inf, "plant.energy_limit":
 OBSERVED = ["phi_o", "omega_o", "F_c", "eta_1", "eta_2"]
 IMPLICIT = {"master.algorithm": "implicit"}
 JACOBIANS = ("newton", "iqn-ils")
+#: the filtered scene's controller (flexible_pd_lowpass.toml)
+SCENE_CONTROLLER = {"controller.kp": 500.0, "controller.kd": 5.0, "controller.filter_order": 2,
+                    "controller.cutoff": 97.3, "controller.filter_damping": 0.1}
 
 
 def _growth(H, extra=None, n=80):
@@ -78,7 +87,6 @@ def test_implicit_is_stable_at_twice_the_explicit_limit(jacobian):
 # ---------------------------------------------------------------------- accuracy
 @pytest.fixture(scope="module")
 def reference():
-    from orchestration.scene.schema import load_scene
     return simulate_reference(load_scene(SCENE))
 
 
@@ -114,3 +122,75 @@ def test_a_step_that_does_not_converge_stops_the_run_with_one_line():
     msg = stopped["fmu_message"]
     assert "\n" not in msg
     assert "did not converge by t = 0.002" in msg and "residual" in msg, msg
+
+
+# ---------------------------------------------------------------------- the predicted map
+def _hand_stepped(scene, n_rows):
+    """``(phi_o, omega_o, x_o, F_c)`` of the predicted converged map stepped by hand from the
+    master's consistent initial outputs (``transition_matrix``'s layout of ``z``)."""
+    p, c, H = scene.plant.params, scene.controller, scene.master.step
+    plant = linear_plant(p, drift_free=False)
+    Dc = PDLowPassModel(c).state_space()[3]
+    x0 = linear_plant_model(p).initial_state(phi=scene.initial.phi)
+    nx, nc, P = len(x0), PDLowPassModel(c).nx, scene.master.extrapolation + 1
+    z = np.zeros(nx + nc + 3 * P + P)
+    z[:nx] = x0
+    iy, iF = nx + nc, nx + nc + 3 * P
+    z[iy:iy + 3] = plant.C @ x0
+    z[iF] = (Dc @ plant.C @ x0)[0]             # F_c(0): 0 behind the filter
+    rows = []
+    for k in range(n_rows):
+        x_o, phi_o, omega_o = plant.C @ z[:nx]
+        rows.append((phi_o, omega_o, x_o, z[iF]))
+        z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("jacobian", JACOBIANS)
+@pytest.mark.parametrize("p_extra,in_der", [(0, False), (1, False), (1, True), (2, False),
+                                            (2, True)])
+@pytest.mark.parametrize("H", [1.1e-3, 2 * EXPLICIT_LIMIT])
+def test_linear_plant_follows_the_predicted_map(jacobian, p_extra, in_der, H):
+    """The implicit master on the linear plant (off the substep grid at 1.1 ms; twice the
+    explicit limit) against the converged map stepped by hand, every sample of the start-up
+    included. At master.implicit_tolerance = 1e-12 each step's samples are the fixed point to
+    1e-12 of max(1, |sample|) (so the motion is large, phi(0) = 1 rad, on the linear plant:
+    every signal is of order 1 or more), and the comparison allows 1e-10 of each signal's
+    largest value over 30 steps of a decaying loop."""
+    scene = scene_from_config("implicit", {
+        **SMALL, "initial.phi": 1.0, "plant.n_modes": 4, "controller.kx": 3.0, "master.step": H,
+        "output_interval": H, "stop_time": 30 * H, **IMPLICIT,
+        "master.implicit_jacobian": jacobian, "master.extrapolation": p_extra,
+        "master.input_derivatives": in_der, "master.implicit_tolerance": 1e-12,
+        **SCENE_CONTROLLER})
+    res = simulate(scene).result
+    hand = _hand_stepped(scene, len(res))
+    for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
+        scale = np.abs(res[col]).max()
+        np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
+                                   err_msg=col)
+
+
+def test_prediction_is_stable_at_twice_the_explicit_limit():
+    """The predicted spectral radius: the explicit coupling's largest stable step is
+    EXPLICIT_LIMIT (stable just below, growing just above), and at twice it the converged implicit
+    step decays while the explicit one grows; the same at twice the explicit coupling's first
+    crossing (14.64 ms, the end of its first stable range)."""
+    scene = load_scene(SCENE)
+    p, c = scene.plant.params, scene.controller
+    own = dict(algorithm="gauss-seidel", extrapolation=2, input_derivatives=True)
+    assert scene_coupling(scene) == {**own, "first": "controller", "output_derivatives": False}
+    rho = lambda H, **k: spectral_radius(transition_matrix(p, c, H, **k))  # noqa: E731
+    assert rho(0.9999 * EXPLICIT_LIMIT, **own) < 1.0 < rho(1.0001 * EXPLICIT_LIMIT, **own)
+    first = critical_step(p, c, **own)
+    for H in (2 * EXPLICIT_LIMIT, 2 * first):
+        assert rho(H, **own) > 1.0
+        assert rho(H, **{**own, "algorithm": "implicit"}) < 1.0
+        assert rho(H, **{**own, "algorithm": "implicit"}) == spectral_radius(
+            implicit_transition_matrix(p, c, H))
+
+
+def test_implicit_is_observed_stable_at_twice_the_first_crossing():
+    H = 2 * 0.0146426972730365
+    assert _growth(H) > 1.0
+    assert _growth(H, IMPLICIT) < 1.0

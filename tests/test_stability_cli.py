@@ -60,8 +60,9 @@ def test_json_of_the_filtered_scene(capsys, cached):
     h = r["scene"]["substep_limit"]
     assert R(0.999 * h) < 1 < R(1.001 * h)
     # every coupling: Jacobi (one order) and Gauss-Seidel (two), the zero-order hold, then
-    # orders 1 and 2 held, with input derivatives, and with output derivatives (native FMUs)
-    assert len(r["couplings"]) == 3 * 7 and all(set(c) == KEYS for c in r["couplings"])
+    # orders 1 and 2 held, with input derivatives, and with output derivatives (native FMUs);
+    # the implicit master the same but output derivatives
+    assert len(r["couplings"]) == 3 * 7 + 5 and all(set(c) == KEYS for c in r["couplings"])
     own = next(c for c in r["couplings"] if all(
         c[k] == v for k, v in r["scene"]["coupling"].items() if k != "step"))
     assert own["critical_step"] == pytest.approx(Hc, rel=1e-9)
@@ -78,16 +79,15 @@ def test_json_of_the_filtered_scene(capsys, cached):
 def test_couplings_follow_the_masters_rules():
     """The pythonfmu FMUs give no output derivatives: those couplings are not offered."""
     ks = stability.couplings(MasterSettings(fmus="python"))
-    assert len(ks) == 3 * 5 and not any(k["output_derivatives"] for k in ks)
-    assert len(stability.couplings(MasterSettings())) == 3 * 7
+    assert len(ks) == 4 * 5 and not any(k["output_derivatives"] for k in ks)
+    assert len(stability.couplings(MasterSettings())) == 3 * 7 + 5
 
 
 def test_text_names_the_largest(capsys, cached):
     assert main(["stability", "flexible_pd_lowpass"]) == 0
     out = capsys.readouterr().out
     assert "assumes the plant is linearised" in out
-    assert "the largest step: gauss-seidel (controller first), extrapolation 1, input " \
-           "derivatives" in out
+    assert "the largest step: implicit, extrapolation 1, held average" in out
 
 
 @pytest.mark.parametrize("setting,why", [("master.adaptive=true", "adaptive master"),

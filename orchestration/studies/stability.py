@@ -74,7 +74,8 @@ from ..scene.keys import ConfigError
 
 __all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", "substep_matrix",
            "plant_step_map", "plant_polynomial_step_map", "controller_polynomial_step_map",
-           "scene_coupling", "COUPLING_ORDERS", "couplings", "critical_step", "stability_report",
+           "scene_coupling", "COUPLING_ORDERS", "implicit_transition_matrix", "couplings",
+           "critical_step", "stability_report",
            "substep_limit", "assumptions",
            "step_warning",
            "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
@@ -89,7 +90,8 @@ FIXED_STEP_METHODS = ("euler", "symplectic_euler", "rk4", "genalpha", "exponenti
 #: the couplings the master offers, data for :func:`couplings`: per ``master.algorithm`` the
 #: values of ``master.first`` whose maps differ (another algorithm is one line here, with its map
 #: in :func:`transition_matrix`)
-COUPLING_ORDERS = {"jacobi": ("controller",), "gauss-seidel": ("controller", "plant")}
+COUPLING_ORDERS = {"jacobi": ("controller",), "gauss-seidel": ("controller", "plant"),
+                   "implicit": ("controller",)}
 ALGORITHMS = tuple(COUPLING_ORDERS)
 #: the coupling schemes of the stability map: (label, algorithm, first FMU)
 SCHEMES = (("jacobi", "jacobi", "controller"),
@@ -446,6 +448,15 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     _check_scheme(algorithm, first, extrapolation)
+    if algorithm == "implicit":
+        if output_derivatives:
+            raise ValueError("output_derivatives = True: the implicit master interpolates "
+                             "between the step's samples; allowed: False")
+        return implicit_transition_matrix(p, c, H, extrapolation=extrapolation,
+                                          input_derivatives=input_derivatives,
+                                          integrator=integrator, substep=substep,
+                                          drift_free=drift_free, step_index=step_index,
+                                          plant_map=plant_map)
     if integrator not in FIXED_STEP_METHODS:
         raise ValueError(f"integrator = {integrator!r}: the plant FMU's substeps are a fixed "
                          f"linear map only for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau "
@@ -860,3 +871,91 @@ def step_warning(scene) -> str | None:
              f"its coupling's predicted largest stable step is {Hc:.4g} s")
     return (f"master.step = {H:g} s is beyond the stability limit: {where} (flexpend stability "
             f"{scene.name})")
+
+
+# ---------------------------------------------------------------------- the implicit master
+def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
+                               extrapolation: int = 2, input_derivatives: bool = True,
+                               integrator: str = "rk4", substep: float = 2.5e-4,
+                               drift_free: bool = True, step_index: int | None = None,
+                               plant_map=None) -> np.ndarray:
+    """``Phi`` with ``z_{k+1} = Phi z_k`` for one converged step ``H`` of the implicit master
+    (``master.algorithm = "implicit"``, :mod:`orchestration.cosim.implicit`).
+
+    ``z = [x, xc, y_k .. y_k-p, F_k .. F_k-p]`` as :func:`transition_matrix` lays it out (``p =
+    extrapolation``; the oldest sample is carried but not used: the step's polynomial runs through
+    the unknown samples at ``t_k+1`` and ``p`` known ones).
+    Over the step each FMU gets the polynomial through its source's samples up to the unknown
+    ones at ``t_k+1`` (``extrapolation + 1`` of them, fewer at the start: ``step_index``), as
+    input derivatives or held as its step average, exactly as :func:`transition_matrix` models
+    an explicit coupling's polynomials (the plant's Runge-Kutta stages evaluate it,
+    :func:`plant_polynomial_step_map`; the filter exact, :func:`controller_polynomial_step_map`).
+    The step is converged when the outputs the FMUs give at ``t_k+1`` are the unknowns:
+
+        y_1 = C x_1(y_1, F_1; z),   F_1 = C_c xc_1(y_1, F_1; z) + D_c y_1,
+
+    a linear system in ``(y_1, F_1)`` solved here, whose solution is substituted into the step.
+    The master reaches it to within ``master.implicit_tolerance``."""
+    if not isinstance(c, ControllerParams):
+        raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
+    _check_scheme("gauss-seidel", "controller", extrapolation)
+    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
+        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+    if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
+        raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
+    n_der = min(extrapolation, 2) if input_derivatives else 0
+    plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
+    if plant_map is None:
+        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
+    Pp, Gp = plant_map
+    if Gp.shape[1] == 1:            # a held-input map
+        if n_der:
+            raise ValueError("plant_map is a held-input map (plant_step_map); input derivatives "
+                             "need plant_polynomial_step_map's")
+        Gp = np.hstack([Gp, np.zeros((Gp.shape[0], 2))])
+    Ad, Gc = controller_polynomial_step_map(c, float(H))
+    Cc, Dc = PDLowPassModel(c).state_space()[2:]
+    C = plant.C
+    nx, nc, ny = Pp.shape[0], Ad.shape[0], C.shape[0]
+    m = extrapolation + 1
+    iy = [slice(nx + nc + j * ny, nx + nc + (j + 1) * ny) for j in range(m)]
+    o = nx + nc + m * ny
+    iF = [slice(o + j, o + j + 1) for j in range(m)]
+    N = o + m
+    # rows over [z, y_1, F_1]: the unknowns are columns too, eliminated below
+    E = np.eye(N + ny + 1)
+    y1, F1 = E[N:N + ny], E[N + ny:]
+    k = math.inf if step_index is None else step_index
+    s = int(min(extrapolation + 1, k + 2))       # samples through t_k+1
+    W = _taylor_of_samples(list(range(1, 1 - s, -1)), H)
+    avg = np.array([1.0, H / 2, H * H / 6])
+
+    def fmu_input(rows):
+        """The Taylor coefficients at t_k of the polynomial through ``rows`` (newest first, the
+        first at t_k+1) as the FMU gets them: the value and ``n_der`` derivatives, or held."""
+        a = [sum(W[i, j] * r for j, r in enumerate(rows)) for i in range(3)]
+        if not n_der:
+            return [sum(w * ai for w, ai in zip(avg, a)), 0 * a[0], 0 * a[0]]
+        return [a[j] if j <= n_der else 0 * a[0] for j in range(3)]
+
+    u = fmu_input([F1] + [E[f] for f in iF][:s - 1])
+    x1 = Pp @ E[:nx] + sum(Gp[:, j:j + 1] @ u[j] for j in range(3))
+    v = fmu_input([y1] + [E[r] for r in iy][:s - 1])
+    xc1 = Ad @ E[nx:nx + nc] + sum(Gc[:, 3 * j:3 * j + 3] @ v[j] for j in range(3))
+    # (y_1, F_1) = K [z; y_1; F_1]  =>  (I - K_u) [y_1; F_1] = K_z z
+    K = np.vstack([C @ x1, Cc @ xc1 + Dc @ y1])
+    U = np.linalg.solve(np.eye(ny + 1) - K[:, N:], K[:, :N])
+
+    def on_z(rows):
+        return rows[:, :N] + rows[:, N:] @ U
+
+    Phi = np.zeros((N, N))
+    Phi[:nx] = on_z(x1)
+    Phi[nx:nx + nc] = on_z(xc1)
+    Phi[iy[0]] = U[:ny]
+    Phi[iF[0]] = U[ny:]
+    I = np.eye(N)
+    for j in range(1, m):
+        Phi[iy[j]] = I[iy[j - 1]]
+        Phi[iF[j]] = I[iF[j - 1]]
+    return Phi
