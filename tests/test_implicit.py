@@ -194,3 +194,38 @@ def test_implicit_is_observed_stable_at_twice_the_first_crossing():
     H = 2 * 0.0146426972730365
     assert _growth(H) > 1.0
     assert _growth(H, IMPLICIT) < 1.0
+
+
+#: the implicit coupling's predicted boundaries on the filtered scene (implicit_transition_matrix,
+#: quadratic interpolation with input derivatives): the first crossing of rho = 1 (a window of
+#: growth from 24.2 ms to 28.1 ms) and the end of the stable range above it
+IMPLICIT_BOUNDARIES = ("first", "upper")
+
+
+@pytest.fixture(scope="module")
+def implicit_boundaries():
+    import scipy.optimize
+    scene = load_scene(SCENE)
+    p, c = scene.plant.params, scene.controller
+    rho = lambda H: spectral_radius(implicit_transition_matrix(p, c, H)) - 1.0  # noqa: E731
+    return {"first": critical_step(p, c, algorithm="implicit", extrapolation=2,
+                                   input_derivatives=True),
+            "upper": scipy.optimize.brentq(rho, 0.1, 0.16, xtol=1e-12)}
+
+
+@pytest.mark.parametrize("factor", (0.9, 0.95, 0.98, 1.02, 1.05, 1.1))
+@pytest.mark.parametrize("boundary", IMPLICIT_BOUNDARIES)
+def test_implicit_boundaries_observed(implicit_boundaries, boundary, factor):
+    """Three points on each side of each boundary: the master's observed growth factor (linear
+    plant, small motion) is the predicted spectral radius, and so is the verdict."""
+    Hb = implicit_boundaries[boundary]
+    assert 0.02 < Hb < 0.2
+    H = factor * Hb
+    scene = load_scene(SCENE)
+    predicted = spectral_radius(implicit_transition_matrix(scene.plant.params, scene.controller,
+                                                           H))
+    grows = factor > 1              # both boundaries go from decay to growth
+    assert (predicted > 1) == grows, predicted
+    observed = _growth(H, IMPLICIT)
+    assert observed == pytest.approx(predicted, abs=1e-6)
+    assert (observed > 1) == grows
