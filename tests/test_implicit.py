@@ -229,3 +229,19 @@ def test_implicit_boundaries_observed(implicit_boundaries, boundary, factor):
     observed = _growth(H, IMPLICIT)
     assert observed == pytest.approx(predicted, abs=1e-6)
     assert (observed > 1) == grows
+
+
+def test_iterations_are_in_the_summary_and_the_text(runs):
+    """The run's stats, its summary and the text output say the iterations per step; the mean
+    is the total over the steps, each step at least one evaluation and at most the cap."""
+    from orchestration.report.text import run_lines
+    r = runs["iqn-ils"]
+    st, s = r.stats, r.summary
+    assert st.steps == 5000 and st.steps <= st.iterations <= st.steps * st.max_iterations
+    assert s["iterations_per_step_mean"] == st.iterations / st.steps
+    assert s["iterations_per_step_max"] == st.max_iterations
+    line = next(x for x in run_lines(SCENE, s) if "interface iterations per step" in x)
+    assert f"mean {st.iterations / st.steps:.3g}, max {st.max_iterations}" in line
+    explicit = simulate(SCENE, {"stop_time": 0.1})
+    assert "iterations_per_step_mean" not in explicit.summary
+    assert not any("iterations" in x for x in run_lines(SCENE, explicit.summary))

@@ -160,13 +160,18 @@ class InterfaceIteration:
                         self._V = (self._V + [V])[-REUSED_STEPS:]
                         self._W = (self._W + [W])[-REUSED_STEPS:]
                     return new
-                if it == self.cap:
+                if it == self.cap or not math.isfinite(err):
                     break
                 if self.method == "newton":
                     if self.J is None or (err > 0.1 * err_prev and not fresh):
                         self.J = self._jacobian(hist, snaps, states, t0, t1, u, g)
                         fresh = True
-                    u = u - np.linalg.solve(self.J - np.eye(self.size), r)
+                    try:
+                        u = u - np.linalg.solve(self.J - np.eye(self.size), r)
+                    except np.linalg.LinAlgError:
+                        raise self._failed(t0, t1, "the interface Jacobian is singular "
+                                           f"(residual {err:.3g} times "
+                                           f"master.implicit_tolerance = {self.tol:g})") from None
                 else:
                     if prev is not None:
                         V.append(r - prev[0])
@@ -174,15 +179,20 @@ class InterfaceIteration:
                     prev = (r, g)
                     u = self._iqn(u, g, r, V, W)
                 err_prev = err
-            self._count(self.cap)
-            ta = m._time(t1)
-            raise CoSimulationError(
-                f"master.algorithm = 'implicit': the interface did not converge by t = {ta:.6g} "
-                f"in master.max_iterations = {self.cap} iterations (residual {err:.3g} times "
-                f"master.implicit_tolerance = {self.tol:g})", time=m._time(t0))
+            self._count(it)
+            raise self._failed(t0, t1, f"in master.max_iterations = {self.cap} iterations "
+                               f"(residual {err:.3g} times master.implicit_tolerance = "
+                               f"{self.tol:g})" if math.isfinite(err) else
+                               f"after {it} iterations: an output is not finite")
         finally:
             for n, s in m.slaves.items():
                 s.free_state(states[n])
+
+    def _failed(self, t0, t1, why: str) -> CoSimulationError:
+        """The error that stops a run whose step from ``t0`` to ``t1`` did not converge."""
+        m = self.m
+        return CoSimulationError(f"master.algorithm = 'implicit': the interface did not converge "
+                                 f"by t = {m._time(t1):.6g} {why}", time=m._time(t0))
 
     def _count(self, it):
         self.iterations += it
