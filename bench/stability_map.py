@@ -56,10 +56,12 @@ from orchestration.studies.stability import (SCHEMES as HELD_SCHEMES,
 METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau")
 OBSERVED = ["phi_o", "omega_o", "F_c", "phi", "eta_1", "eta_2", "eta_3", "eta_4"]
 DEFAULT_CUTOFF = 150.0
-#: the map's rows: (label, algorithm, first FMU, input derivatives); the last is the scenes'
-#: default coupling (its p = 2 panel; at p = 0 input derivatives change nothing)
+#: the map's rows: (label, algorithm, first FMU, input derivatives); the fourth is the scenes'
+#: default coupling (its p = 2 panel; at p = 0 input derivatives change nothing), the fifth the
+#: implicit master with the same interface polynomial (orchestration/cosim/implicit.py)
 SCHEMES = tuple((label, alg, first, False) for label, alg, first in HELD_SCHEMES) + (
-    ("gs-input-derivatives", "gauss-seidel", "controller", True),)
+    ("gs-input-derivatives", "gauss-seidel", "controller", True),
+    ("implicit", "implicit", "controller", True))
 
 
 def log(msg):
