@@ -335,9 +335,10 @@ class GeneralizedAlpha:
             dqdd = -_solve(lu, r)
             qdd += dqdd
             self.newton_iterations += 1
-            size = h * h * b * bp * np.max(np.abs(dqdd))       # the correction of q
-            if size <= self.tol * max(1.0, np.max(np.abs(q))):
-                break
+            size = h * gm * bp * np.max(np.abs(dqdd))           # the correction of qd
+            scale = self.tol * max(1.0, np.max(np.abs(v)))
+            if size <= scale or (size >= 0.5 * last and size <= 1e3 * scale):
+                break                       # converged, or stalled at round-off
             if size > 0.1 * last:
                 lu = None                   # modified Newton converges slowly: a new tangent
             last = size
