@@ -337,8 +337,10 @@ class GeneralizedAlpha:
             self.newton_iterations += 1
             size = h * gm * bp * np.max(np.abs(dqdd))           # the correction of qd
             scale = self.tol * max(1.0, np.max(np.abs(v)))
-            if size <= scale or (size >= 0.5 * last and size <= 1e3 * scale):
-                break                       # converged, or stalled at round-off
+            if size <= scale:
+                break
+            if need_tangent and it > 0 and size >= 0.5 * last and size <= 1e3 * scale:
+                break                       # a fresh tangent gains nothing: round-off
             if size > 0.1 * last:
                 lu = None                   # modified Newton converges slowly: a new tangent
             last = size
