@@ -413,7 +413,7 @@ class ExactPlant:
         ``b2`` (the clamped-frame reading of the floating frame's ``N(L) eta``)."""
         e = self.system.embed(x[:self.nq])
         t0 = e[2:4] / math.hypot(e[2], e[3])
-        b2 = np.array([-t0[1], t0[0]]) * -1.0          # b1 = (-sin, cos) -> b2 = (-cos, -sin)
+        b2 = np.array([-t0[1], t0[0]])                 # b1 = (-sin, cos) -> b2 = (-cos, -sin)
         return float((e[-4:-2] - e[0:2]) @ b2)
 
     def energy(self, x: np.ndarray) -> float:

@@ -245,3 +245,30 @@ def test_rotating_beam_centrifugal_stiffening(lam):
     expected = np.sqrt(published**2 - lam**2)
     got = rotating_inplane_frequencies(lam, 16, 100 * EA)[:2]
     np.testing.assert_allclose(got, expected, rtol=1e-4)
+
+
+def test_sensors_read_as_the_floating_frames():
+    """The floating frame's deformed shape ``r = (x, 0) + s b1 + w b2`` put on the exact beam's
+    nodes (``r' = b1 + w' b2``): the same tip angle, rate and tip deflection as the floating
+    frame's formulas (``phi + atan(N'(L) eta)``, its rate, ``N(L) eta``)."""
+    p = PlantParams(zeta=0.0, n_elements=8, n_modes=3)
+    ffrf, exact = plant_model(p), ExactPlant(p)
+    b = ffrf.beam
+    rng = np.random.default_rng(1)
+    phi, phid, x, xd = 0.4, -1.3, 0.2, 0.7
+    eta, etad = 0.01 * rng.standard_normal(3), 0.3 * rng.standard_normal(3)
+    c, s = math.cos(phi), math.sin(phi)
+    b1, b2 = np.array([-s, c]), np.array([-c, -s])
+    w, wd = b.shapes @ eta, b.shapes @ etad
+    ws, wsd = b.slopes @ eta, b.slopes @ etad
+    e, ed = np.zeros(exact.mesh.ndof), np.zeros(exact.mesh.ndof)
+    for i, si in enumerate(b.nodes):        # d b1/dphi = b2, d b2/dphi = -b1
+        e[4 * i:4 * i + 2] = (x, 0.0) + si * b1 + w[i] * b2
+        e[4 * i + 2:4 * i + 4] = b1 + ws[i] * b2
+        ed[4 * i:4 * i + 2] = (xd, 0.0) + phid * (si * b2 - w[i] * b1) + wd[i] * b2
+        ed[4 * i + 2:4 * i + 4] = phid * (b2 - ws[i] * b1) + wsd[i] * b2
+    free = exact.system.free
+    state = np.concatenate([e[free], ed[free]])
+    ref = np.concatenate([[x, phi], eta, [xd, phid], etad])
+    np.testing.assert_allclose(exact.tip_angle(state), ffrf.tip_angle_numpy(ref), rtol=1e-13)
+    assert abs(exact.tip_deflection(state) - float(b.tip_deflection @ eta)) < 1e-15
