@@ -32,7 +32,11 @@ with the analytic tangent. Why: the axial modes (first about 8000 rad/s) and the
 bending modes (~1e5 rad/s) are far above anything the loop excites; an implicit method is stable at
 a step set by the motion of interest, and ``rho_inf < 1`` damps the unresolved modes while staying
 second order. ``rho_inf = 1`` is the trapezoidal rule (no numerical damping; energy drift bounded
-and of second order: ``tests/test_exact_beam.py``).
+and of second order: ``tests/test_exact_beam.py``). A caveat, measured: without structural damping
+the mesh's bending modes above ``1/h``, once excited (an undeformed start excites them), ring at
+~1e-5 rad in the tip slope, which the method resolves only when ``h`` resolves them; the tip angle
+then converges at first order at practical steps (``bench/fidelity_gap.py``). The floating frame's
+few modes have no such content.
 
 State layout of :class:`ExactPlant`: ``q = [x, r'_0 (2), r_1, r'_1, ..., r_ne, r'_ne]`` (the root's
 position is ``(x, 0)``), ``x = [q, qd]``. Sensors as the floating frame's: ``x_o = x``, ``phi_o``
