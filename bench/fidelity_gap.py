@@ -4,7 +4,7 @@
 Both closed loops are monolithic (no co-simulation error): the floating frame by
 :func:`orchestration.studies.reference.simulate_reference` (DOP853, rtol = atol = 1e-12), the exact
 beam by its generalized-alpha stepper with the controller's filter integrated by the trapezoidal
-rule in the same Newton solve (:class:`ExactLoop`). Structural damping is off on both sides (so the
+rule in the same Newton solve (:mod:`orchestration.studies.exact_loop`). Structural damping is off on both sides (so the
 damping laws, modal against Kelvin-Voigt, do not enter). For each initial angle: the largest
 ``|phi_o|`` difference over the run, for the default rung and with ``plant.gravity_preload``, and
 the exact rung's own discretisation uncertainty (the mesh doubled, the step halved).
@@ -41,88 +41,19 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from controller_fmu.pd_lowpass import PDLowPassModel  # noqa: E402
 from orchestration.scene.schema import load_scene  # noqa: E402
 from orchestration.studies.reference import simulate_reference  # noqa: E402
-from plant_fmu.exact import ExactPlant, GeneralizedAlpha  # noqa: E402
+from orchestration.studies.exact_loop import exact_run  # noqa: E402
 
 ANGLES = (0.05, 0.2, math.pi / 6)
 #: The issue's table (max |phi_o| difference, rad): default rung, with gravity_preload.
 ISSUE = {0.05: (3.0e-4, 7.1e-5), 0.2: (9.2e-4, 2.6e-4), math.pi / 6: (1.27e-3, 1.49e-3)}
 
 
-class ExactLoop:
-    """The exact plant with the PD + low-pass controller, stepped by generalized alpha.
-
-    The filter ``xc' = Af xc + bf e`` (``F_c = -xc[0]``, or ``-e`` without a filter) is integrated
-    by the trapezoidal rule over each step, so ``F_{n+1} = F0 - Q0 e(q_{n+1}, qd_{n+1})`` with
-    ``e = kx x_o + kp phi_o + kd omega_o``: the force is part of the step's Newton solve."""
-
-    def __init__(self, plant: ExactPlant, ctrl: PDLowPassModel, h: float, rho_inf: float = 0.9):
-        if ctrl.params.saturates:
-            raise ValueError("the exact loop has no force saturation")
-        self.plant, self.ctrl, self.h = plant, ctrl, h
-        self.ga = GeneralizedAlpha(plant.system, h, rho_inf=rho_inf)
-        n = ctrl.nx
-        if n:
-            Am = np.eye(n) - 0.5 * h * ctrl.Af
-            self.P = np.linalg.solve(Am, np.eye(n) + 0.5 * h * ctrl.Af)
-            self.Q = np.linalg.solve(Am, 0.5 * h * ctrl.Bf[:, 0])
-
-    def error(self, q, qd):
-        """``(e, de/dq, de/dqd)``."""
-        c = self.ctrl.params
-        phi, om, dphi, dom_q, dom_v = self.plant.tip_angle_gradient(q, qd)
-        de_q = c.kp * dphi + c.kd * dom_q
-        de_q[0] += c.kx
-        return c.kx * q[0] + c.kp * phi + c.kd * om, de_q, c.kd * dom_v
-
-    def run(self, x0: np.ndarray, t_end: float, dt_out: float):
-        """``(t, phi_o)`` on the output grid ``k dt_out``."""
-        nq, h = self.plant.nq, self.h
-        per = int(round(dt_out / h))
-        if abs(per * h - dt_out) > 1e-12 * dt_out:
-            raise ValueError(f"the step {h} does not divide the output interval {dt_out}")
-        xc = np.zeros(self.ctrl.nx)
-        q, qd = x0[:nq], x0[nq:]
-        e0 = self.error(q, qd)[0]
-        F_now = -xc[0] if self.ctrl.nx else -e0
-        st = self.ga.start(q, qd, F_now)
-        n_out = int(round(t_end / dt_out))
-        out = [self.plant.tip_angle(x0)[0]]
-        for _ in range(n_out):
-            for _ in range(per):
-                if self.ctrl.nx:
-                    base = self.P @ xc + self.Q * e0
-                    F0, Q0 = -base[0], self.Q[0]
-                else:
-                    F0, Q0 = 0.0, 1.0
-
-                def force(q, qd, F0=F0, Q0=Q0):
-                    e, dq, dv = self.error(q, qd)
-                    return F0 - Q0 * e, -Q0 * dq, -Q0 * dv
-
-                st = self.ga.step(st, force)
-                e0 = self.error(st[0], st[1])[0]
-                if self.ctrl.nx:
-                    xc = base + self.Q * e0
-            out.append(self.plant.tip_angle(np.concatenate(st[:2]))[0])
-        return np.arange(n_out + 1) * dt_out, np.array(out)
-
-
 def scene_for(phi0: float, stop: float, preload: bool = False):
     return load_scene("flexible_pd_lowpass", {"initial.phi": phi0, "stop_time": stop,
                                               "plant.zeta": 0.0,
                                               "plant.gravity_preload": preload})
-
-
-def exact_run(scene, n_elements: int, h: float):
-    p = scene.plant.params.replace(n_elements=n_elements)
-    plant = ExactPlant(p)
-    loop = ExactLoop(plant, PDLowPassModel(scene.controller), h)
-    x0 = plant.initial_state(phi=scene.initial.phi, x=scene.initial.x,
-                             phi_dot=scene.initial.phi_dot, x_dot=scene.initial.x_dot)
-    return loop.run(x0, scene.output.stop_time, scene.output.output_interval)[1]
 
 
 def main(argv=None):
