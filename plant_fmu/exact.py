@@ -35,8 +35,9 @@ second order. ``rho_inf = 1`` is the trapezoidal rule (no numerical damping; ene
 and of second order: ``tests/test_exact_beam.py``). A caveat, measured: without structural damping
 the mesh's bending modes above ``1/h``, once excited (an undeformed start excites them), ring at
 ~1e-5 rad in the tip slope, which the method resolves only when ``h`` resolves them; the tip angle
-then converges at first order at practical steps (``bench/fidelity_gap.py``). The floating frame's
-few modes have no such content.
+then converges at first order at practical steps (``bench/fidelity_gap.py``). With the paper's
+``zeta = 0.1 %`` (Kelvin-Voigt damps them) it converges at second order. The floating frame's few
+modes have no such content.
 
 State layout of :class:`ExactPlant`: ``q = [x, r'_0 (2), r_1, r'_1, ..., r_ne, r'_ne]`` (the root's
 position is ``(x, 0)``), ``x = [q, qd]``. Sensors as the floating frame's: ``x_o = x``, ``phi_o``
