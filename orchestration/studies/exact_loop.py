@@ -1,0 +1,82 @@
+"""The exact rung's monolithic closed loop: the geometrically exact beam on the cart
+(:mod:`plant_fmu.exact`) with the PD + low-pass controller, stepped as one system by generalized
+alpha. A study for now (``bench/fidelity_gap.py``); not a ``plant.fidelity`` value yet.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from controller_fmu.pd_lowpass import PDLowPassModel
+from plant_fmu.exact import ExactPlant, GeneralizedAlpha
+
+__all__ = ["ExactLoop", "exact_run"]
+
+
+class ExactLoop:
+    """The exact plant with the PD + low-pass controller, stepped by generalized alpha.
+
+    The filter ``xc' = Af xc + bf e`` (``F_c = -xc[0]``, or ``-e`` without a filter) is integrated
+    by the trapezoidal rule over each step, so ``F_{n+1} = F0 - Q0 e(q_{n+1}, qd_{n+1})`` with
+    ``e = kx x_o + kp phi_o + kd omega_o``: the force is part of the step's Newton solve."""
+
+    def __init__(self, plant: ExactPlant, ctrl: PDLowPassModel, h: float, rho_inf: float = 0.9):
+        if ctrl.params.saturates:
+            raise ValueError("the exact loop has no force saturation")
+        self.plant, self.ctrl, self.h = plant, ctrl, h
+        self.ga = GeneralizedAlpha(plant.system, h, rho_inf=rho_inf)
+        n = ctrl.nx
+        if n:
+            Am = np.eye(n) - 0.5 * h * ctrl.Af
+            self.P = np.linalg.solve(Am, np.eye(n) + 0.5 * h * ctrl.Af)
+            self.Q = np.linalg.solve(Am, 0.5 * h * ctrl.Bf[:, 0])
+
+    def error(self, q, qd):
+        """``(e, de/dq, de/dqd)``."""
+        c = self.ctrl.params
+        phi, om, dphi, dom_q, dom_v = self.plant.tip_angle_gradient(q, qd)
+        de_q = c.kp * dphi + c.kd * dom_q
+        de_q[0] += c.kx
+        return c.kx * q[0] + c.kp * phi + c.kd * om, de_q, c.kd * dom_v
+
+    def run(self, x0: np.ndarray, t_end: float, dt_out: float):
+        """``(t, phi_o)`` on the output grid ``k dt_out``."""
+        nq, h = self.plant.nq, self.h
+        per = int(round(dt_out / h))
+        if abs(per * h - dt_out) > 1e-12 * dt_out:
+            raise ValueError(f"the step {h} does not divide the output interval {dt_out}")
+        xc = np.zeros(self.ctrl.nx)
+        q, qd = x0[:nq], x0[nq:]
+        e0 = self.error(q, qd)[0]
+        F_now = -xc[0] if self.ctrl.nx else -e0
+        st = self.ga.start(q, qd, F_now)
+        n_out = int(round(t_end / dt_out))
+        out = [self.plant.tip_angle(x0)[0]]
+        for _ in range(n_out):
+            for _ in range(per):
+                if self.ctrl.nx:
+                    base = self.P @ xc + self.Q * e0
+                    F0, Q0 = -base[0], self.Q[0]
+                else:
+                    F0, Q0 = 0.0, 1.0
+
+                def force(q, qd, F0=F0, Q0=Q0):
+                    e, dq, dv = self.error(q, qd)
+                    return F0 - Q0 * e, -Q0 * dq, -Q0 * dv
+
+                st = self.ga.step(st, force)
+                e0 = self.error(st[0], st[1])[0]
+                if self.ctrl.nx:
+                    xc = base + self.Q * e0
+            out.append(self.plant.tip_angle(np.concatenate(st[:2]))[0])
+        return np.arange(n_out + 1) * dt_out, np.array(out)
+
+
+def exact_run(scene, n_elements: int, h: float) -> np.ndarray:
+    """``phi_o`` on the scene's output grid, of the scene's loop with the exact beam meshed with
+    ``n_elements`` elements and stepped at ``h`` (it must divide the output interval)."""
+    p = scene.plant.params.replace(n_elements=n_elements)
+    plant = ExactPlant(p)
+    loop = ExactLoop(plant, PDLowPassModel(scene.controller), h)
+    x0 = plant.initial_state(phi=scene.initial.phi, x=scene.initial.x,
+                             phi_dot=scene.initial.phi_dot, x_dot=scene.initial.x_dot)
+    return loop.run(x0, scene.output.stop_time, scene.output.output_interval)[1]

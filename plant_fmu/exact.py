@@ -1,0 +1,458 @@
+"""The top rung of the fidelity ladder: a geometrically exact planar beam hinged on the cart (the
+numpy specification; no FMU, kernel or ``plant.fidelity`` uses it yet).
+
+Element: the ANCF cable element (Gerstmayr & Shabana, "Analysis of thin beams and cables using the
+absolute nodal co-ordinate formulation", Nonlinear Dyn. 45, 2006). Each node carries its position
+``r`` and its slope ``r' = dr/ds`` (four numbers in the plane); between nodes ``r(s)`` is the cubic
+Hermite interpolant, the same shape functions as the floating frame's mesh (:mod:`.beam`). Why this
+element rather than a co-rotational one or a Reissner/Simo beam:
+
+- its mass matrix is constant and exactly the consistent one (``rhoA int S^T S ds``): the
+  kinetic energy is ``1/2 qd^T M qd``, with no velocity-dependent inertia terms at all, gravity is
+  a constant load and the pin is linear (the root's position is the cart's);
+- it is an Euler-Bernoulli (shear-rigid) beam, like the floating frame, and at small amplitude its
+  transverse stiffness and mass are the Hermite matrices of :mod:`.beam` (the two rungs then
+  share their linearisation exactly: ``tests/test_exact_beam.py``);
+- the sensors are read off the tip node: the tip tangent is ``r'(L)`` itself.
+
+Strains (the shear-rigid limit of Reissner's geometrically exact beam, exact for any rotation):
+axial ``eps = |r'| - 1``, bending ``kappa = (r' x r'') / |r'|^2`` (the rate of the tangent angle per
+unit reference length). Strain energy ``U = 1/2 int (EA eps^2 + EI kappa^2) ds``, by 5-point Gauss
+quadrature per element (exact for the bending term of an inextensible element).
+
+Damping: Kelvin-Voigt, ``sigma = EA (eps + beta eps_dot)``, ``M = EI (kappa + beta kappa_dot)``,
+with ``beta = 2 zeta / omega_1`` and ``omega_1`` the first cantilever frequency of the same mesh:
+the first cantilever mode has the damping ratio ``zeta``, as in the floating frame, and mode ``j``
+has ``zeta omega_j / omega_1`` (stiffness-proportional, i.e. Rayleigh ``C = beta K`` at small
+amplitude; the floating frame gives every mode ``zeta``). Rigid motions are not damped.
+
+Integrator: :class:`GeneralizedAlpha`, the generalized-alpha method of Chung & Hulbert (1993) in
+the form of Arnold & Bruls (2007; equilibrium holds at the end of each step), fixed step, Newton
+with the analytic tangent. Why: the axial modes (first about 8000 rad/s) and the mesh's highest
+bending modes (~1e5 rad/s) are far above anything the loop excites; an implicit method is stable at
+a step set by the motion of interest, and ``rho_inf < 1`` damps the unresolved modes while staying
+second order. ``rho_inf = 1`` is the trapezoidal rule (no numerical damping; energy drift bounded
+and of second order: ``tests/test_exact_beam.py``). A caveat, measured: without structural damping
+the mesh's bending modes above ``1/h``, once excited (an undeformed start excites them), ring at
+~1e-5 rad in the tip slope, which the method resolves only when ``h`` resolves them; the tip angle
+then converges at first order at practical steps (``bench/fidelity_gap.py``). With the paper's
+``zeta = 0.1 %`` (Kelvin-Voigt damps them) it converges at second order. The floating frame's few
+modes have no such content.
+
+State layout of :class:`ExactPlant`: ``q = [x, r'_0 (2), r_1, r'_1, ..., r_ne, r'_ne]`` (the root's
+position is ``(x, 0)``), ``x = [q, qd]``. Sensors as the floating frame's: ``x_o = x``, ``phi_o``
+the tip tangent's angle from the upward vertical (counter-clockwise positive, in (-pi, pi]),
+``omega_o`` its rate.
+"""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+
+from .beam import _element_matrices, unit_beam
+from .params import PlantParams
+
+__all__ = ["CableMesh", "BeamSystem", "ExactPlant", "GeneralizedAlpha", "exact_plant"]
+
+#: Gauss points per element (exact for the bending energy of an inextensible cubic element).
+N_GAUSS = 5
+_R = np.array([[0.0, 1.0], [-1.0, 0.0]])       # c = a x b = a^T R b
+
+
+def _hermite(xi: np.ndarray, le: float):
+    """The four Hermite functions (dofs w1, w1', w2, w2') and their first and second derivatives
+    with respect to ``s`` at local coordinates ``xi`` in [0, 1]."""
+    h = np.stack([1 - 3 * xi**2 + 2 * xi**3, le * (xi - 2 * xi**2 + xi**3),
+                  3 * xi**2 - 2 * xi**3, le * (-xi**2 + xi**3)], axis=-1)
+    d1 = np.stack([(-6 * xi + 6 * xi**2) / le, 1 - 4 * xi + 3 * xi**2,
+                   (6 * xi - 6 * xi**2) / le, -2 * xi + 3 * xi**2], axis=-1)
+    d2 = np.stack([(-6 + 12 * xi) / le**2, (-4 + 6 * xi) / le,
+                   (6 - 12 * xi) / le**2, (-2 + 6 * xi) / le], axis=-1)
+    return h, d1, d2
+
+
+class CableMesh:
+    """A uniform mesh of ``ne`` ANCF cable elements over ``[0, L]``: the beam's constant mass
+    matrix, gravity load, strain energy, internal forces and their tangents, all over the full
+    nodal vector ``e = [r_0, r'_0, ..., r_ne, r'_ne]`` (length ``4 (ne + 1)``)."""
+
+    def __init__(self, L: float, EA: float, EI: float, rhoA: float, ne: int, g: float = 0.0):
+        self.L, self.EA, self.EI, self.rhoA, self.ne, self.g = L, EA, EI, rhoA, ne, g
+        self.le = le = L / ne
+        self.ndof = 4 * (ne + 1)
+        self.nodes = np.linspace(0.0, L, ne + 1)
+        _, me = _element_matrices(le, EI, rhoA)
+        me2 = np.kron(me, np.eye(2))                    # (8, 8): x and y alike
+        self.element_dofs = 4 * np.arange(ne)[:, None] + np.arange(8)[None, :]
+        M = np.zeros((self.ndof, self.ndof))
+        for idx in self.element_dofs:
+            M[np.ix_(idx, idx)] += me2
+        self.M = M
+        # gravity: -g rhoA int dr_y/de ds (int of the Hermite functions, exact)
+        int_h = le * np.array([0.5, le / 12, 0.5, -le / 12])
+        fg = np.zeros(self.ndof)
+        for e in range(ne):
+            fg[4 * e + 1:4 * e + 9:2] -= g * rhoA * int_h
+        self.f_gravity = fg
+        x, w = np.polynomial.legendre.leggauss(N_GAUSS)
+        xi = 0.5 * (x + 1.0)
+        self.gauss_weights = 0.5 * w * le                # (ng,) ds weights
+        _, d1, d2 = _hermite(xi, le)
+        # G maps the element's 8 dofs to (a, b) = (r', r'') at each Gauss point: (ng, 4, 8)
+        G = np.zeros((N_GAUSS, 4, 8))
+        for k in range(4):
+            G[:, 0, 2 * k] = G[:, 1, 2 * k + 1] = d1[:, k]
+            G[:, 2, 2 * k] = G[:, 3, 2 * k + 1] = d2[:, k]
+        self.G = G
+
+    # ------------------------------------------------------------------ strains
+    def _ab(self, e: np.ndarray) -> np.ndarray:
+        """(a, b) = (r', r'') at every Gauss point: (ne, ng, 4)."""
+        return np.einsum("gij,ej->egi", self.G, e[self.element_dofs])
+
+    @staticmethod
+    def _strains(ab: np.ndarray, hessians: bool):
+        """eps, kappa, their gradients in (a, b) space (..., 4) and, if asked, Hessians (..., 4, 4)."""
+        a, b = ab[..., :2], ab[..., 2:]
+        n = np.einsum("...i,...i->...", a, a)
+        la = np.sqrt(n)
+        c = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+        eps, kap = la - 1.0, c / n
+        Rb = b @ _R.T                                    # R b
+        RTa = a @ _R                                     # R^T a
+        deps = np.zeros(ab.shape)
+        deps[..., :2] = a / la[..., None]
+        dkap = np.empty(ab.shape)
+        dkap[..., :2] = Rb / n[..., None] - 2.0 * (c / n**2)[..., None] * a
+        dkap[..., 2:] = RTa / n[..., None]
+        if not hessians:
+            return eps, kap, deps, dkap, None, None
+        shape = ab.shape + (4,)
+        Heps = np.zeros(shape)
+        I2 = np.eye(2)
+        aa = a[..., :, None] * a[..., None, :]
+        Heps[..., :2, :2] = I2 / la[..., None, None] - aa / (la**3)[..., None, None]
+        Hkap = np.zeros(shape)
+        n2, n3 = (n**2)[..., None, None], (n**3)[..., None, None]
+        Rba = Rb[..., :, None] * a[..., None, :]
+        Hkap[..., :2, :2] = (-2.0 * (Rba + np.swapaxes(Rba, -1, -2)) / n2
+                             - 2.0 * c[..., None, None] * I2 / n2 + 8.0 * c[..., None, None] * aa / n3)
+        Hab = _R / n[..., None, None] - 2.0 * (aa @ _R) / n2
+        Hkap[..., :2, 2:] = Hab
+        Hkap[..., 2:, :2] = np.swapaxes(Hab, -1, -2)
+        return eps, kap, deps, dkap, Heps, Hkap
+
+    def strain_energy(self, e: np.ndarray) -> float:
+        eps, kap, *_ = self._strains(self._ab(e), hessians=False)
+        return float(0.5 * np.sum((self.EA * eps**2 + self.EI * kap**2) * self.gauss_weights))
+
+    def potential(self, e: np.ndarray) -> float:
+        """Strain energy plus the beam's weight ``g int rhoA r_y ds`` (zero at the root's height)."""
+        return self.strain_energy(e) - float(self.f_gravity @ e)
+
+    def internal(self, e: np.ndarray, ed: np.ndarray | None = None, beta: float = 0.0,
+                 tangent: bool = True):
+        """``(f, K, C)``: the elastic and Kelvin-Voigt forces ``f = dU/de + beta K_mat ed`` and,
+        if ``tangent``, ``K = df/de`` and ``C = df/ded`` (dense, ndof x ndof)."""
+        ab = self._ab(e)
+        eps, kap, deps, dkap, Heps, Hkap = self._strains(ab, hessians=tangent)
+        EA, EI, w = self.EA, self.EI, self.gauss_weights
+        sig, mom = EA * eps, EI * kap
+        damp = beta > 0.0 and ed is not None
+        if damp:
+            abd = self._ab(ed)
+            epsd = np.einsum("egi,egi->eg", deps, abd)
+            kapd = np.einsum("egi,egi->eg", dkap, abd)
+            sig, mom = sig + beta * EA * epsd, mom + beta * EI * kapd
+        grad = (sig[..., None] * deps + mom[..., None] * dkap) * w[None, :, None]      # (ne, ng, 4)
+        fe = np.einsum("gij,egi->ej", self.G, grad)
+        f = np.zeros(self.ndof)
+        f[:-4] += fe[:, :4].ravel()
+        f[4:] += fe[:, 4:].ravel()
+        if not tangent:
+            return f, None, None
+        outer = lambda u, v: u[..., :, None] * v[..., None, :]   # noqa: E731
+        H = EA * outer(deps, deps) + EI * outer(dkap, dkap)
+        Cg = beta * H if damp else None
+        H = H + sig[..., None, None] * Heps + mom[..., None, None] * Hkap
+        if damp:
+            He_abd = np.einsum("egij,egj->egi", Heps, abd)
+            Hk_abd = np.einsum("egij,egj->egi", Hkap, abd)
+            H = H + beta * (EA * outer(deps, He_abd) + EI * outer(dkap, Hk_abd))
+        K = self._assemble(H * w[None, :, None, None])
+        C = self._assemble(Cg * w[None, :, None, None]) if damp else None
+        return f, K, C
+
+    def _assemble(self, H: np.ndarray) -> np.ndarray:
+        ke = np.einsum("gia,egij,gjb->eab", self.G, H, self.G)
+        K = np.zeros((self.ndof, self.ndof))
+        for idx, k in zip(self.element_dofs, ke):
+            K[idx[0]:idx[-1] + 1, idx[0]:idx[-1] + 1] += k
+        return K
+
+    def straight(self, origin, angle_from_vertical: float, rate: float = 0.0, velocity=(0.0, 0.0)):
+        """``(e, ed)`` of the undeformed beam from ``origin`` along ``(-sin phi, cos phi)``,
+        rotating rigidly about its root at ``rate`` while the root moves at ``velocity``."""
+        c, s = math.cos(angle_from_vertical), math.sin(angle_from_vertical)
+        t, nrm = np.array([-s, c]), np.array([-c, -s])
+        e = np.zeros(self.ndof)
+        ed = np.zeros(self.ndof)
+        for i, si in enumerate(self.nodes):
+            e[4 * i:4 * i + 2] = np.asarray(origin) + si * t
+            e[4 * i + 2:4 * i + 4] = t
+            ed[4 * i:4 * i + 2] = np.asarray(velocity) + rate * si * nrm
+            ed[4 * i + 2:4 * i + 4] = rate * nrm
+        return e, ed
+
+
+class BeamSystem:
+    """A cable mesh with some nodal coordinates held (``fixed``: index -> value) and, optionally,
+    a cart of mass ``cart_mass`` that carries the root's x coordinate (``e[0]``) and takes the
+    force ``u``. The free coordinates are ``q``; ``e = embed(q)``."""
+
+    def __init__(self, mesh: CableMesh, fixed: dict, cart_mass: float = 0.0, beta: float = 0.0):
+        self.mesh, self.beta = mesh, beta
+        self.fixed = dict(fixed)
+        self.free = np.array([i for i in range(mesh.ndof) if i not in self.fixed])
+        self.nq = self.free.size
+        self.e_fixed = np.zeros(mesh.ndof)
+        for i, v in self.fixed.items():
+            self.e_fixed[i] = v
+        M = mesh.M[np.ix_(self.free, self.free)].copy()
+        self.cart = cart_mass > 0.0
+        if self.cart:
+            if 0 in self.fixed:
+                raise ValueError("a cart needs the root's x coordinate free")
+            M[0, 0] += cart_mass
+        self.M = M
+        self.f_gravity = mesh.f_gravity[self.free]
+
+    def embed(self, q: np.ndarray, rate: bool = False) -> np.ndarray:
+        e = np.zeros(self.mesh.ndof) if rate else self.e_fixed.copy()
+        e[self.free] = q
+        return e
+
+    def forces(self, q, qd, u: float = 0.0, tangent: bool = True):
+        """``(f, K, C)``: ``M qdd = f(q, qd, u)``, ``K = -df/dq``, ``C = -df/dqd``."""
+        fi, Ki, Ci = self.mesh.internal(self.embed(q), self.embed(qd, rate=True), self.beta, tangent)
+        f = self.f_gravity - fi[self.free]
+        if self.cart:
+            f[0] += u
+        if not tangent:
+            return f, None, None
+        ix = np.ix_(self.free, self.free)
+        return f, Ki[ix], (Ci[ix] if Ci is not None else np.zeros((self.nq, self.nq)))
+
+    def energy(self, q, qd) -> float:
+        """``T + V`` (the cart's own weight left out: it does not move vertically)."""
+        return float(0.5 * qd @ self.M @ qd) + self.mesh.potential(self.embed(q))
+
+    def static(self, q0, u: float = 0.0, hold=(), load=None, steps: int = 1, tol: float = 1e-12,
+               max_iter: int = 50):
+        """The equilibrium ``f(q) + load = 0`` by Newton from ``q0`` (``hold``: indices of ``q``
+        kept at their value, e.g. a neutral cart), ``load`` applied in ``steps`` increments."""
+        q = np.array(q0, dtype=float)
+        act = np.array([i for i in range(self.nq) if i not in set(hold)])
+        zero = np.zeros(self.nq)
+        load = zero if load is None else np.asarray(load, dtype=float)
+        for k in range(1, steps + 1):
+            lk = load * k / steps
+            for _ in range(max_iter):
+                f, K, _ = self.forces(q, zero, u)
+                r = (f + lk)[act]
+                dq = np.linalg.solve(K[np.ix_(act, act)], r)
+                q[act] += dq
+                if np.max(np.abs(dq)) <= tol * max(1.0, np.max(np.abs(q))):
+                    break
+            else:
+                raise RuntimeError(f"static Newton did not converge at load step {k}")
+        return q
+
+
+class GeneralizedAlpha:
+    """Fixed-step generalized alpha (Chung & Hulbert 1993) for ``M qdd = f(q, qd, F)`` in the form
+    of Arnold & Bruls (2007): ``M qdd_{n+1} = f(q_{n+1}, qd_{n+1}, F_{n+1})`` at every step end,
+
+        q_{n+1}  = q_n + h qd_n + h^2 (1/2 - beta) a_n + h^2 beta a_{n+1}
+        qd_{n+1} = qd_n + h (1 - gamma) a_n + h gamma a_{n+1}
+        (1 - alpha_m) a_{n+1} + alpha_m a_n = (1 - alpha_f) qdd_{n+1} + alpha_f qdd_n
+
+    with the parameters of the spectral radius ``rho_inf`` at infinite frequency (1: the
+    trapezoidal rule). Newton on ``qdd_{n+1}`` with the analytic tangent
+    ``M + b' (h^2 beta K + h gamma C)``, ``b' = (1 - alpha_f) / (1 - alpha_m)``.
+
+    The force ``F`` on the cart is given per step by ``force(q, qd) -> (F, dF/dq, dF/dqd)`` at the
+    step's end (a closed loop), or held (a number)."""
+
+    def __init__(self, system: BeamSystem, h: float, rho_inf: float = 0.9, tol: float = 1e-11,
+                 max_iter: int = 30):
+        if not 0.0 <= rho_inf <= 1.0:
+            raise ValueError(f"rho_inf = {rho_inf!r} is out of range; allowed: [0, 1]")
+        self.sys, self.h, self.tol, self.max_iter = system, h, tol, max_iter
+        r = rho_inf
+        self.am = (2 * r - 1) / (r + 1)
+        self.af = r / (r + 1)
+        self.gamma = 0.5 + self.af - self.am
+        self.beta = 0.25 * (self.gamma + 0.5) ** 2
+        self.bp = (1 - self.af) / (1 - self.am)
+        self.newton_iterations = 0
+
+    def start(self, q, qd, force=0.0):
+        """The integrator's state ``(q, qd, qdd, a)`` from consistent accelerations."""
+        F = self._force(force, q, qd)[0]
+        f, _, _ = self.sys.forces(q, qd, F, tangent=False)
+        qdd = np.linalg.solve(self.sys.M, f)
+        return (np.array(q, float), np.array(qd, float), qdd, qdd.copy())
+
+    @staticmethod
+    def _force(force, q, qd):
+        if callable(force):
+            return force(q, qd)
+        return float(force), None, None
+
+    def step(self, state, force=0.0):
+        q0, v0, qdd0, a0 = state
+        h, b, gm, bp, am, af = self.h, self.beta, self.gamma, self.bp, self.am, self.af
+        sys = self.sys
+        qdd = qdd0.copy()
+        qpred = q0 + h * v0 + h * h * (0.5 - b) * a0
+        vpred = v0 + h * (1 - gm) * a0
+        aconst = (af * qdd0 - am * a0) / (1 - am)
+        lu, last = None, math.inf
+        for it in range(self.max_iter):
+            a = aconst + bp * qdd
+            q = qpred + h * h * b * a
+            v = vpred + h * gm * a
+            F, dFq, dFv = self._force(force, q, v)
+            need_tangent = lu is None
+            f, K, C = sys.forces(q, v, F, tangent=need_tangent)
+            r = sys.M @ qdd - f
+            if need_tangent:
+                if dFq is not None and sys.cart:
+                    K = K.copy()
+                    C = C.copy()
+                    K[0] -= dFq
+                    C[0] -= dFv
+                S = sys.M + bp * (h * h * b * K + h * gm * C)
+                lu = _lu(S)
+            dqdd = -_solve(lu, r)
+            qdd += dqdd
+            self.newton_iterations += 1
+            size = h * gm * bp * np.max(np.abs(dqdd))           # the correction of qd
+            scale = self.tol * max(1.0, np.max(np.abs(v)))
+            if size <= scale:
+                break
+            if need_tangent and it > 0 and size >= 0.5 * last and size <= 1e3 * scale:
+                break                       # a fresh tangent gains nothing: round-off
+            if size > 0.1 * last:
+                lu = None                   # modified Newton converges slowly: a new tangent
+            last = size
+        else:
+            raise RuntimeError(f"generalized-alpha: Newton did not converge in {self.max_iter} "
+                               f"iterations (h = {h})")
+        a = aconst + bp * qdd
+        q = qpred + h * h * b * a
+        v = vpred + h * gm * a
+        return (q, v, qdd, a)
+
+
+def _lu(S):
+    import scipy.linalg
+
+    return scipy.linalg.lu_factor(S)
+
+
+def _solve(lu, r):
+    import scipy.linalg
+
+    return scipy.linalg.lu_solve(lu, r)
+
+
+class ExactPlant:
+    """The cart with the geometrically exact beam pinned on it, for one :class:`PlantParams`
+    (``n_elements`` is the beam's mesh; ``n_modes`` and ``gravity_preload`` do not apply: the
+    model has every mode the mesh has, and the self-weight's stiffness by construction)."""
+
+    def __init__(self, p: PlantParams):
+        self.params = p
+        self.mesh = CableMesh(p.L, p.EA, p.EI, p.rhoA, p.n_elements, p.g)
+        self.omega1 = math.sqrt(unit_beam(p.n_elements, 1).lam[0] * p.EI / (p.rhoA * p.L**4))
+        self.beta_kv = 2.0 * p.zeta / self.omega1
+        self.system = BeamSystem(self.mesh, {1: 0.0}, cart_mass=p.m, beta=self.beta_kv)
+        self.nq = self.system.nq
+        self.nx = 2 * self.nq
+
+    def initial_state(self, phi: float = 0.0, x: float = 0.0, phi_dot: float = 0.0,
+                      x_dot: float = 0.0) -> np.ndarray:
+        """The undeformed beam at ``phi``, rotating at ``phi_dot``, on the cart at ``x, x_dot``."""
+        e, ed = self.mesh.straight((x, 0.0), phi, phi_dot, (x_dot, 0.0))
+        free = self.system.free
+        return np.concatenate([e[free], ed[free]])
+
+    def tip_angle(self, x: np.ndarray) -> tuple[float, float]:
+        """``(phi_o, omega_o)`` from the tip node's slope ``r'(L)`` and its rate."""
+        nq = self.nq
+        ax, ay = x[nq - 2], x[nq - 1]
+        adx, ady = x[-2], x[-1]
+        n = ax * ax + ay * ay
+        return math.atan2(-ax, ay), (ax * ady - ay * adx) / n
+
+    def tip_angle_gradient(self, q, qd):
+        """``(phi_o, omega_o, dphi/dq, domega/dq, domega/dqd)``."""
+        nq = self.nq
+        ax, ay, adx, ady = q[-2], q[-1], qd[-2], qd[-1]
+        n = ax * ax + ay * ay
+        om = (ax * ady - ay * adx) / n
+        dphi = np.zeros(nq)
+        dphi[-2:] = (-ay / n, ax / n)
+        dom_q = np.zeros(nq)
+        dom_q[-2:] = (ady / n - 2 * om * ax / n, -adx / n - 2 * om * ay / n)
+        dom_v = np.zeros(nq)
+        dom_v[-2:] = (-ay / n, ax / n)
+        return math.atan2(-ax, ay), om, dphi, dom_q, dom_v
+
+    def tip_deflection(self, x: np.ndarray) -> float:
+        """The tip's distance from the line of the root tangent, along the floating frame's
+        ``b2`` (the clamped-frame reading of the floating frame's ``N(L) eta``)."""
+        e = self.system.embed(x[:self.nq])
+        t0 = e[2:4] / math.hypot(e[2], e[3])
+        b2 = np.array([-t0[1], t0[0]])                 # b1 = (-sin, cos) -> b2 = (-cos, -sin)
+        return float((e[-4:-2] - e[0:2]) @ b2)
+
+    def energy(self, x: np.ndarray) -> float:
+        return self.system.energy(x[:self.nq], x[self.nq:])
+
+    def upright_equilibrium(self) -> np.ndarray:
+        """``q`` of the upright beam compressed by its weight (cart at 0, no force)."""
+        q0 = self.initial_state()[:self.nq]
+        return self.system.static(q0, hold=(0,))
+
+    def state_space(self):
+        """``(A, B, C)`` linearised at :meth:`upright_equilibrium`; outputs ``x_o, phi_o,
+        omega_o``."""
+        nq, nx = self.nq, self.nx
+        q = self.upright_equilibrium()
+        _, K, Cd = self.system.forces(q, np.zeros(nq))
+        Minv = np.linalg.inv(self.system.M)
+        A = np.zeros((nx, nx))
+        A[:nq, nq:] = np.eye(nq)
+        A[nq:, :nq] = -Minv @ K
+        A[nq:, nq:] = -Minv @ Cd
+        B = np.zeros((nx, 1))
+        B[nq:, 0] = Minv[:, 0]
+        _, _, dphi, dom_q, dom_v = self.tip_angle_gradient(q, np.zeros(nq))
+        C = np.zeros((3, nx))
+        C[0, 0] = 1.0
+        C[1, :nq] = dphi
+        C[2, :nq] = dom_q
+        C[2, nq:] = dom_v
+        return A, B, C
+
+
+@functools.lru_cache(maxsize=16)
+def exact_plant(p: PlantParams) -> ExactPlant:
+    """The (cached) :class:`ExactPlant` of a parameter record."""
+    return ExactPlant(p)
+
