@@ -45,6 +45,10 @@ from .slave import CoSimulationError, RunInterrupted
 
 __all__ = ["RunStats", "Master"]
 
+#: the adaptive master's smallest magnitude of a signal its error is weighed against (1 in the
+#: signal's SI unit: a rad, a rad/s, a N), as its absolute tolerance
+_FLOOR = 1.0
+
 
 @dataclass
 class RunStats:
@@ -262,9 +266,18 @@ class Master:
                 continue
             pred = self._combination(hist[src], t1, self.h, (0,))[0]
             actual = new[src][:len(pred)]
-            scale = self.tol * np.maximum(1.0, np.abs(actual))
+            scale = self.tol * self._magnitude(src, actual)
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
         return err
+
+    def _magnitude(self, src, actual):
+        """Each output's magnitude in the run so far (the largest ``|value|`` reached, at least
+        :data:`_FLOOR`): the coupling error is weighed against the signal's own size, so that
+        a signal passing through zero (a force reversing) does not set the step."""
+        mag = self._peak.get(src)
+        mag = np.abs(actual) if mag is None else np.maximum(mag, np.abs(actual))
+        self._peak[src] = mag
+        return np.maximum(mag, _FLOOR)
 
     def _initial_outputs(self, t0):
         """Consistent outputs at ``t0``: the sources' initial outputs are passed to the inputs
@@ -362,13 +375,15 @@ class Master:
 
     def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress, stop=None):
         h = min(self.h, self.max_step)
+        self._peak = {}
         t = t0
         for j in range(1, n_out + 1):
             t_target = t0 + j * dt_out
             while t < t_target - 1e-12 * dt_out:
-                h_try = min(h, t_target - t)
-                last = t_target - t <= h * (1 + 1e-9)
-                t1 = t_target if last else t + h_try
+                # equal steps up to the output point: no remnant step, however close to it
+                pieces = max(1, math.ceil((t_target - t) / h - 1e-9))
+                last = pieces == 1
+                t1 = t_target if last else t + (t_target - t) / pieces
                 states = {n: s.get_state() for n, s in self.slaves.items()}
                 snaps = {n: hist[n].snapshot() for n in self.slaves}
                 try:
