@@ -48,6 +48,8 @@ __all__ = ["RunStats", "Master"]
 #: the adaptive master's smallest magnitude of a signal its error is weighed against (1 in the
 #: signal's SI unit: a rad, a rad/s, a N), as its absolute tolerance
 _FLOOR = 1.0
+#: the cart's velocity, the flow of the force-cart power bond (the plant's output)
+VELOCITY = "x_dot"
 
 
 @dataclass
@@ -67,6 +69,18 @@ class RunStats:
     iterations: int = 0
     max_iterations: int = 0
     jacobian_steps: int = 0
+
+
+def _power_bond(coupling):
+    """The force-cart power bond of ``coupling``: the connection into the FMU whose output
+    :data:`VELOCITY` (the cart's velocity) is exchanged or recorded; a ValueError if none."""
+    for c in coupling.connections:
+        for exchanged, names in ((True, coupling.outputs[c.dst]), (False, coupling.recorded[c.dst])):
+            if VELOCITY in names:
+                return (c.src, coupling.out_index[c.src][c.src_var], c.dst, exchanged,
+                        names.index(VELOCITY))
+    raise ValueError(f"master.error_estimator = 'energy' needs the cart's velocity: no FMU fed "
+                     f"by a connection has its output {VELOCITY!r} exchanged or recorded")
 
 
 class Master:
@@ -100,6 +114,10 @@ class Master:
         self.adaptive = settings.adaptive
         self.tol = settings.tolerance
         self.min_step, self.max_step = settings.min_step, settings.max_step
+        #: the force-cart power bond the energy estimator watches: (force's source, its output
+        #: position, the cart's slave, whether its velocity is exchanged, its position)
+        self._bond = _power_bond(coupling) if (settings.adaptive and
+                                               settings.error_estimator == "energy") else None
         self._in_buf = {n: np.zeros(len(coupling.inputs[n]) * (1 + coupling.n_der[n]))
                         for n in slaves}
         #: why the compiled loop cannot run these FMUs (None: it can)
@@ -270,6 +288,23 @@ class Master:
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
         return err
 
+    def _energy_residual(self, hist, new, t0, t1):
+        """ECCO's energy residual of the force-cart power bond over ``[t0, t1]``, relative to
+        the tolerance: the energy the force's coupling error puts into the cart,
+        ``dE = (t1 - t0) |F_pred(t1) - F(t1)| |v(t1)| / (p + 2)`` (the error of an order-``p``
+        extrapolation grows like ``tau^(p+1)`` over the step), against ``tolerance`` times the
+        energy the bond carries over a step at the largest power of the run so far (at least
+        1 W: :data:`_FLOOR`)."""
+        src, i_f, dst, exchanged, i_v = self._bond
+        if len(hist[src].t) == 0:
+            return 0.0
+        force = self._combination(hist[src], t1, self.h, (0,))[0][i_f]
+        actual = new[src][i_f]
+        v = new[dst][i_v] if exchanged else self.slaves[dst].get_recorded(t1)[i_v]
+        power = self._magnitude("bond", np.array([actual * v]))[0]
+        k = min(self.coupling.p, len(hist[src].t) - 1)
+        return abs(force - actual) * abs(v) / ((k + 2) * self.tol * power)
+
     def _magnitude(self, src, actual):
         """Each output's magnitude in the run so far (the largest ``|value|`` reached, at least
         :data:`_FLOOR`): the coupling error is weighed against the signal's own size, so that
@@ -376,6 +411,8 @@ class Master:
     def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress, stop=None):
         h = min(self.h, self.max_step)
         self._peak = {}
+        energy = self.settings.error_estimator == "energy"
+        err_prev = 0.0
         t = t0
         for j in range(1, n_out + 1):
             t_target = t0 + j * dt_out
@@ -384,6 +421,28 @@ class Master:
                 pieces = max(1, math.ceil((t_target - t) / h - 1e-9))
                 last = pieces == 1
                 t1 = t_target if last else t + (t_target - t) / pieces
+                if energy:          # ECCO: no rollback, the next step set from the residual
+                    new = self._step(hist, t, t1)
+                    err = self._energy_residual(hist, new, t, t1)
+                    step = t1 - t
+                    for n in self.slaves:
+                        hist[n].push(t1, new[n])
+                    cur, t = new, t1
+                    stats.steps += 1
+                    stats.min_step_used = min(stats.min_step_used, step)
+                    stats.max_step_used = max(stats.max_step_used, step)
+                    self._t_reached = t1
+                    if stop is not None and stop():
+                        if last:
+                            self._store(out, j, t_target, cur)
+                        raise RunInterrupted(t1)
+                    k = min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t) - 1)
+                    factor = 2.0 if err == 0 else 0.9 * err ** (-0.3 / k) * (
+                        (err_prev / err) ** (0.4 / k) if err_prev else 1.0)
+                    err_prev = err
+                    if not last:
+                        h = min(self.max_step, max(self.min_step, step * min(2.0, max(0.2, factor))))
+                    continue
                 states = {n: s.get_state() for n, s in self.slaves.items()}
                 snaps = {n: hist[n].snapshot() for n in self.slaves}
                 try:

@@ -46,6 +46,10 @@ ALGORITHMS = ("gauss-seidel", "jacobi", "implicit")
 #: ``master.implicit_jacobian``: how the implicit master updates the interface
 #: (:mod:`orchestration.cosim.implicit`): Newton on the step's sensitivity, or IQN-ILS.
 IMPLICIT_JACOBIANS = ("newton", "iqn-ils")
+#: ``master.error_estimator``: what the adaptive master's step control measures (the coupling
+#: error of the extrapolated outputs, with rollback; or the energy residual of the force-cart
+#: power bond, ECCO's, without rollback)
+ERROR_ESTIMATORS = ("extrapolation", "energy")
 FIRST = ("controller", "plant")
 #: ``master.interface``: the FMUs stepped as co-simulation slaves, or their Model Exchange
 #: interfaces solved as one system (:mod:`orchestration.cosim.model_exchange`).
@@ -166,10 +170,12 @@ class MasterSettings:
     implicit_tolerance: float = 1e-9
     max_iterations: int = 20
     implicit_jacobian: str = "newton"
+    error_estimator: str = "extrapolation"
 
     def __post_init__(self):
         _choice("master.algorithm", self.algorithm, ALGORITHMS)
         _choice("master.implicit_jacobian", self.implicit_jacobian, IMPLICIT_JACOBIANS)
+        _choice("master.error_estimator", self.error_estimator, ERROR_ESTIMATORS)
         _set(self, "implicit_tolerance", _checked("master.implicit_tolerance", check_real,
                                                   self.implicit_tolerance, low=1e-15, high=1.0))
         _set(self, "max_iterations", _checked("master.max_iterations", check_int,
