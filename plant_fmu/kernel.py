@@ -322,12 +322,12 @@ class PlantKernel:
 
 
 class ExactStepError(RuntimeError):
-    """A step of the exact rung failed; ``code`` is the kernel's (FP_NONFINITE, FP_NOCONVERGE,
-    FP_BADARG) and the state is the last good one."""
+    """A step of the exact rung failed: ``code`` is the kernel's (FP_NONFINITE, FP_NOCONVERGE,
+    FP_BADARG), ``state`` the last good state (after the steps taken) or None."""
 
-    def __init__(self, message: str, code: int):
+    def __init__(self, message: str, code: int, state=None):
         super().__init__(message)
-        self.code = code
+        self.code, self.state = code, state
 
 
 class ExactKernel:
@@ -363,9 +363,9 @@ class ExactKernel:
         self.newton_iterations = 0
         self._lock = threading.Lock()
 
-    def _raise(self, rc: int, what: str):
+    def _raise(self, rc: int, what: str, state=None):
         raise ExactStepError(f"exact {what}: {self._CODES.get(rc, f'code {rc}')} "
-                             f"(h = {self.h})", rc)
+                             f"(h = {self.h})", rc, state)
 
     def forces(self, q, qd, u: float = 0.0, tangent: bool = True):
         """``(f, K, C)`` (``K, C``: None unless ``tangent``), as ``BeamSystem.forces``."""
@@ -409,7 +409,8 @@ class ExactKernel:
 
     def steps(self, state, force=0.0, n: int = 1):
         """``n`` steps under one force law: the new state (a tuple as :meth:`start`'s).
-        :class:`ExactStepError` if a step fails (its ``code``; no state is returned)."""
+        :class:`ExactStepError` if a step fails (its ``code``, and the state after the steps
+        taken)."""
         s = np.concatenate([np.asarray(v, dtype=float) for v in state])
         with self._lock:
             self._set_force(force)
@@ -418,9 +419,10 @@ class ExactKernel:
                                           self._pwork, ctypes.byref(self._done),
                                           ctypes.byref(self._iters))
             self.newton_iterations += self._iters.value
+        state = tuple(s.reshape(4, self.nq))
         if rc != FP_OK:
-            self._raise(rc, f"step {self._done.value + 1} of {n}")
-        return tuple(s.reshape(4, self.nq))
+            self._raise(rc, f"step {self._done.value + 1} of {n}", state)
+        return state
 
     def step(self, state, force=0.0):
         return self.steps(state, force, 1)
