@@ -1105,29 +1105,21 @@ static void ex_element(const fp_exact *p, const double *ee, const double *eed, d
                 for (j = 0; j < 4; j++)
                     H[4 * i + j] += beta * (EA * de[i] * Hea[j] + EI * dk[i] * Hka[j]);
         }
-        /* ke += G^T (H wg) G, G (4 x 8): row 0 (2k) d1, row 1 (2k+1) d1, rows 2, 3: d2 */
-        {
-            double G[32];
-            for (i = 0; i < 32; i++) G[i] = 0.0;
-            for (k = 0; k < 4; k++) {
-                G[0 * 8 + 2 * k] = G[1 * 8 + 2 * k + 1] = d1[k];
-                G[2 * 8 + 2 * k] = G[3 * 8 + 2 * k + 1] = d2[k];
-            }
-            for (i = 0; i < 8; i++) {
-                int r;
-                for (j = 0; j < 8; j++) {
-                    double sk = 0.0, sc = 0.0;
-                    int s2;
-                    for (r = 0; r < 4; r++) {
-                        if (G[r * 8 + i] == 0.0) continue;
-                        for (s2 = 0; s2 < 4; s2++) {
-                            sk += G[r * 8 + i] * H[4 * r + s2] * G[s2 * 8 + j];
-                            sc += G[r * 8 + i] * Cg[4 * r + s2] * G[s2 * 8 + j];
-                        }
-                    }
-                    ke[8 * i + j] += sk * wg;
-                    ce[8 * i + j] += sc * wg;
-                }
+        /* ke += G^T (H wg) G: G (4 x 8) maps the dof 2k + c (c = 0: x, 1: y) to the rows c
+         * (with d1[k]) and c + 2 (with d2[k]) alone, so each entry sums four terms */
+        for (i = 0; i < 8; i++) {
+            const int ki = i >> 1, ci = i & 1;
+            const double gi0 = d1[ki], gi1 = d2[ki];
+            for (j = 0; j < 8; j++) {
+                const int kj = j >> 1, cj = j & 1;
+                const double gj0 = d1[kj], gj1 = d2[kj];
+                const int r0 = ci, r1 = ci + 2, s0 = cj, s1 = cj + 2;
+                ke[8 * i + j] += (gi0 * (H[4 * r0 + s0] * gj0 + H[4 * r0 + s1] * gj1)
+                                  + gi1 * (H[4 * r1 + s0] * gj0 + H[4 * r1 + s1] * gj1)) * wg;
+                if (damp)
+                    ce[8 * i + j] += (gi0 * (Cg[4 * r0 + s0] * gj0 + Cg[4 * r0 + s1] * gj1)
+                                      + gi1 * (Cg[4 * r1 + s0] * gj0 + Cg[4 * r1 + s1] * gj1))
+                                     * wg;
             }
         }
     }
