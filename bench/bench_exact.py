@@ -20,7 +20,7 @@ elements at h against h / 2).
 Measured (one loaded 2-core machine, helpers running beside it; ``python3 bench/bench_exact.py``,
 about 2 min):
 
-    plant alone, held force, s of CPU per simulated s (median of 3, 0.2 s spans):
+    plant alone, held force, s of wall time per simulated s (median of 3, 0.2 s spans):
       floating frame, 4 modes, RK4 h = 0.25 ms (kernel)    0.0024
       exact, 8 elements, h = 0.1 ms, C kernel              0.27
       exact, 8 elements, h = 0.1 ms, numpy                 6.6
@@ -149,7 +149,7 @@ def main(argv=None):
     scene = load_scene("flexible_pd_lowpass", {"initial.phi": PHI0, "stop_time": args.stop})
     params = scene.plant.params
     span, rep = args.span, args.repeat
-    print("plant alone, held force, s of CPU per simulated s "
+    print("plant alone, held force, s of wall time per simulated s "
           f"(median of {rep}, {span:g} s spans):", flush=True)
     rows = [(f"floating frame, {params.n_modes} modes, RK4 h = {H_RK4 * 1e3:g} ms (kernel)",
              floating_frame(params)),
