@@ -10,7 +10,8 @@ damping laws, modal against Kelvin-Voigt, do not enter). For each initial angle:
 ``|phi_o|`` difference over the run, for the default rung and with ``plant.gravity_preload``, and
 the exact rung's own discretisation uncertainty (the mesh doubled, the step halved).
 
-Measured (16 elements, h = 5e-5 against 1e-4 and 32 elements; 3 s; 1.5 min with the C kernel, 5 min with ``--numpy``, the same digits):
+Measured (16 elements, h = 5e-5 against 1e-4 and 32 elements; 3 s; 1.5 min with the C kernel,
+5 min with ``--numpy``, the same digits):
 
     phi0     default   preload   (issue: default, preload)   exact: mesh      step   tip defl. max
     0.0500  2.90e-04  5.05e-05   (3.00e-04, 7.10e-05)        2.0e-05        4.4e-05  0.26%
