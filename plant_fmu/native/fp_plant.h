@@ -48,7 +48,7 @@ extern "C" {
 #define FP_NONFINITE 2     /* a substep produced a non-finite state: y is the last finite one */
 #define FP_CAP 3           /* the adaptive loop reached its cap on steps before t_end */
 #define FP_UNDERFLOW 4     /* the adaptive step fell below the minimum step */
-#define FP_NOCONVERGE 5    /* the exact beam's Newton did not converge (or its matrix is singular) */
+#define FP_NOCONVERGE 5    /* the exact beam's Newton did not converge, or its matrix is singular */
 
 /* Built-in methods of the fixed-step loop and of fp_builtin_tableau(). */
 #define FP_EULER 0             /* explicit Euler (tableau) */
