@@ -4,12 +4,14 @@
 Both closed loops are monolithic (no co-simulation error): the floating frame by
 :func:`orchestration.studies.reference.simulate_reference` (DOP853, rtol = atol = 1e-12), the exact
 beam by its generalized-alpha stepper with the controller's filter integrated by the trapezoidal
-rule in the same Newton solve (:mod:`orchestration.studies.exact_loop`). Structural damping is off on both sides (so the
+rule in the same Newton solve (:mod:`orchestration.studies.exact_loop`; its C kernel, or with
+``--numpy`` its numpy specification: the same answers to round-off). Structural damping is off on both sides (so the
 damping laws, modal against Kelvin-Voigt, do not enter). For each initial angle: the largest
 ``|phi_o|`` difference over the run, for the default rung and with ``plant.gravity_preload``, and
 the exact rung's own discretisation uncertainty (the mesh doubled, the step halved).
 
-Measured (16 elements, h = 5e-5 against 1e-4 and 32 elements; 3 s; 5 min on one core):
+Measured (16 elements, h = 5e-5 against 1e-4 and 32 elements; 3 s; 1.5 min with the C kernel,
+5 min with ``--numpy``, the same digits):
 
     phi0     default   preload   (issue: default, preload)   exact: mesh      step   tip defl. max
     0.0500  2.90e-04  5.05e-05   (3.00e-04, 7.10e-05)        2.0e-05        4.4e-05  0.26%
@@ -26,7 +28,7 @@ down to 2.5e-5, while a free pendulum's energy drift is second order). With the 
 as the Kelvin-Voigt law, which damps those modes, the same open-loop differences fall to 2.4e-7 and
 converge at order 2.00 (h = 2e-4, 1e-4, 5e-5). The floating frame with 4 modes has no such modes.
 
-    python3 bench/fidelity_gap.py [--elements 16] [--step 1e-4] [--stop 3]
+    python3 bench/fidelity_gap.py [--elements 16] [--step 1e-4] [--stop 3] [--numpy]
 """
 from __future__ import annotations
 
@@ -62,7 +64,10 @@ def main(argv=None):
     ap.add_argument("--elements", type=int, default=16)
     ap.add_argument("--step", type=float, default=1e-4)
     ap.add_argument("--stop", type=float, default=3.0)
+    ap.add_argument("--numpy", action="store_true", help="the exact rung's numpy specification "
+                    "(default: its C kernel)")
     args = ap.parse_args(argv)
+    kernel = not args.numpy
     ne, h = args.elements, args.step
     print(f"exact rung: {ne} elements, h = {h / 2:g}; its uncertainty: {2 * ne} elements against "
           f"{ne} (at h = {h:g}), and h = {h / 2:g} against {h:g}")
@@ -71,12 +76,12 @@ def main(argv=None):
     for phi0 in ANGLES:
         sc = scene_for(phi0, args.stop)
         t0 = time.perf_counter()
-        coarse = exact_run(sc, ne, h)
+        coarse = exact_run(sc, ne, h, kernel)
         cost = time.perf_counter() - t0
-        fine = exact_run(sc, ne, h / 2)
+        fine = exact_run(sc, ne, h / 2, kernel)
         ref = fine
         step = np.max(np.abs(fine - coarse))        # bounds the error of ``fine`` (order >= 1)
-        mesh = np.max(np.abs(exact_run(sc, 2 * ne, h) - coarse))
+        mesh = np.max(np.abs(exact_run(sc, 2 * ne, h, kernel) - coarse))
         run = simulate_reference(sc)
         pre = simulate_reference(scene_for(phi0, args.stop, preload=True))["phi_o"]
         d_def, d_pre = np.max(np.abs(run["phi_o"] - ref)), np.max(np.abs(pre - ref))

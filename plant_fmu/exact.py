@@ -49,12 +49,15 @@ from __future__ import annotations
 import functools
 import math
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .beam import _element_matrices, unit_beam
 from .params import PlantParams
 
-__all__ = ["CableMesh", "BeamSystem", "ExactPlant", "GeneralizedAlpha", "exact_plant"]
+__all__ = ["CableMesh", "BeamSystem", "ExactPlant", "GeneralizedAlpha", "AffineForce",
+           "exact_plant"]
 
 #: Gauss points per element (exact for the bending energy of an inextensible cubic element).
 N_GAUSS = 5
@@ -358,6 +361,42 @@ class GeneralizedAlpha:
         return (q, v, qdd, a)
 
 
+class AffineForce(NamedTuple):
+    """The force law of a step: ``F = F0 - Q0 (kx x + kp phi_o + kd omega_o)`` at the step's
+    end (``Q0 = 0``: the force ``F0`` held), as a ``force`` for :meth:`GeneralizedAlpha.step`
+    and the form the C kernel takes (``fp_exact_force``)."""
+
+    F0: float
+    Q0: float = 0.0
+    kx: float = 0.0
+    kp: float = 0.0
+    kd: float = 0.0
+
+    def __call__(self, q, qd):
+        """``(F, dF/dq, dF/dqd)``."""
+        phi, om, dphi, dom_q, dom_v = tip_angle_gradient(q, qd)
+        de_q = self.kp * dphi + self.kd * dom_q
+        de_q[0] += self.kx
+        e = self.kx * q[0] + self.kp * phi + self.kd * om
+        return self.F0 - self.Q0 * e, -self.Q0 * de_q, -self.Q0 * (self.kd * dom_v)
+
+
+def tip_angle_gradient(q, qd):
+    """``(phi_o, omega_o, dphi/dq, domega/dq, domega/dqd)`` from the tip node's slope (the last
+    two coordinates of ``q``) and its rate."""
+    nq = len(q)
+    ax, ay, adx, ady = q[-2], q[-1], qd[-2], qd[-1]
+    n = ax * ax + ay * ay
+    om = (ax * ady - ay * adx) / n
+    dphi = np.zeros(nq)
+    dphi[-2:] = (-ay / n, ax / n)
+    dom_q = np.zeros(nq)
+    dom_q[-2:] = (ady / n - 2 * om * ax / n, -adx / n - 2 * om * ay / n)
+    dom_v = np.zeros(nq)
+    dom_v[-2:] = (-ay / n, ax / n)
+    return math.atan2(-ax, ay), om, dphi, dom_q, dom_v
+
+
 def _lu(S):
     import scipy.linalg
 
@@ -401,17 +440,7 @@ class ExactPlant:
 
     def tip_angle_gradient(self, q, qd):
         """``(phi_o, omega_o, dphi/dq, domega/dq, domega/dqd)``."""
-        nq = self.nq
-        ax, ay, adx, ady = q[-2], q[-1], qd[-2], qd[-1]
-        n = ax * ax + ay * ay
-        om = (ax * ady - ay * adx) / n
-        dphi = np.zeros(nq)
-        dphi[-2:] = (-ay / n, ax / n)
-        dom_q = np.zeros(nq)
-        dom_q[-2:] = (ady / n - 2 * om * ax / n, -adx / n - 2 * om * ay / n)
-        dom_v = np.zeros(nq)
-        dom_v[-2:] = (-ay / n, ax / n)
-        return math.atan2(-ax, ay), om, dphi, dom_q, dom_v
+        return tip_angle_gradient(q, qd)
 
     def tip_deflection(self, x: np.ndarray) -> float:
         """The tip's distance from the line of the root tangent, along the floating frame's

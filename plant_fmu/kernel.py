@@ -34,10 +34,11 @@ import numpy as np
 from fmu_common import kernels
 from fmu_common.kernels import KernelError
 
-__all__ = ["PlantKernel", "KernelError", "library", "FP_OK", "FP_BADARG", "FP_NONFINITE",
-           "FP_CAP", "FP_UNDERFLOW", "METHODS", "OUT"]
+__all__ = ["PlantKernel", "ExactKernel", "ExactStepError", "KernelError", "library", "FP_OK",
+           "FP_BADARG", "FP_NONFINITE", "FP_CAP", "FP_UNDERFLOW", "FP_NOCONVERGE", "METHODS",
+           "OUT"]
 
-FP_OK, FP_BADARG, FP_NONFINITE, FP_CAP, FP_UNDERFLOW = 0, 1, 2, 3, 4
+FP_OK, FP_BADARG, FP_NONFINITE, FP_CAP, FP_UNDERFLOW, FP_NOCONVERGE = 0, 1, 2, 3, 4, 5
 
 #: the built-in methods of the fixed-step loop (fp_plant.h)
 METHODS = {"euler": 0, "rk4": 1, "dopri5": 2, "symplectic_euler": 3}
@@ -74,6 +75,18 @@ class _Adaptive(ctypes.Structure):
                 ("fail_h", _D), ("fail_min_step", _D)]
 
 
+class _Exact(ctypes.Structure):
+    _fields_ = [("ne", ctypes.c_int), ("L", _D), ("EA", _D), ("EI", _D), ("rhoA", _D), ("g", _D),
+                ("m", _D), ("beta_kv", _D), ("h", _D), ("rho_inf", _D), ("tol", _D),
+                ("max_iter", ctypes.c_int), ("nq", ctypes.c_int), ("le", _D), ("am", _D),
+                ("af", _D), ("gamma", _D), ("beta", _D), ("bp", _D), ("gw", _D * 5),
+                ("gd1", _D * 20), ("gd2", _D * 20)]
+
+
+class _ExactForce(ctypes.Structure):
+    _fields_ = [("F0", _D), ("Q0", _D), ("kx", _D), ("kp", _D), ("kd", _D)]
+
+
 _lib = None
 
 
@@ -86,6 +99,7 @@ def library() -> ctypes.CDLL:
         lib.fp_energy.restype = ctypes.c_double
         lib.fp_work_size.restype = ctypes.c_long
         lib.fp_jacobian_work_size.restype = ctypes.c_long
+        lib.fp_exact_work_size.restype = ctypes.c_long
         for name in ("fp_rhs", "fp_tip", "fp_outputs"):
             getattr(lib, name).restype = None
         _lib = lib
@@ -305,3 +319,110 @@ class PlantKernel:
             raise ValueError("dopri_advance: bad argument (tableau, tolerances or steps)")
         return (rc, tt.value, y, f, a.h_abs, a.nfev, a.nsteps, a.nrejected, a.fail_h,
                 a.fail_min_step)
+
+
+class ExactStepError(RuntimeError):
+    """A step of the exact rung failed: ``code`` is the kernel's (FP_NONFINITE, FP_NOCONVERGE,
+    FP_BADARG), ``state`` the last good state (after the steps taken) or None."""
+
+    def __init__(self, message: str, code: int, state=None):
+        super().__init__(message)
+        self.code, self.state = code, state
+
+
+class ExactKernel:
+    """The exact rung's compiled step (``fp_exact_*``), the API of the numpy specification
+    :class:`plant_fmu.exact.GeneralizedAlpha` on an :class:`plant_fmu.exact.ExactPlant`:
+    :meth:`forces` as ``BeamSystem.forces``, :meth:`start` and :meth:`step` as the integrator's,
+    with the force a number (held) or an :class:`plant_fmu.exact.AffineForce` (the closed loop's
+    law; the kernel takes no other callable). :meth:`steps` runs ``n`` steps in one call."""
+
+    _CODES = {FP_BADARG: "bad argument (a size, or a force that is not finite)",
+              FP_NONFINITE: "a residual or the state is not finite",
+              FP_NOCONVERGE: "Newton did not converge (or its matrix is singular)"}
+
+    def __init__(self, plant, h: float, rho_inf: float = 0.9, tol: float = 1e-11,
+                 max_iter: int = 30):
+        p = plant.params
+        if not 0.0 <= rho_inf <= 1.0:
+            raise ValueError(f"rho_inf = {rho_inf!r} is out of range; allowed: [0, 1]")
+        lib = self._lib = library()
+        self._struct = _Exact(int(p.n_elements), float(p.L), float(p.EA), float(p.EI),
+                              float(p.rhoA), float(p.g), float(p.m), float(plant.beta_kv),
+                              float(h), float(rho_inf), float(tol), int(max_iter))
+        self._p = ctypes.byref(self._struct)
+        if lib.fp_exact_prepare(self._p) != FP_OK:
+            raise ValueError(f"the exact beam's data are out of range (h = {h!r}, max_iter = "
+                             f"{max_iter!r}, or a parameter is not finite and positive)")
+        self.h, self.nq = h, self._struct.nq
+        self._work = np.zeros(lib.fp_exact_work_size(self._p))
+        self._pwork = _addr(self._work)
+        self._force = _ExactForce()
+        self._pforce = ctypes.byref(self._force)
+        self._done, self._iters = ctypes.c_long(), ctypes.c_long()
+        self.newton_iterations = 0
+        self._lock = threading.Lock()
+
+    def _raise(self, rc: int, what: str, state=None):
+        raise ExactStepError(f"exact {what}: {self._CODES.get(rc, f'code {rc}')} "
+                             f"(h = {self.h})", rc, state)
+
+    def forces(self, q, qd, u: float = 0.0, tangent: bool = True):
+        """``(f, K, C)`` (``K, C``: None unless ``tangent``), as ``BeamSystem.forces``."""
+        nq = self.nq
+        q, qd = _f64(q, (nq,)), _f64(qd, (nq,))
+        f = np.empty(nq)
+        K = np.empty((nq, nq)) if tangent else None
+        C = np.empty((nq, nq)) if tangent else None
+        with self._lock:
+            rc = self._lib.fp_exact_forces(self._p, _addr(q), _addr(qd), _D(u), _addr(f),
+                                           _addr(K) if tangent else None,
+                                           _addr(C) if tangent else None, None, self._pwork)
+        if rc != FP_OK:
+            self._raise(rc, "forces")
+        return f, K, C
+
+    def mass(self) -> np.ndarray:
+        nq = self.nq
+        z, f, M = np.zeros(nq), np.empty(nq), np.empty((nq, nq))
+        with self._lock:
+            self._lib.fp_exact_forces(self._p, _addr(z), _addr(z), _D(0.0), _addr(f), None, None,
+                                      _addr(M), self._pwork)
+        return M
+
+    def _set_force(self, force):
+        law = (float(force), 0.0, 0.0, 0.0, 0.0) if np.isscalar(force) else tuple(force)
+        f = self._force
+        f.F0, f.Q0, f.kx, f.kp, f.kd = law
+
+    def start(self, q, qd, force=0.0):
+        """The integrator's state ``(q, qd, qdd, a)`` from consistent accelerations."""
+        nq = self.nq
+        s = np.zeros(4 * nq)
+        s[:nq], s[nq:2 * nq] = q, qd
+        with self._lock:
+            self._set_force(force)
+            rc = self._lib.fp_exact_start(self._p, self._pforce, _addr(s), self._pwork)
+        if rc != FP_OK:
+            self._raise(rc, "start")
+        return tuple(s.reshape(4, nq).copy())
+
+    def steps(self, state, force=0.0, n: int = 1):
+        """``n`` steps under one force law: the new state (a tuple as :meth:`start`'s).
+        :class:`ExactStepError` if a step fails (its ``code``, and the state after the steps
+        taken)."""
+        s = np.concatenate([np.asarray(v, dtype=float) for v in state])
+        with self._lock:
+            self._set_force(force)
+            self._iters.value = 0
+            rc = self._lib.fp_exact_steps(self._p, self._pforce, ctypes.c_long(n), _addr(s),
+                                          self._pwork, ctypes.byref(self._done),
+                                          ctypes.byref(self._iters))
+            self.newton_iterations += self._iters.value
+        state = tuple(s.reshape(4, self.nq))
+        if rc != FP_OK:
+            self._raise(rc, f"step {self._done.value + 1} of {n}", state)
+        return state
+
+    def step(self, state, force=0.0):
+        return self.steps(state, force, 1)

@@ -1,13 +1,16 @@
 """The exact rung's monolithic closed loop: the geometrically exact beam on the cart
 (:mod:`plant_fmu.exact`) with the PD + low-pass controller, stepped as one system by generalized
-alpha. A study for now (``bench/fidelity_gap.py``); not a ``plant.fidelity`` value yet.
+alpha, by the numpy specification or by the C kernel (``kernel=True``: ``fp_exact_steps``, the
+same steps to round-off, ``tests/test_exact_kernel.py``). A study for now
+(``bench/fidelity_gap.py``, ``bench/bench_exact.py``); not a ``plant.fidelity`` value yet.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from controller_fmu.pd_lowpass import PDLowPassModel
-from plant_fmu.exact import ExactPlant, GeneralizedAlpha
+from plant_fmu.exact import AffineForce, ExactPlant, GeneralizedAlpha
+from plant_fmu.kernel import ExactKernel
 
 __all__ = ["ExactLoop", "exact_run"]
 
@@ -19,11 +22,13 @@ class ExactLoop:
     by the trapezoidal rule over each step, so ``F_{n+1} = F0 - Q0 e(q_{n+1}, qd_{n+1})`` with
     ``e = kx x_o + kp phi_o + kd omega_o``: the force is part of the step's Newton solve."""
 
-    def __init__(self, plant: ExactPlant, ctrl: PDLowPassModel, h: float, rho_inf: float = 0.9):
+    def __init__(self, plant: ExactPlant, ctrl: PDLowPassModel, h: float, rho_inf: float = 0.9,
+                 kernel: bool = False):
         if ctrl.params.saturates:
             raise ValueError("the exact loop has no force saturation")
         self.plant, self.ctrl, self.h = plant, ctrl, h
-        self.ga = GeneralizedAlpha(plant.system, h, rho_inf=rho_inf)
+        self.ga = (ExactKernel(plant, h, rho_inf=rho_inf) if kernel
+                   else GeneralizedAlpha(plant.system, h, rho_inf=rho_inf))
         n = ctrl.nx
         if n:
             Am = np.eye(n) - 0.5 * h * ctrl.Af
@@ -51,6 +56,7 @@ class ExactLoop:
         st = self.ga.start(q, qd, F_now)
         n_out = int(round(t_end / dt_out))
         out = [self.plant.tip_angle(x0)[0]]
+        c = self.ctrl.params
         for _ in range(n_out):
             for _ in range(per):
                 if self.ctrl.nx:
@@ -58,12 +64,7 @@ class ExactLoop:
                     F0, Q0 = -base[0], self.Q[0]
                 else:
                     F0, Q0 = 0.0, 1.0
-
-                def force(q, qd, F0=F0, Q0=Q0):
-                    e, dq, dv = self.error(q, qd)
-                    return F0 - Q0 * e, -Q0 * dq, -Q0 * dv
-
-                st = self.ga.step(st, force)
+                st = self.ga.step(st, AffineForce(F0, Q0, c.kx, c.kp, c.kd))
                 e0 = self.error(st[0], st[1])[0]
                 if self.ctrl.nx:
                     xc = base + self.Q * e0
@@ -71,12 +72,13 @@ class ExactLoop:
         return np.arange(n_out + 1) * dt_out, np.array(out)
 
 
-def exact_run(scene, n_elements: int, h: float) -> np.ndarray:
+def exact_run(scene, n_elements: int, h: float, kernel: bool = False) -> np.ndarray:
     """``phi_o`` on the scene's output grid, of the scene's loop with the exact beam meshed with
-    ``n_elements`` elements and stepped at ``h`` (it must divide the output interval)."""
+    ``n_elements`` elements and stepped at ``h`` (it must divide the output interval), by the
+    numpy specification or (``kernel``) the C kernel."""
     p = scene.plant.params.replace(n_elements=n_elements)
     plant = ExactPlant(p)
-    loop = ExactLoop(plant, PDLowPassModel(scene.controller), h)
+    loop = ExactLoop(plant, PDLowPassModel(scene.controller), h, kernel=kernel)
     x0 = plant.initial_state(phi=scene.initial.phi, x=scene.initial.x,
                              phi_dot=scene.initial.phi_dot, x_dot=scene.initial.x_dot)
     return loop.run(x0, scene.output.stop_time, scene.output.output_interval)[1]

@@ -955,3 +955,491 @@ int fp_output_derivatives(const fp_plant *p, const double *x, double u, double d
         if (!isfinite(d1[i]) || !isfinite(d2[i])) return FP_NONFINITE;
     return FP_OK;
 }
+
+/* ==== The exact rung: ANCF cable elements on the cart (plant_fmu/exact.py) ==================== */
+
+#define EX_KL 7                          /* half-bandwidth of the element coupling */
+#define EX_KU 7
+#define EX_W (2 * EX_KL + EX_KU + 1)     /* band storage per column, room for the pivots' fill */
+#define EX_NG 5
+
+int fp_exact_prepare(fp_exact *p)
+{
+    double r, x[EX_NG], w[EX_NG], s70 = sqrt(70.0), a, b;
+    int g;
+    if (p == NULL || p->ne < 1 || p->ne > 100000 || p->max_iter < 1) return FP_BADARG;
+    if (!(isfinite(p->L) && p->L > 0 && isfinite(p->EA) && p->EA > 0 && isfinite(p->EI)
+          && p->EI > 0 && isfinite(p->rhoA) && p->rhoA > 0 && isfinite(p->g)
+          && isfinite(p->m) && p->m > 0 && isfinite(p->beta_kv) && p->beta_kv >= 0
+          && isfinite(p->h) && p->h > 0 && p->rho_inf >= 0 && p->rho_inf <= 1
+          && isfinite(p->tol) && p->tol > 0))
+        return FP_BADARG;
+    p->nq = 4 * p->ne + 3;
+    p->le = p->L / p->ne;
+    r = p->rho_inf;
+    p->am = (2 * r - 1) / (r + 1);
+    p->af = r / (r + 1);
+    p->gamma = 0.5 + p->af - p->am;
+    p->beta = 0.25 * (p->gamma + 0.5) * (p->gamma + 0.5);
+    p->bp = (1 - p->af) / (1 - p->am);
+    /* 5-point Gauss-Legendre on [-1, 1], in closed form */
+    a = sqrt(5.0 - 2.0 * sqrt(10.0 / 7.0)) / 3.0;
+    b = sqrt(5.0 + 2.0 * sqrt(10.0 / 7.0)) / 3.0;
+    x[0] = -b; x[1] = -a; x[2] = 0.0; x[3] = a; x[4] = b;
+    w[0] = w[4] = (322.0 - 13.0 * s70) / 900.0;
+    w[1] = w[3] = (322.0 + 13.0 * s70) / 900.0;
+    w[2] = 128.0 / 225.0;
+    for (g = 0; g < EX_NG; g++) {
+        double xi = 0.5 * (x[g] + 1.0), le = p->le, *d1 = p->gd1 + 4 * g, *d2 = p->gd2 + 4 * g;
+        p->gw[g] = 0.5 * w[g] * le;
+        d1[0] = (-6 * xi + 6 * xi * xi) / le;
+        d1[1] = 1 - 4 * xi + 3 * xi * xi;
+        d1[2] = (6 * xi - 6 * xi * xi) / le;
+        d1[3] = -2 * xi + 3 * xi * xi;
+        d2[0] = (-6 + 12 * xi) / (le * le);
+        d2[1] = (-4 + 6 * xi) / le;
+        d2[2] = (6 - 12 * xi) / (le * le);
+        d2[3] = (-2 + 6 * xi) / le;
+    }
+    return FP_OK;
+}
+
+/* work: band (EX_W nq), pivots (nq), Sherman-Morrison y and w (2 nq), 12 vectors of nq, the
+ * nodal vectors e and ed (2 (nq + 1)). */
+long fp_exact_work_size(const fp_exact *p)
+{
+    return p == NULL ? 0 : (long)p->nq * (EX_W + 15) + 2 * ((long)p->nq + 1) + 8;
+}
+
+/* The q index of the full nodal index k (-1: the root's y, held at 0). */
+static int ex_qi(int k) { return k == 0 ? 0 : (k == 1 ? -1 : k - 1); }
+
+/* The element's internal force fe (8) and, if ke is not NULL, its tangents ke = dfe/de and
+ * ce = dfe/ded (8 x 8), from its nodal values ee, eed (exact.py, CableMesh.internal). */
+static void ex_element(const fp_exact *p, const double *ee, const double *eed, double *fe,
+                       double *ke, double *ce)
+{
+    const double EA = p->EA, EI = p->EI, beta = p->beta_kv;
+    const int damp = beta > 0.0;
+    int g, i, j, k;
+    for (i = 0; i < 8; i++) fe[i] = 0.0;
+    if (ke != NULL)
+        for (i = 0; i < 64; i++) ke[i] = ce[i] = 0.0;
+    for (g = 0; g < EX_NG; g++) {
+        const double *d1 = p->gd1 + 4 * g, *d2 = p->gd2 + 4 * g, wg = p->gw[g];
+        double ab[4] = {0, 0, 0, 0}, abd[4] = {0, 0, 0, 0}, de[4], dk[4], He[16], Hk[16], H[16],
+               Cg[16], grad[4], n, la, c, eps, kap, sig, mom, Rb[2], RTa[2], n2, n3;
+        for (k = 0; k < 4; k++) {
+            ab[0] += d1[k] * ee[2 * k];
+            ab[1] += d1[k] * ee[2 * k + 1];
+            ab[2] += d2[k] * ee[2 * k];
+            ab[3] += d2[k] * ee[2 * k + 1];
+            abd[0] += d1[k] * eed[2 * k];
+            abd[1] += d1[k] * eed[2 * k + 1];
+            abd[2] += d2[k] * eed[2 * k];
+            abd[3] += d2[k] * eed[2 * k + 1];
+        }
+        n = ab[0] * ab[0] + ab[1] * ab[1];
+        la = sqrt(n);
+        c = ab[0] * ab[3] - ab[1] * ab[2];
+        eps = la - 1.0;
+        kap = c / n;
+        Rb[0] = ab[3]; Rb[1] = -ab[2];            /* R b, R = [[0, 1], [-1, 0]] */
+        RTa[0] = -ab[1]; RTa[1] = ab[0];          /* R^T a */
+        de[0] = ab[0] / la; de[1] = ab[1] / la; de[2] = de[3] = 0.0;
+        dk[0] = Rb[0] / n - 2.0 * (c / (n * n)) * ab[0];
+        dk[1] = Rb[1] / n - 2.0 * (c / (n * n)) * ab[1];
+        dk[2] = RTa[0] / n;
+        dk[3] = RTa[1] / n;
+        sig = EA * eps;
+        mom = EI * kap;
+        if (damp) {
+            double epsd = 0, kapd = 0;
+            for (i = 0; i < 4; i++) {
+                epsd += de[i] * abd[i];
+                kapd += dk[i] * abd[i];
+            }
+            sig = sig + beta * EA * epsd;
+            mom = mom + beta * EI * kapd;
+        }
+        for (i = 0; i < 4; i++) grad[i] = (sig * de[i] + mom * dk[i]) * wg;
+        for (k = 0; k < 4; k++) {
+            fe[2 * k] += d1[k] * grad[0] + d2[k] * grad[2];
+            fe[2 * k + 1] += d1[k] * grad[1] + d2[k] * grad[3];
+        }
+        if (ke == NULL) continue;
+        for (i = 0; i < 16; i++) He[i] = Hk[i] = 0.0;
+        n2 = n * n;
+        n3 = n2 * n;
+        for (i = 0; i < 2; i++)
+            for (j = 0; j < 2; j++) {
+                double aa = ab[i] * ab[j], I = i == j ? 1.0 : 0.0;
+                He[4 * i + j] = I / la - aa / (la * la * la);
+                Hk[4 * i + j] = -2.0 * (Rb[i] * ab[j] + ab[i] * Rb[j]) / n2 - 2.0 * c * I / n2
+                                + 8.0 * c * aa / n3;
+            }
+        /* Hab = R / n - 2 (a a^T R) / n^2, (a a^T R)_ij = a_i (a^T R)_j, a^T R = (-a1, a0) */
+        for (i = 0; i < 2; i++)
+            for (j = 0; j < 2; j++) {
+                double Rij = (i == 0 && j == 1) ? 1.0 : ((i == 1 && j == 0) ? -1.0 : 0.0);
+                double v = Rij / n - 2.0 * (ab[i] * RTa[j]) / n2;
+                Hk[4 * i + 2 + j] = v;
+                Hk[4 * (2 + j) + i] = v;
+            }
+        for (i = 0; i < 4; i++)
+            for (j = 0; j < 4; j++) {
+                H[4 * i + j] = EA * de[i] * de[j] + EI * dk[i] * dk[j];
+                Cg[4 * i + j] = damp ? beta * H[4 * i + j] : 0.0;
+            }
+        for (i = 0; i < 16; i++) H[i] = H[i] + sig * He[i] + mom * Hk[i];
+        if (damp) {
+            double Hea[4], Hka[4];
+            for (i = 0; i < 4; i++) {
+                Hea[i] = Hka[i] = 0.0;
+                for (j = 0; j < 4; j++) {
+                    Hea[i] += He[4 * i + j] * abd[j];
+                    Hka[i] += Hk[4 * i + j] * abd[j];
+                }
+            }
+            for (i = 0; i < 4; i++)
+                for (j = 0; j < 4; j++)
+                    H[4 * i + j] += beta * (EA * de[i] * Hea[j] + EI * dk[i] * Hka[j]);
+        }
+        /* ke += G^T (H wg) G: G (4 x 8) maps the dof 2k + c (c = 0: x, 1: y) to the rows c
+         * (with d1[k]) and c + 2 (with d2[k]) alone, so each entry sums four terms */
+        for (i = 0; i < 8; i++) {
+            const int ki = i >> 1, ci = i & 1;
+            const double gi0 = d1[ki], gi1 = d2[ki];
+            for (j = 0; j < 8; j++) {
+                const int kj = j >> 1, cj = j & 1;
+                const double gj0 = d1[kj], gj1 = d2[kj];
+                const int r0 = ci, r1 = ci + 2, s0 = cj, s1 = cj + 2;
+                ke[8 * i + j] += (gi0 * (H[4 * r0 + s0] * gj0 + H[4 * r0 + s1] * gj1)
+                                  + gi1 * (H[4 * r1 + s0] * gj0 + H[4 * r1 + s1] * gj1)) * wg;
+                if (damp)
+                    ce[8 * i + j] += (gi0 * (Cg[4 * r0 + s0] * gj0 + Cg[4 * r0 + s1] * gj1)
+                                      + gi1 * (Cg[4 * r1 + s0] * gj0 + Cg[4 * r1 + s1] * gj1))
+                                     * wg;
+            }
+        }
+    }
+}
+
+/* The element's consistent mass, kron(me, I2) (beam.py, _element_matrices). */
+static double ex_mass(const fp_exact *p, int i, int j)
+{
+    const double le = p->le, l2 = le * le;
+    const double me[16] = {156, 22 * le, 54, -13 * le, 22 * le, 4 * l2, 13 * le, -3 * l2,
+                           54, 13 * le, 156, -22 * le, -13 * le, -3 * l2, -22 * le, 4 * l2};
+    if ((i & 1) != (j & 1)) return 0.0;
+    return p->rhoA * le / 420 * me[4 * (i >> 1) + (j >> 1)];
+}
+
+#define AB(i, j) band[(long)(j) * EX_W + (EX_KL + EX_KU + (i) - (j))]
+
+/* The forces f (nq) of M qdd = f at q, qd with the force u, and what the caller asks of the
+ * tangent: (K, C, M) dense (any may be NULL), or, with band != NULL, the band of
+ * cm M + ck K + cc C. e, ed: nq + 1 doubles each. FP_OK or FP_NONFINITE. */
+static int ex_forces(const fp_exact *p, const double *q, const double *qd, double u, double *f,
+                     double *K, double *C, double *M, double *band, double cm, double ck,
+                     double cc, double *e, double *ed)
+{
+    const int nq = p->nq, nd = nq + 1;
+    const double le = p->le, int_h[4] = {le * 0.5, le * (le / 12), le * 0.5, le * (-le / 12)};
+    const int tangent = K != NULL || C != NULL || band != NULL;
+    int el, i, j, k;
+    double fe[8], ke[64], ce[64];
+    e[0] = q[0]; e[1] = 0.0;
+    ed[0] = qd[0]; ed[1] = 0.0;
+    for (k = 2; k < nd; k++) {
+        e[k] = q[k - 1];
+        ed[k] = qd[k - 1];
+    }
+    for (i = 0; i < nq; i++) f[i] = 0.0;
+    if (K != NULL)
+        for (i = 0; i < nq * nq; i++) K[i] = 0.0;
+    if (C != NULL)
+        for (i = 0; i < nq * nq; i++) C[i] = 0.0;
+    if (M != NULL) {
+        for (i = 0; i < nq * nq; i++) M[i] = 0.0;
+        M[0] = p->m;
+    }
+    if (band != NULL) {
+        for (i = 0; i < nq * EX_W; i++) band[i] = 0.0;
+        AB(0, 0) = cm * p->m;
+    }
+    for (el = 0; el < p->ne; el++) {
+        const int b0 = 4 * el;
+        ex_element(p, e + b0, ed + b0, fe, tangent ? ke : NULL, ce);
+        for (i = 0; i < 8; i++) {
+            int qi = ex_qi(b0 + i);
+            if (qi < 0) continue;
+            f[qi] -= fe[i];
+            if (i & 1) f[qi] -= p->g * p->rhoA * int_h[i >> 1];
+            for (j = 0; j < 8; j++) {
+                int qj = ex_qi(b0 + j);
+                if (qj < 0) continue;
+                if (K != NULL) K[(long)qi * nq + qj] += ke[8 * i + j];
+                if (C != NULL) C[(long)qi * nq + qj] += ce[8 * i + j];
+                if (M != NULL) M[(long)qi * nq + qj] += ex_mass(p, i, j);
+                if (band != NULL)
+                    AB(qi, qj) += cm * ex_mass(p, i, j) + ck * ke[8 * i + j] + cc * ce[8 * i + j];
+            }
+        }
+    }
+    f[0] += u;
+    return finite_array(f, nq) ? FP_OK : FP_NONFINITE;
+}
+
+/* M v (nq) by elements. */
+static void ex_mass_times(const fp_exact *p, const double *v, double *out)
+{
+    int el, i, j, nq = p->nq;
+    for (i = 0; i < nq; i++) out[i] = 0.0;
+    out[0] = p->m * v[0];
+    for (el = 0; el < p->ne; el++)
+        for (i = 0; i < 8; i++) {
+            int qi = ex_qi(4 * el + i);
+            if (qi < 0) continue;
+            for (j = 0; j < 8; j++) {
+                int qj = ex_qi(4 * el + j);
+                if (qj >= 0) out[qi] += ex_mass(p, i, j) * v[qj];
+            }
+        }
+}
+
+/* Band LU with partial pivoting in place (LAPACK's dgbtrf layout); piv as doubles. FP_OK or
+ * FP_NOCONVERGE (a zero pivot). */
+static int ex_band_lu(int n, double *band, double *piv)
+{
+    int k, i, j;
+    for (k = 0; k < n; k++) {
+        int imax = k + EX_KL < n - 1 ? k + EX_KL : n - 1;
+        int jmax = k + EX_KL + EX_KU < n - 1 ? k + EX_KL + EX_KU : n - 1;
+        int pr = k;
+        double big = fabs(AB(k, k)), pv;
+        for (i = k + 1; i <= imax; i++)
+            if (fabs(AB(i, k)) > big) {
+                big = fabs(AB(i, k));
+                pr = i;
+            }
+        piv[k] = pr;
+        if (!(big > 0.0) || !isfinite(big)) return FP_NOCONVERGE;
+        if (pr != k)
+            for (j = k; j <= jmax; j++) {
+                double t = AB(k, j);
+                AB(k, j) = AB(pr, j);
+                AB(pr, j) = t;
+            }
+        pv = AB(k, k);
+        for (i = k + 1; i <= imax; i++) {
+            double l = AB(i, k) / pv;
+            AB(i, k) = l;
+            if (l != 0.0)
+                for (j = k + 1; j <= jmax; j++) AB(i, j) -= l * AB(k, j);
+        }
+    }
+    return FP_OK;
+}
+
+static void ex_band_solve(int n, const double *band, const double *piv, double *b)
+{
+    int k, i, j;
+    for (k = 0; k < n; k++) {
+        int pr = (int)piv[k], imax = k + EX_KL < n - 1 ? k + EX_KL : n - 1;
+        if (pr != k) {
+            double t = b[k];
+            b[k] = b[pr];
+            b[pr] = t;
+        }
+        for (i = k + 1; i <= imax; i++) b[i] -= AB(i, k) * b[k];
+    }
+    for (k = n - 1; k >= 0; k--) {
+        int jmax = k + EX_KL + EX_KU < n - 1 ? k + EX_KL + EX_KU : n - 1;
+        double s = b[k];
+        for (j = k + 1; j <= jmax; j++) s -= AB(k, j) * b[j];
+        b[k] = s / AB(k, k);
+    }
+}
+
+/* The force law at q, qd: F, and (if dFq != NULL) its gradients (nq each). */
+static double ex_force(const fp_exact *p, const fp_exact_force *F, const double *q,
+                       const double *qd, double *dFq, double *dFv)
+{
+    const int nq = p->nq;
+    double ax = q[nq - 2], ay = q[nq - 1], adx = qd[nq - 2], ady = qd[nq - 1];
+    double n = ax * ax + ay * ay, om = (ax * ady - ay * adx) / n, phi = atan2(-ax, ay);
+    double e = F->kx * q[0] + F->kp * phi + F->kd * om;
+    if (dFq != NULL) {
+        int i;
+        for (i = 0; i < nq; i++) dFq[i] = dFv[i] = 0.0;
+        dFq[nq - 2] = -F->Q0 * (F->kp * (-ay / n) + F->kd * (ady / n - 2 * om * ax / n));
+        dFq[nq - 1] = -F->Q0 * (F->kp * (ax / n) + F->kd * (-adx / n - 2 * om * ay / n));
+        dFq[0] += -F->Q0 * F->kx;
+        dFv[nq - 2] = -F->Q0 * F->kd * (-ay / n);
+        dFv[nq - 1] = -F->Q0 * F->kd * (ax / n);
+    }
+    return F->F0 - F->Q0 * e;
+}
+
+static int ex_force_ok(const fp_exact_force *F)
+{
+    return F != NULL && isfinite(F->F0) && isfinite(F->Q0) && isfinite(F->kx) && isfinite(F->kp)
+           && isfinite(F->kd);
+}
+
+int fp_exact_forces(const fp_exact *p, const double *q, const double *qd, double u,
+                    double *f, double *K, double *C, double *M, double *work)
+{
+    if (p == NULL || q == NULL || qd == NULL || f == NULL || work == NULL
+        || (K == NULL) != (C == NULL) || !isfinite(u))
+        return FP_BADARG;
+    return ex_forces(p, q, qd, u, f, K, C, M, NULL, 0, 0, 0, work, work + p->nq + 1);
+}
+
+int fp_exact_start(const fp_exact *p, const fp_exact_force *F, double *s, double *work)
+{
+    int nq, rc, i;
+    double *band, *piv, *e, *ed, u;
+    if (p == NULL || s == NULL || work == NULL || !ex_force_ok(F)) return FP_BADARG;
+    nq = p->nq;
+    band = work;
+    piv = band + (long)EX_W * nq;
+    e = piv + nq;
+    ed = e + nq + 1;
+    if (!finite_array(s, 2L * nq)) return FP_BADARG;
+    u = ex_force(p, F, s, s + nq, NULL, NULL);
+    if (!isfinite(u)) return FP_NONFINITE;
+    rc = ex_forces(p, s, s + nq, u, s + 2 * nq, NULL, NULL, NULL, band, 1.0, 0.0, 0.0, e, ed);
+    if (rc != FP_OK) return rc;
+    if (ex_band_lu(nq, band, piv) != FP_OK) return FP_NOCONVERGE;
+    ex_band_solve(nq, band, piv, s + 2 * nq);
+    for (i = 0; i < nq; i++) s[3 * nq + i] = s[2 * nq + i];
+    return finite_array(s + 2 * nq, 2L * nq) ? FP_OK : FP_NONFINITE;
+}
+
+static double ex_maxabs(const double *v, int n)
+{
+    double m = 0.0;
+    int i;
+    for (i = 0; i < n; i++)
+        if (fabs(v[i]) > m) m = fabs(v[i]);
+    return m;
+}
+
+/* One step (exact.py, GeneralizedAlpha.step) from s into the vectors of work; s is updated
+ * only on success. */
+static int ex_step(const fp_exact *p, const fp_exact_force *F, double *s, double *work,
+                   long *iters)
+{
+    const int nq = p->nq;
+    const double h = p->h, b = p->beta, gm = p->gamma, bp = p->bp, am = p->am, af = p->af;
+    double *band = work, *piv = band + (long)EX_W * nq, *y = piv + nq, *wr = y + nq;
+    double *qdd = wr + nq, *qpred = qdd + nq, *vpred = qpred + nq, *ac = vpred + nq;
+    double *a = ac + nq, *q = a + nq, *v = q + nq, *f = v + nq, *r = f + nq, *dFq = r + nq;
+    double *dFv = dFq + nq, *e = dFv + nq, *ed = e + nq + 1;
+    const double *q0 = s, *v0 = s + nq, *qdd0 = s + 2 * nq, *a0 = s + 3 * nq;
+    double last = INFINITY, wy = 0.0;
+    int have_lu = 0, it, i, converged = 0, has_w = 0;
+    for (i = 0; i < nq; i++) {
+        qdd[i] = qdd0[i];
+        qpred[i] = q0[i] + h * v0[i] + h * h * (0.5 - b) * a0[i];
+        vpred[i] = v0[i] + h * (1 - gm) * a0[i];
+        ac[i] = (af * qdd0[i] - am * a0[i]) / (1 - am);
+    }
+    for (it = 0; it < p->max_iter; it++) {
+        int need = !have_lu, rc;
+        double u, size, scale;
+        for (i = 0; i < nq; i++) {
+            a[i] = ac[i] + bp * qdd[i];
+            q[i] = qpred[i] + h * h * b * a[i];
+            v[i] = vpred[i] + h * gm * a[i];
+        }
+        u = ex_force(p, F, q, v, need ? dFq : NULL, dFv);
+        if (!isfinite(u)) return FP_NONFINITE;
+        rc = ex_forces(p, q, v, u, f, NULL, NULL, NULL, need ? band : NULL, 1.0, bp * h * h * b,
+                       bp * h * gm, e, ed);
+        if (rc != FP_OK) return rc;
+        ex_mass_times(p, qdd, r);
+        for (i = 0; i < nq; i++) r[i] = r[i] - f[i];
+        if (need) {
+            /* K[0] -= dFq, C[0] -= dFv: in the band, or outside it in the row w */
+            double ck = bp * h * h * b, cc = bp * h * gm;
+            has_w = 0;
+            for (i = 0; i < nq; i++) {
+                double sij = ck * (-dFq[i]) + cc * (-dFv[i]);
+                wr[i] = 0.0;
+                if (sij == 0.0) continue;
+                if (i <= EX_KU) AB(0, i) += sij;
+                else {
+                    wr[i] = sij;
+                    has_w = 1;
+                }
+            }
+            if (ex_band_lu(nq, band, piv) != FP_OK) return FP_NOCONVERGE;
+            if (has_w) {
+                for (i = 0; i < nq; i++) y[i] = 0.0;
+                y[0] = 1.0;
+                ex_band_solve(nq, band, piv, y);
+                wy = 1.0;
+                for (i = 0; i < nq; i++) wy += wr[i] * y[i];
+                if (!(fabs(wy) > 0.0) || !isfinite(wy)) return FP_NOCONVERGE;
+            }
+            have_lu = 1;
+        }
+        ex_band_solve(nq, band, piv, r);
+        if (has_w) {
+            double wz = 0.0;
+            for (i = 0; i < nq; i++) wz += wr[i] * r[i];
+            for (i = 0; i < nq; i++) r[i] -= y[i] * (wz / wy);
+        }
+        for (i = 0; i < nq; i++) qdd[i] += -r[i];
+        if (!finite_array(qdd, nq)) return FP_NONFINITE;
+        *iters += 1;
+        size = h * gm * bp * ex_maxabs(r, nq);
+        scale = p->tol * fmax(1.0, ex_maxabs(v, nq));
+        if (size <= scale) {
+            converged = 1;
+            break;
+        }
+        if (need && it > 0 && size >= 0.5 * last && size <= 1e3 * scale) {
+            converged = 1;
+            break;
+        }
+        if (size > 0.1 * last) have_lu = 0;
+        last = size;
+    }
+    if (!converged) return FP_NOCONVERGE;
+    for (i = 0; i < nq; i++) {
+        a[i] = ac[i] + bp * qdd[i];
+        q[i] = qpred[i] + h * h * b * a[i];
+        v[i] = vpred[i] + h * gm * a[i];
+    }
+    if (!finite_array(q, nq) || !finite_array(v, nq) || !finite_array(a, nq))
+        return FP_NONFINITE;
+    for (i = 0; i < nq; i++) {
+        s[i] = q[i];
+        s[nq + i] = v[i];
+        s[2 * nq + i] = qdd[i];
+        s[3 * nq + i] = a[i];
+    }
+    return FP_OK;
+}
+
+int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, double *s,
+                   double *work, long *done, long *iters)
+{
+    long k;
+    if (done != NULL) *done = 0;
+    if (p == NULL || s == NULL || work == NULL || done == NULL || iters == NULL || n_steps < 0
+        || !ex_force_ok(F))
+        return FP_BADARG;
+    for (k = 0; k < n_steps; k++) {
+        int rc = ex_step(p, F, s, work, iters);
+        if (rc != FP_OK) return rc;
+        *done = k + 1;
+    }
+    return FP_OK;
+}
+
+#undef AB

@@ -40,7 +40,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, signatures, codes). Bump on any change. */
-#define FP_PLANT_ABI 2
+#define FP_PLANT_ABI 3
 
 /* Return codes. */
 #define FP_OK 0
@@ -48,6 +48,7 @@ extern "C" {
 #define FP_NONFINITE 2     /* a substep produced a non-finite state: y is the last finite one */
 #define FP_CAP 3           /* the adaptive loop reached its cap on steps before t_end */
 #define FP_UNDERFLOW 4     /* the adaptive step fell below the minimum step */
+#define FP_NOCONVERGE 5    /* the exact beam's Newton did not converge, or its matrix is singular */
 
 /* Built-in methods of the fixed-step loop and of fp_builtin_tableau(). */
 #define FP_EULER 0             /* explicit Euler (tableau) */
@@ -198,6 +199,64 @@ FP_API int fp_output_jacobian(const fp_plant *p, const double *x, double *C);
  * exact because the equations are Lagrange's for the energies fp_energy sums. */
 FP_API int fp_output_derivatives(const fp_plant *p, const double *x, double u, double du,
                                  double *d1, double *d2, double *work);
+
+/* ---- The exact rung (issue 27): the geometrically exact beam on the cart ---------------------
+ * The same equations as plant_fmu/exact.py (the numpy specification): ne ANCF cable elements
+ * (cubic Hermite position and slope per node) hinged on the cart, Kelvin-Voigt damping with the
+ * coefficient beta_kv, 5-point Gauss quadrature per element, and the fixed-step generalized-alpha
+ * method (Arnold & Bruls form) with Newton on the accelerations and the analytic tangent.
+ * Coordinates q = [x, r'_0 (2), r_1 (2), r'_1 (2), ..., r_ne, r'_ne] (nq = 4 ne + 3; the root's
+ * position is (x, 0)); the integrator's state is s = [q, qd, qdd, a] (4 nq doubles).
+ *
+ * The Newton matrix M + b' (h^2 beta K + h gamma C) is banded (an element couples the 8
+ * coordinates of its two nodes: half-bandwidth 7 whatever ne) but for the closed loop's force
+ * row (the force depends on the cart and on the tip's slope): it is factored as a band with
+ * partial pivoting (O(nq) work and storage) and the row's entries outside the band are added by
+ * the Sherman-Morrison formula (one more band solve per factorisation). */
+typedef struct fp_exact {
+    int ne;                      /* in: elements, 1 <= ne <= 100000 */
+    double L, EA, EI, rhoA;      /* in: length m, axial and bending stiffness N, N m^2, kg/m */
+    double g;                    /* in: gravity, m/s^2 */
+    double m;                    /* in: cart mass, kg (> 0) */
+    double beta_kv;              /* in: Kelvin-Voigt coefficient 2 zeta / omega_1, s (>= 0) */
+    double h;                    /* in: step, s (> 0) */
+    double rho_inf;              /* in: spectral radius at infinite frequency, [0, 1] */
+    double tol;                  /* in: Newton tolerance on the correction of qd, relative */
+    int max_iter;                /* in: Newton iterations per step, >= 1 */
+    int nq;                      /* derived: 4 ne + 3 */
+    double le, am, af, gamma, beta, bp;  /* derived: element length, method parameters */
+    double gw[5], gd1[20], gd2[20];  /* derived: Gauss weights (ds), Hermite d/ds, d2/ds2 */
+} fp_exact;
+
+/* The force on the cart during a step, at the step's end: F = F0 - Q0 (kx x + kp phi_o +
+ * kd omega_o) with phi_o, omega_o the tip tangent's angle and rate (Q0 = 0: a held force F0). */
+typedef struct fp_exact_force {
+    double F0, Q0, kx, kp, kd;
+} fp_exact_force;
+
+/* Check the "in" fields and fill the derived ones. FP_OK or FP_BADARG. */
+FP_API int fp_exact_prepare(fp_exact *p);
+
+/* Doubles of work for fp_exact_forces, fp_exact_start and fp_exact_steps. */
+FP_API long fp_exact_work_size(const fp_exact *p);
+
+/* M qdd = f(q, qd, u): f (nq) and, if K and C are not NULL, K = -df/dq and C = -df/dqd (nq x
+ * nq, row-major, dense) at q, qd with the force u. Mass matrix M (nq x nq) if not NULL. FP_OK,
+ * FP_NONFINITE or FP_BADARG. */
+FP_API int fp_exact_forces(const fp_exact *p, const double *q, const double *qd, double u,
+                           double *f, double *K, double *C, double *M, double *work);
+
+/* The integrator's state s = [q, qd, qdd, a] from q, qd (s[0 .. 2 nq) on entry) with consistent
+ * accelerations qdd = a = M^-1 f under the force law F. FP_OK, FP_NONFINITE or FP_BADARG. */
+FP_API int fp_exact_start(const fp_exact *p, const fp_exact_force *F, double *s, double *work);
+
+/* n_steps generalized-alpha steps of p->h in place on s under the force law F (the same law at
+ * every step). *done = the steps taken, *iters += the Newton iterations. On failure s is the
+ * state after the last step taken and the code says why: FP_BADARG (an argument, or a force law
+ * that is not finite), FP_NONFINITE (a residual is not finite) or FP_NOCONVERGE (Newton did not
+ * converge in max_iter iterations, or its matrix is singular). */
+FP_API int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, double *s,
+                          double *work, long *done, long *iters);
 
 #ifdef __cplusplus
 }

@@ -8,7 +8,11 @@
  *   - a minimum step the error control cannot meet gives FP_UNDERFLOW;
  *   - bad arguments give FP_BADARG / FPF_BADARG and change nothing;
  *   - expm(0) = I, expm(diag(a, b)) = diag(e^a, e^b), expm([[0, t], [0, 0]]) = [[1, t], [0, 1]];
- *   - the first-order filter: Ad = exp(-wc h), held-input gain 1 - exp(-wc h).
+ *   - the first-order filter: Ad = exp(-wc h), held-input gain 1 - exp(-wc h);
+ *   - the exact rung (fp_exact_*, 1, 3 and 8 elements, closed loop with the force row outside
+ *     the band): n steps in one call equal n calls, bitwise; a free fall keeps the beam's length;
+ *     a non-finite force, a huge step and one Newton iteration give their codes and leave the
+ *     state unchanged and finite.
  * Usage: kernel_check PLANT_DATA (written by the test from plant_fmu/beam.py: n, I0, I1, I2, g,
  * then I3, I5, K, D, tip_slope, tip_defl (n each) and Kg (n x n)). Prints "ok <checks>".
  */
@@ -184,6 +188,77 @@ static void filter_checks(void)
     check(fpf_check(&flt) == FPF_BADARG, "filter order 3 refused");
 }
 
+static void exact_checks(int ne)
+{
+    fp_exact e;
+    fp_exact_force F = {0.0, 0.3, 1.0, 500.0, 5.0}, bad = F;
+    double *s, *s1, *work, *f, *K, *C, *M;
+    long done, iters = 0, k;
+    int nq, i, same = 1, finite = 1;
+    memset(&e, 0, sizeof e);
+    e.ne = ne; e.L = 1.0; e.EA = 4.2e8; e.EI = 875.0; e.rhoA = 15.6; e.g = 9.81; e.m = 5.0;
+    e.beta_kv = 2e-3 / 150.0; e.h = 1e-4; e.rho_inf = 0.9; e.tol = 1e-11; e.max_iter = 30;
+    check(fp_exact_prepare(&e) == FP_OK, "exact: data accepted");
+    nq = e.nq;
+    s = calloc((size_t)(4 * nq), sizeof(double));
+    s1 = calloc((size_t)(4 * nq), sizeof(double));
+    work = calloc((size_t)fp_exact_work_size(&e), sizeof(double));
+    f = calloc((size_t)nq, sizeof(double));
+    K = calloc((size_t)(nq * nq), sizeof(double));
+    C = calloc((size_t)(nq * nq), sizeof(double));
+    M = calloc((size_t)(nq * nq), sizeof(double));
+    /* the straight beam at 0.5 rad from the vertical, at rest: r(s) = s t, r' = t */
+    for (i = 0; i <= ne; i++) {
+        double si = (double)i / ne, tx = -sin(0.5), ty = cos(0.5);
+        if (i > 0) {
+            s[4 * i - 1] = si * tx;
+            s[4 * i] = si * ty;
+        }
+        s[4 * i + 1] = tx;
+        s[4 * i + 2] = ty;
+    }
+    check(fp_exact_forces(&e, s, s + nq, 1.0, f, K, C, M, work) == FP_OK, "exact: forces");
+    check(fp_exact_start(&e, &F, s, work) == FP_OK, "exact: start");
+    memcpy(s1, s, sizeof(double) * (size_t)(4 * nq));
+    check(fp_exact_steps(&e, &F, 20, s, work, &done, &iters) == FP_OK && done == 20,
+          "exact: 20 steps in one call");
+    for (k = 0; k < 20; k++)
+        check(fp_exact_steps(&e, &F, 1, s1, work, &done, &iters) == FP_OK, "exact: one step");
+    for (i = 0; i < 4 * nq; i++) same = same && s[i] == s1[i];
+    check(same, "exact: 20 steps in one call equal 20 calls, bitwise");
+    {   /* the tip's distance from the root stays the beam's length (to the axial strain) */
+        double dx = s[nq - 4] - s[0], dy = s[nq - 3];
+        check(fabs(sqrt(dx * dx + dy * dy) - 1.0) < 1e-6, "exact: the beam keeps its length");
+    }
+    memcpy(s1, s, sizeof(double) * (size_t)(4 * nq));
+    bad.F0 = NAN;
+    check(fp_exact_steps(&e, &bad, 3, s, work, &done, &iters) == FP_BADARG && done == 0,
+          "exact: a non-finite force refused");
+    bad = F;
+    bad.kp = INFINITY;
+    check(fp_exact_start(&e, &bad, s, work) == FP_BADARG, "exact: a non-finite gain refused");
+    e.h = 1.0;
+    check(fp_exact_prepare(&e) == FP_OK, "exact: h = 1 s accepted");
+    check(fp_exact_steps(&e, &F, 3, s, work, &done, &iters) == FP_NOCONVERGE && done == 0,
+          "exact: a huge step does not converge");
+    e.h = 1e-4;
+    e.max_iter = 1;
+    check(fp_exact_prepare(&e) == FP_OK, "exact: one iteration accepted");
+    check(fp_exact_steps(&e, &F, 3, s, work, &done, &iters) == FP_NOCONVERGE,
+          "exact: one Newton iteration does not converge");
+    for (i = 0; i < 4 * nq; i++) {
+        same = same && s[i] == s1[i];
+        finite = finite && isfinite(s[i]);
+    }
+    check(same && finite, "exact: failures leave the state unchanged and finite");
+    e.max_iter = 0;
+    check(fp_exact_prepare(&e) == FP_BADARG, "exact: max_iter = 0 refused");
+    e.max_iter = 30;
+    e.h = NAN;
+    check(fp_exact_prepare(&e) == FP_BADARG, "exact: h = NaN refused");
+    free(s); free(s1); free(work); free(f); free(K); free(C); free(M);
+}
+
 int main(int argc, char **argv)
 {
     FILE *f;
@@ -220,6 +295,9 @@ int main(int argc, char **argv)
     p.n = -1;
     check(fp_plant_prepare(&p) == FP_BADARG, "negative n refused");
     filter_checks();
+    exact_checks(1);
+    exact_checks(3);
+    exact_checks(8);
     printf("%s %d checks, %d failed\n", failures ? "FAILED" : "ok", checks, failures);
     return failures ? 1 : 0;
 }
