@@ -240,17 +240,25 @@ class Master:
             return self._startup_step(hist, t0, t1)
         return self._macro_step(hist, t0, t1)
 
-    def _coupling_error(self, hist, new, t1):
-        """Weighted max difference between the predicted and the actual source outputs."""
+    def _coupling_error(self, hist, new, t1, step):
+        """The coupling's local error estimate, weighted (1 = at the tolerance): the predicted
+        source outputs at ``t1`` against the actual ones, each signal scaled by ``tolerance``
+        times the largest magnitude it has had (a relative scale of its own size: a force
+        passing through zero does not blow up, a small angle is not swamped by an absolute
+        floor), times ``step / master.step``. The state's error after the step is the input's
+        error integrated over the step, one order above the input's: ``p + 2`` for an order-p
+        polynomial (see :meth:`_run_adaptive`). The first step (one sample) is taken at the
+        scene's step unchecked."""
         err = 0.0
         for src in dict.fromkeys(c.src for c in self.coupling.connections):
-            if len(hist[src].t) == 0:
-                continue
+            if len(hist[src].t) < 2:     # the first step: nothing to extrapolate yet, and
+                continue                  # a signal starting at 0 has no scale: taken at h
             pred = self._combination(hist[src], t1, self.h, (0,))[0]
             actual = new[src][:len(pred)]
-            scale = self.tol * np.maximum(1.0, np.abs(actual))
+            peak = self._peak[src] = np.maximum(self._peak[src], np.abs(actual))
+            scale = self.tol * np.maximum(peak, 1e-300)
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
-        return err
+        return err * step / self.h
 
     def _initial_outputs(self, t0):
         """Consistent outputs at ``t0``: the sources' initial outputs are passed to the inputs
@@ -337,19 +345,30 @@ class Master:
                 raise RunInterrupted(tb)
 
     def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress, stop=None):
+        """Steps of ``h`` within ``[min_step, max_step]``, chosen by a PI controller
+        (Gustafsson; Hairer & Wanner II, IV.2) on :meth:`_coupling_error` of order
+        ``k = min(p + 1, samples) + 1``: ``h_new = h * 0.9 * err**(-0.7/k) * err_prev**(0.4/k)``,
+        growth at most 5, shrink at least 0.2. A rejected step is retried with the I-part alone
+        (no rollback loop on stale history). Output points are hit exactly without slivers: a
+        remainder under two steps is split in two equal ones, and the step chosen before an
+        output point is kept after it."""
         h = min(self.h, self.max_step)
         t = t0
+        err_prev = 1.0
+        self._peak = {n: np.abs(np.asarray(cur[n], dtype=float)) for n in self.slaves}
         for j in range(1, n_out + 1):
             t_target = t0 + j * dt_out
             while t < t_target - 1e-12 * dt_out:
-                h_try = min(h, t_target - t)
-                last = t_target - t <= h * (1 + 1e-9)
-                t1 = t_target if last else t + h_try
+                rest = t_target - t
+                last = rest <= h * (1 + 1e-9)
+                t1 = t_target if last else t + (min(h, 0.5 * rest) if rest < 2 * h else h)
                 states = {n: s.get_state() for n, s in self.slaves.items()}
                 snaps = {n: hist[n].snapshot() for n in self.slaves}
+                peaks = {n: v.copy() for n, v in self._peak.items()}
+                step = t1 - t
                 try:
                     new = self._step(hist, t, t1)
-                    err = self._coupling_error(hist, new, t1)
+                    err = self._coupling_error(hist, new, t1, step)
                     discarded = False
                 except CoSimulationError as exc:
                     if exc.status != 2:   # only Discard is retried
@@ -357,9 +376,7 @@ class Master:
                             s.free_state(states[n])
                         raise
                     err, discarded = math.inf, True
-                step = t1 - t
-                # the coupling error is O(h^(k)) per step with k samples in the polynomial
-                expo = -1.0 / min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t))
+                k = min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t)) + 1
                 if err > 1.0 and step > self.min_step * (1 + 1e-9):
                     stats.rejected += 1
                     stats.rejected_times.append(t)
@@ -367,7 +384,8 @@ class Master:
                         s.set_state(states[n])
                         s.free_state(states[n])
                         hist[n].restore(snaps[n])
-                    factor = 0.5 if discarded else max(0.2, 0.9 * err ** expo)
+                    self._peak = peaks
+                    factor = 0.5 if discarded else min(0.9, max(0.2, 0.9 * err ** (-1.0 / k)))
                     h = max(self.min_step, step * factor)
                     continue
                 if discarded:
@@ -388,9 +406,13 @@ class Master:
                     if abs(t1 - t_target) <= 1e-12 * dt_out:
                         self._store(out, j, t_target, cur)
                     raise RunInterrupted(t1)
-                grow = 2.0 if err == 0 else min(2.0, 0.9 * err ** expo)
-                if not last:
-                    h = min(self.max_step, max(self.min_step, step * max(grow, 0.2)))
+                e = max(err, 1e-10)
+                grow = min(5.0, max(0.2, 0.9 * e ** (-0.7 / k) * err_prev ** (0.4 / k)))
+                err_prev = e
+                h_new = step * grow           # a shortened step (an output point) shrinks
+                h = h_new if step >= h * (1 - 1e-9) else (min(h, h_new) if grow < 1 else
+                                                         max(h, h_new))
+                h = min(self.max_step, max(self.min_step, h))
             t = t_target
             self._store(out, j, t_target, cur)
             if progress is not None:
