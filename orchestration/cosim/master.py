@@ -251,12 +251,13 @@ class Master:
         scene's step unchecked."""
         err = 0.0
         for src in dict.fromkeys(c.src for c in self.coupling.connections):
-            if len(hist[src].t) < 2:     # the first step: nothing to extrapolate yet, and
-                continue                  # a signal starting at 0 has no scale: taken at h
             pred = self._combination(hist[src], t1, self.h, (0,))[0]
             actual = new[src][:len(pred)]
-            peak = self._peak[src] = np.maximum(self._peak[src], np.abs(actual))
-            scale = self.tol * np.maximum(peak, 1e-300)
+            floor = float(np.max(self._peak[src]))   # before the step: a signal starting at
+            peak = self._peak[src] = np.maximum(self._peak[src], np.abs(actual))  # 0 takes its
+            if floor == 0.0:                  # source's scale; none yet (all outputs at 0 so
+                continue                      # far): not estimated
+            scale = self.tol * np.maximum(peak, floor)
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
         return err * step / self.h
 
