@@ -243,9 +243,12 @@ class Master:
     def _coupling_error(self, hist, new, t1, step):
         """The coupling's local error estimate, weighted (1 = at the tolerance): the predicted
         source outputs at ``t1`` against the actual ones, each signal scaled by ``tolerance``
-        times the largest magnitude it has had (a relative scale of its own size: a force
-        passing through zero does not blow up, a small angle is not swamped by an absolute
-        floor), times ``step / master.step``. The state's error after the step is the input's
+        times its size: the largest magnitude it has had, at least its source's largest output
+        before the step (a signal starting at 0), at least its change over one scene step at its
+        present rate (a signal rising from 0 as ``t^n``, whose relative error does not fall
+        with the step); a force through zero does not blow up, a small angle is not swamped by
+        an absolute floor. Times ``step / master.step``: a jump or noise in an output that no
+        step resolves cannot drive the step to ``min_step``. The state's error after the step is the input's
         error integrated over the step, one order above the input's: ``p + 2`` for an order-p
         polynomial (see :meth:`_run_adaptive`). The first step (one sample) is taken at the
         scene's step unchecked."""
@@ -257,7 +260,10 @@ class Master:
             peak = self._peak[src] = np.maximum(self._peak[src], np.abs(actual))  # 0 takes its
             if floor == 0.0:                  # source's scale; none yet (all outputs at 0 so
                 continue                      # far): not estimated
-            scale = self.tol * np.maximum(peak, floor)
+            # a signal rising from 0 has a relative error that does not fall with the step
+            # (t^n is self-similar): its size is at least what it changes over the scene's step
+            rate = np.abs(actual - hist[src].u[-1][:len(pred)]) * (self.h / step)
+            scale = self.tol * np.maximum(np.maximum(peak, floor), rate)
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
         return err * step / self.h
 
