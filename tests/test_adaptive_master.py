@@ -50,3 +50,17 @@ def test_the_step_never_falls_to_the_minimum(paths, scene, coupling, tol):
     st = _stats(paths, scene, [f"master.tolerance={tol}", *COUPLINGS[coupling]])
     min_step = load_scene(scene).master.min_step
     assert st.min_step_used > 10 * min_step, (st.min_step_used, st.steps, st.rejected)
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_the_energy_estimator_never_rolls_back(paths, scene):
+    """master.error_estimator = "energy" (ECCO's residual on the force-cart bond) only sets the
+    next step: no step rejected, none forced, none near the minimum."""
+    st = _stats(paths, scene, ["master.tolerance=1e-3", "master.error_estimator=energy"])
+    assert st.rejected == 0 and st.forced_accepts == 0
+    assert st.min_step_used > 10 * load_scene(scene).master.min_step, st.min_step_used
+
+
+def test_an_unknown_estimator_is_refused():
+    with pytest.raises(ValueError, match="master.error_estimator"):
+        load_scene("rigid_pd", ["master.error_estimator=residual"])

@@ -90,6 +90,13 @@ class Master:
         self.adaptive = settings.adaptive
         self.tol = settings.tolerance
         self.min_step, self.max_step = settings.min_step, settings.max_step
+        if self.adaptive and settings.error_estimator == "energy":
+            fsrc, fvar, xsrc, xvar = self.BOND
+            if (fvar not in coupling.out_index.get(fsrc, {})
+                    or xvar not in coupling.out_index.get(xsrc, {})):
+                raise ValueError(f"master.error_estimator = 'energy' needs the outputs "
+                                 f"{fsrc}.{fvar} and {xsrc}.{xvar} connected; allowed here: "
+                                 "'extrapolation'")
         self._in_buf = {n: np.zeros(len(coupling.inputs[n]) * (1 + coupling.n_der[n]))
                         for n in slaves}
         #: why the compiled loop cannot run these FMUs (None: it can)
@@ -267,6 +274,32 @@ class Master:
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
         return err * step / self.h
 
+    #: the force-cart power bond of :meth:`_energy_error`: (force source, force, position source,
+    #: position); the work of the force over a step is ``F * dx`` exactly for a held force
+    BOND = ("controller", "F_c", "plant", "x_o")
+
+    def _energy_error(self, hist, new, t1, step):
+        """ECCO's residual energy on the force-cart power bond (Sadjina et al. 2017), weighted:
+        the work the controller's force does on the cart as the controller sees the cart move
+        (its extrapolation of ``x_o`` to ``t1``) against the work it does as the cart really
+        moves, ``|F_mean * (x_pred - x)|``, plus, where the plant's force is extrapolated, the
+        force's error times the cart's travel. Scaled by ``tolerance`` times the work through the
+        bond so far, at least the step's work over one ``master.step``."""
+        fsrc, fvar, xsrc, xvar = self.BOND
+        i_f, i_x = self.coupling.out_index[fsrc][fvar], self.coupling.out_index[xsrc][xvar]
+        f0, f1 = hist[fsrc].u[-1][i_f], new[fsrc][i_f]
+        x0, x1 = hist[xsrc].u[-1][i_x], new[xsrc][i_x]
+        x_pred = self._combination(hist[xsrc], t1, self.h, (0,))[0][i_x]
+        f_mean = 0.5 * (f0 + f1)
+        residual = abs(f_mean * (x_pred - x1))
+        if self.coupling.algorithm == "jacobi" or self.coupling.order[0] == xsrc:
+            f_pred = self._combination(hist[fsrc], t1, self.h, (0,))[0][i_f]
+            residual += 0.5 * abs((f_pred - f1) * (x1 - x0))
+        work = abs(f_mean * (x1 - x0))
+        self._work += work
+        scale = self.tol * max(self._work, work * self.h / step, 1e-300)
+        return residual / scale
+
     def _initial_outputs(self, t0):
         """Consistent outputs at ``t0``: the sources' initial outputs are passed to the inputs
         (in coupling order, twice, which settles any chain without an algebraic loop) before a
@@ -363,28 +396,33 @@ class Master:
         t = t0
         err_prev = 1.0
         self._peak = {n: np.abs(np.asarray(cur[n], dtype=float)) for n in self.slaves}
+        self._work = 0.0
+        # the energy residual is never rolled back (ECCO): it only sets the next step
+        rollback = self.settings.error_estimator == "extrapolation"
+        estimate = self._coupling_error if rollback else self._energy_error
         for j in range(1, n_out + 1):
             t_target = t0 + j * dt_out
             while t < t_target - 1e-12 * dt_out:
                 rest = t_target - t
                 last = rest <= h * (1 + 1e-9)
                 t1 = t_target if last else t + (min(h, 0.5 * rest) if rest < 2 * h else h)
-                states = {n: s.get_state() for n, s in self.slaves.items()}
+                states = ({n: s.get_state() for n, s in self.slaves.items()} if rollback
+                          else {})
                 snaps = {n: hist[n].snapshot() for n in self.slaves}
                 peaks = {n: v.copy() for n, v in self._peak.items()}
                 step = t1 - t
                 try:
                     new = self._step(hist, t, t1)
-                    err = self._coupling_error(hist, new, t1, step)
+                    err = estimate(hist, new, t1, step)
                     discarded = False
                 except CoSimulationError as exc:
-                    if exc.status != 2:   # only Discard is retried
+                    if exc.status != 2 or not rollback:   # only Discard is retried
                         for n, s in self.slaves.items():
                             s.free_state(states[n])
                         raise
                     err, discarded = math.inf, True
                 k = min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t)) + 1
-                if err > 1.0 and step > self.min_step * (1 + 1e-9):
+                if rollback and err > 1.0 and step > self.min_step * (1 + 1e-9):
                     stats.rejected += 1
                     stats.rejected_times.append(t)
                     for n, s in self.slaves.items():
@@ -398,10 +436,11 @@ class Master:
                 if discarded:
                     raise CoSimulationError(f"an FMU discarded the step at t = {t:.6g} even at "
                                             f"min_step = {self.min_step}", status=2, time=t)
-                if err > 1.0:
+                if err > 1.0 and rollback:
                     stats.forced_accepts += 1
                 for n, s in self.slaves.items():
-                    s.free_state(states[n])
+                    if rollback:
+                        s.free_state(states[n])
                     hist[n].push(t1, new[n])
                 cur = new
                 stats.steps += 1
@@ -414,7 +453,9 @@ class Master:
                         self._store(out, j, t_target, cur)
                     raise RunInterrupted(t1)
                 e = max(err, 1e-10)
-                grow = min(5.0, max(0.2, 0.9 * e ** (-0.7 / k) * err_prev ** (0.4 / k)))
+                # without rollback (energy) a step is at most halved: no retry catches an outlier
+                grow = min(5.0, max(0.2 if rollback else 0.5,
+                                    0.9 * e ** (-0.7 / k) * err_prev ** (0.4 / k)))
                 err_prev = e
                 h_new = step * grow           # a shortened step (an output point) shrinks
                 h = h_new if step >= h * (1 - 1e-9) else (min(h, h_new) if grow < 1 else

@@ -43,6 +43,8 @@ __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", 
 #: The value of ``plant.n_modes`` and ``plant.fidelity`` that lets a run choose the model.
 AUTO = "auto"
 ALGORITHMS = ("gauss-seidel", "jacobi")
+#: master.error_estimator: the adaptive master's local error estimate (orchestration.cosim.master)
+ESTIMATORS = ("extrapolation", "energy")
 FIRST = ("controller", "plant")
 #: ``master.interface``: the FMUs stepped as co-simulation slaves, or their Model Exchange
 #: interfaces solved as one system (:mod:`orchestration.cosim.model_exchange`).
@@ -152,6 +154,7 @@ class MasterSettings:
     tolerance: float = 1e-4
     min_step: float = 1e-6
     max_step: float = 2e-2
+    error_estimator: str = "extrapolation"
     input_derivatives: bool = True
     fmus: str = "native"
     compiled: object = "auto"
@@ -163,6 +166,7 @@ class MasterSettings:
 
     def __post_init__(self):
         _choice("master.algorithm", self.algorithm, ALGORITHMS)
+        _choice("master.error_estimator", self.error_estimator, ESTIMATORS)
         _choice("master.first", self.first, FIRST)
         _choice("master.fmus", self.fmus, FMU_FLAVOURS)
         _choice("master.interface", self.interface, INTERFACES)
