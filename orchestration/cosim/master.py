@@ -17,11 +17,14 @@ held constant over ``doStep`` (pythonfmu FMUs cannot interpolate inputs), the co
 order 1 for ``p = 0`` and 2 for ``p = 1`` and ``p = 2``; quadratic extrapolation only lowers the
 error constant.
 
-Adaptive communication step: after each step the predicted input polynomial at ``t_k+1`` is
-compared with the source's actual output there (the coupling error the step made); a step whose
-weighted error exceeds 1 is rolled back through the FMU states and retried with a smaller step,
-within ``[min_step, max_step]``. Output points are hit exactly: times are ``t0 + k*dt`` from
-integers.
+Adaptive communication step (``master.error_estimator``): ``extrapolation`` compares after each
+step the predicted input polynomial at ``t_k+1`` with the source's actual output there, each
+signal relative to its size, times the step (the state's local error,
+:meth:`Master._coupling_error`); a step whose weighted error exceeds 1 is rolled back through
+the FMU states and retried with a smaller step. ``energy`` takes ECCO's residual energy on the
+force-cart bond (:meth:`Master._energy_error`) and never rolls back. A PI controller picks the
+next step within ``[min_step, max_step]``. Output points are hit exactly, without slivers:
+times are ``t0 + k*dt`` from integers.
 
 The time grid: at a fixed step the signals' history is stamped with the step counters (the
 extrapolation nodes are integers, their weights computed once, however long the run) and the FMUs
