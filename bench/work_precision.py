@@ -26,7 +26,7 @@ project can simulate a scene, side by side with scipy's solve_ivp and with the F
     ``master.input_derivatives`` (the polynomial passed to the FMUs), over ``master.step``;
   - Gauss-Seidel quadratic with the extrapolation built from the FMUs' output derivatives
     (``master.output_derivatives``, with input derivatives), over ``master.step``;
-  - the adaptive master over ``master.tolerance``;
+  - the adaptive master over ``master.tolerance`` (linear held, and the scenes' own coupling);
   - the implicit master (``master.algorithm = implicit``, Newton and IQN-ILS; quadratic
     interpolation passed as input derivatives) over ``master.step``, up to steps where every
     explicit coupling diverges;
@@ -157,6 +157,12 @@ def adaptive_families():
     return [Family("adaptive GS linear", "adaptive master", "cosim", [("master.tolerance", 1.0)],
                    TOLERANCES, ["master.adaptive=true", "master.algorithm=gauss-seidel",
                                 "master.extrapolation=1", "master.input_derivatives=false"],
+                   method="gauss-seidel"),
+            # the scenes' own coupling (quadratic, passed as input derivatives), adaptive
+            Family("adaptive GS quadratic derivatives", "adaptive master", "cosim",
+                   [("master.tolerance", 1.0)], TOLERANCES,
+                   ["master.adaptive=true", "master.algorithm=gauss-seidel",
+                    "master.extrapolation=2", "master.input_derivatives=true"],
                    method="gauss-seidel")]
 
 

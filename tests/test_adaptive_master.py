@@ -1,71 +1,66 @@
-"""The adaptive master on the paper scenes: it never falls to its minimum step.
-
-Before the fix, steps were cut to reach each output point (a remnant of 1e-13 s after a step that
-ended just short of it), and a remnant's samples, 1e-13 s apart, made the next extrapolation's
-error explode: the filtered scene with the hold took 10^5 steps at ``min_step`` for 2 s."""
-import numpy as np
+"""The adaptive master on the paper scenes with the real native FMUs: its step never collapses
+to ``master.min_step`` (issue 26, item 4). Counts from the run stats, not timing."""
 import pytest
 
-from orchestration import simulate
+from orchestration.job import run_scene
+from orchestration.scene.schema import load_scene
 
 SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
+#: the scenes' default coupling (quadratic extrapolation as input derivatives) and the paper's
+#: zero-order hold, the coupling that once took 19,877 steps for 0.02 s
+COUPLINGS = {"default": [],
+             "hold": ["master.extrapolation=0", "master.input_derivatives=false"]}
 
 
-@pytest.mark.parametrize("tol", [1e-2, 1e-4])
+@pytest.fixture(scope="module")
+def paths(native):
+    return {"plant": native["FlexiblePendulum"], "controller": native["PDLowPass"]}
+
+
+def _stats(paths, scene, extra):
+    scene = load_scene(scene, ["stop_time=1.0", "master.adaptive=true", *extra])
+    return run_scene(scene, paths, progress=False).stats
+
+
+@pytest.mark.parametrize("coupling", COUPLINGS)
 @pytest.mark.parametrize("scene", SCENES)
-def test_never_at_its_minimum_step(scene, tol):
-    run = simulate(scene, {"master.adaptive": True, "master.tolerance": tol, "stop_time": 1.0})
-    s, m = run.stats, run.scene.master
-    assert s.forced_accepts == 0
-    assert s.min_step_used > 2 * m.min_step
+@pytest.mark.parametrize("tol", [1e-2, 1e-4])
+def test_no_step_is_forced_and_few_are_rejected(paths, scene, coupling, tol):
+    """Before the fix every case forced steps through at min_step (slivers before output
+    points, 112,088 forced accepts on the filtered scene's hold at 1e-4) and rejected many."""
+    st = _stats(paths, scene, [f"master.tolerance={tol}", *COUPLINGS[coupling]])
+    assert st.forced_accepts == 0
+    assert st.rejected <= 0.1 * st.steps, (st.rejected, st.steps)
 
 
-def test_the_hold_does_not_collapse():
-    """The paper's zero-order hold at a tolerance of 1e-2: first-order steps, not the minimum."""
-    run = simulate("flexible_pd_lowpass", {"master.adaptive": True, "master.tolerance": 1e-2,
-                                           "master.extrapolation": 0,
-                                           "master.input_derivatives": False, "stop_time": 1.0})
-    s, m = run.stats, run.scene.master
-    assert s.forced_accepts == 0 and s.min_step_used > 2 * m.min_step
+_HOLD_START = pytest.mark.xfail(strict=True, reason=(
+    "issue 26, left open: the hold at 1e-4 on the flexible scenes still takes steps of a few "
+    "min_step at the start (the beam modes in omega_o, held, at a tight tolerance)"))
 
 
-def _error(run):
-    return float(np.max(np.abs(run.result["phi_o"] - run.reference["phi_o"])))
+@pytest.mark.parametrize("scene,coupling,tol", [
+    *[(s, c, 1e-2) for s in SCENES for c in COUPLINGS],
+    *[(s, "default", 1e-4) for s in SCENES],
+    ("rigid_pd", "hold", 1e-4),
+    pytest.param("flexible_pd", "hold", 1e-4, marks=_HOLD_START),
+    pytest.param("flexible_pd_lowpass", "hold", 1e-4, marks=_HOLD_START)])
+def test_the_step_never_falls_to_the_minimum(paths, scene, coupling, tol):
+    """No step within ten minimum steps (before the fix: 5e-14 s, slivers before output points
+    and a signal rising from 0 whose relative error does not fall with the step)."""
+    st = _stats(paths, scene, [f"master.tolerance={tol}", *COUPLINGS[coupling]])
+    min_step = load_scene(scene).master.min_step
+    assert st.min_step_used > 10 * min_step, (st.min_step_used, st.steps, st.rejected)
 
 
-def test_energy_estimator_steps_without_rollback(monkeypatch):
-    """ECCO's estimator: no step rejected, no FMU state taken but the first step's (its
-    prediction corrected, as at a fixed step), and the error against the monolithic reference
-    falls as the tolerance does."""
-    from orchestration.cosim.slave import Slave
-
-    taken = []
-    get_state = Slave.get_state
-    monkeypatch.setattr(Slave, "get_state", lambda self: taken.append(self) or get_state(self))
-    errors = []
-    for tol in (1e-2, 1e-4):
-        run = simulate("flexible_pd_lowpass", {
-            "master.adaptive": True, "master.error_estimator": "energy", "master.tolerance": tol,
-            "master.max_step": 0.01, "output_interval": 0.01, "stop_time": 3.0}, reference=True)
-        assert run.stats.rejected == 0 and run.stats.forced_accepts == 0
-        assert len(taken) == 2          # the two FMUs, once, for the corrected first step
-        taken.clear()
-        assert run.stats.min_step_used > 2 * run.scene.master.min_step
-        errors.append(_error(run))
-    assert errors[1] < errors[0]
+@pytest.mark.parametrize("scene", SCENES)
+def test_the_energy_estimator_never_rolls_back(paths, scene):
+    """master.error_estimator = "energy" (ECCO's residual on the force-cart bond) only sets the
+    next step: no step rejected, none forced, none near the minimum."""
+    st = _stats(paths, scene, ["master.tolerance=1e-3", "master.error_estimator=energy"])
+    assert st.rejected == 0 and st.forced_accepts == 0
+    assert st.min_step_used > 10 * load_scene(scene).master.min_step, st.min_step_used
 
 
-def test_energy_estimator_needs_the_cart_velocity():
-    from orchestration.cosim.master import VELOCITY, _power_bond
-    from orchestration.scene.records import MasterSettings
-
-    class Coupling:            # a loop whose plant records no velocity
-        connections = [type("C", (), {"src": "c", "src_var": "F", "dst": "p", "dst_var": "F"})()]
-        outputs = {"c": ["F"], "p": ["phi_o"]}
-        recorded = {"c": [], "p": []}
-        out_index = {"c": {"F": 0}}
-
-    with pytest.raises(ValueError, match=VELOCITY):
-        _power_bond(Coupling())
+def test_an_unknown_estimator_is_refused():
     with pytest.raises(ValueError, match="master.error_estimator"):
-        MasterSettings(error_estimator="ecco")
+        load_scene("rigid_pd", ["master.error_estimator=residual"])

@@ -94,7 +94,9 @@ def test_adaptive_master_meets_its_tolerance(paths):
         assert r.stats.rejected >= 1        # the start (a 260 N jump) forces rejections
         assert r.stats.min_step_used < r.stats.max_step_used
         assert r.stats.forced_accepts == 0
-    assert errors[1] < errors[0] / 5, errors
+    # the estimate is the state's local error per step (the input's error times the step, order
+    # p + 2 = 3): the global error goes as tol^(1 - 1/3), 10^(2/3) = 4.6 per decade
+    assert errors[1] < errors[0] / 3, errors
 
 
 def test_rollback_restores_state_exactly(paths):

@@ -17,11 +17,14 @@ held constant over ``doStep`` (pythonfmu FMUs cannot interpolate inputs), the co
 order 1 for ``p = 0`` and 2 for ``p = 1`` and ``p = 2``; quadratic extrapolation only lowers the
 error constant.
 
-Adaptive communication step: after each step the predicted input polynomial at ``t_k+1`` is
-compared with the source's actual output there (the coupling error the step made); a step whose
-weighted error exceeds 1 is rolled back through the FMU states and retried with a smaller step,
-within ``[min_step, max_step]``. Output points are hit exactly: times are ``t0 + k*dt`` from
-integers.
+Adaptive communication step (``master.error_estimator``): ``extrapolation`` compares after each
+step the predicted input polynomial at ``t_k+1`` with the source's actual output there, each
+signal relative to its size, times the step (the state's local error,
+:meth:`Master._coupling_error`); a step whose weighted error exceeds 1 is rolled back through
+the FMU states and retried with a smaller step. ``energy`` takes ECCO's residual energy on the
+force-cart bond (:meth:`Master._energy_error`) and never rolls back. A PI controller picks the
+next step within ``[min_step, max_step]``. Output points are hit exactly, without slivers:
+times are ``t0 + k*dt`` from integers.
 
 The time grid: at a fixed step the signals' history is stamped with the step counters (the
 extrapolation nodes are integers, their weights computed once, however long the run) and the FMUs
@@ -45,12 +48,6 @@ from .slave import CoSimulationError, RunInterrupted
 
 __all__ = ["RunStats", "Master"]
 
-#: the adaptive master's smallest magnitude of a signal its error is weighed against (1 in the
-#: signal's SI unit: a rad, a rad/s, a N), as its absolute tolerance
-_FLOOR = 1.0
-#: the cart's velocity, the flow of the force-cart power bond (the plant's output)
-VELOCITY = "x_dot"
-
 
 @dataclass
 class RunStats:
@@ -69,18 +66,6 @@ class RunStats:
     iterations: int = 0
     max_iterations: int = 0
     jacobian_steps: int = 0
-
-
-def _power_bond(coupling):
-    """The force-cart power bond of ``coupling``: the connection into the FMU whose output
-    :data:`VELOCITY` (the cart's velocity) is exchanged or recorded; a ValueError if none."""
-    for c in coupling.connections:
-        for exchanged, names in ((True, coupling.outputs[c.dst]), (False, coupling.recorded[c.dst])):
-            if VELOCITY in names:
-                return (c.src, coupling.out_index[c.src][c.src_var], c.dst, exchanged,
-                        names.index(VELOCITY))
-    raise ValueError(f"master.error_estimator = 'energy' needs the cart's velocity: no FMU fed "
-                     f"by a connection has its output {VELOCITY!r} exchanged or recorded")
 
 
 class Master:
@@ -114,10 +99,13 @@ class Master:
         self.adaptive = settings.adaptive
         self.tol = settings.tolerance
         self.min_step, self.max_step = settings.min_step, settings.max_step
-        #: the force-cart power bond the energy estimator watches: (force's source, its output
-        #: position, the cart's slave, whether its velocity is exchanged, its position)
-        self._bond = _power_bond(coupling) if (settings.adaptive and
-                                               settings.error_estimator == "energy") else None
+        if self.adaptive and settings.error_estimator == "energy":
+            fsrc, fvar, xsrc, xvar = self.BOND
+            if (fvar not in coupling.out_index.get(fsrc, {})
+                    or xvar not in coupling.out_index.get(xsrc, {})):
+                raise ValueError(f"master.error_estimator = 'energy' needs the outputs "
+                                 f"{fsrc}.{fvar} and {xsrc}.{xvar} connected; allowed here: "
+                                 "'extrapolation'")
         self._in_buf = {n: np.zeros(len(coupling.inputs[n]) * (1 + coupling.n_der[n]))
                         for n in slaves}
         #: why the compiled loop cannot run these FMUs (None: it can)
@@ -276,43 +264,58 @@ class Master:
             return self._startup_step(hist, t0, t1)
         return self._macro_step(hist, t0, t1)
 
-    def _coupling_error(self, hist, new, t1):
-        """Weighted max difference between the predicted and the actual source outputs."""
+    def _coupling_error(self, hist, new, t1, step):
+        """The coupling's local error estimate, weighted (1 = at the tolerance): the predicted
+        source outputs at ``t1`` against the actual ones, each signal scaled by ``tolerance``
+        times its size: the largest magnitude it has had, at least its source's largest output
+        before the step (a signal starting at 0), at least its change over one scene step at its
+        present rate (a signal rising from 0 as ``t^n``, whose relative error does not fall
+        with the step); a force through zero does not blow up, a small angle is not swamped by
+        an absolute floor. Times ``step / master.step``: a jump or noise in an output that no
+        step resolves cannot drive the step to ``min_step``. The state's error after the step is the input's
+        error integrated over the step, one order above the input's: ``p + 2`` for an order-p
+        polynomial (see :meth:`_run_adaptive`). The first step (one sample) is taken at the
+        scene's step unchecked."""
         err = 0.0
         for src in dict.fromkeys(c.src for c in self.coupling.connections):
-            if len(hist[src].t) == 0:
-                continue
             pred = self._combination(hist[src], t1, self.h, (0,))[0]
             actual = new[src][:len(pred)]
-            scale = self.tol * self._magnitude(src, actual)
+            floor = float(np.max(self._peak[src]))   # before the step: a signal starting at
+            peak = self._peak[src] = np.maximum(self._peak[src], np.abs(actual))  # 0 takes its
+            if floor == 0.0:                  # source's scale; none yet (all outputs at 0 so
+                continue                      # far): not estimated
+            # a signal rising from 0 has a relative error that does not fall with the step
+            # (t^n is self-similar): its size is at least what it changes over the scene's step
+            rate = np.abs(actual - hist[src].u[-1][:len(pred)]) * (self.h / step)
+            scale = self.tol * np.maximum(np.maximum(peak, floor), rate)
             err = max(err, float(np.max(np.abs(pred - actual) / scale)))
-        return err
+        return err * step / self.h
 
-    def _energy_residual(self, hist, new, t0, t1):
-        """ECCO's energy residual of the force-cart power bond over ``[t0, t1]``, relative to
-        the tolerance: the energy the force's coupling error puts into the cart,
-        ``dE = (t1 - t0) |F_pred(t1) - F(t1)| |v(t1)| / (p + 2)`` (the error of an order-``p``
-        extrapolation grows like ``tau^(p+1)`` over the step), against ``tolerance`` times the
-        energy the bond carries over a step at the largest power of the run so far (at least
-        1 W: :data:`_FLOOR`)."""
-        src, i_f, dst, exchanged, i_v = self._bond
-        if len(hist[src].t) == 0:
-            return 0.0
-        force = self._combination(hist[src], t1, self.h, (0,))[0][i_f]
-        actual = new[src][i_f]
-        v = new[dst][i_v] if exchanged else self.slaves[dst].get_recorded(t1)[i_v]
-        power = self._magnitude("bond", np.array([actual * v]))[0]
-        k = min(self.coupling.p, len(hist[src].t) - 1)
-        return abs(force - actual) * abs(v) / ((k + 2) * self.tol * power)
+    #: the force-cart power bond of :meth:`_energy_error`: (force source, force, position source,
+    #: position); the work of the force over a step is ``F * dx`` exactly for a held force
+    BOND = ("controller", "F_c", "plant", "x_o")
 
-    def _magnitude(self, src, actual):
-        """Each output's magnitude in the run so far (the largest ``|value|`` reached, at least
-        :data:`_FLOOR`): the coupling error is weighed against the signal's own size, so that
-        a signal passing through zero (a force reversing) does not set the step."""
-        mag = self._peak.get(src)
-        mag = np.abs(actual) if mag is None else np.maximum(mag, np.abs(actual))
-        self._peak[src] = mag
-        return np.maximum(mag, _FLOOR)
+    def _energy_error(self, hist, new, t1, step):
+        """ECCO's residual energy on the force-cart power bond (Sadjina et al. 2017), weighted:
+        the work the controller's force does on the cart as the controller sees the cart move
+        (its extrapolation of ``x_o`` to ``t1``) against the work it does as the cart really
+        moves, ``|F_mean * (x_pred - x)|``, plus, where the plant's force is extrapolated, the
+        force's error times the cart's travel. Scaled by ``tolerance`` times the work through the
+        bond so far, at least the step's work over one ``master.step``."""
+        fsrc, fvar, xsrc, xvar = self.BOND
+        i_f, i_x = self.coupling.out_index[fsrc][fvar], self.coupling.out_index[xsrc][xvar]
+        f0, f1 = hist[fsrc].u[-1][i_f], new[fsrc][i_f]
+        x0, x1 = hist[xsrc].u[-1][i_x], new[xsrc][i_x]
+        x_pred = self._combination(hist[xsrc], t1, self.h, (0,))[0][i_x]
+        f_mean = 0.5 * (f0 + f1)
+        residual = abs(f_mean * (x_pred - x1))
+        if self.coupling.algorithm == "jacobi" or self.coupling.order[0] == xsrc:
+            f_pred = self._combination(hist[fsrc], t1, self.h, (0,))[0][i_f]
+            residual += 0.5 * abs((f_pred - f1) * (x1 - x0))
+        work = abs(f_mean * (x1 - x0))
+        self._work += work
+        scale = self.tol * max(self._work, work * self.h / step, 1e-300)
+        return residual / scale
 
     def _initial_outputs(self, t0):
         """Consistent outputs at ``t0``: the sources' initial outputs are passed to the inputs
@@ -409,72 +412,62 @@ class Master:
                 raise RunInterrupted(tb)
 
     def _run_adaptive(self, t0, dt_out, n_out, out, hist, cur, stats, progress, stop=None):
+        """Steps of ``h`` within ``[min_step, max_step]``, chosen by a PI controller
+        (Gustafsson; Hairer & Wanner II, IV.2) on :meth:`_coupling_error` of order
+        ``k = min(p + 1, samples) + 1``: ``h_new = h * 0.9 * err**(-0.7/k) * err_prev**(0.4/k)``,
+        growth at most 5, shrink at least 0.2. A rejected step is retried with the I-part alone
+        (no rollback loop on stale history). Output points are hit exactly without slivers: a
+        remainder under two steps is split in two equal ones, and the step chosen before an
+        output point is kept after it."""
         h = min(self.h, self.max_step)
-        self._peak = {}
-        energy = self.settings.error_estimator == "energy"
-        err_prev = 0.0
         t = t0
+        err_prev = 1.0
+        self._peak = {n: np.abs(np.asarray(cur[n], dtype=float)) for n in self.slaves}
+        self._work = 0.0
+        # the energy residual is never rolled back (ECCO): it only sets the next step
+        rollback = self.settings.error_estimator == "extrapolation"
+        estimate = self._coupling_error if rollback else self._energy_error
         for j in range(1, n_out + 1):
             t_target = t0 + j * dt_out
             while t < t_target - 1e-12 * dt_out:
-                # equal steps up to the output point: no remnant step, however close to it
-                pieces = max(1, math.ceil((t_target - t) / h - 1e-9))
-                last = pieces == 1
-                t1 = t_target if last else t + (t_target - t) / pieces
-                if energy:          # ECCO: no rollback, the next step set from the residual
-                    new = self._step(hist, t, t1)
-                    err = self._energy_residual(hist, new, t, t1)
-                    step = t1 - t
-                    for n in self.slaves:
-                        hist[n].push(t1, new[n])
-                    cur, t = new, t1
-                    stats.steps += 1
-                    stats.min_step_used = min(stats.min_step_used, step)
-                    stats.max_step_used = max(stats.max_step_used, step)
-                    self._t_reached = t1
-                    if stop is not None and stop():
-                        if last:
-                            self._store(out, j, t_target, cur)
-                        raise RunInterrupted(t1)
-                    k = min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t) - 1)
-                    factor = 2.0 if err == 0 else 0.9 * err ** (-0.3 / k) * (
-                        (err_prev / err) ** (0.4 / k) if err_prev else 1.0)
-                    err_prev = err
-                    if not last:
-                        h = min(self.max_step, max(self.min_step, step * min(2.0, max(0.2, factor))))
-                    continue
-                states = {n: s.get_state() for n, s in self.slaves.items()}
+                rest = t_target - t
+                last = rest <= h * (1 + 1e-9)
+                t1 = t_target if last else t + (min(h, 0.5 * rest) if rest < 2 * h else h)
+                states = ({n: s.get_state() for n, s in self.slaves.items()} if rollback
+                          else {})
                 snaps = {n: hist[n].snapshot() for n in self.slaves}
+                peaks = {n: v.copy() for n, v in self._peak.items()}
+                step = t1 - t
                 try:
                     new = self._step(hist, t, t1)
-                    err = self._coupling_error(hist, new, t1)
+                    err = estimate(hist, new, t1, step)
                     discarded = False
                 except CoSimulationError as exc:
-                    if exc.status != 2:   # only Discard is retried
+                    if exc.status != 2 or not rollback:   # only Discard is retried
                         for n, s in self.slaves.items():
                             s.free_state(states[n])
                         raise
                     err, discarded = math.inf, True
-                step = t1 - t
-                # the coupling error is O(h^(k)) per step with k samples in the polynomial
-                expo = -1.0 / min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t))
-                if err > 1.0 and step > self.min_step * (1 + 1e-9):
+                k = min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t)) + 1
+                if rollback and err > 1.0 and step > self.min_step * (1 + 1e-9):
                     stats.rejected += 1
                     stats.rejected_times.append(t)
                     for n, s in self.slaves.items():
                         s.set_state(states[n])
                         s.free_state(states[n])
                         hist[n].restore(snaps[n])
-                    factor = 0.5 if discarded else max(0.2, 0.9 * err ** expo)
+                    self._peak = peaks
+                    factor = 0.5 if discarded else min(0.9, max(0.2, 0.9 * err ** (-1.0 / k)))
                     h = max(self.min_step, step * factor)
                     continue
                 if discarded:
                     raise CoSimulationError(f"an FMU discarded the step at t = {t:.6g} even at "
                                             f"min_step = {self.min_step}", status=2, time=t)
-                if err > 1.0:
+                if err > 1.0 and rollback:
                     stats.forced_accepts += 1
                 for n, s in self.slaves.items():
-                    s.free_state(states[n])
+                    if rollback:
+                        s.free_state(states[n])
                     hist[n].push(t1, new[n])
                 cur = new
                 stats.steps += 1
@@ -486,9 +479,15 @@ class Master:
                     if abs(t1 - t_target) <= 1e-12 * dt_out:
                         self._store(out, j, t_target, cur)
                     raise RunInterrupted(t1)
-                grow = 2.0 if err == 0 else min(2.0, 0.9 * err ** expo)
-                if not last:
-                    h = min(self.max_step, max(self.min_step, step * max(grow, 0.2)))
+                e = max(err, 1e-10)
+                # without rollback (energy) a step is at most halved: no retry catches an outlier
+                grow = min(5.0, max(0.2 if rollback else 0.5,
+                                    0.9 * e ** (-0.7 / k) * err_prev ** (0.4 / k)))
+                err_prev = e
+                h_new = step * grow           # a shortened step (an output point) shrinks
+                h = h_new if step >= h * (1 - 1e-9) else (min(h, h_new) if grow < 1 else
+                                                         max(h, h_new))
+                h = min(self.max_step, max(self.min_step, h))
             t = t_target
             self._store(out, j, t_target, cur)
             if progress is not None:

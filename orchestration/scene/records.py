@@ -46,10 +46,8 @@ ALGORITHMS = ("gauss-seidel", "jacobi", "implicit")
 #: ``master.implicit_jacobian``: how the implicit master updates the interface
 #: (:mod:`orchestration.cosim.implicit`): Newton on the step's sensitivity, or IQN-ILS.
 IMPLICIT_JACOBIANS = ("newton", "iqn-ils")
-#: ``master.error_estimator``: what the adaptive master's step control measures (the coupling
-#: error of the extrapolated outputs, with rollback; or the energy residual of the force-cart
-#: power bond, ECCO's, without rollback)
-ERROR_ESTIMATORS = ("extrapolation", "energy")
+#: master.error_estimator: the adaptive master's local error estimate (orchestration.cosim.master)
+ESTIMATORS = ("extrapolation", "energy")
 FIRST = ("controller", "plant")
 #: ``master.interface``: the FMUs stepped as co-simulation slaves, or their Model Exchange
 #: interfaces solved as one system (:mod:`orchestration.cosim.model_exchange`).
@@ -159,6 +157,7 @@ class MasterSettings:
     tolerance: float = 1e-4
     min_step: float = 1e-6
     max_step: float = 2e-2
+    error_estimator: str = "extrapolation"
     input_derivatives: bool = True
     fmus: str = "native"
     compiled: object = "auto"
@@ -170,12 +169,10 @@ class MasterSettings:
     implicit_tolerance: float = 1e-9
     max_iterations: int = 20
     implicit_jacobian: str = "newton"
-    error_estimator: str = "extrapolation"
 
     def __post_init__(self):
         _choice("master.algorithm", self.algorithm, ALGORITHMS)
         _choice("master.implicit_jacobian", self.implicit_jacobian, IMPLICIT_JACOBIANS)
-        _choice("master.error_estimator", self.error_estimator, ERROR_ESTIMATORS)
         _set(self, "implicit_tolerance", _checked("master.implicit_tolerance", check_real,
                                                   self.implicit_tolerance, low=1e-15, high=1.0))
         _set(self, "max_iterations", _checked("master.max_iterations", check_int,
@@ -183,6 +180,7 @@ class MasterSettings:
         if self.algorithm == "implicit" and self.adaptive:
             raise ConfigError("master.algorithm = 'implicit' takes a fixed step; "
                               "master.adaptive = true is not allowed with it")
+        _choice("master.error_estimator", self.error_estimator, ESTIMATORS)
         _choice("master.first", self.first, FIRST)
         _choice("master.fmus", self.fmus, FMU_FLAVOURS)
         _choice("master.interface", self.interface, INTERFACES)
