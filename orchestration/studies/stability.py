@@ -421,6 +421,29 @@ def _check_scheme(algorithm, first, extrapolation):
         raise ValueError(f"extrapolation = {extrapolation!r}; allowed: 0, 1, 2")
 
 
+def _step_maps(p, c, H, extrapolation, input_derivatives, integrator, substep, drift_free,
+               step_index, plant_map):
+    """What :func:`transition_matrix` and :func:`implicit_transition_matrix` share: ``H`` and
+    ``step_index`` checked, the linear plant, the input derivative orders the FMUs take, the
+    plant's step map for a polynomial input (a held-input ``plant_map`` padded) and the filter's:
+    ``(plant, n_der, (Pp, Gp), (Ad, Gc))``."""
+    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
+        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+    if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
+        raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
+    n_der = min(extrapolation, 2) if input_derivatives else 0
+    plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
+    if plant_map is None:
+        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
+    Pp, Gp = plant_map
+    if Gp.shape[1] == 1:            # a held-input map
+        if n_der:
+            raise ValueError("plant_map is a held-input map (plant_step_map); input derivatives "
+                             "need plant_polynomial_step_map's")
+        Gp = np.hstack([Gp, np.zeros((Gp.shape[0], 2))])
+    return plant, n_der, (Pp, Gp), controller_polynomial_step_map(c, float(H))
+
+
 def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
                       algorithm: str = "gauss-seidel", first: str = "controller",
                       extrapolation: int = 0, input_derivatives: bool = False,
@@ -461,26 +484,14 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         raise ValueError(f"integrator = {integrator!r}: the plant FMU's substeps are a fixed "
                          f"linear map only for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau "
                          f"run adaptively in the FMU)")
-    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
-        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
-    if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
-        raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
     if output_derivatives and not (input_derivatives and extrapolation >= 1):
         raise ValueError("output_derivatives = True needs input_derivatives = True and "
                          "extrapolation >= 1 (as master.output_derivatives)")
-    n_der = min(extrapolation, 2) if input_derivatives else 0
     taylor = bool(output_derivatives)
-    plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
-    if plant_map is None:
-        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
-    Pp, Gp = plant_map
-    if Gp.shape[1] == 1:            # a held-input map
-        if n_der:
-            raise ValueError("plant_map is a held-input map (plant_step_map); input derivatives "
-                             "need plant_polynomial_step_map's")
-        Gp = np.hstack([Gp, np.zeros((Gp.shape[0], 2))])
+    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, H, extrapolation, input_derivatives,
+                                                   integrator, substep, drift_free, step_index,
+                                                   plant_map)
     ctrl = PDLowPassModel(c)
-    Ad, Gc = controller_polynomial_step_map(c, float(H))
     Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
     A, B, C = plant.A, plant.B, plant.C
     nx, nc, ny, P = Pp.shape[0], ctrl.nx, C.shape[0], extrapolation + 1
@@ -899,21 +910,9 @@ def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     _check_scheme("gauss-seidel", "controller", extrapolation)
-    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
-        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
-    if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
-        raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
-    n_der = min(extrapolation, 2) if input_derivatives else 0
-    plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
-    if plant_map is None:
-        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
-    Pp, Gp = plant_map
-    if Gp.shape[1] == 1:            # a held-input map
-        if n_der:
-            raise ValueError("plant_map is a held-input map (plant_step_map); input derivatives "
-                             "need plant_polynomial_step_map's")
-        Gp = np.hstack([Gp, np.zeros((Gp.shape[0], 2))])
-    Ad, Gc = controller_polynomial_step_map(c, float(H))
+    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, H, extrapolation, input_derivatives,
+                                                   integrator, substep, drift_free, step_index,
+                                                   plant_map)
     Cc, Dc = PDLowPassModel(c).state_space()[2:]
     C = plant.C
     nx, nc, ny = Pp.shape[0], Ad.shape[0], C.shape[0]
