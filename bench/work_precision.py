@@ -577,10 +577,12 @@ def plot(records, scenes, path, title):
         ax.set_title(scene)
         ax.grid(True, which="major", alpha=0.3)
     import textwrap
-    fig.suptitle("\n".join(textwrap.wrap(title, 150)), fontsize=9)
+    # a one-scene chart is narrow: fewer legend columns, shorter title lines
+    fig.suptitle("\n".join(textwrap.wrap(title, min(150, 90 * len(scenes)))), fontsize=9)
+    ncol = min(5, len(handles), 3 * len(scenes))
     fig.legend(list(handles.values()), list(handles), loc="lower center",
-               ncol=min(5, len(handles)), fontsize=8, frameon=False)
-    nrows = math.ceil(len(handles) / 5)
+               ncol=ncol, fontsize=8, frameon=False)
+    nrows = math.ceil(len(handles) / ncol)
     fig.tight_layout(rect=(0, 0.03 + 0.025 * nrows, 1, 0.97))
     fig.savefig(path, dpi=110)
     plt.close(fig)
