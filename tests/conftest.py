@@ -171,3 +171,42 @@ def open_fmu(fmu_dirs):
 
 def all_finite(values) -> bool:
     return all(math.isfinite(v) for v in values)
+
+
+def hand_stepped(scene, n_rows):
+    """The samples ``(phi_o, omega_o, x_o, F_c)`` of the scene's transition matrices
+    (``scene_transition_matrix``: explicit or implicit, start-up steps included) stepped by hand
+    from the master's consistent initial outputs (with output derivatives: the initial ones, the
+    input derivatives 0), as ``transition_matrix`` lays out ``z``. The tests compare the master's
+    co-simulation of the linear plant with it."""
+    import numpy as np
+
+    from controller_fmu.pd_lowpass import PDLowPassModel
+    from orchestration.studies.stability import linear_plant, scene_transition_matrix
+    from plant_fmu.dynamics import linear_plant_model
+
+    m = scene.master
+    plant = linear_plant(scene.plant.params, drift_free=False)
+    ctrl = PDLowPassModel(scene.controller)
+    Ac, Bc, Cc, Dc = ctrl.state_space()
+    x0 = linear_plant_model(scene.plant.params).initial_state(phi=scene.initial.phi)
+    nx, nc, P = len(x0), ctrl.nx, m.extrapolation + 1
+    y0 = plant.C @ x0
+    F0 = (Dc @ y0)[0]                         # F_c(0): -e(0) without filter, else 0
+    z = np.zeros(nx + nc + 3 * P + P)
+    z[:nx] = x0
+    iy, iF = nx + nc, nx + nc + 3 * P
+    z[iy:iy + 3] = y0
+    z[iF] = F0
+    if m.output_derivatives:                  # the FMUs' initial output derivatives
+        d1 = plant.A @ x0 + plant.B[:, 0] * F0
+        dc = Bc @ y0                          # xc(0) = 0, the sensors' derivatives 0
+        ders = [(plant.C @ d1, (Cc @ dc)[0]), (plant.C @ plant.A @ d1, (Cc @ Ac @ dc)[0])]
+        for j in range(1, P):
+            z[iy + 3 * j:iy + 3 * j + 3], z[iF + j] = ders[j - 1]
+    rows = []
+    for k in range(n_rows):
+        x_o, phi_o, omega_o = plant.C @ z[:nx]
+        rows.append((phi_o, omega_o, x_o, z[iF]))
+        z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
+    return np.array(rows)

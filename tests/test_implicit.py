@@ -16,18 +16,16 @@ import math
 
 import numpy as np
 import pytest
+from conftest import hand_stepped
 
-from controller_fmu.pd_lowpass import PDLowPassModel
 from orchestration.job import simulate
 from orchestration.scene.keys import ConfigError
 from orchestration.scene.records import MasterSettings
 from orchestration.scene.schema import load_scene, scene_from_config
 from orchestration.studies.reference import simulate_reference
 from orchestration.studies.stability import (critical_step, implicit_transition_matrix,
-                                             linear_plant, observed_spectral_radius,
-                                             scene_coupling, scene_transition_matrix,
+                                             observed_spectral_radius, scene_coupling,
                                              spectral_radius, transition_matrix)
-from plant_fmu.dynamics import linear_plant_model
 
 SCENE = "flexible_pd_lowpass"
 #: the largest stable communication step of the scene's own explicit coupling (s)
@@ -125,26 +123,6 @@ def test_a_step_that_does_not_converge_stops_the_run_with_one_line():
 
 
 # ---------------------------------------------------------------------- the predicted map
-def _hand_stepped(scene, n_rows):
-    """``(phi_o, omega_o, x_o, F_c)`` of the predicted converged map stepped by hand from the
-    master's consistent initial outputs (``transition_matrix``'s layout of ``z``)."""
-    p, c, H = scene.plant.params, scene.controller, scene.master.step
-    plant = linear_plant(p, drift_free=False)
-    Dc = PDLowPassModel(c).state_space()[3]
-    x0 = linear_plant_model(p).initial_state(phi=scene.initial.phi)
-    nx, nc, P = len(x0), PDLowPassModel(c).nx, scene.master.extrapolation + 1
-    z = np.zeros(nx + nc + 3 * P + P)
-    z[:nx] = x0
-    iy, iF = nx + nc, nx + nc + 3 * P
-    z[iy:iy + 3] = plant.C @ x0
-    z[iF] = (Dc @ plant.C @ x0)[0]             # F_c(0): 0 behind the filter
-    rows = []
-    for k in range(n_rows):
-        x_o, phi_o, omega_o = plant.C @ z[:nx]
-        rows.append((phi_o, omega_o, x_o, z[iF]))
-        z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
-    return np.array(rows)
-
 
 @pytest.mark.parametrize("jacobian", JACOBIANS)
 @pytest.mark.parametrize("p_extra,in_der", [(0, False), (1, False), (1, True), (2, False),
@@ -164,7 +142,7 @@ def test_linear_plant_follows_the_predicted_map(jacobian, p_extra, in_der, H):
         "master.input_derivatives": in_der, "master.implicit_tolerance": 1e-12,
         **SCENE_CONTROLLER})
     res = simulate(scene).result
-    hand = _hand_stepped(scene, len(res))
+    hand = hand_stepped(scene, len(res))
     for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
         scale = np.abs(res[col]).max()
         np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import hand_stepped
 
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from orchestration.studies.analysis import max_real_part
@@ -26,7 +27,7 @@ from orchestration.scene.schema import load_scene, scene_from_config
 from orchestration.studies.stability import (FIXED_STEP_METHODS, METHODS, POLYNOMIAL_METHODS,
                                              controller_polynomial_step_map, critical_step,
                                              critical_value,
-                                             highest_mode, integrator_step_limit, linear_plant,
+                                             highest_mode, integrator_step_limit,
                                              observed_spectral_radius,
                                              plant_polynomial_step_map, plant_step_map,
                                              scene_transition_matrix, spectral_radius,
@@ -191,37 +192,6 @@ def test_gauss_seidel_orders_have_one_spectrum(p_extra):
         np.testing.assert_allclose(big[0], big[1], atol=1e-9)
 
 
-def _hand_stepped(scene, n_rows, H):
-    """The samples ``(phi_o, omega_o, x_o, F_c)`` of the transition matrices stepped by hand from
-    the master's consistent initial outputs (with output derivatives: the initial ones, the
-    input derivatives 0), as ``transition_matrix`` lays out ``z``."""
-    m = scene.master
-    p_extra, taylor = m.extrapolation, m.output_derivatives
-    plant = linear_plant(scene.plant.params, drift_free=False)
-    ctrl = PDLowPassModel(scene.controller)
-    Ac, Bc, Cc, Dc = ctrl.state_space()
-    x0 = linear_plant_model(scene.plant.params).initial_state(phi=1e-3)
-    nx, nc, P = len(x0), ctrl.nx, p_extra + 1
-    y0 = plant.C @ x0
-    F0 = (Dc @ y0)[0]                         # F_c(0): -e(0) without filter, else 0
-    z = np.zeros(nx + nc + 3 * P + P)
-    z[:nx] = x0
-    iy, iF = nx + nc, nx + nc + 3 * P
-    z[iy:iy + 3] = y0
-    z[iF] = F0
-    if taylor:                                # the FMUs' initial output derivatives
-        d1 = plant.A @ x0 + plant.B[:, 0] * F0
-        dc = Bc @ y0                          # xc(0) = 0, the sensors' derivatives 0
-        ders = [(plant.C @ d1, (Cc @ dc)[0]), (plant.C @ plant.A @ d1, (Cc @ Ac @ dc)[0])]
-        for j in range(1, P):
-            z[iy + 3 * j:iy + 3 * j + 3], z[iF + j] = ders[j - 1]
-    rows = []
-    for k in range(n_rows):
-        x_o, phi_o, omega_o = plant.C @ z[:nx]
-        rows.append((phi_o, omega_o, x_o, z[iF]))
-        z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
-    return np.array(rows)
-
 
 #: the couplings of the hand-stepped comparison: (extrapolation, input derivatives, output
 #: derivatives, plant integrator); the scenes' default is (2, True, False, "rk4")
@@ -252,7 +222,7 @@ def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, 
                       "controller.filter_order": filter_order, "controller.kx": 3.0,
                       "n_steps": 25})
     res = run_scene(scene, paths, progress=False).result
-    hand = _hand_stepped(scene, len(res), H)
+    hand = hand_stepped(scene, len(res))
     for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
         scale = np.abs(res[col]).max()
         np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
