@@ -272,18 +272,20 @@ class Master:
         present rate (a signal rising from 0 as ``t^n``, whose relative error does not fall
         with the step); a force through zero does not blow up, a small angle is not swamped by
         an absolute floor. Times ``step / master.step``: a jump or noise in an output that no
-        step resolves cannot drive the step to ``min_step``. The state's error after the step is the input's
-        error integrated over the step, one order above the input's: ``p + 2`` for an order-p
-        polynomial (see :meth:`_run_adaptive`). The first step (one sample) is taken at the
-        scene's step unchecked."""
+        step resolves cannot drive the step to ``min_step``. The state's error after the step is
+        the input's error integrated over the step, one order above the input's: ``p + 2`` for
+        an order-p polynomial (see :meth:`_run_adaptive`). The first step (one sample) is taken
+        at the scene's step unchecked."""
         err = 0.0
         for src in dict.fromkeys(c.src for c in self.coupling.connections):
             pred = self._combination(hist[src], t1, self.h, (0,))[0]
             actual = new[src][:len(pred)]
-            floor = float(np.max(self._peak[src]))   # before the step: a signal starting at
-            peak = self._peak[src] = np.maximum(self._peak[src], np.abs(actual))  # 0 takes its
-            if floor == 0.0:                  # source's scale; none yet (all outputs at 0 so
-                continue                      # far): not estimated
+            # a signal starting at 0 takes its source's largest output before the step; a
+            # source whose outputs have all been 0 so far has no scale: not estimated
+            floor = float(np.max(self._peak[src]))
+            peak = self._peak[src] = np.maximum(self._peak[src], np.abs(actual))
+            if floor == 0.0:
+                continue
             # a signal rising from 0 has a relative error that does not fall with the step
             # (t^n is self-similar): its size is at least what it changes over the scene's step
             rate = np.abs(actual - hist[src].u[-1][:len(pred)]) * (self.h / step)
