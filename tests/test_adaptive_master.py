@@ -64,3 +64,27 @@ def test_the_energy_estimator_never_rolls_back(paths, scene):
 def test_an_unknown_estimator_is_refused():
     with pytest.raises(ValueError, match="master.error_estimator"):
         load_scene("rigid_pd", ["master.error_estimator=residual"])
+
+
+@pytest.mark.parametrize("estimator", ["extrapolation", "energy"])
+def test_a_failed_fmu_step_ends_the_run_with_its_message(paths, estimator, monkeypatch):
+    """An FMU error in the middle of an adaptive run stops it with the FMU's message and the rows
+    reached, for both estimators (the energy estimator, which takes no FMU state, once raised a
+    KeyError freeing states it had not taken)."""
+    from orchestration.cosim.master import Master
+    from orchestration.cosim.slave import CoSimulationError
+
+    step, calls = Master._step, []
+
+    def failing(self, hist, t0, t1):
+        calls.append(t0)
+        if len(calls) == 20:
+            raise CoSimulationError("the FMU failed here", status=3, time=t0)
+        return step(self, hist, t0, t1)
+
+    monkeypatch.setattr(Master, "_step", failing)
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=1.0", "master.adaptive=true",
+                                               f"master.error_estimator={estimator}"])
+    run = run_scene(scene, paths, progress=False)
+    assert "the FMU failed here" in run.summary["stopped"]["fmu_message"]
+    assert 0 < len(run.result) < 501

@@ -435,10 +435,12 @@ class Master:
                 rest = t_target - t
                 last = rest <= h * (1 + 1e-9)
                 t1 = t_target if last else t + (min(h, 0.5 * rest) if rest < 2 * h else h)
-                states = ({n: s.get_state() for n, s in self.slaves.items()} if rollback
-                          else {})
-                snaps = {n: hist[n].snapshot() for n in self.slaves}
-                peaks = {n: v.copy() for n, v in self._peak.items()}
+                if rollback:                  # what a rejected step restores
+                    states = {n: s.get_state() for n, s in self.slaves.items()}
+                    snaps = {n: hist[n].snapshot() for n in self.slaves}
+                    peaks = {n: v.copy() for n, v in self._peak.items()}
+                else:
+                    states = {}
                 step = t1 - t
                 try:
                     new = self._step(hist, t, t1)
@@ -446,8 +448,8 @@ class Master:
                     discarded = False
                 except CoSimulationError as exc:
                     if exc.status != 2 or not rollback:   # only Discard is retried
-                        for n, s in self.slaves.items():
-                            s.free_state(states[n])
+                        for n, state in states.items():
+                            self.slaves[n].free_state(state)
                         raise
                     err, discarded = math.inf, True
                 k = min(self.coupling.p + 1, len(hist[self.coupling.order[0]].t)) + 1
@@ -467,9 +469,9 @@ class Master:
                                             f"min_step = {self.min_step}", status=2, time=t)
                 if err > 1.0 and rollback:
                     stats.forced_accepts += 1
-                for n, s in self.slaves.items():
-                    if rollback:
-                        s.free_state(states[n])
+                for n, state in states.items():
+                    self.slaves[n].free_state(state)
+                for n in self.slaves:
                     hist[n].push(t1, new[n])
                 cur = new
                 stats.steps += 1
