@@ -15,6 +15,12 @@ All integrals of the interpolated shapes are evaluated exactly, element by eleme
 With ``gravity_preload`` the geometric stiffness of the self-weight compression is also formed:
 ``Kg = int rhoA g (L - s) N'^T N' ds``; the potential energy then carries
 ``-1/2 cos(phi) eta^T Kg eta`` (the beam's foreshortening lowers its centre of mass).
+
+The stiffened model (``fidelity = "stiffened"``, :class:`plant_fmu.dynamics.StiffenedPlantModel`)
+takes the two foreshortening invariants: with ``u(s) = 1/2 int_0^s w'^2`` the axial shortening,
+``int rhoA u ds = 1/2 eta^T Fa eta`` and ``int rhoA s u ds = 1/2 eta^T Fb eta``, where (integrating
+by parts) ``Fa = int rhoA (L - s) N'^T N' ds`` (so ``Kg = g Fa``) and
+``Fb = int rhoA (L^2 - s^2)/2 N'^T N' ds``.
 """
 from __future__ import annotations
 
@@ -48,6 +54,8 @@ class Beam:
     nodes: np.ndarray           # (n_elements+1,) node positions s
     shapes: np.ndarray          # (n_elements+1, n) mode shapes N_j at the nodes
     slopes: np.ndarray          # (n_elements+1, n) N_j' at the nodes
+    Fa: np.ndarray              # (n, n) int rhoA (L - s) N'^T N' ds (foreshortening, mass)
+    Fb: np.ndarray              # (n, n) int rhoA (L^2 - s^2)/2 N'^T N' ds (its first moment)
 
     @property
     def n_modes(self) -> int:
@@ -175,6 +183,7 @@ class UnitBeam:
     tip_slope: np.ndarray       # (n,) N'(1)
     shapes: np.ndarray          # (ne+1, n) N at the nodes
     slopes: np.ndarray          # (ne+1, n) N' at the nodes
+    Fb: np.ndarray              # (n, n) int (1 - xi^2)/2 N'^T N' dxi (Kg is Fa's unit value)
 
 
 @functools.lru_cache(maxsize=512)
@@ -206,10 +215,27 @@ def unit_beam(n_elements: int, n_modes: int) -> UnitBeam:
         load = 1.0 - (s0 + le * xi)                    # compressive axial force
         Kg += (dw * (gw * load * le)[:, None]).T @ dw
     arrays = dict(lam=lam[:n].copy(), I3=I3, I5=I5, Kg=Kg, tip_deflection=w_dofs[-1].copy(),
-                  tip_slope=r_dofs[-1].copy(), shapes=w_dofs.copy(), slopes=r_dofs.copy())
+                  tip_slope=r_dofs[-1].copy(), shapes=w_dofs.copy(), slopes=r_dofs.copy(),
+                  Fb=_foreshortening_moment(phi, ne))
     for a in arrays.values():
         a.setflags(write=False)
     return UnitBeam(**arrays)
+
+
+def _foreshortening_moment(phi: np.ndarray, ne: int) -> np.ndarray:
+    """``int (1 - xi^2)/2 N'^T N' dxi`` of the unit beam's modes ``phi`` (all dofs, ne elements):
+    4-point Gauss, exact for the degree-6 integrand."""
+    le = 1.0 / ne
+    gx, gw = np.polynomial.legendre.leggauss(4)
+    xi = 0.5 * (gx + 1.0)
+    dH = _hermite_dN(xi, le)
+    n = phi.shape[1]
+    Fb = np.zeros((n, n))
+    for e in range(ne):
+        dw = dH @ phi[2 * e:2 * e + 4]
+        s = e * le + le * xi
+        Fb += (dw * (0.5 * gw * 0.5 * (1.0 - s * s) * le)[:, None]).T @ dw
+    return Fb
 
 
 @functools.lru_cache(maxsize=64)
@@ -233,6 +259,8 @@ def beam_model(p: PlantParams) -> Beam:
         nodes=np.linspace(0.0, L, ne + 1),
         shapes=u.shapes * sc.w,
         slopes=u.slopes * sc.slope,
+        Fa=u.Kg / L,                        # Kg's scale g/L without g
+        Fb=u.Fb.copy(),                     # dimensionless: rhoA L^2 (w/L)^2 L = 1
     )
     for a in arrays.values():
         a.setflags(write=False)

@@ -38,8 +38,9 @@ import numpy as np
 from .beam import Beam, beam_model
 from .params import PlantParams
 
-__all__ = ["PlantModel", "LinearPlantModel", "plant_model", "linear_plant_model", "rhs", "outputs", "energy", "linearize", "state_space",
-           "OUTPUT_NAMES"]
+__all__ = ["PlantModel", "LinearPlantModel", "StiffenedPlantModel", "plant_model",
+           "linear_plant_model", "stiffened_plant_model", "model_for", "rhs", "outputs", "energy",
+           "linearize", "state_space", "OUTPUT_NAMES"]
 
 #: Names of the sensor outputs, in the order of the rows of ``C``.
 OUTPUT_NAMES = ("x_o", "phi_o", "omega_o")
@@ -516,12 +517,135 @@ def _output_derivatives(m, x, u, du, linear):
 
 def _make_kernel(m: PlantModel, linear: bool):
     """The compiled kernel with the data of the nonlinear model ``m`` (its linearisation if
-    ``linear``)."""
+    ``linear``; the stiffened model's if ``m`` is one)."""
     from .kernel import PlantKernel
 
+    extra = dict(stiffened=True, Fa=m.Fa, Fb=m.Fb) if isinstance(m, StiffenedPlantModel) else {}
     return PlantKernel(n=m.n, linear=linear, preload=m.preload, I0=m.I0, I1=m.I1, I2=m.I2, g=m.g,
                        I3=m.I3, I5=m.I5, K=m.Kdiag, D=m.Ddiag, Kg=m.Kg, tip_slope=m.tip_slope,
-                       tip_defl=m.tip_defl)
+                       tip_defl=m.tip_defl, **extra)
+
+
+class StiffenedPlantModel(PlantModel):
+    """The floating frame with motion-dependent geometric stiffness (``fidelity = "stiffened"``).
+
+    The beam is inextensible: a point at arc length ``s`` sits at ``s - u(s)`` along the beam axis,
+    ``u(s) = 1/2 int_0^s w'^2`` (the foreshortening), and ``w(s)`` across it. Kept to second order
+    in the modal coordinates, the kinetic and potential energies gain (``c, s = cos, sin phi``;
+    ``a = 1/2 eta.Fa.eta = int rhoA u``, ``b = 1/2 eta.Fb.eta = int rhoA s u``, :mod:`.beam`)::
+
+        T_fs = xd (c phid a + s etad.Fa.eta) - phid^2 b        V_fs = -g c a
+
+    (``xd d/dt (s a)``: the cart's velocity along the shortening; ``-phid^2 b``: the rotation of
+    the shortened beam). Lagrange's equations of ``T + T_fs`` and ``V + V_fs`` (derived by sympy
+    in ``tests/test_stiffened.py``) put into the modal equations the geometric stiffness
+
+        K_G(t) = -(g c - s xdd) Fa + phid^2 Fb = int N(s, t) N'^T N' ds
+
+    of the axial load ``N(s, t) = -rhoA (L - s) (g c - s xdd) + rhoA phid^2 (L^2 - s^2)/2``: the
+    gravity and the cart's acceleration along the beam (compression) and the centrifugal load
+    (tension). The angular acceleration and the cart's acceleration across the beam load it
+    transversely and enter the axial load only at third order in eta, so they are left out with
+    every other third-order term. The axial load depends on ``xdd``; the Lagrangian route makes
+    that dependence a term of a symmetric, state-dependent mass matrix (``M_x,eta += s Fa eta``,
+    ``M_x,phi += c a``, ``M_phi,phi -= 2 b``), solved with the rest each evaluation: no lagged
+    acceleration, and ``T + T_fs + V + V_fs`` is conserved without damping and force.
+
+    At the upright rest state ``T_fs`` is of fourth order and ``V_fs`` is the preload's
+    ``-1/2 c eta.Kg.eta`` (``Kg = g Fa``): the linearisation is the preload rung's, whatever
+    ``gravity_preload`` says (the stiffened model always carries the self-weight).
+    """
+
+    def __init__(self, p: PlantParams):
+        super().__init__(p.replace(gravity_preload=False))
+        self.params = p
+        b = self.beam
+        self.Fa, self.Fb = b.Fa, b.Fb
+        self.Kg = self.g * self.Fa
+        self.preload = self.n > 0
+
+    def _fs(self, eta):
+        """``(Fa eta, Fb eta, a, b)``."""
+        Fae, Fbe = self.Fa @ eta, self.Fb @ eta
+        return Fae, Fbe, 0.5 * float(eta @ Fae), 0.5 * float(eta @ Fbe)
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        M = super().mass_matrix(q)
+        c, s = math.cos(q[1]), math.sin(q[1])
+        Fae, _, a, b = self._fs(q[2:])
+        M[0, 1] = M[1, 0] = M[0, 1] + c * a
+        M[0, 2:] = M[2:, 0] = M[0, 2:] + s * Fae
+        M[1, 1] -= 2.0 * b
+        return M
+
+    def forces(self, q: np.ndarray, qd: np.ndarray, u: float) -> np.ndarray:
+        """``f`` of ``M(q) qdd = f``: the nonlinear model's with the preload, and the velocity
+        terms of ``T_fs``."""
+        f = super().forces(q, qd, u)
+        eta, phid, etad = q[2:], qd[1], qd[2:]
+        c, s = math.cos(q[1]), math.sin(q[1])
+        Fae, Fbe, a, _ = self._fs(eta)
+        f[0] += s * phid * phid * a - 2.0 * c * phid * float(Fae @ etad) \
+            - s * float(etad @ (self.Fa @ etad))
+        f[1] += 2.0 * phid * float(Fbe @ etad)
+        f[2:] -= (phid * phid) * Fbe
+        return f
+
+    def accelerations(self, q: np.ndarray, qd: np.ndarray, u: float) -> np.ndarray:
+        """Solve ``M(q) qdd = f`` by the Schur complement on (x, phi): the modal block is still
+        the identity, the coupling column of ``x`` is ``v = -c I3 + s Fa eta``."""
+        f = self.forces(q, qd, u)
+        phi, eta = q[1], q[2:]
+        c, s = math.cos(phi), math.sin(phi)
+        Fae, _, a, b = self._fs(eta)
+        v = -c * self.I3 + s * Fae
+        a00 = self.I0 - float(v @ v)
+        m01 = -self.I1 * c + s * float(self.I3 @ eta) + c * a
+        a01 = m01 - float(v @ self.I5)
+        a11 = self.I2 + float(eta @ eta) - 2.0 * b - self._I5I5
+        fe = f[2:]
+        r0 = f[0] - float(v @ fe)
+        r1 = f[1] - float(self.I5 @ fe)
+        det = a00 * a11 - a01 * a01
+        xdd = (a11 * r0 - a01 * r1) / det
+        phidd = (a00 * r1 - a01 * r0) / det
+        qdd = np.empty(self.nq)
+        qdd[0] = xdd
+        qdd[1] = phidd
+        qdd[2:] = fe - xdd * v - phidd * self.I5
+        return qdd
+
+    def energy_numpy(self, x: np.ndarray) -> float:
+        """``T + V`` of the nonlinear model with the preload, plus ``T_fs``."""
+        nq = self.nq
+        phi, eta = x[1], x[2:nq]
+        xd, phid, etad = x[nq], x[nq + 1], x[nq + 2:]
+        c, s = math.cos(phi), math.sin(phi)
+        Fae, _, a, b = self._fs(eta)
+        return (super().energy_numpy(x)
+                + xd * (c * phid * a + s * float(Fae @ etad)) - phid * phid * b)
+
+    def _no_jacobian(self, *args, **kwargs):
+        raise ValueError("the exact Jacobians and output derivatives are not available for "
+                         "fidelity = 'stiffened' (nonlinear and linear have them)")
+
+    jacobian_numpy = output_jacobian_numpy = output_derivatives_numpy = _no_jacobian
+
+
+@functools.lru_cache(maxsize=64)
+def stiffened_plant_model(p: PlantParams) -> StiffenedPlantModel:
+    """The (cached) :class:`StiffenedPlantModel` of a parameter record."""
+    return StiffenedPlantModel(p)
+
+
+def model_for(p: PlantParams, fidelity: str):
+    """The model of ``plant.fidelity`` (``"nonlinear"``, ``"linear"`` or ``"stiffened"``)."""
+    makers = {"nonlinear": plant_model, "linear": linear_plant_model,
+              "stiffened": stiffened_plant_model}
+    if fidelity not in makers:
+        raise ValueError(f"fidelity = {fidelity!r} is not allowed here; allowed: "
+                         f"{', '.join(makers)}")
+    return makers[fidelity](p)
 
 
 @functools.lru_cache(maxsize=64)
