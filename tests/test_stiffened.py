@@ -210,8 +210,10 @@ def test_small_amplitude_frequencies_are_the_preload_rungs():
         return np.sort_complex(np.linalg.eigvals(J))
 
     e_st, e_pre, e_def = eig(st), eig(pre), eig(dflt)
-    np.testing.assert_allclose(e_st, e_pre, rtol=1e-6)
-    assert np.max(np.abs(e_def - e_pre) / np.abs(e_pre)) > 1e-4
+    big = np.abs(e_pre) > 1e-3            # the cart's double zero aside
+    assert np.count_nonzero(big) == st.nx - 2
+    np.testing.assert_allclose(e_st[big], e_pre[big], rtol=1e-6)
+    assert np.max(np.abs(e_def[big] - e_pre[big]) / np.abs(e_pre[big])) > 1e-4
 
 
 def test_model_for_and_refusals():
@@ -222,3 +224,23 @@ def test_model_for_and_refusals():
     with pytest.raises(ValueError, match="stiffened"):
         stiffened_plant_model(p).jacobian_numpy(np.zeros(8), 0.0)
     assert math.isfinite(stiffened_plant_model(PlantParams(n_modes=0)).energy(np.r_[0, .1, 0, 0]))
+
+
+@pytest.mark.parametrize("n", [0, 1, 4, 8])
+def test_kernel_matches_numpy_to_round_off(n):
+    """``fp_rhs``, ``fp_energy`` and the outputs of the stiffened model against the numpy
+    specification; the kernel refuses the exact Jacobians and output derivatives by name."""
+    p = PlantParams(n_modes=n, n_elements=12, zeta=0.02)
+    model = stiffened_plant_model(p)
+    k = model.kernel
+    for q, v, F in _random_states(n, 10, seed=5 + n):
+        x = np.r_[q, v]
+        ref = model.rhs_numpy(0.0, x, F)
+        assert np.max(np.abs(k.rhs(x, F) - ref)) <= 1e-12 * np.max(np.abs(ref))
+        assert k.energy(x) == pytest.approx(model.energy_numpy(x), rel=1e-13, abs=1e-13)
+        out = k.outputs(x)
+        assert out[2:4] == pytest.approx(model.tip_angle_numpy(x), rel=1e-14, abs=1e-15)
+    for call in (lambda: k.jacobian(x, 0.0), lambda: k.jvp(x, 0.0, x),
+                 lambda: k.output_jacobian(x), lambda: k.output_derivatives(x, 0.0)):
+        with pytest.raises(ValueError, match="fidelity = 'stiffened'"):
+            call()

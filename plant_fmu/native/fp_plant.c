@@ -44,6 +44,10 @@ int fp_plant_prepare(fp_plant *p)
         || !finite_array(p->tip_defl, n))
         return FP_BADARG;
     if (p->preload && !finite_array(p->Kg, (long)n * n)) return FP_BADARG;
+    if (p->stiffened && (p->linear || (n > 0 && !p->preload) || !finite_array(p->Fa, (long)n * n)
+                         || !finite_array(p->Fb, (long)n * n)))
+        return FP_BADARG;
+    p->stiffened = p->stiffened != 0;
     p->preload = (p->preload != 0) && n > 0;
     p->linear = p->linear != 0;
     p->nx = 2 * (n + 2);
@@ -191,10 +195,95 @@ static void rhs_linear(const fp_plant *p, const double *x, double u, double *out
     for (j = 0; j < n; j++) out[nq + 2 + j] += xdd * I3[j] - phidd * I5[j];
 }
 
+/* The stiffened model: dynamics.py, StiffenedPlantModel.forces and .accelerations. The modal
+ * block of M is still the identity; the coupling column of x is v = -c I3 + s Fa eta, kept in
+ * out[2 + j] until the modal accelerations are formed. O(n^2). */
+static void rhs_stiffened(const fp_plant *p, const double *x, double u, double *out)
+{
+    const int n = p->n, nq = n + 2;
+    const double *I3 = p->I3, *I5 = p->I5;
+    const double phi = x[1], phid = x[nq + 1];
+    const double c = cos(phi), s = sin(phi);
+    double I3eta = 0.0, I3etad = 0.0, ee = 0.0, eed = 0.0, ekge = 0.0, a = 0.0, b = 0.0;
+    double faed = 0.0, edfaed = 0.0, fbed = 0.0, vv = 0.0, vI5 = 0.0, vfe = 0.0, I5fe = 0.0;
+    double f0, f1, a00, a01, a11, r0, r1, det, xdd, phidd;
+    int i, j, k;
+    for (j = 0; j < n; j++) {
+        const double e = x[2 + j], ed = x[nq + 2 + j];
+        const double *ra = p->Fa + (size_t)j * n, *rb = p->Fb + (size_t)j * n;
+        const double *rg = p->Kg + (size_t)j * n;
+        double fae = 0.0, fbe = 0.0, kge = 0.0, faedj = 0.0, fe, v;
+        for (k = 0; k < n; k++) {
+            fae += ra[k] * x[2 + k];
+            fbe += rb[k] * x[2 + k];
+            kge += rg[k] * x[2 + k];
+            faedj += ra[k] * x[nq + 2 + k];
+        }
+        I3eta += I3[j] * e;
+        I3etad += I3[j] * ed;
+        ee += e * e;
+        eed += e * ed;
+        ekge += e * kge;
+        a += 0.5 * e * fae;
+        b += 0.5 * e * fbe;
+        faed += fae * ed;
+        edfaed += ed * faedj;
+        fbed += fbe * ed;
+        fe = phid * phid * e + p->g * s * I3[j] - p->K[j] * e - p->D[j] * ed + c * kge
+             - phid * phid * fbe;
+        v = -c * I3[j] + s * fae;
+        out[nq + 2 + j] = fe;
+        out[2 + j] = v;
+        vv += v * v;
+        vI5 += v * I5[j];
+        vfe += v * fe;
+        I5fe += I5[j] * fe;
+    }
+    f0 = u - (p->I1 * s + I3eta * c) * phid * phid - 2.0 * phid * s * I3etad
+         + s * phid * phid * a - 2.0 * c * phid * faed - s * edfaed;
+    f1 = -2.0 * phid * eed + p->g * (p->I1 * s + I3eta * c) - 0.5 * s * ekge
+         + 2.0 * phid * fbed;
+    a00 = p->I0 - vv;
+    a01 = -p->I1 * c + s * I3eta + c * a - vI5;
+    a11 = p->I2 + ee - 2.0 * b - p->I5I5;
+    r0 = f0 - vfe;
+    r1 = f1 - I5fe;
+    det = a00 * a11 - a01 * a01;
+    xdd = (a11 * r0 - a01 * r1) / det;
+    phidd = (a00 * r1 - a01 * r0) / det;
+    for (j = 0; j < n; j++) out[nq + 2 + j] -= xdd * out[2 + j] + phidd * I5[j];
+    for (i = 0; i < nq; i++) out[i] = x[nq + i];
+    out[nq] = xdd;
+    out[nq + 1] = phidd;
+}
+
+/* The stiffened model's kinetic energy beyond the nonlinear model's:
+ * T_fs = xd (c phid a + s etad.Fa.eta) - phid^2 b (StiffenedPlantModel.energy_numpy). */
+static double stiffened_kinetic(const fp_plant *p, const double *x, double c, double s)
+{
+    const int n = p->n, nq = n + 2;
+    double a = 0.0, b = 0.0, faed = 0.0;
+    int j, k;
+    for (j = 0; j < n; j++) {
+        const double *ra = p->Fa + (size_t)j * n, *rb = p->Fb + (size_t)j * n;
+        double fae = 0.0, fbe = 0.0;
+        for (k = 0; k < n; k++) {
+            fae += ra[k] * x[2 + k];
+            fbe += rb[k] * x[2 + k];
+        }
+        a += 0.5 * x[2 + j] * fae;
+        b += 0.5 * x[2 + j] * fbe;
+        faed += fae * x[nq + 2 + j];
+    }
+    return x[nq] * (c * x[nq + 1] * a + s * faed) - x[nq + 1] * x[nq + 1] * b;
+}
+
 void fp_rhs(const fp_plant *p, const double *x, double u, double *dx)
 {
     if (p->linear)
         rhs_linear(p, x, u, dx);
+    else if (p->stiffened)
+        rhs_stiffened(p, x, u, dx);
     else
         rhs_nonlinear(p, x, u, dx);
 }
@@ -236,6 +325,7 @@ double fp_energy(const fp_plant *p, const double *x)
              + 0.5 * phid * phid * (p->I2 + ee) + phid * I5etad + 0.5 * etadetad);
         V = p->g * (p->I1 * c - s * I3eta) + 0.5 * strain;
         if (p->preload) V -= 0.5 * c * ekge;
+        if (p->stiffened) T += stiffened_kinetic(p, x, c, s);
         return T + V;
     }
 }
@@ -577,7 +667,7 @@ int fp_jacobian(const fp_plant *p, const double *x, double u, double *J, double 
     double *dx = work;            /* nx: dx/dt at x */
     schur S;
     int i, j, k;
-    if (x == NULL || J == NULL || work == NULL) return FP_BADARG;
+    if (p->stiffened || x == NULL || J == NULL || work == NULL) return FP_BADARG;
     for (i = 0; i < nx * nx; i++) J[i] = 0.0;
     for (i = 0; i < nq; i++) J[(size_t)i * nx + nq + i] = 1.0;     /* d q/dt = qd */
     /* the rows of qdd: column k of J is written into J[nq.., k] at stride nx, then solved */
@@ -773,7 +863,7 @@ int fp_jvp(const fp_plant *p, const double *x, double u, const double *v, double
 {
     const int nx = p->nx;
     int i;
-    if (x == NULL || v == NULL || out == NULL || work == NULL) return FP_BADARG;
+    if (p->stiffened || x == NULL || v == NULL || out == NULL || work == NULL) return FP_BADARG;
     fp_rhs(p, x, u, work);
     jvp(p, x, work, v, du, out, work + nx);
     for (i = 0; i < nx; i++)
@@ -788,6 +878,7 @@ int fp_output_jacobian(const fp_plant *p, const double *x, double *C)
     const double phi = x[1], xd = x[nq], phid = x[nq + 1];
     double *dE;
     int i, j, k;
+    if (p->stiffened) return FP_BADARG;
     for (i = 0; i < ny * nx; i++) C[i] = 0.0;
 #define CC(row, col) C[(size_t)(row) * nx + (col)]
     CC(FP_OUT_X, 0) = 1.0;
@@ -894,7 +985,7 @@ int fp_output_derivatives(const fp_plant *p, const double *x, double u, double d
     double sl = 0.0, sld = 0.0, sldd = 0.0, slddd = 0.0, tip1 = 0.0, tip2 = 0.0;
     double P, dP, diss = 0.0, ddiss = 0.0;
     int i, j;
-    if (x == NULL || d1 == NULL || d2 == NULL || work == NULL) return FP_BADARG;
+    if (p->stiffened || x == NULL || d1 == NULL || d2 == NULL || work == NULL) return FP_BADARG;
     fp_rhs(p, x, u, f);
     jvp(p, x, f, f, du, g, work + 2 * nx);
     qd = x + nq;

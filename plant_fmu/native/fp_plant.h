@@ -40,7 +40,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, signatures, codes). Bump on any change. */
-#define FP_PLANT_ABI 3
+#define FP_PLANT_ABI 4
 
 /* Return codes. */
 #define FP_OK 0
@@ -85,6 +85,12 @@ typedef struct fp_plant {
     const double *tip_defl;      /* in: (n) N(L), m per unit modal coordinate */
     int nx;                      /* derived: state size 2 (n + 2) */
     double I3I3, I3I5, I5I5;     /* derived: dot products of I3 and I5 */
+    /* The stiffened floating frame (dynamics.py, StiffenedPlantModel): the foreshortening
+     * u = 1/2 int w'^2 in the kinetic and gravity energies. It needs linear = 0 and preload = 1
+     * with Kg = g Fa. The exact Jacobians and output derivatives refuse it (FP_BADARG). */
+    int stiffened;               /* in: 1 the stiffened model (0: the fields below are unused) */
+    const double *Fa;            /* in: (n x n) int rhoA (L - s) N'^T N' ds; NULL if stiffened = 0 */
+    const double *Fb;            /* in: (n x n) int rhoA (L^2 - s^2)/2 N'^T N' ds; likewise */
 } fp_plant;
 
 /* A Butcher tableau of an explicit method: A (stages x stages, strictly lower), B, C (stages);
@@ -172,7 +178,8 @@ FP_API int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_i
  * column's right-hand side formed by hand and solved by the Schur complement the rhs uses: O(n)
  * a column, with or without the preload, so O(n^2) for the whole Jacobian, the size of J. work: fp_jacobian_work_size(p) = 4 nx doubles
  * (any of these functions). Each returns FP_OK, FP_NONFINITE (a result is not finite; the outputs
- * are written but must not be used) or FP_BADARG (a NULL pointer). */
+ * are written but must not be used) or FP_BADARG (a NULL pointer, or the stiffened model, which
+ * has none of them). */
 FP_API long fp_jacobian_work_size(const fp_plant *p);
 
 /* J = d(dx/dt)/dx (nx x nx, row-major) and, if b is not NULL, b = d(dx/dt)/du (nx) at x with the
