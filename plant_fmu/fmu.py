@@ -30,7 +30,7 @@ import numpy as np
 from pythonfmu import DefaultExperiment
 
 from plant_fmu import kernel
-from plant_fmu.dynamics import linear_plant_model, plant_model
+from plant_fmu.dynamics import model_for
 from fmu_common.checks import check_real
 from fmu_common.slave import Fmi2Status, SlaveBase, StateError, check_finite
 from plant_fmu.integrators import REGISTRY, make_stepper
@@ -123,7 +123,7 @@ class FlexiblePendulum(SlaveBase):
         """``(model, stepper, settings)`` from the parameters and the start time; raises naming
         the bad parameter (also an initial state whose outputs or energy would not be finite)."""
         p, s = cls._validated(par)
-        model = linear_plant_model(p) if s["fidelity"] == "linear" else plant_model(p)
+        model = model_for(p, s["fidelity"])
         y0 = model.initial_state(phi=s["phi0"], x=s["x0"], phi_dot=s["phi_dot0"],
                                  x_dot=s["x_dot0"])
         with np.errstate(over="ignore", invalid="ignore"):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from controller_fmu.pd_lowpass import PDLowPassModel
-from plant_fmu.dynamics import linear_plant_model, plant_model
+from plant_fmu.dynamics import model_for
 
 from ..scene.keys import ConfigError
 
@@ -27,7 +27,7 @@ class ClosedLoop:
             raise ConfigError(f"{scene.name}: plant.n_modes or plant.fidelity is 'auto': choose "
                               "the model first (orchestration.studies.fidelity.select_model)")
         p, c = scene.plant.params, scene.controller
-        self.plant = linear_plant_model(p) if scene.plant.fidelity == "linear" else plant_model(p)
+        self.plant = model_for(p, scene.plant.fidelity)
         self.ctrl = PDLowPassModel(c)
         self.np = self.plant.nx
         self.x0 = np.concatenate([
