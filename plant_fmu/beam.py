@@ -17,10 +17,9 @@ With ``gravity_preload`` the geometric stiffness of the self-weight compression 
 ``-1/2 cos(phi) eta^T Kg eta`` (the beam's foreshortening lowers its centre of mass).
 
 The stiffened model (``fidelity = "stiffened"``, :class:`plant_fmu.dynamics.StiffenedPlantModel`)
-takes the two foreshortening invariants: with ``u(s) = 1/2 int_0^s w'^2`` the axial shortening,
-``int rhoA u ds = 1/2 eta^T Fa eta`` and ``int rhoA s u ds = 1/2 eta^T Fb eta``, where (integrating
-by parts) ``Fa = int rhoA (L - s) N'^T N' ds`` (so ``Kg = g Fa``) and
-``Fb = int rhoA (L^2 - s^2)/2 N'^T N' ds``.
+takes the beam as mass points (:func:`mass_points`): the Gauss points of the mesh with their masses,
+the mode shapes ``N(s_p)`` and the foreshortening matrices ``G(s_p) = int_0^s_p N'^T N' ds``, so
+that the axial shortening there is ``u_p = 1/2 eta^T G(s_p) eta``.
 """
 from __future__ import annotations
 
@@ -32,7 +31,7 @@ import numpy as np
 
 from .params import PlantParams
 
-__all__ = ["Beam", "beam_model", "unit_beam", "UnitBeam", "Scales", "analytic_beta_L", "analytic_frequencies", "analytic_mode_shape"]
+__all__ = ["Beam", "beam_model", "MassPoints", "mass_points", "unit_beam", "UnitBeam", "Scales", "analytic_beta_L", "analytic_frequencies", "analytic_mode_shape"]
 
 
 @dataclass(frozen=True)
@@ -54,8 +53,6 @@ class Beam:
     nodes: np.ndarray           # (n_elements+1,) node positions s
     shapes: np.ndarray          # (n_elements+1, n) mode shapes N_j at the nodes
     slopes: np.ndarray          # (n_elements+1, n) N_j' at the nodes
-    Fa: np.ndarray              # (n, n) int rhoA (L - s) N'^T N' ds (foreshortening, mass)
-    Fb: np.ndarray              # (n, n) int rhoA (L^2 - s^2)/2 N'^T N' ds (its first moment)
 
     @property
     def n_modes(self) -> int:
@@ -183,7 +180,6 @@ class UnitBeam:
     tip_slope: np.ndarray       # (n,) N'(1)
     shapes: np.ndarray          # (ne+1, n) N at the nodes
     slopes: np.ndarray          # (ne+1, n) N' at the nodes
-    Fb: np.ndarray              # (n, n) int (1 - xi^2)/2 N'^T N' dxi (Kg is Fa's unit value)
 
 
 @functools.lru_cache(maxsize=512)
@@ -215,27 +211,10 @@ def unit_beam(n_elements: int, n_modes: int) -> UnitBeam:
         load = 1.0 - (s0 + le * xi)                    # compressive axial force
         Kg += (dw * (gw * load * le)[:, None]).T @ dw
     arrays = dict(lam=lam[:n].copy(), I3=I3, I5=I5, Kg=Kg, tip_deflection=w_dofs[-1].copy(),
-                  tip_slope=r_dofs[-1].copy(), shapes=w_dofs.copy(), slopes=r_dofs.copy(),
-                  Fb=_foreshortening_moment(phi, ne))
+                  tip_slope=r_dofs[-1].copy(), shapes=w_dofs.copy(), slopes=r_dofs.copy())
     for a in arrays.values():
         a.setflags(write=False)
     return UnitBeam(**arrays)
-
-
-def _foreshortening_moment(phi: np.ndarray, ne: int) -> np.ndarray:
-    """``int (1 - xi^2)/2 N'^T N' dxi`` of the unit beam's modes ``phi`` (all dofs, ne elements):
-    4-point Gauss, exact for the degree-6 integrand."""
-    le = 1.0 / ne
-    gx, gw = np.polynomial.legendre.leggauss(4)
-    xi = 0.5 * (gx + 1.0)
-    dH = _hermite_dN(xi, le)
-    n = phi.shape[1]
-    Fb = np.zeros((n, n))
-    for e in range(ne):
-        dw = dH @ phi[2 * e:2 * e + 4]
-        s = e * le + le * xi
-        Fb += (dw * (0.5 * gw * 0.5 * (1.0 - s * s) * le)[:, None]).T @ dw
-    return Fb
 
 
 @functools.lru_cache(maxsize=64)
@@ -258,13 +237,67 @@ def beam_model(p: PlantParams) -> Beam:
         tip_slope=u.tip_slope * sc.slope,
         nodes=np.linspace(0.0, L, ne + 1),
         shapes=u.shapes * sc.w,
-        slopes=u.slopes * sc.slope,
-        Fa=u.Kg / L,                        # Kg's scale g/L without g
-        Fb=u.Fb.copy(),                     # dimensionless: rhoA L^2 (w/L)^2 L = 1
+        slopes=u.slopes * sc.slope
     )
     for a in arrays.values():
         a.setflags(write=False)
     return Beam(I0=p.m + rhoA * L, I1=rhoA * (L * L) / 2, I2=rhoA * (L * L * L) / 3, **arrays)
+
+
+@dataclass(frozen=True)
+class MassPoints:
+    """The beam as mass points for the stiffened model: 4 Gauss points per element (the rule is
+    exact for the consistent mass, so ``sum m N^T N = I`` and the other invariants to round-off)."""
+
+    s: np.ndarray   # (P,) arc length of each point, m
+    m: np.ndarray   # (P,) its mass, kg
+    N: np.ndarray   # (P, n) the mode shapes there
+    G: np.ndarray   # (P, n, n) int_0^s N'^T N' ds: the shortening there is 1/2 eta.G.eta
+
+
+@functools.lru_cache(maxsize=64)
+def _unit_points(n_elements: int, n_modes: int):
+    """:class:`MassPoints` of the unit beam (``L = rhoA = 1``): ``G`` exact (3-point Gauss on
+    each element and on the part of an element before a point: N'^2 is of degree 4)."""
+    ne, n = n_elements, n_modes
+    phi = _fe_modes_unit(ne)[1][:, :n]
+    le = 1.0 / ne
+    gx, gw = np.polynomial.legendre.leggauss(4)
+    xi, gw = 0.5 * (gx + 1.0), 0.5 * gw
+    hx, hw = np.polynomial.legendre.leggauss(3)
+    hx, hw = 0.5 * (hx + 1.0), 0.5 * hw
+    H = np.stack([1 - 3 * xi**2 + 2 * xi**3, le * (xi - 2 * xi**2 + xi**3), 3 * xi**2 - 2 * xi**3,
+                  le * (xi**3 - xi**2)], axis=-1)               # (4 points, 4 dofs)
+    s, m, N, G = [], [], [], []
+    acc = np.zeros((n, n))
+    for e in range(ne):
+        ve = phi[2 * e:2 * e + 4]
+        for k in range(xi.size):
+            dw = _hermite_dN(hx * xi[k], le) @ ve              # N' on [s_e, s_p]
+            G.append(acc + (dw * (hw * xi[k] * le)[:, None]).T @ dw)
+        dw = _hermite_dN(hx, le) @ ve
+        acc = acc + (dw * (hw * le)[:, None]).T @ dw
+        s.append(e * le + le * xi)
+        m.append(gw * le)
+        N.append(H @ ve)
+    P = xi.size * ne
+    out = (np.concatenate(s), np.concatenate(m), np.concatenate(N).reshape(P, n),
+           np.array(G).reshape(P, n, n))
+    for a in out:
+        a.setflags(write=False)
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def mass_points(p: PlantParams) -> MassPoints:
+    """The :class:`MassPoints` of the beam of ``p``: the unit beam's, scaled by :class:`Scales`
+    (``N`` by ``w``, ``G = int N'^2 ds`` by ``w^2 / L``)."""
+    xi, wt, N, G = _unit_points(p.n_elements, p.n_modes)
+    sc = Scales.of(p.L, p.EI, p.rhoA, 1.0)
+    arrays = dict(s=xi * p.L, m=wt * (p.rhoA * p.L), N=N * sc.w, G=G * (sc.w * sc.w / p.L))
+    for a in arrays.values():
+        a.setflags(write=False)
+    return MassPoints(**arrays)
 
 
 def fe_mass_matrix_check(p: PlantParams) -> np.ndarray:

@@ -57,7 +57,8 @@ class _Plant(ctypes.Structure):
                 ("I0", _D), ("I1", _D), ("I2", _D), ("g", _D),
                 ("I3", _P), ("I5", _P), ("K", _P), ("D", _P), ("Kg", _P), ("tip_slope", _P),
                 ("tip_defl", _P), ("nx", ctypes.c_int), ("I3I3", _D), ("I3I5", _D), ("I5I5", _D),
-                ("stiffened", ctypes.c_int), ("Fa", _P), ("Fb", _P)]
+                ("stiffened", ctypes.c_int), ("npts", ctypes.c_int), ("pts", _P),
+                ("m_cart", _D)]
 
 
 class _Tableau(ctypes.Structure):
@@ -137,13 +138,12 @@ class PlantKernel:
     Parameters (the fields of ``fp_plant``): ``n`` modes, ``linear`` (the model linearised at the
     upright rest state), ``preload`` (the geometric stiffness ``Kg``), the invariants ``I0, I1,
     I2`` and ``g``, and the arrays ``I3, I5, K`` (diagonal), ``D`` (diagonal), ``Kg`` (n x n),
-    ``tip_slope``, ``tip_defl``; with ``stiffened`` (the stiffened model, which needs ``preload``
-    and ``Kg = g Fa``) the foreshortening invariants ``Fa`` and ``Fb`` (n x n). The arrays are
-    copied.
+    ``tip_slope``, ``tip_defl``; for the stiffened model, its ``points``
+    (:class:`plant_fmu.beam.MassPoints`). The arrays are copied.
     """
 
     def __init__(self, *, n, linear, preload, I0, I1, I2, g, I3, I5, K, D, Kg, tip_slope,
-                 tip_defl, stiffened=False, Fa=None, Fb=None):
+                 tip_defl, points=None):
         lib = self._lib = library()
         n = int(n)
         self._arrays = arrays = {k: _f64(v, (n,)) for k, v in (
@@ -153,11 +153,12 @@ class PlantKernel:
         self._struct = _Plant(n, int(bool(linear)), int(bool(preload)), float(I0), float(I1),
                               float(I2), float(g), *(_addr(arrays[k]) for k in (
                                   "I3", "I5", "K", "D", "Kg", "tip_slope", "tip_defl")))
-        if stiffened:
-            for k, v in (("Fa", Fa), ("Fb", Fb)):
-                arrays[k] = _f64(v, (n, n)) if n else np.zeros(1)
-                setattr(self._struct, k, _addr(arrays[k]))
-            self._struct.stiffened = 1
+        if points is not None:
+            P = points.s.size
+            arrays["pts"] = _f64(np.hstack([points.s[:, None], points.m[:, None], points.N,
+                                            points.G.reshape(P, n * n)]))
+            self._struct.stiffened, self._struct.npts = 1, P
+            self._struct.pts = _addr(arrays["pts"])
         self._p = ctypes.byref(self._struct)
         if lib.fp_plant_prepare(self._p) != FP_OK:
             raise ValueError("the plant data are out of range (a size is negative or an "

@@ -183,7 +183,7 @@ def _mode_tables() -> list[str]:
            f"#define FPM_N_ETA {N_ETA_OUTPUTS}",
            "static const unsigned fpm_eta_vrs[FPM_N_ETA] = {"
            + ", ".join(f"{vrs[f'eta_{j}']}u" for j in range(1, N_ETA_OUTPUTS + 1)) + "};"]
-    fields = {"lam": [], "I3": [], "I5": [], "tip_defl": [], "tip_slope": [], "Kg": [], "Fb": []}
+    fields = {"lam": [], "I3": [], "I5": [], "tip_defl": [], "tip_slope": [], "Kg": []}
     for ne in range(1, NE_MAX + 1):
         k = min(ne, n)
         u = unit_beam(ne, k)
@@ -191,15 +191,13 @@ def _mode_tables() -> list[str]:
                          ("tip_defl", u.tip_deflection), ("tip_slope", u.tip_slope)):
             row = [_hex(x) for x in arr] + ["0.0"] * (n - k)
             fields[key].append("{" + ", ".join(row) + "}")
-        for key, mat in (("Kg", u.Kg), ("Fb", u.Fb)):
-            kg = [[0.0] * n for _ in range(n)]
-            for i in range(k):
-                for j in range(k):
-                    kg[i][j] = float(mat[i, j])
-            fields[key].append("{" + ", ".join(_hex(x) for r in kg for x in r) + "}")
+        kg = [[0.0] * n for _ in range(n)]
+        for i in range(k):
+            for j in range(k):
+                kg[i][j] = float(u.Kg[i, j])
+        fields["Kg"].append("{" + ", ".join(_hex(x) for r in kg for x in r) + "}")
     for key, rows in fields.items():
-        width = ("FPM_N_MODES_MAX * FPM_N_MODES_MAX" if key in ("Kg", "Fb")
-                 else "FPM_N_MODES_MAX")
+        width = "FPM_N_MODES_MAX * FPM_N_MODES_MAX" if key == "Kg" else "FPM_N_MODES_MAX"
         out.append(f"static const double fpm_unit_{key}[FPM_NE_MAX][{width}] = {{")
         out += [f"    {r}," for r in rows]
         out.append("};")

@@ -44,10 +44,13 @@ int fp_plant_prepare(fp_plant *p)
         || !finite_array(p->tip_defl, n))
         return FP_BADARG;
     if (p->preload && !finite_array(p->Kg, (long)n * n)) return FP_BADARG;
-    if (p->stiffened && (p->linear || (n > 0 && !p->preload) || !finite_array(p->Fa, (long)n * n)
-                         || !finite_array(p->Fb, (long)n * n)))
+    if (p->stiffened && (p->linear || n + 2 > FP_STIFF_NQMAX || p->npts < 1
+                         || !finite_array(p->pts, (long)p->npts * (2 + n + n * n))))
         return FP_BADARG;
     p->stiffened = p->stiffened != 0;
+    p->m_cart = p->I0;
+    if (p->stiffened)
+        for (j = 0; j < p->npts; j++) p->m_cart -= p->pts[(size_t)j * (2 + n + n * n) + 1];
     p->preload = (p->preload != 0) && n > 0;
     p->linear = p->linear != 0;
     p->nx = 2 * (n + 2);
@@ -195,87 +198,118 @@ static void rhs_linear(const fp_plant *p, const double *x, double u, double *out
     for (j = 0; j < n; j++) out[nq + 2 + j] += xdd * I3[j] - phidd * I5[j];
 }
 
-/* The stiffened model: dynamics.py, StiffenedPlantModel.forces and .accelerations. The modal
- * block of M is still the identity; the coupling column of x is v = -c I3 + s Fa eta, kept in
- * out[2 + j] until the modal accelerations are formed. O(n^2). */
+/* The stiffened model: dynamics.py, StiffenedPlantModel (Kane's equations over the mass points:
+ * M = m_cart e_x e_x^T + sum m_p (J1 J1^T + J2 J2^T), f = F e_x + sum m_p (J1 r1 + J2 r2) - K eta
+ * - D etad, solved by Cholesky). J1, J2: the rows of dr_p/dq along b1 and b2; r = g_p - c_p. */
+static const double *stiff_point(const fp_plant *p, int k, double *sp, double *mp,
+                                 const double **N)
+{
+    const int n = p->n;
+    const double *pt = p->pts + (size_t)k * (2 + n + n * n);
+    *sp = pt[0];
+    *mp = pt[1];
+    *N = pt + 2;
+    return pt + 2 + n;
+}
+
+/* J1, J2 (nq each) of one point, and w, wd, u, ud, etad.G.etad. */
+static void stiff_rows(const fp_plant *p, const double *x, int k, double c, double s, double *J1,
+                       double *J2, double *sp, double *mp, double *w, double *wd, double *u,
+                       double *ud, double *eGe)
+{
+    const int n = p->n, nq = n + 2;
+    const double *N, *G = stiff_point(p, k, sp, mp, &N);
+    int i, j;
+    *w = *wd = *u = *ud = *eGe = 0.0;
+    for (i = 0; i < n; i++) {
+        const double *row = G + (size_t)i * n;
+        double ge = 0.0, ged = 0.0;
+        for (j = 0; j < n; j++) {
+            ge += row[j] * x[2 + j];
+            ged += row[j] * x[nq + 2 + j];
+        }
+        *w += N[i] * x[2 + i];
+        *wd += N[i] * x[nq + 2 + i];
+        *u += 0.5 * ge * x[2 + i];
+        *ud += ge * x[nq + 2 + i];
+        *eGe += ged * x[nq + 2 + i];
+        J1[2 + i] = -ge;
+        J2[2 + i] = N[i];
+    }
+    J1[0] = -s;
+    J1[1] = -*w;
+    J2[0] = -c;
+    J2[1] = *sp - *u;
+}
+
 static void rhs_stiffened(const fp_plant *p, const double *x, double u, double *out)
 {
     const int n = p->n, nq = n + 2;
-    const double *I3 = p->I3, *I5 = p->I5;
-    const double phi = x[1], phid = x[nq + 1];
-    const double c = cos(phi), s = sin(phi);
-    double I3eta = 0.0, I3etad = 0.0, ee = 0.0, eed = 0.0, ekge = 0.0, a = 0.0, b = 0.0;
-    double faed = 0.0, edfaed = 0.0, fbed = 0.0, vv = 0.0, vI5 = 0.0, vfe = 0.0, I5fe = 0.0;
-    double f0, f1, a00, a01, a11, r0, r1, det, xdd, phidd;
+    const double phid = x[nq + 1], c = cos(x[1]), s = sin(x[1]);
+    double M[FP_STIFF_NQMAX * FP_STIFF_NQMAX], f[FP_STIFF_NQMAX];
+    double J1[FP_STIFF_NQMAX], J2[FP_STIFF_NQMAX];
     int i, j, k;
-    for (j = 0; j < n; j++) {
-        const double e = x[2 + j], ed = x[nq + 2 + j];
-        const double *ra = p->Fa + (size_t)j * n, *rb = p->Fb + (size_t)j * n;
-        const double *rg = p->Kg + (size_t)j * n;
-        double fae = 0.0, fbe = 0.0, kge = 0.0, faedj = 0.0, fe, v;
-        for (k = 0; k < n; k++) {
-            fae += ra[k] * x[2 + k];
-            fbe += rb[k] * x[2 + k];
-            kge += rg[k] * x[2 + k];
-            faedj += ra[k] * x[nq + 2 + k];
+    for (i = 0; i < nq * nq; i++) M[i] = 0.0;
+    for (i = 0; i < nq; i++) f[i] = 0.0;
+    for (k = 0; k < p->npts; k++) {
+        double sp, mp, w, wd, uu, ud, eGe, r1, r2;
+        stiff_rows(p, x, k, c, s, J1, J2, &sp, &mp, &w, &wd, &uu, &ud, &eGe);
+        r1 = -p->g * c + eGe + 2.0 * wd * phid + (sp - uu) * phid * phid;
+        r2 = p->g * s + 2.0 * ud * phid + w * phid * phid;
+        for (i = 0; i < nq; i++) {
+            f[i] += mp * (J1[i] * r1 + J2[i] * r2);
+            for (j = i; j < nq; j++) M[i * nq + j] += mp * (J1[i] * J1[j] + J2[i] * J2[j]);
         }
-        I3eta += I3[j] * e;
-        I3etad += I3[j] * ed;
-        ee += e * e;
-        eed += e * ed;
-        ekge += e * kge;
-        a += 0.5 * e * fae;
-        b += 0.5 * e * fbe;
-        faed += fae * ed;
-        edfaed += ed * faedj;
-        fbed += fbe * ed;
-        fe = phid * phid * e + p->g * s * I3[j] - p->K[j] * e - p->D[j] * ed + c * kge
-             - phid * phid * fbe;
-        v = -c * I3[j] + s * fae;
-        out[nq + 2 + j] = fe;
-        out[2 + j] = v;
-        vv += v * v;
-        vI5 += v * I5[j];
-        vfe += v * fe;
-        I5fe += I5[j] * fe;
     }
-    f0 = u - (p->I1 * s + I3eta * c) * phid * phid - 2.0 * phid * s * I3etad
-         + s * phid * phid * a - 2.0 * c * phid * faed - s * edfaed;
-    f1 = -2.0 * phid * eed + p->g * (p->I1 * s + I3eta * c) - 0.5 * s * ekge
-         + 2.0 * phid * fbed;
-    a00 = p->I0 - vv;
-    a01 = -p->I1 * c + s * I3eta + c * a - vI5;
-    a11 = p->I2 + ee - 2.0 * b - p->I5I5;
-    r0 = f0 - vfe;
-    r1 = f1 - I5fe;
-    det = a00 * a11 - a01 * a01;
-    xdd = (a11 * r0 - a01 * r1) / det;
-    phidd = (a00 * r1 - a01 * r0) / det;
-    for (j = 0; j < n; j++) out[nq + 2 + j] -= xdd * out[2 + j] + phidd * I5[j];
-    for (i = 0; i < nq; i++) out[i] = x[nq + i];
-    out[nq] = xdd;
-    out[nq + 1] = phidd;
+    M[0] += p->m_cart;
+    f[0] += u;
+    for (j = 0; j < n; j++) f[2 + j] -= p->K[j] * x[2 + j] + p->D[j] * x[nq + 2 + j];
+    /* Cholesky M = R^T R in the upper triangle, then R^T y = f, R a = y (a into f) */
+    for (i = 0; i < nq; i++) {
+        double d = M[i * nq + i];
+        for (k = 0; k < i; k++) d -= M[k * nq + i] * M[k * nq + i];
+        d = sqrt(d);                               /* NaN if M is not positive definite */
+        M[i * nq + i] = d;
+        for (j = i + 1; j < nq; j++) {
+            double v = M[i * nq + j];
+            for (k = 0; k < i; k++) v -= M[k * nq + i] * M[k * nq + j];
+            M[i * nq + j] = v / d;
+        }
+    }
+    for (i = 0; i < nq; i++) {
+        for (k = 0; k < i; k++) f[i] -= M[k * nq + i] * f[k];
+        f[i] /= M[i * nq + i];
+    }
+    for (i = nq - 1; i >= 0; i--) {
+        for (k = i + 1; k < nq; k++) f[i] -= M[i * nq + k] * f[k];
+        f[i] /= M[i * nq + i];
+    }
+    for (i = 0; i < nq; i++) {
+        out[i] = x[nq + i];
+        out[nq + i] = f[i];
+    }
 }
 
-/* The stiffened model's kinetic energy beyond the nonlinear model's:
- * T_fs = xd (c phid a + s etad.Fa.eta) - phid^2 b (StiffenedPlantModel.energy_numpy). */
-static double stiffened_kinetic(const fp_plant *p, const double *x, double c, double s)
+/* T + V of the stiffened model (StiffenedPlantModel.energy_numpy). */
+static double energy_stiffened(const fp_plant *p, const double *x)
 {
     const int n = p->n, nq = n + 2;
-    double a = 0.0, b = 0.0, faed = 0.0;
-    int j, k;
-    for (j = 0; j < n; j++) {
-        const double *ra = p->Fa + (size_t)j * n, *rb = p->Fb + (size_t)j * n;
-        double fae = 0.0, fbe = 0.0;
-        for (k = 0; k < n; k++) {
-            fae += ra[k] * x[2 + k];
-            fbe += rb[k] * x[2 + k];
+    const double c = cos(x[1]), s = sin(x[1]), xd = x[nq];
+    double J1[FP_STIFF_NQMAX], J2[FP_STIFF_NQMAX];
+    double T = 0.5 * p->m_cart * xd * xd, V = 0.0, strain = 0.0;
+    int i, k;
+    for (k = 0; k < p->npts; k++) {
+        double sp, mp, w, wd, uu, ud, eGe, v1 = 0.0, v2 = 0.0;
+        stiff_rows(p, x, k, c, s, J1, J2, &sp, &mp, &w, &wd, &uu, &ud, &eGe);
+        for (i = 0; i < nq; i++) {
+            v1 += J1[i] * x[nq + i];
+            v2 += J2[i] * x[nq + i];
         }
-        a += 0.5 * x[2 + j] * fae;
-        b += 0.5 * x[2 + j] * fbe;
-        faed += fae * x[nq + 2 + j];
+        T += 0.5 * mp * (v1 * v1 + v2 * v2);
+        V += mp * ((sp - uu) * c - w * s);
     }
-    return x[nq] * (c * x[nq + 1] * a + s * faed) - x[nq + 1] * x[nq + 1] * b;
+    for (i = 0; i < n; i++) strain += p->K[i] * x[2 + i] * x[2 + i];
+    return T + p->g * V + 0.5 * strain;
 }
 
 void fp_rhs(const fp_plant *p, const double *x, double u, double *dx)
@@ -297,6 +331,7 @@ double fp_energy(const fp_plant *p, const double *x)
     double I3eta = 0.0, I3etad = 0.0, ee = 0.0, I5etad = 0.0, etadetad = 0.0, strain = 0.0;
     double T, V, ekge = 0.0;
     int j, k;
+    if (p->stiffened) return energy_stiffened(p, x);
     for (j = 0; j < n; j++) {
         const double e = x[2 + j], ed = x[nq + 2 + j];
         I3eta += I3[j] * e;
@@ -325,7 +360,6 @@ double fp_energy(const fp_plant *p, const double *x)
              + 0.5 * phid * phid * (p->I2 + ee) + phid * I5etad + 0.5 * etadetad);
         V = p->g * (p->I1 * c - s * I3eta) + 0.5 * strain;
         if (p->preload) V -= 0.5 * c * ekge;
-        if (p->stiffened) T += stiffened_kinetic(p, x, c, s);
         return T + V;
     }
 }

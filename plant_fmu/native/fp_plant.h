@@ -42,6 +42,9 @@ extern "C" {
 /* Version of the binary interface below (structs, signatures, codes). Bump on any change. */
 #define FP_PLANT_ABI 4
 
+/* The largest n + 2 of the stiffened model (its rhs works on the stack). */
+#define FP_STIFF_NQMAX 18
+
 /* Return codes. */
 #define FP_OK 0
 #define FP_BADARG 1        /* an argument is out of its documented range (nothing was done) */
@@ -85,12 +88,14 @@ typedef struct fp_plant {
     const double *tip_defl;      /* in: (n) N(L), m per unit modal coordinate */
     int nx;                      /* derived: state size 2 (n + 2) */
     double I3I3, I3I5, I5I5;     /* derived: dot products of I3 and I5 */
-    /* The stiffened floating frame (dynamics.py, StiffenedPlantModel): the foreshortening
-     * u = 1/2 int w'^2 in the kinetic and gravity energies. It needs linear = 0 and preload = 1
-     * with Kg = g Fa. The exact Jacobians and output derivatives refuse it (FP_BADARG). */
+    /* The stiffened floating frame (dynamics.py, StiffenedPlantModel): the beam as mass points
+     * with the foreshortening u_p = 1/2 eta.G_p.eta, Kane's equations solved by Cholesky. It needs
+     * linear = 0 and n + 2 <= FP_STIFF_NQMAX; the exact Jacobians and output derivatives refuse it
+     * (FP_BADARG). */
     int stiffened;               /* in: 1 the stiffened model (0: the fields below are unused) */
-    const double *Fa;            /* in: (n x n) int rhoA (L - s) N'^T N' ds; NULL if stiffened = 0 */
-    const double *Fb;            /* in: (n x n) int rhoA (L^2 - s^2)/2 N'^T N' ds; likewise */
+    int npts;                    /* in: mass points P >= 1 */
+    const double *pts;           /* in: P x (2 + n + n^2): s_p, m_p, N(s_p), G(s_p) row-major */
+    double m_cart;               /* derived: I0 - sum m_p (the cart's mass) */
 } fp_plant;
 
 /* A Butcher tableau of an explicit method: A (stages x stages, strictly lower), B, C (stages);

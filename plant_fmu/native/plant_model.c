@@ -86,8 +86,6 @@ struct fpm_model {
     /* the plant */
     fp_plant p;
     double I3[NMAX], I5[NMAX], K[NMAX], D[NMAX], Kg[NMAX * NMAX], tip_slope[NMAX], tip_defl[NMAX];
-    double Fa[NMAX * NMAX], Fb[NMAX * NMAX];    /* the stiffened model's (fp_plant.h) */
-    int stiffened;                              /* fidelity = "stiffened" */
     int n, nq, nx, method;
     double h, rtol, atol, phi_limit, energy_limit;
     stepper s;
@@ -123,8 +121,6 @@ static void relink(fpm_model *m)
     m->p.Kg = m->Kg;
     m->p.tip_slope = m->tip_slope;
     m->p.tip_defl = m->tip_defl;
-    m->p.Fa = m->Fa;
-    m->p.Fb = m->Fb;
 }
 
 /* ------------------------------------------------------------------ parameter checks */
@@ -213,21 +209,6 @@ static int outputs_ok(fpm_model *m, const char **bad)
     return 1;
 }
 
-/* The stiffened model's data (dynamics.py, StiffenedPlantModel; beam.py: Fa = Kg / L unit-scaled,
- * Fb dimensionless): it always carries the self-weight's Kg = g Fa. */
-static void stiffened_data(fpm_model *m, int ne, double L, double sKg, int on)
-{
-    int i, j, n = m->n;
-    m->stiffened = on;
-    if (!on) return;
-    for (j = 0; j < n; j++)
-        for (i = 0; i < n; i++) {
-            m->Kg[j * n + i] = fpm_unit_Kg[ne - 1][j * NMAX + i] * sKg;
-            m->Fa[j * n + i] = fpm_unit_Kg[ne - 1][j * NMAX + i] / L;
-            m->Fb[j * n + i] = fpm_unit_Fb[ne - 1][j * NMAX + i];
-        }
-}
-
 /* Build the plant and the stepper from the parameters (fmu.py's _prepare). */
 static int prepare(fpm_model *m, const fpm_logger *lg)
 {
@@ -252,10 +233,9 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
                    " (at most n_elements, and at most the modes the native FMU carries)"))
         return 0;
     n = (int)r[VR_n_modes];
-    if (strcmp(fid, "nonlinear") != 0 && strcmp(fid, "linear") != 0
-        && strcmp(fid, "stiffened") != 0) {
+    if (strcmp(fid, "nonlinear") != 0 && strcmp(fid, "linear") != 0) {
         fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = '%s' is not allowed; allowed: "
-                "nonlinear, linear, stiffened", fid);
+                "nonlinear, linear", fid);
         return 0;
     }
     m->method = -1;
@@ -305,14 +285,11 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
             m->Kg[j * n + i] = r[VR_gravity_preload] != 0.0
                 ? fpm_unit_Kg[ne - 1][j * NMAX + i] * sKg : 0.0;
     }
-    stiffened_data(m, ne, L, sKg, strcmp(fid, "stiffened") == 0);
     if (!derived_ok(lg, m, rhoA, w, slam)) return 0;
     memset(&m->p, 0, sizeof m->p);
     m->p.n = n;
     m->p.linear = strcmp(fid, "linear") == 0;
     m->p.preload = r[VR_gravity_preload] != 0.0 && n > 0;
-    m->p.stiffened = m->stiffened;
-    if (m->stiffened) m->p.preload = n > 0;
     m->p.I0 = r[VR_m] + rhoA * L;
     m->p.I1 = rhoA * (L * L) / 2;
     m->p.I2 = rhoA * (L * L * L) / 3;
@@ -1145,11 +1122,6 @@ static int jac_ready(const fpm_model *m, const fpm_logger *lg, const char *what,
 {
     if (!m->initialized) {
         fpm_log(lg, FPM_ERROR, "%s: the model is not initialised", what);
-        return 0;
-    }
-    if (m->stiffened) {
-        fpm_log(lg, FPM_ERROR, "%s: not available for fidelity = 'stiffened' (nonlinear and "
-                "linear have it)", what);
         return 0;
     }
     input_now(m, u, du);
