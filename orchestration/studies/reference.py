@@ -3,6 +3,12 @@
 It is the continuous-time closed loop that the co-simulation approaches as its communication step
 shrinks, and the yardstick of the co-simulation's error. Its results have the columns of the
 master's results (:data:`COLUMNS`), on the same output grid.
+
+At ``plant.fidelity = "exact"`` the plant is the geometrically exact beam, whose stiff axial modes
+rule out an explicit solver: the reference is then the exact rung's monolithic loop
+(:class:`~orchestration.studies.exact_loop.ExactLoop` on the C kernel), plant and controller
+stepped as one system by generalized alpha at the plant FMU's own step ``plant.step``, so that it
+measures the coupling's error, not the time step's (``bench/bench_exact.py`` gives that).
 """
 from __future__ import annotations
 
@@ -13,7 +19,7 @@ from plant_fmu.dynamics import linear_plant_model, plant_model
 
 from ..scene.keys import ConfigError
 
-__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference"]
+__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference", "exact_reference"]
 
 #: Result columns, time first (a numpy structured array of float64).
 COLUMNS = ("time", "x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1", "energy")
@@ -64,10 +70,14 @@ class ClosedLoop:
 def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853"):
     """Solve the scene's closed loop monolithically; a structured array on the output grid.
 
-    Raises ``RuntimeError`` if the solver fails (the message is scipy's).
+    At ``plant.fidelity = "exact"`` the loop is the exact beam's (:func:`exact_reference`;
+    ``rtol``, ``atol`` and ``method`` do not apply). Raises ``RuntimeError`` if the solver fails
+    (the message is scipy's).
     """
     import scipy.integrate      # here: a run without ``--reference`` does not need it
 
+    if scene.resolved and scene.plant.fidelity == "exact":
+        return exact_reference(scene)
     loop = ClosedLoop(scene)
     t_end, dt = scene.output.stop_time, scene.output.output_interval
     n_out = int(round(t_end / dt))
@@ -80,4 +90,39 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
     out = np.zeros(sol.t.size, dtype=[(c, "f8") for c in COLUMNS])
     for i, t in enumerate(sol.t):
         out[i] = loop.row(t, sol.y[:, i])
+    return out
+
+
+def exact_reference(scene, progress=None):
+    """The monolithic reference of a scene at ``plant.fidelity = "exact"``: the exact beam of
+    ``plant.n_elements`` elements with the scene's controller, stepped as one system by
+    generalized alpha at ``plant.step`` (:class:`~orchestration.studies.exact_loop.ExactLoop`,
+    C kernel); the columns of :data:`COLUMNS` (``eta_1``: 0, the exact beam has no modal
+    coordinates). ``progress(fraction)``: called at each output point. ConfigError (one line)
+    when the loop cannot take the scene: a saturating controller, or a ``plant.step`` that does
+    not divide the output interval."""
+    from plant_fmu.exact import ExactPlant
+
+    from .exact_loop import ExactLoop
+
+    p, c, ini = scene.plant.params, scene.controller, scene.initial
+    plant = ExactPlant(p)
+    try:
+        loop = ExactLoop(plant, PDLowPassModel(c), scene.plant.step, kernel=True)
+    except ValueError as exc:
+        raise ConfigError(f"{scene.name}: the exact reference cannot run: {exc} "
+                          "(controller.force_limit)") from None
+    x0 = plant.initial_state(phi=ini.phi, x=ini.x, phi_dot=ini.phi_dot, x_dot=ini.x_dot)
+    t_end, dt = scene.output.stop_time, scene.output.output_interval
+    rows = []
+    try:
+        for k, (st, F) in enumerate(loop.points(x0, t_end, dt, progress)):
+            o = loop.ga.outputs(st)
+            rows.append((k * dt, o[0], o[1], o[2], o[3], F, o[5], 0.0, o[6]))
+    except ValueError as exc:
+        raise ConfigError(f"{scene.name}: the exact reference steps at plant.step: {exc}") \
+            from None
+    out = np.zeros(len(rows), dtype=[(col, "f8") for col in COLUMNS])
+    for i, r in enumerate(rows):
+        out[i] = r
     return out
