@@ -1040,6 +1040,7 @@ static void ex_element(const fp_exact *p, const double *ee, const double *eed, d
             abd[3] += d2[k] * eed[2 * k + 1];
         }
         n = ab[0] * ab[0] + ab[1] * ab[1];
+        if (!(n > 0.0)) n = NAN;       /* a tangent of zero length: no strain (NaN, no 1/0) */
         la = sqrt(n);
         c = ab[0] * ab[3] - ab[1] * ab[2];
         eps = la - 1.0;
@@ -1268,7 +1269,8 @@ static double ex_force(const fp_exact *p, const fp_exact_force *F, const double 
 {
     const int nq = p->nq;
     double ax = q[nq - 2], ay = q[nq - 1], adx = qd[nq - 2], ady = qd[nq - 1];
-    double n = ax * ax + ay * ay, om = (ax * ady - ay * adx) / n, phi = atan2(-ax, ay);
+    double n = ax * ax + ay * ay > 0.0 ? ax * ax + ay * ay : NAN;    /* NaN, no 1/0 */
+    double om = (ax * ady - ay * adx) / n, phi = atan2(-ax, ay);
     double e = F->kx * q[0] + F->kp * phi + F->kd * om;
     if (dFq != NULL) {
         int i;
@@ -1457,6 +1459,8 @@ int fp_exact_outputs(const fp_exact *p, const double *s, int want_energy, double
     ax = q[nq - 2];
     ay = q[nq - 1];
     n = ax * ax + ay * ay;
+    t0n = sqrt(q[1] * q[1] + q[2] * q[2]);
+    if (!(n > 0.0 && t0n > 0.0)) return FP_NONFINITE;   /* a tangent of zero length */
     out[FP_OUT_X] = q[0];
     out[FP_OUT_XDOT] = qd[0];
     out[FP_OUT_PHI_O] = atan2(-ax, ay);
@@ -1464,7 +1468,6 @@ int fp_exact_outputs(const fp_exact *p, const double *s, int want_energy, double
     out[FP_OUT_PHI] = atan2(-q[1], q[2]);
     /* b2 = (-t0y, t0x) with t0 the unit root tangent; the tip r_ne = q[nq - 4 .. nq - 3], the
      * root (x, 0) */
-    t0n = sqrt(q[1] * q[1] + q[2] * q[2]);
     t0x = q[1] / t0n;
     t0y = q[2] / t0n;
     out[FP_OUT_TIP] = (q[nq - 4] - q[0]) * (-t0y) + q[nq - 3] * t0x;
@@ -1489,6 +1492,7 @@ int fp_exact_outputs(const fp_exact *p, const double *s, int want_energy, double
                     b1 += d2[k] * ee[2 * k + 1];
                 }
                 nn = a0 * a0 + a1 * a1;
+                if (!(nn > 0.0)) return FP_NONFINITE;
                 eps = sqrt(nn) - 1.0;
                 kap = (a0 * b1 - a1 * b0) / nn;
                 U += (p->EA * eps * eps + p->EI * kap * kap) * p->gw[g];
