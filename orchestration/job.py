@@ -238,7 +238,9 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
         summary["model"] = model
     out = Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)
     if reference and stopped is None:
-        ref = simulate_reference(scene)
+        exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
+        ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
+                                 if exact else None)
         out.reference = ref
         summary["max_error_phi_o"] = float(np.max(np.abs(res["phi_o"] - ref["phi_o"])))
         summary["max_error_eta_1"] = float(np.max(np.abs(res["eta_1"] - ref["eta_1"])))

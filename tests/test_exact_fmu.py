@@ -12,6 +12,7 @@ import pytest
 from orchestration import simulate
 from orchestration.scene.keys import ConfigError
 from orchestration.scene.schema import load_scene
+from orchestration.studies.reference import exact_first_mode_tip
 from plant_fmu.exact import ExactPlant, GeneralizedAlpha
 from plant_fmu.kernel import ExactKernel
 from plant_fmu.params import PlantParams
@@ -189,7 +190,10 @@ def test_the_product_master_reproduces_the_kernel_and_the_numpy_specification():
         assert np.max(np.abs(np.array(phi_o) - res["phi_o"])) <= tol * swing
         assert np.max(np.abs(np.array(energy) - res["energy"])) <= 1e-10 * np.ptp(energy) + \
             1e-12 * np.max(np.abs(energy))
-    assert np.all(res["eta_1"] == 0.0)         # the exact beam has no modal coordinates
+    # no modal coordinates: eta_1 is the tip deflection in units of mode 1's, the rest 0
+    n1 = exact_first_mode_tip(sc.plant.params)
+    assert np.allclose(res["eta_1"] * n1, res["tip_deflection"], rtol=1e-15, atol=0)
+    assert np.ptp(res["eta_1"]) > 0 and np.all(res["eta_2"] == 0.0)
 
 
 def test_the_closed_loop_meets_the_exact_reference_as_the_floating_frame_meets_its_own():
@@ -228,7 +232,9 @@ def test_fmi2_and_fmi3_agree_bit_for_bit_and_with_the_kernel(open_plant):
         st = k.steps(st, forcing(i), 4)
     assert np.array_equal(ra[-1, :7], k.outputs(st))
     assert ra[-1, 5] != 0.0                         # the tip deflection at n_modes = 0 too
-    assert np.all(ra[:, 7:] == 0.0)                 # no modal coordinates
+    assert np.all(ra[:, 8] == 0.0)                  # eta_8: no modal coordinates
+    n1 = exact_first_mode_tip(plant.params)
+    assert np.allclose(ra[:, 7] * n1, ra[:, 5], rtol=1e-15, atol=0)
 
 
 def test_input_derivatives_give_the_force_at_each_substeps_end(open_plant):

@@ -12,6 +12,8 @@ measures the coupling's error, not the time step's (``bench/bench_exact.py`` giv
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from controller_fmu.pd_lowpass import PDLowPassModel
@@ -19,7 +21,8 @@ from plant_fmu.dynamics import linear_plant_model, plant_model
 
 from ..scene.keys import ConfigError
 
-__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference", "exact_reference"]
+__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference", "exact_reference",
+           "exact_first_mode_tip"]
 
 #: Result columns, time first (a numpy structured array of float64).
 COLUMNS = ("time", "x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1", "energy")
@@ -67,17 +70,18 @@ class ClosedLoop:
                 o["tip_deflection"], float(eta[0]) if eta.size else 0.0, o["energy"])
 
 
-def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853"):
+def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853",
+                       progress=None):
     """Solve the scene's closed loop monolithically; a structured array on the output grid.
 
-    At ``plant.fidelity = "exact"`` the loop is the exact beam's (:func:`exact_reference`;
-    ``rtol``, ``atol`` and ``method`` do not apply). Raises ``RuntimeError`` if the solver fails
-    (the message is scipy's).
+    At ``plant.fidelity = "exact"`` the loop is the exact beam's (:func:`exact_reference`, which
+    calls ``progress(fraction)``; ``rtol``, ``atol`` and ``method`` do not apply). Raises
+    ``RuntimeError`` if the solver fails (the message is scipy's).
     """
     import scipy.integrate      # here: a run without ``--reference`` does not need it
 
     if scene.resolved and scene.plant.fidelity == "exact":
-        return exact_reference(scene)
+        return exact_reference(scene, progress)
     loop = ClosedLoop(scene)
     t_end, dt = scene.output.stop_time, scene.output.output_interval
     n_out = int(round(t_end / dt))
@@ -97,8 +101,8 @@ def exact_reference(scene, progress=None):
     """The monolithic reference of a scene at ``plant.fidelity = "exact"``: the exact beam of
     ``plant.n_elements`` elements with the scene's controller, stepped as one system by
     generalized alpha at ``plant.step`` (:class:`~orchestration.studies.exact_loop.ExactLoop`,
-    C kernel); the columns of :data:`COLUMNS` (``eta_1``: 0, the exact beam has no modal
-    coordinates). ``progress(fraction)``: called at each output point. ConfigError (one line)
+    C kernel); the columns of :data:`COLUMNS` (``eta_1``: the tip deflection over
+    :func:`exact_first_mode_tip`, as the native FMU gives it). ``progress(fraction)``: called at each output point. ConfigError (one line)
     when the loop cannot take the scene: a saturating controller, or a ``plant.step`` that does
     not divide the output interval."""
     from plant_fmu.exact import ExactPlant
@@ -114,11 +118,12 @@ def exact_reference(scene, progress=None):
                           "(controller.force_limit)") from None
     x0 = plant.initial_state(phi=ini.phi, x=ini.x, phi_dot=ini.phi_dot, x_dot=ini.x_dot)
     t_end, dt = scene.output.stop_time, scene.output.output_interval
+    n1 = exact_first_mode_tip(p)
     rows = []
     try:
         for k, (st, F) in enumerate(loop.points(x0, t_end, dt, progress)):
             o = loop.ga.outputs(st)
-            rows.append((k * dt, o[0], o[1], o[2], o[3], F, o[5], 0.0, o[6]))
+            rows.append((k * dt, o[0], o[1], o[2], o[3], F, o[5], o[5] / n1, o[6]))
     except ValueError as exc:
         raise ConfigError(f"{scene.name}: the exact reference steps at plant.step: {exc}") \
             from None
@@ -126,3 +131,12 @@ def exact_reference(scene, progress=None):
     for i, r in enumerate(rows):
         out[i] = r
     return out
+
+
+def exact_first_mode_tip(p) -> float:
+    """``N_1(L)``, the first cantilever mode's tip deflection (mass-normalised, the mesh of
+    ``p``): the exact rung's ``eta_1`` is its tip deflection over it (the modal coordinate that
+    alone would give that deflection), as the native FMU computes it."""
+    from plant_fmu.beam import unit_beam
+
+    return float(unit_beam(p.n_elements, 1).tip_deflection[0] * (1.0 / math.sqrt(p.rhoA * p.L)))

@@ -109,6 +109,7 @@ struct fpm_model {
     /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
     int exact;
     fp_exact xb_p, xb_ps;       /* generalized alpha at the step h, and at a shortened substep */
+    double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
     double xb_s[XB_S_MAX];      /* its state [q, qd, qdd, a] */
     double xb_saved[XB_S_MAX];  /* from here on scratch, never reset: xb_s at a step's start */
     double xb_work[XB_WORK_MAX];
@@ -1279,7 +1280,9 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
  *
  * Outputs (fp_exact_outputs): x_o, x_dot, phi_o and omega_o from the tip node's slope, phi the
  * root tangent's angle, tip_deflection the tip's distance from the line of the root tangent,
- * energy T + V; the modal coordinates eta_j are 0 (the exact beam has no modal coordinates).
+ * energy T + V. The exact beam has no modal coordinates: eta_1 is the tip deflection in units of
+ * the first cantilever mode's, tip_deflection / N_1(L) (the modal coordinate that alone would
+ * give it; the floating frame's eta_1 where mode 1 dominates), and eta_2 .. eta_8 are 0.
  * The divergence checks are the floating frame's, with phi the root tangent's angle.
  *
  * Not offered (an Error with a message): Model Exchange (the beam's stiff axial modes call for
@@ -1336,6 +1339,12 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
         return 0;
     }
     m->xb_ps = *p;
+    m->xb_n1 = fpm_unit_tip_defl[ne - 1][0] * (1.0 / sqrt(rhoA * L));
+    if (!(isfinite(m->xb_n1) && fabs(m->xb_n1) > 0.0)) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: the first mode's tip deflection N_1(L) = %g is "
+                "not finite and nonzero (from rho, EA, E, L)", m->xb_n1);
+        return 0;
+    }
     nq = p->nq;
     for (i = 0; i <= ne; i++) {
         const double si = L * i / ne;
@@ -1376,6 +1385,11 @@ static int xb_outputs_ok(fpm_model *m, const char **bad)
         return 0;
     }
     for (i = 0; i < NMAX; i++) m->out[FP_OUT_ETA + i] = 0.0;
+    m->out[FP_OUT_ETA] = m->out[FP_OUT_TIP] / m->xb_n1;
+    if (!isfinite(m->out[FP_OUT_ETA])) {
+        if (bad) *bad = "eta_1";
+        return 0;
+    }
     m->out_fresh = m->energy_fresh = 1;
     return 1;
 }
@@ -1506,7 +1520,7 @@ static int xb_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
     default:
         for (j = 0; j < FPM_N_ETA; j++)
             if (vr == fpm_eta_vrs[j]) {
-                *value = 0.0;
+                *value = m->out[FP_OUT_ETA + j];      /* eta_1 = tip / N_1(L), the rest 0 */
                 return FPM_OK;
             }
         fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
