@@ -398,3 +398,12 @@ def test_the_rigid_scene_runs_its_beam_exactly():
     rigid = simulate("rigid_pd", {"stop_time": 0.5}).result
     assert np.max(np.abs(ex["tip_deflection"])) > 0.0
     assert np.max(np.abs(ex["phi_o"] - rigid["phi_o"])) < 0.01
+
+
+@pytest.mark.parametrize("keys, fragment", [
+    ({"controller.force_limit": 100.0}, "the exact reference has no force saturation"),
+    ({"plant.step": 3e-4}, "must divide output_interval"),
+])
+def test_a_reference_the_exact_loop_cannot_take_is_refused_before_the_run(keys, fragment):
+    with pytest.raises(ConfigError, match=fragment):
+        simulate("rigid_pd", {**EXACT, "stop_time": 0.1, **keys}, reference=True)

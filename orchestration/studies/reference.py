@@ -21,7 +21,7 @@ from plant_fmu.dynamics import linear_plant_model, plant_model
 
 from ..scene.keys import ConfigError
 
-__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference", "exact_reference",
+__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference", "exact_reference", "check_reference",
            "exact_first_mode_tip"]
 
 #: Result columns, time first (a numpy structured array of float64).
@@ -102,35 +102,47 @@ def exact_reference(scene, progress=None):
     ``plant.n_elements`` elements with the scene's controller, stepped as one system by
     generalized alpha at ``plant.step`` (:class:`~orchestration.studies.exact_loop.ExactLoop`,
     C kernel); the columns of :data:`COLUMNS` (``eta_1``: the tip deflection over
-    :func:`exact_first_mode_tip`, as the native FMU gives it). ``progress(fraction)``: called at each output point. ConfigError (one line)
-    when the loop cannot take the scene: a saturating controller, or a ``plant.step`` that does
-    not divide the output interval."""
-    from plant_fmu.exact import ExactPlant
-
-    from .exact_loop import ExactLoop
-
-    p, c, ini = scene.plant.params, scene.controller, scene.initial
-    plant = ExactPlant(p)
-    try:
-        loop = ExactLoop(plant, PDLowPassModel(c), scene.plant.step, kernel=True)
-    except ValueError as exc:
-        raise ConfigError(f"{scene.name}: the exact reference cannot run: {exc} "
-                          "(controller.force_limit)") from None
+    :func:`exact_first_mode_tip`, as the native FMU gives it). ``progress(fraction)``: called
+    at each output point. ConfigError (one line, :func:`check_reference`) when the loop cannot
+    take the scene."""
+    loop = _exact_loop(scene)
+    plant, ini = loop.plant, scene.initial
     x0 = plant.initial_state(phi=ini.phi, x=ini.x, phi_dot=ini.phi_dot, x_dot=ini.x_dot)
     t_end, dt = scene.output.stop_time, scene.output.output_interval
-    n1 = exact_first_mode_tip(p)
+    n1 = exact_first_mode_tip(scene.plant.params)
     rows = []
-    try:
-        for k, (st, F) in enumerate(loop.points(x0, t_end, dt, progress)):
-            o = loop.ga.outputs(st)
-            rows.append((k * dt, o[0], o[1], o[2], o[3], F, o[5], o[5] / n1, o[6]))
-    except ValueError as exc:
-        raise ConfigError(f"{scene.name}: the exact reference steps at plant.step: {exc}") \
-            from None
+    for k, (st, F) in enumerate(loop.points(x0, t_end, dt, progress)):
+        o = loop.ga.outputs(st)
+        rows.append((k * dt, o[0], o[1], o[2], o[3], F, o[5], o[5] / n1, o[6]))
     out = np.zeros(len(rows), dtype=[(col, "f8") for col in COLUMNS])
     for i, r in enumerate(rows):
         out[i] = r
     return out
+
+
+def check_reference(scene) -> None:
+    """ConfigError (one line) if :func:`simulate_reference` cannot take ``scene``, before a run
+    that asks for it: at the exact rung, a saturating controller (the exact loop has no
+    saturation) or a ``plant.step`` that does not divide the output interval."""
+    if scene.resolved and scene.plant.fidelity == "exact":
+        _exact_loop(scene)
+
+
+def _exact_loop(scene):
+    from plant_fmu.exact import ExactPlant
+
+    from .exact_loop import ExactLoop
+
+    h, dt = scene.plant.step, scene.output.output_interval
+    if scene.controller.saturates:
+        raise ConfigError(f"{scene.name}: the exact reference has no force saturation "
+                          "(controller.force_limit)")
+    per = round(dt / h)
+    if per < 1 or abs(per * h - dt) > 1e-12 * dt:
+        raise ConfigError(f"{scene.name}: the exact reference steps at plant.step = {h:g}, which "
+                          f"must divide output_interval = {dt:g}")
+    return ExactLoop(ExactPlant(scene.plant.params), PDLowPassModel(scene.controller), h,
+                     kernel=True)
 
 
 def exact_first_mode_tip(p) -> float:
