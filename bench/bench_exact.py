@@ -8,11 +8,11 @@ after one untimed warm-up, one core):
   floating-frame kernel (the default rung: 4 modes, RK4 at 4 substeps per ms, ``fp_fixed_steps``),
   the exact rung's C kernel (``fp_exact_steps``, 10 generalized-alpha substeps of 0.1 ms per ms)
   and its numpy specification (``GeneralizedAlpha.step``) on the same mesh;
-* **flexpend run**, the three paper scenes through the product (native FMUs, master) at the
-  exact rung and at the default one (``--run-span``);
 * **closed loop**, the paper's filtered scene (``flexible_pd_lowpass``) monolithic
   (``orchestration.studies.exact_loop``: the controller's filter in numpy each step, the force law
-  inside the step's Newton), C kernel and numpy, at h = 0.1 ms.
+  inside the step's Newton), C kernel and numpy, at h = 0.1 ms;
+* **flexpend run**, the three paper scenes through the product (native FMUs, master) at the
+  exact rung and at the default one (``--run-span``).
 
 Error against the element count: the filtered scene, 3 s from pi/6 (the paper's, with its
 ``zeta = 0.1 %`` as the Kelvin-Voigt law), by the C kernel at h = 0.1 ms: the largest ``|phi_o|``
