@@ -62,6 +62,12 @@ static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "e
 #define XB_S_MAX (4 * XB_NQ_MAX)
 #define XB_WORK_MAX (37 * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
 
+/* The exact rung's scratch: xb_s at a step's start, the kernel's work. */
+typedef struct xb_scratch {
+    double saved[XB_S_MAX];
+    double work[XB_WORK_MAX];
+} xb_scratch;
+
 /* One cached exact discretisation of the linear plant over a substep (the exponential method). */
 typedef struct expo {
     double h;
@@ -111,8 +117,7 @@ struct fpm_model {
     fp_exact xb_p, xb_ps;       /* generalized alpha at the step h, and at a shortened substep */
     double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
     double xb_s[XB_S_MAX];      /* its state [q, qd, qdd, a] */
-    double xb_saved[XB_S_MAX];  /* from here on scratch, never reset: xb_s at a step's start */
-    double xb_work[XB_WORK_MAX];
+    xb_scratch xb;              /* scratch: never reset (fpm_model_reset), never saved */
 };
 
 static int xb_prepare(fpm_model *m, const fpm_logger *lg);
@@ -129,7 +134,9 @@ double fpm_model_time(const fpm_model *m) { return m->ready ? m->s.t : m->t0; }
 
 void fpm_model_reset(fpm_model *m, double start_time)
 {
-    memset(m, 0, offsetof(fpm_model, xb_saved));   /* the exact rung's scratch: not state */
+    const size_t at = offsetof(fpm_model, xb), end = at + sizeof(xb_scratch);
+    memset(m, 0, at);                         /* all but the exact rung's scratch (150 kB) */
+    memset((char *)m + end, 0, sizeof *m - end);
     fpm_start_values(&m->v);
     m->t0 = start_time;
 }
@@ -1380,7 +1387,7 @@ static int xb_outputs_ok(fpm_model *m, const char **bad)
         if (bad) *bad = "the state's norm";
         return 0;
     }
-    if (fp_exact_outputs(&m->xb_p, m->xb_s, 1, m->out, m->xb_work) != FP_OK) {
+    if (fp_exact_outputs(&m->xb_p, m->xb_s, 1, m->out, m->xb.work) != FP_OK) {
         if (bad) *bad = "of the exact beam (a tangent of zero length)";
         return 0;
     }
@@ -1417,13 +1424,13 @@ static int xb_substeps(fpm_model *m, double h, long n, char *why)
     memset(&F, 0, sizeof F);
     F.F0 = s->u;
     if (s->du == 0.0 && s->d2u == 0.0) {
-        rc = fp_exact_steps(p, &F, n, m->xb_s, m->xb_work, &done, &iters);
+        rc = fp_exact_steps(p, &F, n, m->xb_s, m->xb.work, &done, &iters);
     } else {
         for (q = 0; q < n && rc == FP_OK; q++) {  /* the force at each substep's end */
             const double dt = (s->t_base + (double)(s->k + q + 1) * h) - s->tu;
             long one = 0;
             F.F0 = s->u + dt * (s->du + 0.5 * dt * s->d2u);
-            rc = fp_exact_steps(p, &F, 1, m->xb_s, m->xb_work, &one, &iters);
+            rc = fp_exact_steps(p, &F, 1, m->xb_s, m->xb.work, &one, &iters);
             done += one;
         }
     }
@@ -1471,7 +1478,7 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
     const stepper saved = m->s;
     stepper *s = &m->s;
     int rc;
-    memcpy(m->xb_saved, m->xb_s, sizeof(double) * n4);
+    memcpy(m->xb.saved, m->xb_s, sizeof(double) * n4);
     s->u = m->v.real[VR_F_c];
     s->du = m->dF;
     s->d2u = m->d2F;
@@ -1480,9 +1487,9 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
         fp_exact_force F;
         memset(&F, 0, sizeof F);
         F.F0 = s->u;
-        if (fp_exact_start(&m->xb_p, &F, m->xb_s, m->xb_work) != FP_OK) {
+        if (fp_exact_start(&m->xb_p, &F, m->xb_s, m->xb.work) != FP_OK) {
             m->s = saved;
-            memcpy(m->xb_s, m->xb_saved, sizeof(double) * n4);
+            memcpy(m->xb_s, m->xb.saved, sizeof(double) * n4);
             fpm_log(lg, FPM_DISCARD, "the exact beam's accelerations at t = %.17g are not finite "
                     "(F_c = %g); step rejected, state unchanged", t, s->u);
             return FPM_DISCARD;
@@ -1491,13 +1498,13 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
     rc = t + h <= s->t ? 1 : advance_fixed(m, t + h, why);
     if (rc < 0) {                               /* the cap: nothing accepted, retry allowed */
         m->s = saved;
-        memcpy(m->xb_s, m->xb_saved, sizeof(double) * n4);
+        memcpy(m->xb_s, m->xb.saved, sizeof(double) * n4);
         xb_outputs_ok(m, NULL);
         fpm_log(lg, FPM_DISCARD, "%s; step rejected, state unchanged", why);
         return FPM_DISCARD;
     }
     if (rc == 0 || !xb_checks(m, t + h, why)) {
-        memcpy(m->xb_s, m->xb_saved, sizeof(double) * n4);
+        memcpy(m->xb_s, m->xb.saved, sizeof(double) * n4);
         xb_outputs_ok(m, NULL);                 /* the outputs of the state restored */
         return diverged(m, lg, &saved, why);
     }
@@ -1540,13 +1547,13 @@ static int xb_load(fpm_model *m, fpm_reader *r, const stepper *s, int stepped)
 {
     char why[FPM_MSG_MAX];
     const int nq = m->xb_p.nq;
-    double *f = m->xb_saved;                    /* scratch */
+    double *f = m->xb.saved;                    /* scratch */
     if (r->interface == FPM_MODEL_EXCHANGE)
         return fpm_reject(r, "the exact rung (fidelity = 'exact') has no Model Exchange");
     m->s = *s;
     m->stepped = stepped;
     if (!xb_checks(m, s->t, why)) return fpm_reject(r, "%s", why);
-    if (fp_exact_forces(&m->xb_p, m->xb_s, m->xb_s + nq, 0.0, f, NULL, NULL, NULL, m->xb_work)
+    if (fp_exact_forces(&m->xb_p, m->xb_s, m->xb_s + nq, 0.0, f, NULL, NULL, NULL, m->xb.work)
         != FP_OK)
         return fpm_reject(r, "the exact beam's internal forces would not be finite");
     return 1;
