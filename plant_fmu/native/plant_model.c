@@ -62,11 +62,13 @@ static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "e
 #define XB_S_MAX (4 * XB_NQ_MAX)
 #define XB_WORK_MAX (37 * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
 
-/* The exact rung's scratch: xb_s at a step's start, the kernel's work. */
-typedef struct xb_scratch {
-    double saved[XB_S_MAX];
-    double work[XB_WORK_MAX];
-} xb_scratch;
+/* The exact rung's arrays (150 kB at 100 elements), left out of fpm_model_reset: its state,
+ * written whole by xb_prepare before any use (and read only at the exact rung), and scratch. */
+typedef struct xb_arrays {
+    double s[XB_S_MAX];         /* the state [q, qd, qdd, a] */
+    double saved[XB_S_MAX];     /* s at a step's start */
+    double work[XB_WORK_MAX];   /* the kernel's */
+} xb_arrays;
 
 /* One cached exact discretisation of the linear plant over a substep (the exponential method). */
 typedef struct expo {
@@ -116,8 +118,7 @@ struct fpm_model {
     int exact;
     fp_exact xb_p, xb_ps;       /* generalized alpha at the step h, and at a shortened substep */
     double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
-    double xb_s[XB_S_MAX];      /* its state [q, qd, qdd, a] */
-    xb_scratch xb;              /* scratch: never reset (fpm_model_reset), never saved */
+    xb_arrays xb;               /* its state and scratch (not reset by fpm_model_reset) */
 };
 
 static int xb_prepare(fpm_model *m, const fpm_logger *lg);
@@ -134,8 +135,8 @@ double fpm_model_time(const fpm_model *m) { return m->ready ? m->s.t : m->t0; }
 
 void fpm_model_reset(fpm_model *m, double start_time)
 {
-    const size_t at = offsetof(fpm_model, xb), end = at + sizeof(xb_scratch);
-    memset(m, 0, at);                         /* all but the exact rung's scratch (150 kB) */
+    const size_t at = offsetof(fpm_model, xb), end = at + sizeof(xb_arrays);
+    memset(m, 0, at);                         /* all but the exact rung's arrays */
     memset((char *)m + end, 0, sizeof *m - end);
     fpm_start_values(&m->v);
     m->t0 = start_time;
@@ -1008,7 +1009,7 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
     for (i = 0; i < 4; i++) fpm_put_f64(w, s->prev[i]);
     fpm_put_i32(w, m->stepped);
     if (m->exact)                             /* the exact rung's integrator state */
-        for (i = 0; i < 4 * m->xb_p.nq; i++) fpm_put_f64(w, m->xb_s[i]);
+        for (i = 0; i < 4 * m->xb_p.nq; i++) fpm_put_f64(w, m->xb.s[i]);
 }
 
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
@@ -1049,7 +1050,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     fpm_get_int_in(r, "stepped", 0, 1, &stepped);
     if (m->exact)
         for (i = 0; i < 4 * m->xb_p.nq; i++)
-            fpm_get_finite(r, "the exact beam's state", &m->xb_s[i]);
+            fpm_get_finite(r, "the exact beam's state", &m->xb.s[i]);
     if (r->why[0] != '\0') return 0;
     /* what legal calls leave: a grid counted from t_base, time not before the start, an
      * adaptive step > 0, and a state that passed the divergence checks */
@@ -1364,12 +1365,12 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
         ed[4 * i + 2] = w * (-c);
         ed[4 * i + 3] = w * (-sn);
     }
-    memset(m->xb_s, 0, sizeof m->xb_s);
-    m->xb_s[0] = e[0];
-    m->xb_s[nq] = ed[0];
+    memset(m->xb.s, 0, sizeof(double) * XB_S_MAX);
+    m->xb.s[0] = e[0];
+    m->xb.s[nq] = ed[0];
     for (i = 2; i < nq + 1; i++) {      /* q = e without the root's y (e[1]) */
-        m->xb_s[i - 1] = e[i];
-        m->xb_s[nq + i - 1] = ed[i];
+        m->xb.s[i - 1] = e[i];
+        m->xb.s[nq + i - 1] = ed[i];
     }
     return 1;
 }
@@ -1381,13 +1382,13 @@ static int xb_outputs_ok(fpm_model *m, const char **bad)
     const int nq = m->xb_p.nq;
     double norm2 = 0.0;
     int i;
-    for (i = 0; i < 2 * nq; i++) norm2 += m->xb_s[i] * m->xb_s[i];
+    for (i = 0; i < 2 * nq; i++) norm2 += m->xb.s[i] * m->xb.s[i];
     m->out_fresh = m->energy_fresh = 0;
     if (!(norm2 <= STATE_NORM2_LIMIT)) {
         if (bad) *bad = "the state's norm";
         return 0;
     }
-    if (fp_exact_outputs(&m->xb_p, m->xb_s, 1, m->out, m->xb.work) != FP_OK) {
+    if (fp_exact_outputs(&m->xb_p, m->xb.s, 1, m->out, m->xb.work) != FP_OK) {
         if (bad) *bad = "of the exact beam (a tangent of zero length)";
         return 0;
     }
@@ -1424,13 +1425,13 @@ static int xb_substeps(fpm_model *m, double h, long n, char *why)
     memset(&F, 0, sizeof F);
     F.F0 = s->u;
     if (s->du == 0.0 && s->d2u == 0.0) {
-        rc = fp_exact_steps(p, &F, n, m->xb_s, m->xb.work, &done, &iters);
+        rc = fp_exact_steps(p, &F, n, m->xb.s, m->xb.work, &done, &iters);
     } else {
         for (q = 0; q < n && rc == FP_OK; q++) {  /* the force at each substep's end */
             const double dt = (s->t_base + (double)(s->k + q + 1) * h) - s->tu;
             long one = 0;
             F.F0 = s->u + dt * (s->du + 0.5 * dt * s->d2u);
-            rc = fp_exact_steps(p, &F, 1, m->xb_s, m->xb.work, &one, &iters);
+            rc = fp_exact_steps(p, &F, 1, m->xb.s, m->xb.work, &one, &iters);
             done += one;
         }
     }
@@ -1478,7 +1479,7 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
     const stepper saved = m->s;
     stepper *s = &m->s;
     int rc;
-    memcpy(m->xb.saved, m->xb_s, sizeof(double) * n4);
+    memcpy(m->xb.saved, m->xb.s, sizeof(double) * n4);
     s->u = m->v.real[VR_F_c];
     s->du = m->dF;
     s->d2u = m->d2F;
@@ -1487,9 +1488,9 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
         fp_exact_force F;
         memset(&F, 0, sizeof F);
         F.F0 = s->u;
-        if (fp_exact_start(&m->xb_p, &F, m->xb_s, m->xb.work) != FP_OK) {
+        if (fp_exact_start(&m->xb_p, &F, m->xb.s, m->xb.work) != FP_OK) {
             m->s = saved;
-            memcpy(m->xb_s, m->xb.saved, sizeof(double) * n4);
+            memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
             fpm_log(lg, FPM_DISCARD, "the exact beam's accelerations at t = %.17g are not finite "
                     "(F_c = %g); step rejected, state unchanged", t, s->u);
             return FPM_DISCARD;
@@ -1498,13 +1499,13 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
     rc = t + h <= s->t ? 1 : advance_fixed(m, t + h, why);
     if (rc < 0) {                               /* the cap: nothing accepted, retry allowed */
         m->s = saved;
-        memcpy(m->xb_s, m->xb.saved, sizeof(double) * n4);
+        memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
         xb_outputs_ok(m, NULL);
         fpm_log(lg, FPM_DISCARD, "%s; step rejected, state unchanged", why);
         return FPM_DISCARD;
     }
     if (rc == 0 || !xb_checks(m, t + h, why)) {
-        memcpy(m->xb_s, m->xb.saved, sizeof(double) * n4);
+        memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
         xb_outputs_ok(m, NULL);                 /* the outputs of the state restored */
         return diverged(m, lg, &saved, why);
     }
@@ -1541,7 +1542,7 @@ static int xb_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
     return FPM_OK;
 }
 
-/* The end of fpm_model_load for the exact rung (its state read into xb_s): co-simulation only,
+/* The end of fpm_model_load for the exact rung (its state read into xb.s): co-simulation only,
  * and a state the checks of a step accept, whose internal forces are finite. */
 static int xb_load(fpm_model *m, fpm_reader *r, const stepper *s, int stepped)
 {
@@ -1553,7 +1554,7 @@ static int xb_load(fpm_model *m, fpm_reader *r, const stepper *s, int stepped)
     m->s = *s;
     m->stepped = stepped;
     if (!xb_checks(m, s->t, why)) return fpm_reject(r, "%s", why);
-    if (fp_exact_forces(&m->xb_p, m->xb_s, m->xb_s + nq, 0.0, f, NULL, NULL, NULL, m->xb.work)
+    if (fp_exact_forces(&m->xb_p, m->xb.s, m->xb.s + nq, 0.0, f, NULL, NULL, NULL, m->xb.work)
         != FP_OK)
         return fpm_reject(r, "the exact beam's internal forces would not be finite");
     return 1;
