@@ -265,7 +265,7 @@ static void exact_checks(int ne)
         check(fp_exact_outputs(&e, s, 1, out, NULL) == FP_BADARG, "exact: energy without work");
         s[nq - 2] = s[nq - 1] = 0.0;
         check(fp_exact_outputs(&e, s, 0, out, NULL) == FP_NONFINITE, "exact: no tip tangent");
-        for (i = 1; i < 4 * nq; i++) s[i] = 0.0;     /* every node at the root, at rest */
+        for (i = 0; i < 4 * nq; i++) s[i] = 0.0;     /* every node at the root, at rest */
         check(fp_exact_forces(&e, s, s + nq, 0.0, f, NULL, NULL, NULL, work) == FP_NONFINITE,
               "exact: elements of no length");
         check(fp_exact_steps(&e, &F, 1, s, work, &done, &iters) == FP_NONFINITE,
