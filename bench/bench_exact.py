@@ -10,7 +10,9 @@ after one untimed warm-up, one core):
   and its numpy specification (``GeneralizedAlpha.step``) on the same mesh;
 * **closed loop**, the paper's filtered scene (``flexible_pd_lowpass``) monolithic
   (``orchestration.studies.exact_loop``: the controller's filter in numpy each step, the force law
-  inside the step's Newton), C kernel and numpy, at h = 0.1 ms.
+  inside the step's Newton), C kernel and numpy, at h = 0.1 ms;
+* **flexpend run**, the three paper scenes through the product (native FMUs, master) at the
+  exact rung and at the default one (``--run-span``).
 
 Error against the element count: the filtered scene, 3 s from pi/6 (the paper's, with its
 ``zeta = 0.1 %`` as the Kelvin-Voigt law), by the C kernel at h = 0.1 ms: the largest ``|phi_o|``
@@ -34,6 +36,17 @@ about 2 min):
       32 elements  4.3e-08
       (order 4.1; step: 16 elements at 0.1 ms against 0.05 ms: 3.2e-06)
 
+The product, ``flexpend run`` at ``plant.fidelity = "exact"`` (the native FMUs through the master,
+24 elements, generalized alpha at each scene's ``plant.step``), beside the default rung, master's
+wall time per simulated second (median of 3, 1 s runs; ``--skip-error``, 15 s):
+
+      rigid_pd, nonlinear                                  0.00096
+      rigid_pd, exact                                      0.32      (h = 0.25 ms)
+      flexible_pd, nonlinear                               0.0029
+      flexible_pd, exact                                   0.53      (h = 0.125 ms)
+      flexible_pd_lowpass, nonlinear                       0.0014
+      flexible_pd_lowpass, exact                           0.27      (h = 0.25 ms)
+
 The C kernel is ~25 times faster than the numpy specification on the plant alone (27 us a
 0.1 ms step at 8 elements: about two Newton iterations, one tangent), and ~110 times slower than
 the floating frame (RK4 at 4 modes: 4000 right-hand sides of well under a microsecond per
@@ -42,7 +55,7 @@ the sensors) costs about as much as the kernel, so the ratio to numpy falls to ~
 angle's mesh error falls at fourth order in the element count (cubic Hermite elements; the
 nodal slope superconverges) and at 16 elements is already below the step's share at 0.1 ms.
 
-    python3 bench/bench_exact.py [--repeat 3] [--span 0.2] [--stop 3] [--skip-error]
+    python3 bench/bench_exact.py [--repeat 3] [--span 0.2] [--stop 3] [--skip-error] [--run-span 1]
 """
 from __future__ import annotations
 
@@ -140,12 +153,28 @@ def exact_closed_loop(scene, ne: int, kernel: bool):
     return run
 
 
+def product_cost(name: str, fidelity: str, span: float, repeat: int) -> float:
+    """The master's wall time per simulated second of ``flexpend run name`` at ``fidelity`` over
+    ``span`` s (the scene's own master, plant step and 24 elements; the native FMUs): one
+    untimed run, then the median of ``repeat``."""
+    from orchestration import simulate
+
+    def run():
+        r = simulate(name, {"plant.fidelity": fidelity, "stop_time": span})
+        assert r.completed
+        return r.stats.wall_time / span
+    run()
+    return statistics.median(run() for _ in range(repeat))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--span", type=float, default=0.2, help="simulated seconds per timed run")
     ap.add_argument("--stop", type=float, default=3.0, help="the error study's duration")
     ap.add_argument("--skip-error", action="store_true")
+    ap.add_argument("--run-span", type=float, default=1.0,
+                    help="simulated seconds of each flexpend run timed (0: skip)")
     args = ap.parse_args(argv)
     scene = load_scene("flexible_pd_lowpass", {"initial.phi": PHI0, "stop_time": args.stop})
     params = scene.plant.params
@@ -168,6 +197,13 @@ def main(argv=None):
     for name, run in (("exact, 8 elements, C kernel", exact_closed_loop(scene, 8, True)),
                       ("exact, 8 elements, numpy", exact_closed_loop(scene, 8, False))):
         print(f"  {name:52s} {median_cost(run, span, rep):.2g}", flush=True)
+    if args.run_span > 0:
+        print(f"flexpend run (native FMUs, the scene's master and plant step, 24 elements), "
+              f"the master's wall time per simulated s (median of {rep}, {args.run_span:g} s):")
+        for name in ("rigid_pd", "flexible_pd", "flexible_pd_lowpass"):
+            for fid in ("nonlinear", "exact"):
+                cost = product_cost(name, fid, args.run_span, rep)
+                print(f"  {name + ', ' + fid:52s} {cost:.2g}", flush=True)
     if args.skip_error:
         return
     print(f"error of phi_o against 64 elements ({args.stop:g} s from pi/6, "

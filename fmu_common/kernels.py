@@ -58,7 +58,7 @@ class KernelError(RuntimeError):
 #: digest function; ABI version)
 KERNELS = {
     "flexpend_plant": ("plant_fmu", ("fp_plant.c",), ("fp_plant.h",), "fp_plant_abi",
-                       "fp_plant_source_digest", 4),
+                       "fp_plant_source_digest", 5),
     "flexpend_filter": ("controller_fmu", ("fp_filter.c",), ("fp_filter.h",), "fpf_abi",
                         "fpf_source_digest", 2),
     # the master's compiled fixed-step loop (orchestration/cosim/compiled.py), for the host

@@ -31,12 +31,17 @@ __all__ = ["load_scene", "simulate", "analyze", "stability", "design", "sweep", 
 
 
 def _resolved(scene, overrides, command: str) -> Scene:
-    """The scene (default: the default scene) with its model given: analyses need a model."""
+    """The scene (default: the default scene) with its model given: analyses need a model (a
+    floating-frame one: they linearise it)."""
     sc = load_scene(scene if scene is not None else {}, overrides)
     if not sc.resolved:
         key = "plant.n_modes" if sc.plant.n_modes_auto else "plant.fidelity"
         raise ConfigError(f"{key} = 'auto' is chosen by a run (flexpend run); {command} needs a "
                           "value")
+    if sc.plant.fidelity == "exact":
+        raise ConfigError(f"plant.fidelity = 'exact': {command} works on the floating frame's "
+                          "linearised loop, which the exact beam does not have here; set "
+                          "plant.fidelity = 'nonlinear' (the same beam with plant.n_modes modes)")
     return sc
 
 

@@ -41,7 +41,7 @@ from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
 from .studies.fidelity import select_model
-from .studies.reference import COLUMNS, simulate_reference
+from .studies.reference import COLUMNS, check_reference, simulate_reference
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
            "step_warning",
@@ -180,6 +180,8 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     if not scene.resolved:
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
+    if reference:
+        check_reference(scene)
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     reusable = False                # the instances may serve another run (pool)
@@ -238,7 +240,9 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
         summary["model"] = model
     out = Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)
     if reference and stopped is None:
-        ref = simulate_reference(scene)
+        exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
+        ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
+                                 if exact else None)
         out.reference = ref
         summary["max_error_phi_o"] = float(np.max(np.abs(res["phi_o"] - ref["phi_o"])))
         summary["max_error_eta_1"] = float(np.max(np.abs(res["eta_1"] - ref["eta_1"])))
@@ -384,6 +388,8 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                     return job
                 pairs[scene.master.fmus] = flavour_fmus(scene.master.fmus)
             check_wiring(scene, system.fmus if system is not None else pairs[scene.master.fmus])
+            if reference:
+                check_reference(scene)
         for scene, system in items:
             if stop is not None and stop():
                 job.code = EXIT_INTERRUPTED

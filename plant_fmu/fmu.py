@@ -104,6 +104,10 @@ class FlexiblePendulum(SlaveBase):
         if s["fidelity"] not in FIDELITIES:
             raise ValueError(f"fidelity = {s['fidelity']!r} is not allowed; allowed: "
                              f"{', '.join(FIDELITIES)}")
+        if s["fidelity"] == "exact":
+            raise ValueError("fidelity = 'exact' (the geometrically exact beam) runs in the "
+                             "native FlexiblePendulum only (master.fmus = 'native'), not in "
+                             "this pythonfmu one")
         if s["integrator"] not in REGISTRY:
             raise ValueError(f"integrator = {s['integrator']!r} is unknown; known: "
                              f"{', '.join(sorted(REGISTRY))}")

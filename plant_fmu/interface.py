@@ -29,7 +29,7 @@ from .params import PlantParams
 __all__ = ["VARIABLES", "MODEL", "FMU_SETTINGS", "FIDELITIES", "OUTPUTS", "N_ETA_OUTPUTS",
            "INITIAL_STATE", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER"]
 
-FIDELITIES = ("nonlinear", "linear", "stiffened")
+FIDELITIES = ("nonlinear", "linear", "exact", "stiffened")
 
 #: The FMU's settings beyond :class:`PlantParams`, with their defaults. The default integrator is
 #: RK4 with four substeps per millisecond: at n_modes = 4 (largest |eigenvalue| 2512 rad/s)
@@ -69,8 +69,10 @@ _PARAMS = {  # PlantParams field -> (description, unit)
     "gravity_preload": ("geometric stiffness of the beam's self-weight", None),
 }
 _SETTINGS = {
-    "fidelity": ("nonlinear, linear (linearised at the upright rest state) or stiffened "
-                 "(nonlinear with the motion-dependent geometric stiffness)", None),
+    "fidelity": ("nonlinear or linear (linearised at the upright rest state); exact: the "
+                 "geometrically exact beam on n_elements elements (native FMUs, co-simulation); "
+                 "stiffened: nonlinear with the motion-dependent geometric stiffness (pythonfmu)",
+                 None),
     "integrator": ("integration method: dopri5, euler, exponential, genalpha, radau, rk4, "
                    "symplectic_euler", None),
     "step": ("internal substep of the fixed-step methods (initial step of the adaptive ones)", "s"),

@@ -438,3 +438,16 @@ class ExactKernel:
 
     def step(self, state, force=0.0):
         return self.steps(state, force, 1)
+
+    def outputs(self, state) -> np.ndarray:
+        """The outputs at ``state`` (``(q, qd, ...)``, or ``[q, qd]``) in the layout :data:`OUT`
+        up to the energy (``fp_exact_outputs``: the native FMU's at the exact rung)."""
+        nq = self.nq
+        s = np.concatenate([np.asarray(v, dtype=float).ravel() for v in state])[:2 * nq]
+        s = _f64(s, (2 * nq,))
+        out = np.empty(OUT["energy"] + 1)
+        with self._lock:
+            rc = self._lib.fp_exact_outputs(self._p, _addr(s), 1, _addr(out), self._pwork)
+        if rc != FP_OK:
+            self._raise(rc, "outputs")
+        return out

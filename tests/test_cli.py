@@ -47,7 +47,9 @@ def test_analyze_table_names_the_verdict():
     (["--set", "plant.zeta=1.5"], "plant.zeta = 1.5 is out of range"),
     (["--set", "controller.filter_order=3"], "controller.filter_order = 3 is out of range"),
     (["--set", "plant.n_modes=two"], "plant.n_modes = 'two' is not allowed; allowed: an integer"),
-    (["--set", "plant.fidelity=exact"], "plant.fidelity = 'exact' is not allowed"),
+    (["--set", "plant.fidelity=exactly"], "plant.fidelity = 'exactly' is not allowed"),
+    (["--set", "plant.fidelity=exact"], "plant.fidelity = 'exact': analyze works on the "
+                                        "floating frame's linearised loop"),
     (["--set", "plant.n_modes"], "--set expects key=value"),
     (["--bogus"], "unrecognized arguments: --bogus"),
 ])

@@ -182,3 +182,40 @@ def test_bad_parameters_are_refused():
     for h, it in ((0.0, 30), (math.nan, 30), (1e-3, 0)):
         with pytest.raises(ValueError, match="out of range"):
             ExactKernel(pl, h, max_iter=it)
+
+
+@pytest.mark.parametrize("ne", (1, 3, 8))
+def test_outputs_are_the_specs(ne):
+    """fp_exact_outputs (the native FMU's outputs at the exact rung) against ExactPlant's tip
+    angle and rate, tip deflection and energy, and the root tangent's angle, at deformed, moving
+    states (energy to round-off of its size: the strain energy sums EA eps^2 with EA = 4.2e8)."""
+    pl = plant(ne)
+    k = ExactKernel(pl, 1e-4)
+    rng = np.random.default_rng(ne)
+    for _ in range(5):
+        q, qd = random_state(pl, rng)
+        q = q + 1e-3 * rng.standard_normal(pl.nq)            # bent and stretched
+        x = np.concatenate([q, qd])
+        o = k.outputs((q, qd))
+        e = pl.system.embed(q)
+        spec = [q[0], qd[0], *pl.tip_angle(x), math.atan2(-e[2], e[3]), pl.tip_deflection(x)]
+        assert np.array_equal(o[:6], spec)
+        assert abs(o[6] - pl.energy(x)) <= RTOL * abs(pl.energy(x))
+
+
+def test_a_tangent_of_zero_length_is_not_finite_without_a_division_by_zero():
+    """A tip slope (or an element's) of zero length has no angle and no strain: the outputs and
+    the forces say FP_NONFINITE (the kernel never divides by zero: UBSan's check in the fuzz
+    test)."""
+    pl = plant(3)
+    k = ExactKernel(pl, 1e-4)
+    x = pl.initial_state(phi=0.2)
+    q, qd = x[:pl.nq].copy(), x[pl.nq:]
+    q[-2:] = 0.0
+    with pytest.raises(ExactStepError) as err:
+        k.outputs((q, qd))
+    assert err.value.code == FP_NONFINITE
+    q[3:] = 0.0                                              # every node at the root, no slope
+    with pytest.raises(ExactStepError) as err:
+        k.forces(q, qd)
+    assert err.value.code == FP_NONFINITE

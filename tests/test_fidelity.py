@@ -72,8 +72,8 @@ def test_filtered_scene_from_pi_over_6_needs_the_nonlinear_model(fmus):
 
 @pytest.mark.parametrize("item,fragment", [
     ("plant.n_modes=many", "plant.n_modes = 'many' is not allowed; allowed: an integer"),
-    ("plant.fidelity=exact", "plant.fidelity = 'exact' is not allowed; allowed: nonlinear, "
-                             "linear, auto"),
+    ("plant.fidelity=exactly", "plant.fidelity = 'exactly' is not allowed; allowed: nonlinear, "
+                               "linear"),
     ("fidelity.tolerance=0", "fidelity.tolerance = 0.0 is out of range"),
     ("fidelity.max_modes=0", "fidelity.max_modes = 0 is out of range"),
     ('fidelity.outputs=["phi"]', "fidelity.outputs = ['phi'] is not allowed"),

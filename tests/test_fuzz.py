@@ -40,7 +40,8 @@ def test_every_regression_input_of_the_corpus_runs_clean(targets, model):
     if model == "FlexiblePendulum":     # one per defect of the issue, both versions
         for v in (2, 3):
             for defect in ("crafted-n-modes", "crafted-not-ready", "step-1e19",
-                           "plant-step-5e-324", "phi-dot0-1e160", "L-underflow"):
+                           "plant-step-5e-324", "phi-dot0-1e160", "L-underflow",
+                           "crafted-exact-nan", "crafted-exact-tip-slope"):
                 assert f"regress-fmi{v}-{defect}" in names
         assert "regress-fmi3-fmi3-null-arrays" in names
     r = fuzz.replay(exe, corpus, work)

@@ -363,6 +363,7 @@ class Scene:
             raise ConfigError(f"fidelity.max_modes = {self.fidelity.max_modes} is out of range; "
                               f"allowed: integers 1..{self.plant.beam.n_elements}")
         self._check_initial_state()
+        self._check_exact()
         m, out = self.master, self.output
         if m.step > out.stop_time:
             raise ConfigError(f"master.step = {m.step} exceeds stop_time = {out.stop_time}")
@@ -370,6 +371,21 @@ class Scene:
         if not m.adaptive and (not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 * ratio):
             raise ConfigError(f"output_interval = {out.output_interval} must be a multiple of "
                               f"master.step = {m.step}")
+
+    def _check_exact(self):
+        """``plant.fidelity = "exact"`` runs in the native FMUs' co-simulation interface only:
+        the pythonfmu plant, Model Exchange and output derivatives are not offered by it."""
+        if self.plant.fidelity != "exact":
+            return
+        m = self.master
+        why = ("master.fmus = 'python': the pythonfmu plant has no exact rung"
+               if m.fmus != "native" else
+               "master.interface = 'model-exchange': the exact beam steps implicitly inside the "
+               "FMU (co-simulation only)" if m.interface == "model-exchange" else
+               "master.output_derivatives = true: the exact rung gives no output derivatives"
+               if m.output_derivatives else None)
+        if why:
+            raise ConfigError(f"plant.fidelity = 'exact' cannot be used with {why}")
 
     def _check_initial_state(self):
         """The initial state within the plant's limits: the plant FMU stops a run whose ``|phi|``

@@ -1,8 +1,9 @@
 """The exact rung's monolithic closed loop: the geometrically exact beam on the cart
 (:mod:`plant_fmu.exact`) with the PD + low-pass controller, stepped as one system by generalized
 alpha, by the numpy specification or by the C kernel (``kernel=True``: ``fp_exact_steps``, the
-same steps to round-off, ``tests/test_exact_kernel.py``). A study for now
-(``bench/fidelity_gap.py``, ``bench/bench_exact.py``); not a ``plant.fidelity`` value yet.
+same steps to round-off, ``tests/test_exact_kernel.py``): the monolithic reference of a scene
+whose ``plant.fidelity`` is ``"exact"`` (:func:`orchestration.studies.reference.simulate_reference`)
+and the studies ``bench/fidelity_gap.py``, ``bench/bench_exact.py``.
 """
 from __future__ import annotations
 
@@ -45,9 +46,16 @@ class ExactLoop:
 
     def run(self, x0: np.ndarray, t_end: float, dt_out: float):
         """``(t, phi_o)`` on the output grid ``k dt_out``."""
+        out = [self.plant.tip_angle(np.concatenate(st[:2]))[0]
+               for st, _ in self.points(x0, t_end, dt_out)]
+        return np.arange(len(out)) * dt_out, np.array(out)
+
+    def points(self, x0: np.ndarray, t_end: float, dt_out: float, progress=None):
+        """The integrator's state and the force ``F_c`` at each point ``k dt_out`` of the output
+        grid, from ``t = 0`` (a generator). ``progress(fraction)`` is called at each point."""
         nq, h = self.plant.nq, self.h
         per = int(round(dt_out / h))
-        if abs(per * h - dt_out) > 1e-12 * dt_out:
+        if per < 1 or abs(per * h - dt_out) > 1e-12 * dt_out:
             raise ValueError(f"the step {h} does not divide the output interval {dt_out}")
         xc = np.zeros(self.ctrl.nx)
         q, qd = x0[:nq], x0[nq:]
@@ -55,9 +63,9 @@ class ExactLoop:
         F_now = -xc[0] if self.ctrl.nx else -e0
         st = self.ga.start(q, qd, F_now)
         n_out = int(round(t_end / dt_out))
-        out = [self.plant.tip_angle(x0)[0]]
         c = self.ctrl.params
-        for _ in range(n_out):
+        yield st, F_now
+        for k in range(n_out):
             for _ in range(per):
                 if self.ctrl.nx:
                     base = self.P @ xc + self.Q * e0
@@ -68,8 +76,9 @@ class ExactLoop:
                 e0 = self.error(st[0], st[1])[0]
                 if self.ctrl.nx:
                     xc = base + self.Q * e0
-            out.append(self.plant.tip_angle(np.concatenate(st[:2]))[0])
-        return np.arange(n_out + 1) * dt_out, np.array(out)
+            if progress is not None:
+                progress((k + 1) / n_out)
+            yield st, (-xc[0] if self.ctrl.nx else -e0)
 
 
 def exact_run(scene, n_elements: int, h: float, kernel: bool = False) -> np.ndarray:

@@ -3,8 +3,16 @@
 It is the continuous-time closed loop that the co-simulation approaches as its communication step
 shrinks, and the yardstick of the co-simulation's error. Its results have the columns of the
 master's results (:data:`COLUMNS`), on the same output grid.
+
+At ``plant.fidelity = "exact"`` the plant is the geometrically exact beam, whose stiff axial modes
+rule out an explicit solver: the reference is then the exact rung's monolithic loop
+(:class:`~orchestration.studies.exact_loop.ExactLoop` on the C kernel), plant and controller
+stepped as one system by generalized alpha at the plant FMU's own step ``plant.step``, so that it
+measures the coupling's error, not the time step's (``bench/bench_exact.py`` gives that).
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -13,7 +21,8 @@ from plant_fmu.dynamics import model_for
 
 from ..scene.keys import ConfigError
 
-__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference"]
+__all__ = ["COLUMNS", "ClosedLoop", "simulate_reference", "exact_reference", "check_reference",
+           "exact_first_mode_tip"]
 
 #: Result columns, time first (a numpy structured array of float64).
 COLUMNS = ("time", "x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1", "energy")
@@ -61,13 +70,18 @@ class ClosedLoop:
                 o["tip_deflection"], float(eta[0]) if eta.size else 0.0, o["energy"])
 
 
-def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853"):
+def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: str = "DOP853",
+                       progress=None):
     """Solve the scene's closed loop monolithically; a structured array on the output grid.
 
-    Raises ``RuntimeError`` if the solver fails (the message is scipy's).
+    At ``plant.fidelity = "exact"`` the loop is the exact beam's (:func:`exact_reference`, which
+    calls ``progress(fraction)``; ``rtol``, ``atol`` and ``method`` do not apply). Raises
+    ``RuntimeError`` if the solver fails (the message is scipy's).
     """
     import scipy.integrate      # here: a run without ``--reference`` does not need it
 
+    if scene.resolved and scene.plant.fidelity == "exact":
+        return exact_reference(scene, progress)
     loop = ClosedLoop(scene)
     t_end, dt = scene.output.stop_time, scene.output.output_interval
     n_out = int(round(t_end / dt))
@@ -81,3 +95,60 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
     for i, t in enumerate(sol.t):
         out[i] = loop.row(t, sol.y[:, i])
     return out
+
+
+def exact_reference(scene, progress=None):
+    """The monolithic reference of a scene at ``plant.fidelity = "exact"``: the exact beam of
+    ``plant.n_elements`` elements with the scene's controller, stepped as one system by
+    generalized alpha at ``plant.step`` (:class:`~orchestration.studies.exact_loop.ExactLoop`,
+    C kernel); the columns of :data:`COLUMNS` (``eta_1``: the tip deflection over
+    :func:`exact_first_mode_tip`, as the native FMU gives it). ``progress(fraction)``: called
+    at each output point. ConfigError (one line, :func:`check_reference`) when the loop cannot
+    take the scene."""
+    loop = _exact_loop(scene)
+    plant, ini = loop.plant, scene.initial
+    x0 = plant.initial_state(phi=ini.phi, x=ini.x, phi_dot=ini.phi_dot, x_dot=ini.x_dot)
+    t_end, dt = scene.output.stop_time, scene.output.output_interval
+    n1 = exact_first_mode_tip(scene.plant.params)
+    rows = []
+    for k, (st, F) in enumerate(loop.points(x0, t_end, dt, progress)):
+        o = loop.ga.outputs(st)
+        rows.append((k * dt, o[0], o[1], o[2], o[3], F, o[5], o[5] / n1, o[6]))
+    out = np.zeros(len(rows), dtype=[(col, "f8") for col in COLUMNS])
+    for i, r in enumerate(rows):
+        out[i] = r
+    return out
+
+
+def check_reference(scene) -> None:
+    """ConfigError (one line) if :func:`simulate_reference` cannot take ``scene``, before a run
+    that asks for it: at the exact rung, a saturating controller (the exact loop has no
+    saturation) or a ``plant.step`` that does not divide the output interval."""
+    if scene.resolved and scene.plant.fidelity == "exact":
+        _exact_loop(scene)
+
+
+def _exact_loop(scene):
+    from plant_fmu.exact import ExactPlant
+
+    from .exact_loop import ExactLoop
+
+    h, dt = scene.plant.step, scene.output.output_interval
+    if scene.controller.saturates:
+        raise ConfigError(f"{scene.name}: the exact reference has no force saturation "
+                          "(controller.force_limit)")
+    per = round(dt / h)
+    if per < 1 or abs(per * h - dt) > 1e-12 * dt:
+        raise ConfigError(f"{scene.name}: the exact reference steps at plant.step = {h:g}, which "
+                          f"must divide output_interval = {dt:g}")
+    return ExactLoop(ExactPlant(scene.plant.params), PDLowPassModel(scene.controller), h,
+                     kernel=True)
+
+
+def exact_first_mode_tip(p) -> float:
+    """``N_1(L)``, the first cantilever mode's tip deflection (mass-normalised, the mesh of
+    ``p``): the exact rung's ``eta_1`` is its tip deflection over it (the modal coordinate that
+    alone would give that deflection), as the native FMU computes it."""
+    from plant_fmu.beam import unit_beam
+
+    return float(unit_beam(p.n_elements, 1).tip_deflection[0] * (1.0 / math.sqrt(p.rhoA * p.L)))

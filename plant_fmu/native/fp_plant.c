@@ -1165,6 +1165,7 @@ static void ex_element(const fp_exact *p, const double *ee, const double *eed, d
             abd[3] += d2[k] * eed[2 * k + 1];
         }
         n = ab[0] * ab[0] + ab[1] * ab[1];
+        if (!(n > 0.0)) n = NAN;       /* a tangent of zero length: no strain (NaN, no 1/0) */
         la = sqrt(n);
         c = ab[0] * ab[3] - ab[1] * ab[2];
         eps = la - 1.0;
@@ -1393,7 +1394,8 @@ static double ex_force(const fp_exact *p, const fp_exact_force *F, const double 
 {
     const int nq = p->nq;
     double ax = q[nq - 2], ay = q[nq - 1], adx = qd[nq - 2], ady = qd[nq - 1];
-    double n = ax * ax + ay * ay, om = (ax * ady - ay * adx) / n, phi = atan2(-ax, ay);
+    double n = ax * ax + ay * ay > 0.0 ? ax * ax + ay * ay : NAN;    /* NaN, no 1/0 */
+    double om = (ax * ady - ay * adx) / n, phi = atan2(-ax, ay);
     double e = F->kx * q[0] + F->kp * phi + F->kd * om;
     if (dFq != NULL) {
         int i;
@@ -1565,6 +1567,67 @@ int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, dou
         *done = k + 1;
     }
     return FP_OK;
+}
+
+/* The outputs of the exact beam at s = [q, qd, ...] (plant_fmu/exact.py, ExactPlant): x, its rate,
+ * the tip tangent's angle and rate, the root tangent's angle (the floating frame's phi), the tip's
+ * distance from the line of the root tangent and, if want_energy, T + V. */
+int fp_exact_outputs(const fp_exact *p, const double *s, int want_energy, double *out,
+                     double *work)
+{
+    const int nq = p == NULL ? 0 : p->nq;
+    const double *q, *qd;
+    double ax, ay, n, t0x, t0y, t0n;
+    if (p == NULL || s == NULL || out == NULL || (want_energy && work == NULL)) return FP_BADARG;
+    q = s;
+    qd = s + nq;
+    ax = q[nq - 2];
+    ay = q[nq - 1];
+    n = ax * ax + ay * ay;
+    t0n = sqrt(q[1] * q[1] + q[2] * q[2]);
+    if (!(n > 0.0 && t0n > 0.0)) return FP_NONFINITE;   /* a tangent of zero length */
+    out[FP_OUT_X] = q[0];
+    out[FP_OUT_XDOT] = qd[0];
+    out[FP_OUT_PHI_O] = atan2(-ax, ay);
+    out[FP_OUT_OMEGA_O] = (ax * qd[nq - 1] - ay * qd[nq - 2]) / n;
+    out[FP_OUT_PHI] = atan2(-q[1], q[2]);
+    /* b2 = (-t0y, t0x) with t0 the unit root tangent; the tip r_ne = q[nq - 4 .. nq - 3], the
+     * root (x, 0) */
+    t0x = q[1] / t0n;
+    t0y = q[2] / t0n;
+    out[FP_OUT_TIP] = (q[nq - 4] - q[0]) * (-t0y) + q[nq - 3] * t0x;
+    if (want_energy) {
+        double *e = work, *mv = work + nq + 1, T = 0.0, U = 0.0, Vg = 0.0;
+        const double le = p->le, int_h[4] = {le * 0.5, le * (le / 12), le * 0.5, le * (-le / 12)};
+        int el, g, k, i;
+        e[0] = q[0];
+        e[1] = 0.0;
+        for (k = 2; k < nq + 1; k++) e[k] = q[k - 1];
+        ex_mass_times(p, qd, mv);
+        for (i = 0; i < nq; i++) T += qd[i] * mv[i];
+        for (el = 0; el < p->ne; el++) {
+            const double *ee = e + 4 * el;
+            for (g = 0; g < EX_NG; g++) {
+                const double *d1 = p->gd1 + 4 * g, *d2 = p->gd2 + 4 * g;
+                double a0 = 0, a1 = 0, b0 = 0, b1 = 0, nn, eps, kap;
+                for (k = 0; k < 4; k++) {
+                    a0 += d1[k] * ee[2 * k];
+                    a1 += d1[k] * ee[2 * k + 1];
+                    b0 += d2[k] * ee[2 * k];
+                    b1 += d2[k] * ee[2 * k + 1];
+                }
+                nn = a0 * a0 + a1 * a1;
+                if (!(nn > 0.0)) return FP_NONFINITE;
+                eps = sqrt(nn) - 1.0;
+                kap = (a0 * b1 - a1 * b0) / nn;
+                U += (p->EA * eps * eps + p->EI * kap * kap) * p->gw[g];
+            }
+            for (k = 0; k < 4; k++) Vg += int_h[k] * ee[2 * k + 1];
+        }
+        out[FP_OUT_ENERGY] = 0.5 * T + 0.5 * U + p->g * p->rhoA * Vg;
+    }
+    return finite_array(out, want_energy ? FP_OUT_ENERGY + 1 : FP_OUT_ENERGY) ? FP_OK
+                                                                               : FP_NONFINITE;
 }
 
 #undef AB

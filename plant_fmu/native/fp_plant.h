@@ -40,7 +40,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, signatures, codes). Bump on any change. */
-#define FP_PLANT_ABI 4
+#define FP_PLANT_ABI 5
 
 /* The largest n + 2 of the stiffened model (its rhs works on the stack). */
 #define FP_STIFF_NQMAX 18
@@ -269,6 +269,15 @@ FP_API int fp_exact_start(const fp_exact *p, const fp_exact_force *F, double *s,
  * converge in max_iter iterations, or its matrix is singular). */
 FP_API int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, double *s,
                           double *work, long *done, long *iters);
+
+/* The outputs at the integrator's state s (its first 2 nq doubles, q and qd) into out, in the
+ * layout FP_OUT_X .. FP_OUT_ENERGY of fp_outputs (FP_OUT_PHI: the root tangent's angle from the
+ * upward vertical; FP_OUT_TIP: the tip's distance from the line of the root tangent, along its
+ * normal b2; FP_OUT_ENERGY: T + V, kinetic, strain and the beam's weight from the root's height,
+ * written only if want_energy; work: fp_exact_work_size doubles, may be NULL without the
+ * energy). FP_OK, FP_NONFINITE (an output is not finite) or FP_BADARG. */
+FP_API int fp_exact_outputs(const fp_exact *p, const double *s, int want_energy, double *out,
+                            double *work);
 
 #ifdef __cplusplus
 }

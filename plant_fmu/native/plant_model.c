@@ -32,6 +32,7 @@
  */
 #include <limits.h>
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -54,6 +55,20 @@
 enum { M_EULER, M_RK4, M_SYMPLECTIC, M_DOPRI5, M_EXPONENTIAL };
 static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "exponential"};
 #define N_METHODS 5
+
+/* The exact rung's sizes: the state of n_elements = FPM_NE_MAX, the kernel's work for it
+ * (fp_exact_work_size, checked at initialisation). */
+#define XB_NQ_MAX (4 * FPM_NE_MAX + 3)
+#define XB_S_MAX (4 * XB_NQ_MAX)
+#define XB_WORK_MAX (37 * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
+
+/* The exact rung's arrays (150 kB at 100 elements), left out of fpm_model_reset: its state,
+ * written whole by xb_prepare before any use (and read only at the exact rung), and scratch. */
+typedef struct xb_arrays {
+    double s[XB_S_MAX];         /* the state [q, qd, qdd, a] */
+    double saved[XB_S_MAX];     /* s at a step's start */
+    double work[XB_WORK_MAX];   /* the kernel's */
+} xb_arrays;
 
 /* One cached exact discretisation of the linear plant over a substep (the exponential method). */
 typedef struct expo {
@@ -99,7 +114,20 @@ struct fpm_model {
     double work[(7 + 2) * NXMAX];
     double ework[9 * AUG * AUG];
     double aug[AUG * AUG], E[AUG * AUG];
+    /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
+    int exact;
+    fp_exact xb_p, xb_ps;       /* generalized alpha at the step h, and at a shortened substep */
+    double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
+    xb_arrays xb;               /* its state and scratch (not reset by fpm_model_reset) */
 };
+
+static int xb_prepare(fpm_model *m, const fpm_logger *lg);
+static int xb_outputs_ok(fpm_model *m, const char **bad);
+static int xb_substeps(fpm_model *m, double h, long n, char *why);
+static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h);
+static int xb_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value);
+static int xb_load(fpm_model *m, fpm_reader *r, const stepper *s, int stepped);
+static int xb_refuse(const fpm_model *m, const fpm_logger *lg, const char *what);
 
 size_t fpm_model_size(void) { return sizeof(fpm_model); }
 fpm_values *fpm_model_values(fpm_model *m) { return &m->v; }
@@ -107,7 +135,9 @@ double fpm_model_time(const fpm_model *m) { return m->ready ? m->s.t : m->t0; }
 
 void fpm_model_reset(fpm_model *m, double start_time)
 {
-    memset(m, 0, sizeof *m);
+    const size_t at = offsetof(fpm_model, xb), end = at + sizeof(xb_arrays);
+    memset(m, 0, at);                         /* all but the exact rung's arrays */
+    memset((char *)m + end, 0, sizeof *m - end);
     fpm_start_values(&m->v);
     m->t0 = start_time;
 }
@@ -193,6 +223,7 @@ static int outputs_ok(fpm_model *m, const char **bad)
                                             "tip_deflection", "energy"};
     double norm2 = 0.0;
     int i;
+    if (m->exact) return xb_outputs_ok(m, bad);
     for (i = 0; i < m->nx; i++) norm2 += m->y_acc[i] * m->y_acc[i];
     if (!(norm2 <= STATE_NORM2_LIMIT)) {
         if (bad) *bad = "the state's norm";
@@ -233,6 +264,8 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
                    " (at most n_elements, and at most the modes the native FMU carries)"))
         return 0;
     n = (int)r[VR_n_modes];
+    m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
+    if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
     if (strcmp(fid, "nonlinear") != 0 && strcmp(fid, "linear") != 0) {
         fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = '%s' is not allowed; allowed: "
                 "nonlinear, linear", fid);
@@ -327,6 +360,7 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         fp_rhs(&m->p, x, 1.0, m->B);
         m->ex[0].h = m->ex[1].h = -1.0;
     }
+    if (m->exact && !xb_prepare(m, lg)) return 0;
     memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
     m->failed = 0;
     m->stepped = 0;
@@ -387,6 +421,7 @@ static int substeps(fpm_model *m, double h, long n, char *why)
     stepper *s = &m->s;
     long done = 0;
     if (n < 1) return 1;
+    if (m->exact) return xb_substeps(m, h, n, why);
     if (m->method == M_EXPONENTIAL) {
         int nx = m->nx, i, j;
         long q;
@@ -627,6 +662,7 @@ int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
                 "%.17g; step rejected, state unchanged", u, m->dF, m->d2F, t);
         return FPM_DISCARD;
     }
+    if (m->exact) return xb_step(m, lg, t, h);
     saved = m->s;
     set_input(m, t, h);
     if (!(t_end <= m->s.t)) {
@@ -690,6 +726,7 @@ int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
         fpm_log(lg, FPM_ERROR, "the outputs cannot be computed: a parameter is bad (above)");
         return FPM_ERROR;
     }
+    if (m->exact) return xb_get_output(m, lg, vr, value);
     if (!m->out_fresh) {
         double energy = m->out[FP_OUT_ENERGY];
         fp_outputs(&m->p, m->y_acc, 0, m->out);
@@ -763,6 +800,7 @@ size_t fpm_model_nz(void) { return FPM_NZ; }
 
 int fpm_model_me_init(fpm_model *m, const fpm_logger *lg)
 {
+    if (m->exact) return xb_refuse(m, lg, "Model Exchange");
     if (2 * (m->n + 2) > FPM_NX) {
         fpm_log(lg, FPM_ERROR, "bad parameter: n_modes = %d: Model Exchange declares the states of "
                 "at most %d modes", m->n, FPM_NX / 2 - 2);
@@ -838,6 +876,7 @@ static int me_rhs(fpm_model *m, const fpm_logger *lg, double *dx)
 
 int fpm_model_derivatives(fpm_model *m, const fpm_logger *lg, double *dx)
 {
+    if (m->exact) return xb_refuse(m, lg, "the state derivatives (Model Exchange)");
     return me_rhs(m, lg, dx);
 }
 
@@ -924,6 +963,7 @@ int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double 
         fpm_log(lg, FPM_ERROR, "%s cannot be computed: a parameter is bad (above)", v->name);
         return FPM_ERROR;
     }
+    if (m->exact) return xb_refuse(m, lg, v->name);
     if (v->state) {
         fpm_model_get_states(m, a);
         *value = a[v->state - 1];
@@ -968,6 +1008,8 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
     fpm_put_i32(w, s->prev_poly);
     for (i = 0; i < 4; i++) fpm_put_f64(w, s->prev[i]);
     fpm_put_i32(w, m->stepped);
+    if (m->exact)                             /* the exact rung's integrator state */
+        for (i = 0; i < 4 * m->xb_p.nq; i++) fpm_put_f64(w, m->xb.s[i]);
 }
 
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
@@ -1006,6 +1048,9 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     fpm_get_int_in(r, "prev_poly", 0, 1, &s.prev_poly);
     for (i = 0; i < 4; i++) fpm_get_finite(r, "the input the method's data belong to", &s.prev[i]);
     fpm_get_int_in(r, "stepped", 0, 1, &stepped);
+    if (m->exact)
+        for (i = 0; i < 4 * m->xb_p.nq; i++)
+            fpm_get_finite(r, "the exact beam's state", &m->xb.s[i]);
     if (r->why[0] != '\0') return 0;
     /* what legal calls leave: a grid counted from t_base, time not before the start, an
      * adaptive step > 0, and a state that passed the divergence checks */
@@ -1017,6 +1062,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     if (!(s.h_abs > 0.0)) return fpm_reject(r, "h_abs = %g is not positive", s.h_abs);
     if (!m->failed) m->error[0] = '\0';
     s.k = (long)k;
+    if (m->exact) return xb_load(m, r, &s, stepped);
     if (r->interface == FPM_MODEL_EXCHANGE) {
         /* Model Exchange: any finite state the importer may set (fpm_model_set_states takes
          * it, beyond the divergence bounds too: an integrator's trial point), never a doStep's
@@ -1140,6 +1186,7 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
     double u, du;
     int nx = m->nx, i, j, nu = 0, ny = 0;
     unsigned vr;
+    if (m->exact) return xb_refuse(m, lg, "directional derivatives and the linearisation");
     for (vr = 0; vr < FPM_MAX_VARS; vr++)
         if (fpm_vars[vr].name != NULL) {
             nu += fpm_vars[vr].causality == FPM_INPUT;
@@ -1196,6 +1243,7 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
 {
     double d1[FP_OUT_ETA + NMAX], d2[FP_OUT_ETA + NMAX], work[4 * NXMAX], u, du;
     int row;
+    if (m->exact) return xb_refuse(m, lg, "output derivatives");
     if (vr >= FPM_MAX_VARS || (row = kernel_row(m, vr)) == -2) {
         fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
         return FPM_ERROR;
@@ -1220,3 +1268,295 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
 }
 /* ================================================================== end of Jacobians and output
  * derivatives */
+
+/* ================================================================== the exact rung (issue 27)
+ * fidelity = "exact": the geometrically exact beam of plant_fmu/exact.py (ANCF cable elements
+ * hinged on the cart) on the kernel's fp_exact_*: n_elements elements (n_modes and
+ * gravity_preload do not apply; the integrator is always generalized alpha, whatever integrator
+ * says), Kelvin-Voigt damping beta = 2 zeta / omega_1 (omega_1 the first cantilever frequency of
+ * the same mesh: the first mode has the damping ratio zeta, as in the floating frame).
+ *
+ * Stepping: generalized alpha (rho_inf = 0.9, Newton to 1e-11, at most 30 iterations, as
+ * plant_fmu/kernel.py's ExactKernel and orchestration/studies/exact_loop.py) at the substep h =
+ * step, on the grid of the explicit methods (advance_fixed: full substeps, a shortened last one
+ * when a communication point is off the grid). Implicit, because the beam's axial modes (the
+ * first near 8000 rad/s at the paper's data) and the mesh's highest bending modes are far above
+ * 1/h: an explicit method would need h below 1e-5 s. The force is the input polynomial at each
+ * substep's end (where the method sets equilibrium), held when it has no derivatives. The
+ * accelerations qdd = a start consistent with the first step's input (fp_exact_start when no
+ * step was taken yet).
+ *
+ * Outputs (fp_exact_outputs): x_o, x_dot, phi_o and omega_o from the tip node's slope, phi the
+ * root tangent's angle, tip_deflection the tip's distance from the line of the root tangent,
+ * energy T + V. The exact beam has no modal coordinates: eta_1 is the tip deflection in units of
+ * the first cantilever mode's, tip_deflection / N_1(L) (the modal coordinate that alone would
+ * give it; the floating frame's eta_1 where mode 1 dominates), and eta_2 .. eta_8 are 0.
+ * The divergence checks are the floating frame's, with phi the root tangent's angle.
+ *
+ * Not offered (an Error with a message): Model Exchange (the beam's stiff axial modes call for
+ * the implicit step inside the FMU), the linearisation (directional derivatives) and output
+ * derivatives. FMU states save the integrator's state [q, qd, qdd, a] (4 nq doubles) after the
+ * floating frame's items; a restore checks them finite, within the divergence bounds, with
+ * finite outputs, energy and internal forces. */
+#define XB_RHO_INF 0.9
+#define XB_TOL 1e-11
+#define XB_MAX_ITER 30
+
+static int xb_refuse(const fpm_model *m, const fpm_logger *lg, const char *what)
+{
+    (void)m;
+    fpm_log(lg, FPM_ERROR, "%s: the exact rung (fidelity = 'exact') does not offer %s; the "
+            "floating-frame rungs (fidelity = 'nonlinear' or 'linear') do", fpm_model_name, what);
+    return FPM_ERROR;
+}
+
+/* The kernel's data and the undeformed beam at phi0 (rotating at phi_dot0) on the cart at x0,
+ * x_dot0 (exact.py: CableMesh.straight); the accelerations 0 until the first step. */
+static int xb_prepare(fpm_model *m, const fpm_logger *lg)
+{
+    const double *r = m->v.real;
+    fp_exact *p = &m->xb_p;
+    const int ne = (int)r[VR_n_elements];
+    const double L = r[VR_L], rhoA = r[VR_rho] * r[VR_EA] / r[VR_E];
+    const double omega1 = sqrt(fpm_unit_lam[ne - 1][0] * r[VR_EI] / (rhoA * pow(L, 4.0)));
+    const double c = cos(r[VR_phi0]), sn = sin(r[VR_phi0]), w = r[VR_phi_dot0];
+    double e[4 * (FPM_NE_MAX + 1)], ed[4 * (FPM_NE_MAX + 1)];
+    int i, nq;
+    memset(p, 0, sizeof *p);
+    p->ne = ne;
+    p->L = L;
+    p->EA = r[VR_EA];
+    p->EI = r[VR_EI];
+    p->rhoA = rhoA;
+    p->g = r[VR_g];
+    p->m = r[VR_m];
+    p->beta_kv = 2.0 * r[VR_zeta] / omega1;
+    p->h = m->h;
+    p->rho_inf = XB_RHO_INF;
+    p->tol = XB_TOL;
+    p->max_iter = XB_MAX_ITER;
+    if (fp_exact_prepare(p) != FP_OK || !isfinite(p->beta_kv)) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: the exact beam's data are out of range (L = %g, "
+                "EA = %g, EI = %g, rhoA = %g, m = %g, g = %g, zeta = %g, step = %g)", L,
+                r[VR_EA], r[VR_EI], rhoA, r[VR_m], r[VR_g], r[VR_zeta], m->h);
+        return 0;
+    }
+    if (fp_exact_work_size(p) > XB_WORK_MAX) {
+        fpm_log(lg, FPM_ERROR, "the exact rung's work (%ld doubles) exceeds its buffer (a broken "
+                "build)", fp_exact_work_size(p));
+        return 0;
+    }
+    m->xb_ps = *p;
+    m->xb_n1 = fpm_unit_tip_defl[ne - 1][0] * (1.0 / sqrt(rhoA * L));
+    if (!(isfinite(m->xb_n1) && fabs(m->xb_n1) > 0.0)) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: the first mode's tip deflection N_1(L) = %g is "
+                "not finite and nonzero (from rho, EA, E, L)", m->xb_n1);
+        return 0;
+    }
+    nq = p->nq;
+    for (i = 0; i <= ne; i++) {
+        const double si = L * i / ne;
+        e[4 * i] = r[VR_x0] + si * (-sn);
+        e[4 * i + 1] = si * c;
+        e[4 * i + 2] = -sn;
+        e[4 * i + 3] = c;
+        ed[4 * i] = r[VR_x_dot0] + w * si * (-c);
+        ed[4 * i + 1] = w * si * (-sn);
+        ed[4 * i + 2] = w * (-c);
+        ed[4 * i + 3] = w * (-sn);
+    }
+    memset(m->xb.s, 0, sizeof(double) * XB_S_MAX);
+    m->xb.s[0] = e[0];
+    m->xb.s[nq] = ed[0];
+    for (i = 2; i < nq + 1; i++) {      /* q = e without the root's y (e[1]) */
+        m->xb.s[i - 1] = e[i];
+        m->xb.s[nq + i - 1] = ed[i];
+    }
+    return 1;
+}
+
+/* The outputs of the exact state into out (every one, energy included), eta_j = 0; 1 if the
+ * state's norm is within the bound and every output is finite, else 0 (and *bad). */
+static int xb_outputs_ok(fpm_model *m, const char **bad)
+{
+    const int nq = m->xb_p.nq;
+    double norm2 = 0.0;
+    int i;
+    for (i = 0; i < 2 * nq; i++) norm2 += m->xb.s[i] * m->xb.s[i];
+    m->out_fresh = m->energy_fresh = 0;
+    if (!(norm2 <= STATE_NORM2_LIMIT)) {
+        if (bad) *bad = "the state's norm";
+        return 0;
+    }
+    if (fp_exact_outputs(&m->xb_p, m->xb.s, 1, m->out, m->xb.work) != FP_OK) {
+        if (bad) *bad = "of the exact beam (a tangent of zero length)";
+        return 0;
+    }
+    for (i = 0; i < NMAX; i++) m->out[FP_OUT_ETA + i] = 0.0;
+    m->out[FP_OUT_ETA] = m->out[FP_OUT_TIP] / m->xb_n1;
+    if (!isfinite(m->out[FP_OUT_ETA])) {
+        if (bad) *bad = "eta_1";
+        return 0;
+    }
+    m->out_fresh = m->energy_fresh = 1;
+    return 1;
+}
+
+/* n substeps of h from the stepper's time (substeps() for the exact rung); 0 with why. */
+static int xb_substeps(fpm_model *m, double h, long n, char *why)
+{
+    static const char *WHY[] = {"", "bad argument", "a residual is not finite",
+                                "", "", "Newton did not converge (or its matrix is singular)"};
+    stepper *s = &m->s;
+    fp_exact *p = &m->xb_p;
+    fp_exact_force F;
+    long done = 0, iters = 0, q;
+    int rc = FP_OK;
+    if (h != p->h) {                            /* a shortened substep */
+        p = &m->xb_ps;
+        if (p->h != h) {
+            p->h = h;
+            if (fp_exact_prepare(p) != FP_OK) {
+                snprintf(why, FPM_MSG_MAX, "bad substep h = %.17g", h);
+                return 0;
+            }
+        }
+    }
+    memset(&F, 0, sizeof F);
+    F.F0 = s->u;
+    if (s->du == 0.0 && s->d2u == 0.0) {
+        rc = fp_exact_steps(p, &F, n, m->xb.s, m->xb.work, &done, &iters);
+    } else {
+        for (q = 0; q < n && rc == FP_OK; q++) {  /* the force at each substep's end */
+            const double dt = (s->t_base + (double)(s->k + q + 1) * h) - s->tu;
+            long one = 0;
+            F.F0 = s->u + dt * (s->du + 0.5 * dt * s->d2u);
+            rc = fp_exact_steps(p, &F, 1, m->xb.s, m->xb.work, &one, &iters);
+            done += one;
+        }
+    }
+    s->k += done;
+    s->t = s->t_base + s->k * h;
+    if (rc != FP_OK) {
+        snprintf(why, FPM_MSG_MAX, "the exact beam's generalized-alpha substep from t = %.17g "
+                 "(h = %.17g) failed: %s", s->t, h,
+                 rc >= 0 && rc <= FP_NOCONVERGE && WHY[rc][0] ? WHY[rc] : "an error");
+        return 0;
+    }
+    return 1;
+}
+
+/* The divergence checks at the exact state (the floating frame's, phi the root tangent's
+ * angle); 1, or 0 with why. */
+static int xb_checks(fpm_model *m, double t, char *why)
+{
+    const char *bad = "";
+    double phi;
+    if (!xb_outputs_ok(m, &bad)) {
+        snprintf(why, FPM_MSG_MAX, "divergence at t = %.17g: the output %s would not be finite",
+                 t, bad);
+        return 0;
+    }
+    phi = m->out[FP_OUT_PHI];
+    if (!(fabs(phi) <= m->phi_limit)) {
+        snprintf(why, FPM_MSG_MAX, "divergence at t = %.17g: |phi| = %.17g exceeds phi_limit = "
+                 "%.17g", t, fabs(phi), m->phi_limit);
+        return 0;
+    }
+    if (!(fabs(m->out[FP_OUT_ENERGY]) <= m->energy_limit)) {
+        snprintf(why, FPM_MSG_MAX, "divergence at t = %.17g: |energy| = %.17g exceeds "
+                 "energy_limit = %.17g", t, fabs(m->out[FP_OUT_ENERGY]), m->energy_limit);
+        return 0;
+    }
+    return 1;
+}
+
+/* fpm_model_step for the exact rung (its input checked already). */
+static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
+{
+    const int n4 = 4 * m->xb_p.nq;
+    char why[FPM_MSG_MAX];
+    const stepper saved = m->s;
+    stepper *s = &m->s;
+    int rc;
+    memcpy(m->xb.saved, m->xb.s, sizeof(double) * n4);
+    s->u = m->v.real[VR_F_c];
+    s->du = m->dF;
+    s->d2u = m->d2F;
+    s->tu = t;
+    if (!m->stepped) {                          /* consistent accelerations under the input */
+        fp_exact_force F;
+        memset(&F, 0, sizeof F);
+        F.F0 = s->u;
+        if (fp_exact_start(&m->xb_p, &F, m->xb.s, m->xb.work) != FP_OK) {
+            m->s = saved;
+            memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
+            fpm_log(lg, FPM_DISCARD, "the exact beam's accelerations at t = %.17g are not finite "
+                    "(F_c = %g); step rejected, state unchanged", t, s->u);
+            return FPM_DISCARD;
+        }
+    }
+    rc = t + h <= s->t ? 1 : advance_fixed(m, t + h, why);
+    if (rc < 0) {                               /* the cap: nothing accepted, retry allowed */
+        m->s = saved;
+        memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
+        xb_outputs_ok(m, NULL);
+        fpm_log(lg, FPM_DISCARD, "%s; step rejected, state unchanged", why);
+        return FPM_DISCARD;
+    }
+    if (rc == 0 || !xb_checks(m, t + h, why)) {
+        memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
+        xb_outputs_ok(m, NULL);                 /* the outputs of the state restored */
+        return diverged(m, lg, &saved, why);
+    }
+    m->stepped = 1;
+    return FPM_OK;
+}
+
+static int xb_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
+{
+    int j;
+    if (!m->out_fresh) xb_outputs_ok(m, NULL);
+    switch (vr) {
+    case VR_x_o: *value = m->out[FP_OUT_X]; break;
+    case VR_x_dot: *value = m->out[FP_OUT_XDOT]; break;
+    case VR_phi_o: *value = m->out[FP_OUT_PHI_O]; break;
+    case VR_omega_o: *value = m->out[FP_OUT_OMEGA_O]; break;
+    case VR_phi: *value = m->out[FP_OUT_PHI]; break;
+    case VR_tip_deflection: *value = m->out[FP_OUT_TIP]; break;
+    case VR_energy: *value = m->out[FP_OUT_ENERGY]; break;
+    default:
+        for (j = 0; j < FPM_N_ETA; j++)
+            if (vr == fpm_eta_vrs[j]) {
+                *value = m->out[FP_OUT_ETA + j];      /* eta_1 = tip / N_1(L), the rest 0 */
+                return FPM_OK;
+            }
+        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
+        return FPM_ERROR;
+    }
+    if (!isfinite(*value)) {                    /* never: steps and initialisation refuse it */
+        fpm_log(lg, FPM_ERROR, "the output %s = %g is not finite at t = %.17g", fpm_vars[vr].name,
+                *value, fpm_model_time(m));
+        return FPM_ERROR;
+    }
+    return FPM_OK;
+}
+
+/* The end of fpm_model_load for the exact rung (its state read into xb.s): co-simulation only,
+ * and a state the checks of a step accept, whose internal forces are finite. */
+static int xb_load(fpm_model *m, fpm_reader *r, const stepper *s, int stepped)
+{
+    char why[FPM_MSG_MAX];
+    const int nq = m->xb_p.nq;
+    double *f = m->xb.saved;                    /* scratch */
+    if (r->interface == FPM_MODEL_EXCHANGE)
+        return fpm_reject(r, "the exact rung (fidelity = 'exact') has no Model Exchange");
+    m->s = *s;
+    m->stepped = stepped;
+    if (!xb_checks(m, s->t, why)) return fpm_reject(r, "%s", why);
+    if (fp_exact_forces(&m->xb_p, m->xb.s, m->xb.s + nq, 0.0, f, NULL, NULL, NULL, m->xb.work)
+        != FP_OK)
+        return fpm_reject(r, "the exact beam's internal forces would not be finite");
+    return 1;
+}
+/* ================================================================== end of the exact rung */

@@ -34,7 +34,7 @@ INTERESTING = [
     9.223372036854775807e18, 4294967296.0, 2147483648.0, -2147483649.0, 0.1, 97.3, 500.0]
 HEADER = 24
 KNOWN = ["rk4", "euler", "symplectic_euler", "dopri5", "exponential", "linear", "nonlinear",
-         "radau"]
+         "radau", "exact"]
 
 
 def f64(x: float) -> bytes:
@@ -204,6 +204,18 @@ def regressions(model: str, version: int) -> dict:
             reals=[(vr["phi_dot0"], 1.7976931348623157e308)]).outputs()
         out["L-underflow"] = P().start(reals=[(vr["L"], 1e-200)]).outputs().step(1e-3)
         out["rho-subnormal"] = P().start(reals=[(vr["rho"], 5e-324)]).outputs().step(1e-3)
+        # the exact rung (issue 27): its state [q, qd, qdd, a] follows the floating frame's
+        # items; two elements (nq = 11), two modes (nx = 8)
+        ex = layout(model, {"fidelity": "exact"})
+        xb = ex["y"] + 8 * 8 * 2 + 8 * 5 + 4 + 32 + 4
+        nq = 4 * 2 + 3
+        exact = lambda: P().start(reals=[(vr["phi0"], 0.3)], ints=[(27, 2), (26, 2)],  # noqa: E731
+                                  strings=[(29, "exact")]).step(1e-3)
+        out["crafted-exact-nan"] = exact().crafted([(xb, 0, math.nan)]).step(1e-3)
+        out["crafted-exact-tip-slope"] = exact().crafted(
+            [(xb + 8 * (nq - 2), 0, 0.0), (xb + 8 * (nq - 1), 0, 0.0)]).outputs().step(1e-3)
+        out["crafted-exact-root-turned"] = exact().crafted([(xb + 16, 0, -1.0)]).step(1e-3)
+        out["crafted-exact-huge"] = exact().crafted([(xb + 8 * nq, 0, 1e300)]).step(1e-3)
     else:
         vr = {"phi_o": 0, "filter_order": 13, "force_limit": 16}
         base = lambda: P().start(reals=[(vr["phi_o"], 0.1)]).step(1e-3)  # noqa: E731
@@ -231,6 +243,10 @@ def seeds(model: str, version: int) -> dict:
             out[f"{integ}"] = (p.derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3)
                                .outputs().step(0.5).step(0.5).outputs())
         out["preload"] = P().start(reals=[(36, 0.3)], ints=[(28, 1)]).step(1e-3).outputs()
+        out["exact"] = (P().start(reals=[(36, 0.3)], ints=[(27, 2), (26, 2)],
+                                  strings=[(29, "exact")])
+                        .derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3).outputs()
+                        .step(0.5).outputs())
         out["model-exchange"] = P().model_exchange(reals=[(36, 0.3)]).roundtrip()
     else:
         for order in (0, 1, 2):

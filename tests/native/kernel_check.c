@@ -256,6 +256,21 @@ static void exact_checks(int ne)
     e.max_iter = 30;
     e.h = NAN;
     check(fp_exact_prepare(&e) == FP_BADARG, "exact: h = NaN refused");
+    e.h = 1e-4;
+    check(fp_exact_prepare(&e) == FP_OK, "exact: restored");
+    {   /* the outputs (the native FMU's), and tangents of zero length: a code, no 1/0 */
+        double out[FP_OUT_ENERGY + 1];
+        check(fp_exact_outputs(&e, s, 1, out, work) == FP_OK && fabs(out[FP_OUT_PHI]) < 1.0,
+              "exact: outputs");
+        check(fp_exact_outputs(&e, s, 1, out, NULL) == FP_BADARG, "exact: energy without work");
+        s[nq - 2] = s[nq - 1] = 0.0;
+        check(fp_exact_outputs(&e, s, 0, out, NULL) == FP_NONFINITE, "exact: no tip tangent");
+        for (i = 0; i < 4 * nq; i++) s[i] = 0.0;     /* every node at the root, at rest */
+        check(fp_exact_forces(&e, s, s + nq, 0.0, f, NULL, NULL, NULL, work) == FP_NONFINITE,
+              "exact: elements of no length");
+        check(fp_exact_steps(&e, &F, 1, s, work, &done, &iters) == FP_NONFINITE,
+              "exact: no step from elements of no length");
+    }
     free(s); free(s1); free(work); free(f); free(K); free(C); free(M);
 }
 

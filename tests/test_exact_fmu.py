@@ -1,0 +1,409 @@
+"""The exact rung in the native FMUs (``plant.fidelity = "exact"``, issue 27): the FMU against the
+kernel and the numpy specification, through the product's master and its monolithic reference;
+FMI 2.0 against FMI 3.0; FMU states; what the rung refuses."""
+from __future__ import annotations
+
+import math
+import struct
+
+import numpy as np
+import pytest
+
+from orchestration import simulate
+from orchestration.scene.keys import ConfigError
+from orchestration.scene.schema import load_scene
+from orchestration.studies.reference import exact_first_mode_tip
+from plant_fmu.exact import ExactPlant, GeneralizedAlpha
+from plant_fmu.kernel import ExactKernel
+from plant_fmu.params import PlantParams
+
+NE = 4
+#: a short run of the filtered scene on a coarse mesh (fidelity.max_modes <= n_elements)
+EXACT = {"plant.fidelity": "exact", "plant.n_elements": NE, "fidelity.max_modes": NE}
+OUTPUTS = ("x_o", "x_dot", "phi_o", "omega_o", "phi", "tip_deflection", "energy")
+
+
+class Cs:
+    """A co-simulation instance of the native plant through fmpy (FMI 2.0 or 3.0), by name;
+    ``logs``: (status, message)."""
+
+    def __init__(self, unzipdir, version, initialize=True, model_exchange=False, **start):
+        from fmpy import read_model_description
+
+        self.md = read_model_description(unzipdir)
+        self.version = version
+        self.vars = {v.name: v for v in self.md.modelVariables}
+        self.logs = []
+        iface = self.md.modelExchange if model_exchange else self.md.coSimulation
+        if version == 2:
+            from fmpy.fmi2 import (FMU2Model, FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
+                                   fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                                   fmi2CallbackLoggerTYPE, calloc, free)
+
+            def logger(env, name, status, category, message):
+                self.logs.append((status, message.decode()))
+            cb = fmi2CallbackFunctions()
+            cb.logger = fmi2CallbackLoggerTYPE(logger)
+            cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+            cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+            self._cb = cb
+            cls = FMU2Model if model_exchange else FMU2Slave
+            self.fmu = cls(guid=self.md.guid, unzipDirectory=unzipdir,
+                           modelIdentifier=iface.modelIdentifier, instanceName="plant")
+            self.fmu.instantiate(callbacks=cb, loggingOn=True)
+            self.fmu.setupExperiment(startTime=0.0)
+        else:
+            from fmpy.fmi3 import FMU3Model, FMU3Slave
+
+            def logger(env, status, category, message):
+                self.logs.append((status, message.decode()))
+            cls = FMU3Model if model_exchange else FMU3Slave
+            self.fmu = cls(guid=self.md.guid, unzipDirectory=unzipdir,
+                           modelIdentifier=iface.modelIdentifier, instanceName="plant")
+            self.fmu.instantiate(loggingOn=True, logMessage=logger)
+            self.fmu.enterInitializationMode(startTime=0.0)
+        self.set(**start)
+        if initialize:
+            self.status = self.call(self._exit_init)
+
+    def _exit_init(self):
+        if self.version == 2:
+            self.fmu.enterInitializationMode()
+        self.fmu.exitInitializationMode()
+
+    @staticmethod
+    def call(fn, *args):
+        """0, or the status of the FMICallException ``fn`` raised."""
+        from fmpy.fmi1 import FMICallException
+
+        try:
+            fn(*args)
+            return 0
+        except FMICallException as exc:
+            return exc.status
+
+    def vr(self, *names):
+        return [self.vars[n].valueReference for n in names]
+
+    def set(self, **values):
+        for name, value in values.items():
+            v, r = self.vars[name], [self.vars[name].valueReference]
+            if v.type in ("Real", "Float64"):
+                (self.fmu.setReal if self.version == 2 else self.fmu.setFloat64)(r, [value])
+            elif v.type in ("Integer", "Int32"):
+                (self.fmu.setInteger if self.version == 2 else self.fmu.setInt32)(r, [value])
+            elif v.type == "Boolean":
+                self.fmu.setBoolean(r, [value])
+            else:
+                self.fmu.setString(r, [value])
+
+    def get(self, *names):
+        return (self.fmu.getReal if self.version == 2 else self.fmu.getFloat64)(self.vr(*names))
+
+    def step(self, t, h):
+        return self.call(self.fmu.doStep, t, h)
+
+    def messages(self, min_status=2):
+        return "\n".join(m for s, m in self.logs if s >= min_status)
+
+    def close(self):
+        self.call(self.fmu.terminate)
+        self.fmu.freeInstance()
+
+
+@pytest.fixture(scope="module")
+def plant_dirs(native):
+    """The native plant of both FMI versions, unpacked: version -> folder."""
+    import shutil
+
+    from fmpy import extract
+
+    from orchestration.export import build_fmus
+    dirs = {2: extract(native["FlexiblePendulum"]),
+            3: extract(build_fmus(flavour="native", fmi_version=3)["FlexiblePendulum"])}
+    yield dirs
+    for d in dirs.values():
+        shutil.rmtree(d, ignore_errors=True)
+
+
+@pytest.fixture
+def open_plant(plant_dirs):
+    opened = []
+
+    def _open(version=2, **start):
+        inst = Cs(plant_dirs[version], version, **start)
+        opened.append(inst)
+        return inst
+
+    yield _open
+    for inst in opened:
+        try:
+            inst.close()
+        except Exception:  # noqa: BLE001 - an instance in error may refuse terminate
+            pass
+
+
+def forcing(k):
+    """A force history that excites the beam (N)."""
+    return 40.0 * math.sin(7.0 * k * 1e-3) + (15.0 if k % 50 < 25 else -15.0)
+
+
+def drive(inst, n, k0=0, h=1e-3, derivatives=False):
+    """``n`` steps of ``h`` from ``k0 h`` under :func:`forcing` (held, or with its rate as an
+    input derivative); the outputs after each step."""
+    rows = []
+    for k in range(k0, k0 + n):
+        inst.set(F_c=forcing(k))
+        if derivatives:
+            inst.fmu.setRealInputDerivatives(inst.vr("F_c"), [1], [3000.0 * math.cos(k)])
+        assert inst.step(k * h, h) == 0, inst.messages()
+        rows.append(inst.get(*OUTPUTS, "eta_1", "eta_8"))
+    return np.array(rows)
+
+
+# ---------------------------------------------------------------------- against the kernel
+def test_the_product_master_reproduces_the_kernel_and_the_numpy_specification():
+    """The product's master (plant first, held force) on the native plant at the exact rung,
+    replayed with the force it recorded: the C kernel (the FMU's own code) gives the same tip
+    angle to the last bit, and the numpy specification to round-off (the kernel's own test holds
+    the two to 1e-11 of the swing over 1000 steps: tests/test_exact_kernel.py)."""
+    ov = {**EXACT, "stop_time": 0.3, "master.first": "plant", "master.extrapolation": 0,
+          "master.input_derivatives": False, "master.step": 1e-3, "output_interval": 1e-3}
+    run = simulate("flexible_pd_lowpass", ov)
+    res, sc = run.result, run.scene
+    assert run.completed and len(res) == 301
+    plant = ExactPlant(sc.plant.params)
+    h = sc.plant.step
+    per = round(1e-3 / h)
+    x0 = plant.initial_state(phi=sc.initial.phi)
+    swing = np.ptp(res["phi_o"])
+    assert swing > 0.5
+    for ga, tol in ((ExactKernel(plant, h), 0.0), (GeneralizedAlpha(plant.system, h), 1e-11)):
+        st = ga.start(x0[:plant.nq], x0[plant.nq:], res["F_c"][0])
+        phi_o, energy = [plant.tip_angle(x0)[0]], [plant.energy(x0)]
+        for k in range(len(res) - 1):
+            for _ in range(per):
+                st = ga.step(st, res["F_c"][k])
+            x = np.concatenate(st[:2])
+            phi_o.append(plant.tip_angle(x)[0])
+            energy.append(plant.energy(x))
+        assert np.max(np.abs(np.array(phi_o) - res["phi_o"])) <= tol * swing
+        assert np.max(np.abs(np.array(energy) - res["energy"])) <= 1e-10 * np.ptp(energy) + \
+            1e-12 * np.max(np.abs(energy))
+    # no modal coordinates: eta_1 is the tip deflection in units of mode 1's, the rest 0
+    n1 = exact_first_mode_tip(sc.plant.params)
+    assert np.allclose(res["eta_1"] * n1, res["tip_deflection"], rtol=1e-15, atol=0)
+    assert np.ptp(res["eta_1"]) > 0 and np.all(res["eta_2"] == 0.0)
+
+
+def test_the_closed_loop_meets_the_exact_reference_as_the_floating_frame_meets_its_own():
+    """The co-simulation at the exact rung against its monolithic reference (ExactLoop, the same
+    plant step): the coupling's error, which depends on the loop and the coupling, not on the
+    rung. So the exact rung's error is the floating frame's (against its DOP853 reference) to
+    within a factor 1.5 at master steps where the coupling dominates, falls at least fourfold
+    when the step halves, and both stay far below the gap between the two models (a plant that
+    was not the reference's would show that gap)."""
+    err, runs = {}, {}
+    for fid in ("exact", "nonlinear"):
+        for H in (4e-3, 2e-3):
+            ov = {**EXACT, "plant.fidelity": fid, "stop_time": 1.0, "master.step": H,
+                  "output_interval": 4e-3}
+            run = simulate("flexible_pd_lowpass", ov, reference=True)
+            err[fid, H] = run.summary["max_error_phi_o"]
+            runs[fid, H] = run.result["phi_o"]
+    for H in (4e-3, 2e-3):
+        assert err["exact", H] <= 1.5 * err["nonlinear", H]
+    assert err["exact", 4e-3] >= 4 * err["exact", 2e-3]
+    gap = np.max(np.abs(runs["exact", 2e-3] - runs["nonlinear", 2e-3]))
+    assert gap >= 10 * err["exact", 2e-3]
+
+
+def test_fmi2_and_fmi3_agree_bit_for_bit_and_with_the_kernel(open_plant):
+    """The same steps on both FMI versions give the same outputs to the last bit, and they are
+    the kernel's steps under the held force (``ExactKernel``, the same code)."""
+    start = dict(fidelity="exact", n_elements=NE, n_modes=0, phi0=0.3, x_dot0=0.2)
+    ra, rb = drive(open_plant(2, **start), 100), drive(open_plant(3, **start), 100)
+    assert np.array_equal(ra, rb)
+    plant = ExactPlant(PlantParams(n_elements=NE, n_modes=0))
+    k = ExactKernel(plant, 2.5e-4)
+    x0 = plant.initial_state(phi=0.3, x_dot=0.2)
+    st = k.start(x0[:plant.nq], x0[plant.nq:], forcing(0))
+    for i in range(100):
+        st = k.steps(st, forcing(i), 4)
+    assert np.array_equal(ra[-1, :7], k.outputs(st))
+    assert ra[-1, 5] != 0.0                         # the tip deflection at n_modes = 0 too
+    assert np.all(ra[:, 8] == 0.0)                  # eta_8: no modal coordinates
+    n1 = exact_first_mode_tip(plant.params)
+    assert np.allclose(ra[:, 7] * n1, ra[:, 5], rtol=1e-15, atol=0)
+
+
+def test_input_derivatives_give_the_force_at_each_substeps_end(open_plant):
+    """With fmi2SetRealInputDerivatives the force of each generalized-alpha substep is the input
+    polynomial at the substep's end (where the method sets equilibrium): the kernel stepped
+    substep by substep with that force gives the FMU's outputs to the last bit."""
+    rows = drive(open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3), 50, derivatives=True)
+    plant = ExactPlant(PlantParams(n_elements=NE))
+    h = 2.5e-4
+    k = ExactKernel(plant, h)
+    x0 = plant.initial_state(phi=0.3)
+    st = k.start(x0[:plant.nq], x0[plant.nq:], forcing(0))
+    for i in range(50):
+        u, du = forcing(i), 3000.0 * math.cos(i)
+        for q in range(4):
+            dt = (0.0 + (4 * i + q + 1) * h) - i * 1e-3
+            st = k.step(st, u + dt * (du + 0.5 * dt * 0.0))
+    assert np.array_equal(rows[-1, :7], k.outputs(st))
+    held = drive(open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3), 50)
+    assert np.max(np.abs(held[:, 2] - rows[:, 2])) > 1e-6      # the derivatives matter
+
+
+def test_a_communication_step_off_the_plant_grid_is_taken_whole(open_plant):
+    """A step that is not a multiple of plant.step ends with a shortened substep exactly at the
+    communication point (the floating frame's grid)."""
+    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.2)
+    t = 0.0
+    for h in (1e-3, 3.3e-4, 7.7e-4, 1e-3):
+        inst.set(F_c=5.0)
+        assert inst.step(t, h) == 0, inst.messages()
+        t += h
+    assert inst.fmu.getRealStatus(2) == t          # fmi2LastSuccessfulTime
+    assert all(math.isfinite(v) for v in inst.get(*OUTPUTS))
+
+
+# ---------------------------------------------------------------------- FMU states
+def test_a_restored_state_continues_bit_for_bit(open_plant):
+    """Save mid-run (in memory and serialised), run on, restore, run again: the same outputs to
+    the last bit (the integrator's accelerations are in the state)."""
+    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    drive(inst, 100, derivatives=True)
+    mem = inst.fmu.getFMUstate()
+    data = inst.fmu.serializeFMUstate(mem)
+    first = drive(inst, 100, k0=100, derivatives=True)
+    inst.fmu.setFMUstate(mem)
+    assert np.array_equal(drive(inst, 100, k0=100, derivatives=True), first)
+    other = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    state = other.fmu.deSerializeFMUstate(data)
+    other.fmu.setFMUstate(state)
+    assert np.array_equal(drive(other, 100, k0=100, derivatives=True), first)
+    inst.fmu.freeFMUstate(mem)
+    other.fmu.freeFMUstate(state)
+
+
+def _fnv(data: bytes) -> int:
+    h = 14695981039346656037
+    for byte in data:
+        h = ((h ^ byte) * 1099511628211) & 0xFFFFFFFFFFFFFFFF
+    return h
+
+
+def _crafted(data: bytes, index: int, value: float) -> bytes:
+    """The serialised state with the exact beam's state entry ``index`` (from the end of the
+    payload: -1 is the last of [q, qd, qdd, a]) set to ``value``, its checksum recomputed."""
+    b = bytearray(data)
+    at = len(b) - 8 + 8 * index
+    b[at:at + 8] = struct.pack("<d", value)
+    b[-8:] = struct.pack("<Q", _fnv(bytes(b[:-8])))
+    return bytes(b)
+
+
+NQ = 4 * NE + 3
+
+
+@pytest.mark.parametrize("index, value, why", [
+    (-1, math.nan, "the exact beam's state = nan is not finite"),      # an acceleration a
+    (-4 * NQ, math.inf, "the exact beam's state = inf is not finite"),  # the cart's x
+    (-4 * NQ + 1, 1e150, "the state's norm"),                          # the root slope, huge
+    (-4 * NQ + 2, -1.0, "exceeds phi_limit"),                          # the root turned over
+], ids=["nan", "inf", "norm", "phi-limit"])
+def test_crafted_exact_state_bytes_are_refused_and_change_nothing(open_plant, index, value,
+                                                                    why):
+    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    drive(inst, 20)
+    mem = inst.fmu.getFMUstate()
+    data = bytes(inst.fmu.serializeFMUstate(mem))
+    inst.fmu.freeFMUstate(inst.fmu.deSerializeFMUstate(data))   # the untouched bytes load
+    before = inst.get(*OUTPUTS)
+    assert inst.call(inst.fmu.deSerializeFMUstate, _crafted(data, index, value)) == 3
+    assert "not a valid state" in inst.messages(3) and why in inst.messages(3)
+    assert inst.get(*OUTPUTS) == before
+    on = drive(inst, 5, k0=20)
+    inst.fmu.setFMUstate(mem)
+    assert np.array_equal(drive(inst, 5, k0=20), on)
+    inst.fmu.freeFMUstate(mem)
+
+
+def test_a_zero_tip_slope_is_refused(open_plant):
+    """A tip slope of zero length has no tangent angle: the restore says so."""
+    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    drive(inst, 5)
+    data = bytes(inst.fmu.serializeFMUstate(inst.fmu.getFMUstate()))
+    q_end = -3 * NQ                                       # q[nq - 2], q[nq - 1] end here
+    bad = _crafted(_crafted(data, q_end - 2, 0.0), q_end - 1, 0.0)
+    assert inst.call(inst.fmu.deSerializeFMUstate, bad) == 3
+    assert "would not be finite" in inst.messages(3)
+
+
+# ---------------------------------------------------------------------- what it refuses
+def test_model_exchange_is_refused_with_a_message(plant_dirs):
+    for version in (2, 3):
+        inst = Cs(plant_dirs[version], version, model_exchange=True, fidelity="exact",
+                  n_elements=NE)
+        assert inst.status == 3
+        assert "does not offer Model Exchange" in inst.messages(3)
+        inst.fmu.freeInstance()
+
+
+def test_directional_and_output_derivatives_are_refused_with_a_message(open_plant):
+    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    drive(inst, 2)
+    rc = inst.call(inst.fmu.getDirectionalDerivative, inst.vr("phi_o"), inst.vr("F_c"), [1.0])
+    assert rc == 3 and "does not offer directional derivatives" in inst.messages(3)
+    rc = inst.call(inst.fmu.getRealOutputDerivatives, inst.vr("phi_o"), [1])
+    assert rc == 3 and "does not offer output derivatives" in inst.messages(3)
+    drive(inst, 2, k0=2)                                  # and it steps on
+
+
+@pytest.mark.parametrize("keys, what", [
+    ({"master.fmus": "python"}, "master.fmus = 'python'"),
+    ({"master.interface": "model-exchange"}, "model-exchange"),
+    ({"master.output_derivatives": True}, "output_derivatives"),
+])
+def test_the_scene_refuses_what_the_exact_rung_cannot_give(keys, what):
+    with pytest.raises(ConfigError, match=what):
+        load_scene("rigid_pd", {"plant.fidelity": "exact", **keys})
+
+
+def test_the_pythonfmu_plant_refuses_the_exact_rung():
+    pytest.importorskip("pythonfmu")
+    from plant_fmu.fmu import FMU_DEFAULTS, FlexiblePendulum
+
+    par = {**FlexiblePendulum.dataclass_defaults(PlantParams), **FMU_DEFAULTS,
+           "fidelity": "exact"}
+    with pytest.raises(ValueError, match="native FlexiblePendulum only"):
+        FlexiblePendulum._validated(par)
+
+
+def test_linear_studies_say_they_linearise_the_floating_frame():
+    from orchestration import analyze
+    with pytest.raises(ConfigError, match="floating frame"):
+        analyze("rigid_pd", {"plant.fidelity": "exact"})
+
+
+def test_the_rigid_scene_runs_its_beam_exactly():
+    """The rigid scene (n_modes = 0, a stiff beam): the exact rung ignores n_modes and runs the
+    beam of n_elements elements; its tip deflects a little, and the swing is the rigid one's to
+    within that deflection's angle."""
+    ov = {**EXACT, "stop_time": 0.5}
+    ex = simulate("rigid_pd", ov).result
+    rigid = simulate("rigid_pd", {"stop_time": 0.5}).result
+    assert np.max(np.abs(ex["tip_deflection"])) > 0.0
+    assert np.max(np.abs(ex["phi_o"] - rigid["phi_o"])) < 0.01
+
+
+@pytest.mark.parametrize("keys, fragment", [
+    ({"controller.force_limit": 100.0}, "the exact reference has no force saturation"),
+    ({"plant.step": 3e-4}, "must divide output_interval"),
+])
+def test_a_reference_the_exact_loop_cannot_take_is_refused_before_the_run(keys, fragment):
+    with pytest.raises(ConfigError, match=fragment):
+        simulate("rigid_pd", {**EXACT, "stop_time": 0.1, **keys}, reference=True)
