@@ -269,28 +269,27 @@ def test_kernel_matches_numpy_to_round_off(n):
             call()
 
 
-def test_both_fmu_flavours_run_the_stiffened_rung_as_the_reference(native, fmus):
-    """A co-simulation of the filtered scene at ``fidelity = "stiffened"`` with the native pair
-    and with the pythonfmu pair: the same outputs (the same kernel; the native FMU's Fb from its
-    tables), and the monolithic reference's to the co-simulation's accuracy, which is far below
-    the stiffened rung's difference from the nonlinear rung with the preload."""
+def test_the_pythonfmu_plant_runs_the_stiffened_rung_as_the_reference(fmus):
+    """A co-simulation of the filtered scene at ``fidelity = "stiffened"`` with the pythonfmu
+    pair meets the monolithic reference to the co-simulation's accuracy, far below the stiffened
+    rung's difference from the nonlinear rung with the preload; a scene asking for it with the
+    native FMUs is refused in one line."""
     from orchestration.job import run_scene
+    from orchestration.scene.keys import ConfigError
     from orchestration.scene.schema import load_scene
     from orchestration.studies.reference import simulate_reference
 
     sets = {"initial.phi": math.pi / 6, "stop_time": 0.4, "plant.zeta": 0.0}
-    sc = load_scene("flexible_pd_lowpass", {**sets, "plant.fidelity": "stiffened"})
-    plant = lambda paths: {"plant": paths["FlexiblePendulum"],  # noqa: E731
-                           "controller": paths["PDLowPass"]}
-    a = run_scene(sc, plant(native), progress=False)
-    b = run_scene(sc, plant(fmus), progress=False)
-    assert a.summary["stopped"] is None and b.summary["stopped"] is None
-    for c in a.result.dtype.names:
-        assert np.max(np.abs(a.result[c] - b.result[c])) <= 1e-10 * max(
-            1.0, float(np.max(np.abs(b.result[c])))), c
+    with pytest.raises(ConfigError, match="master.fmus = 'python'"):
+        load_scene("flexible_pd_lowpass", {**sets, "plant.fidelity": "stiffened"})
+    sc = load_scene("flexible_pd_lowpass", {**sets, "plant.fidelity": "stiffened",
+                                            "master.fmus": "python"})
+    a = run_scene(sc, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
+                  progress=False)
+    assert a.summary["stopped"] is None
     ref = simulate_reference(sc)["phi_o"]
     pre = simulate_reference(load_scene("flexible_pd_lowpass",
                                         {**sets, "plant.gravity_preload": True}))["phi_o"]
     cosim = np.max(np.abs(a.result["phi_o"] - ref))
     assert cosim < 1e-4
-    assert np.max(np.abs(pre - ref)) > 3 * cosim
+    assert np.max(np.abs(pre - ref)) > 10 * cosim

@@ -364,6 +364,7 @@ class Scene:
                               f"allowed: integers 1..{self.plant.beam.n_elements}")
         self._check_initial_state()
         self._check_exact()
+        self._check_stiffened()
         m, out = self.master, self.output
         if m.step > out.stop_time:
             raise ConfigError(f"master.step = {m.step} exceeds stop_time = {out.stop_time}")
@@ -386,6 +387,13 @@ class Scene:
                if m.output_derivatives else None)
         if why:
             raise ConfigError(f"plant.fidelity = 'exact' cannot be used with {why}")
+
+    def _check_stiffened(self):
+        """``plant.fidelity = "stiffened"`` runs in the pythonfmu plant only (the native FMUs do
+        not carry its mass points)."""
+        if self.plant.fidelity == "stiffened" and self.master.fmus != "python":
+            raise ConfigError("plant.fidelity = 'stiffened' runs in the pythonfmu plant only; set "
+                              "master.fmus = 'python'")
 
     def _check_initial_state(self):
         """The initial state within the plant's limits: the plant FMU stops a run whose ``|phi|``

@@ -266,6 +266,11 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     n = (int)r[VR_n_modes];
     m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
     if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
+    if (strcmp(fid, "stiffened") == 0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = 'stiffened' runs in the pythonfmu "
+                "FlexiblePendulum only (its mass points are not among the native FMU's tables)");
+        return 0;
+    }
     if (strcmp(fid, "nonlinear") != 0 && strcmp(fid, "linear") != 0) {
         fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = '%s' is not allowed; allowed: "
                 "nonlinear, linear", fid);
