@@ -153,14 +153,16 @@ def exact_closed_loop(scene, ne: int, kernel: bool):
     return run
 
 
-def product_cost(name: str, fidelity: str, span: float, repeat: int) -> float:
+def product_cost(name: str, fidelity: str, span: float, repeat: int,
+                 fmus: str = "native") -> float:
     """The master's wall time per simulated second of ``flexpend run name`` at ``fidelity`` over
-    ``span`` s (the scene's own master, plant step and 24 elements; the native FMUs): one
+    ``span`` s (the scene's own master, plant step and 24 elements; the ``fmus`` flavour): one
     untimed run, then the median of ``repeat``."""
     from orchestration import simulate
 
     def run():
-        r = simulate(name, {"plant.fidelity": fidelity, "stop_time": span})
+        r = simulate(name, {"plant.fidelity": fidelity, "stop_time": span,
+                            "master.fmus": fmus})
         assert r.completed
         return r.stats.wall_time / span
     run()
@@ -198,12 +200,13 @@ def main(argv=None):
                       ("exact, 8 elements, numpy", exact_closed_loop(scene, 8, False))):
         print(f"  {name:52s} {median_cost(run, span, rep):.2g}", flush=True)
     if args.run_span > 0:
-        print(f"flexpend run (native FMUs, the scene's master and plant step, 24 elements), "
-              f"the master's wall time per simulated s (median of {rep}, {args.run_span:g} s):")
+        print(f"flexpend run (the scene's master and plant step, 24 elements), the master's "
+              f"wall time per simulated s (median of {rep}, {args.run_span:g} s):")
         for name in ("rigid_pd", "flexible_pd", "flexible_pd_lowpass"):
-            for fid in ("nonlinear", "exact"):
-                cost = product_cost(name, fid, args.run_span, rep)
-                print(f"  {name + ', ' + fid:52s} {cost:.2g}", flush=True)
+            for fid, fmus in (("nonlinear", "native"), ("exact", "native"),
+                              ("nonlinear", "python"), ("stiffened", "python")):
+                cost = product_cost(name, fid, args.run_span, rep, fmus)
+                print(f"  {name + ', ' + fid + ' (' + fmus + ')':52s} {cost:.2g}", flush=True)
     if args.skip_error:
         return
     print(f"error of phi_o against 64 elements ({args.stop:g} s from pi/6, "
