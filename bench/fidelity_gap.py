@@ -7,19 +7,25 @@ beam by its generalized-alpha stepper with the controller's filter integrated by
 rule in the same Newton solve (:mod:`orchestration.studies.exact_loop`; its C kernel, or with
 ``--numpy`` its numpy specification: the same answers to round-off). Structural damping is off on both sides (so the
 damping laws, modal against Kelvin-Voigt, do not enter). For each initial angle: the largest
-``|phi_o|`` difference over the run, for the default rung and with ``plant.gravity_preload``, and
-the exact rung's own discretisation uncertainty (the mesh doubled, the step halved).
+``|phi_o|`` difference over the run, for the default rung, with ``plant.gravity_preload``, for the
+stiffened rung (``plant.fidelity = "stiffened"``, 4 modes and, in brackets, 8), and the exact
+rung's own discretisation uncertainty (the mesh doubled, the step halved).
 
-Measured (16 elements, h = 5e-5 against 1e-4 and 32 elements; 3 s; 1.5 min with the C kernel,
-5 min with ``--numpy``, the same digits):
+Measured (16 elements, h = 5e-5 against 1e-4 and 32 elements; 3 s; 4.3 min with the C kernel on
+a loaded machine, most of it the stiffened rung's references at 8 modes):
 
-    phi0     default   preload   (issue: default, preload)   exact: mesh      step   tip defl. max
-    0.0500  2.90e-04  5.05e-05   (3.00e-04, 7.10e-05)        2.0e-05        4.4e-05  0.26%
-    0.2000  9.34e-04  2.72e-04   (9.20e-04, 2.60e-04)        6.6e-05        1.4e-04  0.97%
-    0.5236  1.30e-03  1.48e-03   (1.27e-03, 1.49e-03)        7.6e-05        1.5e-04  1.78%
+    phi0     default   preload   stiffened  (8 modes)   (issue: default, preload)   exact: mesh      step   tip defl. max
+    0.0500  2.90e-04  5.05e-05  5.84e-05  (1.99e-05)   (3.00e-04, 7.10e-05)        2.0e-05        4.4e-05  0.26%
+    0.2000  9.34e-04  2.72e-04  2.11e-04  (6.07e-05)   (9.20e-04, 2.60e-04)        6.6e-05        1.4e-04  0.97%
+    0.5236  1.30e-03  1.48e-03  3.73e-04  (9.83e-05)   (1.27e-03, 1.49e-03)        7.6e-05        1.5e-04  1.78%
 
 The default rung's gap is 4 to 15 times the exact rung's uncertainty (mesh + step); the preload
-rung's at 0.05 rad (5.05e-5) is within it. The step column halves when h halves (0.05 rad: 9.0e-5
+rung's at 0.05 rad (5.05e-5) is within it. The stiffened rung closes 80, 77 and 71 % of the
+default rung's gap at 4 modes, and at 8 modes (20, 6.1 and 9.8e-5) it is within the exact rung's
+uncertainty at every angle (6.4e-5, 2.1e-4, 2.3e-4); unlike the default rung (1.4e-3 at 8 modes
+from pi/6, the issue), it converges in the mode count, because its geometric stiffness couples the
+modes. Against a finer exact reference (16 elements at h = 2.5e-5) the stiffened rung at 8 modes
+is 1.5e-5 and 3.3e-5 rad off at 0.05 and 0.2 rad. The step column halves when h halves (0.05 rad: 9.0e-5
 at 2e-4 against 1e-4, 4.4e-5 at 1e-4 against 5e-5), first order rather than the integrator's
 second: with no structural damping the mesh's high bending modes, excited by the undeformed start
 and above 1/h, ring at ~1e-5 rad in the tip slope and the integrator damps them by an amount that

@@ -17,9 +17,10 @@ With ``gravity_preload`` the geometric stiffness of the self-weight compression 
 ``-1/2 cos(phi) eta^T Kg eta`` (the beam's foreshortening lowers its centre of mass).
 
 The stiffened model (``fidelity = "stiffened"``, :class:`plant_fmu.dynamics.StiffenedPlantModel`)
-takes the beam as mass points (:func:`mass_points`): the Gauss points of the mesh with their masses,
-the mode shapes ``N(s_p)`` and the foreshortening matrices ``G(s_p) = int_0^s_p N'^T N' ds``, so
-that the axial shortening there is ``u_p = 1/2 eta^T G(s_p) eta``.
+takes the foreshortening's kinetic energy over mass points (:func:`mass_points`): Gauss points
+along the beam with their masses, the mode shapes ``N(s_p)`` and the foreshortening matrices
+``G(s_p) = int_0^s_p N'^T N' ds``, so that the axial shortening there is
+``u_p = 1/2 eta^T G(s_p) eta``.
 """
 from __future__ import annotations
 
@@ -246,43 +247,47 @@ def beam_model(p: PlantParams) -> Beam:
 
 @dataclass(frozen=True)
 class MassPoints:
-    """The beam as mass points for the stiffened model: 4 Gauss points per element (the rule is
-    exact for the consistent mass, so ``sum m N^T N = I`` and the other invariants to round-off)."""
+    """The beam as mass points for the stiffened model's foreshortening terms: a Gauss-Legendre
+    rule over the beam (``4 max(n, 4)`` points), with the mode shapes there and the foreshortening
+    matrices ``G(s) = int_0^s N'^T N' ds`` (the shortening is ``1/2 eta.G(s).eta``)."""
 
     s: np.ndarray   # (P,) arc length of each point, m
     m: np.ndarray   # (P,) its mass, kg
     N: np.ndarray   # (P, n) the mode shapes there
-    G: np.ndarray   # (P, n, n) int_0^s N'^T N' ds: the shortening there is 1/2 eta.G.eta
+    G: np.ndarray   # (P, n, n) int_0^s N'^T N' ds
+
+
+def _hermite_N(xi: np.ndarray, le: float) -> np.ndarray:
+    """The four Hermite shape functions at local coordinates ``xi`` in [0, 1]."""
+    return np.stack([1 - 3 * xi**2 + 2 * xi**3, le * (xi - 2 * xi**2 + xi**3),
+                     3 * xi**2 - 2 * xi**3, le * (xi**3 - xi**2)], axis=-1)
 
 
 @functools.lru_cache(maxsize=64)
 def _unit_points(n_elements: int, n_modes: int):
-    """:class:`MassPoints` of the unit beam (``L = rhoA = 1``): ``G`` exact (3-point Gauss on
-    each element and on the part of an element before a point: N'^2 is of degree 4)."""
+    """``(xi, weight, N, G)`` of the unit beam (``L = rhoA = 1``) at the Gauss-Legendre points:
+    the modes' Hermite interpolants there, ``G`` exact (3-point Gauss on each element before a
+    point and on the part of its own element: N'^2 is of degree 4)."""
     ne, n = n_elements, n_modes
     phi = _fe_modes_unit(ne)[1][:, :n]
     le = 1.0 / ne
-    gx, gw = np.polynomial.legendre.leggauss(4)
-    xi, gw = 0.5 * (gx + 1.0), 0.5 * gw
+    gx, gw = np.polynomial.legendre.leggauss(4 * max(n, 4))
+    xs, ws = 0.5 * (gx + 1.0), 0.5 * gw
     hx, hw = np.polynomial.legendre.leggauss(3)
     hx, hw = 0.5 * (hx + 1.0), 0.5 * hw
-    H = np.stack([1 - 3 * xi**2 + 2 * xi**3, le * (xi - 2 * xi**2 + xi**3), 3 * xi**2 - 2 * xi**3,
-                  le * (xi**3 - xi**2)], axis=-1)               # (4 points, 4 dofs)
-    s, m, N, G = [], [], [], []
-    acc = np.zeros((n, n))
+    acc = [np.zeros((n, n))]                            # G at each node
     for e in range(ne):
+        dw = _hermite_dN(hx, le) @ phi[2 * e:2 * e + 4]
+        acc.append(acc[-1] + (dw * (hw * le)[:, None]).T @ dw)
+    N, G = np.empty((xs.size, n)), np.empty((xs.size, n, n))
+    for k, x in enumerate(xs):
+        e = min(int(x * ne), ne - 1)
+        t = x * ne - e
         ve = phi[2 * e:2 * e + 4]
-        for k in range(xi.size):
-            dw = _hermite_dN(hx * xi[k], le) @ ve              # N' on [s_e, s_p]
-            G.append(acc + (dw * (hw * xi[k] * le)[:, None]).T @ dw)
-        dw = _hermite_dN(hx, le) @ ve
-        acc = acc + (dw * (hw * le)[:, None]).T @ dw
-        s.append(e * le + le * xi)
-        m.append(gw * le)
-        N.append(H @ ve)
-    P = xi.size * ne
-    out = (np.concatenate(s), np.concatenate(m), np.concatenate(N).reshape(P, n),
-           np.array(G).reshape(P, n, n))
+        N[k] = _hermite_N(np.array([t]), le)[0] @ ve
+        dw = _hermite_dN(hx * t, le) @ ve               # N' on [s_e, s]
+        G[k] = acc[e] + (dw * (hw * t * le)[:, None]).T @ dw
+    out = (xs, ws, N, G)
     for a in out:
         a.setflags(write=False)
     return out

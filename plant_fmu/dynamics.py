@@ -531,91 +531,89 @@ class StiffenedPlantModel(PlantModel):
 
     The beam is inextensible: a point at arc length ``s`` sits at ``s - u(s)`` along the beam axis
     ``b1 = (-sin phi, cos phi)`` and at ``w(s) = N(s) eta`` along ``b2 = (-cos phi, -sin phi)``,
-    with the foreshortening ``u(s) = 1/2 int_0^s w'^2 = 1/2 eta.G(s).eta``. Its kinetic energy
-    ``1/2 m xd^2 + 1/2 int rhoA |rd|^2`` and its weight ``g int rhoA y`` are taken in full for this
-    kinematics, as sums over the mass points of :func:`plant_fmu.beam.mass_points` (4 Gauss points
-    per element: the rigid and modal invariants come out exact); the strain energy is the
-    modes' ``1/2 eta.K.eta``. The equations are Lagrange's for them, written as Kane's (``r_p'' =
-    J_p qdd + c_p``): ``(m e_x e_x^T + sum m_p J_p^T J_p) qdd = F_c e_x + sum m_p J_p^T (g_p - c_p)
-    - K eta - D etad``, a symmetric positive definite mass matrix that depends on the state,
-    solved each evaluation; ``T + V`` is conserved without damping and force.
+    with the foreshortening ``u(s) = 1/2 int_0^s w'^2 = 1/2 eta.G(s).eta``. The Lagrangian is the
+    nonlinear model's with the preload (its kinetic energy, the weight with the foreshortening's
+    ``-1/2 cos(phi) eta.Kg.eta``, the strain) plus the kinetic energy the foreshortening adds,
+    ``dT = 1/2 int rhoA (|rd|^2 - |rd_0|^2) ds`` (``r_0``: the same point without ``u``), taken in
+    full over the mass points of :func:`plant_fmu.beam.mass_points`. The equations are Lagrange's
+    (``dT``'s as Kane's: ``r_p'' = J_p qdd + c_p``): ``M(q) qdd = f`` with ``M`` the nonlinear
+    model's plus ``sum m_p (J_p^T J_p - J0_p^T J0_p)``, symmetric, positive definite and
+    state-dependent, solved each evaluation; ``T + dT + V`` is conserved without damping and force.
 
     In the frame ``(b1, b2)``, with ``c, s = cos, sin phi``, ``w_p = N_p eta``,
-    ``u_p = 1/2 eta.G_p.eta``::
+    ``u_p = 1/2 eta.G_p.eta``, ``Ge_p = G_p eta``::
 
-        J_p, b1 row:  [-s, -w_p, -(G_p eta)^T]        J_p, b2 row:  [-c, s_p - u_p, N_p]
-        c_p = (-etad.G_p.etad - 2 wd_p phid - (s_p - u_p) phid^2,  -2 ud_p phid - w_p phid^2)
-        g_p = (-g c, g s)
+        J_p, b1 row:  [-s, -w_p, -Ge_p^T]         J_p, b2 row:  [-c, s_p - u_p, N_p]
+        -c_p, b1:  etad.G_p.etad + 2 wd_p phid + (s_p - u_p) phid^2
+        -c_p, b2:  2 ud_p phid + w_p phid^2                      (J0_p, c0_p: u_p = Ge_p = 0)
 
-    The modal equations' ``b1`` terms are the geometric stiffness: to first order in ``eta`` they
-    are ``K_G(t) eta`` with ``K_G = int N(s, t) N'^T N' ds`` and the axial load
-    ``N(s, t) = -int_s^L rhoA (a_b1 + g c) ds'``, ``a_b1 = -s xdd - s' phid^2`` the rigid
-    acceleration along the beam: ``K_G = -(g c - s xdd) Fa + phid^2 Fb`` with
-    ``Fa = int rhoA (L - s) N'^T N'`` and ``Fb = int rhoA (L^2 - s^2)/2 N'^T N'`` (the gravity
-    and the cart's acceleration along the beam compress it, the centrifugal load stretches it;
-    the angular acceleration and the accelerations across the beam load it transversely and enter
-    at third order). The axial load depends on ``xdd``: here that is a term of the mass matrix
-    (``M_x,eta = -c I3 + s Fa eta + ...``), no lagged acceleration. The second-order truncation of
-    ``T`` alone (``tests/test_stiffened.py`` derives it) is not used: its mass matrix loses
+    To first order in ``eta`` the modal equations then carry the geometric stiffness
+    ``K_G(t) = int N(s, t) N'^T N' ds = -(g c - s xdd) Fa + phid^2 Fb`` of the axial load
+    ``N(s, t) = -rhoA (L - s) (g c - s xdd) + rhoA phid^2 (L^2 - s^2)/2``
+    (``Fa = int rhoA (L - s) N'^T N' = Kg / g``, ``Fb = int rhoA (L^2 - s^2)/2 N'^T N'``): the
+    gravity and the cart's acceleration along the beam compress it, the centrifugal load stretches
+    it; the angular acceleration and the accelerations across the beam load it transversely and
+    enter at third order. The load's ``xdd`` is a term of the mass matrix (``M_x,eta`` gains
+    ``s Fa eta``), not a lagged acceleration. ``dT`` is kept in full rather than to second order
+    (``tests/test_stiffened.py`` derives that truncation too): truncated, the mass matrix loses
     positive definiteness once ``eta.(Fb - I).eta`` exceeds the rotation's residual inertia
     ``I2 - I5.I5`` (3.2e-3 kg m^2 at 4 modes, 4.1e-4 at 8), which the filtered scene reaches from
     pi/6 at 8 modes within 0.04 s.
 
-    At the upright rest state the linearisation is the preload rung's (``Kg = g Fa``), whatever
-    ``gravity_preload`` says: the stiffened model always carries the self-weight.
+    At the upright rest state ``dT`` is of fourth order: the linearisation is the preload rung's,
+    whatever ``gravity_preload`` says (the stiffened model always carries the self-weight).
     """
 
     def __init__(self, p: PlantParams):
         super().__init__(p.replace(gravity_preload=True))
         self.params = p
         self.points = mass_points(p.replace(gravity_preload=False))
-        self.m_cart = p.m
 
-    def _frame(self, q):
-        """``(c, s, J1, J2, w, Ge, u)``: the rows of ``J_p`` along b1 and b2 (P x nq)."""
+    def _rows(self, q, qd):
+        """Per point, the rows of ``J_p`` along b1 and b2 (P x nq) with and without ``u``, and
+        ``-c_p`` with and without it."""
         pts, n = self.points, self.n
         c, s = math.cos(q[1]), math.sin(q[1])
-        eta = q[2:]
-        w = pts.N @ eta
-        Ge = pts.G @ eta                                    # (P, n)
+        eta, phid, etad = q[2:], qd[1], qd[2:]
+        w, Ge = pts.N @ eta, pts.G @ eta
         u = 0.5 * (Ge @ eta)
         P = pts.s.size
-        J1, J2 = np.empty((P, n + 2)), np.empty((P, n + 2))
-        J1[:, 0], J1[:, 1], J1[:, 2:] = -s, -w, -Ge
-        J2[:, 0], J2[:, 1], J2[:, 2:] = -c, pts.s - u, pts.N
-        return c, s, J1, J2, w, Ge, u
+        J1, J2 = np.zeros((P, n + 2)), np.zeros((P, n + 2))
+        J1[:, 0], J1[:, 1] = -s, -w
+        J2[:, 0], J2[:, 1], J2[:, 2:] = -c, pts.s, pts.N
+        J01, J02 = J1.copy(), J2.copy()
+        J1[:, 2:] = -Ge
+        J2[:, 1] -= u
+        wd, ud = pts.N @ etad, Ge @ etad
+        r01 = 2.0 * wd * phid + pts.s * phid * phid
+        r02 = w * phid * phid
+        r1 = (pts.G @ etad) @ etad + 2.0 * wd * phid + (pts.s - u) * phid * phid
+        r2 = 2.0 * ud * phid + w * phid * phid
+        return (J1, J2, r1, r2), (J01, J02, r01, r02)
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
-        _, _, J1, J2, *_ = self._frame(q)
+        (J1, J2, *_), (J01, J02, *_) = self._rows(q, np.zeros(self.nq))
         m = self.points.m[:, None]
-        M = J1.T @ (m * J1) + J2.T @ (m * J2)
-        M[0, 0] += self.m_cart
-        return M
+        dM = J1.T @ (m * J1) + J2.T @ (m * J2) - J01.T @ (m * J01) - J02.T @ (m * J02)
+        return super().mass_matrix(q) + dM
 
     def forces(self, q: np.ndarray, qd: np.ndarray, u: float) -> np.ndarray:
-        pts = self.points
-        c, s, J1, J2, w, Ge, uu = self._frame(q)
-        phid, etad = qd[1], qd[2:]
-        wd, ud = pts.N @ etad, Ge @ etad
-        eGe = (pts.G @ etad) @ etad
-        r1 = -self.g * c + eGe + 2.0 * wd * phid + (pts.s - uu) * phid * phid
-        r2 = self.g * s + 2.0 * ud * phid + w * phid * phid
-        f = J1.T @ (pts.m * r1) + J2.T @ (pts.m * r2)
-        f[0] += u
-        f[2:] -= self.Kdiag * q[2:] + self.Ddiag * etad
-        return f
+        (J1, J2, r1, r2), (J01, J02, r01, r02) = self._rows(q, qd)
+        m = self.points.m
+        df = J1.T @ (m * r1) + J2.T @ (m * r2) - J01.T @ (m * r01) - J02.T @ (m * r02)
+        return super().forces(q, qd, u) + df
 
     def accelerations(self, q: np.ndarray, qd: np.ndarray, u: float) -> np.ndarray:
         return np.linalg.solve(self.mass_matrix(q), self.forces(q, qd, u))
 
     def energy_numpy(self, x: np.ndarray) -> float:
-        """``T + V``: ``1/2 qd.M(q).qd``, the weight of the mass points and the strain."""
+        """The nonlinear model's ``T + V`` with the preload, plus ``dT``."""
         nq = self.nq
-        q, qd = x[:nq], x[nq:]
-        c, s, _, _, w, _, u = self._frame(q)
-        y = (self.points.s - u) * c - w * s
-        V = self.g * float(self.points.m @ y) + 0.5 * float(self.Kdiag @ (q[2:] * q[2:]))
-        return float(0.5 * qd @ self.mass_matrix(q) @ qd + V)
+        qd = x[nq:]
+        (J1, J2, *_), (J01, J02, *_) = self._rows(x[:nq], qd)
+        dT = 0.5 * float(self.points.m @ ((J1 @ qd) ** 2 + (J2 @ qd) ** 2 - (J01 @ qd) ** 2
+                                          - (J02 @ qd) ** 2))
+        return super().energy_numpy(x) + dT
 
     def _no_jacobian(self, *args, **kwargs):
         raise ValueError("the exact Jacobians and output derivatives are not available for "

@@ -57,8 +57,7 @@ class _Plant(ctypes.Structure):
                 ("I0", _D), ("I1", _D), ("I2", _D), ("g", _D),
                 ("I3", _P), ("I5", _P), ("K", _P), ("D", _P), ("Kg", _P), ("tip_slope", _P),
                 ("tip_defl", _P), ("nx", ctypes.c_int), ("I3I3", _D), ("I3I5", _D), ("I5I5", _D),
-                ("stiffened", ctypes.c_int), ("npts", ctypes.c_int), ("pts", _P),
-                ("m_cart", _D)]
+                ("stiffened", ctypes.c_int), ("npts", ctypes.c_int), ("pts", _P)]
 
 
 class _Tableau(ctypes.Structure):

@@ -10,6 +10,9 @@ are expanded as polynomials in ``s``, ``N_j`` and ``G_jk``, and each monomial's 
 ``int rhoA (...) ds`` becomes one symbol (its value: the sum over the model's mass points, which
 the numpy model never forms). Strain energy ``1/2 eta^T K eta``, Rayleigh dissipation and the force
 on the cart complete the Lagrangian; sympy forms Lagrange's equations, the numpy model Kane's.
+The moments without ``G`` are the invariants, and ``int rhoA G`` in the weight is ``Kg / g`` (the
+model: the nonlinear model with the preload plus the foreshortening's kinetic energy over its
+points).
 """
 import math
 
@@ -17,7 +20,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from plant_fmu.beam import analytic_mode_shape, mass_points
+from plant_fmu.beam import analytic_mode_shape, beam_model, mass_points
 from plant_fmu.dynamics import model_for, plant_model, stiffened_plant_model
 from plant_fmu.params import PlantParams
 
@@ -44,19 +47,20 @@ def _derive(n: int):
     rd = r.diff(t)
     moments = {}
 
-    def integrate(expr):
-        """int rhoA (polynomial in s, N_j, G_jk) ds: one symbol per monomial."""
+    def integrate(expr, tag):
+        """int rhoA (polynomial in s, N_j, G_jk) ds: one symbol per monomial (and ``tag``: the
+        kinetic and the potential energy's moments may be computed differently)."""
         poly = sp.Poly(sp.expand(expr), s, *N, *gsyms)
         total = sp.Integer(0)
         for powers, coeff in poly.terms():
-            key = powers
+            key = (tag, powers)
             if key not in moments:
                 moments[key] = sp.Symbol(f"mom{len(moments)}")
             total += coeff * moments[key]
         return total
 
-    T = sp.Rational(1, 2) * m * x.diff(t) ** 2 + sp.Rational(1, 2) * integrate(rd.dot(rd))
-    V = g * integrate(r[1]) + sum(sp.Rational(1, 2) * K[j] * eta[j] ** 2 for j in range(n))
+    T = sp.Rational(1, 2) * m * x.diff(t) ** 2 + sp.Rational(1, 2) * integrate(rd.dot(rd), "T")
+    V = g * integrate(r[1], "V") + sum(sp.Rational(1, 2) * K[j] * eta[j] ** 2 for j in range(n))
     R = sum(sp.Rational(1, 2) * D[j] * eta[j].diff(t) ** 2 for j in range(n))
     L = T - V
     Q = [F] + [0] * (n + 1)
@@ -86,24 +90,36 @@ def derived():
     return _derive(N_MODES)
 
 
-def _moments(pts, keys, gidx):
-    """``sum_p m_p s_p^a prod N_j(s_p)^b prod G_jk(s_p)^c`` for each monomial ``(a, b.., c..)``."""
-    n = pts.N.shape[1]
+def _moments(p, model, keys, gidx):
+    """The value of each moment ``int rhoA s^a prod N_j^b prod G_jk^c``: without ``G``, the
+    invariants (``rhoA L, I1, I2, I3, I5``; ``I4 = I``); with ``G``, in the kinetic energy, the
+    sum over the model's mass points; ``int rhoA G = Kg / g`` in the potential (the preload's)."""
+    n, pts, b = model.n, model.points, model.beam
+    Fa = beam_model(p.replace(gravity_preload=True, g=1.0)).Kg
     out = []
-    for key in keys:
-        v = pts.m * pts.s ** key[0]
-        for j, pw in enumerate(key[1:1 + n]):
-            v = v * pts.N[:, j] ** pw
-        for (i, j), pw in zip(gidx, key[1 + n:]):
-            v = v * pts.G[:, i, j] ** pw
-        out.append(float(np.sum(v)))
+    for tag, key in keys:
+        ps, pn, pg = key[0], key[1:1 + n], key[1 + n:]
+        idx = [j for j, k in enumerate(pn) for _ in range(k)]
+        if not any(pg):
+            out.append({(0, 0): p.rhoA * p.L, (1, 0): b.I1, (2, 0): b.I2}[ps, 0] if not idx else
+                       (b.I3, b.I5)[ps][idx[0]] if len(idx) == 1 else float(idx[0] == idx[1]))
+        elif tag == "V":
+            assert ps == 0 and not idx and sum(pg) == 1
+            out.append(Fa[gidx[pg.index(1)]])
+        else:
+            v = pts.m * pts.s ** ps
+            for j, k in enumerate(pn):
+                v = v * pts.N[:, j] ** k
+            for (i, j), k in zip(gidx, pg):
+                v = v * pts.G[:, i, j] ** k
+            out.append(float(np.sum(v)))
     return out
 
 
 def _values(p, model, sym, F):
     keys, gidx = sym
     b = model.beam
-    return [p.m, p.g, F, *np.diag(b.K), *np.diag(b.D), *_moments(model.points, keys, gidx)]
+    return [p.m, p.g, F, *np.diag(b.K), *np.diag(b.D), *_moments(p, model, keys, gidx)]
 
 
 def _random_states(n, count, seed):

@@ -44,13 +44,11 @@ int fp_plant_prepare(fp_plant *p)
         || !finite_array(p->tip_defl, n))
         return FP_BADARG;
     if (p->preload && !finite_array(p->Kg, (long)n * n)) return FP_BADARG;
-    if (p->stiffened && (p->linear || n + 2 > FP_STIFF_NQMAX || p->npts < 1
+    if (p->stiffened && (p->linear || (n > 0 && !p->preload) || n + 2 > FP_STIFF_NQMAX
+                         || p->npts < 1
                          || !finite_array(p->pts, (long)p->npts * (2 + n + n * n))))
         return FP_BADARG;
     p->stiffened = p->stiffened != 0;
-    p->m_cart = p->I0;
-    if (p->stiffened)
-        for (j = 0; j < p->npts; j++) p->m_cart -= p->pts[(size_t)j * (2 + n + n * n) + 1];
     p->preload = (p->preload != 0) && n > 0;
     p->linear = p->linear != 0;
     p->nx = 2 * (n + 2);
@@ -198,9 +196,10 @@ static void rhs_linear(const fp_plant *p, const double *x, double u, double *out
     for (j = 0; j < n; j++) out[nq + 2 + j] += xdd * I3[j] - phidd * I5[j];
 }
 
-/* The stiffened model: dynamics.py, StiffenedPlantModel (Kane's equations over the mass points:
- * M = m_cart e_x e_x^T + sum m_p (J1 J1^T + J2 J2^T), f = F e_x + sum m_p (J1 r1 + J2 r2) - K eta
- * - D etad, solved by Cholesky). J1, J2: the rows of dr_p/dq along b1 and b2; r = g_p - c_p. */
+/* The stiffened model: dynamics.py, StiffenedPlantModel. M and f of the nonlinear model with the
+ * preload (PlantModel.mass_matrix, .forces), plus the foreshortening's kinetic terms over the mass
+ * points (Kane's: sum m_p (J J^T - J0 J0^T) and sum m_p (J r - J0 r0) along b1 and b2), solved by
+ * Cholesky. */
 static const double *stiff_point(const fp_plant *p, int k, double *sp, double *mp,
                                  const double **N)
 {
@@ -212,15 +211,21 @@ static const double *stiff_point(const fp_plant *p, int k, double *sp, double *m
     return pt + 2 + n;
 }
 
-/* J1, J2 (nq each) of one point, and w, wd, u, ud, etad.G.etad. */
-static void stiff_rows(const fp_plant *p, const double *x, int k, double c, double s, double *J1,
-                       double *J2, double *sp, double *mp, double *w, double *wd, double *u,
-                       double *ud, double *eGe)
+/* One point's rows of J along b1 and b2 with u (J1, J2) and without (J01, J02; only the columns
+ * that differ: J1[2..] = -G eta, J2[1] = s_p - u), and -c_p with and without u. */
+typedef struct stiff_pt {
+    double m, J1[FP_STIFF_NQMAX], J2[FP_STIFF_NQMAX], J01[FP_STIFF_NQMAX], J02[FP_STIFF_NQMAX];
+    double r1, r2, r01, r02;
+} stiff_pt;
+
+static void stiff_rows(const fp_plant *p, const double *x, int k, double c, double s,
+                       stiff_pt *P)
 {
     const int n = p->n, nq = n + 2;
-    const double *N, *G = stiff_point(p, k, sp, mp, &N);
+    const double phid = x[nq + 1];
+    double sp, w = 0.0, wd = 0.0, u = 0.0, ud = 0.0, eGe = 0.0;
+    const double *N, *G = stiff_point(p, k, &sp, &P->m, &N);
     int i, j;
-    *w = *wd = *u = *ud = *eGe = 0.0;
     for (i = 0; i < n; i++) {
         const double *row = G + (size_t)i * n;
         double ge = 0.0, ged = 0.0;
@@ -228,42 +233,73 @@ static void stiff_rows(const fp_plant *p, const double *x, int k, double c, doub
             ge += row[j] * x[2 + j];
             ged += row[j] * x[nq + 2 + j];
         }
-        *w += N[i] * x[2 + i];
-        *wd += N[i] * x[nq + 2 + i];
-        *u += 0.5 * ge * x[2 + i];
-        *ud += ge * x[nq + 2 + i];
-        *eGe += ged * x[nq + 2 + i];
-        J1[2 + i] = -ge;
-        J2[2 + i] = N[i];
+        w += N[i] * x[2 + i];
+        wd += N[i] * x[nq + 2 + i];
+        u += 0.5 * ge * x[2 + i];
+        ud += ge * x[nq + 2 + i];
+        eGe += ged * x[nq + 2 + i];
+        P->J1[2 + i] = -ge;
+        P->J01[2 + i] = 0.0;
+        P->J2[2 + i] = P->J02[2 + i] = N[i];
     }
-    J1[0] = -s;
-    J1[1] = -*w;
-    J2[0] = -c;
-    J2[1] = *sp - *u;
+    P->J1[0] = P->J01[0] = -s;
+    P->J1[1] = P->J01[1] = -w;
+    P->J2[0] = P->J02[0] = -c;
+    P->J2[1] = sp - u;
+    P->J02[1] = sp;
+    P->r01 = 2.0 * wd * phid + sp * phid * phid;
+    P->r02 = w * phid * phid;
+    P->r1 = eGe + 2.0 * wd * phid + (sp - u) * phid * phid;
+    P->r2 = 2.0 * ud * phid + w * phid * phid;
 }
 
 static void rhs_stiffened(const fp_plant *p, const double *x, double u, double *out)
 {
     const int n = p->n, nq = n + 2;
+    const double *I3 = p->I3, *I5 = p->I5;
     const double phid = x[nq + 1], c = cos(x[1]), s = sin(x[1]);
     double M[FP_STIFF_NQMAX * FP_STIFF_NQMAX], f[FP_STIFF_NQMAX];
-    double J1[FP_STIFF_NQMAX], J2[FP_STIFF_NQMAX];
+    double I3eta = 0.0, I3etad = 0.0, ee = 0.0, eed = 0.0;
+    stiff_pt P;
     int i, j, k;
+    /* the nonlinear model with the preload (upper triangle of M) */
     for (i = 0; i < nq * nq; i++) M[i] = 0.0;
-    for (i = 0; i < nq; i++) f[i] = 0.0;
+    for (j = 0; j < n; j++) {
+        const double e = x[2 + j], ed = x[nq + 2 + j];
+        const double *row = p->Kg + (size_t)j * n;
+        double kge = 0.0;
+        for (k = 0; k < n; k++) kge += row[k] * x[2 + k];
+        I3eta += I3[j] * e;
+        I3etad += I3[j] * ed;
+        ee += e * e;
+        eed += e * ed;
+        f[2 + j] = phid * phid * e + p->g * s * I3[j] - p->K[j] * e - p->D[j] * ed + c * kge;
+        M[0 * nq + 2 + j] = -c * I3[j];
+        M[1 * nq + 2 + j] = I5[j];
+        M[(2 + j) * nq + 2 + j] = 1.0;
+    }
+    f[0] = u - (p->I1 * s + I3eta * c) * phid * phid - 2.0 * phid * s * I3etad;
+    f[1] = -2.0 * phid * eed + p->g * (p->I1 * s + I3eta * c);
+    for (j = 0; j < n; j++) {
+        const double *row = p->Kg + (size_t)j * n;
+        double kge = 0.0;
+        for (k = 0; k < n; k++) kge += row[k] * x[2 + k];
+        f[1] -= 0.5 * s * x[2 + j] * kge;
+    }
+    M[0] = p->I0;
+    M[1] = -p->I1 * c + s * I3eta;
+    M[nq + 1] = p->I2 + ee;
+    /* the foreshortening's kinetic terms */
     for (k = 0; k < p->npts; k++) {
-        double sp, mp, w, wd, uu, ud, eGe, r1, r2;
-        stiff_rows(p, x, k, c, s, J1, J2, &sp, &mp, &w, &wd, &uu, &ud, &eGe);
-        r1 = -p->g * c + eGe + 2.0 * wd * phid + (sp - uu) * phid * phid;
-        r2 = p->g * s + 2.0 * ud * phid + w * phid * phid;
+        stiff_rows(p, x, k, c, s, &P);
         for (i = 0; i < nq; i++) {
-            f[i] += mp * (J1[i] * r1 + J2[i] * r2);
-            for (j = i; j < nq; j++) M[i * nq + j] += mp * (J1[i] * J1[j] + J2[i] * J2[j]);
+            f[i] += P.m * (P.J1[i] * P.r1 + P.J2[i] * P.r2 - P.J01[i] * P.r01
+                           - P.J02[i] * P.r02);
+            for (j = i; j < nq; j++)
+                M[i * nq + j] += P.m * (P.J1[i] * P.J1[j] + P.J2[i] * P.J2[j]
+                                        - P.J01[i] * P.J01[j] - P.J02[i] * P.J02[j]);
         }
     }
-    M[0] += p->m_cart;
-    f[0] += u;
-    for (j = 0; j < n; j++) f[2 + j] -= p->K[j] * x[2 + j] + p->D[j] * x[nq + 2 + j];
     /* Cholesky M = R^T R in the upper triangle, then R^T y = f, R a = y (a into f) */
     for (i = 0; i < nq; i++) {
         double d = M[i * nq + i];
@@ -290,26 +326,25 @@ static void rhs_stiffened(const fp_plant *p, const double *x, double u, double *
     }
 }
 
-/* T + V of the stiffened model (StiffenedPlantModel.energy_numpy). */
-static double energy_stiffened(const fp_plant *p, const double *x)
+/* The foreshortening's kinetic energy (StiffenedPlantModel.energy_numpy's dT). */
+static double stiffened_dT(const fp_plant *p, const double *x, double c, double s)
 {
-    const int n = p->n, nq = n + 2;
-    const double c = cos(x[1]), s = sin(x[1]), xd = x[nq];
-    double J1[FP_STIFF_NQMAX], J2[FP_STIFF_NQMAX];
-    double T = 0.5 * p->m_cart * xd * xd, V = 0.0, strain = 0.0;
+    const int nq = p->n + 2;
+    double dT = 0.0;
+    stiff_pt P;
     int i, k;
     for (k = 0; k < p->npts; k++) {
-        double sp, mp, w, wd, uu, ud, eGe, v1 = 0.0, v2 = 0.0;
-        stiff_rows(p, x, k, c, s, J1, J2, &sp, &mp, &w, &wd, &uu, &ud, &eGe);
+        double v1 = 0.0, v2 = 0.0, v01 = 0.0, v02 = 0.0;
+        stiff_rows(p, x, k, c, s, &P);
         for (i = 0; i < nq; i++) {
-            v1 += J1[i] * x[nq + i];
-            v2 += J2[i] * x[nq + i];
+            v1 += P.J1[i] * x[nq + i];
+            v2 += P.J2[i] * x[nq + i];
+            v01 += P.J01[i] * x[nq + i];
+            v02 += P.J02[i] * x[nq + i];
         }
-        T += 0.5 * mp * (v1 * v1 + v2 * v2);
-        V += mp * ((sp - uu) * c - w * s);
+        dT += 0.5 * P.m * (v1 * v1 + v2 * v2 - v01 * v01 - v02 * v02);
     }
-    for (i = 0; i < n; i++) strain += p->K[i] * x[2 + i] * x[2 + i];
-    return T + p->g * V + 0.5 * strain;
+    return dT;
 }
 
 void fp_rhs(const fp_plant *p, const double *x, double u, double *dx)
@@ -331,7 +366,6 @@ double fp_energy(const fp_plant *p, const double *x)
     double I3eta = 0.0, I3etad = 0.0, ee = 0.0, I5etad = 0.0, etadetad = 0.0, strain = 0.0;
     double T, V, ekge = 0.0;
     int j, k;
-    if (p->stiffened) return energy_stiffened(p, x);
     for (j = 0; j < n; j++) {
         const double e = x[2 + j], ed = x[nq + 2 + j];
         I3eta += I3[j] * e;
@@ -360,6 +394,7 @@ double fp_energy(const fp_plant *p, const double *x)
              + 0.5 * phid * phid * (p->I2 + ee) + phid * I5etad + 0.5 * etadetad);
         V = p->g * (p->I1 * c - s * I3eta) + 0.5 * strain;
         if (p->preload) V -= 0.5 * c * ekge;
+        if (p->stiffened) T += stiffened_dT(p, x, c, s);
         return T + V;
     }
 }

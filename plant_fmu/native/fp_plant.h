@@ -88,14 +88,13 @@ typedef struct fp_plant {
     const double *tip_defl;      /* in: (n) N(L), m per unit modal coordinate */
     int nx;                      /* derived: state size 2 (n + 2) */
     double I3I3, I3I5, I5I5;     /* derived: dot products of I3 and I5 */
-    /* The stiffened floating frame (dynamics.py, StiffenedPlantModel): the beam as mass points
-     * with the foreshortening u_p = 1/2 eta.G_p.eta, Kane's equations solved by Cholesky. It needs
-     * linear = 0 and n + 2 <= FP_STIFF_NQMAX; the exact Jacobians and output derivatives refuse it
-     * (FP_BADARG). */
+    /* The stiffened floating frame (dynamics.py, StiffenedPlantModel): the nonlinear model with
+     * the preload (preload = 1, Kg) plus the foreshortening's kinetic energy over mass points
+     * (u_p = 1/2 eta.G_p.eta). It needs linear = 0 and n + 2 <= FP_STIFF_NQMAX; the exact
+     * Jacobians and output derivatives refuse it (FP_BADARG). */
     int stiffened;               /* in: 1 the stiffened model (0: the fields below are unused) */
     int npts;                    /* in: mass points P >= 1 */
     const double *pts;           /* in: P x (2 + n + n^2): s_p, m_p, N(s_p), G(s_p) row-major */
-    double m_cart;               /* derived: I0 - sum m_p (the cart's mass) */
 } fp_plant;
 
 /* A Butcher tableau of an explicit method: A (stages x stages, strictly lower), B, C (stages);
