@@ -24,6 +24,10 @@ The Jacobian at any state (``jacobian_numpy``, ``output_jacobian_numpy``): ``d q
 of the Lagrange equations (``tests/test_lagrange.py``); ``state_space`` is its value at the
 upright rest state.
 
+:class:`StiffenedPlantModel` (``fidelity = "stiffened"``) adds the kinetic energy of the beam's
+foreshortening to this model with the preload: the motion-dependent geometric stiffness
+(:func:`model_for` picks the model of a fidelity).
+
 The hot paths (``rhs``, ``tip_angle``, ``energy`` and the steppers' loops) run the compiled C
 kernel (:mod:`plant_fmu.kernel`, ``native/fp_plant.c``), which receives the invariants computed
 here; the ``*_numpy`` methods are the readable specification it is tested against.
