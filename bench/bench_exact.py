@@ -6,13 +6,15 @@ after one untimed warm-up, one core):
 * **plant alone**, the force held over each 1 ms communication step as an FMU's doStep holds it
   (zero, from the undeformed beam at pi/6: the pendulum falls freely over the timed span): the
   floating-frame kernel (the default rung: 4 modes, RK4 at 4 substeps per ms, ``fp_fixed_steps``),
+  the stiffened rung's the same way (``plant.fidelity = "stiffened"``),
   the exact rung's C kernel (``fp_exact_steps``, 10 generalized-alpha substeps of 0.1 ms per ms)
   and its numpy specification (``GeneralizedAlpha.step``) on the same mesh;
 * **closed loop**, the paper's filtered scene (``flexible_pd_lowpass``) monolithic
   (``orchestration.studies.exact_loop``: the controller's filter in numpy each step, the force law
   inside the step's Newton), C kernel and numpy, at h = 0.1 ms;
-* **flexpend run**, the three paper scenes through the product (native FMUs, master) at the
-  exact rung and at the default one (``--run-span``).
+* **flexpend run**, the three paper scenes through the product (the master) at the exact rung
+  and at the default one (native FMUs), and at the default and the stiffened rungs with the
+  pythonfmu plant, the stiffened rung's (``--run-span``).
 
 Error against the element count: the filtered scene, 3 s from pi/6 (the paper's, with its
 ``zeta = 0.1 %`` as the Kelvin-Voigt law), by the C kernel at h = 0.1 ms: the largest ``|phi_o|``
@@ -24,6 +26,7 @@ about 2 min):
 
     plant alone, held force, s of wall time per simulated s (median of 3, 0.2 s spans):
       floating frame, 4 modes, RK4 h = 0.25 ms (kernel)    0.0024
+      stiffened frame, 4 modes, RK4 h = 0.25 ms (kernel)   0.033     (a later run, below)
       exact, 8 elements, h = 0.1 ms, C kernel              0.27
       exact, 8 elements, h = 0.1 ms, numpy                 6.6
       exact, 16 elements, h = 0.1 ms, C kernel             0.6
@@ -46,6 +49,13 @@ wall time per simulated second (median of 3, 1 s runs; ``--skip-error``, 15 s):
       flexible_pd, exact                                   0.53      (h = 0.125 ms)
       flexible_pd_lowpass, nonlinear                       0.0014
       flexible_pd_lowpass, exact                           0.27      (h = 0.25 ms)
+
+The stiffened rung beside them (one later run, a busier machine: the default rung 0.0024, exact
+at 8 elements 0.35; ``--skip-error``): 0.033 s per simulated s on the plant alone (2.6 us a
+right-hand side against the default rung's 1.0, 4.0 against 1.0 at 8 modes), a tenth of the exact
+rung's; through the product, pythonfmu plant: 0.048 / 0.52 / 0.10 s on rigid_pd / flexible_pd /
+flexible_pd_lowpass, against 0.03 / 0.35 / 0.078 for the default rung with the same plant and
+0.33 / 0.71 / 0.54 for the exact rung (native) in that run.
 
 The C kernel is ~25 times faster than the numpy specification on the plant alone (27 us a
 0.1 ms step at 8 elements: about two Newton iterations, one tangent), and ~110 times slower than
