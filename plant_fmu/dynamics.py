@@ -558,8 +558,8 @@ class StiffenedPlantModel(PlantModel):
     gravity and the cart's acceleration along the beam compress it, the centrifugal load stretches
     it; the angular acceleration and the accelerations across the beam load it transversely and
     enter at third order. The load's ``xdd`` is a term of the mass matrix (``M_x,eta`` gains
-    ``s Fa eta``), not a lagged acceleration. ``dT`` is kept in full rather than to second order
-    (``tests/test_stiffened.py`` derives that truncation too): truncated, the mass matrix loses
+    ``s Fa eta``), not a lagged acceleration (``tests/test_stiffened.py`` checks this ``K_G``). ``dT``
+    is kept in full rather than to second order: truncated, the mass matrix loses
     positive definiteness once ``eta.(Fb - I).eta`` exceeds the rotation's residual inertia
     ``I2 - I5.I5`` (3.2e-3 kg m^2 at 4 modes, 4.1e-4 at 8), which the filtered scene reaches from
     pi/6 at 8 modes within 0.04 s.

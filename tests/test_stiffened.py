@@ -210,6 +210,40 @@ def test_the_second_order_truncation_loses_the_mass_matrix_where_the_full_one_ho
     assert np.all(np.isfinite(model.rhs(0.0, np.r_[q, np.zeros(10)], 0.0)))
 
 
+def test_first_order_modal_equations_carry_the_axial_loads_geometric_stiffness():
+    """To first order in eta, the stiffened rung's modal equations differ from the nonlinear
+    model's (no preload) by ``K_G eta`` with ``K_G = -(g c - s xdd) Fa + phid^2 Fb``: the
+    geometric stiffness of the axial load of gravity, the cart's acceleration along the beam and
+    the centrifugal load, whatever the angular acceleration. ``Fa = Kg / g``;
+    ``Fb = int rhoA (L^2 - s^2)/2 N'^T N'`` by Gauss on each element (not the model's points)."""
+    from plant_fmu.beam import _fe_modes_unit, _hermite_dN
+
+    p = PlantParams(n_modes=4, L=1.2, rho=6e3)
+    st, nl = stiffened_plant_model(p), plant_model(p)
+    n, ne = p.n_modes, p.n_elements
+    phi_u = _fe_modes_unit(ne)[1][:, :n]
+    gx, gw = np.polynomial.legendre.leggauss(4)
+    xi, gw = 0.5 * (gx + 1.0), 0.5 * gw
+    Fb = np.zeros((n, n))
+    for e in range(ne):
+        dw = _hermite_dN(xi, 1.0 / ne) @ phi_u[2 * e:2 * e + 4]
+        xs = (e + xi) / ne
+        Fb += (dw * (gw * 0.5 * (1 - xs * xs) / ne)[:, None]).T @ dw      # dimensionless
+    Fa = beam_model(p.replace(gravity_preload=True, g=1.0)).Kg
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        eps, v = 1e-7, rng.standard_normal(n)
+        phi, phid = rng.uniform(-1.5, 1.5), 3.0 * rng.standard_normal()
+        a = np.r_[10.0 * rng.standard_normal(2), np.zeros(n)]            # xdd, phidd
+        q, qd = np.r_[0.2, phi, eps * v], np.r_[0.3, phid, np.zeros(n)]
+        res = lambda m: (m.mass_matrix(q) @ a - m.forces(q, qd, 0.0))[2:]  # noqa: E731
+        c, s = math.cos(phi), math.sin(phi)
+        KG = -(p.g * c - s * a[0]) * Fa + phid * phid * Fb
+        want = KG @ v
+        np.testing.assert_allclose((res(st) - res(nl)) / eps, want,
+                                   rtol=0, atol=1e-4 * np.abs(want).max())
+
+
 def test_energy_is_conserved_without_damping_and_force():
     """Lagrange's equations of a conservative system: ``T + V`` stays constant along a tight
     solution from a tilted, spinning, deformed start (the nonlinear model's energy with the same
