@@ -15,6 +15,8 @@ model: the nonlinear model with the preload plus the foreshortening's kinetic en
 points).
 """
 import math
+import shutil
+import subprocess
 
 import numpy as np
 import pytest
@@ -83,6 +85,8 @@ def _derive(n: int):
 
 
 N_MODES = 2
+RK4 = dict(A=[[0, 0, 0, 0], [0.5, 0, 0, 0], [0, 0.5, 0, 0], [0, 0, 1, 0]],
+           B=[1 / 6, 1 / 3, 1 / 3, 1 / 6], C=[0, 0.5, 0.5, 1])
 
 
 @pytest.fixture(scope="module")
@@ -365,3 +369,50 @@ def test_closer_to_the_exact_rung_than_the_default_rung():
         d_st = np.max(np.abs(simulate_reference(st, rtol=1e-10)["phi_o"] - exact))
         print(phi0, d_def, d_st)
         assert d_st < 0.6 * d_def, (phi0, d_st, d_def)
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+@pytest.mark.parametrize("n", [1, 8])
+def test_the_stiffened_kernel_under_the_sanitizers(tmp_path, n):
+    """``rhs_stiffened`` and its energy built with AddressSanitizer and UBSan
+    (tests/native/stiffened_check.c): no memory error or undefined behaviour, the rhs and energy
+    the numpy specification's, the Jacobian refused, and 40 RK4 substeps those of the Python
+    kernel (the same code, so to round-off)."""
+    from fmu_common import kernels
+
+    plant = kernels.native_dir("flexpend_plant")
+    exe = tmp_path / "stiffened_check"
+    cmd = ["gcc", *kernels.CFLAGS, "-O1", "-g", "-fsanitize=address,undefined",
+           "-fno-sanitize-recover=all", f"-I{plant}", "-o", str(exe),
+           str(kernels.ROOT / "tests" / "native" / "stiffened_check.c"),
+           str(plant / "fp_plant.c"), "-lm"]
+    cmd.remove("-fvisibility=hidden")
+    build = subprocess.run(cmd, capture_output=True, text=True)
+    assert build.returncode == 0, build.stderr
+    model = stiffened_plant_model(PlantParams(n_modes=n, zeta=0.01))
+    pts = model.points
+    x = model.initial_state(phi=0.4, phi_dot=1.5, x_dot=-0.3)
+    x[2:n + 2] = 2e-3 * np.cos(np.arange(n))
+    u = 37.0
+    data = [model.I0, model.I1, model.I2, model.g, *model.I3, *model.I5,
+            *model.Kdiag, *model.Ddiag, *model.tip_slope, *model.tip_defl, *np.ravel(model.Kg),
+            *np.ravel(np.hstack([pts.s[:, None], pts.m[:, None], pts.N,
+                                 pts.G.reshape(pts.s.size, n * n)])), *x, u]
+    (tmp_path / "in.txt").write_text(f"{n} {pts.s.size} "
+                                     + " ".join(repr(float(v)) for v in data))
+    run = subprocess.run([str(exe), str(tmp_path / "in.txt")], capture_output=True, text=True,
+                         timeout=120, env={"ASAN_OPTIONS": "detect_leaks=1",
+                                           "UBSAN_OPTIONS": "print_stacktrace=1"})
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "runtime error" not in run.stderr and "Sanitizer" not in run.stderr, run.stderr
+    out = np.array(run.stdout.split(), dtype=float)
+    nx = model.nx
+    ref = model.rhs_numpy(0.0, x, u)
+    tol = 10 * np.linalg.cond(model.mass_matrix(x[:n + 2])) * np.finfo(float).eps
+    assert np.max(np.abs(out[:nx] - ref)) <= tol * np.max(np.abs(ref))
+    assert out[nx] == pytest.approx(model.energy_numpy(x), rel=1e-13)
+    assert out[nx + 1] == 1                                   # FP_BADARG
+    k = model.kernel
+    y, done, rc = k.fixed_steps("rk4", k.tableau(**RK4), x, (u, 0.0, 0.0, 0.0), 0.0, 2.5e-4, 40)
+    assert rc == 0 and done == 40
+    np.testing.assert_allclose(out[nx + 2:], y, rtol=1e-12, atol=1e-14)
