@@ -9,7 +9,7 @@ from matplotlib.patches import Polygon, Rectangle
 from matplotlib.text import Text
 
 from orchestration.job import Run, paper_figures, run_scene
-from orchestration.report import figures
+from orchestration.report import figures, plotting
 from orchestration.scene.schema import PAPER_SCENES, load_scene
 from orchestration.studies.analysis import loop_roots
 from plant_fmu.beam import beam_model
@@ -370,8 +370,8 @@ def test_run_figures_use_no_mathtext(paper_runs, tmp_path, monkeypatch):
     monkeypatch.setattr(MathTextParser, "parse",
                         lambda self, s, *a, **k: parsed.append(s) or parse(self, s, *a, **k))
     made = []
-    monkeypatch.setattr(figures, "new_figure",
-                        lambda *a, new=figures.new_figure: made.append(new(*a)) or made[-1])
+    monkeypatch.setattr(plotting, "new_figure",
+                        lambda *a, new=plotting.new_figure: made.append(new(*a)) or made[-1])
     written = [p for name in PAPER_SCENES for p in paper_runs[name].save(tmp_path)]
     written += paper_figures([paper_runs[n] for n in PAPER_SCENES], tmp_path)
     assert sum(p.suffix == ".png" for p in written) == 9 == len(made)

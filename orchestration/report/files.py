@@ -167,7 +167,7 @@ PNG_COMPRESS_LEVEL = 3
 
 def save_figure(fig, path, dpi: int = 110) -> Path:
     """Write a matplotlib Figure as PNG (or the format of the path's suffix)."""
-    from .figures import ticks_in_view
+    from .plotting import ticks_in_view
 
     fmt = Path(path).suffix.lstrip(".") or "png"
     extra = {"pil_kwargs": {"compress_level": PNG_COMPRESS_LEVEL}} if fmt == "png" else {}
