@@ -32,8 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RENDERERS", "canvas", "new_figure", "Grid", "MplCanvas", "MplPanel", "ticks_in_view",
-           "plain_log_labels", "SUPERSCRIPT"]
+__all__ = ["RENDERERS", "check_renderer", "canvas", "new_figure", "Grid", "MplCanvas", "MplPanel",
+           "ticks_in_view", "plain_log_labels", "SUPERSCRIPT"]
 
 #: The renderers of :func:`canvas`.
 RENDERERS = ("raster", "matplotlib")
@@ -46,16 +46,21 @@ def new_figure(width: float, height: float):
     return Figure(figsize=(width, height))
 
 
+def check_renderer(renderer) -> str:
+    """``renderer`` if it is one of :data:`RENDERERS`, else a ValueError naming it."""
+    if renderer not in RENDERERS:
+        raise ValueError(f"renderer = {renderer!r} is not allowed; allowed: "
+                         + ", ".join(repr(r) for r in RENDERERS))
+    return renderer
+
+
 def canvas(width: float, height: float, renderer: str = "matplotlib"):
     """A canvas of ``width`` x ``height`` inches drawn by ``renderer`` (one of
     :data:`RENDERERS`)."""
-    if renderer == "matplotlib":
+    if check_renderer(renderer) == "matplotlib":
         return MplCanvas(width, height)
-    if renderer == "raster":
-        from .raster import RasterCanvas
-        return RasterCanvas(width, height)
-    raise ValueError(f"renderer = {renderer!r} is not allowed; allowed: "
-                     + ", ".join(repr(r) for r in RENDERERS))
+    from .raster import RasterCanvas
+    return RasterCanvas(width, height)
 
 
 @contextmanager
