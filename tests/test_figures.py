@@ -9,7 +9,7 @@ from matplotlib.patches import Polygon, Rectangle
 from matplotlib.text import Text
 
 from orchestration.job import Run, paper_figures, run_scene
-from orchestration.report import figures, plotting
+from orchestration.report import figures, mpl_canvas
 from orchestration.scene.schema import PAPER_SCENES, load_scene
 from orchestration.studies.analysis import loop_roots
 from plant_fmu.beam import beam_model
@@ -370,10 +370,11 @@ def test_run_figures_use_no_mathtext(paper_runs, tmp_path, monkeypatch):
     monkeypatch.setattr(MathTextParser, "parse",
                         lambda self, s, *a, **k: parsed.append(s) or parse(self, s, *a, **k))
     made = []
-    monkeypatch.setattr(plotting, "new_figure",
-                        lambda *a, new=plotting.new_figure: made.append(new(*a)) or made[-1])
-    written = [p for name in PAPER_SCENES for p in paper_runs[name].save(tmp_path)]
-    written += paper_figures([paper_runs[n] for n in PAPER_SCENES], tmp_path)
+    monkeypatch.setattr(mpl_canvas, "new_figure",
+                        lambda *a, new=mpl_canvas.new_figure: made.append(new(*a)) or made[-1])
+    written = [p for name in PAPER_SCENES
+               for p in paper_runs[name].save(tmp_path, renderer="matplotlib")]
+    written += paper_figures([paper_runs[n] for n in PAPER_SCENES], tmp_path, "matplotlib")
     assert sum(p.suffix == ".png" for p in written) == 9 == len(made)
     assert parsed == []
     dollars = [t.get_text() for fig in made for t in texts(fig) if "$" in t.get_text()]

@@ -13,7 +13,9 @@ import math
 
 import numpy as np
 
-from .plotting import SUPERSCRIPT, canvas, new_figure, plain_log_labels, ticks_in_view
+from .layout import SUPERSCRIPT
+from .mpl_canvas import new_figure, plain_log_labels, ticks_in_view
+from .plotting import canvas
 
 __all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "mode_shapes",
            "root_map", "loop_bode", "root_locus", "worst_case", "new_figure", "scene_title",

@@ -177,7 +177,7 @@ def save_figure(fig, path, dpi: int = 110) -> Path:
 
 
 def _save_matplotlib(fig, path, dpi: int, fmt: str) -> Path:
-    from .plotting import ticks_in_view
+    from .mpl_canvas import ticks_in_view
 
     extra = {"pil_kwargs": {"compress_level": PNG_COMPRESS_LEVEL}} if fmt == "png" else {}
     with atomic_path(path) as tmp, ticks_in_view(fig):

@@ -16,7 +16,7 @@ from functools import lru_cache
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from .plotting import SUPERSCRIPT, Grid
+from .layout import SUPERSCRIPT, Grid
 
 __all__ = ["RasterCanvas", "RasterPanel", "nice_ticks", "log_ticks", "symlog_ticks",
            "tick_text", "font_path", "rgb", "write_png", "DPI", "OVERSAMPLE"]
