@@ -34,6 +34,7 @@ from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
 from .export import flavour_fmus
 from .report import figures
 from .report.files import save_figure, write_csv, write_json
+from .report.plotting import check_renderer
 from .report.progress import Progress
 from .report.summary import iteration_counts, stop_reason, summarize
 from .scene.keys import FMU_FLAVOURS, ConfigError
@@ -108,31 +109,34 @@ class Run:
         return pd.DataFrame({c: self.result[c] for c in names[1:]},
                             index=pd.Index(self.result["time"], name="time"))
 
-    def plot(self):
+    def plot(self, renderer: str = "matplotlib"):
         """The time histories (tip angle, first modal coordinate, tip deflection, force, cart
-        position) as a matplotlib Figure; the process's backend is left alone."""
-        return figures.time_histories(self.result, self.scene, self.reference, self.summary)
+        position) as a matplotlib Figure (the process's backend is left alone), or drawn by
+        another ``renderer`` (:data:`~orchestration.report.plotting.RENDERERS`)."""
+        return figures.time_histories(self.result, self.scene, self.reference, self.summary,
+                                      renderer=renderer)
 
-    def plot_shapes(self):
+    def plot_shapes(self, renderer: str = "matplotlib"):
         """The beam and the cart at eight times over the run, a Figure (None before two output
-        points)."""
+        points); ``renderer`` as :meth:`plot`."""
         if not self.frames:
             return None
         x = self.result["x"]
         return figures.snapshots(beam_model(self.scene.plant.params), self.frames, self.scene,
-                                 travel=(float(x.min()), float(x.max())))
+                                 travel=(float(x.min()), float(x.max())), renderer=renderer)
 
-    def save(self, folder, *, summary: bool = True) -> list[Path]:
+    def save(self, folder, *, summary: bool = True, renderer: str = "raster") -> list[Path]:
         """Write what ``flexpend run`` writes for this run into ``folder``: ``<name>.csv``,
-        ``<name>.png``, ``<name>_shapes.png`` and (``summary``) this run's entry of
-        ``summary.json`` (other entries kept); the paths written. Each file is complete or
-        absent."""
+        ``<name>.png``, ``<name>_shapes.png`` (drawn by ``renderer``: by default the raster
+        renderer, no matplotlib) and (``summary``) this run's entry of ``summary.json`` (other
+        entries kept); the paths written. Each file is complete or absent."""
+        check_renderer(renderer)
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         written = [write_csv(folder / f"{self.name}.csv", self.result)]
         if len(self.result) >= 2:
-            written.append(save_figure(self.plot(), folder / f"{self.name}.png"))
-        shapes = self.plot_shapes()
+            written.append(save_figure(self.plot(renderer), folder / f"{self.name}.png"))
+        shapes = self.plot_shapes(renderer)
         if shapes is not None:
             written.append(save_figure(shapes, folder / f"{self.name}_shapes.png"))
         if summary:
@@ -329,16 +333,19 @@ def load_job(refs, overrides=None) -> list:
     return out
 
 
-def paper_figures(runs, folder) -> list[Path]:
+def paper_figures(runs, folder, renderer: str = "raster") -> list[Path]:
     """The figures of a set of runs side by side (``flexpend run`` of the paper's scenes):
     ``paper_overview.png`` (:func:`~orchestration.report.figures.paper_overview`),
     ``mode_shapes.png``, the cantilever modes of each flexible plant that ran
     (:func:`~orchestration.report.figures.mode_shapes`; none when every run is rigid), and
     ``root_map.png``, the closed-loop roots of each run's linearised loop
-    (:func:`~orchestration.report.figures.root_map`); the paths written."""
+    (:func:`~orchestration.report.figures.root_map`); the paths written. Drawn by ``renderer``
+    (by default the raster renderer, no matplotlib)."""
+    check_renderer(renderer)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    written = [save_figure(figures.paper_overview(runs), folder / "paper_overview.png")]
+    written = [save_figure(figures.paper_overview(runs, renderer=renderer),
+                           folder / "paper_overview.png")]
     plants = {}                            # plant -> the runs on it
     for r in runs:
         if r.scene.plant.params.n_modes > 0:
@@ -346,8 +353,9 @@ def paper_figures(runs, folder) -> list[Path]:
     if plants:
         labelled = [(f"{', '.join(r.name for r in on)}: {figures.plant_text(on[0].scene)}", p)
                     for p, on in plants.items()]
-        written.append(save_figure(figures.mode_shapes(labelled), folder / "mode_shapes.png"))
-    written.append(save_figure(figures.root_map([r.scene for r in runs]),
+        written.append(save_figure(figures.mode_shapes(labelled, renderer=renderer),
+                                   folder / "mode_shapes.png"))
+    written.append(save_figure(figures.root_map([r.scene for r in runs], renderer=renderer),
                                folder / "root_map.png"))
     return written
 
@@ -366,7 +374,8 @@ class JobResult:
 
 
 def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,
-            overview: bool = False, announce=None, report=None) -> JobResult:
+            overview: bool = False, announce=None, report=None,
+            renderer: str = "raster") -> JobResult:
     """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
     folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
     ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json``
@@ -376,7 +385,10 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     ``stop``: asked between runs and after every communication step (Ctrl-C); ``announce(scene)``
     is called before a run and ``report(run, written)`` after it. The exit code: 0 when every
     scene ran to its stop time, :data:`EXIT_STOPPED` when one stopped early,
-    :data:`EXIT_INTERRUPTED` when ``stop`` ended the job (the data so far is written)."""
+    :data:`EXIT_INTERRUPTED` when ``stop`` ended the job (the data so far is written).
+    ``renderer``: what draws the PNGs (:data:`~orchestration.report.plotting.RENDERERS`; by
+    default the raster renderer, which does not import matplotlib)."""
+    check_renderer(renderer)
     out = Path(out)
     job = JobResult([])
     pairs = {}
@@ -400,7 +412,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
             run = run_scene(scene, fmus, reference=reference and not (stop and stop()),
                             progress=True, connections_out=connections_out, stop=stop)
             job.runs.append(run)
-            written = run.save(out, summary=False)
+            written = run.save(out, summary=False, renderer=renderer)
             write_json(out / "summary.json", job.summaries)
             job.written += written
             if report is not None:
@@ -412,7 +424,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 job.code = EXIT_STOPPED
         if overview and job.code != EXIT_INTERRUPTED and len(job.runs) == len(items) \
                 and not (stop and stop()):
-            job.written += paper_figures(job.runs, out)
+            job.written += paper_figures(job.runs, out, renderer)
         if stop is not None and stop():
             job.code = EXIT_INTERRUPTED
     finally:
