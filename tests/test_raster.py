@@ -88,9 +88,12 @@ def test_ticks_are_one_two_five_steps_covering_the_view(lo, hi, nbins):
     assert min(abs(mantissa - m) for m in (1, 2, 5)) < 1e-9
     assert lo - 1e-12 <= t[0] < lo + step[0] and hi - step[0] < t[-1] <= hi + 1e-12
     np.testing.assert_allclose(t / step[0], np.round(t / step[0]), atol=1e-9)  # multiples
-    # the smallest such step: the next smaller 1-2-5 step puts more than nbins + 1 in view
+    # at most nbins intervals enclose the view; the next smaller 1-2-5 step needs more
+    def intervals(h):
+        return math.ceil(hi / h - 1e-9) - math.floor(lo / h + 1e-9)
+    assert intervals(step[0]) <= nbins
     smaller = {1: 0.5, 2: 1, 5: 2}[round(mantissa)] * 10 ** math.floor(math.log10(step[0]))
-    assert math.floor(hi / smaller + 1e-9) - math.ceil(lo / smaller - 1e-9) + 1 > nbins + 1
+    assert intervals(smaller) > nbins
 
 
 def test_tick_labels_share_the_decimals_of_their_step_and_a_true_minus():

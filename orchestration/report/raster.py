@@ -83,18 +83,34 @@ def _font(px: int):
     return ImageFont.load_default(px)
 
 
+@lru_cache(maxsize=2048)
+def _line(px: int, text: str) -> tuple:
+    """``(width, mask)`` of one line of ``text`` at ``px`` pixels: its advance and its glyphs as
+    an "L" image whose top left is the line's (the ascender's) top left. Kept: tick labels and
+    axis labels repeat across the panels and figures of a run."""
+    font = _font(px)
+    ascent, descent = font.getmetrics()
+    width = font.getlength(text)
+    _, _, right, bottom = font.getbbox(text)
+    mask = Image.new("L", (max(1, math.ceil(max(width, right)) + 1),
+                           max(1, math.ceil(max(bottom, ascent + descent)) + 1)), 0)
+    ImageDraw.Draw(mask).text((0, 0), text, font=font, fill=255)
+    return width, mask
+
+
 # ---------------------------------------------------------------------- ticks
 def nice_ticks(lo: float, hi: float, nbins: int) -> np.ndarray:
-    """Ticks on the smallest step of 1, 2 or 5 times a power of ten that puts at most
-    ``nbins + 1`` of them in ``[lo, hi]``; every tick in it."""
+    """The ticks in ``[lo, hi]`` on the smallest step of 1, 2 or 5 times a power of ten whose
+    ticks enclosing ``[lo, hi]`` make at most ``nbins`` intervals (matplotlib's ``MaxNLocator``
+    rule, on 1-2-5 steps)."""
     lo, hi = min(lo, hi), max(lo, hi)
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
         return np.array([lo]) if math.isfinite(lo) else np.array([])
     power = 10.0 ** math.floor(math.log10((hi - lo) / max(int(nbins), 1)))
     for step in (m * power * f for f in (0.1, 1.0, 10.0, 100.0) for m in (1, 2, 5)):
-        first, last = math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9)
-        if last - first + 1 <= max(int(nbins), 1) + 1:
+        if math.ceil(hi / step - 1e-9) - math.floor(lo / step + 1e-9) <= max(int(nbins), 1):
             break
+    first, last = math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9)
     ticks = np.arange(first, last + 1) * step
     ticks[np.abs(ticks) < 1e-12 * step] = 0.0
     return ticks
@@ -283,7 +299,7 @@ def write_png(img: Image.Image, path) -> None:
 
     from .files import PNG_COMPRESS_LEVEL
 
-    rows = np.asarray(img.convert("RGB"))
+    rows = np.asarray(img if img.mode == "RGB" else img.convert("RGB"))
     h, w = rows.shape[:2]
     rows = rows.reshape(h, 3 * w)
     raw = np.empty((h, 3 * w + 1), np.uint8)
@@ -551,12 +567,10 @@ class RasterPanel:
             pen.polyline(px, py, d["color"], d["lw"], d["style"], None)
         elif kind == "xspan":
             (x0, x1), _ = self.to_px([d["lo"], d["hi"]], [0.0, 0.0])
-            pen.polygon([(x0, top), (x1, top), (x1, bottom), (x0, bottom)], d["color"],
-                        d["alpha"])
+            pen.box(x0, top, x1, bottom, d["color"], d["alpha"])
         elif kind == "rect":
             px, py = self.to_px([d["x"], d["x"] + d["w"]], [d["y"], d["y"] + d["h"]])
-            pen.polygon([(px[0], py[0]), (px[1], py[0]), (px[1], py[1]), (px[0], py[1])],
-                        d["color"], None)
+            pen.box(px[0], py[0], px[1], py[1], d["color"], None)
         elif kind == "grid":
             lines = []
             if len(d["xs"]):
@@ -696,6 +710,22 @@ class _Pen:
         ys = [v for (_, y0), (_, y1) in lines for v in (y0, y1)]
         self._paint(alpha, xs, ys, width, fn)
 
+    def box(self, x0, y0, x1, y1, color, alpha):
+        """A filled axis-aligned rectangle (at ``alpha``: blended with what lies beneath)."""
+        ox, oy = self.offset
+        W, H = self.img.size
+        x0, x1 = sorted((x0 - ox, x1 - ox))
+        y0, y1 = sorted((y0 - oy, y1 - oy))
+        b = (max(0, round(x0)), max(0, round(y0)), min(W, round(x1)), min(H, round(y1)))
+        if b[2] <= b[0] or b[3] <= b[1]:
+            return
+        if alpha is None or alpha >= 1:
+            self.draw.rectangle([b[0], b[1], b[2] - 1, b[3] - 1], fill=rgb(color))
+            return
+        region = self.img.crop(b)
+        self.img.paste(Image.blend(region, Image.new("RGB", region.size, rgb(color)), alpha),
+                       b[:2])
+
     def polygon(self, points, color, alpha):
         fill = self._fill(color, alpha)
         self._paint(alpha, [x for x, _ in points], [y for _, y in points], 1,
@@ -726,14 +756,14 @@ class _Pen:
         """The height in pixels of one line of text at ``size`` points."""
         return 1.2 * size * self.scale
 
-    def _font(self, size: float):
-        """The font of ``size`` points at the final resolution (text is drawn there, after the
-        reduction: FreeType antialiases it, hinted at the size it is seen)."""
-        return _font(max(1, round(size * self.scale / OVERSAMPLE)))
+    def _px(self, size: float) -> int:
+        """The font size in pixels of ``size`` points at the final resolution (text is drawn
+        there, after the reduction: FreeType antialiases it, hinted at the size it is seen)."""
+        return max(1, round(size * self.scale / OVERSAMPLE))
 
     def length(self, text: str, size: float) -> float:
         """The width in pixels of one line of ``text`` at ``size`` points."""
-        return self._font(size).getlength(text) * OVERSAMPLE
+        return _line(self._px(size), text)[0] * OVERSAMPLE
 
     def text(self, x, y, text, size, color, ha, va, rotate=False) -> tuple:
         """Place ``text`` (lines centred or aligned by ``ha``) at ``(x, y)``, anchored by ``ha``
@@ -742,34 +772,32 @@ class _Pen:
         ``(width, height)`` in pixels. Drawn by :meth:`draw_texts` (on the reduced image)."""
         if not text:
             return 0.0, 0.0
-        font = self._font(size)
+        px = self._px(size)
         lines = text.split("\n")
         step = self.line_height(size)
-        ascent, descent = (v * OVERSAMPLE for v in font.getmetrics())
-        widths = [font.getlength(line) * OVERSAMPLE for line in lines]
+        ascent, descent = (v * OVERSAMPLE for v in _font(px).getmetrics())
+        widths = [_line(px, line)[0] * OVERSAMPLE for line in lines]
         w, h = max(widths), step * (len(lines) - 1) + ascent + descent
         if rotate:
             w, h = h, w
         left = x - {"left": 0.0, "center": w / 2, "right": w}[ha]
         top = y - {"top": 0.0, "center": h / 2, "bottom": h, "baseline": h - descent}[va]
-        self.queued.append((left, top, w, h, lines, widths, step, font, rgb(color), ha, rotate))
+        self.queued.append((left, top, w, h, lines, widths, step, px, rgb(color), ha, rotate))
         return w, h
 
     def draw_texts(self, img):
         """Draw the texts placed (:meth:`text`) on ``img``, this pen's image reduced."""
-        draw, k = ImageDraw.Draw(img), OVERSAMPLE
-        for left, top, w, h, lines, widths, step, font, color, ha, rotate in self.queued:
-            if rotate:
-                tile = Image.new("L", (math.ceil(h / k) + 2, math.ceil(w / k) + 2), 0)
-                tdraw = ImageDraw.Draw(tile)
-                for i, (line, lw) in enumerate(zip(lines, widths)):
-                    tdraw.text(((h - lw) / 2 / k, i * step / k), line, font=font, fill=255)
-                img.paste(color, (round(left / k), round(top / k)),
-                          tile.transpose(Image.Transpose.ROTATE_90))
-                continue
+        k = OVERSAMPLE
+        for left, top, w, h, lines, widths, step, px, color, ha, rotate in self.queued:
             for i, (line, lw) in enumerate(zip(lines, widths)):
+                mask = _line(px, line)[1]
+                if rotate:          # line i of the upright text, turned: from the left edge
+                    x, y = left + i * step, top + (h - lw) / 2
+                    img.paste(color, (round(x / k), round(y / k)),
+                              mask.transpose(Image.Transpose.ROTATE_90))
+                    continue
                 dx = {"left": 0.0, "center": (w - lw) / 2, "right": w - lw}[ha]
-                draw.text(((left + dx) / k, (top + i * step) / k), line, font=font, fill=color)
+                img.paste(color, (round((left + dx) / k), round((top + i * step) / k)), mask)
 
     def legend(self, entries, size, x, y, anchor="upper right", ncol=1, frame=True,
                pad=None):
@@ -810,9 +838,7 @@ class _Pen:
 
     def _handle(self, kind, d, x, y, length, fs):
         if kind == "xspan":
-            self.polygon([(x, y - 0.35 * fs), (x + length, y - 0.35 * fs),
-                          (x + length, y + 0.35 * fs), (x, y + 0.35 * fs)], d["color"],
-                         d["alpha"])
+            self.box(x, y - 0.35 * fs, x + length, y + 0.35 * fs, d["color"], d["alpha"])
         elif kind == "markers":
             self.markers([x + length / 2], [y], d["marker"], d["color"], d["size"],
                          d["hollow"], d["mew"], d["alpha"])
