@@ -3,14 +3,16 @@ files drawn with Pillow, without importing matplotlib (``flexpend run``'s figure
 tens of milliseconds instead of one or two hundred).
 
 A :class:`RasterCanvas` records what a figure function draws and draws it all in
-:meth:`RasterCanvas.save`: at twice the resolution asked, reduced by averaging (antialiased lines
-and text), with matplotlib's defaults where the vocabulary leaves a choice (5 % margins around
+:meth:`RasterCanvas.save`: the insides of the panels and the legends at twice the resolution
+asked, reduced by averaging (antialiased lines, markers and edges), frames and ticks on whole
+pixels, text by FreeType at the resolution asked, with matplotlib's defaults where the vocabulary leaves a choice (5 % margins around
 the data, 3.5 pt ticks outside the frame, labels 4 pt beyond the tick labels, the tab10 colours,
 DejaVu Sans), ticks on 1-2-5 steps (:func:`nice_ticks`), decades on log and symmetric-log axes
 (:func:`log_ticks`, :func:`symlog_ticks`). Sizes are in points and inches, as matplotlib's."""
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from functools import lru_cache
 
 import numpy as np
@@ -261,8 +263,7 @@ class RasterCanvas:
         """The figure drawn at ``dpi`` (an RGB image of ``round(width * dpi)`` x
         ``round(height * dpi)`` pixels)."""
         w, h = round(self.width * dpi), round(self.height * dpi)
-        pen = _Pen(Image.new("RGB", (w * OVERSAMPLE, h * OVERSAMPLE), "white"),
-                   dpi * OVERSAMPLE / 72.0)
+        pen = _Pen(Image.new("RGB", (w, h), "white"), dpi / 72.0)
         visible = [p for p in self.panels_made if not p.hidden]
         for p in visible:
             p.layout(pen)
@@ -278,9 +279,8 @@ class RasterCanvas:
             ncol, size, y = self.fig_legend
             entries = [e for p in visible for e in p.legend_entries()]
             pen.legend(entries, size, W / 2, (1 - y) * H, anchor="top", ncol=ncol, frame=False)
-        img = pen.img.reduce(OVERSAMPLE)
-        pen.draw_texts(img)
-        return img
+        pen.draw_texts()
+        return pen.img
 
     def save(self, path, dpi: int = DPI, fmt: str = "png"):
         """Write the figure to ``path`` as PNG (:func:`write_png`)."""
@@ -515,15 +515,11 @@ class RasterPanel:
 
     def draw(self, pen):
         left, top, right, bottom = self.px
-        box = (math.floor(left), math.floor(top), math.ceil(right) + 1, math.ceil(bottom) + 1)
-        inner = _Pen(Image.new("RGB", (box[2] - box[0], box[3] - box[1]), "white"), pen.scale,
-                     offset=box[:2])
-        grid = self._grid_items()
-        items = sorted(self.items + grid, key=lambda it: it[1])
-        for kind, _, d in items:
-            if kind != "text":
-                self._draw_item(inner, kind, d)
-        pen.img.paste(inner.img, box[:2])
+        items = sorted(self.items + self._grid_items(), key=lambda it: it[1])
+        with pen.fine(left, top, right, bottom, blank=True) as inner:   # clipped to the panel
+            for kind, _, d in items:
+                if kind != "text" and inner is not None:
+                    self._draw_item(inner, kind, d)
         self._draw_frame(pen)
         for kind, _, d in items:
             if kind == "text":
@@ -584,9 +580,7 @@ class RasterPanel:
     def _draw_frame(self, pen):
         left, top, right, bottom = self.px
         s = pen.scale
-        pen.segments([((left, top), (right, top)), ((right, top), (right, bottom)),
-                      ((right, bottom), (left, bottom)), ((left, bottom), (left, top))],
-                     "k", FRAME_W, None, square=True)
+        pen.frame(left, top, right, bottom, FRAME_W)
         # x ticks under the frame, y ticks left of it
         widest = 0.0
         for a in "xy":
@@ -632,34 +626,59 @@ class RasterPanel:
 
 # ---------------------------------------------------------------------- pixels
 class _Pen:
-    """Drawing on an image in pixels, sizes in points (``scale`` pixels each); ``offset``: the
-    image's place in the figure's pixels (coordinates given are the figure's)."""
+    """Drawing on an image, coordinates in the figure's pixels, sizes in points (``scale``
+    pixels each on this image). A pen over a part of the figure (:meth:`fine`) draws at
+    ``zoom`` times the figure's resolution: the figure's pixel ``(x, y)`` is its
+    ``((x - ox) * zoom, (y - oy) * zoom)``, ``offset = (ox, oy)``."""
 
-    def __init__(self, img, scale: float, offset=(0, 0)):
-        self.img, self.scale, self.offset = img, scale, offset
+    def __init__(self, img, scale: float, offset=(0, 0), zoom: int = 1):
+        self.img, self.scale, self.offset, self.zoom = img, scale, offset, zoom
         self.draw = ImageDraw.Draw(img)
         self.queued = []
+
+    @contextmanager
+    def fine(self, x0, y0, x1, y1, blank: bool = False):
+        """A pen over the box ``(x0, y0)``-``(x1, y1)`` of this (unzoomed) pen's image at
+        :data:`OVERSAMPLE` times its resolution, the box reduced back into the image when the
+        block ends: antialiased lines, markers and edges. ``blank``: it starts white (else from
+        the image's pixels)."""
+        W, H = self.img.size
+        b = (max(0, math.floor(x0)), max(0, math.floor(y0)), min(W, math.ceil(x1) + 1),
+             min(H, math.ceil(y1) + 1))
+        if b[2] <= b[0] or b[3] <= b[1]:
+            yield None
+            return
+        k = OVERSAMPLE
+        size = ((b[2] - b[0]) * k, (b[3] - b[1]) * k)
+        img = (Image.new("RGB", size, "white") if blank
+               else self.img.crop(b).resize(size, Image.Resampling.NEAREST))
+        pen = _Pen(img, self.scale * k, offset=b[:2], zoom=k)
+        yield pen
+        self.img.paste(img.reduce(k), b[:2])
+
+    def _map(self, x, y):
+        ox, oy = self.offset
+        z = self.zoom
+        return ((np.asarray(x, float) - ox) * z, (np.asarray(y, float) - oy) * z)
 
     def _width(self, lw: float) -> int:
         return max(1, round(lw * self.scale))
 
     def _paint(self, alpha, xs, ys, margin, fn):
-        """``fn(draw, ox, oy)`` draws in figure pixels less ``(ox, oy)``: on the image itself,
-        or (``alpha`` < 1) on a transparent layer over the bounding box of ``xs``, ``ys`` (plus
-        ``margin`` pixels), composited over the image."""
-        ox, oy = self.offset
+        """``fn(draw, dx, dy)`` draws in this image's pixels less ``(dx, dy)``: on the image
+        itself, or (``alpha`` < 1) on a transparent layer over the bounding box of ``xs``,
+        ``ys`` (this image's pixels, plus ``margin``), composited over the image."""
         if alpha is None or alpha >= 1:
-            fn(self.draw, ox, oy)
+            fn(self.draw, 0, 0)
             return
         W, H = self.img.size
-        x0 = max(0, math.floor(min(xs) - ox - margin))
-        y0 = max(0, math.floor(min(ys) - oy - margin))
-        x1 = min(W, math.ceil(max(xs) - ox + margin) + 1)
-        y1 = min(H, math.ceil(max(ys) - oy + margin) + 1)
+        x0, y0 = max(0, math.floor(min(xs) - margin)), max(0, math.floor(min(ys) - margin))
+        x1 = min(W, math.ceil(max(xs) + margin) + 1)
+        y1 = min(H, math.ceil(max(ys) + margin) + 1)
         if x1 <= x0 or y1 <= y0:
             return
         layer = Image.new("RGBA", (x1 - x0, y1 - y0), (0, 0, 0, 0))
-        fn(ImageDraw.Draw(layer), ox + x0, oy + y0)
+        fn(ImageDraw.Draw(layer), x0, y0)
         region = self.img.crop((x0, y0, x1, y1)).convert("RGBA")
         region.alpha_composite(layer)
         self.img.paste(region.convert("RGB"), (x0, y0))
@@ -670,8 +689,8 @@ class _Pen:
         return c if alpha is None or alpha >= 1 else (*c, round(255 * alpha))
 
     def polyline(self, px, py, color, lw, style, alpha):
-        x = np.clip(np.asarray(px, float), -1e5, 1e5)
-        y = np.clip(np.asarray(py, float), -1e5, 1e5)
+        x, y = self._map(px, py)
+        x, y = np.clip(x, -1e5, 1e5), np.clip(y, -1e5, 1e5)
         ok = np.isfinite(x) & np.isfinite(y)
         if not ok.any():
             return
@@ -684,11 +703,11 @@ class _Pen:
             pieces += ([(x[r], y[r])] if style in ("-", "solid", None)
                        else _dashed(x[r], y[r], [v * lw * self.scale for v in DASHES[style]]))
 
-        def fn(draw, ox, oy):
+        def fn(draw, dx, dy):
             for xs, ys in pieces:
                 if len(xs) == 1:
                     xs, ys = np.repeat(xs, 2), np.repeat(ys, 2)
-                draw.line(np.column_stack([xs - ox, ys - oy]).ravel().tolist(), fill=fill,
+                draw.line(np.column_stack([xs - dx, ys - dy]).ravel().tolist(), fill=fill,
                           width=width, joint="curve" if width > 2 and len(xs) < 2000 else None)
         self._paint(alpha, x[ok], y[ok], width, fn)
 
@@ -698,24 +717,24 @@ class _Pen:
         if not lines:
             return
         fill, width = self._fill(color, alpha), self._width(lw)
+        xs, ys = self._map([[x0, x1] for (x0, _), (x1, _) in lines],
+                           [[y0, y1] for (_, y0), (_, y1) in lines])
         if square:
             half = width / 2
-            lines = [((min(x0, x1) - half, y0), (max(x0, x1) + half, y1)) if y0 == y1
-                     else ((x0, y0), (x1, y1)) for (x0, y0), (x1, y1) in lines]
+            flat = ys[:, 0] == ys[:, 1]
+            xs = np.where(flat[:, None], np.sort(xs, axis=1) + [-half, half], xs)
 
-        def fn(draw, ox, oy):
-            for (x0, y0), (x1, y1) in lines:
-                draw.line([(x0 - ox, y0 - oy), (x1 - ox, y1 - oy)], fill=fill, width=width)
-        xs = [v for (x0, _), (x1, _) in lines for v in (x0, x1)]
-        ys = [v for (_, y0), (_, y1) in lines for v in (y0, y1)]
-        self._paint(alpha, xs, ys, width, fn)
+        def fn(draw, dx, dy):
+            for (x0, x1), (y0, y1) in zip(xs.tolist(), ys.tolist()):
+                draw.line([(x0 - dx, y0 - dy), (x1 - dx, y1 - dy)], fill=fill, width=width)
+        self._paint(alpha, xs.ravel(), ys.ravel(), width, fn)
 
     def box(self, x0, y0, x1, y1, color, alpha):
         """A filled axis-aligned rectangle (at ``alpha``: blended with what lies beneath)."""
-        ox, oy = self.offset
+        (x0, x1), (y0, y1) = self._map([x0, x1], [y0, y1])
         W, H = self.img.size
-        x0, x1 = sorted((x0 - ox, x1 - ox))
-        y0, y1 = sorted((y0 - oy, y1 - oy))
+        x0, x1 = sorted((x0, x1))
+        y0, y1 = sorted((y0, y1))
         b = (max(0, round(x0)), max(0, round(y0)), min(W, round(x1)), min(H, round(y1)))
         if b[2] <= b[0] or b[3] <= b[1]:
             return
@@ -726,14 +745,8 @@ class _Pen:
         self.img.paste(Image.blend(region, Image.new("RGB", region.size, rgb(color)), alpha),
                        b[:2])
 
-    def polygon(self, points, color, alpha):
-        fill = self._fill(color, alpha)
-        self._paint(alpha, [x for x, _ in points], [y for _, y in points], 1,
-                    lambda draw, ox, oy: draw.polygon([(x - ox, y - oy) for x, y in points],
-                                                      fill=fill))
-
     def markers(self, px, py, marker, color, size, hollow, mew, alpha):
-        x, y = np.asarray(px, float), np.asarray(py, float)
+        x, y = self._map(px, py)
         ok = np.isfinite(x) & np.isfinite(y)
         x, y = x[ok], y[ok]
         if not len(x):
@@ -743,8 +756,8 @@ class _Pen:
         width = self._width(mew)
         style = {"outline": fill, "width": width} if hollow else {"fill": fill}
 
-        def fn(draw, ox, oy):
-            for cx, cy in zip(x - ox, y - oy):
+        def fn(draw, dx, dy):
+            for cx, cy in zip(x - dx, y - dy):
                 if marker == "o":
                     draw.ellipse([cx - r, cy - r, cx + r, cy + r], **style)
                 else:
@@ -752,31 +765,40 @@ class _Pen:
                                  **style)
         self._paint(alpha, x, y, r + width, fn)
 
+    def frame(self, left, top, right, bottom, lw):
+        """A black rectangle's outline, ``lw`` points wide, on the pixels nearest its edges."""
+        width = self._width(lw)
+        (x0, x1), (y0, y1) = self._map([left, right], [top, bottom])
+        x0, y0, x1, y1 = round(x0), round(y0), round(x1), round(y1)
+        half = width // 2
+        self.draw.rectangle([x0 - half, y0 - half, x1 - half + width - 1,
+                             y1 - half + width - 1], outline=(0, 0, 0), width=width)
+
     def line_height(self, size: float) -> float:
         """The height in pixels of one line of text at ``size`` points."""
         return 1.2 * size * self.scale
 
     def _px(self, size: float) -> int:
-        """The font size in pixels of ``size`` points at the final resolution (text is drawn
-        there, after the reduction: FreeType antialiases it, hinted at the size it is seen)."""
-        return max(1, round(size * self.scale / OVERSAMPLE))
+        """The font size in pixels of ``size`` points (text is drawn at the figure's
+        resolution: FreeType antialiases it, hinted at the size it is seen)."""
+        return max(1, round(size * self.scale))
 
     def length(self, text: str, size: float) -> float:
         """The width in pixels of one line of ``text`` at ``size`` points."""
-        return _line(self._px(size), text)[0] * OVERSAMPLE
+        return _line(self._px(size), text)[0]
 
     def text(self, x, y, text, size, color, ha, va, rotate=False) -> tuple:
         """Place ``text`` (lines centred or aligned by ``ha``) at ``(x, y)``, anchored by ``ha``
         (left/center/right) and ``va`` (top/center/bottom/baseline); ``rotate``: a quarter turn
         anticlockwise (``ha`` then places its bottom edge, its right when upright). Its
-        ``(width, height)`` in pixels. Drawn by :meth:`draw_texts` (on the reduced image)."""
+        ``(width, height)`` in pixels. Drawn by :meth:`draw_texts`, over everything else."""
         if not text:
             return 0.0, 0.0
         px = self._px(size)
         lines = text.split("\n")
         step = self.line_height(size)
-        ascent, descent = (v * OVERSAMPLE for v in _font(px).getmetrics())
-        widths = [_line(px, line)[0] * OVERSAMPLE for line in lines]
+        ascent, descent = _font(px).getmetrics()
+        widths = [_line(px, line)[0] for line in lines]
         w, h = max(widths), step * (len(lines) - 1) + ascent + descent
         if rotate:
             w, h = h, w
@@ -785,19 +807,17 @@ class _Pen:
         self.queued.append((left, top, w, h, lines, widths, step, px, rgb(color), ha, rotate))
         return w, h
 
-    def draw_texts(self, img):
-        """Draw the texts placed (:meth:`text`) on ``img``, this pen's image reduced."""
-        k = OVERSAMPLE
+    def draw_texts(self):
+        """Draw the texts placed (:meth:`text`)."""
         for left, top, w, h, lines, widths, step, px, color, ha, rotate in self.queued:
             for i, (line, lw) in enumerate(zip(lines, widths)):
                 mask = _line(px, line)[1]
                 if rotate:          # line i of the upright text, turned: from the left edge
-                    x, y = left + i * step, top + (h - lw) / 2
-                    img.paste(color, (round(x / k), round(y / k)),
-                              mask.transpose(Image.Transpose.ROTATE_90))
+                    self.img.paste(color, (round(left + i * step), round(top + (h - lw) / 2)),
+                                   mask.transpose(Image.Transpose.ROTATE_90))
                     continue
                 dx = {"left": 0.0, "center": (w - lw) / 2, "right": w - lw}[ha]
-                img.paste(color, (round((left + dx) / k), round((top + i * step) / k)), mask)
+                self.img.paste(color, (round(left + dx), round(top + i * step)), mask)
 
     def legend(self, entries, size, x, y, anchor="upper right", ncol=1, frame=True,
                pad=None):
@@ -822,19 +842,24 @@ class _Pen:
             x0, y0 = x - pad * s - W, y + pad * s
         else:
             x0, y0 = x + pad * s, y + pad * s
-        if frame:                       # matplotlib's: white at alpha 0.8, a light grey edge
-            self._paint(0.8, [x0, x0 + W], [y0, y0 + H], 2, lambda draw, ox, oy:
-                        draw.rounded_rectangle([x0 - ox, y0 - oy, x0 + W - ox, y0 + H - oy],
-                                               radius=0.2 * fs, fill=(255, 255, 255, 204),
-                                               outline=(204, 204, 204, 255),
-                                               width=self._width(1.0)))
+        places = []
         for r, row in enumerate(rows):
             cy = y0 + border + r * (row_h + spacing) + row_h / 2
             cx = x0 + border
             for c, (kind, d) in enumerate(row):
-                self._handle(kind, d, cx, cy, handle, fs)
-                self.text(cx + handle + gap, cy, str(d["label"]), size, "k", "left", "center")
+                places.append((kind, d, cx, cy))
                 cx += col_w[c] + colgap
+        with self.fine(x0 - 2, y0 - 2, x0 + W + 2, y0 + H + 2) as pen:
+            if pen is not None and frame:   # matplotlib's: white at alpha 0.8, a grey edge
+                (a, b), (c, e) = pen._map([x0, x0 + W], [y0, y0 + H])
+                pen._paint(0.8, [a, b], [c, e], 2, lambda draw, dx, dy: draw.rounded_rectangle(
+                    [a - dx, c - dy, b - dx, e - dy], radius=0.2 * fs * pen.zoom,
+                    fill=(255, 255, 255, 204), outline=(204, 204, 204, 255),
+                    width=pen._width(1.0)))
+            for kind, d, cx, cy in places if pen is not None else ():
+                pen._handle(kind, d, cx, cy, handle, fs)
+        for kind, d, cx, cy in places:
+            self.text(cx + handle + gap, cy, str(d["label"]), size, "k", "left", "center")
 
     def _handle(self, kind, d, x, y, length, fs):
         if kind == "xspan":
