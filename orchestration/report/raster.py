@@ -307,15 +307,13 @@ def write_png(img: Image.Image, path) -> None:
     raw[0, 1:] = rows[0]
     np.subtract(rows[1:], rows[:-1], out=raw[1:, 1:])   # modulo 256
 
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return (struct.pack(">I", len(data)) + kind + data
-                + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
-
     with open(path, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n"
-                + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-                + chunk(b"IDAT", zlib.compress(raw.tobytes(), PNG_COMPRESS_LEVEL))
-                + chunk(b"IEND", b""))
+        f.write(b"\x89PNG\r\n\x1a\n")
+        for kind, data in ((b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)),
+                           (b"IDAT", zlib.compress(raw, PNG_COMPRESS_LEVEL)), (b"IEND", b"")):
+            f.write(struct.pack(">I", len(data)) + kind)
+            f.write(data)
+            f.write(struct.pack(">I", zlib.crc32(data, zlib.crc32(kind))))
 
 
 class RasterPanel:
