@@ -392,6 +392,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     out = Path(out)
     job = JobResult([])
     pairs = {}
+    unpacked = _Unpacked()
     try:
         for scene, system in items:                 # FMUs and wiring before any scene runs
             if system is None and scene.master.fmus not in pairs:
@@ -410,7 +411,8 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 announce(scene)
             fmus = system.fmus if system is not None else pairs[scene.master.fmus]
             run = run_scene(scene, fmus, reference=reference and not (stop and stop()),
-                            progress=True, connections_out=connections_out, stop=stop)
+                            progress=True, connections_out=connections_out, stop=stop,
+                            unzipdirs=unpacked.of(fmus))
             job.runs.append(run)
             written = run.save(out, summary=False, renderer=renderer)
             write_json(out / "summary.json", job.summaries)
@@ -428,9 +430,38 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
         if stop is not None and stop():
             job.code = EXIT_INTERRUPTED
     finally:
+        unpacked.remove()
         if not job.runs:
             write_json(out / "summary.json", {})
     return job
+
+
+class _Unpacked:
+    """The FMUs of a job, each unpacked once (into one temporary folder) for every scene that
+    runs it: the paper's three scenes unpack two FMUs, not six. :meth:`remove` removes them."""
+
+    def __init__(self):
+        self.folder, self.dirs = None, {}
+
+    def of(self, fmus: dict) -> dict:
+        """``{role: folder}`` for ``{role: FMU path}``, unpacked when first asked."""
+        import tempfile
+
+        from fmpy import extract
+
+        if self.folder is None:
+            self.folder = tempfile.mkdtemp(prefix="flexpend_fmu_")
+        for path in fmus.values():
+            if str(path) not in self.dirs:
+                self.dirs[str(path)] = extract(str(path), unzipdir=os.path.join(
+                    self.folder, str(len(self.dirs))))
+        return {role: self.dirs[str(path)] for role, path in fmus.items()}
+
+    def remove(self):
+        if self.folder is not None:
+            import shutil
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder, self.dirs = None, {}
 
 
 #: the predictions of :func:`step_warning` kept (the newest)

@@ -5,10 +5,11 @@ tens of milliseconds instead of one or two hundred).
 A :class:`RasterCanvas` records what a figure function draws and draws it all in
 :meth:`RasterCanvas.save`: the insides of the panels and the legends at twice the resolution
 asked, reduced by averaging (antialiased lines, markers and edges), frames and ticks on whole
-pixels, text by FreeType at the resolution asked, with matplotlib's defaults where the vocabulary leaves a choice (5 % margins around
-the data, 3.5 pt ticks outside the frame, labels 4 pt beyond the tick labels, the tab10 colours,
-DejaVu Sans), ticks on 1-2-5 steps (:func:`nice_ticks`), decades on log and symmetric-log axes
-(:func:`log_ticks`, :func:`symlog_ticks`). Sizes are in points and inches, as matplotlib's."""
+pixels, text by FreeType at the resolution asked; with matplotlib's defaults where the
+vocabulary leaves a choice (5 % margins around the data, 3.5 pt ticks outside the frame, labels
+4 pt beyond the tick labels, the tab10 colours, DejaVu Sans), ticks on 1-2-5 steps
+(:func:`nice_ticks`), decades on log and symmetric-log axes (:func:`log_ticks`,
+:func:`symlog_ticks`). Sizes are in points and inches, as matplotlib's."""
 from __future__ import annotations
 
 import math
