@@ -172,5 +172,11 @@ def test_the_font_is_found_without_importing_matplotlib():
 def test_colours_are_matplotlibs():
     assert raster.rgb("C3") == RED and raster.rgb("0.3") == (76, 76, 76)
     assert raster.rgb("k") == (0, 0, 0)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="'mauve' is not allowed; allowed: 'C0'"):
         raster.rgb("mauve")
+
+
+def test_an_unknown_renderer_is_named_with_the_allowed_ones():
+    with pytest.raises(ValueError, match="renderer = 'svg' is not allowed; allowed: 'raster', "
+                                         "'matplotlib'"):
+        canvas(1.0, 1.0, "svg")

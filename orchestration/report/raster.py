@@ -51,9 +51,13 @@ def rgb(color) -> tuple:
         c = TAB10[int(c[1])]
     if c.startswith("#") and len(c) == 7:
         return tuple(int(c[i:i + 2], 16) for i in (1, 3, 5))
-    level = float(c)                            # ValueError for an unknown name
+    try:
+        level = float(c)
+    except ValueError:
+        level = math.nan
     if not 0.0 <= level <= 1.0:
-        raise ValueError(f"colour {color!r}: a grey level is within 0..1")
+        raise ValueError(f"colour {color!r} is not allowed; allowed: 'C0'..'C9', a grey level "
+                         "'0'..'1', 'k', 'w', '#rrggbb'")
     return (round(255 * level),) * 3
 
 
@@ -710,18 +714,13 @@ class _Pen:
                           width=width, joint="curve" if width > 2 and len(xs) < 2000 else None)
         self._paint(alpha, x[ok], y[ok], width, fn)
 
-    def segments(self, lines, color, lw, alpha, square=False):
-        """Straight segments ``((x0, y0), (x1, y1))``; ``square``: horizontal ones extended by
-        half the width at each end (the corners of a frame filled)."""
+    def segments(self, lines, color, lw, alpha):
+        """Straight segments ``((x0, y0), (x1, y1))``."""
         if not lines:
             return
         fill, width = self._fill(color, alpha), self._width(lw)
         xs, ys = self._map([[x0, x1] for (x0, _), (x1, _) in lines],
                            [[y0, y1] for (_, y0), (_, y1) in lines])
-        if square:
-            half = width / 2
-            flat = ys[:, 0] == ys[:, 1]
-            xs = np.where(flat[:, None], np.sort(xs, axis=1) + [-half, half], xs)
 
         def fn(draw, dx, dy):
             for (x0, x1), (y0, y1) in zip(xs.tolist(), ys.tolist()):
