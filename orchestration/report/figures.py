@@ -7,10 +7,10 @@ in the plotting vocabulary of :mod:`orchestration.report.plotting` and drawn by 
 asked: a matplotlib Figure of its own (the default; no pyplot: the process's backend is left
 alone), or a raster canvas drawn with Pillow (``flexpend run``: no matplotlib imported), which
 :func:`~orchestration.report.files.save_figure` writes alike. The design's figures are
-matplotlib Figures. Titles say what ran, built from the scene's records (:func:`scene_title`), never from a
-scene's fixed text. Margins are fixed in inches where a figure is drawn on every run (a layout
-engine costs about a second per figure); symbols are plain Unicode (``φₒ``, ``10⁻²``), never
-mathtext, whose parser a run would otherwise build."""
+matplotlib Figures. Titles say what ran, built from the scene's records (:func:`scene_title`),
+never from a scene's fixed text. Margins are fixed in inches where a figure is drawn on every
+run (a layout engine costs about a second per figure); symbols are plain Unicode (``φₒ``,
+``10⁻²``), never mathtext, whose parser a run would otherwise build."""
 from __future__ import annotations
 
 import math
