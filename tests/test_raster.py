@@ -180,3 +180,28 @@ def test_an_unknown_renderer_is_named_with_the_allowed_ones():
     with pytest.raises(ValueError, match="renderer = 'svg' is not allowed; allowed: 'raster', "
                                          "'matplotlib'"):
         canvas(1.0, 1.0, "svg")
+
+
+@pytest.mark.parametrize("fallback", ["freetype", "bitmap"])
+def test_without_dejavu_the_figure_is_drawn_in_pillows_own_font(fallback, monkeypatch):
+    """No DejaVu Sans (no matplotlib installed): Pillow's default font at the size asked, or its
+    bitmap font where Pillow has no FreeType; the figure is drawn all the same."""
+    from PIL import ImageFont
+
+    monkeypatch.setattr(raster, "font_path", lambda: None)
+    if fallback == "bitmap":
+        monkeypatch.setattr(ImageFont, "load_default",
+                            lambda size=None: ImageFont.load_default_imagefont())
+    for cache in (raster._font, raster._metrics, raster._line):
+        cache.cache_clear()
+    try:
+        fig, ax = one_panel(x=(0.0, 10.0), y=(0.0, 1.0))
+        ax.ticks(x=[0.0, 5.0, 10.0], y=[0.0, 1.0])
+        ax.xlabel("time (s)")
+        ax.ylabel("tip angle (rad)")
+        ax.title("a title\nof two lines")
+        ax.vline(2.5, color="C3", lw=1.0)
+        assert red_centre(fig, axis=1) == pytest.approx(60, abs=0.75)
+    finally:
+        for cache in (raster._font, raster._metrics, raster._line):
+            cache.cache_clear()

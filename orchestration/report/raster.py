@@ -90,13 +90,23 @@ def _font(px: int):
     return ImageFont.load_default(px)
 
 
+@lru_cache(maxsize=64)
+def _metrics(px: int) -> tuple:
+    """``(ascent, descent)`` in pixels of the font at ``px`` (Pillow's bitmap font, the last
+    fallback, has none: its height above the baseline)."""
+    font = _font(px)
+    if hasattr(font, "getmetrics"):
+        return font.getmetrics()
+    return font.getbbox("Ag")[3], 0
+
+
 @lru_cache(maxsize=2048)
 def _line(px: int, text: str) -> tuple:
     """``(width, mask)`` of one line of ``text`` at ``px`` pixels: its advance and its glyphs as
     an "L" image whose top left is the line's (the ascender's) top left. Kept: tick labels and
     axis labels repeat across the panels and figures of a run."""
     font = _font(px)
-    ascent, descent = font.getmetrics()
+    ascent, descent = _metrics(px)
     width = font.getlength(text)
     _, _, right, bottom = font.getbbox(text)
     mask = Image.new("L", (max(1, math.ceil(max(width, right)) + 1),
@@ -795,7 +805,7 @@ class _Pen:
         px = self._px(size)
         lines = text.split("\n")
         step = self.line_height(size)
-        ascent, descent = _font(px).getmetrics()
+        ascent, descent = _metrics(px)
         widths = [_line(px, line)[0] for line in lines]
         w, h = max(widths), step * (len(lines) - 1) + ascent + descent
         if rotate:
