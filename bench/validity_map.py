@@ -1,0 +1,286 @@
+"""The validity map: each rung of the fidelity ladder against the exact rung, over the paper
+scenes and a sweep of initial angles and gains; the fitted bound written as reference data
+(``orchestration/studies/validity_bound.json``, read by every run's summary:
+:mod:`orchestration.studies.validity`).
+
+Cases: each paper scene (``rigid_pd``, ``flexible_pd``, ``flexible_pd_lowpass``) from the initial
+angles :data:`ANGLES` with the PD gains ``kp`` and ``kd`` scaled together by :data:`GAINS`; 3 s
+each (``flexible_pd``: its own 2.5 s; the largest error of the stable scenes falls within the
+first 2 s: the same to three digits over 10 s). The held-out case of each scene
+(:data:`HELD_OUT`) is measured but not fitted: it checks the bound on a point it was not made from.
+
+Rungs (:data:`RUNGS`; add one there and rerun): each by the monolithic closed loop
+(:func:`orchestration.studies.reference.simulate_reference`, DOP853, rtol = atol = 1e-10) with
+the scene's own beam (``rigid_pd``: the rigid model, ``n_modes = 0``, on its stiff beam; the others
+4 modes). The exact rung: the C kernel (:func:`orchestration.studies.exact_loop.exact_run`) at
+:data:`FINE` (16 elements, h = 50 us) as the reference; the same at :data:`COARSE` (8 elements,
+h = 0.1 ms) gives its uncertainty (the coarse-fine difference, which bounds the fine run's error
+when the method converges; both are quoted), added to every measured error.
+
+At every output time: the error's running maximum ``E``, and the rung's running maxima of the tip
+deflection ``D`` (fraction of L) and of ``|omega_o|`` ``W``. Fit per rung (see
+:mod:`orchestration.studies.validity`): least squares of ``log E = log c + p log D + q log W``
+over the points above the floor (``p, q >= 0``; ``p = 0`` for the rigid rungs), then ``c`` raised
+to bound every fitted point and multiplied by :data:`SAFETY`; ``floor`` the largest exact-rung
+uncertainty of the rung's points (below it nothing is measured). The script also prints, per rung,
+the spread of ``E / f`` (the bound's looseness) and the same fit with the axial load in place of
+the rate (``N``: the running maximum of ``|g cos phi_o + L/2 omega_o^2 + |x_ddot| |/ g``, the
+load factor of the gravity, centrifugal and cart-acceleration loads), to show which predictor
+is tighter.
+
+    python3 bench/validity_map.py [--processes 2] [--out orchestration/studies/validity_bound.json]
+
+Measured (2 processes, about 3 min): see the JSON's ``measured`` block and the README's error
+budget.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from orchestration.scene.schema import load_scene  # noqa: E402
+from orchestration.studies.exact_loop import exact_run  # noqa: E402
+from orchestration.studies.reference import simulate_reference  # noqa: E402
+from orchestration.studies.validity import BOUND_FILE, cantilever_frequency, rung_name  # noqa: E402
+
+SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
+ANGLES = (0.05, 0.2, 0.35, math.pi / 6)
+GAINS = (0.7, 1.0, 1.4)
+#: Per scene, the (angle, gain) measured but left out of the fit.
+HELD_OUT = (0.35, 1.0)
+#: The rungs: (plant.fidelity, plant.gravity_preload). The rigid scene runs each fidelity without
+#: modes (the preload has no meaning there).
+RUNGS = (("linear", False), ("nonlinear", False), ("linear", True), ("nonlinear", True))
+#: The exact rung: (elements, step) of the reference and of its uncertainty estimate.
+FINE, COARSE = (16, 5e-5), (8, 1e-4)
+STOP = 3.0
+RTOL = ATOL = 1e-10
+#: The bound's margin over the largest measured ratio.
+SAFETY = 1.5
+#: A case is left out of a rung's fit (and of its measured range) when the exact rung's own
+#: uncertainty is more than this fraction of the rung's error: the reference does not resolve it.
+RESOLVED = 0.25
+#: The scenes whose loop is stable: the exact rung's largest uncertainty over their cases is the
+#: bound's floor (no smaller error is claimed than the reference resolves).
+STABLE = ("rigid_pd", "flexible_pd_lowpass")
+#: Points kept per case and rung (evenly in time, plus the last).
+POINTS = 24
+
+
+def case_scene(name, phi0, gain, overrides=()):
+    base = load_scene(name)
+    c = base.controller
+    values = {"initial.phi": phi0, "controller.kp": c.kp * gain, "controller.kd": c.kd * gain,
+              "stop_time": min(STOP, base.output.stop_time)}
+    values.update(overrides)
+    return load_scene(name, values)
+
+
+def run_case(case):
+    """One case: the exact reference and every rung's points."""
+    name, phi0, gain = case
+    sc = case_scene(name, phi0, gain)
+    fine = exact_run(sc, *FINE, kernel=True)
+    t0 = time.perf_counter()
+    coarse = exact_run(sc, *COARSE, kernel=True)
+    exact_cost = time.perf_counter() - t0           # the coarse one: the rung as one would run it
+    u = np.maximum.accumulate(np.abs(fine - coarse))
+    L = sc.plant.params.L
+    n_out = len(fine)
+    keep = np.unique(np.r_[np.linspace(0, n_out - 1, POINTS).astype(int), n_out - 1])
+    rungs = {}
+    for fid, pre in RUNGS:
+        if name == "rigid_pd" and pre:
+            continue
+        r_sc = case_scene(name, phi0, gain, {"plant.fidelity": fid,
+                                             "plant.gravity_preload": pre})
+        t1 = time.perf_counter()
+        try:
+            r = simulate_reference(r_sc, rtol=RTOL, atol=ATOL)
+        except RuntimeError as exc:
+            print(f"  {name} {phi0:.3g} x{gain:g} {fid}{' + preload' if pre else ''}: {exc}")
+            continue
+        cost = time.perf_counter() - t1
+        if len(r) != n_out:
+            continue
+        E = np.maximum.accumulate(np.abs(r["phi_o"] - fine)) + u
+        D = np.maximum.accumulate(np.abs(r["tip_deflection"])) / L
+        W = np.maximum.accumulate(np.abs(r["omega_o"]))
+        acc = np.gradient(r["x_dot"], r["time"])
+        g = sc.plant.params.g
+        N = np.maximum.accumulate(np.abs(g * np.cos(r["phi_o"]) + 0.5 * L * r["omega_o"] ** 2)
+                                  + np.abs(acc)) / g
+        rungs[rung_name(r_sc.plant)] = {
+            "points": np.c_[D[keep], W[keep], E[keep], N[keep]].tolist(),
+            "cost": cost / sc.output.stop_time, "uncertainty": float(u[-1])}
+    return {"case": [name, phi0, gain], "uncertainty": float(u[-1]),
+            "exact_cost": exact_cost / sc.output.stop_time, "duration": sc.output.stop_time,
+            "first_cantilever_frequency": cantilever_frequency(sc.plant.params), "rungs": rungs}
+
+
+def fit(points, floor, rigid):
+    """``(c, p, q)`` of ``c D^p W^q`` (see the module docstring); ``points``: rows D, W, E."""
+    P = np.asarray(points)
+    D, W, E = P[:, 0], P[:, 1], P[:, 2]
+    ok = (E > 2 * floor) & (W > 0) & ((D > 0) | rigid)
+    cols = [np.log(W[ok])] if rigid else [np.log(D[ok]), np.log(W[ok])]
+    y = np.log(E[ok])
+    names = ["q"] if rigid else ["p", "q"]
+    while True:                     # least squares with p, q >= 0: drop a negative one, refit
+        A = np.c_[np.ones(ok.sum()), *cols] if cols else np.ones((ok.sum(), 1))
+        sol = np.linalg.lstsq(A, y, rcond=None)[0]
+        neg = [i for i, v in enumerate(sol[1:]) if v < 0]
+        if not neg:
+            break
+        del cols[neg[0]], names[neg[0]]
+    exps = dict(zip(names, sol[1:]))
+    p, q = float(exps.get("p", 0.0)), float(exps.get("q", 0.0))
+    with np.errstate(divide="ignore"):
+        f = np.power(D, p) * np.power(W, q)
+        ratio = np.where((E > floor) & (f > 0), E / np.where(f > 0, f, 1.0), 0.0)
+    c = float(np.max(ratio[np.isfinite(ratio)])) * SAFETY
+    return c, p, q
+
+
+def evaluate(model, D, W):
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = model["c"] * np.power(D, model["p"]) * np.power(W, model["q"])
+    return np.maximum(model["floor"], np.nan_to_num(f, nan=0.0))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--processes", type=int, default=2)
+    ap.add_argument("--out", default=str(BOUND_FILE))
+    ap.add_argument("--raw", default=str(ROOT / "bench" / "results" / "validity_map.json"),
+                    help="the measured cases (written; read back by --refit)")
+    ap.add_argument("--refit", action="store_true", help="fit the cases measured before")
+    args = ap.parse_args(argv)
+    cases = [(n, a, g) for n in SCENES for a in ANGLES for g in GAINS]
+    print(f"{len(cases)} cases x {len(RUNGS)} rungs; exact rung: {FINE[0]} elements at h = "
+          f"{FINE[1]:g} s, its uncertainty against {COARSE[0]} at {COARSE[1]:g} s", flush=True)
+    t0 = time.perf_counter()
+    raw = Path(args.raw)
+    if args.refit:
+        results = json.loads(raw.read_text(encoding="utf-8"))
+    else:
+        results = measure(cases, args.processes, t0)
+        raw.parent.mkdir(parents=True, exist_ok=True)
+        raw.with_suffix(".tmp").write_text(json.dumps(results), encoding="utf-8")
+        raw.with_suffix(".tmp").replace(raw)
+    write_bound(results, args.out, t0)
+
+
+def measure(cases, processes, t0):
+    results = []
+    if processes > 1:
+        import multiprocessing as mp
+        with mp.get_context("spawn").Pool(processes) as pool:
+            for i, r in enumerate(pool.imap_unordered(run_case, cases), 1):
+                results.append(r)
+                print(f"  [{i}/{len(cases)}] {r['case'][0]} phi0 = {r['case'][1]:.3g} gain "
+                      f"x{r['case'][2]:g}: exact uncertainty {r['uncertainty']:.1e} rad "
+                      f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    else:
+        for i, c in enumerate(cases, 1):
+            results.append(run_case(c))
+            print(f"  [{i}/{len(cases)}] {c[0]} phi0 = {c[1]:.3g} gain x{c[2]:g}: exact "
+                  f"uncertainty {results[-1]['uncertainty']:.1e} rad "
+                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    return results
+
+
+def write_bound(results, path, t0):
+    results.sort(key=lambda r: (SCENES.index(r["case"][0]), r["case"][1], r["case"][2]))
+    names = sorted({k for r in results for k in r["rungs"]})
+    out = {"command": "python3 bench/validity_map.py",
+           "date": datetime.date.today().isoformat(),
+           "form": "E <= max(floor, c (D/L)^p (W s)^q) rad, D and W the running maxima of the "
+                   "tip deflection and |omega_o|, E the running maximum of the tip-angle error "
+                   "against the exact rung plus the exact rung's uncertainty",
+           "exact_rung": {"reference": {"elements": FINE[0], "step": FINE[1]},
+                          "uncertainty_against": {"elements": COARSE[0], "step": COARSE[1]},
+                          "largest_uncertainty": max(r["uncertainty"] for r in results)},
+           "sweep": {"scenes": list(SCENES), "angles": list(ANGLES), "gains": list(GAINS),
+                     "held_out": list(HELD_OUT), "stop_time": STOP, "safety": SAFETY},
+           "rungs": {}, "scenes": {}}
+    print(f"\n{'rung':<18} {'c':>9} {'p':>6} {'q':>6} {'floor':>8}  {'D max':>7} {'W max':>7}  "
+          f"E/f: {'median':>6} {'max':>5} held-out max   (with N for W: median E/f)")
+    for name in names:
+        rigid = name.startswith("rigid")
+        fitted, held, unresolved = [], [], []
+        for r in results:
+            if name not in r["rungs"]:
+                continue
+            v = r["rungs"][name]
+            if v["uncertainty"] > RESOLVED * (v["points"][-1][2] - v["uncertainty"]):
+                unresolved.append(r["case"])
+                continue
+            (held if tuple(r["case"][1:]) == HELD_OUT else fitted).extend(v["points"])
+        F, H = np.asarray(fitted), np.asarray(held)
+        floor = float(max(r["uncertainty"] for r in results if r["case"][0] in STABLE))
+        c, p, q = fit(F[:, :3], floor, rigid)
+        model = {"c": c, "p": p, "q": q, "floor": floor}
+        ratio = F[:, 2] / evaluate(model, F[:, 0], F[:, 1])
+        held_ratio = H[:, 2] / evaluate(model, H[:, 0], H[:, 1]) if len(H) else np.zeros(1)
+        cn, pn, qn = fit(F[:, [0, 3, 2]], floor, rigid)
+        ratio_n = F[:, 2] / evaluate({"c": cn, "p": pn, "q": qn, "floor": floor}, F[:, 0],
+                                     F[:, 3])
+        P = np.r_[F, H] if len(H) else F
+        covered = [r["first_cantilever_frequency"] for r in results if name in r["rungs"]]
+        out["rungs"][name] = {
+            "model": model,
+            "range": {"deflection": float(P[:, 0].max()), "rate": float(P[:, 1].max()),
+                      "first_cantilever_frequency": float(min(covered))},
+            "fit_points": np.round(F[:, :3], 9).tolist(),
+            "held_out_points": np.round(H[:, :3], 9).tolist(),
+            "looseness": {"median": float(np.median(ratio[F[:, 2] > floor])) if np.any(
+                F[:, 2] > floor) else None, "max": float(ratio.max())},
+            "axial_load_fit": {"c": cn, "p": pn, "q": qn,
+                               "median_looseness": float(np.median(ratio_n))},
+            "unresolved_cases": unresolved,
+            "cost": float(np.median([r["rungs"][name]["cost"] for r in results
+                                     if name in r["rungs"]]))}
+        print(f"{name:<18} {c:9.3g} {p:6.3f} {q:6.3f} {floor:8.1e}  {P[:, 0].max():7.3%} "
+              f"{P[:, 1].max():7.3g}  {np.median(ratio):11.3f} {ratio.max():5.3f} "
+              f"{held_ratio.max():8.3f}       ({np.median(ratio_n):.3f})"
+              + (f"  unresolved: {unresolved}" if unresolved else ""))
+    print(f"\n{'scene':<20} {'rung':<18} {'error (rad)':>11} {'bound':>9} {'D':>7} {'W':>7} "
+          f"{'cost s/s':>9}")
+    for name in SCENES:
+        paper = next(r for r in results if r["case"] == [name, math.pi / 6, 1.0])
+        rows = {}
+        for rung, v in paper["rungs"].items():
+            D, W, E = v["points"][-1][:3]
+            bound = float(evaluate(out["rungs"][rung]["model"], D, W))
+            rows[rung] = {"error": E - v["uncertainty"], "uncertainty": v["uncertainty"],
+                          "bound": bound, "deflection": D, "rate": W, "cost": v["cost"]}
+            print(f"{name:<20} {rung:<18} {E - v['uncertainty']:11.2e} {bound:9.2e} {D:7.3%} "
+                  f"{W:7.3g} {v['cost']:9.3g}")
+        rows["exact"] = {"uncertainty": paper["uncertainty"], "cost": paper["exact_cost"]}
+        print(f"{name:<20} {'exact (8+16 el.)':<18} {paper['uncertainty']:11.1e} (its own "
+              f"uncertainty){'':>12} {paper['exact_cost']:9.3g}")
+        out["scenes"][name] = rows
+    tmp = Path(path).with_suffix(".tmp")
+    tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    tmp.replace(path)
+    print(f"\nwrote {path} ({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    main()
