@@ -56,7 +56,8 @@ if str(ROOT) not in sys.path:
 from orchestration.scene.schema import load_scene  # noqa: E402
 from orchestration.studies.exact_loop import exact_run  # noqa: E402
 from orchestration.studies.reference import simulate_reference  # noqa: E402
-from orchestration.studies.validity import BOUND_FILE, cantilever_frequency, rung_name  # noqa: E402
+from orchestration.studies.validity import (BOUND_FILE, RANGE, cantilever_frequency,  # noqa: E402
+                                            features, rung_name, term)
 
 SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
 ANGLES = (0.05, 0.2, 0.35, math.pi / 6)
@@ -64,7 +65,8 @@ GAINS = (0.7, 1.0, 1.4)
 #: Per scene, the (angle, gain) measured but left out of the fit.
 HELD_OUT = (0.35, 1.0)
 #: The rungs: (plant.fidelity, plant.gravity_preload). The rigid scene runs each fidelity without
-#: modes (the preload has no meaning there).
+#: modes (the preload has no meaning there). A new rung (a plant.fidelity value that
+#: simulate_reference solves) is measured by adding it here and rerunning the script.
 RUNGS = (("linear", False), ("nonlinear", False), ("linear", True), ("nonlinear", True))
 #: The exact rung: (elements, step) of the reference and of its uncertainty estimate.
 FINE, COARSE = (16, 5e-5), (8, 1e-4)
@@ -78,6 +80,12 @@ RESOLVED = 0.25
 #: The scenes whose loop is stable: the exact rung's largest uncertainty over their cases is the
 #: bound's floor (no smaller error is claimed than the reference resolves).
 STABLE = ("rigid_pd", "flexible_pd_lowpass")
+#: The bound's terms (orchestration.studies.validity.TERMS), and other sets whose looseness is
+#: printed beside it: without T (and V); the axial load factor N for the rate.
+TERM_SET = ("D", "T", "I", "V", "W", "A", "A3")
+ALTERNATIVES = {"without T": ("D", "I", "V", "W", "A", "A3"),
+                "without T, V": ("D", "I", "W", "A", "A3"),
+                "N for W": ("D", "T", "I", "V", "N", "A", "A3")}
 #: Points kept per case and rung (evenly in time, plus the last).
 POINTS = 24
 
@@ -119,48 +127,44 @@ def run_case(case):
         if len(r) != n_out:
             continue
         E = np.maximum.accumulate(np.abs(r["phi_o"] - fine)) + u
-        D = np.maximum.accumulate(np.abs(r["tip_deflection"])) / L
-        W = np.maximum.accumulate(np.abs(r["omega_o"]))
+        feats = features(r, L)
         acc = np.gradient(r["x_dot"], r["time"])
         g = sc.plant.params.g
-        N = np.maximum.accumulate(np.abs(g * np.cos(r["phi_o"]) + 0.5 * L * r["omega_o"] ** 2)
-                                  + np.abs(acc)) / g
+        feats["N"] = np.maximum.accumulate(
+            np.abs(g * np.cos(r["phi_o"]) + 0.5 * L * r["omega_o"] ** 2) + np.abs(acc)) / g
         rungs[rung_name(r_sc.plant)] = {
-            "points": np.c_[D[keep], W[keep], E[keep], N[keep]].tolist(),
+            "E": E[keep].tolist(), **{k: v[keep].tolist() for k, v in feats.items()},
             "cost": cost / sc.output.stop_time, "uncertainty": float(u[-1])}
     return {"case": [name, phi0, gain], "uncertainty": float(u[-1]),
             "exact_cost": exact_cost / sc.output.stop_time, "duration": sc.output.stop_time,
             "first_cantilever_frequency": cantilever_frequency(sc.plant.params), "rungs": rungs}
 
 
-def fit(points, floor, rigid):
-    """``(c, p, q)`` of ``c D^p W^q`` (see the module docstring); ``points``: rows D, W, E."""
-    P = np.asarray(points)
-    D, W, E = P[:, 0], P[:, 1], P[:, 2]
-    ok = (E > 2 * floor) & (W > 0) & ((D > 0) | rigid)
-    cols = [np.log(W[ok])] if rigid else [np.log(D[ok]), np.log(W[ok])]
-    y = np.log(E[ok])
-    names = ["q"] if rigid else ["p", "q"]
-    while True:                     # least squares with p, q >= 0: drop a negative one, refit
-        A = np.c_[np.ones(ok.sum()), *cols] if cols else np.ones((ok.sum(), 1))
-        sol = np.linalg.lstsq(A, y, rcond=None)[0]
-        neg = [i for i, v in enumerate(sol[1:]) if v < 0]
-        if not neg:
-            break
-        del cols[neg[0]], names[neg[0]]
-    exps = dict(zip(names, sol[1:]))
-    p, q = float(exps.get("p", 0.0)), float(exps.get("q", 0.0))
-    with np.errstate(divide="ignore"):
-        f = np.power(D, p) * np.power(W, q)
-        ratio = np.where((E > floor) & (f > 0), E / np.where(f > 0, f, 1.0), 0.0)
-    c = float(np.max(ratio[np.isfinite(ratio)])) * SAFETY
-    return c, p, q
+def design(P: dict, names) -> np.ndarray:
+    """The columns of the named terms (:data:`orchestration.studies.validity.TERMS`)."""
+    return np.column_stack([term(P, k) for k in names])
 
 
-def evaluate(model, D, W):
-    with np.errstate(divide="ignore", invalid="ignore"):
-        f = model["c"] * np.power(D, model["p"]) * np.power(W, model["q"])
-    return np.maximum(model["floor"], np.nan_to_num(f, nan=0.0))
+def fit(P: dict, floor: float, names) -> dict:
+    """The tightest bound ``sum c_k term_k >= E`` (``c_k >= 0``) at every point above the floor,
+    by linear programming (minimise the sum of ``bound / E``), times :data:`SAFETY`."""
+    from scipy.optimize import linprog
+
+    E = np.asarray(P["E"])
+    ok = E > floor
+    X = design(P, names)[ok]
+    res = linprog((X / E[ok, None]).sum(axis=0), A_ub=-X, b_ub=-E[ok], bounds=(0, None),
+                  method="highs")
+    if not res.success:
+        raise RuntimeError(f"the bound's fit failed: {res.message}")
+    terms = {k: float(SAFETY * c) for k, c in zip(names, res.x) if c > 0}
+    return {"floor": floor, "terms": terms}
+
+
+def evaluate(model, P: dict) -> np.ndarray:
+    """The model at the points (the same formula as RungBound, written out here)."""
+    f = sum(c * term(P, k) for k, c in model["terms"].items())
+    return np.maximum(model["floor"], f)
 
 
 def main(argv=None):
@@ -205,69 +209,95 @@ def measure(cases, processes, t0):
     return results
 
 
+def point_rows(P: dict) -> list:
+    """The points as rows (the features of RANGE, then E), to 4 significant digits (the bound's
+    margin over them is SAFETY, far above the rounding), a row equal to the one before left out."""
+    out = []
+    for row in zip(*(P[k] for k in (*RANGE, "E"))):
+        row = [float(f"{v:.4g}") for v in row]
+        if not out or row != out[-1]:
+            out.append(row)
+    return out
+
+
+def dumps(out: dict) -> str:
+    """JSON, indented, each innermost list on one line."""
+    import re
+    text = json.dumps(out, indent=1)
+    return re.sub(r"\[\s+([^\[\]{}]+?)\s+\]", lambda m: "[" + " ".join(m.group(1).split()) + "]",
+                  text) + "\n"
+
+
+def stack(cases) -> dict:
+    """The points of several cases, column by column."""
+    keys = (*RANGE, "E", "N")
+    return {k: np.concatenate([np.asarray(c[k], float) for c in cases]) if cases
+            else np.zeros(0) for k in keys}
+
+
 def write_bound(results, path, t0):
     results.sort(key=lambda r: (SCENES.index(r["case"][0]), r["case"][1], r["case"][2]))
     names = sorted({k for r in results for k in r["rungs"]})
     out = {"command": "python3 bench/validity_map.py",
            "date": datetime.date.today().isoformat(),
-           "form": "E <= max(floor, c (D/L)^p (W s)^q) rad, D and W the running maxima of the "
-                   "tip deflection and |omega_o|, E the running maximum of the tip-angle error "
-                   "against the exact rung plus the exact rung's uncertainty",
+           "form": "E <= max(floor, sum c_k term_k) rad (orchestration/studies/validity.py "
+                   "TERMS); E the running maximum of the tip-angle error against the exact rung "
+                   "plus the exact rung's uncertainty; points [" + ", ".join(RANGE) + ", E]",
            "exact_rung": {"reference": {"elements": FINE[0], "step": FINE[1]},
                           "uncertainty_against": {"elements": COARSE[0], "step": COARSE[1]},
                           "largest_uncertainty": max(r["uncertainty"] for r in results)},
            "sweep": {"scenes": list(SCENES), "angles": list(ANGLES), "gains": list(GAINS),
                      "held_out": list(HELD_OUT), "stop_time": STOP, "safety": SAFETY},
            "rungs": {}, "scenes": {}}
-    print(f"\n{'rung':<18} {'c':>9} {'p':>6} {'q':>6} {'floor':>8}  {'D max':>7} {'W max':>7}  "
-          f"E/f: {'median':>6} {'max':>5} held-out max   (with N for W: median E/f)")
+    print(f"\nfloor {max(r['uncertainty'] for r in results if r['case'][0] in STABLE):.2g} rad; "
+          f"E/bound at the fitted points (median, max), at the held-out case (max); the median "
+          f"with other predictors: {', '.join(ALTERNATIVES)}")
+    print(f"{'rung':<20} {'bound (rad)':<44} {'median':>6} {'max':>5} {'held-out':>8}")
     for name in names:
-        rigid = name.startswith("rigid")
         fitted, held, unresolved = [], [], []
         for r in results:
             if name not in r["rungs"]:
                 continue
             v = r["rungs"][name]
-            if v["uncertainty"] > RESOLVED * (v["points"][-1][2] - v["uncertainty"]):
+            if v["uncertainty"] > RESOLVED * (v["E"][-1] - v["uncertainty"]):
                 unresolved.append(r["case"])
                 continue
-            (held if tuple(r["case"][1:]) == HELD_OUT else fitted).extend(v["points"])
-        F, H = np.asarray(fitted), np.asarray(held)
+            (held if tuple(r["case"][1:]) == HELD_OUT else fitted).append(v)
+        F, H = stack(fitted), stack(held)
         floor = float(max(r["uncertainty"] for r in results if r["case"][0] in STABLE))
-        c, p, q = fit(F[:, :3], floor, rigid)
-        model = {"c": c, "p": p, "q": q, "floor": floor}
-        ratio = F[:, 2] / evaluate(model, F[:, 0], F[:, 1])
-        held_ratio = H[:, 2] / evaluate(model, H[:, 0], H[:, 1]) if len(H) else np.zeros(1)
-        cn, pn, qn = fit(F[:, [0, 3, 2]], floor, rigid)
-        ratio_n = F[:, 2] / evaluate({"c": cn, "p": pn, "q": qn, "floor": floor}, F[:, 0],
-                                     F[:, 3])
-        P = np.r_[F, H] if len(H) else F
+        model = fit(F, floor, TERM_SET)
+        ratio = F["E"] / evaluate(model, F)
+        held_ratio = H["E"] / evaluate(model, H) if len(H["E"]) else np.zeros(1)
+        loose = {label: float(np.median((F["E"] / evaluate(fit(F, floor, terms), F))[
+            F["E"] > floor])) for label, terms in ALTERNATIVES.items()}
+        P = stack(fitted + held)
         covered = [r["first_cantilever_frequency"] for r in results if name in r["rungs"]]
         out["rungs"][name] = {
             "model": model,
-            "range": {"deflection": float(P[:, 0].max()), "rate": float(P[:, 1].max()),
+            "range": {**{k: float(np.max(P[k])) for k in RANGE},
                       "first_cantilever_frequency": float(min(covered))},
-            "fit_points": np.round(F[:, :3], 9).tolist(),
-            "held_out_points": np.round(H[:, :3], 9).tolist(),
-            "looseness": {"median": float(np.median(ratio[F[:, 2] > floor])) if np.any(
-                F[:, 2] > floor) else None, "max": float(ratio.max())},
-            "axial_load_fit": {"c": cn, "p": pn, "q": qn,
-                               "median_looseness": float(np.median(ratio_n))},
+            "fit_points": point_rows(F), "held_out_points": point_rows(H),
+            "looseness": {"median": float(np.median(ratio[F["E"] > floor])),
+                          "max": float(ratio.max()), "held_out_max": float(held_ratio.max())},
+            "other_predictors": loose,
             "unresolved_cases": unresolved,
             "cost": float(np.median([r["rungs"][name]["cost"] for r in results
                                      if name in r["rungs"]]))}
-        print(f"{name:<18} {c:9.3g} {p:6.3f} {q:6.3f} {floor:8.1e}  {P[:, 0].max():7.3%} "
-              f"{P[:, 1].max():7.3g}  {np.median(ratio):11.3f} {ratio.max():5.3f} "
-              f"{held_ratio.max():8.3f}       ({np.median(ratio_n):.3f})"
+        terms = " + ".join(f"{c:.3g} {k}" for k, c in model["terms"].items())
+        print(f"{name:<20} {terms:<44} {np.median(ratio[F['E'] > floor]):6.3f} "
+              f"{ratio.max():5.3f} {held_ratio.max():8.3f}   "
+              + "  ".join(f"{v:.3f}" for v in loose.values())
               + (f"  unresolved: {unresolved}" if unresolved else ""))
+        print(f"{'':<20} range: " + ", ".join(f"{k} {np.max(P[k]):.3g}" for k in RANGE))
     print(f"\n{'scene':<20} {'rung':<18} {'error (rad)':>11} {'bound':>9} {'D':>7} {'W':>7} "
           f"{'cost s/s':>9}")
     for name in SCENES:
         paper = next(r for r in results if r["case"] == [name, math.pi / 6, 1.0])
         rows = {}
         for rung, v in paper["rungs"].items():
-            D, W, E = v["points"][-1][:3]
-            bound = float(evaluate(out["rungs"][rung]["model"], D, W))
+            last = {k: np.asarray(v[k][-1:]) for k in (*RANGE, "E", "N")}
+            bound = float(evaluate(out["rungs"][rung]["model"], last)[0])
+            E, D, W = v["E"][-1], v["D"][-1], v["W"][-1]
             rows[rung] = {"error": E - v["uncertainty"], "uncertainty": v["uncertainty"],
                           "bound": bound, "deflection": D, "rate": W, "cost": v["cost"]}
             print(f"{name:<20} {rung:<18} {E - v['uncertainty']:11.2e} {bound:9.2e} {D:7.3%} "
@@ -277,7 +307,7 @@ def write_bound(results, path, t0):
               f"uncertainty){'':>12} {paper['exact_cost']:9.3g}")
         out["scenes"][name] = rows
     tmp = Path(path).with_suffix(".tmp")
-    tmp.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    tmp.write_text(dumps(out), encoding="utf-8")
     tmp.replace(path)
     print(f"\nwrote {path} ({time.perf_counter() - t0:.0f} s)")
 
