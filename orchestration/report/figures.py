@@ -136,8 +136,10 @@ def outcome_text(summary) -> str:
                                False: "UNSTABLE (a reliable fit grows)",
                                None: "no verdict (no reliable fit)"}[summary.get("stable")]
     v = summary.get("validity") or {}
+    if v.get("model_form_error") is not None:
+        out += f"; model-form error <= {v['model_form_error']:.2g} rad ({v['rung']})"
     if v.get("warnings"):
-        out += "; it leaves the model's range"
+        out += "; it leaves the measured range"
     return out
 
 
@@ -232,9 +234,10 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
     rate: the slow fit on the tip angle, the bending fit on the envelope of ``eta_1``'s bending
     band (the slow motion ``eta_1`` also carries is not what that fit measures), where the
     fitted rate is drawn as a line (a straight line on the log scale when it holds); the
-    validity bound of the tip deflection is drawn when the trace comes near it (else stated);
-    an early stop is marked. Drawn by ``renderer`` (:func:`~orchestration.report.plotting.
-    canvas`): a matplotlib Figure, or a raster canvas to save."""
+    deflection up to which the rung's error was measured is drawn when the trace comes near it
+    (else stated); an early stop is marked. Drawn by ``renderer``
+    (:func:`~orchestration.report.plotting.canvas`): a matplotlib Figure, or a raster canvas to
+    save."""
     from ..studies.analysis import first_bending_frequency
     from .summary import BENDING_BAND
 
@@ -303,17 +306,17 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
                         label=f"fitted rate {f['rate']:+.3g} 1/s")
             legend["bending"] = True
         v = summary.get("validity")
-        if v and "tip_deflection" in ax_of:
+        if v and v.get("tip_deflection_limit") and "tip_deflection" in ax_of:
             ax = ax_of["tip_deflection"]
             lim = v["tip_deflection_limit"]
             reach = float(np.max(np.abs(result["tip_deflection"]))) if len(t) else 0.0
             if reach >= 0.3 * lim:
                 for sign in (1, -1):
                     ax.hline(sign * lim, color="C3", style=":", lw=0.8,
-                             label=f"model's range ±{lim:.3g} m" if sign > 0 else None)
+                             label=f"measured range ±{lim:.3g} m" if sign > 0 else None)
                 legend["tip_deflection"] = True
             else:
-                ax.text(0.995, 0.96, f"model's range ±{lim:.3g} m: off this scale",
+                ax.text(0.995, 0.96, f"measured range ±{lim:.3g} m: off this scale",
                         coords="axes", color="C3", size=7, ha="right", va="top")
         stopped = summary.get("stopped")
         if stopped and stopped.get("time") is not None:
