@@ -41,7 +41,7 @@ from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
-from .studies.fidelity import select_model
+from .studies.fidelity import climb, select_model
 from .studies.reference import COLUMNS, check_reference, simulate_reference
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
@@ -179,13 +179,50 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     (a sweep unpacks once per process). ``pool``: a
     :class:`~orchestration.cosim.pool.SlavePool` that gives the FMU instances and takes them back
     (a sweep's runs reuse them); without one they are made here and freed at the end.
-    ``connections_out``: a stream for the connection table."""
+    ``connections_out``: a stream for the connection table.
+
+    With ``plant.fidelity = "auto"`` the run climbs the fidelity ladder: it is repeated on the
+    next rung up while its measured model-form error bound exceeds ``fidelity.tolerance`` or it
+    leaves its rung's measured range (:func:`orchestration.studies.fidelity.climb`); the summary's
+    ``model`` says which rung ran and why."""
     model = None
     if not scene.resolved:
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
     if reference:
         check_reference(scene)
+    kw = dict(progress=progress, connections_out=connections_out, stop=stop,
+              snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool)
+    out = _run_once(scene, fmus, **kw)
+    kw["connections_out"] = None                # the table once
+    if model is not None and model["fidelity_auto"]:
+        model["climb"] = []
+        while not out.interrupted:
+            nxt, why = climb(scene.plant.fidelity, out.summary["validity"],
+                             scene.fidelity.tolerance)
+            model["climb"].append(why)
+            if nxt is None:
+                break
+            scene = scene.replace(plant=scene.plant.with_model(scene.plant.params.n_modes, nxt))
+            out = _run_once(scene, fmus, **kw)
+        model["fidelity"] = scene.plant.fidelity
+        model["reason"] = "; ".join([model["reason"], *model["climb"]])
+    if model is not None:
+        out.summary["model"] = model
+    if reference and out.summary["stopped"] is None:
+        exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
+        ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
+                                 if exact else None)
+        out.reference = ref
+        out.summary["max_error_phi_o"] = float(np.max(np.abs(out.result["phi_o"] - ref["phi_o"])))
+        out.summary["max_error_eta_1"] = float(np.max(np.abs(out.result["eta_1"] - ref["eta_1"])))
+    return out
+
+
+def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snapshot_times,
+              unzipdirs, pool) -> Run:
+    """One co-simulation of a resolved scene (:func:`run_scene` without the model's choice and
+    the reference)."""
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     reusable = False                # the instances may serve another run (pool)
@@ -240,17 +277,7 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     if stats is not None:
         summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected,
                        master_loop=stats.loop, **iteration_counts(stats))
-    if model is not None:
-        summary["model"] = model
-    out = Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)
-    if reference and stopped is None:
-        exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
-        ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
-                                 if exact else None)
-        out.reference = ref
-        summary["max_error_phi_o"] = float(np.max(np.abs(res["phi_o"] - ref["phi_o"])))
-        summary["max_error_eta_1"] = float(np.max(np.abs(res["eta_1"] - ref["eta_1"])))
-    return out
+    return Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)
 
 
 def _reorder(res, n_eta):
