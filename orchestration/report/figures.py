@@ -137,7 +137,7 @@ def outcome_text(summary) -> str:
                                None: "no verdict (no reliable fit)"}[summary.get("stable")]
     v = summary.get("validity") or {}
     if v.get("model_form_error") is not None:
-        out += f"; model-form error <= {v['model_form_error']:.2g} rad ({v['rung']})"
+        out += f"; model-form error <= {v['model_form_error']:.1e} rad ({v['rung']})"
     if v.get("warnings"):
         out += "; it leaves the measured range"
     return out

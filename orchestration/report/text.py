@@ -111,9 +111,10 @@ def validity_text(v: dict) -> str:
     """The model-form error bound of a run's summary (``validity``) in one phrase."""
     if v.get("model_form_error") is None:
         return f"model-form error: not measured ({v.get('note') or 'no bound'})"
-    return (f"model-form error <= {v['model_form_error']:.2g} rad ({100 * v['relative']:.2g} % "
-            f"of max |phi_o|; measured bound for the {v['rung']} rung at "
-            f"{100 * v['deflection']:.2g} % deflection, {v['rate']:.3g} rad/s)")
+    at = "" if v["rung"].startswith("rigid") else f"{100 * v['deflection']:.2g} % deflection, "
+    return (f"model-form error <= {v['model_form_error']:.1e} rad ({100 * v['relative']:.2g} % "
+            f"of max |phi_o|; measured bound for the {v['rung']} rung at {at}"
+            f"{v['rate']:.3g} rad/s)")
 
 
 def run_lines(name: str, s: dict, written=()) -> list[str]:
@@ -130,8 +131,10 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
         m = s["model"]
         auto = " and ".join(k for k, on in (("plant.n_modes", m["n_modes_auto"]),
                                                ("plant.fidelity", m["fidelity_auto"])) if on)
+        on = (f"on {', '.join(m['outputs'])}" if m["n_modes_auto"] else
+              "of max |phi_o| for the measured bound")
         out.append(f"  model: {m['n_modes']} modes, {m['fidelity']} ({auto} = auto, tolerance "
-                   f"{100 * m['tolerance']:g} % on {', '.join(m['outputs'])})")
+                   f"{100 * m['tolerance']:g} % {on})")
         out += [f"    {part}" for part in m["reason"].split("; ")]
     out.append(f"  slow (rigid) oscillation: {mode_text(s.get('slow'))}")
     out.append(f"  bending oscillation:      {mode_text(s.get('bending'))}")

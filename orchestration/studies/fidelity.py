@@ -73,10 +73,10 @@ def climb(fidelity: str, validity: dict, tolerance: float):
     elif validity["outside"]:
         why = f"{rung}: outside its measured range ({validity['outside'][0]})"
     elif rel > tolerance:
-        why = (f"{rung}: model-form error <= {bound:.2g} rad, {100 * rel:.3g} % of max "
+        why = (f"{rung}: model-form error <= {bound:.1e} rad, {100 * rel:.3g} % of max "
                f"|phi_o| > {100 * tolerance:g} %")
     else:
-        return None, (f"{rung}: model-form error <= {bound:.2g} rad, {100 * rel:.3g} % of max "
+        return None, (f"{rung}: model-form error <= {bound:.1e} rad, {100 * rel:.3g} % of max "
                       f"|phi_o| <= {100 * tolerance:g} %: kept")
     ladder = available_ladder()
     i = ladder.index(fidelity) if fidelity in ladder else len(ladder) - 1

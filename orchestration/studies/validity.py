@@ -167,8 +167,8 @@ def assess(res: np.ndarray, scene, path=BOUND_FILE) -> dict:
             what, unit = _RANGE_TEXT[k]
             scale = 100 if k == "D" else 1
             out["outside"].append(
-                f"{what} reaches {scale * end[k]:.3g} {unit} (from t = {t[over[0]]:.3g} s beyond "
-                f"{scale * b.range[k]:.3g} {unit}, the largest the {name} rung was measured at)")
+                f"{what} reaches {scale * end[k]:.3g} {unit}, beyond the {scale * b.range[k]:.3g} "
+                f"{unit} the {name} rung was measured up to (from t = {t[over[0]]:.3g} s)")
     if scene.plant.params.n_modes == 0 and b.min_frequency is not None:
         w1 = cantilever_frequency(scene.plant.params)
         if w1 < b.min_frequency * (1 - 1e-9):
