@@ -125,7 +125,8 @@ def loop_text(scene) -> str:
 
 
 def outcome_text(summary) -> str:
-    """What the co-simulation did: its stop, or its verdict, and where it left the model's range."""
+    """What the co-simulation did: its stop, or its verdict, its model-form error bound, and
+    whether it left its rung's measured range."""
     if summary is None:
         return ""
     stopped = summary.get("stopped")
@@ -334,8 +335,8 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
 
 
 # ---------------------------------------------------------------------- shapes
-#: Every shapes figure draws the beam's deflection magnified by this factor (the model's range,
-#: a tip deflection of 5 % of L, is drawn as 25 % of L), so that figures can be compared by eye.
+#: Every shapes figure draws the beam's deflection magnified by this factor (a tip deflection of
+#: 5 % of L is drawn as 25 % of L), so that figures can be compared by eye.
 DEFLECTION_SCALE = 5.0
 
 

@@ -1,5 +1,5 @@
 """What a run's summary says: the fitted modes beside the linear prediction, the verdict, and
-whether the run left the model's range of validity.
+the run's measured model-form error bound.
 
 **Modes.** Two oscillations are fitted (:func:`orchestration.studies.fit.fit_mode`, matrix pencil): the
 slow, rigid-pendulum one on ``phi_o`` (0.5 to 60 rad/s) and the bending one on ``eta_1``: the

@@ -266,7 +266,7 @@ def verdict_lines(stats) -> list[str]:
            + (f" ({100 * share:.1f} % of those with a verdict)" if share is not None else "")
            + f", {stats['unstable']} unstable, {stats['no_verdict']} no verdict"
            + (f" ({why})" if why else "")
-           + (f"; {stats['invalid']} left the model's range" if stats["invalid"] else "")]
+           + (f"; {stats['invalid']} left their rung's measured range" if stats["invalid"] else "")]
     n, k = stats["no_fit"], stats["no_fit_linear_stable"]
     if n:
         runs = "the run" if n == 1 else f"the {n} runs"
