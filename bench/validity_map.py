@@ -17,21 +17,42 @@ the scene's own beam (``rigid_pd``: the rigid model, ``n_modes = 0``, on its sti
 h = 0.1 ms) gives its uncertainty (the coarse-fine difference, which bounds the fine run's error
 when the method converges; both are quoted), added to every measured error.
 
-At every output time: the error's running maximum ``E``, and the rung's running maxima of the tip
-deflection ``D`` (fraction of L) and of ``|omega_o|`` ``W``. Fit per rung (see
-:mod:`orchestration.studies.validity`): least squares of ``log E = log c + p log D + q log W``
-over the points above the floor (``p, q >= 0``; ``p = 0`` for the rigid rungs), then ``c`` raised
-to bound every fitted point and multiplied by :data:`SAFETY`; ``floor`` the largest exact-rung
-uncertainty of the rung's points (below it nothing is measured). The script also prints, per rung,
-the spread of ``E / f`` (the bound's looseness) and the same fit with the axial load in place of
-the rate (``N``: the running maximum of ``|g cos phi_o + L/2 omega_o^2 + |x_ddot| |/ g``, the
-load factor of the gravity, centrifugal and cart-acceleration loads), to show which predictor
-is tighter.
+At every output time: the error's running maximum ``E`` and the rung's features
+(:func:`orchestration.studies.validity.features`: the running maxima ``D``, ``W``, ``A`` of the
+tip deflection, ``|omega_o|`` and ``|phi_o|``, ``T`` of the deflection times the time, the
+accumulated deflection ``I`` and the deflection's travel ``V``). A case whose exact-rung
+uncertainty is more than :data:`RESOLVED` of the rung's error is left out (none is, today). Fit
+per rung: the nonnegative combination of the terms :data:`TERM_SET` that bounds every fitted
+point with the least sum of ``bound / E`` (``scipy.optimize.linprog``), times :data:`SAFETY`;
+``floor`` the exact rung's largest uncertainty on the stable scenes (:data:`STABLE`). The script
+also prints, per rung, the median of ``E / bound`` (the bound's looseness) with other term sets
+(:data:`ALTERNATIVES`: without ``T``; the axial load factor ``N``, the running maximum of
+``(|g cos phi_o + L/2 omega_o^2| + |x_ddot|) / g``, in place of the rate), and for each paper
+scene from pi/6 the error of each rung, its bound and the monolithic solve's cost.
 
     python3 bench/validity_map.py [--processes 2] [--out orchestration/studies/validity_bound.json]
+    python3 bench/validity_map.py --refit      # fit the cases of the last run again (bench/results/)
 
-Measured (2 processes, about 3 min): see the JSON's ``measured`` block and the README's error
-budget.
+Measured (2026-11-26, 2 processes on a shared, loaded machine: 4 to 6.5 min):
+
+    rung                 bound (rad)                        E/bound: median  max  held-out
+    linear               1.78 T + 0.00396 V + 4.17 A3                0.419  0.667  0.602
+    linear + preload     1.14 T + 4.36 A3                            0.441  0.667  0.588
+    nonlinear            1.48 T + 8.58e-05 W                         0.268  0.667  0.406
+    nonlinear + preload  1.67 T                                      0.160  0.667  0.339
+    rigid linear         3.69 A3                                     0.543  0.667  0.579
+    rigid nonlinear      7.38e-05 W + 2.18e-05 A + 0.000314 A3       0.643  0.667  0.658
+    (median E/bound without T: nonlinear 0.139, + preload 0.078; with N for W: 0.273, 0.160)
+
+    scene (pi/6)         rung                 error (rad)  bound    exact rung's uncertainty
+    rigid_pd             rigid nonlinear      2.53e-04     3.92e-04 3.6e-06
+    flexible_pd          nonlinear            1.07e-01     3.68e-01 6.9e-04
+    flexible_pd          nonlinear + preload  1.58e-01     4.20e-01
+    flexible_pd_lowpass  nonlinear            1.08e-03     8.25e-03 7.9e-06
+    flexible_pd_lowpass  nonlinear + preload  1.06e-03     8.88e-03
+
+The floor is 9.0e-6 rad; the exact rung's largest uncertainty, 5.8e-2 rad, is on ``flexible_pd``
+at 1.4 times its gains, where the bending grows fastest (the rungs' errors there are larger still).
 """
 from __future__ import annotations
 
