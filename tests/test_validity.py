@@ -127,3 +127,22 @@ def test_auto_climbs_when_the_tolerance_is_below_the_rungs_bound(native):
     assert tight.summary["validity"]["rung"] == "nonlinear"
     assert "climbs to nonlinear" in tight.summary["model"]["reason"]
     assert math.isfinite(tight.summary["validity"]["model_form_error"])
+
+
+def test_export_climbs_on_the_monolithic_runs():
+    """Without a co-simulation (flexpend export) the ladder is climbed on the scene's monolithic
+    runs, by the same rule: from pi/6 the linear rung's bound is far beyond 5 %, not from 0.05
+    at a tolerance above that rung's bound there."""
+    from orchestration.studies.fidelity import select_model
+
+    big = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", "stop_time=1"])
+    chosen, report = select_model(big, monolithic=True)
+    assert chosen.plant.fidelity == "nonlinear" and "climbs to nonlinear" in report["reason"]
+    small = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", "stop_time=1",
+                                               "initial.phi=0.05"])
+    linear = small.replace(plant=small.plant.with_model(4, "linear"))
+    lin = summarize(simulate_reference(linear, rtol=1e-8, atol=1e-10), linear)
+    tol = 2 * lin["validity"]["relative"]
+    chosen, report = select_model(load_scene(small, {"fidelity.tolerance": tol}),
+                                  monolithic=True)
+    assert chosen.plant.fidelity == "linear" and "kept" in report["reason"]
