@@ -31,7 +31,7 @@ also prints, per rung, the median of ``E / bound`` (the bound's looseness) with 
 scene from pi/6 the error of each rung, its bound and the monolithic solve's cost.
 
     python3 bench/validity_map.py [--processes 2] [--out orchestration/studies/validity_bound.json]
-    python3 bench/validity_map.py --refit      # fit the cases of the last run again (bench/results/)
+    python3 bench/validity_map.py --refit   # fit the last run's cases again (bench/results/)
 
 Measured (2026-11-26, 2 processes on a shared, loaded machine: 4 to 6.5 min):
 

@@ -9,7 +9,8 @@ PD destabilises, MODEL.md), so that a filter's own mode (near 95 rad/s with the 
 is not taken for it. Both are fitted only over the part of the run where the linearisation at the upright
 rest state holds: the longest stretch with ``|phi| <= LINEAR_PHI`` (the frame's rotation; ``sin``
 and ``cos`` within 0.7 % and 2 % of their linear values) and the tip deflection within
-``FIT_DEFLECTION`` (5 % of L: the fitted modes are the loop's linearised at rest). A fit is reported as a number only when it is reliable:
+``FIT_DEFLECTION`` (5 % of L: the fitted modes are the loop's linearised at rest). A fit is
+reported as a number only when it is reliable:
 
 * the stretch holds at least ``MIN_PERIODS`` periods of the oscillation;
 * the fitted exponentials reproduce the signal over it to ``FIT_RESIDUAL`` (relative RMS): a

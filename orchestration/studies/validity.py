@@ -21,8 +21,8 @@ run of the sweep it recorded
   with the amplitude it has then);
 
 and fitted ``E <= max(floor, sum_k c_k term_k)`` over the terms :data:`TERMS` (``D``, ``I``,
-``V``, ``T``, ``W``, ``A``, ``A^3``) with ``c_k >= 0`` (a bound that grows with every feature), the tightest
-that bounds every point of the fit (linear programming), times a safety factor; ``floor`` is the
+``V``, ``T``, ``W``, ``A``, ``A^3``) with ``c_k >= 0`` (a bound that grows with every feature),
+the tightest that bounds every point of the fit (linear programming), times a safety factor; ``floor`` is the
 exact rung's own uncertainty on the stable scenes (no smaller error is claimed). The bound is
 evaluated on the run's own features at its end (they only grow), so it holds from the start to
 the end of the run. Nothing is simulated here: evaluating it is a few numpy operations on the

@@ -214,7 +214,8 @@ def check_folder(folder) -> None:
 #: The fields of a journal row and the types they hold (or null); other fields are the swept
 #: keys (taken from the plan, not from the row) and texts.
 _NUMBERS = ("run", "sample", "decay_rate", "linear_decay_rate", "max_abs_F_c", "max_abs_x",
-            "max_error_phi_o", "max_error_eta_1", "model_form_error", "steps", "cosim_time", "stopped_at",
+            "max_error_phi_o", "max_error_eta_1", "model_form_error", "steps", "cosim_time",
+            "stopped_at",
             "wall_time", *(f"{m}_{q}" for m in ("slow", "bending")
                            for q in ("rate", "frequency", "rate_linear")))
 _FLAGS = ("stable", "valid")
