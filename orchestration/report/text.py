@@ -8,7 +8,8 @@ from __future__ import annotations
 import math
 
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
-           "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text", "stability_lines"]
+           "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
+           "stability_lines"]
 
 
 def num(v, spec=".4g") -> str:

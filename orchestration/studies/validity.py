@@ -22,11 +22,11 @@ run of the sweep it recorded
 
 and fitted ``E <= max(floor, sum_k c_k term_k)`` over the terms :data:`TERMS` (``D``, ``I``,
 ``V``, ``T``, ``W``, ``A``, ``A^3``) with ``c_k >= 0`` (a bound that grows with every feature),
-the tightest that bounds every point of the fit (linear programming), times a safety factor; ``floor`` is the
-exact rung's own uncertainty on the stable scenes (no smaller error is claimed). The bound is
-evaluated on the run's own features at its end (they only grow), so it holds from the start to
-the end of the run. Nothing is simulated here: evaluating it is a few numpy operations on the
-run's history.
+the tightest that bounds every point of the fit (linear programming), times a safety factor;
+``floor`` is the exact rung's own uncertainty on the stable scenes (no smaller error is claimed).
+The bound is evaluated on the run's own features at its end (they only grow), so it holds from
+the start to the end of the run. Nothing is simulated here: evaluating it is a few numpy
+operations on the run's history.
 
 A run leaves the rung's *measured range* when one of its features passes the largest the sweep
 reached on that rung (the bound is then an extrapolation and the summary says so), or, for a rigid
