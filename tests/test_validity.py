@@ -92,6 +92,10 @@ def test_a_rigid_model_of_a_softer_beam_than_measured_is_flagged():
 
 
 def _validity(rung, D, W, phi_max, outside=()):
+    """A summary's validity entry; the exact rung (the reference) has no bound."""
+    if rung not in DATA["rungs"]:
+        return {"rung": rung, "model_form_error": None, "relative": None,
+                "outside": list(outside)}
     bound = _model(rung, {"D": D, "W": W, "A": phi_max, "T": D, "I": D, "V": 4 * D})
     return {"rung": rung, "model_form_error": bound, "relative": bound / phi_max,
             "outside": list(outside)}
@@ -146,3 +150,18 @@ def test_export_climbs_on_the_monolithic_runs():
     chosen, report = select_model(load_scene(small, {"fidelity.tolerance": tol}),
                                   monolithic=True)
     assert chosen.plant.fidelity == "linear" and "kept" in report["reason"]
+
+
+def test_the_ladder_holds_only_the_rungs_the_scenes_fmus_run():
+    """The exact rung runs in the native FMUs' co-simulation only: a pythonfmu or Model Exchange
+    scene climbs to the rung below it, and says that is where it stops."""
+    native = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto"])
+    assert available_ladder(native) == available_ladder()
+    for key in ("master.fmus=python", "master.interface=model-exchange"):
+        scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", key])
+        ladder = available_ladder(scene)
+        assert "exact" not in ladder and ladder == available_ladder()[:len(ladder)]
+        top = ladder[-1]
+        nxt, why = climb(top, _validity(top, 0.01, 2.0, 0.2), 0.0, ladder)
+        assert why.startswith(f"{top}: model-form error")
+        assert nxt is None and "top available rung" in why

@@ -56,15 +56,29 @@ def output_difference(a: np.ndarray, b: np.ndarray, outputs) -> dict:
     return out
 
 
-def available_ladder() -> tuple:
-    """The rungs of :data:`LADDER` this build offers, bottom to top."""
-    return tuple(f for f in LADDER if f in FIDELITIES)
+def available_ladder(scene=None) -> tuple:
+    """The rungs of :data:`LADDER` this build offers, bottom to top; with a ``scene``, only those
+    its FMUs and master can run (the exact rung refuses, e.g., the pythonfmu plant and Model
+    Exchange: :meth:`orchestration.scene.records.Scene` says why)."""
+    rungs = tuple(f for f in LADDER if f in FIDELITIES)
+    if scene is None:
+        return rungs
+    n = 0 if scene.plant.n_modes_auto else scene.plant.n_modes
+    return tuple(f for f in rungs if _runs(scene, n, f))
 
 
-def climb(fidelity: str, validity: dict, tolerance: float):
+def _runs(scene, n: int, fidelity: str) -> bool:
+    try:
+        scene.replace(plant=scene.plant.with_model(n, fidelity))
+    except ConfigError:
+        return False
+    return True
+
+
+def climb(fidelity: str, validity: dict, tolerance: float, ladder: tuple | None = None):
     """``(next fidelity or None, reason)``: whether a run on ``fidelity``, whose summary's
     ``validity`` is given (:func:`orchestration.report.summary.validity`), is repeated on the next
-    rung up (see the module docstring)."""
+    rung up of ``ladder`` (default :func:`available_ladder`; see the module docstring)."""
     rung, bound, rel = validity["rung"], validity["model_form_error"], validity["relative"]
     if fidelity == LADDER[-1]:
         return None, f"{rung}: the top rung (the reference of every measured bound): kept"
@@ -78,7 +92,7 @@ def climb(fidelity: str, validity: dict, tolerance: float):
     else:
         return None, (f"{rung}: model-form error <= {bound:.1e} rad, {100 * rel:.3g} % of max "
                       f"|phi_o| <= {100 * tolerance:g} %: kept")
-    ladder = available_ladder()
+    ladder = available_ladder() if ladder is None else ladder
     i = ladder.index(fidelity) if fidelity in ladder else len(ladder) - 1
     if i + 1 < len(ladder):
         return ladder[i + 1], f"{why}: climbs to {ladder[i + 1]}"
@@ -162,11 +176,12 @@ def select_model(scene, progress=None, monolithic: bool = False):
         n = scene.plant.n_modes
     fid = scene.plant.fidelity
     if auto_f:
-        fid = available_ladder()[0]
+        ladder = available_ladder(scene)
+        fid = ladder[0]
         reasons.append(f"plant.fidelity = auto: starts on the lowest rung, {fid}")
         while monolithic:
             v = assess(run(n, fid), concrete(n, fid))
-            nxt, why = climb(fid, v, tol)
+            nxt, why = climb(fid, v, tol, ladder)
             reasons.append(f"{why} (monolithic run)")
             if nxt is None:
                 break
