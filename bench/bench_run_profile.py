@@ -6,7 +6,10 @@ This checkout, or with ``--before`` the commits ``REV`` and ``HEAD`` each checke
 fresh temporary git worktree (removed at the end), runs ``flexpend run --out TMP`` in a new
 process ``--runs`` times after one warm-up run (the FMUs and the compiled loop are built then:
 in a fresh worktree, that first run is the cold start, reported too); the processes of the two
-checkouts alternate, so that the load of the machine falls on both alike. Each process times its own phases in CPU seconds (the machines are shared:
+checkouts alternate, so that the load of the machine falls on both alike. Warm also means the
+checkout's bytecode cached (``__pycache__``, written by the first run): ``PYTHONDONTWRITEBYTECODE``
+is dropped from the children's environment, where it would make every process compile the
+project's modules from source (about 0.1 s of CPU). Each process times its own phases in CPU seconds (the machines are shared:
 under load, wall time stretches and CPU time much less), each phase's time exclusive of the
 phases nested in it:
 
@@ -89,6 +92,9 @@ def _env() -> dict:
     env = dict(os.environ)
     env.pop("PYTHONPATH", None)
     env.pop("FLEXPEND_HOME", None)        # each checkout builds into its own build/
+    # warm: the checkout's modules compiled once (as an installed package's are, and as Python
+    # caches them by default), not compiled from source again in every process
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         env.setdefault(var, "1")          # as flexpend sets it, for the imports' process too
     return env

@@ -3,6 +3,7 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 :mod:`orchestration.export`), the text in :mod:`orchestration.report.text`.
 
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
+                 [--renderer raster|matplotlib]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
     flexpend stability SCENE [--set key=value ...] [--json]
                                                         the largest stable communication steps
@@ -235,7 +236,8 @@ def cmd_run(args) -> int:
 
         job = run_job(items, out_dir, reference=args.reference,
                       connections_out=sys.stderr if args.connections else None, stop=stop,
-                      overview=not args.scenes, announce=announce, report=report)
+                      overview=not args.scenes, announce=announce, report=report,
+                      renderer=args.renderer)
     finally:
         for _, system in items:
             if system is not None:
@@ -482,10 +484,23 @@ def cmd_scenes(args) -> int:
     return 0
 
 
+class _VersionAction(argparse.Action):
+    """``--version``: the installed version, looked up only when asked (the lookup imports
+    importlib.metadata and scans the installed distributions: about 15 ms of every command)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=argparse.SUPPRESS, nargs=0,
+                         help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"flexpend {_version()}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="flexpend", description="Flexible inverted pendulum: analysis and "
                                                   "co-simulation of the FMUs.")
-    parser.add_argument("--version", action="version", version=f"flexpend {_version()}",
+    parser.add_argument("--version", action=_VersionAction,
                         help="print the installed version and exit")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     pa = sub.add_parser("analyze", help="linear analysis of the closed loop",
@@ -537,6 +552,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="print each scene's connection table (wiring by variable name)")
     pr.add_argument("--reference", action="store_true",
                     help="also solve the monolithic reference and report the error against it")
+    pr.add_argument("--renderer", choices=("raster", "matplotlib"), default="raster",
+                    help="what draws the PNGs: raster (default: Pillow, fast) or matplotlib")
     pr.set_defaults(func=cmd_run)
 
     pb = sub.add_parser("build", help="build the two FMUs (only when their sources changed)")

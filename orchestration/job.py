@@ -34,13 +34,14 @@ from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
 from .export import flavour_fmus
 from .report import figures
 from .report.files import save_figure, write_csv, write_json
+from .report.plotting import check_renderer
 from .report.progress import Progress
 from .report.summary import iteration_counts, stop_reason, summarize
 from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
-from .studies.fidelity import select_model
+from .studies.fidelity import available_ladder, climb, select_model
 from .studies.reference import COLUMNS, check_reference, simulate_reference
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
@@ -108,31 +109,34 @@ class Run:
         return pd.DataFrame({c: self.result[c] for c in names[1:]},
                             index=pd.Index(self.result["time"], name="time"))
 
-    def plot(self):
+    def plot(self, renderer: str = "matplotlib"):
         """The time histories (tip angle, first modal coordinate, tip deflection, force, cart
-        position) as a matplotlib Figure; the process's backend is left alone."""
-        return figures.time_histories(self.result, self.scene, self.reference, self.summary)
+        position) as a matplotlib Figure (the process's backend is left alone), or drawn by
+        another ``renderer`` (:data:`~orchestration.report.plotting.RENDERERS`)."""
+        return figures.time_histories(self.result, self.scene, self.reference, self.summary,
+                                      renderer=renderer)
 
-    def plot_shapes(self):
+    def plot_shapes(self, renderer: str = "matplotlib"):
         """The beam and the cart at eight times over the run, a Figure (None before two output
-        points)."""
+        points); ``renderer`` as :meth:`plot`."""
         if not self.frames:
             return None
         x = self.result["x"]
         return figures.snapshots(beam_model(self.scene.plant.params), self.frames, self.scene,
-                                 travel=(float(x.min()), float(x.max())))
+                                 travel=(float(x.min()), float(x.max())), renderer=renderer)
 
-    def save(self, folder, *, summary: bool = True) -> list[Path]:
+    def save(self, folder, *, summary: bool = True, renderer: str = "raster") -> list[Path]:
         """Write what ``flexpend run`` writes for this run into ``folder``: ``<name>.csv``,
-        ``<name>.png``, ``<name>_shapes.png`` and (``summary``) this run's entry of
-        ``summary.json`` (other entries kept); the paths written. Each file is complete or
-        absent."""
+        ``<name>.png``, ``<name>_shapes.png`` (drawn by ``renderer``: by default the raster
+        renderer, no matplotlib) and (``summary``) this run's entry of ``summary.json`` (other
+        entries kept); the paths written. Each file is complete or absent."""
+        check_renderer(renderer)
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         written = [write_csv(folder / f"{self.name}.csv", self.result)]
         if len(self.result) >= 2:
-            written.append(save_figure(self.plot(), folder / f"{self.name}.png"))
-        shapes = self.plot_shapes()
+            written.append(save_figure(self.plot(renderer), folder / f"{self.name}.png"))
+        shapes = self.plot_shapes(renderer)
         if shapes is not None:
             written.append(save_figure(shapes, folder / f"{self.name}_shapes.png"))
         if summary:
@@ -175,13 +179,50 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     (a sweep unpacks once per process). ``pool``: a
     :class:`~orchestration.cosim.pool.SlavePool` that gives the FMU instances and takes them back
     (a sweep's runs reuse them); without one they are made here and freed at the end.
-    ``connections_out``: a stream for the connection table."""
+    ``connections_out``: a stream for the connection table.
+
+    With ``plant.fidelity = "auto"`` the run climbs the fidelity ladder: it is repeated on the
+    next rung up while its measured model-form error bound exceeds ``fidelity.tolerance`` or it
+    leaves its rung's measured range (:func:`orchestration.studies.fidelity.climb`); the summary's
+    ``model`` says which rung ran and why."""
     model = None
     if not scene.resolved:
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
     if reference:
         check_reference(scene)
+    kw = dict(progress=progress, connections_out=connections_out, stop=stop,
+              snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool)
+    out = _run_once(scene, fmus, **kw)
+    kw["connections_out"] = None                # the table once
+    if model is not None and model["fidelity_auto"]:
+        model["climb"], ladder = [], available_ladder(scene)
+        while not out.interrupted:
+            nxt, why = climb(scene.plant.fidelity, out.summary["validity"],
+                             scene.fidelity.tolerance, ladder)
+            model["climb"].append(why)
+            if nxt is None:
+                break
+            scene = scene.replace(plant=scene.plant.with_model(scene.plant.params.n_modes, nxt))
+            out = _run_once(scene, fmus, **kw)
+        model["fidelity"] = scene.plant.fidelity
+        model["reason"] = "; ".join([model["reason"], *model["climb"]])
+    if model is not None:
+        out.summary["model"] = model
+    if reference and out.summary["stopped"] is None:
+        exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
+        ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
+                                 if exact else None)
+        out.reference = ref
+        out.summary["max_error_phi_o"] = float(np.max(np.abs(out.result["phi_o"] - ref["phi_o"])))
+        out.summary["max_error_eta_1"] = float(np.max(np.abs(out.result["eta_1"] - ref["eta_1"])))
+    return out
+
+
+def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snapshot_times,
+              unzipdirs, pool) -> Run:
+    """One co-simulation of a resolved scene (:func:`run_scene` without the model's choice and
+    the reference)."""
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     reusable = False                # the instances may serve another run (pool)
@@ -236,17 +277,7 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     if stats is not None:
         summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected,
                        master_loop=stats.loop, **iteration_counts(stats))
-    if model is not None:
-        summary["model"] = model
-    out = Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)
-    if reference and stopped is None:
-        exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
-        ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
-                                 if exact else None)
-        out.reference = ref
-        summary["max_error_phi_o"] = float(np.max(np.abs(res["phi_o"] - ref["phi_o"])))
-        summary["max_error_eta_1"] = float(np.max(np.abs(res["eta_1"] - ref["eta_1"])))
-    return out
+    return Run(scene, res, summary, stats, frames=frames, interrupted=interrupted)
 
 
 def _reorder(res, n_eta):
@@ -329,16 +360,19 @@ def load_job(refs, overrides=None) -> list:
     return out
 
 
-def paper_figures(runs, folder) -> list[Path]:
+def paper_figures(runs, folder, renderer: str = "raster") -> list[Path]:
     """The figures of a set of runs side by side (``flexpend run`` of the paper's scenes):
     ``paper_overview.png`` (:func:`~orchestration.report.figures.paper_overview`),
     ``mode_shapes.png``, the cantilever modes of each flexible plant that ran
     (:func:`~orchestration.report.figures.mode_shapes`; none when every run is rigid), and
     ``root_map.png``, the closed-loop roots of each run's linearised loop
-    (:func:`~orchestration.report.figures.root_map`); the paths written."""
+    (:func:`~orchestration.report.figures.root_map`); the paths written. Drawn by ``renderer``
+    (by default the raster renderer, no matplotlib)."""
+    check_renderer(renderer)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    written = [save_figure(figures.paper_overview(runs), folder / "paper_overview.png")]
+    written = [save_figure(figures.paper_overview(runs, renderer=renderer),
+                           folder / "paper_overview.png")]
     plants = {}                            # plant -> the runs on it
     for r in runs:
         if r.scene.plant.params.n_modes > 0:
@@ -346,8 +380,9 @@ def paper_figures(runs, folder) -> list[Path]:
     if plants:
         labelled = [(f"{', '.join(r.name for r in on)}: {figures.plant_text(on[0].scene)}", p)
                     for p, on in plants.items()]
-        written.append(save_figure(figures.mode_shapes(labelled), folder / "mode_shapes.png"))
-    written.append(save_figure(figures.root_map([r.scene for r in runs]),
+        written.append(save_figure(figures.mode_shapes(labelled, renderer=renderer),
+                                   folder / "mode_shapes.png"))
+    written.append(save_figure(figures.root_map([r.scene for r in runs], renderer=renderer),
                                folder / "root_map.png"))
     return written
 
@@ -366,7 +401,8 @@ class JobResult:
 
 
 def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,
-            overview: bool = False, announce=None, report=None) -> JobResult:
+            overview: bool = False, announce=None, report=None,
+            renderer: str = "raster") -> JobResult:
     """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
     folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
     ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json``
@@ -376,10 +412,14 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     ``stop``: asked between runs and after every communication step (Ctrl-C); ``announce(scene)``
     is called before a run and ``report(run, written)`` after it. The exit code: 0 when every
     scene ran to its stop time, :data:`EXIT_STOPPED` when one stopped early,
-    :data:`EXIT_INTERRUPTED` when ``stop`` ended the job (the data so far is written)."""
+    :data:`EXIT_INTERRUPTED` when ``stop`` ended the job (the data so far is written).
+    ``renderer``: what draws the PNGs (:data:`~orchestration.report.plotting.RENDERERS`; by
+    default the raster renderer, which does not import matplotlib)."""
+    check_renderer(renderer)
     out = Path(out)
     job = JobResult([])
     pairs = {}
+    unpacked = _Unpacked()
     try:
         for scene, system in items:                 # FMUs and wiring before any scene runs
             if system is None and scene.master.fmus not in pairs:
@@ -398,9 +438,10 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 announce(scene)
             fmus = system.fmus if system is not None else pairs[scene.master.fmus]
             run = run_scene(scene, fmus, reference=reference and not (stop and stop()),
-                            progress=True, connections_out=connections_out, stop=stop)
+                            progress=True, connections_out=connections_out, stop=stop,
+                            unzipdirs=unpacked.of(fmus))
             job.runs.append(run)
-            written = run.save(out, summary=False)
+            written = run.save(out, summary=False, renderer=renderer)
             write_json(out / "summary.json", job.summaries)
             job.written += written
             if report is not None:
@@ -412,13 +453,42 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 job.code = EXIT_STOPPED
         if overview and job.code != EXIT_INTERRUPTED and len(job.runs) == len(items) \
                 and not (stop and stop()):
-            job.written += paper_figures(job.runs, out)
+            job.written += paper_figures(job.runs, out, renderer)
         if stop is not None and stop():
             job.code = EXIT_INTERRUPTED
     finally:
+        unpacked.remove()
         if not job.runs:
             write_json(out / "summary.json", {})
     return job
+
+
+class _Unpacked:
+    """The FMUs of a job, each unpacked once (into one temporary folder) for every scene that
+    runs it: the paper's three scenes unpack two FMUs, not six. :meth:`remove` removes them."""
+
+    def __init__(self):
+        self.folder, self.dirs = None, {}
+
+    def of(self, fmus: dict) -> dict:
+        """``{role: folder}`` for ``{role: FMU path}``, unpacked when first asked."""
+        import tempfile
+
+        from fmpy import extract
+
+        if self.folder is None:
+            self.folder = tempfile.mkdtemp(prefix="flexpend_fmu_")
+        for path in fmus.values():
+            if str(path) not in self.dirs:
+                self.dirs[str(path)] = extract(str(path), unzipdir=os.path.join(
+                    self.folder, str(len(self.dirs))))
+        return {role: self.dirs[str(path)] for role, path in fmus.items()}
+
+    def remove(self):
+        if self.folder is not None:
+            import shutil
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder, self.dirs = None, {}
 
 
 #: the predictions of :func:`step_warning` kept (the newest)

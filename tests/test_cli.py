@@ -258,3 +258,24 @@ def test_the_soft_limit_of_open_files_is_raised_for_a_cluster():
         assert resource.getrlimit(resource.RLIMIT_NOFILE)[0] == 128
     finally:
         resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+
+def test_run_renderer_draws_the_pngs_with_pillow_or_matplotlib(fmus, tmp_path):
+    """``flexpend run`` draws its PNGs with the raster renderer unless ``--renderer
+    matplotlib`` (whose PNGs carry matplotlib's "Software" text chunk); a bad value is one line,
+    exit 2."""
+    from PIL import Image
+
+    made = {}
+    for renderer in ("raster", "matplotlib"):
+        out = tmp_path / renderer
+        code, _, err = run("run", "rigid_pd", "--set", "stop_time=1.0", "--out", str(out),
+                           "--renderer", renderer)
+        assert code == 0, err
+        with Image.open(out / "rigid_pd.png") as png:
+            made[renderer] = (png.size, png.info.get("Software", ""))
+    assert made["raster"][0] == made["matplotlib"][0]                # the same figure size
+    assert made["matplotlib"][1].startswith("Matplotlib") and made["raster"][1] == ""
+    code, _, err = run("run", "rigid_pd", "--out", str(tmp_path / "bad"), "--renderer", "svg")
+    assert code == 2 and "--renderer: invalid choice: 'svg'" in err
+    assert len(err.strip().splitlines()) == 1

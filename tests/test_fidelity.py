@@ -43,31 +43,42 @@ def test_flexible_pd_needs_at_least_two_modes():
     assert rates[1] < 0 < rates[2]
 
 
-def _cosim_difference(fmus, scene):
-    """Co-simulate the scene with both fidelities: the largest relative difference of the outputs."""
+def _cosim_phi(fmus, scene, fidelity):
     paths = {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
-    runs = {f: run_scene(_with(scene, plant__fidelity=f), paths, progress=False).result
-            for f in ("linear", "nonlinear")}
-    return max(output_difference(runs["linear"], runs["nonlinear"], OUTPUTS).values())
+    return run_scene(_with(scene, plant__fidelity=fidelity), paths, progress=False)
 
 
 @pytest.mark.slow
-def test_filtered_scene_small_angle_is_served_by_the_linear_model(fmus):
-    scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", "initial.phi=0.05"])
-    paths = {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]}
-    r = run_scene(scene, paths, progress=False)
-    assert r.summary["model"]["fidelity"] == "linear" and r.scene.plant.fidelity == "linear"
+def test_auto_keeps_the_linear_rung_only_where_its_measured_bound_allows(fmus):
+    """From 0.05 rad the run starts on the linear rung; it keeps it exactly when the rung's
+    measured bound is within the tolerance. Checked by the co-simulated FMUs: the linear and
+    nonlinear runs differ by no more than the two rungs' bounds together (each bounds its
+    distance to the exact rung)."""
+    scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", "initial.phi=0.05",
+                                               "stop_time=3"])
+    r = run_scene(scene, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
+                  progress=False)
+    lin, non = _cosim_phi(fmus, r.scene, "linear"), _cosim_phi(fmus, r.scene, "nonlinear")
+    v_lin, v_non = lin.summary["validity"], non.summary["validity"]
+    kept = v_lin["relative"] <= scene.fidelity.tolerance and not v_lin["outside"]
+    assert r.summary["model"]["fidelity"] == ("linear" if kept else "nonlinear")
     assert r.summary["model"]["n_modes"] == 4
-    # measured by the co-simulated FMUs: linear and nonlinear plants agree to the tolerance
-    assert _cosim_difference(fmus, r.scene) <= r.summary["model"]["tolerance"]
+    gap = np.max(np.abs(lin.result["phi_o"] - non.result["phi_o"]))
+    assert gap <= v_lin["model_form_error"] + v_non["model_form_error"]
 
 
 @pytest.mark.slow
-def test_filtered_scene_from_pi_over_6_needs_the_nonlinear_model(fmus):
-    scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto"])
-    resolved, report = select_model(scene)
-    assert resolved.plant.fidelity == "nonlinear"
-    assert _cosim_difference(fmus, resolved) > report["tolerance"]
+def test_filtered_scene_from_pi_over_6_climbs_to_the_nonlinear_rung(fmus):
+    scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", "stop_time=3"])
+    r = run_scene(scene, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
+                  progress=False)
+    assert r.scene.plant.fidelity == "nonlinear"
+    assert "linear: model-form error" in r.summary["model"]["reason"]
+    assert "climbs to nonlinear" in r.summary["model"]["reason"]
+    # measured by the co-simulated FMUs: the linear rung is off by more than the tolerance
+    lin = _cosim_phi(fmus, r.scene, "linear").result["phi_o"]
+    assert (np.max(np.abs(lin - r.result["phi_o"])) / np.max(np.abs(r.result["phi_o"]))
+            > scene.fidelity.tolerance)
 
 
 @pytest.mark.parametrize("item,fragment", [

@@ -9,7 +9,7 @@ from matplotlib.patches import Polygon, Rectangle
 from matplotlib.text import Text
 
 from orchestration.job import Run, paper_figures, run_scene
-from orchestration.report import figures
+from orchestration.report import figures, mpl_canvas
 from orchestration.scene.schema import PAPER_SCENES, load_scene
 from orchestration.studies.analysis import loop_roots
 from plant_fmu.beam import beam_model
@@ -370,10 +370,11 @@ def test_run_figures_use_no_mathtext(paper_runs, tmp_path, monkeypatch):
     monkeypatch.setattr(MathTextParser, "parse",
                         lambda self, s, *a, **k: parsed.append(s) or parse(self, s, *a, **k))
     made = []
-    monkeypatch.setattr(figures, "new_figure",
-                        lambda *a, new=figures.new_figure: made.append(new(*a)) or made[-1])
-    written = [p for name in PAPER_SCENES for p in paper_runs[name].save(tmp_path)]
-    written += paper_figures([paper_runs[n] for n in PAPER_SCENES], tmp_path)
+    monkeypatch.setattr(mpl_canvas, "new_figure",
+                        lambda *a, new=mpl_canvas.new_figure: made.append(new(*a)) or made[-1])
+    written = [p for name in PAPER_SCENES
+               for p in paper_runs[name].save(tmp_path, renderer="matplotlib")]
+    written += paper_figures([paper_runs[n] for n in PAPER_SCENES], tmp_path, "matplotlib")
     assert sum(p.suffix == ".png" for p in written) == 9 == len(made)
     assert parsed == []
     dollars = [t.get_text() for fig in made for t in texts(fig) if "$" in t.get_text()]
@@ -428,3 +429,64 @@ def test_design_figures_labels_fit():
     wc = np.geomspace(30, 1000, 20)
     assert_labels_fit(figures.worst_case({"2nd order": (wc, np.sin(np.log(wc)))},
                                          (97.3, 0.5, "chosen"), "decay rate", "worst case"))
+
+
+# ---------------------------------------------------------------------- one source, two renderers
+def _mpl_structure(fig) -> dict:
+    panels = []
+    for ax in fig.axes:
+        if not ax.get_visible():
+            continue
+        legend = ax.get_legend()
+        panels.append({
+            "titles": {loc: t for loc, t in (("center", ax.get_title()),
+                                             ("left", ax.get_title(loc="left"))) if t},
+            "xlabel": ax.get_xlabel(), "ylabel": ax.get_ylabel(),
+            "scales": (ax.get_xscale(), ax.get_yscale()),
+            "legend": [t.get_text() for t in legend.get_texts()] if legend else [],
+            "lines": len(ax.lines), "patches": len(ax.patches),
+            "texts": sorted(t.get_text() for t in ax.texts)})
+    return {"title": fig._suptitle.get_text() if fig._suptitle else None,
+            "texts": [t.get_text() for t in fig.texts if t is not fig._suptitle],
+            "panels": panels,
+            "legend": [t.get_text() for leg in fig.legends for t in leg.get_texts()]}
+
+
+def _raster_structure(fig) -> dict:
+    panels = []
+    for p in fig.panels_made:
+        if p.hidden:
+            continue
+        kinds = [kind for kind, _, _ in p.items]
+        panels.append({
+            "titles": {loc: t[0] for loc, t in p.titles.items() if t[0]},
+            "xlabel": p.x_label[0] if p.x_label else "",
+            "ylabel": p.y_label[0] if p.y_label else "",
+            "scales": (p.scales["x"].kind, p.scales["y"].kind),
+            "legend": ([str(d["label"]) for _, d in p.legend_entries()] if p.legend_spec
+                       else []),
+            "lines": sum(k in ("line", "markers", "hline", "vline") for k in kinds),
+            "patches": sum(k in ("xspan", "rect") for k in kinds),
+            "texts": sorted(d["text"] for k, _, d in p.items if k == "text")})
+    return {"title": fig.suptitle[0] if fig.suptitle else None,
+            "texts": [t[2] for t in fig.texts], "panels": panels,
+            "legend": ([str(d["label"]) for p in fig.panels_made if not p.hidden
+                        for _, d in p.legend_entries()] if fig.fig_legend else [])}
+
+
+def test_both_renderers_draw_the_same_panels_titles_labels_and_legends(paper_runs):
+    """Each figure of ``flexpend run`` is written once (:mod:`orchestration.report.plotting`):
+    what matplotlib's Figure holds (panels, titles, axis labels and scales, legend entries, the
+    number of curves, patches and notes) is what the raster renderer was given to draw."""
+    runs = [paper_runs[n] for n in PAPER_SCENES]
+    labelled = [(runs[1].name, runs[1].scene.plant.params)]
+    makers = [lambda r: runs[0].plot(r), lambda r: runs[1].plot(r),
+              lambda r: runs[2].plot_shapes(r), lambda r: runs[0].plot_shapes(r),
+              lambda r: figures.paper_overview(runs, renderer=r),
+              lambda r: figures.mode_shapes(labelled, renderer=r),
+              lambda r: figures.root_map([r_.scene for r_ in runs], renderer=r)]
+    for make in makers:
+        mpl, ras = _mpl_structure(make("matplotlib")), _raster_structure(make("raster"))
+        assert mpl["panels"] and mpl == ras
+    assert ras["legend"] and any(p["legend"] for p in _raster_structure(runs[1].plot("raster"))
+                                 ["panels"])

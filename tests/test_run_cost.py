@@ -1,6 +1,7 @@
 """What a warm ``flexpend run`` costs beyond its co-simulation: nothing on its path imports a
 module it does not use (python-control, scipy's signal, integrate, interpolate, optimize, ndimage,
-pandas, dask: each costs a large part of a run), and its CSV is written in one block in fmpy's
+pandas, dask, matplotlib: each costs a large part of a run; its PNGs are drawn by the raster
+renderer), and its CSV is written in one block in fmpy's
 format. (The timings themselves are measured by ``bench/bench_run_profile.py``, not asserted.)"""
 import json
 import math
@@ -16,7 +17,7 @@ from orchestration.report.files import write_csv
 #: Modules the paper's scenes do not use (an SSP archive, ``--reference``, a design, a sweep or
 #: ``to_pandas()`` import theirs when asked).
 UNUSED = ["control", "scipy.signal", "scipy.integrate", "scipy.interpolate", "scipy.optimize",
-          "scipy.ndimage", "scipy.stats", "scipy.sparse", "pandas", "dask"]
+          "scipy.ndimage", "scipy.stats", "scipy.sparse", "pandas", "dask", "matplotlib"]
 #: Until the fit's rewrite (issue 25) lands, ``orchestration/studies/fit.py`` imports scipy.signal
 #: (and with it most of scipy) for its low-pass (``butter``, ``sosfiltfilt``): while its source
 #: does, what it imports is allowed here and :func:`test_the_fit_imports_no_scipy_signal` is

@@ -44,7 +44,6 @@ import sys
 import tempfile
 import uuid
 import zipfile
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -345,6 +344,8 @@ def _build_all(builds: list) -> None:
     with tempfile.TemporaryDirectory(prefix="flexpend_native_") as tmp:
         tmp = Path(tmp)
         jobs = {}
+        from concurrent.futures import ThreadPoolExecutor   # only when building (6 ms)
+
         with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
             for b in builds:
                 gen = tmp / f"gen-{b.name}-fmi{b.fmi_version}"

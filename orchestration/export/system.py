@@ -25,12 +25,12 @@ class ExportResult:
 def export_scene(scene, flavour: str = "native", out=None, progress=None) -> ExportResult:
     """Write ``scene`` as an SSP archive with the FMUs of ``flavour`` (``"native"`` or
     ``"python"``); ``plant.n_modes``/``plant.fidelity``
-    ``"auto"`` are chosen first (:func:`orchestration.studies.fidelity.select_model`), and the chosen
-    model is written."""
+    ``"auto"`` are chosen first (:func:`orchestration.studies.fidelity.select_model`; the fidelity
+    ladder climbed on the scene's monolithic runs), and the chosen model is written."""
     fmus = flavour_fmus(flavour, portable=True)
     model = None
     if not scene.resolved:
-        scene, model = select_model(scene, progress)
+        scene, model = select_model(scene, progress, monolithic=True)
     path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
     try:
         write_ssp(scene, fmus, path, model=model)       # complete or absent

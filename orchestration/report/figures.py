@@ -2,88 +2,30 @@
 of the paper's sample: the overview, the cantilever mode shapes, the closed-loop roots; of a
 design: Bode plot, root locus, worst case.
 
-Every function returns a matplotlib Figure of its own (no pyplot: the process's backend is left
-alone). Titles say what ran, built from the scene's records (:func:`scene_title`), never from a
-scene's fixed text. Margins are fixed in inches where a figure is drawn on every run (a layout
-engine costs about a second per figure); symbols are plain Unicode (``φₒ``, ``10⁻²``), never
-mathtext, whose parser a run would otherwise build."""
+The figures of a run (time histories, snapshots, overview, mode shapes, roots) are written once
+in the plotting vocabulary of :mod:`orchestration.report.plotting` and drawn by the ``renderer``
+asked: a matplotlib Figure of its own (the default; no pyplot: the process's backend is left
+alone), or a raster canvas drawn with Pillow (``flexpend run``: no matplotlib imported), which
+:func:`~orchestration.report.files.save_figure` writes alike. The design's figures are
+matplotlib Figures. Titles say what ran, built from the scene's records (:func:`scene_title`),
+never from a scene's fixed text. Margins are fixed in inches where a figure is drawn on every
+run (a layout engine costs about a second per figure); symbols are plain Unicode (``φₒ``,
+``10⁻²``), never mathtext, whose parser a run would otherwise build."""
 from __future__ import annotations
 
 import math
-import re
-from contextlib import contextmanager
 
 import numpy as np
+
+from .layout import SUPERSCRIPT
+from .mpl_canvas import new_figure, plain_log_labels, ticks_in_view
+from .plotting import canvas
 
 __all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "mode_shapes",
            "root_map", "loop_bode", "root_locus", "worst_case", "new_figure", "scene_title",
            "plant_text", "controller_text", "initial_text", "loop_text", "outcome_text",
            "root_text", "bending_band", "DEFLECTION_SCALE", "ticks_in_view", "plain_log_labels",
            "SUPERSCRIPT"]
-
-
-def new_figure(width: float, height: float):
-    """A matplotlib Figure of its own (no pyplot: the process's backend and pyplot's figures are
-    left alone); :func:`orchestration.report.files.save_figure` writes it."""
-    from matplotlib.figure import Figure
-    return Figure(figsize=(width, height))
-
-
-@contextmanager
-def ticks_in_view(fig):
-    """Within the block, each axis of ``fig`` has a fixed locator holding the ticks its own
-    locators give that lie in view (the ticks drawn), and the locators are put back after it.
-    The figure draws the same, and matplotlib makes no tick beyond the view: each tick costs
-    about a millisecond to make (its lines and labels), and about a quarter lie beyond the view.
-    ``save_figure`` saves inside it."""
-    from matplotlib.ticker import FixedLocator
-
-    saved = []
-    for ax in fig.axes:
-        for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
-            lo, hi = min(lo, hi), max(lo, hi)
-            tol = 1e-9 * (hi - lo)
-            for which in ("major", "minor"):
-                ticker = getattr(axis, which)          # shared by the axes of a shared axis
-                if isinstance(ticker.locator, FixedLocator):
-                    continue
-                locs = np.asarray(ticker.locator(), dtype=float)
-                saved.append((ticker, ticker.locator))
-                ticker.locator = FixedLocator(locs[(locs >= lo - tol) & (locs <= hi + tol)])
-                ticker.locator.set_axis(axis)
-    try:
-        yield fig
-    finally:
-        for ticker, locator in reversed(saved):
-            ticker.locator = locator
-
-
-#: Digits and signs as Unicode superscripts: ``"-2".translate(SUPERSCRIPT) == "⁻²"``.
-SUPERSCRIPT = str.maketrans("-−0123456789", "⁻⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
-
-
-def plain_log_labels(axis) -> None:
-    """Label a log or symlog ``axis`` (after its scale is set) as matplotlib does, but in plain
-    Unicode (``10⁻²``, ``2×10⁻³``, ``−10¹``) instead of mathtext: a figure drawn
-    without mathtext never builds matplotlib's mathtext parser (about 0.3 s in a process)."""
-    from matplotlib.ticker import LogFormatter, LogFormatterSciNotation
-
-    class Plain(LogFormatterSciNotation):
-        def __call__(self, x, pos=None):
-            text = super().__call__(x, pos)
-            math_ = re.fullmatch(r"\$\\mathdefault\{(.*)\}\$", text)
-            if math_ is None:
-                return text
-            body = re.sub(r"\^\{([^}]*)\}", lambda m: m.group(1).translate(SUPERSCRIPT),
-                          math_.group(1))
-            return body.replace("\\times", "×").replace("-", "−")
-
-    for which in ("major", "minor"):
-        f = getattr(axis, f"get_{which}_formatter")()
-        if isinstance(f, LogFormatter):                 # the same settings, plain labels
-            plain = Plain.__new__(Plain)
-            plain.__dict__.update(vars(f))
-            getattr(axis, f"set_{which}_formatter")(plain)
 
 
 def _wrapped(text: str, width: int = 95) -> str:
@@ -183,7 +125,8 @@ def loop_text(scene) -> str:
 
 
 def outcome_text(summary) -> str:
-    """What the co-simulation did: its stop, or its verdict, and where it left the model's range."""
+    """What the co-simulation did: its stop, or its verdict, its model-form error bound, and
+    whether it left its rung's measured range."""
     if summary is None:
         return ""
     stopped = summary.get("stopped")
@@ -194,8 +137,10 @@ def outcome_text(summary) -> str:
                                False: "UNSTABLE (a reliable fit grows)",
                                None: "no verdict (no reliable fit)"}[summary.get("stable")]
     v = summary.get("validity") or {}
+    if v.get("model_form_error") is not None:
+        out += f"; model-form error <= {v['model_form_error']:.1e} rad ({v['rung']})"
     if v.get("warnings"):
-        out += "; it leaves the model's range"
+        out += "; it leaves the measured range"
     return out
 
 
@@ -281,7 +226,7 @@ def bending_band(t, y, low: float, frequency: float | None = None):
     return hp, np.lib.stride_tricks.sliding_window_view(edge, size).max(axis=1)
 
 
-def time_histories(result, scene, reference=None, summary=None):
+def time_histories(result, scene, reference=None, summary=None, *, renderer="matplotlib"):
     """The paper's time histories (Figs. 3, 4, 6, 7): tip angle, first modal coordinate, the
     envelope of its bending band, tip deflection, force and cart position against time; the
     bending panels are left out for a rigid model. The title says what ran (:func:`scene_title`).
@@ -290,10 +235,10 @@ def time_histories(result, scene, reference=None, summary=None):
     rate: the slow fit on the tip angle, the bending fit on the envelope of ``eta_1``'s bending
     band (the slow motion ``eta_1`` also carries is not what that fit measures), where the
     fitted rate is drawn as a line (a straight line on the log scale when it holds); the
-    validity bound of the tip deflection is drawn when the trace comes near it (else stated);
-    an early stop is marked."""
-    from matplotlib.ticker import NullFormatter
-
+    deflection up to which the rung's error was measured is drawn when the trace comes near it
+    (else stated); an early stop is marked. Drawn by ``renderer``
+    (:func:`~orchestration.report.plotting.canvas`): a matplotlib Figure, or a raster canvas to
+    save."""
     from ..studies.analysis import first_bending_frequency
     from .summary import BENDING_BAND
 
@@ -303,37 +248,36 @@ def time_histories(result, scene, reference=None, summary=None):
     title = scene_title(scene, summary)
     top = _title_height(title)
     height = 1.55 * len(cols) + top + 0.5
-    fig = new_figure(9, height)
-    axes = np.atleast_1d(fig.subplots(len(cols), 1, sharex=True))
+    fig = canvas(9, height, renderer)
     # fixed margins (a layout engine costs a second per figure)
-    fig.subplots_adjust(left=0.11, right=0.98, top=1 - top / height, bottom=0.5 / height,
-                        hspace=0.14)
+    grid = fig.grid(len(cols), 1, left=0.11, right=0.98, top=1 - top / height,
+                    bottom=0.5 / height, hspace=0.14)
+    axes = [row[0] for row in fig.panels(grid, sharex=True)]
     ax_of = dict(zip(cols, axes))
     for col, ax in ax_of.items():
-        ax.tick_params(labelsize=8)
-        ax.grid(alpha=0.3)
+        ax.tick_labels(8)
+        ax.grid()
         if col == "bending":
-            ax.set_ylabel(f"{PANELS[col][0]} ({PANELS[col][1]})", fontsize=8)
+            ax.ylabel(f"{PANELS[col][0]} ({PANELS[col][1]})", size=8)
             continue
         factor, label = _scaled(result[col], *PANELS[col])
-        ax.set_ylabel(label, fontsize=8)
-        ax.plot(t, result[col] / factor, lw=0.7, color="C0",
+        ax.ylabel(label, size=8)
+        ax.line(t, result[col] / factor, lw=0.7, color="C0",
                 label="co-simulation" if reference is not None else None)
         if reference is not None and col in reference.dtype.names:
-            ax.plot(reference["time"], reference[col] / factor, "--", lw=0.7, color="C1",
+            ax.line(reference["time"], reference[col] / factor, style="--", lw=0.7, color="C1",
                     label="monolithic reference")
     if flexible:
         ax = ax_of["bending"]
         _, env = bending_band(t, result["eta_1"], BENDING_BAND[0],
                               first_bending_frequency(scene.plant.params))
-        ax.semilogy(t, np.maximum(env, 1e-300), lw=0.7, color="C0")
+        ax.yscale("log")
+        ax.line(t, np.maximum(env, 1e-300), lw=0.7, color="C0")
         top_env = float(env.max()) if env.size else 0.0
         if top_env > 0:
             # two decades at least (labelled decades, no crowded minor labels), five at most
             low = min(top_env / 100, max(top_env * 1e-5, float(env[env > 0].min()) * 0.5))
-            ax.set_ylim(low, top_env * 3)
-            ax.yaxis.set_minor_formatter(NullFormatter())
-        plain_log_labels(ax.yaxis)
+            ax.ylim(low, top_env * 3)
     legend = {c: reference is not None for c in cols}
     if summary is not None:
         m = summary.get("slow")
@@ -341,8 +285,8 @@ def time_histories(result, scene, reference=None, summary=None):
             lo, hi = m["fit"]["window"]
             what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
                     else "unreliable")
-            ax_of["phi_o"].axvspan(lo, hi, color="C2", alpha=0.12, lw=0,
-                                   label=f"slow fit window: {what}")
+            ax_of["phi_o"].xspan(lo, hi, color="C2", alpha=0.12,
+                                 label=f"slow fit window: {what}")
             legend["phi_o"] = True
         m = summary.get("bending")
         if flexible and m and m.get("fit"):
@@ -351,7 +295,7 @@ def time_histories(result, scene, reference=None, summary=None):
             f = m["fit"]
             what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
                     else "unreliable")
-            ax.axvspan(lo, hi, color="C2", alpha=0.12, lw=0, label=f"bending fit window: {what}")
+            ax.xspan(lo, hi, color="C2", alpha=0.12, label=f"bending fit window: {what}")
             inside = (t >= lo) & (t <= hi)
             if m["reliable"] and np.any(inside) and env[inside].max() > 0:
                 # the fitted rate through the envelope's level at the window's start
@@ -359,39 +303,40 @@ def time_histories(result, scene, reference=None, summary=None):
                 first = inside & (t <= lo + period)
                 a0 = float(env[first].max()) if np.any(first) else float(env[inside][0])
                 tt = np.array([lo, hi])
-                ax.plot(tt, a0 * np.exp(f["rate"] * (tt - lo)), "--", color="C3", lw=1.0,
-                            label=f"fitted rate {f['rate']:+.3g} 1/s")
+                ax.line(tt, a0 * np.exp(f["rate"] * (tt - lo)), style="--", color="C3", lw=1.0,
+                        label=f"fitted rate {f['rate']:+.3g} 1/s")
             legend["bending"] = True
         v = summary.get("validity")
-        if v and "tip_deflection" in ax_of:
+        if v and v.get("tip_deflection_limit") and "tip_deflection" in ax_of:
             ax = ax_of["tip_deflection"]
             lim = v["tip_deflection_limit"]
             reach = float(np.max(np.abs(result["tip_deflection"]))) if len(t) else 0.0
             if reach >= 0.3 * lim:
                 for sign in (1, -1):
-                    ax.axhline(sign * lim, color="C3", ls=":", lw=0.8,
-                               label=f"model's range ±{lim:.3g} m" if sign > 0 else None)
+                    ax.hline(sign * lim, color="C3", style=":", lw=0.8,
+                             label=f"measured range ±{lim:.3g} m" if sign > 0 else None)
                 legend["tip_deflection"] = True
             else:
-                ax.text(0.995, 0.96, f"model's range ±{lim:.3g} m: off this scale",
-                        transform=ax.transAxes, color="C3", fontsize=7, ha="right", va="top")
+                ax.text(0.995, 0.96, f"measured range ±{lim:.3g} m: off this scale",
+                        coords="axes", color="C3", size=7, ha="right", va="top")
         stopped = summary.get("stopped")
         if stopped and stopped.get("time") is not None:
             for ax in axes:
-                ax.axvline(stopped["time"], color="C3", lw=0.8)
-            axes[0].text(stopped["time"], 0.97, "stopped ", color="C3", fontsize=8, va="top",
-                         ha="right", transform=axes[0].get_xaxis_transform())
+                ax.vline(stopped["time"], color="C3", lw=0.8)
+            axes[0].text(stopped["time"], 0.97, "stopped ", coords="xaxis", color="C3", size=8,
+                         va="top", ha="right")
     for col, ax in ax_of.items():
         if legend[col]:
-            ax.legend(loc="upper left" if col == "tip_deflection" else "upper right", fontsize=7)
-    axes[-1].set_xlabel("time (s)", fontsize=9)
-    fig.suptitle(title, fontsize=9, y=1 - 0.08 / height, va="top")
-    return fig
+            ax.legend(loc="upper left" if col == "tip_deflection" else "upper right", size=7)
+    axes[-1].xlabel("time (s)", size=9)
+    fig.title(title, size=9, y=1 - 0.08 / height)
+    return fig.result()
+
 
 
 # ---------------------------------------------------------------------- shapes
-#: Every shapes figure draws the beam's deflection magnified by this factor (the model's range,
-#: a tip deflection of 5 % of L, is drawn as 25 % of L), so that figures can be compared by eye.
+#: Every shapes figure draws the beam's deflection magnified by this factor (a tip deflection of
+#: 5 % of L is drawn as 25 % of L), so that figures can be compared by eye.
 DEFLECTION_SCALE = 5.0
 
 
@@ -410,18 +355,13 @@ def _tip(beam, eta) -> float:
     return float(beam.shapes[-1, :n] @ np.asarray(eta[:n])) if n else 0.0
 
 
-def snapshots(beam, frames, scene, travel=None):
+def snapshots(beam, frames, scene, travel=None, *, renderer="matplotlib"):
     """The beam and the cart at several times (the paper's Figs. 5 and 8), every panel on the
     same window of the rail, so that the cart's travel shows; lengths to scale, the deflection
     drawn ``DEFLECTION_SCALE`` times (the same in every shapes figure) and each panel's tip
     deflection given in mm. ``frames``: list of ``(t, x, phi, eta)``; ``travel``: ``(min, max)``
     of the cart's position over the run (default: over the frames), drawn on the rail and kept
-    inside the window."""
-    from matplotlib import rcParams
-    from matplotlib.patches import Rectangle
-    from matplotlib.ticker import FixedLocator, MaxNLocator, NullLocator
-
-    mpl_rc = rcParams.__getitem__
+    inside the window. Drawn by ``renderer``, as :func:`time_histories`."""
     n = len(frames)
     L = float(beam.nodes[-1])
     rigid = scene.plant.params.n_modes == 0
@@ -444,95 +384,93 @@ def snapshots(beam, frames, scene, travel=None):
         height = top + bottom + nrow * ph + (nrow - 1) * row_gap
         if height <= 8.0:
             break
-    fig = new_figure(width, height)
-    axes = fig.subplots(nrow, ncol, squeeze=False)
-    fig.subplots_adjust(left=left / width, right=1 - right / width, top=1 - top / height,
-                        bottom=bottom / height, wspace=gap / pw, hspace=row_gap / ph)
-    for ax in axes.flat[n:]:
-        ax.set_visible(False)
+    fig = canvas(width, height, renderer)
+    grid = fig.grid(nrow, ncol, left=left / width, right=1 - right / width, top=1 - top / height,
+                    bottom=bottom / height, wspace=gap / pw, hspace=row_gap / ph)
+    rows = fig.panels(grid)
+    axes = [ax for row in rows for ax in row]
+    for ax in axes[n:]:
+        ax.hide()
     # one set of grid lines for every panel; ticks (about a millisecond each to make) only on
     # the axes that carry labels: the rail position under the last row, the height on the left
-    xt, yt = (np.asarray(MaxNLocator(k).tick_values(lo, hi)) for k, lo, hi in
-              ((5, x_lo, x_hi), (4, y_lo, y_hi)))
-    xt, yt = xt[(xt >= x_lo) & (xt <= x_hi)], yt[(yt >= y_lo) & (yt <= y_hi)]
-    grid = {"color": mpl_rc("grid.color"), "lw": mpl_rc("grid.linewidth"), "alpha": 0.3,
-            "zorder": 1.5}
-    for (row, col), ax in np.ndenumerate(axes):
-        ax.xaxis.set_major_locator(FixedLocator(xt) if row == nrow - 1 else NullLocator())
-        ax.yaxis.set_major_locator(FixedLocator(yt) if col == 0 else NullLocator())
-        ax.vlines(xt, y_lo, y_hi, **grid)
-        ax.hlines(yt, x_lo, x_hi, **grid)
-    for ax, (t, x, phi, eta), (X, Y) in zip(axes.flat, frames, shapes):
-        ax.axhline(0.0, color="0.3", lw=0.8)                       # the rail
-        ax.plot(travel, [0.0, 0.0], color="C1", lw=4, alpha=0.25, solid_capstyle="butt")
-        ax.add_patch(Rectangle((x - 0.15 * L, -0.1 * L), 0.3 * L, 0.1 * L, color="C1"))
+    xt, yt = fig.locate(x_lo, x_hi, 5), fig.locate(y_lo, y_hi, 4)
+    for row, panels in enumerate(rows):
+        for col, ax in enumerate(panels):
+            ax.ticks(x=xt if row == nrow - 1 else (), y=yt if col == 0 else ())
+            ax.grid(x=xt, y=yt)
+    for ax, (t, x, phi, eta), (X, Y) in zip(axes, frames, shapes):
+        ax.hline(0.0, color="0.3", lw=0.8)                         # the rail
+        ax.line(travel, [0.0, 0.0], color="C1", lw=4, alpha=0.25, butt=True)
+        ax.rect(x - 0.15 * L, -0.1 * L, 0.3 * L, 0.1 * L, color="C1")
         if not rigid:
             undeformed = beam_shape(beam, x, phi, [])
-            ax.plot(undeformed[0], undeformed[1], ":", color="0.5", lw=1)
-        ax.plot(X, Y, color="C0", lw=2)
-        ax.plot([x], [0.0], "o", color="k", ms=3)                  # the hinge
-        ax.set_xlim(x_lo, x_hi)
-        ax.set_ylim(y_lo, y_hi)
-        ax.set_aspect("equal", adjustable="box")
+            ax.line(undeformed[0], undeformed[1], style=":", color="0.5", lw=1)
+        ax.line(X, Y, color="C0", lw=2)
+        ax.markers([x], [0.0], marker="o", color="k", size=3)      # the hinge
+        ax.xlim(x_lo, x_hi)
+        ax.ylim(y_lo, y_hi)
+        ax.equal_aspect()
         tip = "" if rigid else f", tip {1e3 * _tip(beam, eta):+.1f} mm"
-        ax.set_title(f"t = {t:.3g} s, x = {x:+.2f} m{tip}", fontsize=8, pad=3, y=1.0)
-        ax.tick_params(labelsize=7)
-    for ax in axes[:, 0]:
-        ax.set_ylabel("height (m)", fontsize=8)
-    for ax in axes[-1]:
-        ax.set_xlabel("rail position (m)", fontsize=8)
+        ax.title(f"t = {t:.3g} s, x = {x:+.2f} m{tip}", size=8, pad=3)
+        ax.tick_labels(7)
+    for panels in rows:
+        panels[0].ylabel("height (m)", size=8)
+    for ax in rows[-1]:
+        ax.xlabel("rail position (m)", size=8)
     what = ("rigid model: the beam does not bend" if rigid else
             f"deflection drawn x{scale:g}, its tip value in mm (dotted: the undeformed beam)")
-    fig.suptitle(f"{scene.name}: the beam and the cart at {n} times on one window of the rail "
-                 f"(light band: the cart's travel)\nlengths to scale; {what}", fontsize=9,
-                 y=1 - 0.06 / height, va="top")
-    return fig
+    fig.title(f"{scene.name}: the beam and the cart at {n} times on one window of the rail "
+              f"(light band: the cart's travel)\nlengths to scale; {what}", size=9,
+              y=1 - 0.06 / height)
+    return fig.result()
+
 
 
 # ---------------------------------------------------------------------- the paper's sample
-def paper_overview(runs):
+def paper_overview(runs, *, renderer="matplotlib"):
     """The paper's sample side by side, one row per run (a :class:`~orchestration.job.Run`), each
     on its own time axis: tip angle (Figs. 3, 4, 6) and, for a flexible model, first modal
     coordinate (Fig. 7), so that no curve hides another; a rigid run's tip angle spans the row.
-    Each row's title says what ran (:func:`plant_text`, :func:`controller_text`)."""
+    Each row's title says what ran (:func:`plant_text`, :func:`controller_text`). Drawn by
+    ``renderer``, as :func:`time_histories`."""
     n = len(runs)
     row_h, top, bottom = 2.05, 0.55, 0.45
     height = row_h * n + top + bottom
-    fig = new_figure(11, height)
-    grid = fig.add_gridspec(n, 2, left=0.07, right=0.99, top=1 - top / height,
-                            bottom=bottom / height, wspace=0.2, hspace=0.55)
+    fig = canvas(11, height, renderer)
+    grid = fig.grid(n, 2, left=0.07, right=0.99, top=1 - top / height, bottom=bottom / height,
+                    wspace=0.2, hspace=0.55)
     starts = {f"{r.scene.initial.phi:.6g}" for r in runs}
     for i, run in enumerate(runs):
         res, sc = run.result, run.scene
         flexible = sc.plant.params.n_modes > 0 and len(res) and np.any(res["eta_1"])
-        row = [fig.add_subplot(grid[i, :] if not flexible else grid[i, 0])]
+        row = [fig.panel(grid, i, 0, colspan=1 if flexible else 2)]
         if flexible:
-            row.append(fig.add_subplot(grid[i, 1], sharex=row[0]))
+            row.append(fig.panel(grid, i, 1, sharex=row[0]))
         factor, label = _scaled(res["phi_o"], "φₒ", PANELS["phi_o"][1])
-        row[0].plot(res["time"], res["phi_o"] / factor, lw=0.7, color="C0")
-        row[0].set_ylabel(label, fontsize=9)
+        row[0].line(res["time"], res["phi_o"] / factor, lw=0.7, color="C0")
+        row[0].ylabel(label, size=9)
         if flexible:
             factor, label = _scaled(res["eta_1"], "η₁", PANELS["eta_1"][1])
-            row[1].plot(res["time"], res["eta_1"] / factor, lw=0.7, color="C2")
-            row[1].set_ylabel(label, fontsize=9)
+            row[1].line(res["time"], res["eta_1"] / factor, lw=0.7, color="C2")
+            row[1].ylabel(label, size=9)
         stop = run.summary.get("stopped") if run.summary else None
         verdict = ("STOPPED" if stop else {True: "stable", False: "UNSTABLE",
                                            None: "no verdict"}[run.summary.get("stable")])
-        row[0].set_title(f"{sc.name} ({verdict}): {plant_text(sc)}; "
-                         f"{controller_text(sc.controller)}"
-                         + ("" if len(starts) == 1 else f"; {initial_text(sc.initial)}"),
-                         fontsize=8.5, loc="left", y=1.0)
+        row[0].title(f"{sc.name} ({verdict}): {plant_text(sc)}; "
+                     f"{controller_text(sc.controller)}"
+                     + ("" if len(starts) == 1 else f"; {initial_text(sc.initial)}"),
+                     size=8.5, loc="left")
         for ax in row:
-            ax.grid(alpha=0.3)
-            ax.tick_params(labelsize=8)
-            ax.set_xlabel("time (s)", fontsize=8, labelpad=1)
+            ax.grid()
+            ax.tick_labels(8)
+            ax.xlabel("time (s)", size=8, pad=1)
             if stop and stop.get("time") is not None:
-                ax.axvline(stop["time"], color="C3", lw=0.8)
+                ax.vline(stop["time"], color="C3", lw=0.8)
     first = runs[0].scene.initial if runs else None
     start = f" {initial_text(first)}" if first is not None and len(starts) == 1 else ""
-    fig.suptitle(f"Tip angle and first modal coordinate of each run{start}, each on its own "
-                 "time axis", fontsize=10, y=1 - 0.1 / height, va="top")
-    return fig
+    fig.title(f"Tip angle and first modal coordinate of each run{start}, each on its own "
+              "time axis", size=10, y=1 - 0.1 / height)
+    return fig.result()
 
 
 def _hermite(nodes, values, slopes, s):
@@ -545,7 +483,7 @@ def _hermite(nodes, values, slopes, s):
             + (3 * u**2 - 2 * u**3) * values[i + 1] + (u**3 - u**2) * h * slopes[i + 1])
 
 
-def mode_shapes(plants):
+def mode_shapes(plants, *, renderer="matplotlib"):
     """The cantilever mode shapes a plant uses (:func:`plant_fmu.beam.beam_model`: ``nodes``,
     ``shapes``, ``slopes``, ``frequencies``), the beam upright as in the snapshots: one panel per
     plant of ``plants`` (a list of ``(label, PlantParams)``; rigid ones are left out), each mode
@@ -553,18 +491,20 @@ def mode_shapes(plants):
     deflections and slopes) and scaled to a tip deflection of 1 (the model's mass-normalised
     shapes differ only in scale), with its frequency. These are the modes clamped at the hinge;
     the loop's bending root sits near the first bending mode with the hinge free, not near them.
-    """
+    Drawn by ``renderer``, as :func:`time_histories`."""
     from plant_fmu.beam import beam_model
+
+    from ..studies.analysis import first_bending_frequency
 
     plants = [(label, p) for label, p in plants if p.n_modes > 0]
     n = max(len(plants), 1)
     panel, legend_w, left, top, bottom = 3.0, 2.6, 0.65, 0.75, 0.5
     width = left + n * (panel + legend_w)
     height = 4.6
-    fig = new_figure(width, height)
-    axes = np.atleast_1d(fig.subplots(1, n, squeeze=False)[0])
-    fig.subplots_adjust(left=left / width, right=1 - legend_w / width, top=1 - top / height,
-                        bottom=bottom / height, wspace=legend_w / panel)
+    fig = canvas(width, height, renderer)
+    grid = fig.grid(1, n, left=left / width, right=1 - legend_w / width, top=1 - top / height,
+                    bottom=bottom / height, wspace=legend_w / panel)
+    axes = fig.panels(grid)[0]
     for ax, (label, p) in zip(axes, plants):
         b = beam_model(p)
         s = np.linspace(0.0, b.nodes[-1], 40 * len(b.nodes))
@@ -572,41 +512,42 @@ def mode_shapes(plants):
             w = _hermite(b.nodes, b.shapes[:, j], b.slopes[:, j], s)
             w = w / w[-1] if w[-1] else w / np.max(np.abs(w))
             f = b.frequencies[j]
-            ax.plot(w, s, lw=1.4, color=f"C{j % 10}",
+            ax.line(w, s, lw=1.4, color=f"C{j % 10}",
                     label=f"mode {j + 1}: {f:.4g} rad/s ({f / (2 * math.pi):.3g} Hz)")
-        ax.axvline(0.0, color="0.3", lw=0.8, ls=":")
-        ax.plot([0.0], [0.0], "o", color="k", ms=4)
-        ax.set_title(_wrapped(label, 42), fontsize=8.5, loc="left", y=1.0)
-        ax.set_xlabel("deflection w (tip = 1)", fontsize=8)
-        ax.set_ylim(-0.02 * p.L, 1.04 * p.L)
-        ax.tick_params(labelsize=8)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7.5, loc="upper left", bbox_to_anchor=(1.03, 1.0), borderaxespad=0)
-    from ..studies.analysis import first_bending_frequency
+        ax.vline(0.0, color="0.3", lw=0.8, style=":")
+        ax.markers([0.0], [0.0], marker="o", color="k", size=4)
+        ax.title(_wrapped(label, 42), size=8.5, loc="left")
+        ax.xlabel("deflection w (tip = 1)", size=8)
+        ax.ylim(-0.02 * p.L, 1.04 * p.L)
+        ax.tick_labels(8)
+        ax.grid()
+        ax.legend(size=7.5, outside=True)
     for ax, (label, p) in zip(axes, plants):             # beside the panel, under its legend
-        box = ax.get_position()
-        fig.text(box.x1 + 0.1 / width, box.y0, f"hinge free, the first bending\nmode is at "
+        x0, y0, x1, y1 = ax.box
+        fig.text(x1 + 0.1 / width, y0, f"hinge free, the first bending\nmode is at "
                  f"{first_bending_frequency(p):.4g} rad/s:\nthe loop's bending root is\nnear it",
-                 fontsize=7.5, va="bottom", color="0.3")
-    axes[0].set_ylabel("position along the beam s (m)", fontsize=8)
-    fig.suptitle("The cantilever modes the plant uses\n(floating frame, clamped at the hinge)",
-                 fontsize=10, y=1 - 0.06 / height, va="top")
-    return fig
+                 size=7.5, va="bottom", color="0.3")
+    axes[0].ylabel("position along the beam s (m)", size=8)
+    fig.title("The cantilever modes the plant uses\n(floating frame, clamped at the hinge)",
+              size=10, y=1 - 0.06 / height)
+    return fig.result()
 
 
-def root_map(scenes):
+def root_map(scenes, *, renderer="matplotlib"):
     """The closed-loop roots of each scene's linearised loop (:func:`~orchestration.studies.
     analysis.loop_roots`, the cart's drift roots left aside), upper half-plane: left all of
     them (real axis symmetric-log), right the part near the imaginary axis up to twice the
-    first bending frequency; each scene's bending root circled and labelled."""
+    first bending frequency; each scene's bending root circled and labelled. Drawn by
+    ``renderer``, as :func:`time_histories`."""
     from ..studies.analysis import loop_roots
 
     roots = [(sc, loop_roots(sc.plant.params, sc.controller)) for sc in scenes]
     width, height = 11.0, 5.2
-    fig = new_figure(width, height)
-    axes = fig.subplots(1, 2)
-    fig.subplots_adjust(left=0.07, right=0.99, top=1 - 0.95 / height, bottom=0.6 / height,
-                        wspace=0.17)
+    fig = canvas(width, height, renderer)
+    grid = fig.grid(1, 2, left=0.07, right=0.99, top=1 - 0.95 / height, bottom=0.6 / height,
+                    wspace=0.17)
+    axes = fig.panels(grid)[0]
+    axes[0].xscale("symlog", linthresh=1.0)
     markers = "os^Dv<>"
     wb = [r.bending_frequency for _, r in roots if r.bending_frequency]
     zoom_hi = 2.0 * max(wb) if wb else 2.0 * max([abs(z.imag) for _, r in roots
@@ -615,43 +556,39 @@ def root_map(scenes):
     for k, (sc, r) in enumerate(roots):
         up = r.roots[r.roots.imag >= -1e-9]
         for ax in axes:
-            ax.plot(up.real, np.abs(up.imag), markers[k % len(markers)], color=f"C{k}", ms=6,
-                    mfc="none", mew=1.3, label=f"{sc.name}: "
-                    + ("stable" if r.stable else "UNSTABLE") + f", {sc.plant.params.n_modes} modes"
-                    if ax is axes[0] else None)
+            ax.markers(up.real, np.abs(up.imag), marker=markers[k % len(markers)],
+                       color=f"C{k}", size=6, hollow=True, mew=1.3, label=f"{sc.name}: "
+                       + ("stable" if r.stable else "UNSTABLE")
+                       + f", {sc.plant.params.n_modes} modes" if ax is axes[0] else None)
         near += [z for z in up if abs(z.imag) <= zoom_hi]
         if r.bending is not None:
             for ax in axes:
-                ax.plot([r.bending.real], [r.bending.imag], "o", color=f"C{k}", ms=14,
-                        mfc="none", mew=1.0, alpha=0.6)
+                ax.markers([r.bending.real], [r.bending.imag], marker="o", color=f"C{k}",
+                           size=14, hollow=True, mew=1.0, alpha=0.6)
             axes[1].text(0.02, 0.97 - 0.055 * len(labels), f"{sc.name}: bending root "
-                         f"{root_text(r.bending)}", transform=axes[1].transAxes, fontsize=8,
-                         color=f"C{k}", va="top")
+                         f"{root_text(r.bending)}", coords="axes", size=8, color=f"C{k}",
+                         va="top")
             labels.append(sc.name)
     for ax in axes:
-        ax.axvline(0.0, color="C3", lw=0.8)
-        ax.set_xlabel("real part (1/s)", fontsize=9)
-        ax.set_ylabel("imaginary part (rad/s)", fontsize=9)
-        ax.grid(alpha=0.3)
-        ax.tick_params(labelsize=8)
-    axes[0].set_xscale("symlog", linthresh=1.0)
-    plain_log_labels(axes[0].xaxis)
+        ax.vline(0.0, color="C3", lw=0.8)
+        ax.xlabel("real part (1/s)", size=9)
+        ax.ylabel("imaginary part (rad/s)", size=9)
+        ax.grid()
+        ax.tick_labels(8)
     every = np.concatenate([r.roots.real for _, r in roots])
-    axes[0].set_xlim(-1.6 * max(1.0, -every.min()), 1.6 * max(1.0, every.max()))
-    axes[0].set_title("all roots (symmetric log scale of the real part)", fontsize=9, y=1.0)
+    axes[0].xlim(-1.6 * max(1.0, -every.min()), 1.6 * max(1.0, every.max()))
+    axes[0].title("all roots (symmetric log scale of the real part)", size=9)
     re = [z.real for z in near] or [-1.0, 1.0]
     lo, hi = min(re + [-1.0]), max(re + [0.5])
     pad = 0.08 * (hi - lo)
-    axes[1].set_xlim(lo - pad, hi + pad)
-    axes[1].set_ylim(0.0, zoom_hi)
-    axes[1].set_title(f"up to {zoom_hi:.0f} rad/s (large circles: bending roots)", fontsize=9,
-                      y=1.0)
-    fig.legend(loc="upper center", ncol=len(roots), fontsize=8.5, frameon=False,
-               bbox_to_anchor=(0.5, 1 - 0.42 / height))
-    fig.suptitle("Closed-loop roots of the linearised loops, upper half-plane (the cart's drift "
-                 "roots at 0 left aside; right of the red line: growing)", fontsize=10,
-                 y=1 - 0.08 / height, va="top")
-    return fig
+    axes[1].xlim(lo - pad, hi + pad)
+    axes[1].ylim(0.0, zoom_hi)
+    axes[1].title(f"up to {zoom_hi:.0f} rad/s (large circles: bending roots)", size=9)
+    fig.legend(ncol=len(roots), size=8.5, y=1 - 0.42 / height)
+    fig.title("Closed-loop roots of the linearised loops, upper half-plane (the cart's drift "
+              "roots at 0 left aside; right of the red line: growing)", size=10,
+              y=1 - 0.08 / height)
+    return fig.result()
 
 
 def loop_bode(w, loops: dict, title: str, marks=()):

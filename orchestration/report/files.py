@@ -166,10 +166,19 @@ PNG_COMPRESS_LEVEL = 3
 
 
 def save_figure(fig, path, dpi: int = 110) -> Path:
-    """Write a matplotlib Figure as PNG (or the format of the path's suffix)."""
-    from .figures import ticks_in_view
-
+    """Write a matplotlib Figure as PNG (or the format of the path's suffix), or a raster
+    canvas (:class:`~orchestration.report.raster.RasterCanvas`: PNG only)."""
     fmt = Path(path).suffix.lstrip(".") or "png"
+    if hasattr(fig, "savefig"):
+        return _save_matplotlib(fig, path, dpi, fmt)
+    with atomic_path(path) as tmp:
+        fig.save(tmp, dpi=dpi, fmt=fmt)
+    return Path(path)
+
+
+def _save_matplotlib(fig, path, dpi: int, fmt: str) -> Path:
+    from .mpl_canvas import ticks_in_view
+
     extra = {"pil_kwargs": {"compress_level": PNG_COMPRESS_LEVEL}} if fmt == "png" else {}
     with atomic_path(path) as tmp, ticks_in_view(fig):
         fig.savefig(tmp, dpi=dpi, format=fmt, **extra)

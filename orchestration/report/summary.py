@@ -1,5 +1,5 @@
 """What a run's summary says: the fitted modes beside the linear prediction, the verdict, and
-whether the run left the model's range of validity.
+the run's measured model-form error bound.
 
 **Modes.** Two oscillations are fitted (:func:`orchestration.studies.fit.fit_mode`, matrix pencil): the
 slow, rigid-pendulum one on ``phi_o`` (0.5 to 60 rad/s) and the bending one on ``eta_1``: the
@@ -8,8 +8,9 @@ open-loop oscillation, 152.5 rad/s for the paper's beam; the loop's mode near it
 PD destabilises, MODEL.md), so that a filter's own mode (near 95 rad/s with the designed filter)
 is not taken for it. Both are fitted only over the part of the run where the linearisation at the upright
 rest state holds: the longest stretch with ``|phi| <= LINEAR_PHI`` (the frame's rotation; ``sin``
-and ``cos`` within 0.7 % and 2 % of their linear values) and the tip deflection within the
-validity bound below. A fit is reported as a number only when it is reliable:
+and ``cos`` within 0.7 % and 2 % of their linear values) and the tip deflection within
+``FIT_DEFLECTION`` (5 % of L: the fitted modes are the loop's linearised at rest). A fit is
+reported as a number only when it is reliable:
 
 * the stretch holds at least ``MIN_PERIODS`` periods of the oscillation;
 * the fitted exponentials reproduce the signal over it to ``FIT_RESIDUAL`` (relative RMS): a
@@ -19,13 +20,13 @@ validity bound below. A fit is reported as a number only when it is reliable:
 
 Otherwise the summary says why instead of printing a number.
 
-**Validity.** The plant is a floating frame of reference with linear cantilever modes: the axial
-shortening of the bent beam, ``u(L) = 1/2 integral w'(s)^2 ds``, and the geometric terms of the
-curvature, ``1.5 w'^2``, are neglected. For the first cantilever mode (tip slope ``1.377 d/L``
-for a tip deflection ``d``) ``u(L) = 0.58 d^2/L``. At ``d = 0.05 L`` the neglected shortening is
-3 % of the deflection and the curvature correction 0.7 %: that is where the run is flagged as
-out of the model's range (``TIP_DEFLECTION_LIMIT``). A beam turned past the horizontal
-(``|phi| > pi/2``), or past the plant's own ``phi_limit``, is flagged too.
+**Validity.** How far the run's tip angle can be trusted on its rung of the fidelity ladder, in
+radians: the bound measured against the geometrically exact beam
+(:mod:`orchestration.studies.validity`, ``python3 bench/validity_map.py``), evaluated on the
+run's own history of tip deflection and ``|omega_o|``. A run that leaves the range where the rung
+was measured (a larger deflection or rate than the sweep reached) is flagged: its bound is then
+an extrapolation. A beam turned past the horizontal (``|phi| > pi/2``), or past the plant's own
+``phi_limit``, is flagged too.
 
 **Verdict.** ``stable`` is False when a reliable fit grows, True when every reliable fit decays,
 None when no fit is reliable (the run says nothing either way); a run that stopped early has no
@@ -39,8 +40,9 @@ import numpy as np
 
 from ..studies.analysis import closed_loop_eigenvalues, first_bending_frequency
 from ..studies.fit import fit_mode
+from ..studies.validity import assess
 
-__all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "TIP_DEFLECTION_LIMIT",
+__all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "FIT_DEFLECTION",
            "FIT_RESIDUAL", "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window",
            "iteration_counts",
            "fit_modes", "first_bending_frequency", "validity", "summarize"]
@@ -50,8 +52,8 @@ SLOW_BAND = (0.5, 60.0)
 BENDING_BAND = (60.0, math.inf)
 #: Largest |phi| (rad) at which the fits treat the loop as linear.
 LINEAR_PHI = 0.2
-#: Tip deflection, as a fraction of L, beyond which the run leaves the model's range.
-TIP_DEFLECTION_LIMIT = 0.05
+#: Largest tip deflection, as a fraction of L, at which the fits treat the loop as linear.
+FIT_DEFLECTION = 0.05
 #: Largest relative RMS residual of a fit that is reported as a number.
 FIT_RESIDUAL = 0.02
 #: Largest relative distance between a fitted and a linear mode's frequency.
@@ -74,7 +76,7 @@ def linear_window(res: np.ndarray, L: float | None) -> slice:
     phi = res["phi"] if "phi" in res.dtype.names else res["phi_o"]
     ok = np.abs(phi) <= LINEAR_PHI
     if L is not None and "tip_deflection" in res.dtype.names:
-        ok &= np.abs(res["tip_deflection"]) <= TIP_DEFLECTION_LIMIT * L
+        ok &= np.abs(res["tip_deflection"]) <= FIT_DEFLECTION * L
     edges = np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
     if not starts.size:
@@ -141,22 +143,20 @@ def fit_modes(res: np.ndarray, scene=None) -> dict:
 
 
 def validity(res: np.ndarray, scene) -> dict:
-    """Where the run leaves the model's range (see the module docstring)."""
-    L = scene.plant.params.L
+    """The run's model-form error bound on its rung and where it leaves the rung's measured range
+    (:func:`orchestration.studies.validity.assess`), and where the beam turns past the horizontal
+    or ``plant.phi_limit``: ``warnings`` lists both (see the module docstring).
+    ``tip_deflection_limit`` (m): the largest deflection the rung was measured at, or None."""
     phi_max = min(math.pi / 2, scene.plant.phi_limit)
-    out = {"tip_deflection_limit": TIP_DEFLECTION_LIMIT * L, "phi_limit": phi_max,
-           "max_abs_tip_deflection": None, "max_abs_phi": None, "warnings": []}
+    out = assess(res, scene)
+    rng = out["measured_range"]
+    out.update(tip_deflection_limit=rng["D"] * scene.plant.params.L if rng else None,
+               phi_limit=phi_max, max_abs_tip_deflection=None, max_abs_phi=None,
+               warnings=list(out["outside"]))
     if len(res) == 0:
         return out
     t = res["time"]
-    d = np.abs(res["tip_deflection"])
-    out["max_abs_tip_deflection"] = float(d.max())
-    over = np.nonzero(d > TIP_DEFLECTION_LIMIT * L)[0]
-    if over.size:
-        out["warnings"].append(
-            f"the tip deflection reaches {d.max():.3g} m = {100 * d.max() / L:.1f} % of L "
-            f"(from t = {t[over[0]]:.3g} s beyond {100 * TIP_DEFLECTION_LIMIT:g} % of L, the "
-            f"small-deformation range of the linear modes)")
+    out["max_abs_tip_deflection"] = float(np.max(np.abs(res["tip_deflection"])))
     phi = np.abs(res["phi"] if "phi" in res.dtype.names else res["phi_o"])
     out["max_abs_phi"] = float(phi.max())
     over = np.nonzero(phi > phi_max)[0]

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "run_lines",
-           "design_lines", "verdict_lines", "sweep_lines", "coupling_text", "stability_lines"]
+__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
+           "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
+           "stability_lines"]
 
 
 def num(v, spec=".4g") -> str:
@@ -107,6 +108,16 @@ def mode_text(m) -> str:
     return f"{m['note']}{lin_text}"
 
 
+def validity_text(v: dict) -> str:
+    """The model-form error bound of a run's summary (``validity``) in one phrase."""
+    if v.get("model_form_error") is None:
+        return f"model-form error: not measured ({v.get('note') or 'no bound'})"
+    at = "" if v["rung"].startswith("rigid") else f"{100 * v['deflection']:.2g} % deflection, "
+    return (f"model-form error <= {v['model_form_error']:.1e} rad ({100 * v['relative']:.2g} % "
+            f"of max |phi_o|; measured bound for the {v['rung']} rung at {at}"
+            f"{v['rate']:.3g} rad/s)")
+
+
 def run_lines(name: str, s: dict, written=()) -> list[str]:
     """A run's summary (:func:`orchestration.report.summary.summarize`) for the terminal."""
     if s["stopped"] is not None:
@@ -121,19 +132,18 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
         m = s["model"]
         auto = " and ".join(k for k, on in (("plant.n_modes", m["n_modes_auto"]),
                                                ("plant.fidelity", m["fidelity_auto"])) if on)
+        on = (f"on {', '.join(m['outputs'])}" if m["n_modes_auto"] else
+              "of max |phi_o| for the measured bound")
         out.append(f"  model: {m['n_modes']} modes, {m['fidelity']} ({auto} = auto, tolerance "
-                   f"{100 * m['tolerance']:g} % on {', '.join(m['outputs'])})")
+                   f"{100 * m['tolerance']:g} % {on})")
         out += [f"    {part}" for part in m["reason"].split("; ")]
     out.append(f"  slow (rigid) oscillation: {mode_text(s.get('slow'))}")
     out.append(f"  bending oscillation:      {mode_text(s.get('bending'))}")
     v = s.get("validity")
-    if v and v["warnings"]:
-        out += [f"  WARNING, outside the model's range: {w}" for w in v["warnings"]]
-    elif v and v["max_abs_tip_deflection"] is not None:
-        d = v["max_abs_tip_deflection"]
-        bend = ("rigid beam" if d == 0 else f"tip deflection at most {d:.3g} m")
-        out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}within the "
-                   f"model's range ({bend}, |phi| at most {v['max_abs_phi']:.3g} rad)")
+    if v and v.get("max_abs_phi") is not None:
+        out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}"
+                   f"{validity_text(v)}")
+        out += [f"  WARNING, outside the measured range: {w}" for w in v["warnings"]]
     if s.get("max_abs_F_c") is not None:
         out.append(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
     if "wall_time" in s:
@@ -257,7 +267,7 @@ def verdict_lines(stats) -> list[str]:
            + (f" ({100 * share:.1f} % of those with a verdict)" if share is not None else "")
            + f", {stats['unstable']} unstable, {stats['no_verdict']} no verdict"
            + (f" ({why})" if why else "")
-           + (f"; {stats['invalid']} left the model's range" if stats["invalid"] else "")]
+           + (f"; {stats['invalid']} left their rung's measured range" if stats["invalid"] else "")]
     n, k = stats["no_fit"], stats["no_fit_linear_stable"]
     if n:
         runs = "the run" if n == 1 else f"the {n} runs"

@@ -8,7 +8,6 @@ whose one-line message names the key and what is allowed.
 """
 from __future__ import annotations
 
-import difflib
 import json
 import math
 
@@ -66,6 +65,8 @@ def check_known(keys, known) -> None:
     """Raise naming the first key of ``keys`` that is not in ``known``, with the closest match."""
     for key in keys:
         if key not in known:
+            import difflib                  # only for an unknown key's message
+
             close = difflib.get_close_matches(key, list(known), n=1) if isinstance(key, str) \
                 else []
             hint = f"; did you mean {close[0]!r}?" if close else ""

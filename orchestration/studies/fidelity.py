@@ -1,8 +1,8 @@
 """Fidelity selection: the smallest plant model a scene needs.
 
-``plant.n_modes = "auto"`` and ``plant.fidelity = "auto"`` (in a scene or by ``--set``) are
-resolved here, before the co-simulation, by measuring the scene's own outputs over the scene's own
-run on the monolithic closed loop (:func:`orchestration.studies.reference.simulate_reference`, DOP853 at
+``plant.n_modes = "auto"`` (in a scene or by ``--set``) is resolved here, before the
+co-simulation, by measuring the scene's own outputs over the scene's own run on the monolithic
+closed loop (:func:`orchestration.studies.reference.simulate_reference`, DOP853 at
 ``rtol = 1e-8``: its error is far below any sensible tolerance):
 
 1. Modes (``n_modes = "auto"``). The linearised loop's stability verdict is computed for every
@@ -12,22 +12,35 @@ run on the monolithic closed loop (:func:`orchestration.studies.reference.simula
    outputs agree with ``n + 1`` to ``fidelity.tolerance`` is chosen. If none does up to
    ``fidelity.max_modes``, the richest is taken and the summary says the ladder did not converge.
    The modes are compared with the nonlinear model when the fidelity is also ``auto``.
-2. Fidelity (``fidelity = "auto"``). At the chosen ``n`` the linear model is compared with the
-   nonlinear one; linear is chosen when they agree to the tolerance.
+2. Fidelity (``fidelity = "auto"``). The run starts on the lowest rung of :data:`LADDER` that
+   is a ``plant.fidelity`` value and climbs: after each run, if the rung's measured model-form
+   error bound (:mod:`orchestration.studies.validity`, evaluated on the run's own history) is
+   more than ``fidelity.tolerance`` times the largest ``|phi_o|`` of the run, or the run leaves
+   the range where the rung was measured, or the rung has no measured bound, the run is repeated
+   on the next rung up (:func:`climb`; the run loop is :func:`orchestration.job.run_scene`). The
+   top available rung is kept, and the summary says so.
 
-Two runs agree when, for every output in ``fidelity.outputs``, the largest difference over the run
-is at most ``tolerance`` times the largest magnitude of that output in the richer run.
+For ``n_modes``, two runs agree when, for every output in ``fidelity.outputs``, the largest
+difference over the run is at most ``tolerance`` times the largest magnitude of that output in the
+richer run.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from plant_fmu.interface import FIDELITIES
+
 from ..scene.keys import ConfigError
 from ..scene.records import AUTO
 from .analysis import max_real_part
 from .reference import simulate_reference
+from .validity import assess
 
-__all__ = ["output_difference", "select_model"]
+__all__ = ["LADDER", "available_ladder", "climb", "output_difference", "select_model"]
+
+#: The fidelity ladder, bottom to top (``plant.fidelity`` values; ``plant.gravity_preload`` is
+#: kept as the scene sets it). A name that is not (yet) a ``plant.fidelity`` value is skipped.
+LADDER = ("linear", "nonlinear", "stiffened", "exact")
 
 #: Accuracy of the monolithic runs that are compared.
 RTOL, ATOL = 1e-8, 1e-10
@@ -43,18 +56,66 @@ def output_difference(a: np.ndarray, b: np.ndarray, outputs) -> dict:
     return out
 
 
+def available_ladder(scene=None) -> tuple:
+    """The rungs of :data:`LADDER` this build offers, bottom to top; with a ``scene``, only those
+    its FMUs and master can run (the exact rung refuses, e.g., the pythonfmu plant and Model
+    Exchange: :meth:`orchestration.scene.records.Scene` says why)."""
+    rungs = tuple(f for f in LADDER if f in FIDELITIES)
+    if scene is None:
+        return rungs
+    n = 0 if scene.plant.n_modes_auto else scene.plant.n_modes
+    return tuple(f for f in rungs if _runs(scene, n, f))
+
+
+def _runs(scene, n: int, fidelity: str) -> bool:
+    try:
+        scene.replace(plant=scene.plant.with_model(n, fidelity))
+    except ConfigError:
+        return False
+    return True
+
+
+def climb(fidelity: str, validity: dict, tolerance: float, ladder: tuple | None = None):
+    """``(next fidelity or None, reason)``: whether a run on ``fidelity``, whose summary's
+    ``validity`` is given (:func:`orchestration.report.summary.validity`), is repeated on the next
+    rung up of ``ladder`` (default :func:`available_ladder`; see the module docstring)."""
+    rung, bound, rel = validity["rung"], validity["model_form_error"], validity["relative"]
+    if fidelity == LADDER[-1]:
+        return None, f"{rung}: the top rung (the reference of every measured bound): kept"
+    if bound is None:
+        why = f"{rung}: no measured bound"
+    elif validity["outside"]:
+        why = f"{rung}: outside its measured range ({validity['outside'][0]})"
+    elif rel > tolerance:
+        why = (f"{rung}: model-form error <= {bound:.1e} rad, {100 * rel:.3g} % of max "
+               f"|phi_o| > {100 * tolerance:g} %")
+    else:
+        return None, (f"{rung}: model-form error <= {bound:.1e} rad, {100 * rel:.3g} % of max "
+                      f"|phi_o| <= {100 * tolerance:g} %: kept")
+    ladder = available_ladder() if ladder is None else ladder
+    i = ladder.index(fidelity) if fidelity in ladder else len(ladder) - 1
+    if i + 1 < len(ladder):
+        return ladder[i + 1], f"{why}: climbs to {ladder[i + 1]}"
+    missing = [f for f in LADDER[LADDER.index(ladder[-1]) + 1:]]
+    return None, (f"{why}; {fidelity} is the top available rung"
+                  + (f" ({', '.join(missing)} not available)" if missing else "") + ": kept")
+
+
 def _label(n: int, fid: str) -> str:
     return f"{n} mode{'' if n == 1 else 's'}, {fid}"
 
 
-def select_model(scene, progress=None):
-    """``(resolved scene, report)``: the scene with ``plant.n_modes`` and ``plant.fidelity``
-    chosen, and a JSON-ready report of the choice and the differences measured."""
+def select_model(scene, progress=None, monolithic: bool = False):
+    """``(resolved scene, report)``: the scene with ``plant.n_modes`` chosen and
+    ``plant.fidelity = "auto"`` on the lowest rung (the run climbs from there:
+    :func:`orchestration.job.run_scene`), and a JSON-ready report of the choice and the
+    differences measured. ``monolithic``: climb here, on the monolithic runs of the scene (for a
+    scene that is not co-simulated: ``flexpend export``)."""
     tol, outs, n_max = scene.fidelity.tolerance, scene.fidelity.outputs, scene.fidelity.max_modes
     auto_n, auto_f = scene.plant.n_modes_auto, scene.plant.fidelity == AUTO
     mode_fid = "nonlinear" if auto_f else scene.plant.fidelity
     runs = {}
-    total = (n_max + 2 if auto_n else 0) + (2 if auto_f else 0)
+    total = (n_max + 2 if auto_n else 0) + (len(available_ladder()) if auto_f else 0)
 
     def concrete(n, fid):
         return scene.replace(plant=scene.plant.with_model(n, fid))
@@ -115,12 +176,17 @@ def select_model(scene, progress=None):
         n = scene.plant.n_modes
     fid = scene.plant.fidelity
     if auto_f:
-        cmp_ = compare((n, "linear"), (n, "nonlinear"))
-        report["comparisons"].append(cmp_)
-        fid = "linear" if cmp_["agrees"] else "nonlinear"
-        reasons.append(f"{cmp_['model']} vs {cmp_['richer']}: {100 * cmp_['largest']:.3g} % "
-                       f"({cmp_['largest_output']}) {'<=' if cmp_['agrees'] else '>'} "
-                       f"{100 * tol:g} %: {fid}")
+        ladder = available_ladder(scene)
+        fid = ladder[0]
+        reasons.append(f"plant.fidelity = auto: starts on the lowest rung, {fid}")
+        while monolithic:
+            v = assess(run(n, fid), concrete(n, fid))
+            nxt, why = climb(fid, v, tol, ladder)
+            reasons.append(f"{why} (monolithic run)")
+            if nxt is None:
+                break
+            fid = nxt
+        report["climb"] = reasons[1:] if monolithic else []
     if progress is not None:
         progress(1.0)
     report.update(n_modes=n, fidelity=fid, reason="; ".join(reasons))

@@ -62,7 +62,8 @@ def summary_row(summary: dict) -> dict:
 
     A fitted rate is a number only where the summary found the fit reliable (the note says why
     not); ``decay_rate`` is minus the largest reliable rate; ``valid`` is False when the run
-    left the model's range (``validity`` says how)."""
+    left its rung's measured range (``validity`` says how); ``model_form_error``: the measured
+    bound of the run's tip-angle error against the exact rung (rad)."""
     stopped = summary.get("stopped") or {}
     row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable")}
     row["verdict"] = verdict_of(row)
@@ -79,9 +80,11 @@ def summary_row(summary: dict) -> dict:
     row["decay_rate"] = -max(rates) if rates else None
     row["max_abs_F_c"] = summary.get("max_abs_F_c")
     row["max_abs_x"] = summary.get("max_abs_x")
-    warnings = (summary.get("validity") or {}).get("warnings") or []
+    validity = summary.get("validity") or {}
+    warnings = validity.get("warnings") or []
     row["valid"] = not warnings
     row["validity"] = "; ".join(warnings) or None
+    row["model_form_error"] = validity.get("model_form_error")
     if "max_error_phi_o" in summary:
         row["max_error_phi_o"] = summary["max_error_phi_o"]
         row["max_error_eta_1"] = summary["max_error_eta_1"]
@@ -211,7 +214,8 @@ def check_folder(folder) -> None:
 #: The fields of a journal row and the types they hold (or null); other fields are the swept
 #: keys (taken from the plan, not from the row) and texts.
 _NUMBERS = ("run", "sample", "decay_rate", "linear_decay_rate", "max_abs_F_c", "max_abs_x",
-            "max_error_phi_o", "max_error_eta_1", "steps", "cosim_time", "stopped_at",
+            "max_error_phi_o", "max_error_eta_1", "model_form_error", "steps", "cosim_time",
+            "stopped_at",
             "wall_time", *(f"{m}_{q}" for m in ("slow", "bending")
                            for q in ("rate", "frequency", "rate_linear")))
 _FLAGS = ("stable", "valid")

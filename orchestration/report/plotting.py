@@ -1,0 +1,55 @@
+"""The small plotting vocabulary the figures of a run are written in, and its two renderers.
+
+Each figure of :mod:`orchestration.report.figures` that ``flexpend run`` draws is written once,
+against this vocabulary; a renderer draws it:
+
+* ``"matplotlib"`` (:class:`~orchestration.report.mpl_canvas.MplCanvas`): a matplotlib Figure
+  of its own (the Python API's ``Run.plot()``, ``Run.plot_shapes()``; any format ``savefig``
+  writes);
+* ``"raster"`` (:class:`~orchestration.report.raster.RasterCanvas`): a PNG drawn with Pillow,
+  in a few tens of milliseconds and without importing matplotlib (``flexpend run``'s default).
+
+The grid and the superscripts both share are in :mod:`orchestration.report.layout`.
+
+The vocabulary (sizes in points, figure sizes in inches, colours as matplotlib names them:
+``"C0"``..``"C9"``, a grey level ``"0.3"``, ``"k"``):
+
+* a canvas: ``grid(nrows, ncols, left=, right=, top=, bottom=, wspace=, hspace=)`` (a
+  :class:`Grid`, figure fractions as matplotlib's ``GridSpec``), ``panels(grid, sharex=)`` (every
+  cell, rows of panels; a shared x axis labelled under the last row only), ``panel(grid, row,
+  col, colspan=, sharex=)``, ``title`` (the figure's, top at ``y``), ``text``, ``legend`` (of
+  every panel's labelled items, across the top), ``locate(lo, hi, n)`` (at most ``n + 1`` nice
+  ticks), ``result()`` (what the figure function returns);
+* a panel: ``line``, ``markers``, ``hline``, ``vline``, ``xspan``, ``rect``, ``text`` (in
+  ``"data"``, ``"axes"`` or ``"xaxis"`` coordinates: x in data, y in axes fraction),
+  ``xlabel``, ``ylabel``, ``title``, ``xlim``, ``ylim``, ``xscale``/``yscale`` (``"linear"``,
+  ``"log"``, ``"symlog"``), ``equal_aspect``, ``grid`` (at the ticks, or at given positions),
+  ``ticks`` (fixed positions; empty: none), ``tick_labels(size)``, ``legend``, ``hide``, ``box``
+  (its place in figure fractions).
+"""
+from __future__ import annotations
+
+from .layout import SUPERSCRIPT, Grid
+
+__all__ = ["RENDERERS", "check_renderer", "canvas", "Grid", "SUPERSCRIPT"]
+
+#: The renderers of :func:`canvas`.
+RENDERERS = ("raster", "matplotlib")
+
+
+def check_renderer(renderer) -> str:
+    """``renderer`` if it is one of :data:`RENDERERS`, else a ValueError naming it."""
+    if renderer not in RENDERERS:
+        raise ValueError(f"renderer = {renderer!r} is not allowed; allowed: "
+                         + ", ".join(repr(r) for r in RENDERERS))
+    return renderer
+
+
+def canvas(width: float, height: float, renderer: str = "matplotlib"):
+    """A canvas of ``width`` x ``height`` inches drawn by ``renderer`` (one of
+    :data:`RENDERERS`)."""
+    if check_renderer(renderer) == "matplotlib":
+        from .mpl_canvas import MplCanvas
+        return MplCanvas(width, height)
+    from .raster import RasterCanvas
+    return RasterCanvas(width, height)
