@@ -11,6 +11,7 @@ results, errors that subclass ``ValueError`` or ``TypeError`` and name the bad k
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 from .export import build_fmus as _build_fmus
@@ -42,6 +43,9 @@ def _resolved(scene, overrides, command: str) -> Scene:
         raise ConfigError(f"plant.fidelity = 'exact': {command} works on the floating frame's "
                           "linearised loop, which the exact beam does not have here; set "
                           "plant.fidelity = 'nonlinear' (the same beam with plant.n_modes modes)")
+    if sc.plant.fidelity == "stiffened":       # its linearisation is the preload rung's
+        sc = sc.replace(plant=dataclasses.replace(
+            sc.plant, beam=sc.plant.beam.replace(gravity_preload=True)))
     return sc
 
 

@@ -291,6 +291,21 @@ def test_small_amplitude_frequencies_are_the_preload_rungs():
     assert np.max(np.abs(e_def[big] - e_pre[big]) / np.abs(e_pre[big])) > 1e-4
 
 
+def test_the_analyses_linearise_the_stiffened_rung_as_the_preload_rung():
+    """``analyze`` of a stiffened scene is the preload rung's linear loop (its linearisation),
+    not the default rung's."""
+    from orchestration import analyze
+
+    base = {"plant.gravity_preload": False}
+    st = analyze("flexible_pd_lowpass", {**base, "plant.fidelity": "stiffened",
+                                         "master.fmus": "python"})
+    pre = analyze("flexible_pd_lowpass", {"plant.gravity_preload": True})
+    dflt = analyze("flexible_pd_lowpass", base)
+    e = lambda a: np.sort_complex(np.asarray(a.eigenvalues))  # noqa: E731
+    np.testing.assert_array_equal(e(st), e(pre))
+    assert np.max(np.abs(e(st) - e(dflt))) > 1e-3
+
+
 def test_model_for_and_refusals():
     p = PlantParams(n_modes=2)
     assert model_for(p, "stiffened") is stiffened_plant_model(p)
