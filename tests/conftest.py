@@ -63,6 +63,17 @@ def native_dirs(native) -> dict:
     yield from _unpacked(native)
 
 
+def fmi_status(fn, *args) -> int:
+    """0, or the status of the ``FMICallException`` that the fmpy call ``fn(*args)`` raised."""
+    from fmpy.fmi1 import FMICallException
+
+    try:
+        fn(*args)
+        return 0
+    except FMICallException as exc:
+        return exc.status
+
+
 class FmuInstance:
     """One FMU instance driven by fmpy's FMU2Slave, addressed by variable name.
 
@@ -101,14 +112,8 @@ class FmuInstance:
     def initialize(self) -> int:
         """Enter and exit initialisation mode; the status of ``fmi2ExitInitializationMode`` (0,
         or 3 after a bad parameter, which the FMU logs and then refuses every step with)."""
-        from fmpy.fmi1 import FMICallException
-
         self.fmu.enterInitializationMode()
-        try:
-            self.fmu.exitInitializationMode()
-            self.init_status = 0
-        except FMICallException as exc:
-            self.init_status = exc.status
+        self.init_status = fmi_status(self.fmu.exitInitializationMode)
         return self.init_status
 
     def vr(self, *names):
@@ -133,13 +138,7 @@ class FmuInstance:
         return self.get(*[v.name for v in self.md.modelVariables if v.causality == "output"])
 
     def step(self, t, h) -> int:
-        from fmpy.fmi1 import FMICallException
-
-        try:
-            self.fmu.doStep(t, h)
-            return 0
-        except FMICallException as exc:
-            return exc.status
+        return fmi_status(self.fmu.doStep, t, h)
 
     def messages(self, min_status=0) -> str:
         return "\n".join(m for s, _, m in self.logs if s >= min_status)

@@ -8,6 +8,7 @@ import struct
 
 import numpy as np
 import pytest
+from conftest import fmi_status
 
 from orchestration import simulate
 from orchestration.scene.keys import ConfigError
@@ -16,6 +17,7 @@ from orchestration.studies.reference import exact_first_mode_tip
 from plant_fmu.exact import ExactPlant, GeneralizedAlpha
 from plant_fmu.kernel import ExactKernel
 from plant_fmu.params import PlantParams
+
 
 NE = 4
 #: a short run of the filtered scene on a coarse mesh (fidelity.max_modes <= n_elements)
@@ -71,16 +73,7 @@ class Cs:
             self.fmu.enterInitializationMode()
         self.fmu.exitInitializationMode()
 
-    @staticmethod
-    def call(fn, *args):
-        """0, or the status of the FMICallException ``fn`` raised."""
-        from fmpy.fmi1 import FMICallException
-
-        try:
-            fn(*args)
-            return 0
-        except FMICallException as exc:
-            return exc.status
+    call = staticmethod(fmi_status)
 
     def vr(self, *names):
         return [self.vars[n].valueReference for n in names]

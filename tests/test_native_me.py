@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 
+from conftest import fmi_status
 from fmu_common.variables import derivatives, event_indicators, states
 
 
@@ -299,13 +300,6 @@ def test_controller_structure_is_the_filters(paths, version):
 
 
 # ---------------------------------------------------------------------- the mode machine
-def _status(call, *args):
-    from fmpy.fmi1 import FMICallException
-    try:
-        call(*args)
-        return 0
-    except FMICallException as exc:
-        return exc.status
 
 
 def _raw(m, fname, *args):
@@ -433,7 +427,7 @@ def test_initialization_mode_gives_the_initial_states_and_derivatives(me, versio
         m2.fmu.enterInitializationMode()
     else:
         m2.fmu.enterInitializationMode(startTime=0.0)
-    assert _status(m2.derivatives) == 3
+    assert fmi_status(m2.derivatives) == 3
     assert any("L = -1" in msg for _, msg in m2.logs)
 
 
@@ -968,12 +962,12 @@ def test_directional_derivative_refuses_the_wrong_kinds_with_a_message(me, versi
     for unknowns, knowns in ((["phi_dot"], ["phi"]), (["der(phi)"], ["m"]),
                              (["der(phi)"], ["der(x_o)"]), (["F_c"], ["phi"])):
         n = len(m.logs)
-        assert _status(m.directional, unknowns, knowns, [1.0]) == 3
+        assert fmi_status(m.directional, unknowns, knowns, [1.0]) == 3
         assert any("GetDirectionalDerivative" in msg for _, msg in m.logs[n:]), m.logs[n:]
     c = me(version, PLANT, cs=True)
     c.initialize(event=False)
     n = len(c.logs)
-    assert _status(c.directional, ["der(phi)"], ["phi"], [1.0]) == 3    # no derivatives in CS
+    assert fmi_status(c.directional, ["der(phi)"], ["phi"], [1.0]) == 3    # no derivatives in CS
     assert any("an output" in msg for _, msg in c.logs[n:])
 
 
@@ -1040,7 +1034,7 @@ def test_max_output_derivative_order_is_what_the_binary_gives(me, version):
         m.fmu.doStep(0.0, 1e-3)
         assert np.isfinite(_output_derivative(m, [out], top)).all()
         n = len(m.logs)
-        assert _status(_output_derivative, m, [out], top + 1) == 3
+        assert fmi_status(_output_derivative, m, [out], top + 1) == 3
         assert any("maxOutputDerivativeOrder" in msg for _, msg in m.logs[n:])
 
 
@@ -1051,5 +1045,5 @@ def test_stiffened_is_refused_by_the_native_plant_with_a_message(me, version, cs
     """``fidelity = "stiffened"`` is the pythonfmu plant's: the native plant refuses it at
     initialisation, naming the flavour that has it."""
     m = me(version, PLANT, cs=cs, fidelity="stiffened")
-    assert _status(m.initialize, *(() if not cs else (False,))) == 3
+    assert fmi_status(m.initialize, *(() if not cs else (False,))) == 3
     assert any("fidelity = 'stiffened' runs in the pythonfmu" in msg for _, msg in m.logs), m.logs
