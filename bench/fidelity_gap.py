@@ -65,9 +65,7 @@ def scene_for(phi0: float, stop: float, preload: bool = False, fidelity: str = "
                                               "plant.zeta": 0.0,
                                               "plant.gravity_preload": preload,
                                               "plant.fidelity": fidelity,
-                                              "plant.n_modes": n_modes,
-                                              # the stiffened rung is the pythonfmu plant's
-                                              "master.fmus": "python"})
+                                              "plant.n_modes": n_modes})
 
 
 def main(argv=None):

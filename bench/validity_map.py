@@ -137,9 +137,8 @@ def run_case(case):
     for fid, pre in RUNGS:
         if name == "rigid_pd" and pre:
             continue
-        # the monolithic reference uses no FMU; the pythonfmu flavour runs every rung
-        r_sc = case_scene(name, phi0, gain, {"plant.fidelity": fid, "plant.gravity_preload": pre,
-                                             "master.fmus": "python"})
+        r_sc = case_scene(name, phi0, gain, {"plant.fidelity": fid,
+                                             "plant.gravity_preload": pre})
         t1 = time.perf_counter()
         try:
             r = simulate_reference(r_sc, rtol=RTOL, atol=ATOL)

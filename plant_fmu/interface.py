@@ -71,7 +71,7 @@ _PARAMS = {  # PlantParams field -> (description, unit)
 _SETTINGS = {
     "fidelity": ("nonlinear or linear (linearised at the upright rest state); exact: the "
                  "geometrically exact beam on n_elements elements (native FMUs, co-simulation); "
-                 "stiffened: nonlinear with the motion-dependent geometric stiffness (pythonfmu)",
+                 "stiffened: nonlinear with the motion-dependent geometric stiffness",
                  None),
     "integrator": ("integration method: dopri5, euler, exponential, genalpha, radau, rk4, "
                    "symplectic_euler", None),

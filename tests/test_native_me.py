@@ -1040,10 +1040,35 @@ def test_max_output_derivative_order_is_what_the_binary_gives(me, version):
 
 # ---------------------------------------------------------------------- the stiffened rung
 @pytest.mark.parametrize("version", [2, 3])
-@pytest.mark.parametrize("cs", [False, True])
-def test_stiffened_is_refused_by_the_native_plant_with_a_message(me, version, cs):
-    """``fidelity = "stiffened"`` is the pythonfmu plant's: the native plant refuses it at
-    initialisation, naming the flavour that has it."""
-    m = me(version, PLANT, cs=cs, fidelity="stiffened")
-    assert fmi_status(m.initialize, *(() if not cs else (False,))) == 3
-    assert any("fidelity = 'stiffened' runs in the pythonfmu" in msg for _, msg in m.logs), m.logs
+def test_stiffened_derivatives_are_its_numpy_rhs_and_its_jacobians_are_refused(me, version):
+    """``fidelity = "stiffened"`` in Model Exchange: the derivatives are
+    StiffenedPlantModel.rhs_numpy (whose mass points beam.py makes, the FMU its own from the
+    modes' nodal tables) and the energy its energy_numpy; the directional and output
+    derivatives, which the rung does not have, are refused with a message naming it."""
+    from plant_fmu.dynamics import stiffened_plant_model
+    from plant_fmu.params import PlantParams
+    for n, ne, L in ((3, 12, 1.0), (5, 7, 0.8)):            # 16 and 20 mass points
+        m = me(version, PLANT, n_modes=n, n_elements=ne, L=L, fidelity="stiffened")
+        m.initialize()
+        ref = stiffened_plant_model(PlantParams(n_modes=n, n_elements=ne, L=L))
+        rng = np.random.default_rng(4)
+        order = [_kernel_names(8).index(s) for s in _kernel_names(n)]
+        for _ in range(3):
+            xk = rng.normal(size=2 * (n + 2)) * 0.3
+            x = np.zeros(20)
+            x[order] = xk
+            u = float(rng.normal() * 10)
+            m.set(F_c=u)
+            m.set_states(x)
+            want = ref.rhs_numpy(0.0, xk, u)
+            np.testing.assert_allclose(m.derivatives()[order], want, rtol=1e-11,
+                                       atol=1e-11 * np.abs(want).max())
+            assert m.get("energy")[0] == pytest.approx(ref.energy_numpy(xk), rel=1e-12)
+    k = len(m.logs)
+    assert fmi_status(m.directional, ["der(phi_dot)"], ["phi"], [1.0]) == 3
+    assert any("fidelity = 'stiffened'" in msg for _, msg in m.logs[k:]), m.logs[k:]
+    c = me(version, PLANT, cs=True, n_modes=3, fidelity="stiffened")
+    c.initialize(event=False)
+    k = len(c.logs)
+    assert fmi_status(_output_derivative, c, ["phi_o"], 1) == 3
+    assert any("fidelity = 'stiffened'" in msg for _, msg in c.logs[k:]), c.logs[k:]

@@ -338,27 +338,34 @@ def test_kernel_matches_numpy_to_round_off(n):
             call()
 
 
-def test_the_pythonfmu_plant_runs_the_stiffened_rung_as_the_reference(fmus):
-    """A co-simulation of the filtered scene at ``fidelity = "stiffened"`` with the pythonfmu
-    pair meets the monolithic reference to the co-simulation's accuracy, far below the stiffened
-    rung's difference from the nonlinear rung with the preload; a scene asking for it with the
-    native FMUs is refused in one line."""
+@pytest.mark.parametrize("flavour", ["python", "native"])
+def test_both_fmu_flavours_run_the_stiffened_rung_as_the_reference(request, flavour):
+    """A co-simulation of the filtered scene at ``fidelity = "stiffened"`` with either FMU pair
+    meets the monolithic reference to the co-simulation's accuracy, far below the stiffened
+    rung's difference from the nonlinear rung with the preload; a scene asking for it with Model
+    Exchange or output derivatives (which need the Jacobians it does not have) is refused in one
+    line."""
     from orchestration.job import run_scene
     from orchestration.scene.keys import ConfigError
     from orchestration.scene.schema import load_scene
     from orchestration.studies.reference import simulate_reference
 
-    sets = {"initial.phi": math.pi / 6, "stop_time": 0.4, "plant.zeta": 0.0}
-    with pytest.raises(ConfigError, match="master.fmus = 'python'"):
-        load_scene("flexible_pd_lowpass", {**sets, "plant.fidelity": "stiffened"})
-    sc = load_scene("flexible_pd_lowpass", {**sets, "plant.fidelity": "stiffened",
-                                            "master.fmus": "python"})
-    a = run_scene(sc, {"plant": fmus["FlexiblePendulum"], "controller": fmus["PDLowPass"]},
+    sets = {"initial.phi": math.pi / 6, "stop_time": 0.4, "plant.zeta": 0.0,
+            "plant.fidelity": "stiffened"}
+    for key, value in (("master.interface", "model-exchange"),
+                       ("master.output_derivatives", True)):
+        with pytest.raises(ConfigError, match=f"stiffened.*{key}"):
+            load_scene("flexible_pd_lowpass", {**sets, key: value, "master.fmus": "native",
+                                               "master.input_derivatives": 1})
+    sc = load_scene("flexible_pd_lowpass", {**sets, "master.fmus": flavour})
+    paths = request.getfixturevalue("fmus" if flavour == "python" else "native")
+    a = run_scene(sc, {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]},
                   progress=False)
     assert a.summary["stopped"] is None
     ref = simulate_reference(sc)["phi_o"]
     pre = simulate_reference(load_scene("flexible_pd_lowpass",
-                                        {**sets, "plant.gravity_preload": True}))["phi_o"]
+                                        {**sets, "plant.fidelity": "nonlinear",
+                                         "plant.gravity_preload": True}))["phi_o"]
     cosim = np.max(np.abs(a.result["phi_o"] - ref))
     assert cosim < 1e-4
     assert np.max(np.abs(pre - ref)) > 10 * cosim

@@ -47,10 +47,12 @@ import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from fmu_common import kernels
 from fmu_common.variables import (derivatives, event_indicators, native_variables, states,
                                   value_references)
-from plant_fmu.beam import unit_beam
+from plant_fmu.beam import _fe_modes_unit, unit_beam
 from plant_fmu.interface import N_ETA_OUTPUTS, VARIABLES
 
 from . import places
@@ -200,6 +202,31 @@ def _mode_tables() -> list[str]:
         out.append(f"static const double fpm_unit_{key}[FPM_NE_MAX][{width}] = {{")
         out += [f"    {r}," for r in rows]
         out.append("};")
+    return out + _mass_point_tables()
+
+
+def _mass_point_tables() -> list[str]:
+    """What the stiffened rung's mass points are made from (plant_fmu/beam.py, _unit_points):
+    each mesh's unit modes at its free nodal dofs (the root's two are 0), ``2 ne`` rows of
+    ``FPM_N_MODES_MAX`` (modes beyond ``ne`` 0), mesh after mesh from ``FPM_MODES_AT(ne)``; and
+    numpy's Gauss-Legendre rules of ``4 max(n, 4)`` points (16 to 32) and of 3 points."""
+    n = N_MODES_MAX
+    out = ["#define FPM_MODES_AT(ne) ((long)FPM_N_MODES_MAX * (ne) * ((ne) - 1))",
+           f"static const double fpm_unit_modes[{n * NE_MAX * (NE_MAX + 1)}] = {{"]
+    for ne in range(1, NE_MAX + 1):
+        phi = _fe_modes_unit(ne)[1][2:, :min(ne, n)]
+        rows = [[_hex(x) for x in r] + ["0.0"] * (n - phi.shape[1]) for r in phi]
+        out.append("    " + ", ".join(x for r in rows for x in r) + ",")
+    out.append("};")
+    sizes = range(16, 4 * n + 1, 4)
+    for key, k in (("x", 0), ("w", 1)):
+        out.append(f"static const double fpm_gauss_{key}[{len(sizes)}][{4 * n}] = {{")
+        for P in sizes:
+            v = list(np.polynomial.legendre.leggauss(P)[k]) + [0.0] * (4 * n - P)
+            out.append("    {" + ", ".join(_hex(x) for x in v) + "},")
+        out.append("};")
+        out.append(f"static const double fpm_gauss3_{key}[3] = {{"
+                   + ", ".join(_hex(x) for x in np.polynomial.legendre.leggauss(3)[k]) + "};")
     return out
 
 

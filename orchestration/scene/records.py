@@ -389,11 +389,18 @@ class Scene:
             raise ConfigError(f"plant.fidelity = 'exact' cannot be used with {why}")
 
     def _check_stiffened(self):
-        """``plant.fidelity = "stiffened"`` runs in the pythonfmu plant only (the native FMUs do
-        not carry its mass points)."""
-        if self.plant.fidelity == "stiffened" and self.master.fmus != "python":
-            raise ConfigError("plant.fidelity = 'stiffened' runs in the pythonfmu plant only; set "
-                              "master.fmus = 'python'")
+        """``plant.fidelity = "stiffened"`` gives no directional or output derivatives (its
+        kernel has no exact Jacobians), which the Model Exchange master and
+        ``master.output_derivatives`` need."""
+        if self.plant.fidelity != "stiffened":
+            return
+        m = self.master
+        why = ("master.interface = 'model-exchange': its master needs the FMUs' directional "
+               "derivatives" if m.interface == "model-exchange" else
+               "master.output_derivatives = true" if m.output_derivatives else None)
+        if why:
+            raise ConfigError(f"plant.fidelity = 'stiffened' cannot be used with {why}, which "
+                              "the stiffened rung does not give")
 
     def _check_initial_state(self):
         """The initial state within the plant's limits: the plant FMU stops a run whose ``|phi|``

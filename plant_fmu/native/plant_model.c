@@ -56,6 +56,9 @@ enum { M_EULER, M_RK4, M_SYMPLECTIC, M_DOPRI5, M_EXPONENTIAL };
 static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "exponential"};
 #define N_METHODS 5
 
+/* The stiffened rung's mass points: at most 4 NMAX points of 2 + n + n^2 values. */
+#define SF_PTS_MAX (4 * NMAX * (2 + NMAX + NMAX * NMAX))
+
 /* The exact rung's sizes: the state of n_elements = FPM_NE_MAX, the kernel's work for it
  * (fp_exact_work_size, checked at initialisation). */
 #define XB_NQ_MAX (4 * FPM_NE_MAX + 3)
@@ -101,6 +104,7 @@ struct fpm_model {
     /* the plant */
     fp_plant p;
     double I3[NMAX], I5[NMAX], K[NMAX], D[NMAX], Kg[NMAX * NMAX], tip_slope[NMAX], tip_defl[NMAX];
+    double pts[SF_PTS_MAX];     /* the stiffened rung's mass points (sf_points) */
     int n, nq, nx, method;
     double h, rtol, atol, phi_limit, energy_limit;
     stepper s;
@@ -151,6 +155,7 @@ static void relink(fpm_model *m)
     m->p.Kg = m->Kg;
     m->p.tip_slope = m->tip_slope;
     m->p.tip_defl = m->tip_defl;
+    m->p.pts = m->pts;
 }
 
 /* ------------------------------------------------------------------ parameter checks */
@@ -240,13 +245,93 @@ static int outputs_ok(fpm_model *m, const char **bad)
     return 1;
 }
 
+/* The stiffened rung's mass points into pts (P rows of s_p, m_p, N(s_p), G(s_p)), as beam.py's
+ * _unit_points and mass_points make them: numpy's Gauss-Legendre rule of P = 4 max(n, 4) points
+ * on the unit beam, the modes' Hermite interpolants there, G(s) = int_0^s N'^T N' ds by 3-point
+ * Gauss on each element before s and on the part of its own; then s scaled by L, the masses by
+ * rhoA L, N by w and G by w^2 / L. Returns P. */
+static void sf_hermite(double t, double le, double *Nh, double *dN)
+{
+    Nh[0] = 1 - 3 * t * t + 2 * t * t * t;
+    Nh[1] = le * (t - 2 * t * t + t * t * t);
+    Nh[2] = 3 * t * t - 2 * t * t * t;
+    Nh[3] = le * (t * t * t - t * t);
+    dN[0] = (-6 * t + 6 * t * t) / le;
+    dN[1] = 1 - 4 * t + 3 * t * t;
+    dN[2] = (6 * t - 6 * t * t) / le;
+    dN[3] = -2 * t + 3 * t * t;
+}
+
+/* The element e's dof d (0..3) of mode j: the root's two dofs are 0. */
+static double sf_dof(const double *modes, int e, int d, int j)
+{
+    const int row = 2 * e + d - 2;
+    return row < 0 ? 0.0 : modes[(long)row * NMAX + j];
+}
+
+/* d/ds of the modes (n) at t of element e. */
+static void sf_slopes(const double *modes, int e, double t, double le, int n, double *out)
+{
+    double Nh[4], dN[4];
+    int j, d;
+    sf_hermite(t, le, Nh, dN);
+    for (j = 0; j < n; j++) {
+        out[j] = 0.0;
+        for (d = 0; d < 4; d++) out[j] += dN[d] * sf_dof(modes, e, d, j);
+    }
+}
+
+/* acc += sum_q weight_q (N'_q)^T N'_q over the 3-point rule on [s_e, s_e + t le]. */
+static void sf_accumulate(const double *modes, int e, double t, double le, int n, double *acc)
+{
+    double dw[NMAX];
+    int q, i, j;
+    for (q = 0; q < 3; q++) {
+        const double wq = 0.5 * fpm_gauss3_w[q] * t * le;
+        sf_slopes(modes, e, 0.5 * (fpm_gauss3_x[q] + 1.0) * t, le, n, dw);
+        for (i = 0; i < n; i++)
+            for (j = 0; j < n; j++) acc[i * n + j] += dw[i] * wq * dw[j];
+    }
+}
+
+static int sf_points(double *pts, int ne, int n, double L, double rhoA, double w)
+{
+    const double *modes = fpm_unit_modes + FPM_MODES_AT(ne);
+    const int P = 4 * (n > 4 ? n : 4), width = 2 + n + n * n, set = P / 4 - 4;
+    const double le = 1.0 / ne, sG = w * w / L;
+    double acc[NMAX * NMAX], G[NMAX * NMAX], Nh[4], dN[4];
+    int k, e_acc = 0, i, j, d;
+    for (i = 0; i < n * n; i++) acc[i] = 0.0;   /* G at node e_acc */
+    for (k = 0; k < P; k++) {
+        const double x = 0.5 * (fpm_gauss_x[set][k] + 1.0), wt = 0.5 * fpm_gauss_w[set][k];
+        double *row = pts + (long)k * width;
+        int e = (int)(x * ne);
+        double t;
+        if (e > ne - 1) e = ne - 1;
+        while (e_acc < e) sf_accumulate(modes, e_acc++, 1.0, le, n, acc);
+        t = x * ne - e;
+        sf_hermite(t, le, Nh, dN);
+        row[0] = x * L;
+        row[1] = wt * (rhoA * L);
+        for (j = 0; j < n; j++) {
+            double v = 0.0;
+            for (d = 0; d < 4; d++) v += Nh[d] * sf_dof(modes, e, d, j);
+            row[2 + j] = v * w;
+        }
+        memcpy(G, acc, sizeof(double) * n * n);
+        sf_accumulate(modes, e, t, le, n, G);
+        for (i = 0; i < n * n; i++) row[2 + n + i] = G[i] * sG;
+    }
+    return P;
+}
+
 /* Build the plant and the stepper from the parameters (fmu.py's _prepare). */
 static int prepare(fpm_model *m, const fpm_logger *lg)
 {
     const double *r = m->v.real;
     double L = r[VR_L], EI = r[VR_EI], rho = r[VR_rho], EA = r[VR_EA], E = r[VR_E];
     double g = r[VR_g], zeta = r[VR_zeta], rhoA, w, sI3, sI5, slam, sslope, sKg;
-    int n, ne, j, i;
+    int n, ne, j, i, stiffened;
     const char *fid = m->v.string[VR_fidelity], *integ = m->v.string[VR_integrator];
     static const char *REAL_PARAMS[] = {"m", "L", "rho", "EA", "EI", "E"};
     static const unsigned REAL_VRS[] = {VR_m, VR_L, VR_rho, VR_EA, VR_EI, VR_E};
@@ -266,14 +351,11 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     n = (int)r[VR_n_modes];
     m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
     if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
-    if (strcmp(fid, "stiffened") == 0) {
-        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = 'stiffened' runs in the pythonfmu "
-                "FlexiblePendulum only (its mass points are not among the native FMU's tables)");
-        return 0;
-    }
+    stiffened = strcmp(fid, "stiffened") == 0;  /* the nonlinear rung with the preload and */
+    if (stiffened) fid = "nonlinear";           /* the foreshortening's mass points */
     if (strcmp(fid, "nonlinear") != 0 && strcmp(fid, "linear") != 0) {
         fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = '%s' is not allowed; allowed: "
-                "nonlinear, linear", fid);
+                "nonlinear, linear, stiffened, exact", fid);
         return 0;
     }
     m->method = -1;
@@ -320,14 +402,18 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         m->tip_defl[j] = fpm_unit_tip_defl[ne - 1][j] * w;
         m->tip_slope[j] = fpm_unit_tip_slope[ne - 1][j] * sslope;
         for (i = 0; i < n; i++)
-            m->Kg[j * n + i] = r[VR_gravity_preload] != 0.0
+            m->Kg[j * n + i] = r[VR_gravity_preload] != 0.0 || stiffened
                 ? fpm_unit_Kg[ne - 1][j * NMAX + i] * sKg : 0.0;
     }
     if (!derived_ok(lg, m, rhoA, w, slam)) return 0;
     memset(&m->p, 0, sizeof m->p);
     m->p.n = n;
     m->p.linear = strcmp(fid, "linear") == 0;
-    m->p.preload = r[VR_gravity_preload] != 0.0 && n > 0;
+    m->p.preload = (r[VR_gravity_preload] != 0.0 || stiffened) && n > 0;
+    if (stiffened) {                            /* always with the self-weight (dynamics.py) */
+        m->p.stiffened = 1;
+        m->p.npts = sf_points(m->pts, ne, n, L, rhoA, w);
+    }
     m->p.I0 = r[VR_m] + rhoA * L;
     m->p.I1 = rhoA * (L * L) / 2;
     m->p.I2 = rhoA * (L * L * L) / 3;
@@ -1191,7 +1277,8 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
     double u, du;
     int nx = m->nx, i, j, nu = 0, ny = 0;
     unsigned vr;
-    if (m->exact) return xb_refuse(m, lg, "directional derivatives and the linearisation");
+    if (m->exact || m->p.stiffened)
+        return xb_refuse(m, lg, "directional derivatives and the linearisation");
     for (vr = 0; vr < FPM_MAX_VARS; vr++)
         if (fpm_vars[vr].name != NULL) {
             nu += fpm_vars[vr].causality == FPM_INPUT;
@@ -1248,7 +1335,7 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
 {
     double d1[FP_OUT_ETA + NMAX], d2[FP_OUT_ETA + NMAX], work[4 * NXMAX], u, du;
     int row;
-    if (m->exact) return xb_refuse(m, lg, "output derivatives");
+    if (m->exact || m->p.stiffened) return xb_refuse(m, lg, "output derivatives");
     if (vr >= FPM_MAX_VARS || (row = kernel_row(m, vr)) == -2) {
         fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
         return FPM_ERROR;
@@ -1309,9 +1396,10 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
 
 static int xb_refuse(const fpm_model *m, const fpm_logger *lg, const char *what)
 {
-    (void)m;
-    fpm_log(lg, FPM_ERROR, "%s: the exact rung (fidelity = 'exact') does not offer %s; the "
-            "floating-frame rungs (fidelity = 'nonlinear' or 'linear') do", fpm_model_name, what);
+    const char *rung = m->exact ? "exact" : "stiffened";
+    fpm_log(lg, FPM_ERROR, "%s: the %s rung (fidelity = '%s') does not offer %s; the "
+            "floating-frame rungs (fidelity = 'nonlinear' or 'linear') do", fpm_model_name, rung,
+            rung, what);
     return FPM_ERROR;
 }
 
