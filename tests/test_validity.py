@@ -168,3 +168,13 @@ def test_the_ladder_holds_only_the_rungs_the_scenes_fmus_run():
         nxt, why = climb(want, _validity(want, 0.01, 2.0, 0.2), 0.0, ladder)
         assert why.startswith(f"{want}: model-form error")
         assert nxt is None and "top available rung" in why
+
+
+def test_the_stiffened_rung_is_one_rung_whatever_gravity_preload_says():
+    """The stiffened rung always carries the self-weight's stiffness (dynamics.py): with
+    plant.gravity_preload = true it is the same rung and has the same measured bound."""
+    from orchestration.studies.validity import rung_name
+    names = {rung_name(load_scene("flexible_pd_lowpass", {"plant.fidelity": "stiffened",
+                                                          "plant.gravity_preload": pre}).plant)
+             for pre in (False, True)}
+    assert names == {"stiffened"} and "stiffened" in DATA["rungs"]

@@ -60,6 +60,8 @@ def rung_name(plant) -> str:
         return TOP
     if p.n_modes == 0:
         return f"rigid {plant.fidelity}"
+    if plant.fidelity == "stiffened":          # it carries the self-weight's stiffness always
+        return plant.fidelity
     return plant.fidelity + (" + preload" if p.gravity_preload else "")
 
 
