@@ -34,7 +34,7 @@ INTERESTING = [
     9.223372036854775807e18, 4294967296.0, 2147483648.0, -2147483649.0, 0.1, 97.3, 500.0]
 HEADER = 24
 KNOWN = ["rk4", "euler", "symplectic_euler", "dopri5", "exponential", "linear", "nonlinear",
-         "radau", "exact"]
+         "radau", "exact", "stiffened"]
 
 
 def f64(x: float) -> bytes:
@@ -247,6 +247,13 @@ def seeds(model: str, version: int) -> dict:
                                   strings=[(29, "exact")])
                         .derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3).outputs()
                         .step(0.5).outputs())
+        out["stiffened"] = (P().start(reals=[(36, 0.3)], ints=[(27, 2), (26, 2)],
+                                      strings=[(29, "stiffened")])
+                            .derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3).outputs()
+                            .step(0.5).outputs())
+        out["stiffened-largest"] = (P().start(reals=[(36, 0.3)], ints=[(27, 100), (26, 8)],
+                                              strings=[(29, "stiffened")])
+                                    .step(1e-3).roundtrip().outputs())   # the most mass points
         out["model-exchange"] = P().model_exchange(reals=[(36, 0.3)]).roundtrip()
     else:
         for order in (0, 1, 2):
