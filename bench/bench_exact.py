@@ -12,9 +12,9 @@ after one untimed warm-up, one core):
 * **closed loop**, the paper's filtered scene (``flexible_pd_lowpass``) monolithic
   (``orchestration.studies.exact_loop``: the controller's filter in numpy each step, the force law
   inside the step's Newton), C kernel and numpy, at h = 0.1 ms;
-* **flexpend run**, the three paper scenes through the product (the master) at the exact rung
-  and at the default one (native FMUs), and at the default and the stiffened rungs with the
-  pythonfmu plant, the stiffened rung's (``--run-span``).
+* **flexpend run**, the three paper scenes through the product (the master) at the default, the
+  stiffened and the exact rungs (native FMUs), and at the default and the stiffened rungs with
+  the pythonfmu plant (``--run-span``).
 
 Error against the element count: the filtered scene, 3 s from pi/6 (the paper's, with its
 ``zeta = 0.1 %`` as the Kelvin-Voigt law), by the C kernel at h = 0.1 ms: the largest ``|phi_o|``
