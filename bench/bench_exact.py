@@ -55,9 +55,10 @@ at 8 elements 0.35; ``--skip-error``): 0.033 s per simulated s on the plant alon
 right-hand side against the default rung's 1.0, 4.0 against 1.0 at 8 modes), a tenth of the exact
 rung's; through the product, pythonfmu plant: 0.048 / 0.52 / 0.10 s on rigid_pd / flexible_pd /
 flexible_pd_lowpass, against 0.03 / 0.35 / 0.078 for the default rung with the same plant and
-0.33 / 0.71 / 0.54 for the exact rung (native) in that run. With the native plant (a later run):
-0.0036 / 0.025 / 0.013 s, against 0.001 / 0.0031 / 0.0013 for the default rung and 0.32 / 0.53 /
-0.26 for the exact one.
+0.33 / 0.71 / 0.54 for the exact rung (native) in that run. With the native plant (a later run,
+every row in one: the plant alone 0.013 against 0.0024 and 0.18 for the exact rung): 0.0037 /
+0.029 / 0.015 s, against 0.0011 / 0.003 / 0.0013 for the default rung and 0.36 / 0.57 / 0.28 for
+the exact one; the pythonfmu plant in that run 0.031 / 0.25 / 0.057 against 0.033 / 0.25 / 0.033.
 
 The C kernel is ~25 times faster than the numpy specification on the plant alone (27 us a
 0.1 ms step at 8 elements: about two Newton iterations, one tangent), and ~110 times slower than
