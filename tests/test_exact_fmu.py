@@ -8,7 +8,7 @@ import struct
 
 import numpy as np
 import pytest
-from conftest import fmi_status
+from conftest import NativeFmu, fmi_status, opened_by
 
 from orchestration import simulate
 from orchestration.scene.keys import ConfigError
@@ -25,83 +25,16 @@ EXACT = {"plant.fidelity": "exact", "plant.n_elements": NE, "fidelity.max_modes"
 OUTPUTS = ("x_o", "x_dot", "phi_o", "omega_o", "phi", "tip_deflection", "energy")
 
 
-class Cs:
-    """A co-simulation instance of the native plant through fmpy (FMI 2.0 or 3.0), by name;
-    ``logs``: (status, message)."""
+class Cs(NativeFmu):
+    """A co-simulation (or Model Exchange) instance of the native plant through fmpy (FMI 2.0 or
+    3.0), by name, initialised unless told not to; ``status``: that of the initialisation."""
 
     def __init__(self, unzipdir, version, initialize=True, model_exchange=False, **start):
-        from fmpy import read_model_description
-
-        self.md = read_model_description(unzipdir)
-        self.version = version
-        self.vars = {v.name: v for v in self.md.modelVariables}
-        self.logs = []
-        iface = self.md.modelExchange if model_exchange else self.md.coSimulation
-        if version == 2:
-            from fmpy.fmi2 import (FMU2Model, FMU2Slave, fmi2CallbackAllocateMemoryTYPE,
-                                   fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                                   fmi2CallbackLoggerTYPE, calloc, free)
-
-            def logger(env, name, status, category, message):
-                self.logs.append((status, message.decode()))
-            cb = fmi2CallbackFunctions()
-            cb.logger = fmi2CallbackLoggerTYPE(logger)
-            cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-            cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-            self._cb = cb
-            cls = FMU2Model if model_exchange else FMU2Slave
-            self.fmu = cls(guid=self.md.guid, unzipDirectory=unzipdir,
-                           modelIdentifier=iface.modelIdentifier, instanceName="plant")
-            self.fmu.instantiate(callbacks=cb, loggingOn=True)
-            self.fmu.setupExperiment(startTime=0.0)
-        else:
-            from fmpy.fmi3 import FMU3Model, FMU3Slave
-
-            def logger(env, status, category, message):
-                self.logs.append((status, message.decode()))
-            cls = FMU3Model if model_exchange else FMU3Slave
-            self.fmu = cls(guid=self.md.guid, unzipDirectory=unzipdir,
-                           modelIdentifier=iface.modelIdentifier, instanceName="plant")
-            self.fmu.instantiate(loggingOn=True, logMessage=logger)
-            self.fmu.enterInitializationMode(startTime=0.0)
-        self.set(**start)
+        super().__init__(unzipdir, version, cs=not model_exchange, **start)
         if initialize:
-            self.status = self.call(self._exit_init)
-
-    def _exit_init(self):
-        if self.version == 2:
-            self.fmu.enterInitializationMode()
-        self.fmu.exitInitializationMode()
+            self.status = self.call(self.initialize, False)
 
     call = staticmethod(fmi_status)
-
-    def vr(self, *names):
-        return [self.vars[n].valueReference for n in names]
-
-    def set(self, **values):
-        for name, value in values.items():
-            v, r = self.vars[name], [self.vars[name].valueReference]
-            if v.type in ("Real", "Float64"):
-                (self.fmu.setReal if self.version == 2 else self.fmu.setFloat64)(r, [value])
-            elif v.type in ("Integer", "Int32"):
-                (self.fmu.setInteger if self.version == 2 else self.fmu.setInt32)(r, [value])
-            elif v.type == "Boolean":
-                self.fmu.setBoolean(r, [value])
-            else:
-                self.fmu.setString(r, [value])
-
-    def get(self, *names):
-        return (self.fmu.getReal if self.version == 2 else self.fmu.getFloat64)(self.vr(*names))
-
-    def step(self, t, h):
-        return self.call(self.fmu.doStep, t, h)
-
-    def messages(self, min_status=2):
-        return "\n".join(m for s, m in self.logs if s >= min_status)
-
-    def close(self):
-        self.call(self.fmu.terminate)
-        self.fmu.freeInstance()
 
 
 @pytest.fixture(scope="module")
@@ -121,19 +54,7 @@ def plant_dirs(native):
 
 @pytest.fixture
 def open_plant(plant_dirs):
-    opened = []
-
-    def _open(version=2, **start):
-        inst = Cs(plant_dirs[version], version, **start)
-        opened.append(inst)
-        return inst
-
-    yield _open
-    for inst in opened:
-        try:
-            inst.close()
-        except Exception:  # noqa: BLE001 - an instance in error may refuse terminate
-            pass
+    yield from opened_by(lambda version=2, **start: Cs(plant_dirs[version], version, **start))
 
 
 def forcing(k):

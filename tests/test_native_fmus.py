@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import FmuInstance
+from conftest import FmuInstance, opened_by
 
 HOST_C = Path(__file__).parent / "native" / "fmi2_host.c"
 linux_gcc = pytest.mark.skipif(not sys.platform.startswith("linux") or not shutil.which("gcc"),
@@ -36,19 +36,8 @@ def native3() -> dict:
 
 @pytest.fixture
 def open_native(native_dirs):
-    opened = []
-
-    def _open(name, initialize=True, **start):
-        inst = FmuInstance(native_dirs[name], start, name, initialize)
-        opened.append(inst)
-        return inst
-
-    yield _open
-    for inst in opened:
-        try:
-            inst.close()
-        except Exception:  # noqa: BLE001 - an instance in error may refuse terminate
-            pass
+    yield from opened_by(lambda name, initialize=True, **start:
+                         FmuInstance(native_dirs[name], start, name, initialize))
 
 
 def pair(paths):

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from conftest import fmi_status
+from conftest import NativeFmu, fmi_status, opened_by
 from fmu_common.variables import derivatives, event_indicators, states
 
 
@@ -43,146 +43,10 @@ def dirs(paths):
         shutil.rmtree(d, ignore_errors=True)
 
 
-class Me:
-    """One Model-Exchange (or, with cs=True, co-simulation) instance of a native FMU through
-    fmpy's classes, addressed by name; ``logs`` collects (status, message)."""
-
-    def __init__(self, unzipdir, version, cs=False, **start):
-        from fmpy import read_model_description
-
-        self.md = read_model_description(unzipdir)
-        self.version = version
-        self.vars = {v.name: v for v in self.md.modelVariables}
-        self.logs = []
-        iface = self.md.coSimulation if cs else self.md.modelExchange
-        if version == 2:
-            from fmpy.fmi2 import FMU2Model, FMU2Slave
-            cls = FMU2Slave if cs else FMU2Model
-            self.fmu = cls(guid=self.md.guid, unzipDirectory=unzipdir,
-                           modelIdentifier=iface.modelIdentifier, instanceName="i")
-
-            from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFunctions,
-                                   fmi2CallbackFreeMemoryTYPE, fmi2CallbackLoggerTYPE, calloc,
-                                   free)
-
-            def logger(env, name, status, category, message):
-                self.logs.append((status, message.decode()))
-            cb = fmi2CallbackFunctions()
-            cb.logger = fmi2CallbackLoggerTYPE(logger)
-            cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
-            cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
-            self._cb = cb
-            self.fmu.instantiate(callbacks=cb, loggingOn=True)
-            self.fmu.setupExperiment(startTime=0.0)
-        else:
-            from fmpy.fmi3 import FMU3Model, FMU3Slave
-            cls = FMU3Slave if cs else FMU3Model
-            self.fmu = cls(guid=self.md.guid, unzipDirectory=unzipdir,
-                           modelIdentifier=iface.modelIdentifier, instanceName="i")
-
-            def logger(env, status, category, message):
-                self.logs.append((status, message.decode()))
-            self.fmu.instantiate(loggingOn=True, logMessage=logger)
-        self.set(**start)
-        self.nx = len(self.md.derivatives)
-        self.nz = self.md.numberOfEventIndicators if version == 2 else \
-            len(self.md.eventIndicators)
-
-    def vr(self, *names):
-        return [self.vars[n].valueReference for n in names]
-
-    def set(self, **values):
-        for name, value in values.items():
-            v = self.vars[name]
-            if v.type in ("Real", "Float64"):
-                (self.fmu.setReal if self.version == 2 else self.fmu.setFloat64)(
-                    [v.valueReference], [float(value)])
-            elif v.type in ("Integer", "Int32"):
-                (self.fmu.setInteger if self.version == 2 else self.fmu.setInt32)(
-                    [v.valueReference], [int(value)])
-            elif v.type == "Boolean":
-                self.fmu.setBoolean([v.valueReference], [bool(value)])
-            else:
-                self.fmu.setString([v.valueReference], [value])
-
-    def get(self, *names):
-        get = self.fmu.getReal if self.version == 2 else self.fmu.getFloat64
-        return get(self.vr(*names))
-
-    def initialize(self, event=True):
-        """Initialisation, the event iteration, continuous-time mode (ME)."""
-        if self.version == 2:
-            self.fmu.enterInitializationMode()
-        else:
-            self.fmu.enterInitializationMode(startTime=0.0)
-        self.fmu.exitInitializationMode()
-        if event:
-            if self.version == 2:
-                info = self.fmu.newDiscreteStates()
-                assert not info[1]
-            else:
-                assert not self.fmu.updateDiscreteStates()[1]
-            self.fmu.enterContinuousTimeMode()
-
-    def states(self):
-        x = np.zeros(self.nx)
-        self.fmu.getContinuousStates(x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), self.nx)
-        return x
-
-    def set_states(self, x):
-        x = np.ascontiguousarray(x, dtype=float)
-        self.fmu.setContinuousStates(x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), self.nx)
-
-    def derivatives(self):
-        dx = np.zeros(self.nx)
-        p = dx.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
-        if self.version == 2:
-            self.fmu.getDerivatives(p, self.nx)
-        else:
-            self.fmu.getContinuousStateDerivatives(p, self.nx)
-        return dx
-
-    def nominals(self):
-        x = np.zeros(self.nx)
-        self.fmu.getNominalsOfContinuousStates(
-            x.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), self.nx)
-        return x
-
-    def indicators(self):
-        z = np.zeros(self.nz)
-        self.fmu.getEventIndicators(z.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), self.nz)
-        return z
-
-    def set_time(self, t):
-        self.fmu.setTime(t)
-
-    def directional(self, unknowns, knowns, seed):
-        if self.version == 2:
-            return np.array(self.fmu.getDirectionalDerivative(self.vr(*unknowns),
-                                                              self.vr(*knowns), list(seed)))
-        return np.array(self.fmu.getDirectionalDerivative(self.vr(*unknowns), self.vr(*knowns),
-                                                          list(seed)))
-
-    def close(self):
-        try:
-            self.fmu.terminate()
-        except Exception:  # noqa: BLE001 - an instance in error may refuse terminate
-            pass
-        self.fmu.freeInstance()
-
-
 @pytest.fixture
 def me(dirs):
-    opened = []
-
-    def _open(version, name, cs=False, **start):
-        inst = Me(dirs[(version, name)], version, cs, **start)
-        opened.append(inst)
-        return inst
-
-    yield _open
-    for inst in opened:
-        inst.close()
+    yield from opened_by(lambda version, name, cs=False, **start:
+                         NativeFmu(dirs[(version, name)], version, cs, **start))
 
 
 # ---------------------------------------------------------------------- the tables
