@@ -129,7 +129,6 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg);
 static int xb_outputs_ok(fpm_model *m, const char **bad);
 static int xb_substeps(fpm_model *m, double h, long n, char *why);
 static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h);
-static int xb_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value);
 static int xb_load(fpm_model *m, fpm_reader *r, const stepper *s, int stepped);
 static int xb_refuse(const fpm_model *m, const fpm_logger *lg, const char *what);
 
@@ -811,22 +810,27 @@ int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
 /* ------------------------------------------------------------------ outputs and inputs */
 int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
 {
-    int j;
+    int j, n_eta;
     if (!m->initialized && !prepare(m, lg)) {   /* read before initialisation: from the
                                                     parameters as they are now */
         fpm_log(lg, FPM_ERROR, "the outputs cannot be computed: a parameter is bad (above)");
         return FPM_ERROR;
     }
-    if (m->exact) return xb_get_output(m, lg, vr, value);
-    if (!m->out_fresh) {
-        double energy = m->out[FP_OUT_ENERGY];
-        fp_outputs(&m->p, m->y_acc, 0, m->out);
-        m->out[FP_OUT_ENERGY] = energy;
-        m->out_fresh = 1;
-    }
-    if (vr == VR_energy && !m->energy_fresh) {
-        m->out[FP_OUT_ENERGY] = fp_energy(&m->p, m->y_acc);
-        m->energy_fresh = 1;
+    if (m->exact) {                           /* outputs and energy with each state */
+        if (!m->out_fresh) xb_outputs_ok(m, NULL);
+        n_eta = FPM_N_ETA;                    /* eta_1 = tip / N_1(L), the rest 0 */
+    } else {
+        if (!m->out_fresh) {
+            double energy = m->out[FP_OUT_ENERGY];
+            fp_outputs(&m->p, m->y_acc, 0, m->out);
+            m->out[FP_OUT_ENERGY] = energy;
+            m->out_fresh = 1;
+        }
+        if (vr == VR_energy && !m->energy_fresh) {
+            m->out[FP_OUT_ENERGY] = fp_energy(&m->p, m->y_acc);
+            m->energy_fresh = 1;
+        }
+        n_eta = m->n;                         /* the modes beyond n_modes: 0 */
     }
     switch (vr) {
     case VR_x_o: *value = m->out[FP_OUT_X]; break;
@@ -834,12 +838,12 @@ int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
     case VR_phi_o: *value = m->out[FP_OUT_PHI_O]; break;
     case VR_omega_o: *value = m->out[FP_OUT_OMEGA_O]; break;
     case VR_phi: *value = m->out[FP_OUT_PHI]; break;
-    case VR_tip_deflection: *value = m->n ? m->out[FP_OUT_TIP] : 0.0; break;
+    case VR_tip_deflection: *value = n_eta ? m->out[FP_OUT_TIP] : 0.0; break;
     case VR_energy: *value = m->out[FP_OUT_ENERGY]; break;
     default:
         for (j = 0; j < FPM_N_ETA; j++)
             if (vr == fpm_eta_vrs[j]) {
-                *value = j < m->n ? m->out[FP_OUT_ETA + j] : 0.0;
+                *value = j < n_eta ? m->out[FP_OUT_ETA + j] : 0.0;
                 break;
             }
         if (j == FPM_N_ETA) {
@@ -1603,35 +1607,6 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
         return diverged(m, lg, &saved, why);
     }
     m->stepped = 1;
-    return FPM_OK;
-}
-
-static int xb_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value)
-{
-    int j;
-    if (!m->out_fresh) xb_outputs_ok(m, NULL);
-    switch (vr) {
-    case VR_x_o: *value = m->out[FP_OUT_X]; break;
-    case VR_x_dot: *value = m->out[FP_OUT_XDOT]; break;
-    case VR_phi_o: *value = m->out[FP_OUT_PHI_O]; break;
-    case VR_omega_o: *value = m->out[FP_OUT_OMEGA_O]; break;
-    case VR_phi: *value = m->out[FP_OUT_PHI]; break;
-    case VR_tip_deflection: *value = m->out[FP_OUT_TIP]; break;
-    case VR_energy: *value = m->out[FP_OUT_ENERGY]; break;
-    default:
-        for (j = 0; j < FPM_N_ETA; j++)
-            if (vr == fpm_eta_vrs[j]) {
-                *value = m->out[FP_OUT_ETA + j];      /* eta_1 = tip / N_1(L), the rest 0 */
-                return FPM_OK;
-            }
-        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
-        return FPM_ERROR;
-    }
-    if (!isfinite(*value)) {                    /* never: steps and initialisation refuse it */
-        fpm_log(lg, FPM_ERROR, "the output %s = %g is not finite at t = %.17g", fpm_vars[vr].name,
-                *value, fpm_model_time(m));
-        return FPM_ERROR;
-    }
     return FPM_OK;
 }
 
