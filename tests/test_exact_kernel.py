@@ -188,7 +188,12 @@ def test_bad_parameters_are_refused():
 def test_outputs_are_the_specs(ne):
     """fp_exact_outputs (the native FMU's outputs at the exact rung) against ExactPlant's tip
     angle and rate, tip deflection and energy, and the root tangent's angle, at deformed, moving
-    states (energy to round-off of its size: the strain energy sums EA eps^2 with EA = 4.2e8)."""
+    states. The angles and rates to the last bit (the same libm operations on both sides); the
+    tip deflection to round-off of its terms (it is a dot product of the tip's offset, of size
+    L, with the unit normal: a difference of numbers near 1 whose result is near 1e-3, so the
+    order of the two products and whether numpy fuses them (it may, by version) moves its last
+    bits by hundreds of its own ulps, never by more than a few ulps of the terms); the energy to
+    round-off of its size (the strain energy sums EA eps^2 with EA = 4.2e8)."""
     pl = plant(ne)
     k = ExactKernel(pl, 1e-4)
     rng = np.random.default_rng(ne)
@@ -199,7 +204,9 @@ def test_outputs_are_the_specs(ne):
         o = k.outputs((q, qd))
         e = pl.system.embed(q)
         spec = [q[0], qd[0], *pl.tip_angle(x), math.atan2(-e[2], e[3]), pl.tip_deflection(x)]
-        assert np.array_equal(o[:6], spec)
+        assert np.array_equal(o[:5], spec[:5])
+        terms = np.max(np.abs(e[-4:-2] - e[0:2]))
+        assert abs(o[5] - spec[5]) <= 4 * np.finfo(float).eps * terms
         assert abs(o[6] - pl.energy(x)) <= RTOL * abs(pl.energy(x))
 
 

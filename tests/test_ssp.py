@@ -117,12 +117,23 @@ def test_export_then_run_gives_the_direct_run_bit_for_bit(exported, fmus):
 
 
 def test_run_cli_on_the_archive_writes_the_same_csv(exported, fmus, tmp_path):
-    a, b = tmp_path / "a", tmp_path / "b"
-    code, _, err = flexpend("run", "flexible_pd_lowpass", "--set", "stop_time=1", "--out", str(a))
+    """The archive (exported with the pythonfmu FMUs) runs as the scene does with the same FMUs,
+    byte for byte; the native FMUs' run agrees to round-off only (the pythonfmu controller
+    discretises its filter in numpy and scipy, whose last bits move with their versions)."""
+    a, b, c = tmp_path / "a", tmp_path / "b", tmp_path / "c"
+    code, _, err = flexpend("run", "flexible_pd_lowpass", "--set", "stop_time=1", "--set",
+                            "master.fmus=python", "--out", str(a))
     assert code == 0, err
     code, _, err = flexpend("run", str(exported), "--set", "stop_time=1", "--out", str(b))
     assert code == 0, err
-    assert (a / "flexible_pd_lowpass.csv").read_bytes() == (b / "flexible_pd_lowpass.csv").read_bytes()
+    name = "flexible_pd_lowpass.csv"
+    assert (a / name).read_bytes() == (b / name).read_bytes()
+    code, _, err = flexpend("run", "flexible_pd_lowpass", "--set", "stop_time=1", "--out", str(c))
+    assert code == 0, err
+    native, python = (np.genfromtxt(d / name, delimiter=",", names=True) for d in (c, b))
+    for col in native.dtype.names:
+        scale = max(1.0, float(np.max(np.abs(native[col]))))
+        assert np.max(np.abs(native[col] - python[col])) <= 1e-9 * scale, col
 
 
 @pytest.mark.slow
