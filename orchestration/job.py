@@ -239,7 +239,7 @@ def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snap
                                         controller_start_values(scene),
                                         unzipdir=dirs.get("controller"))
             master = (ModelExchangeMaster if me else Master)(slaves, scene.connections, RECORD,
-                                                             scene.master)
+                                                             scene.run_master)
         except ValueError as exc:       # a variable the FMUs do not have, no ME interface
             raise ConfigError(f"{scene.name}: {exc}") from None
         if connections_out is not None:

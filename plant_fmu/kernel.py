@@ -88,6 +88,10 @@ class _ExactForce(ctypes.Structure):
     _fields_ = [("F0", _D), ("Q0", _D), ("kx", _D), ("kp", _D), ("kd", _D)]
 
 
+class _RadauForce(ctypes.Structure):
+    _fields_ = [("F0", _D * 3), ("Q", _D * 9), ("kx", _D), ("kp", _D), ("kd", _D)]
+
+
 _lib = None
 
 
@@ -101,6 +105,7 @@ def library() -> ctypes.CDLL:
         lib.fp_work_size.restype = ctypes.c_long
         lib.fp_jacobian_work_size.restype = ctypes.c_long
         lib.fp_exact_work_size.restype = ctypes.c_long
+        lib.fp_radau_work_size.restype = ctypes.c_long
         for name in ("fp_rhs", "fp_tip", "fp_outputs"):
             getattr(lib, name).restype = None
         _lib = lib
@@ -352,11 +357,18 @@ class ExactKernel:
               FP_NONFINITE: "a residual or the state is not finite",
               FP_NOCONVERGE: "Newton did not converge (or its matrix is singular)"}
 
-    def __init__(self, plant, h: float, rho_inf: float = 0.9, tol: float = 1e-11,
-                 max_iter: int = 30):
+    def __init__(self, plant, h: float, rho_inf: float = 0.9, tol: float | None = None,
+                 max_iter: int = 30, method: str = "genalpha"):
         p = plant.params
         if not 0.0 <= rho_inf <= 1.0:
             raise ValueError(f"rho_inf = {rho_inf!r} is out of range; allowed: [0, 1]")
+        if method not in ("genalpha", "radau"):
+            raise ValueError(f"method = {method!r} is not allowed; allowed: genalpha, radau")
+        if tol is None:
+            from .exact import RADAU_TOL
+
+            tol = RADAU_TOL if method == "radau" else 1e-11
+        self.method = method
         lib = self._lib = library()
         self._struct = _Exact(int(p.n_elements), float(p.L), float(p.EA), float(p.EI),
                               float(p.rhoA), float(p.g), float(p.m), float(plant.beta_kv),
@@ -366,10 +378,15 @@ class ExactKernel:
             raise ValueError(f"the exact beam's data are out of range (h = {h!r}, max_iter = "
                              f"{max_iter!r}, or a parameter is not finite and positive)")
         self.h, self.nq = h, self._struct.nq
-        self._work = np.zeros(lib.fp_exact_work_size(self._p))
+        size = (lib.fp_radau_work_size if method == "radau" else lib.fp_exact_work_size)(self._p)
+        self._work = np.zeros(size)
         self._pwork = _addr(self._work)
         self._force = _ExactForce()
         self._pforce = ctypes.byref(self._force)
+        self._rforce = _RadauForce()
+        self._prforce = ctypes.byref(self._rforce)
+        self._e = np.zeros(3)
+        self.stage_error = (0.0, 0.0, 0.0)
         self._done, self._iters = ctypes.c_long(), ctypes.c_long()
         self.newton_iterations = 0
         self._lock = threading.Lock()
@@ -406,14 +423,28 @@ class ExactKernel:
         f = self._force
         f.F0, f.Q0, f.kx, f.kp, f.kd = law
 
+    def _set_radau(self, force):
+        from .exact import StageForce
+
+        law = force if isinstance(force, StageForce) else StageForce.held(force)
+        f = self._rforce
+        f.F0[:] = [float(v) for v in law.F0]
+        f.Q[:] = [float(v) for row in law.Q for v in row]
+        f.kx, f.kp, f.kd = float(law.kx), float(law.kp), float(law.kd)
+
     def start(self, q, qd, force=0.0):
-        """The integrator's state ``(q, qd, qdd, a)`` from consistent accelerations."""
+        """The integrator's state from consistent accelerations: ``(q, qd, qdd, a)`` for
+        generalized alpha, ``(q, qd, qdd, jerk)`` (jerk 0) for Radau IIA."""
         nq = self.nq
         s = np.zeros(4 * nq)
         s[:nq], s[nq:2 * nq] = q, qd
         with self._lock:
-            self._set_force(force)
-            rc = self._lib.fp_exact_start(self._p, self._pforce, _addr(s), self._pwork)
+            if self.method == "radau":
+                self._set_radau(force)
+                rc = self._lib.fp_radau_start(self._p, self._prforce, _addr(s), self._pwork)
+            else:
+                self._set_force(force)
+                rc = self._lib.fp_exact_start(self._p, self._pforce, _addr(s), self._pwork)
         if rc != FP_OK:
             self._raise(rc, "start")
         return tuple(s.reshape(4, nq).copy())
@@ -421,8 +452,27 @@ class ExactKernel:
     def steps(self, state, force=0.0, n: int = 1):
         """``n`` steps under one force law: the new state (a tuple as :meth:`start`'s).
         :class:`ExactStepError` if a step fails (its ``code``, and the state after the steps
-        taken)."""
+        taken). With Radau IIA ``force`` is a number (held) or a
+        :class:`plant_fmu.exact.StageForce`; :attr:`stage_error` holds the last step's stage
+        errors."""
         s = np.concatenate([np.asarray(v, dtype=float) for v in state])
+        if self.method == "radau":
+            with self._lock:
+                self._set_radau(force)
+                self._iters.value = 0
+                done, rc = 0, FP_OK
+                for _ in range(n):
+                    rc = self._lib.fp_radau_step(self._p, self._prforce, _addr(s), self._pwork,
+                                                 ctypes.byref(self._iters), _addr(self._e))
+                    if rc != FP_OK:
+                        break
+                    done += 1
+                self.newton_iterations += self._iters.value
+                self.stage_error = tuple(float(v) for v in self._e)
+            state = tuple(s.reshape(4, self.nq))
+            if rc != FP_OK:
+                self._raise(rc, f"step {done + 1} of {n}", state)
+            return state
         with self._lock:
             self._set_force(force)
             self._iters.value = 0

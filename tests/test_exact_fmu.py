@@ -14,7 +14,7 @@ from orchestration import simulate
 from orchestration.scene.keys import ConfigError
 from orchestration.scene.schema import load_scene
 from orchestration.studies.reference import exact_first_mode_tip
-from plant_fmu.exact import ExactPlant, GeneralizedAlpha
+from plant_fmu.exact import ExactPlant, RadauIIA, StageForce
 from plant_fmu.kernel import ExactKernel
 from plant_fmu.params import PlantParams
 
@@ -78,21 +78,21 @@ def drive(inst, n, k0=0, h=1e-3, derivatives=False):
 # ---------------------------------------------------------------------- against the kernel
 def test_the_product_master_reproduces_the_kernel_and_the_numpy_specification():
     """The product's master (plant first, held force) on the native plant at the exact rung,
-    replayed with the force it recorded: the C kernel (the FMU's own code) gives the same tip
-    angle to the last bit, and the numpy specification to round-off (the kernel's own test holds
-    the two to 1e-11 of the swing over 1000 steps: tests/test_exact_kernel.py)."""
+    replayed with the force it recorded: the C kernel (the FMU's own code, Radau IIA) gives the
+    same tip angle to the last bit, and the numpy specification to round-off (the kernel's own
+    test holds the two together: tests/test_exact_kernel.py)."""
     ov = {**EXACT, "stop_time": 0.3, "master.first": "plant", "master.extrapolation": 0,
           "master.input_derivatives": False, "master.step": 1e-3, "output_interval": 1e-3}
     run = simulate("flexible_pd_lowpass", ov)
     res, sc = run.result, run.scene
     assert run.completed and len(res) == 301
     plant = ExactPlant(sc.plant.params)
-    h = sc.plant.step
+    h = sc.plant.exact_step
     per = round(1e-3 / h)
     x0 = plant.initial_state(phi=sc.initial.phi)
     swing = np.ptp(res["phi_o"])
     assert swing > 0.5
-    for ga, tol in ((ExactKernel(plant, h), 0.0), (GeneralizedAlpha(plant.system, h), 1e-11)):
+    for ga, tol in ((ExactKernel(plant, h, method="radau"), 0.0), (RadauIIA(plant.system, h), 1e-11)):
         st = ga.start(x0[:plant.nq], x0[plant.nq:], res["F_c"][0])
         phi_o, energy = [plant.tip_angle(x0)[0]], [plant.energy(x0)]
         for k in range(len(res) - 1):
@@ -111,17 +111,18 @@ def test_the_product_master_reproduces_the_kernel_and_the_numpy_specification():
 
 
 def test_the_closed_loop_meets_the_exact_reference_as_the_floating_frame_meets_its_own():
-    """The co-simulation at the exact rung against its monolithic reference (ExactLoop, the same
-    plant step): the coupling's error, which depends on the loop and the coupling, not on the
-    rung. So the exact rung's error is the floating frame's (against its DOP853 reference) to
-    within a factor 1.5 at master steps where the coupling dominates, falls at least fourfold
-    when the step halves, and both stay far below the gap between the two models (a plant that
-    was not the reference's would show that gap)."""
+    """The co-simulation at the exact rung against its monolithic reference (ExactLoop, Radau IIA
+    at the same step, the filter in its stages): the coupling's error, which depends on the loop
+    and the coupling, not on the rung. So the exact rung's error (at plant.exact_step, its
+    communication step) is the floating frame's at that master step (against its DOP853
+    reference) to within a factor 1.5, falls at least fourfold when the step halves, and both
+    stay far below the gap between the two models (a plant that was not the reference's would
+    show that gap)."""
     err, runs = {}, {}
     for fid in ("exact", "nonlinear"):
         for H in (4e-3, 2e-3):
             ov = {**EXACT, "plant.fidelity": fid, "stop_time": 1.0, "master.step": H,
-                  "output_interval": 4e-3}
+                  "plant.exact_step": H, "output_interval": 4e-3}
             run = simulate("flexible_pd_lowpass", ov, reference=True)
             err[fid, H] = run.summary["max_error_phi_o"]
             runs[fid, H] = run.result["phi_o"]
@@ -134,12 +135,13 @@ def test_the_closed_loop_meets_the_exact_reference_as_the_floating_frame_meets_i
 
 def test_fmi2_and_fmi3_agree_bit_for_bit_and_with_the_kernel(open_plant):
     """The same steps on both FMI versions give the same outputs to the last bit, and they are
-    the kernel's steps under the held force (``ExactKernel``, the same code)."""
+    the kernel's Radau steps under the held force (``ExactKernel``, the same code), at the
+    FMU's own default step (its ``step`` parameter, 2.5e-4 s: four substeps per doStep)."""
     start = dict(fidelity="exact", n_elements=NE, n_modes=0, phi0=0.3, x_dot0=0.2)
     ra, rb = drive(open_plant(2, **start), 100), drive(open_plant(3, **start), 100)
     assert np.array_equal(ra, rb)
     plant = ExactPlant(PlantParams(n_elements=NE, n_modes=0))
-    k = ExactKernel(plant, 2.5e-4)
+    k = ExactKernel(plant, 2.5e-4, method="radau")
     x0 = plant.initial_state(phi=0.3, x_dot=0.2)
     st = k.start(x0[:plant.nq], x0[plant.nq:], forcing(0))
     for i in range(100):
@@ -151,21 +153,23 @@ def test_fmi2_and_fmi3_agree_bit_for_bit_and_with_the_kernel(open_plant):
     assert np.allclose(ra[:, 7] * n1, ra[:, 5], rtol=1e-15, atol=0)
 
 
-def test_input_derivatives_give_the_force_at_each_substeps_end(open_plant):
-    """With fmi2SetRealInputDerivatives the force of each generalized-alpha substep is the input
-    polynomial at the substep's end (where the method sets equilibrium): the kernel stepped
-    substep by substep with that force gives the FMU's outputs to the last bit."""
+def test_input_derivatives_give_the_force_at_each_stage_time(open_plant):
+    """With fmi2SetRealInputDerivatives the force at each Radau stage of each substep is the
+    input polynomial at the stage's time: the kernel stepped substep by substep with those
+    forces gives the FMU's outputs to the last bit."""
+    from plant_fmu.exact import RADAU_C
+
     rows = drive(open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3), 50, derivatives=True)
     plant = ExactPlant(PlantParams(n_elements=NE))
     h = 2.5e-4
-    k = ExactKernel(plant, h)
+    k = ExactKernel(plant, h, method="radau")
     x0 = plant.initial_state(phi=0.3)
     st = k.start(x0[:plant.nq], x0[plant.nq:], forcing(0))
     for i in range(50):
         u, du = forcing(i), 3000.0 * math.cos(i)
         for q in range(4):
-            dt = (0.0 + (4 * i + q + 1) * h) - i * 1e-3
-            st = k.step(st, u + dt * (du + 0.5 * dt * 0.0))
+            dt = [(0.0 + (4 * i + q) * h) - i * 1e-3 + c * h for c in RADAU_C]
+            st = k.step(st, StageForce(tuple(u + d * (du + 0.5 * d * 0.0) for d in dt)))
     assert np.array_equal(rows[-1, :7], k.outputs(st))
     held = drive(open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3), 50)
     assert np.max(np.abs(held[:, 2] - rows[:, 2])) > 1e-6      # the derivatives matter
@@ -236,7 +240,7 @@ def _fnv(data: bytes) -> int:
 
 def _crafted(data: bytes, index: int, value: float) -> bytes:
     """The serialised state with the exact beam's state entry ``index`` (from the end of the
-    payload: -1 is the last of [q, qd, qdd, a]) set to ``value``, its checksum recomputed."""
+    payload: -1 is the last of [q, qd, qdd, jerk]) set to ``value``, its checksum recomputed."""
     b = bytearray(data)
     at = len(b) - 8 + 8 * index
     b[at:at + 8] = struct.pack("<d", value)
@@ -248,7 +252,7 @@ NQ = 4 * NE + 3
 
 
 @pytest.mark.parametrize("index, value, why", [
-    (-1, math.nan, "the exact beam's state = nan is not finite"),      # an acceleration a
+    (-1, math.nan, "the exact beam's state = nan is not finite"),      # a jerk
     (-4 * NQ, math.inf, "the exact beam's state = inf is not finite"),  # the cart's x
     (-4 * NQ + 1, 1e150, "the state's norm"),                          # the root slope, huge
     (-4 * NQ + 2, -1.0, "exceeds phi_limit"),                          # the root turned over
@@ -340,7 +344,7 @@ def test_the_rigid_scene_runs_its_beam_exactly():
 
 @pytest.mark.parametrize("keys, fragment", [
     ({"controller.force_limit": 100.0}, "the exact reference has no force saturation"),
-    ({"plant.step": 3e-4}, "must divide output_interval"),
+    ({"plant.exact_step": 3e-4}, "must be a multiple of plant.exact_step"),
 ])
 def test_a_reference_the_exact_loop_cannot_take_is_refused_before_the_run(keys, fragment):
     with pytest.raises(ConfigError, match=fragment):

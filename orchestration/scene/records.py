@@ -42,6 +42,11 @@ __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", 
 
 #: The value of ``plant.n_modes`` and ``plant.fidelity`` that lets a run choose the model.
 AUTO = "auto"
+#: ``plant.exact_step``: the exact rung's Radau IIA step, which is also its communication step
+#: (the exact rung couples at its own step). Chosen by ``python3 bench/exact_convergence.py``
+#: (docs/exact.md): the smallest cost at which the undamped filtered scene is within 1e-4 rad of
+#: a refined reference at every angle from 0.05 rad to pi/6, through the FMU.
+EXACT_STEP = 1e-3
 ALGORITHMS = ("gauss-seidel", "jacobi", "implicit")
 #: ``master.implicit_jacobian``: how the implicit master updates the interface
 #: (:mod:`orchestration.cosim.implicit`): Newton on the step's sensitivity, or IQN-ILS.
@@ -104,6 +109,7 @@ class PlantSetup:
     atol: float = FMU_SETTINGS["atol"]
     phi_limit: float = FMU_SETTINGS["phi_limit"]
     energy_limit: float = FMU_SETTINGS["energy_limit"]
+    exact_step: float = EXACT_STEP
 
     def __post_init__(self):
 
@@ -111,7 +117,7 @@ class PlantSetup:
             raise TypeError(f"beam must be a PlantParams, got {type(self.beam).__name__}")
         _choice("plant.fidelity", self.fidelity, (*FIDELITIES, AUTO))
         _choice("plant.integrator", self.integrator, sorted(REGISTRY))
-        for name in ("step", "rtol", "atol"):
+        for name in ("step", "rtol", "atol", "exact_step"):
             _set(self, name, _checked(f"plant.{name}", check_real, getattr(self, name),
                                       low=0.0, high=1e6))
         for name in ("phi_limit", "energy_limit"):
@@ -365,22 +371,41 @@ class Scene:
         self._check_initial_state()
         self._check_exact()
         self._check_stiffened()
-        m, out = self.master, self.output
+        m, out = self.run_master, self.output
+        key = "plant.exact_step" if self.plant.fidelity == "exact" else "master.step"
         if m.step > out.stop_time:
-            raise ConfigError(f"master.step = {m.step} exceeds stop_time = {out.stop_time}")
+            raise ConfigError(f"{key} = {m.step} exceeds stop_time = {out.stop_time}")
         ratio = out.output_interval / m.step
         if not m.adaptive and (not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 * ratio):
             raise ConfigError(f"output_interval = {out.output_interval} must be a multiple of "
-                              f"master.step = {m.step}")
+                              f"{key} = {m.step}")
+
+    @property
+    def run_master(self) -> MasterSettings:
+        """The master's settings a run uses: the scene's, but at the exact rung
+        (``plant.fidelity = "exact"``) the communication step is ``plant.exact_step``, the
+        beam's own Radau step. The exact beam carries undamped modes far above any
+        communication rate (the second bending mode's neighbours up to the axial modes near
+        8000 rad/s); a controller that samples it more coarsely than its integrator resolves it
+        aliases them into the loop's band, so that a finer plant would give a worse coupled
+        result (docs/exact.md). Sampled at the integrator's own step, the beam as integrated
+        has nothing above the sampling's Nyquist frequency: L-stable Radau damps what the step
+        does not resolve."""
+        if self.plant.fidelity != "exact":
+            return self.master
+        return replace(self.master, step=self.plant.exact_step)
 
     def _check_exact(self):
-        """``plant.fidelity = "exact"`` runs in the native FMUs' co-simulation interface only:
-        the pythonfmu plant, Model Exchange and output derivatives are not offered by it."""
+        """``plant.fidelity = "exact"`` runs in the native FMUs' co-simulation interface only, at
+        a fixed step (``plant.exact_step``, :attr:`run_master`): the pythonfmu plant, Model
+        Exchange, output derivatives and the adaptive step are not offered by it."""
         if self.plant.fidelity != "exact":
             return
         m = self.master
         why = ("master.fmus = 'python': the pythonfmu plant has no exact rung"
                if m.fmus != "native" else
+               "master.adaptive = true: the exact rung couples at its own step, "
+               "plant.exact_step" if m.adaptive else
                "master.interface = 'model-exchange': the exact beam steps implicitly inside the "
                "FMU (co-simulation only)" if m.interface == "model-exchange" else
                "master.output_derivatives = true: the exact rung gives no output derivatives"

@@ -202,9 +202,13 @@ def list_scenes() -> list[str]:
 
 def start_values(scene: Scene, table) -> dict:
     """FMU start values of ``scene``: every parameter of the variable table ``table`` that a
-    scene key sets (:attr:`fmu_common.variables.Variable.scene_key`), read off the records."""
-    return _start_values({v.scene_key: scene.get(v.scene_key) for v in table
-                          if v.causality == "parameter" and v.scene_key in KEYS}, table)
+    scene key sets (:attr:`fmu_common.variables.Variable.scene_key`), read off the records; at
+    the exact rung the plant's ``step`` is ``plant.exact_step``."""
+    values = {v.scene_key: scene.get(v.scene_key) for v in table
+              if v.causality == "parameter" and v.scene_key in KEYS}
+    if "plant.step" in values and scene.plant.fidelity == "exact":
+        values["plant.step"] = scene.plant.exact_step        # the exact rung's Radau step
+    return _start_values(values, table)
 
 
 _DEFAULT = Scene(name="default")

@@ -7,8 +7,8 @@ master's results (:data:`COLUMNS`), on the same output grid.
 At ``plant.fidelity = "exact"`` the plant is the geometrically exact beam, whose stiff axial modes
 rule out an explicit solver: the reference is then the exact rung's monolithic loop
 (:class:`~orchestration.studies.exact_loop.ExactLoop` on the C kernel), plant and controller
-stepped as one system by generalized alpha at the plant FMU's own step ``plant.step``, so that it
-measures the coupling's error, not the time step's (``bench/bench_exact.py`` gives that).
+stepped as one system by Radau IIA at the plant FMU's own step ``plant.exact_step``, so that it
+measures the coupling's error, not the time step's (``bench/exact_convergence.py`` gives that).
 """
 from __future__ import annotations
 
@@ -100,8 +100,8 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
 def exact_reference(scene, progress=None):
     """The monolithic reference of a scene at ``plant.fidelity = "exact"``: the exact beam of
     ``plant.n_elements`` elements with the scene's controller, stepped as one system by
-    generalized alpha at ``plant.step`` (:class:`~orchestration.studies.exact_loop.ExactLoop`,
-    C kernel); the columns of :data:`COLUMNS` (``eta_1``: the tip deflection over
+    Radau IIA at ``plant.exact_step``, the filter in the same stages
+    (:class:`~orchestration.studies.exact_loop.ExactLoop`, C kernel); the columns of :data:`COLUMNS` (``eta_1``: the tip deflection over
     :func:`exact_first_mode_tip`, as the native FMU gives it). ``progress(fraction)``: called
     at each output point. ConfigError (one line, :func:`check_reference`) when the loop cannot
     take the scene."""
@@ -133,16 +133,16 @@ def _exact_loop(scene):
 
     from .exact_loop import ExactLoop
 
-    h, dt = scene.plant.step, scene.output.output_interval
+    h, dt = scene.plant.exact_step, scene.output.output_interval
     if scene.controller.saturates:
         raise ConfigError(f"{scene.name}: the exact reference has no force saturation "
                           "(controller.force_limit)")
     per = round(dt / h)
     if per < 1 or abs(per * h - dt) > 1e-12 * dt:
-        raise ConfigError(f"{scene.name}: the exact reference steps at plant.step = {h:g}, which "
-                          f"must divide output_interval = {dt:g}")
+        raise ConfigError(f"{scene.name}: the exact reference steps at plant.exact_step = {h:g}, "
+                          f"which must divide output_interval = {dt:g}")
     return ExactLoop(ExactPlant(scene.plant.params), PDLowPassModel(scene.controller), h,
-                     kernel=True)
+                     kernel=True, method="radau")
 
 
 def exact_first_mode_tip(p) -> float:

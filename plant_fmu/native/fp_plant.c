@@ -1301,14 +1301,43 @@ static double ex_mass(const fp_exact *p, int i, int j)
 /* The forces f (nq) of M qdd = f at q, qd with the force u, and what the caller asks of the
  * tangent: (K, C, M) dense (any may be NULL), or, with band != NULL, the band of
  * cm M + ck K + cc C. e, ed: nq + 1 doubles each. FP_OK or FP_NONFINITE. */
+/* A band that ex_forces assembles: cm M + ck K + cc C, every stride-th double of band (stride 2:
+ * the real or imaginary parts of a complex band). */
+typedef struct ex_target {
+    double *band;
+    double cm, ck, cc;
+    int stride;
+} ex_target;
+
+#define ABS_(b, st, i, j) (b)[(long)(st) * ((long)(j) * EX_W + (EX_KL + EX_KU + (i) - (j)))]
+
+static int ex_forces_to(const fp_exact *p, const double *q, const double *qd, double u,
+                        double *f, double *K, double *C, double *M, const ex_target *tg, int ntg,
+                        double *e, double *ed);
+
 static int ex_forces(const fp_exact *p, const double *q, const double *qd, double u, double *f,
                      double *K, double *C, double *M, double *band, double cm, double ck,
                      double cc, double *e, double *ed)
 {
+    ex_target t;
+    t.band = band;
+    t.cm = cm;
+    t.ck = ck;
+    t.cc = cc;
+    t.stride = 1;
+    return ex_forces_to(p, q, qd, u, f, K, C, M, band != NULL ? &t : NULL, band != NULL ? 1 : 0,
+                        e, ed);
+}
+
+/* ex_forces into the bands of ntg targets. */
+static int ex_forces_to(const fp_exact *p, const double *q, const double *qd, double u,
+                        double *f, double *K, double *C, double *M, const ex_target *tg, int ntg,
+                        double *e, double *ed)
+{
     const int nq = p->nq, nd = nq + 1;
     const double le = p->le, int_h[4] = {le * 0.5, le * (le / 12), le * 0.5, le * (-le / 12)};
-    const int tangent = K != NULL || C != NULL || band != NULL;
-    int el, i, j, k;
+    const int tangent = K != NULL || C != NULL || ntg > 0;
+    int el, i, j, k, t;
     double fe[8], ke[64], ce[64];
     e[0] = q[0]; e[1] = 0.0;
     ed[0] = qd[0]; ed[1] = 0.0;
@@ -1325,9 +1354,9 @@ static int ex_forces(const fp_exact *p, const double *q, const double *qd, doubl
         for (i = 0; i < nq * nq; i++) M[i] = 0.0;
         M[0] = p->m;
     }
-    if (band != NULL) {
-        for (i = 0; i < nq * EX_W; i++) band[i] = 0.0;
-        AB(0, 0) = cm * p->m;
+    for (t = 0; t < ntg; t++) {
+        for (i = 0; i < nq * EX_W; i++) tg[t].band[(long)tg[t].stride * i] = 0.0;
+        ABS_(tg[t].band, tg[t].stride, 0, 0) = tg[t].cm * p->m;
     }
     for (el = 0; el < p->ne; el++) {
         const int b0 = 4 * el;
@@ -1343,8 +1372,10 @@ static int ex_forces(const fp_exact *p, const double *q, const double *qd, doubl
                 if (K != NULL) K[(long)qi * nq + qj] += ke[8 * i + j];
                 if (C != NULL) C[(long)qi * nq + qj] += ce[8 * i + j];
                 if (M != NULL) M[(long)qi * nq + qj] += ex_mass(p, i, j);
-                if (band != NULL)
-                    AB(qi, qj) += cm * ex_mass(p, i, j) + ck * ke[8 * i + j] + cc * ce[8 * i + j];
+                for (t = 0; t < ntg; t++)
+                    ABS_(tg[t].band, tg[t].stride, qi, qj) += tg[t].cm * ex_mass(p, i, j)
+                                                              + tg[t].ck * ke[8 * i + j]
+                                                              + tg[t].cc * ce[8 * i + j];
             }
         }
     }
@@ -1600,6 +1631,482 @@ int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, dou
         int rc = ex_step(p, F, s, work, iters);
         if (rc != FP_OK) return rc;
         *done = k + 1;
+    }
+    return FP_OK;
+}
+
+/* ================================================================ Radau IIA (plant_fmu/exact.py)
+ * Complex numbers as (re, im) pairs of doubles (C99's complex type is not taken: the FMUs'
+ * sources compile with any C99-minus-Annex-G compiler). */
+#define CAB(i, j) band[2L * ((long)(j) * EX_W + (EX_KL + EX_KU + (i) - (j)))]
+
+/* Complex band LU with partial pivoting in place (interleaved (re, im) band of ex_band_lu's
+ * layout); piv as doubles. FP_OK or FP_NOCONVERGE (a zero pivot). */
+static int ex_cband_lu(int n, double *band, double *piv)
+{
+    int k, i, j;
+    for (k = 0; k < n; k++) {
+        int imax = k + EX_KL < n - 1 ? k + EX_KL : n - 1;
+        int jmax = k + EX_KL + EX_KU < n - 1 ? k + EX_KL + EX_KU : n - 1;
+        int pr = k;
+        double big = hypot((&CAB(k, k))[0], (&CAB(k, k))[1]), pr_re, pr_im, d;
+        for (i = k + 1; i <= imax; i++) {
+            double a = hypot((&CAB(i, k))[0], (&CAB(i, k))[1]);
+            if (a > big) {
+                big = a;
+                pr = i;
+            }
+        }
+        piv[k] = pr;
+        if (!(big > 0.0) || !isfinite(big)) return FP_NOCONVERGE;
+        if (pr != k)
+            for (j = k; j <= jmax; j++) {
+                double *a = &CAB(k, j), *b = &CAB(pr, j), t0 = a[0], t1 = a[1];
+                a[0] = b[0];
+                a[1] = b[1];
+                b[0] = t0;
+                b[1] = t1;
+            }
+        /* 1 / pivot */
+        pr_re = (&CAB(k, k))[0];
+        pr_im = (&CAB(k, k))[1];
+        d = pr_re * pr_re + pr_im * pr_im;
+        pr_re /= d;
+        pr_im = -pr_im / d;
+        for (i = k + 1; i <= imax; i++) {
+            double *l = &CAB(i, k), lr = l[0] * pr_re - l[1] * pr_im,
+                   li = l[0] * pr_im + l[1] * pr_re;
+            l[0] = lr;
+            l[1] = li;
+            if (lr != 0.0 || li != 0.0)
+                for (j = k + 1; j <= jmax; j++) {
+                    double *a = &CAB(i, j);
+                    const double *b = &CAB(k, j);
+                    a[0] -= lr * b[0] - li * b[1];
+                    a[1] -= lr * b[1] + li * b[0];
+                }
+        }
+    }
+    return FP_OK;
+}
+
+/* Solve with ex_cband_lu's factors; b interleaved (re, im), n complex entries. */
+static void ex_cband_solve(int n, const double *band, const double *piv, double *b)
+{
+    int k, i, j;
+    for (k = 0; k < n; k++) {
+        int pr = (int)piv[k], imax = k + EX_KL < n - 1 ? k + EX_KL : n - 1;
+        double bk0, bk1;
+        if (pr != k) {
+            double t0 = b[2 * k], t1 = b[2 * k + 1];
+            b[2 * k] = b[2 * pr];
+            b[2 * k + 1] = b[2 * pr + 1];
+            b[2 * pr] = t0;
+            b[2 * pr + 1] = t1;
+        }
+        bk0 = b[2 * k];
+        bk1 = b[2 * k + 1];
+        for (i = k + 1; i <= imax; i++) {
+            const double *l = &CAB(i, k);
+            b[2 * i] -= l[0] * bk0 - l[1] * bk1;
+            b[2 * i + 1] -= l[0] * bk1 + l[1] * bk0;
+        }
+    }
+    for (k = n - 1; k >= 0; k--) {
+        int jmax = k + EX_KL + EX_KU < n - 1 ? k + EX_KL + EX_KU : n - 1;
+        double s0 = b[2 * k], s1 = b[2 * k + 1], d0, d1, dd;
+        for (j = k + 1; j <= jmax; j++) {
+            const double *a = &CAB(k, j);
+            s0 -= a[0] * b[2 * j] - a[1] * b[2 * j + 1];
+            s1 -= a[0] * b[2 * j + 1] + a[1] * b[2 * j];
+        }
+        d0 = (&CAB(k, k))[0];
+        d1 = (&CAB(k, k))[1];
+        dd = d0 * d0 + d1 * d1;
+        b[2 * k] = (s0 * d0 + s1 * d1) / dd;
+        b[2 * k + 1] = (s1 * d0 - s0 * d1) / dd;
+    }
+}
+#undef CAB
+
+/* A Radau iteration whose correction shrinks less than this factor gets a new tangent. */
+#define RADAU_SLOW 0.1
+
+/* The Radau IIA constants (plant_fmu/exact.py: RADAU_C, RADAU_A, RADAU_T, RADAU_TI,
+ * RADAU_GAMMA, RADAU_MU, RADAU_DEND), computed once. */
+typedef struct ex_radau {
+    double c[3], A[9], A2[9], T[9], TI[9], gamma, mu_re, mu_im, dend[3];
+} ex_radau;
+
+static void ex_radau_constants(ex_radau *r)
+{
+    const double s6 = sqrt(6.0), c81 = cbrt(81.0), c9 = cbrt(9.0);
+    const double T[9] = {9.1232394870892942792e-02, -0.14125529502095420843,
+                         -3.0029194105147424492e-02, 0.24171793270710701896,
+                         0.20412935229379993199, 0.38294211275726193779,
+                         0.96604818261509293619, 1.0, 0.0};
+    const double TI[9] = {4.3255798900631553510, 0.33919925181580986954, 0.54177053993587487119,
+                          -4.1787185915519047273, -0.32768282076106238708,
+                          0.47662355450055045196, -0.50287263494578687595,
+                          2.5719269498556054292, -0.59603920482822492497};
+    double al = (12.0 - c81 + c9) / 60.0, be = (c81 + c9) * sqrt(3.0) / 60.0, cn = al * al + be * be;
+    int i, j, k;
+    r->c[0] = (4.0 - s6) / 10.0;
+    r->c[1] = (4.0 + s6) / 10.0;
+    r->c[2] = 1.0;
+    r->A[0] = (88.0 - 7.0 * s6) / 360.0;
+    r->A[1] = (296.0 - 169.0 * s6) / 1800.0;
+    r->A[2] = (-2.0 + 3.0 * s6) / 225.0;
+    r->A[3] = (296.0 + 169.0 * s6) / 1800.0;
+    r->A[4] = (88.0 + 7.0 * s6) / 360.0;
+    r->A[5] = (-2.0 - 3.0 * s6) / 225.0;
+    r->A[6] = (16.0 - s6) / 36.0;
+    r->A[7] = (16.0 + s6) / 36.0;
+    r->A[8] = 1.0 / 9.0;
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++) {
+            double v = 0.0;
+            for (k = 0; k < 3; k++) v += r->A[3 * i + k] * r->A[3 * k + j];
+            r->A2[3 * i + j] = v;
+        }
+    for (i = 0; i < 9; i++) {
+        r->T[i] = T[i];
+        r->TI[i] = TI[i];
+    }
+    r->gamma = 30.0 / (6.0 + c81 - c9);
+    r->mu_re = al / cn;
+    r->mu_im = be / cn;
+    r->dend[0] = (1.0 - r->c[1]) / ((r->c[0] - r->c[1]) * (r->c[0] - 1.0));
+    r->dend[1] = (1.0 - r->c[0]) / ((r->c[1] - r->c[0]) * (r->c[1] - 1.0));
+    r->dend[2] = (2.0 - r->c[0] - r->c[1]) / ((1.0 - r->c[0]) * (1.0 - r->c[1]));
+}
+
+/* e = kx x + kp phi_o + kd omega_o at (q, qd) and, if gq != NULL, de/dq and de/dqd. */
+static double ex_stage_error(const fp_exact *p, const fp_radau_force *F, const double *q,
+                             const double *qd, double *gq, double *gv)
+{
+    fp_exact_force one;
+    double e;
+    one.F0 = 0.0;
+    one.Q0 = -1.0;                       /* ex_force gives F0 - Q0 e = e, dF = de */
+    one.kx = F->kx;
+    one.kp = F->kp;
+    one.kd = F->kd;
+    e = ex_force(p, &one, q, qd, gq, gv);
+    return e;
+}
+
+static int ex_radau_force_ok(const fp_radau_force *F)
+{
+    int i;
+    if (F == NULL || !isfinite(F->kx) || !isfinite(F->kp) || !isfinite(F->kd)) return 0;
+    for (i = 0; i < 3; i++)
+        if (!isfinite(F->F0[i])) return 0;
+    for (i = 0; i < 9; i++)
+        if (!isfinite(F->Q[i])) return 0;
+    return 1;
+}
+
+static int ex_radau_feedback(const fp_radau_force *F)
+{
+    int i;
+    for (i = 0; i < 9; i++)
+        if (F->Q[i] != 0.0) return 1;
+    return 0;
+}
+
+/* work: the real band (EX_W nq) and its pivots (nq), the complex band (2 EX_W nq) and its
+ * pivots (nq), Sherman-Morrison's y and w, real (2 nq) and complex (4 nq), the stages W, Q, V, R
+ * and the correction (15 nq), the force gradients (2 nq), f (nq), the complex right-hand side
+ * (2 nq), the nodal vectors e and ed (2 (nq + 1)). */
+long fp_radau_work_size(const fp_exact *p)
+{
+    long ga = fp_exact_work_size(p), n;
+    if (p == NULL) return 0;
+    n = (long)p->nq * (3 * EX_W + 29) + 2 * ((long)p->nq + 1) + 8;
+    return n > ga ? n : ga;
+}
+
+int fp_radau_start(const fp_exact *p, const fp_radau_force *F, double *s, double *work)
+{
+    fp_exact_force one;
+    int rc, i, nq;
+    if (p == NULL || s == NULL || work == NULL || !ex_radau_force_ok(F)) return FP_BADARG;
+    nq = p->nq;
+    one.F0 = F->F0[0];
+    one.Q0 = F->Q[0] + F->Q[1] + F->Q[2];
+    one.kx = F->kx;
+    one.kp = F->kp;
+    one.kd = F->kd;
+    rc = fp_exact_start(p, &one, s, work);
+    if (rc != FP_OK) return rc;
+    for (i = 0; i < nq; i++) s[3 * nq + i] = 0.0;
+    return FP_OK;
+}
+
+/* Add the row 0 entries w (the force law's, coefficient c times (h^2 gq + h mu gv)) to a band
+ * (stride 1: real; 2: complex with mu complex): inside the band directly, outside into wr
+ * (stride as the band); 1 if some entry lies outside. */
+static int ex_force_row(const fp_exact *p, double *band, int stride, const double *gq,
+                        const double *gv, double c_re, double c_im, double mu_re, double mu_im,
+                        double *wr)
+{
+    const int nq = p->nq;
+    const double h = p->h;
+    int i, outside = 0;
+    for (i = 0; i < nq; i++) {
+        /* c (h^2 gq_i + h mu gv_i) */
+        double a_re = h * h * gq[i] + h * mu_re * gv[i], a_im = h * mu_im * gv[i];
+        double v_re = c_re * a_re - c_im * a_im, v_im = c_re * a_im + c_im * a_re;
+        wr[stride * i] = 0.0;
+        if (stride == 2) wr[2 * i + 1] = 0.0;
+        if (v_re == 0.0 && v_im == 0.0) continue;
+        if (i <= EX_KU) {
+            ABS_(band, stride, 0, i) += v_re;
+            if (stride == 2) ABS_(band + 1, 2, 0, i) += v_im;
+        } else {
+            wr[stride * i] = v_re;
+            if (stride == 2) wr[2 * i + 1] = v_im;
+            outside = 1;
+        }
+    }
+    return outside;
+}
+
+int fp_radau_step(const fp_exact *p, const fp_radau_force *F, double *s, double *work,
+                  long *iters, double *e_out)
+{
+    ex_radau R;
+    int nq, it, i, j, k, rc, feedback, has_w1 = 0, has_w2 = 0, converged = 0, need = 1;
+    double h, *band1, *piv1, *band2, *piv2, *y1, *w1, *y2, *w2, *W, *Qs, *Vs, *Rs, *dW, *gq, *gv;
+    double *f, *z2, *e, *ed, last = INFINITY, wy1 = 0.0, wy2_re = 0.0, wy2_im = 0.0;
+    double q1 = 0.0, q2_re = 0.0, q2_im = 0.0, u[3], es[3] = {0.0, 0.0, 0.0}, QT[9], tmp[9];
+    const double *q0, *v0, *qdd0, *jerk0;
+    ex_target tg[3];
+    if (p == NULL || s == NULL || work == NULL || iters == NULL || !ex_radau_force_ok(F))
+        return FP_BADARG;
+    ex_radau_constants(&R);
+    nq = p->nq;
+    h = p->h;
+    q0 = s;
+    v0 = s + nq;
+    qdd0 = s + 2 * nq;
+    jerk0 = s + 3 * nq;
+    if (!finite_array(s, 4L * nq)) return FP_BADARG;
+    band1 = work;
+    piv1 = band1 + (long)EX_W * nq;
+    band2 = piv1 + nq;
+    piv2 = band2 + 2L * EX_W * nq;
+    y1 = piv2 + nq;
+    w1 = y1 + nq;
+    y2 = w1 + nq;
+    w2 = y2 + 2 * nq;
+    W = w2 + 2 * nq;
+    Qs = W + 3 * nq;
+    Vs = Qs + 3 * nq;
+    Rs = Vs + 3 * nq;
+    dW = Rs + 3 * nq;
+    gq = dW + 3 * nq;
+    gv = gq + nq;
+    f = gv + nq;
+    z2 = f + nq;
+    e = z2 + 2 * nq;
+    ed = e + nq + 1;
+    feedback = ex_radau_feedback(F);
+    /* Q transformed: its entry on the real block and on the complex pair (the projection on
+     * what commutes with A; exact for a law that is a function of A, as the filter's is) */
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++) {
+            double v = 0.0;
+            for (k = 0; k < 3; k++) v += F->Q[3 * i + k] * R.T[3 * k + j];
+            tmp[3 * i + j] = v;
+        }
+    for (i = 0; i < 3; i++)
+        for (j = 0; j < 3; j++) {
+            double v = 0.0;
+            for (k = 0; k < 3; k++) v += R.TI[3 * i + k] * tmp[3 * k + j];
+            QT[3 * i + j] = v;
+        }
+    q1 = QT[0];
+    q2_re = 0.5 * (QT[4] + QT[8]);
+    q2_im = 0.5 * (QT[7] - QT[5]);
+    /* the first guess: the accelerations extrapolated by the jerk */
+    for (i = 0; i < 3; i++)
+        for (k = 0; k < nq; k++) W[i * nq + k] = qdd0[k] + R.c[i] * h * jerk0[k];
+    for (it = 0; it < p->max_iter; it++) {
+        double size, scale, vmax = 0.0;
+        /* the stages */
+        for (i = 0; i < 3; i++)
+            for (k = 0; k < nq; k++) {
+                double a = 0.0, b = 0.0;
+                for (j = 0; j < 3; j++) {
+                    a += R.A[3 * i + j] * W[j * nq + k];
+                    b += R.A2[3 * i + j] * W[j * nq + k];
+                }
+                Vs[i * nq + k] = v0[k] + h * a;
+                Qs[i * nq + k] = q0[k] + h * R.c[i] * v0[k] + h * h * b;
+            }
+        if (need) {
+            /* the tangent at the second stage (of the first guess, or of the iterate when the
+             * iteration contracts slowly), the force law's gradient there */
+            const double mr = R.mu_re, mi = R.mu_im, g = R.gamma;
+            double uk = F->F0[1];
+            for (k = 0; k < nq; k++) gq[k] = gv[k] = 0.0;
+            if (feedback) {
+                double e1 = ex_stage_error(p, F, Qs + nq, Vs + nq, gq, gv);
+                uk = F->F0[1] - (F->Q[3] + F->Q[4] + F->Q[5]) * e1;
+                if (!isfinite(uk)) return FP_NONFINITE;
+            }
+            tg[0].band = band1;
+            tg[0].cm = g * g;
+            tg[0].ck = h * h;
+            tg[0].cc = h * g;
+            tg[0].stride = 1;
+            tg[1].band = band2;
+            tg[1].cm = mr * mr - mi * mi;
+            tg[1].ck = h * h;
+            tg[1].cc = h * mr;
+            tg[1].stride = 2;
+            tg[2].band = band2 + 1;
+            tg[2].cm = 2.0 * mr * mi;
+            tg[2].ck = 0.0;
+            tg[2].cc = h * mi;
+            tg[2].stride = 2;
+            rc = ex_forces_to(p, Qs + nq, Vs + nq, uk, f, NULL, NULL, NULL, tg, 3, e, ed);
+            if (rc != FP_OK) return rc;
+            has_w1 = feedback && ex_force_row(p, band1, 1, gq, gv, q1, 0.0, g, 0.0, w1);
+            has_w2 = feedback && ex_force_row(p, band2, 2, gq, gv, q2_re, q2_im, mr, mi, w2);
+            if (!feedback) {
+                for (k = 0; k < nq; k++) w1[k] = w2[2 * k] = w2[2 * k + 1] = 0.0;
+            }
+            if (ex_band_lu(nq, band1, piv1) != FP_OK) return FP_NOCONVERGE;
+            if (ex_cband_lu(nq, band2, piv2) != FP_OK) return FP_NOCONVERGE;
+            need = 0;
+            if (has_w1) {
+                for (k = 0; k < nq; k++) y1[k] = 0.0;
+                y1[0] = 1.0;
+                ex_band_solve(nq, band1, piv1, y1);
+                wy1 = 1.0;
+                for (k = 0; k < nq; k++) wy1 += w1[k] * y1[k];
+                if (!(fabs(wy1) > 0.0) || !isfinite(wy1)) return FP_NOCONVERGE;
+            }
+            if (has_w2) {
+                for (k = 0; k < 2 * nq; k++) y2[k] = 0.0;
+                y2[0] = 1.0;
+                ex_cband_solve(nq, band2, piv2, y2);
+                wy2_re = 1.0;
+                wy2_im = 0.0;
+                for (k = 0; k < nq; k++) {
+                    wy2_re += w2[2 * k] * y2[2 * k] - w2[2 * k + 1] * y2[2 * k + 1];
+                    wy2_im += w2[2 * k] * y2[2 * k + 1] + w2[2 * k + 1] * y2[2 * k];
+                }
+                if (!(hypot(wy2_re, wy2_im) > 0.0) || !isfinite(wy2_re + wy2_im))
+                    return FP_NOCONVERGE;
+            }
+        }
+        /* the stage forces and residuals R_i = M W_i - f(Q_i, V_i, F_i) */
+        for (i = 0; i < 3; i++) {
+            es[i] = feedback ? ex_stage_error(p, F, Qs + i * nq, Vs + i * nq, NULL, NULL) : 0.0;
+            if (!isfinite(es[i])) return FP_NONFINITE;
+        }
+        for (i = 0; i < 3; i++) {
+            u[i] = F->F0[i];
+            for (j = 0; j < 3; j++) u[i] -= F->Q[3 * i + j] * es[j];
+            if (!isfinite(u[i])) return FP_NONFINITE;
+            rc = ex_forces(p, Qs + i * nq, Vs + i * nq, u[i], f, NULL, NULL, NULL, NULL, 0, 0, 0,
+                           e, ed);
+            if (rc != FP_OK) return rc;
+            ex_mass_times(p, W + i * nq, Rs + i * nq);
+            for (k = 0; k < nq; k++) Rs[i * nq + k] -= f[k];
+        }
+        /* transformed: Z = TI R; d1 = S1^-1 (-gamma^2 Z1), d2 = S2^-1 (-mu^2 (Z2 + i Z3)) */
+        for (k = 0; k < nq; k++) {
+            double z0 = 0.0, za = 0.0, zb = 0.0, m2r = R.mu_re * R.mu_re - R.mu_im * R.mu_im,
+                   m2i = 2.0 * R.mu_re * R.mu_im;
+            for (j = 0; j < 3; j++) {
+                z0 += R.TI[j] * Rs[j * nq + k];
+                za += R.TI[3 + j] * Rs[j * nq + k];
+                zb += R.TI[6 + j] * Rs[j * nq + k];
+            }
+            dW[k] = -R.gamma * R.gamma * z0;                  /* real system's right side */
+            z2[2 * k] = -(m2r * za - m2i * zb);
+            z2[2 * k + 1] = -(m2r * zb + m2i * za);
+        }
+        ex_band_solve(nq, band1, piv1, dW);
+        if (has_w1) {
+            double wz = 0.0;
+            for (k = 0; k < nq; k++) wz += w1[k] * dW[k];
+            for (k = 0; k < nq; k++) dW[k] -= y1[k] * (wz / wy1);
+        }
+        ex_cband_solve(nq, band2, piv2, z2);
+        if (has_w2) {
+            double wz_re = 0.0, wz_im = 0.0, d = wy2_re * wy2_re + wy2_im * wy2_im, c_re, c_im;
+            for (k = 0; k < nq; k++) {
+                wz_re += w2[2 * k] * z2[2 * k] - w2[2 * k + 1] * z2[2 * k + 1];
+                wz_im += w2[2 * k] * z2[2 * k + 1] + w2[2 * k + 1] * z2[2 * k];
+            }
+            c_re = (wz_re * wy2_re + wz_im * wy2_im) / d;      /* wz / wy */
+            c_im = (wz_im * wy2_re - wz_re * wy2_im) / d;
+            for (k = 0; k < nq; k++) {
+                z2[2 * k] -= y2[2 * k] * c_re - y2[2 * k + 1] * c_im;
+                z2[2 * k + 1] -= y2[2 * k] * c_im + y2[2 * k + 1] * c_re;
+            }
+        }
+        /* dW = T [d1; Re d2; Im d2], W += dW */
+        size = 0.0;
+        for (k = 0; k < nq; k++) {
+            const double d1 = dW[k], dr = z2[2 * k], di = z2[2 * k + 1];
+            for (i = 0; i < 3; i++) {
+                double d = R.T[3 * i] * d1 + R.T[3 * i + 1] * dr + R.T[3 * i + 2] * di;
+                W[i * nq + k] += d;
+                if (fabs(d) > size) size = fabs(d);
+            }
+        }
+        if (!finite_array(W, 3L * nq)) return FP_NONFINITE;
+        *iters += 1;
+        for (k = 0; k < 3 * nq; k++)
+            if (fabs(Vs[k]) > vmax) vmax = fabs(Vs[k]);
+        size *= h;
+        scale = p->tol * fmax(1.0, vmax);
+        if (size <= scale) {
+            converged = 1;
+            break;
+        }
+        if (it > 0 && size >= 0.5 * last && size <= 1e3 * scale) {
+            converged = 1;                          /* round-off: nothing more to gain */
+            break;
+        }
+        if (it > 0 && size > RADAU_SLOW * last)
+            need = 1;               /* slow: a tangent at the iterate (generalized alpha's rule) */
+        last = size;
+    }
+    if (!converged) return FP_NOCONVERGE;
+    /* the step's end: the last stage of the converged accelerations */
+    for (i = 0; i < 3; i++)
+        for (k = 0; k < nq; k++) {
+            double a = 0.0, b = 0.0;
+            for (j = 0; j < 3; j++) {
+                a += R.A[3 * i + j] * W[j * nq + k];
+                b += R.A2[3 * i + j] * W[j * nq + k];
+            }
+            Vs[i * nq + k] = v0[k] + h * a;
+            Qs[i * nq + k] = q0[k] + h * R.c[i] * v0[k] + h * h * b;
+        }
+    if (!finite_array(Qs, 3L * nq) || !finite_array(Vs, 3L * nq)) return FP_NONFINITE;
+    if (e_out != NULL) {
+        for (i = 0; i < 3; i++) {
+            e_out[i] = feedback ? ex_stage_error(p, F, Qs + i * nq, Vs + i * nq, NULL, NULL)
+                                : 0.0;
+            if (!isfinite(e_out[i])) return FP_NONFINITE;
+        }
+    }
+    for (k = 0; k < nq; k++) {
+        double jk = (R.dend[0] * W[k] + R.dend[1] * W[nq + k] + R.dend[2] * W[2 * nq + k]) / h;
+        if (!isfinite(jk)) return FP_NONFINITE;
+        s[k] = Qs[2 * nq + k];
+        s[nq + k] = Vs[2 * nq + k];
+        s[2 * nq + k] = W[2 * nq + k];
+        s[3 * nq + k] = jk;
     }
     return FP_OK;
 }

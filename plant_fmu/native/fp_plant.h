@@ -269,6 +269,36 @@ FP_API int fp_exact_start(const fp_exact *p, const fp_exact_force *F, double *s,
 FP_API int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, double *s,
                           double *work, long *done, long *iters);
 
+/* ---- The exact rung's integrator: Radau IIA (three stages, order 5, L-stable) ----------------
+ * plant_fmu/exact.py's RadauIIA: the unknowns are the stage accelerations W_i (i = 1..3),
+ * V_i = v0 + h sum_j a_ij W_j, Q_i = q0 + h c_i v0 + h^2 sum_j (A^2)_ij W_j, M W_i = f(Q_i, V_i,
+ * F_i); the step ends at the last stage. Simplified Newton with the tangent (and the force law's
+ * gradient) at the predicted second stage, decoupled by the eigenvectors of A into one real band
+ * system gamma^2 M + h gamma C + h^2 K and one complex mu^2 M + h mu C + h^2 K (gamma, mu the
+ * eigenvalues of A^-1), each factored as a band with the force row by Sherman-Morrison as the
+ * generalized-alpha step's. The integrator's state is s = [q, qd, qdd, jerk] (4 nq doubles): the
+ * accelerations at the step's end and their rate, from which the next step's first guess is
+ * extrapolated. p->rho_inf is not used. */
+
+/* The force law of a Radau step at its three stages: F_i = F0[i] - sum_j Q[3 i + j] e_j with
+ * e_j = kx x + kp phi_o + kd omega_o at stage j (Q = 0: the forces F0[i] given). */
+typedef struct fp_radau_force {
+    double F0[3], Q[9], kx, kp, kd;
+} fp_radau_force;
+
+/* Doubles of work for fp_radau_start and fp_radau_step (at least fp_exact_work_size's). */
+FP_API long fp_radau_work_size(const fp_exact *p);
+
+/* s = [q, qd, qdd, jerk] from q, qd (s[0 .. 2 nq) on entry): accelerations consistent with the
+ * first stage's law at (q, qd), jerk 0. FP_OK, FP_NONFINITE or FP_BADARG. */
+FP_API int fp_radau_start(const fp_exact *p, const fp_radau_force *F, double *s, double *work);
+
+/* One Radau IIA step of p->h in place on s under the law F; *iters += the Newton iterations;
+ * e (3 doubles, may be NULL) the stage errors e_j at the converged stages. On failure s is
+ * unchanged and the code says why, as fp_exact_steps's. */
+FP_API int fp_radau_step(const fp_exact *p, const fp_radau_force *F, double *s, double *work,
+                         long *iters, double *e);
+
 /* The outputs at the integrator's state s (its first 2 nq doubles, q and qd) into out, in the
  * layout FP_OUT_X .. FP_OUT_ENERGY of fp_outputs (FP_OUT_PHI: the root tangent's angle from the
  * upward vertical; FP_OUT_TIP: the tip's distance from the line of the root tangent, along its

@@ -63,13 +63,14 @@ static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "e
  * (fp_exact_work_size, checked at initialisation). */
 #define XB_NQ_MAX (4 * FPM_NE_MAX + 3)
 #define XB_S_MAX (4 * XB_NQ_MAX)
-#define XB_WORK_MAX (37 * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
+#define XB_WORK_MAX ((3 * 22 + 29) * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
 
 /* The exact rung's arrays (150 kB at 100 elements), left out of fpm_model_reset: its state,
  * written whole by xb_prepare before any use (and read only at the exact rung), and scratch. */
 typedef struct xb_arrays {
-    double s[XB_S_MAX];         /* the state [q, qd, qdd, a] */
+    double s[XB_S_MAX];         /* the state [q, qd, qdd, jerk] */
     double saved[XB_S_MAX];     /* s at a step's start */
+    double saved2[XB_S_MAX];    /* s at a substep's start (a halved substep that fails) */
     double work[XB_WORK_MAX];   /* the kernel's */
 } xb_arrays;
 
@@ -120,7 +121,7 @@ struct fpm_model {
     double aug[AUG * AUG], E[AUG * AUG];
     /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
     int exact;
-    fp_exact xb_p, xb_ps;       /* generalized alpha at the step h, and at a shortened substep */
+    fp_exact xb_p, xb_ps;       /* Radau IIA at the step h, and at the substep taken */
     double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
     xb_arrays xb;               /* its state and scratch (not reset by fpm_model_reset) */
 };
@@ -1372,15 +1373,17 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
  * says), Kelvin-Voigt damping beta = 2 zeta / omega_1 (omega_1 the first cantilever frequency of
  * the same mesh: the first mode has the damping ratio zeta, as in the floating frame).
  *
- * Stepping: generalized alpha (rho_inf = 0.9, Newton to 1e-11, at most 30 iterations, as
- * plant_fmu/kernel.py's ExactKernel and orchestration/studies/exact_loop.py) at the substep h =
- * step, on the grid of the explicit methods (advance_fixed: full substeps, a shortened last one
- * when a communication point is off the grid). Implicit, because the beam's axial modes (the
- * first near 8000 rad/s at the paper's data) and the mesh's highest bending modes are far above
- * 1/h: an explicit method would need h below 1e-5 s. The force is the input polynomial at each
- * substep's end (where the method sets equilibrium), held when it has no derivatives. The
- * accelerations qdd = a start consistent with the first step's input (fp_exact_start when no
- * step was taken yet).
+ * Stepping: Radau IIA (three stages, order 5, L-stable; fp_radau_step, Newton to 1e-9, at most
+ * 30 iterations, as plant_fmu/exact.py's RadauIIA and orchestration/studies/exact_loop.py) at the
+ * substep h = step, on the grid of the explicit methods (advance_fixed: full substeps, a
+ * shortened last one when a communication point is off the grid). Implicit, because the beam's
+ * axial modes (the first near 8000 rad/s at the paper's data) and the mesh's highest bending
+ * modes are far above 1/h: an explicit method would need h below 1e-5 s; L-stable, so that what
+ * h does not resolve is damped rather than folded into the resolved band (a host that samples
+ * the outputs once per substep then sees no alias of it: docs/exact.md); fifth order, so that the
+ * loop's bending modes keep their phase over thousands of steps. The force is the input
+ * polynomial at each stage's time, held when it has no derivatives. The accelerations start
+ * consistent with the first step's input (fp_radau_start when no step was taken yet).
  *
  * Outputs (fp_exact_outputs): x_o, x_dot, phi_o and omega_o from the tip node's slope, phi the
  * root tangent's angle, tip_deflection the tip's distance from the line of the root tangent,
@@ -1391,11 +1394,11 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
  *
  * Not offered (an Error with a message): Model Exchange (the beam's stiff axial modes call for
  * the implicit step inside the FMU), the linearisation (directional derivatives) and output
- * derivatives. FMU states save the integrator's state [q, qd, qdd, a] (4 nq doubles) after the
+ * derivatives. FMU states save the integrator's state [q, qd, qdd, jerk] (4 nq doubles) after the
  * floating frame's items; a restore checks them finite, within the divergence bounds, with
  * finite outputs, energy and internal forces. */
-#define XB_RHO_INF 0.9
-#define XB_TOL 1e-11
+#define XB_RHO_INF 0.9                    /* not used by Radau IIA (fp_exact's field) */
+#define XB_TOL 1e-9                       /* plant_fmu/exact.py's RADAU_TOL */
 #define XB_MAX_ITER 30
 
 static int xb_refuse(const fpm_model *m, const fpm_logger *lg, const char *what)
@@ -1438,9 +1441,9 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
                 r[VR_EA], r[VR_EI], rhoA, r[VR_m], r[VR_g], r[VR_zeta], m->h);
         return 0;
     }
-    if (fp_exact_work_size(p) > XB_WORK_MAX) {
+    if (fp_radau_work_size(p) > XB_WORK_MAX) {
         fpm_log(lg, FPM_ERROR, "the exact rung's work (%ld doubles) exceeds its buffer (a broken "
-                "build)", fp_exact_work_size(p));
+                "build)", fp_radau_work_size(p));
         return 0;
     }
     m->xb_ps = *p;
@@ -1499,44 +1502,57 @@ static int xb_outputs_ok(fpm_model *m, const char **bad)
     return 1;
 }
 
+/* The deepest halving of a Radau substep whose Newton iteration fails (a substep of h is then
+ * taken as up to 2^XB_SPLIT_MAX substeps of h / 2^XB_SPLIT_MAX). */
+#define XB_SPLIT_MAX 4
+
+/* One Radau step of h from t0 (the time since the input polynomial's start) into xb.s, under
+ * the input polynomial; a step whose Newton iteration fails is taken as two halves, down to
+ * depth XB_SPLIT_MAX. p: a prepared fp_exact whose h is overwritten. FP_OK or the kernel's code;
+ * xb.s unchanged on failure. */
+static int xb_radau(fpm_model *m, fp_exact *p, double t0, double h, int depth, long *iters)
+{
+    const stepper *s = &m->s;
+    const double s6 = sqrt(6.0), c[3] = {(4.0 - s6) / 10.0, (4.0 + s6) / 10.0, 1.0};
+    fp_radau_force F;
+    int i, rc;
+    if (p->h != h) {
+        p->h = h;
+        if (fp_exact_prepare(p) != FP_OK) return FP_BADARG;
+    }
+    memset(&F, 0, sizeof F);
+    for (i = 0; i < 3; i++) {
+        const double dt = t0 + c[i] * h;
+        F.F0[i] = s->u + dt * (s->du + 0.5 * dt * s->d2u);
+    }
+    rc = fp_radau_step(p, &F, m->xb.s, m->xb.work, iters, NULL);
+    if (rc != FP_NOCONVERGE || depth >= XB_SPLIT_MAX) return rc;
+    rc = xb_radau(m, p, t0, 0.5 * h, depth + 1, iters);
+    if (rc != FP_OK) return rc;
+    return xb_radau(m, p, t0 + 0.5 * h, 0.5 * h, depth + 1, iters);
+}
+
 /* n substeps of h from the stepper's time (substeps() for the exact rung); 0 with why. */
 static int xb_substeps(fpm_model *m, double h, long n, char *why)
 {
     static const char *WHY[] = {"", "bad argument", "a residual is not finite",
                                 "", "", "Newton did not converge (or its matrix is singular)"};
     stepper *s = &m->s;
-    fp_exact *p = &m->xb_p;
-    fp_exact_force F;
+    fp_exact *p = &m->xb_ps;                    /* its h follows the substep (xb_radau) */
     long done = 0, iters = 0, q;
     int rc = FP_OK;
-    if (h != p->h) {                            /* a shortened substep */
-        p = &m->xb_ps;
-        if (p->h != h) {
-            p->h = h;
-            if (fp_exact_prepare(p) != FP_OK) {
-                snprintf(why, FPM_MSG_MAX, "bad substep h = %.17g", h);
-                return 0;
-            }
-        }
-    }
-    memset(&F, 0, sizeof F);
-    F.F0 = s->u;
-    if (s->du == 0.0 && s->d2u == 0.0) {
-        rc = fp_exact_steps(p, &F, n, m->xb.s, m->xb.work, &done, &iters);
-    } else {
-        for (q = 0; q < n && rc == FP_OK; q++) {  /* the force at each substep's end */
-            const double dt = (s->t_base + (double)(s->k + q + 1) * h) - s->tu;
-            long one = 0;
-            F.F0 = s->u + dt * (s->du + 0.5 * dt * s->d2u);
-            rc = fp_exact_steps(p, &F, 1, m->xb.s, m->xb.work, &one, &iters);
-            done += one;
-        }
+    for (q = 0; q < n && rc == FP_OK; q++) {   /* the force at each stage's time */
+        const double t0 = (s->t_base + (double)(s->k + q) * h) - s->tu;
+        memcpy(m->xb.saved2, m->xb.s, sizeof(double) * 4 * m->xb_p.nq);
+        rc = xb_radau(m, p, t0, h, 0, &iters);
+        if (rc == FP_OK) done++;
+        else memcpy(m->xb.s, m->xb.saved2, sizeof(double) * 4 * m->xb_p.nq);
     }
     s->k += done;
     s->t = s->t_base + s->k * h;
     if (rc != FP_OK) {
-        snprintf(why, FPM_MSG_MAX, "the exact beam's generalized-alpha substep from t = %.17g "
-                 "(h = %.17g) failed: %s", s->t, h,
+        snprintf(why, FPM_MSG_MAX, "the exact beam's Radau IIA substep from t = %.17g "
+                 "(h = %.17g, also halved %d times) failed: %s", s->t, h, XB_SPLIT_MAX,
                  rc >= 0 && rc <= FP_NOCONVERGE && WHY[rc][0] ? WHY[rc] : "an error");
         return 0;
     }
@@ -1582,10 +1598,10 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
     s->d2u = m->d2F;
     s->tu = t;
     if (!m->stepped) {                          /* consistent accelerations under the input */
-        fp_exact_force F;
+        fp_radau_force F;
         memset(&F, 0, sizeof F);
-        F.F0 = s->u;
-        if (fp_exact_start(&m->xb_p, &F, m->xb.s, m->xb.work) != FP_OK) {
+        F.F0[0] = F.F0[1] = F.F0[2] = s->u;
+        if (fp_radau_start(&m->xb_p, &F, m->xb.s, m->xb.work) != FP_OK) {
             m->s = saved;
             memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
             fpm_log(lg, FPM_DISCARD, "the exact beam's accelerations at t = %.17g are not finite "

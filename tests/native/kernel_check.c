@@ -9,6 +9,7 @@
  *   - bad arguments give FP_BADARG / FPF_BADARG and change nothing;
  *   - expm(0) = I, expm(diag(a, b)) = diag(e^a, e^b), expm([[0, t], [0, 0]]) = [[1, t], [0, 1]];
  *   - the first-order filter: Ad = exp(-wc h), held-input gain 1 - exp(-wc h);
+ *   - the exact rung's Radau IIA (fp_radau_*, 1, 3 and 8 elements, closed loop, failures)
  *   - the exact rung (fp_exact_*, 1, 3 and 8 elements, closed loop with the force row outside
  *     the band): n steps in one call equal n calls, bitwise; a free fall keeps the beam's length;
  *     a non-finite force, a huge step and one Newton iteration give their codes and leave the
@@ -274,6 +275,84 @@ static void exact_checks(int ne)
     free(s); free(s1); free(work); free(f); free(K); free(C); free(M);
 }
 
+/* The Radau IIA step (fp_radau_*): held force and the closed loop (a stage law Q with the force
+ * row outside the band), a step that does not converge, bad laws refused, failures leaving the
+ * state unchanged; the work is fp_radau_work_size exactly (ASan sees an overrun). */
+static void radau_checks(int ne)
+{
+    fp_exact e;
+    fp_radau_force F, bad;
+    double *s, *s1, *work, es[3];
+    long iters = 0, k;
+    int nq, i, same = 1, finite = 1;
+    memset(&e, 0, sizeof e);
+    memset(&F, 0, sizeof F);
+    e.ne = ne; e.L = 1.0; e.EA = 4.2e8; e.EI = 875.0; e.rhoA = 15.6; e.g = 9.81; e.m = 5.0;
+    e.beta_kv = 2e-3 / 150.0; e.h = 1e-3; e.rho_inf = 0.9; e.tol = 1e-9; e.max_iter = 30;
+    check(fp_exact_prepare(&e) == FP_OK, "radau: data accepted");
+    nq = e.nq;
+    s = calloc((size_t)(4 * nq), sizeof(double));
+    s1 = calloc((size_t)(4 * nq), sizeof(double));
+    work = calloc((size_t)fp_radau_work_size(&e), sizeof(double));
+    check(fp_radau_work_size(&e) >= fp_exact_work_size(&e), "radau: work covers the others'");
+    for (i = 0; i <= ne; i++) {
+        double si = (double)i / ne, tx = -sin(0.5), ty = cos(0.5);
+        if (i > 0) {
+            s[4 * i - 1] = si * tx;
+            s[4 * i] = si * ty;
+        }
+        s[4 * i + 1] = tx;
+        s[4 * i + 2] = ty;
+    }
+    F.kx = 1.0; F.kp = 500.0; F.kd = 5.0;
+    for (i = 0; i < 3; i++) {
+        F.F0[i] = 0.5 * i;
+        F.Q[3 * i + i] = 0.3;                           /* feedback at every stage */
+        F.Q[3 * i + (i + 1) % 3] = 0.05;
+    }
+    check(fp_radau_start(&e, &F, s, work) == FP_OK, "radau: start");
+    for (i = 0; i < nq; i++) finite = finite && s[3 * nq + i] == 0.0;
+    check(finite, "radau: the start's jerk is 0");
+    for (k = 0; k < 20; k++)
+        check(fp_radau_step(&e, &F, s, work, &iters, es) == FP_OK && isfinite(es[0])
+              && isfinite(es[2]), "radau: a closed-loop step");
+    check(iters >= 20 && iters <= 20L * e.max_iter, "radau: iterations counted");
+    {   /* the tip's distance from the root stays the beam's length (to the axial strain) */
+        double dx = s[nq - 4] - s[0], dy = s[nq - 3];
+        check(fabs(sqrt(dx * dx + dy * dy) - 1.0) < 1e-6, "radau: the beam keeps its length");
+    }
+    memset(F.Q, 0, sizeof F.Q);                         /* a held force */
+    check(fp_radau_step(&e, &F, s, work, &iters, NULL) == FP_OK, "radau: a held-force step");
+    memcpy(s1, s, sizeof(double) * (size_t)(4 * nq));
+    bad = F;
+    bad.F0[1] = NAN;
+    check(fp_radau_step(&e, &bad, s, work, &iters, es) == FP_BADARG, "radau: NaN force refused");
+    bad = F;
+    bad.Q[4] = INFINITY;
+    check(fp_radau_start(&e, &bad, s, work) == FP_BADARG, "radau: infinite law refused");
+    check(fp_radau_step(&e, &F, s, NULL, &iters, es) == FP_BADARG, "radau: no work refused");
+    e.h = 1.0;
+    check(fp_exact_prepare(&e) == FP_OK, "radau: h = 1 s accepted");
+    check(fp_radau_step(&e, &F, s, work, &iters, es) == FP_NOCONVERGE,
+          "radau: a huge step does not converge");
+    e.h = 1e-3;
+    e.max_iter = 1;
+    check(fp_exact_prepare(&e) == FP_OK, "radau: one iteration accepted");
+    check(fp_radau_step(&e, &F, s, work, &iters, es) == FP_NOCONVERGE,
+          "radau: one Newton iteration does not converge");
+    for (i = 0; i < 4 * nq; i++) {
+        same = same && s[i] == s1[i];
+        finite = finite && isfinite(s[i]);
+    }
+    check(same && finite, "radau: failures leave the state unchanged and finite");
+    e.max_iter = 30;
+    check(fp_exact_prepare(&e) == FP_OK, "radau: restored");
+    for (i = 0; i < 4 * nq; i++) s[i] = 0.0;     /* every node at the root, at rest */
+    check(fp_radau_step(&e, &F, s, work, &iters, es) == FP_NONFINITE,
+          "radau: no step from elements of no length");
+    free(s); free(s1); free(work);
+}
+
 int main(int argc, char **argv)
 {
     FILE *f;
@@ -313,6 +392,9 @@ int main(int argc, char **argv)
     exact_checks(1);
     exact_checks(3);
     exact_checks(8);
+    radau_checks(1);
+    radau_checks(3);
+    radau_checks(8);
     printf("%s %d checks, %d failed\n", failures ? "FAILED" : "ok", checks, failures);
     return failures ? 1 : 0;
 }
