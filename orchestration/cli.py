@@ -221,7 +221,7 @@ def cmd_run(args) -> int:
         out_dir = _output_dir(args.out)
 
         def announce(scene):
-            m = scene.master
+            m = scene.run_master
             how = (f"model exchange, {m.solver} at rtol {m.rtol:g}"
                    if m.interface == "model-exchange" else f"communication step {m.step:g} s")
             print(f"{scene.name}: running {scene.output.stop_time:g} s ({how})", file=sys.stderr,
@@ -278,7 +278,7 @@ def cmd_export(args) -> int:
     print(f"wrote {r.path}: plant {Path(r.fmus['plant']).name}, controller "
           f"{Path(r.fmus['controller']).name} ({args.fmus} FMUs), {len(sc.connections)} "
           f"connections, stop time {sc.output.stop_time:g} s, master {sc.master.algorithm} "
-          f"at {sc.master.step:g} s")
+          f"at {sc.run_master.step:g} s")
     if r.model is not None:
         print(f"  model: {r.model['n_modes']} modes, {r.model['fidelity']} ({r.model['reason']})")
     return 0

@@ -18,6 +18,7 @@ ends.
 """
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -209,6 +210,8 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
         model["reason"] = "; ".join([model["reason"], *model["climb"]])
     if model is not None:
         out.summary["model"] = model
+    if scene.plant.fidelity == "exact" and not out.interrupted:
+        out.summary["numerical_error"] = _exact_numerical_error(scene, fmus, out, kw)
     if reference and out.summary["stopped"] is None:
         exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
         ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
@@ -219,10 +222,53 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     return out
 
 
+def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict) -> dict:
+    """The exact rung's own numerical error, from the run itself: the same run at twice the
+    step (``plant.exact_step``, which is also the communication step), and the largest
+    ``|phi_o|`` difference from it on their common output points. In the convergence study
+    (``python3 bench/exact_convergence.py``, docs/exact.md) the error fell about in proportion
+    to the step (what the L-stable step damps of the beam's undamped high modes dominates it,
+    not the method's order), and this difference was 1.2 to 2 times the run's error against a
+    refined reference: it is stated as the run's error bound. A run stopped early gets none."""
+    h = scene.plant.exact_step
+    out = {"phi_o": None, "method": "step doubling: the run at plant.exact_step = "
+           f"{2 * h:g} s", "step": h, "note": None}
+    if run.summary["stopped"] is not None or len(run.result) < 2:
+        out["note"] = "the run stopped early"
+        return out
+    o = scene.output
+    dt = o.output_interval
+    if abs(dt / (2 * h) - round(dt / (2 * h))) > 1e-9 * dt / h:
+        dt = 2 * dt                                  # a multiple of 2 h
+    n = int(math.floor(o.stop_time / dt + 1e-9))
+    if n < 1:
+        out["note"] = "the run is shorter than one step of twice its own"
+        return out
+    try:
+        coarse = scene.replace(plant=replace(scene.plant, exact_step=2 * h),
+                               output=replace(o, output_interval=dt, stop_time=n * dt))
+    except ConfigError as exc:
+        out["note"] = f"no run at twice the step: {exc}"
+        return out
+    kw = {**kw, "connections_out": None, "snapshot_times": (),
+          "label": f"{scene.name}: numerical error (the run at twice the step)"}
+    shadow = _run_once(coarse, fmus, **kw)
+    if shadow.interrupted or shadow.summary["stopped"] is not None:
+        out["note"] = ("the run at twice the step stopped: "
+                       f"{(shadow.summary['stopped'] or {}).get('reason', 'interrupted')}")
+        return out
+    t, ts = run.result["time"], shadow.result["time"]
+    idx = np.searchsorted(t, ts)
+    ok = (idx < len(t)) & (np.abs(t[np.minimum(idx, len(t) - 1)] - ts) <= 1e-9 * max(1.0, o.stop_time))
+    diff = np.abs(run.result["phi_o"][idx[ok]] - shadow.result["phi_o"][ok])
+    out["phi_o"] = float(diff.max()) if diff.size else None
+    return out
+
+
 def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snapshot_times,
-              unzipdirs, pool) -> Run:
+              unzipdirs, pool, label: str | None = None) -> Run:
     """One co-simulation of a resolved scene (:func:`run_scene` without the model's choice and
-    the reference)."""
+    the reference); ``label``: its progress bar's (the scene's name)."""
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     reusable = False                # the instances may serve another run (pool)
@@ -244,7 +290,7 @@ def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snap
             raise ConfigError(f"{scene.name}: {exc}") from None
         if connections_out is not None:
             connections_out.write(f"{scene.name}: connections\n{master.connection_table()}\n")
-        bar = Progress(scene.name) if progress else None
+        bar = Progress(label or scene.name) if progress else None
         try:
             res, stats = master.run(0.0, scene.output.stop_time, scene.output.output_interval,
                                     progress=bar, stop=stop)

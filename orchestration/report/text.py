@@ -144,6 +144,11 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
         out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}"
                    f"{validity_text(v)}")
         out += [f"  WARNING, outside the measured range: {w}" for w in v["warnings"]]
+    ne = s.get("numerical_error")
+    if ne is not None:
+        out.append("  numerical error: " + (
+            f"<= {ne['phi_o']:.1e} rad ({ne['method']})" if ne["phi_o"] is not None else
+            f"not estimated ({ne['note']})"))
     if s.get("max_abs_F_c") is not None:
         out.append(f"  max |F_c|: {s['max_abs_F_c']:.4g} N; max |x|: {s['max_abs_x']:.4g} m")
     if "wall_time" in s:

@@ -225,7 +225,9 @@ def ssd_of(scene, fmus: dict, sources: dict, model: dict | None = None):
     notes = etree.SubElement(exp, _q("ssd", "Annotations"))
     osp = etree.SubElement(notes, _q("ssc", "Annotation"), type=OSP_ANNOTATION)
     alg = etree.SubElement(osp, _q("osp", "Algorithm"))
-    etree.SubElement(alg, _q("osp", "FixedStepAlgorithm"), baseStepSize=repr(float(cfg["master.step"])))
+    # the step a run takes (at the exact rung plant.exact_step: Scene.run_master)
+    etree.SubElement(alg, _q("osp", "FixedStepAlgorithm"),
+                     baseStepSize=repr(float(scene.run_master.step)))
     ours = etree.SubElement(notes, _q("ssc", "Annotation"), type=SCENE_ANNOTATION)
     sc = etree.SubElement(ours, _q("fp", "Scene"), nsmap={"fp": NS["fp"]}, name=scene.name)
     for key, value in _scene_settings(cfg).items():
