@@ -217,8 +217,14 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
     if check_step:
-        check_plant_step(scene, available_ladder(scene) if model is not None
-                         and model["fidelity_auto"] else None)
+        try:
+            check_plant_step(scene, available_ladder(scene) if model is not None
+                             and model["fidelity_auto"] else None)
+        except ConfigError as exc:
+            if model is None:
+                raise
+            raise ConfigError(f"{exc} (the model chosen: {model['n_modes']} modes, "
+                              f"{model['fidelity']})") from None
     if reference:
         check_reference(scene)
     kw = dict(progress=progress, connections_out=connections_out, stop=stop,

@@ -124,6 +124,24 @@ def test_simulate_and_the_ladder_refuse_before_running():
         fp.simulate("flexible_pd_lowpass", {**STIFF, "plant.fidelity": "auto"})
 
 
+def test_a_model_chosen_by_a_run_is_checked_once_chosen(monkeypatch, native):
+    """``plant.n_modes = "auto"``: nothing to check until the run chooses the model; then the
+    refusal says which model was chosen (the choice itself stubbed here: 8 modes)."""
+    from orchestration import job
+
+    scene = load_scene("flexible_pd_lowpass", {**STIFF, "plant.n_modes": "auto"})
+    assert check_plant_step(scene) is None
+
+    def choose(sc, progress=None):
+        return (sc.replace(plant=sc.plant.with_model(8, "nonlinear")),
+                {"n_modes": 8, "fidelity": "nonlinear", "fidelity_auto": False, "reason": ""})
+    monkeypatch.setattr(job, "select_model", choose)
+    pair = {"plant": native["FlexiblePendulum"], "controller": native["PDLowPass"]}
+    with pytest.raises(fp.ConfigError, match=r"plant\.step = 0\.00025 s is beyond .*\(the model "
+                       r"chosen: 8 modes, nonlinear\)$"):
+        run_scene(scene, pair, progress=False)
+
+
 def test_within_the_limit_runs_close_to_the_reference_beyond_it_grows(native, refusal):
     """At 0.9 times the printed limit the run is refused no more, warned no more, and it is
     within 1e-3 rad of the monolithic reference (the coupling's error at master.step = 2 ms is
