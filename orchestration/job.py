@@ -6,6 +6,9 @@
                                                paper overview and summary.json
 
 A scene whose model is ``"auto"`` gets it chosen first (:mod:`orchestration.studies.fidelity`);
+a scene whose plant FMU would step unstably (``plant.step`` beyond its integrator's stability
+limit on the rung's fastest mode, :mod:`orchestration.studies.plant_step`) is refused before it
+runs (:func:`check_plant_step`: a ConfigError naming ``plant.step``);
 the FMUs of the scene's flavour are built when missing or stale (:mod:`orchestration.export`); the
 master (:mod:`orchestration.cosim`) steps them; :mod:`orchestration.report` summarises the result
 and draws it. A :class:`Run` holds all of it: ``to_pandas()``, ``plot()`` (a Figure),
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -43,10 +47,11 @@ from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
 from .studies.fidelity import available_ladder, climb, select_model
+from .studies.plant_step import checks as plant_step_checks
 from .studies.reference import COLUMNS, check_reference, simulate_reference
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
-           "step_warning",
+           "step_warning", "check_plant_step",
            "check_wiring", "plant_start_values", "controller_start_values", "RECORD",
            "EXIT_STOPPED", "EXIT_INTERRUPTED"]
 
@@ -169,9 +174,26 @@ def check_wiring(scene: Scene, fmus: dict) -> None:
                                   f"{', '.join(variables[fmu])}")
 
 
+def check_plant_step(scene: Scene, rungs=None) -> str | None:
+    """Refuse a scene whose plant FMU would step unstably: a ConfigError, one line naming
+    ``plant.step``, its value, the mode, ``plant.integrator`` and the largest stable
+    ``plant.step``, when the largest substep is beyond the method's stability limit on the
+    linearised plant of its rung (:mod:`orchestration.studies.plant_step`), or of any of
+    ``rungs`` (default: the scene's; with ``plant.fidelity = "auto"`` every rung the ladder may
+    climb to). The warning line when it is within 10 % of the limit, else None. A model not
+    chosen yet (``plant.n_modes = "auto"``) is checked once chosen (:func:`run_scene`)."""
+    lines = []
+    for c in plant_step_checks(scene, rungs):
+        if c.error:
+            raise ConfigError(f"{scene.name}: {c.error}")
+        if c.warning:
+            lines.append(c.warning)
+    return lines[0] if lines else None
+
+
 def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bool = True,
               connections_out=None, stop=None, snapshot_times=None,
-              unzipdirs: dict | None = None, pool=None) -> Run:
+              unzipdirs: dict | None = None, pool=None, check_step: bool = True) -> Run:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
 
     ``stop``: a callable asked after every communication step; when it returns True the run
@@ -185,11 +207,25 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     With ``plant.fidelity = "auto"`` the run climbs the fidelity ladder: it is repeated on the
     next rung up while its measured model-form error bound exceeds ``fidelity.tolerance`` or it
     leaves its rung's measured range (:func:`orchestration.studies.fidelity.climb`); the summary's
-    ``model`` says which rung ran and why."""
+    ``model`` says which rung ran and why.
+
+    Before it runs, the plant's substep is checked against its integrator's stability limit on
+    the rung, and on every rung the ladder may climb to (:func:`check_plant_step`: a ConfigError
+    beyond it). ``check_step = False`` skips that check: the run then shows what the limit
+    predicts (the tests that observe the growth beyond it)."""
     model = None
     if not scene.resolved:
         scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
                                     if progress else None)
+    if check_step:
+        try:
+            check_plant_step(scene, available_ladder(scene) if model is not None
+                             and model["fidelity_auto"] else None)
+        except ConfigError as exc:
+            if model is None:
+                raise
+            raise ConfigError(f"{exc} (the model chosen: {model['n_modes']} modes, "
+                              f"{model['fidelity']})") from None
     if reference:
         check_reference(scene)
     kw = dict(progress=progress, connections_out=connections_out, stop=stop,
@@ -366,7 +402,9 @@ def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool 
 
     A bad scene, key or value raises :class:`~orchestration.scene.keys.ConfigError` (a
     ``ValueError``) naming it; a wrong type, ``TypeError``. A run that an FMU stops early is
-    not an error: its summary says when and why (:attr:`Run.completed` is False)."""
+    not an error: its summary says when and why (:attr:`Run.completed` is False). A
+    ``plant.step`` beyond its integrator's stability limit is a ConfigError before anything
+    runs; within 10 % of it, a ``RuntimeWarning`` (:func:`check_plant_step`)."""
     if fmus is not None and fmus not in FMU_FLAVOURS:
         raise ValueError(f"fmus = {fmus!r} is not allowed; allowed: "
                          f"{', '.join(map(repr, FMU_FLAVOURS))}")
@@ -377,6 +415,9 @@ def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool 
     try:
         if fmus is not None and own is None:
             sc = sc.replace(master=replace(sc.master, fmus=fmus))
+        warning = check_plant_step(sc)
+        if warning:
+            warnings.warn(f"{sc.name}: {warning}", RuntimeWarning, stacklevel=2)
         pair = own.fmus if own is not None else flavour_fmus(sc.master.fmus)
         check_wiring(sc, pair)
         return run_scene(sc, pair, reference=reference, progress=progress)
@@ -458,7 +499,9 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     ``stop``: asked between runs and after every communication step (Ctrl-C); ``announce(scene)``
     is called before a run and ``report(run, written)`` after it. The exit code: 0 when every
     scene ran to its stop time, :data:`EXIT_STOPPED` when one stopped early,
-    :data:`EXIT_INTERRUPTED` when ``stop`` ended the job (the data so far is written).
+    :data:`EXIT_INTERRUPTED` when ``stop`` ended the job (the data so far is written). Every
+    scene's plant step is checked before any runs (:func:`check_plant_step`; a scene with
+    ``plant.n_modes = "auto"`` once its model is chosen, when it runs).
     ``renderer``: what draws the PNGs (:data:`~orchestration.report.plotting.RENDERERS`; by
     default the raster renderer, which does not import matplotlib)."""
     check_renderer(renderer)
@@ -468,6 +511,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     unpacked = _Unpacked()
     try:
         for scene, system in items:                 # FMUs and wiring before any scene runs
+            check_plant_step(scene)
             if system is None and scene.master.fmus not in pairs:
                 if stop is not None and stop():
                     job.code = EXIT_INTERRUPTED
@@ -542,21 +586,23 @@ _WARNINGS_KEPT = 256
 
 
 def step_warning(scene) -> str | None:
-    """One line when the scene's communication step is beyond its coupling's predicted largest
-    stable step (:func:`orchestration.studies.stability.step_warning`), else None. Kept in
-    ``<home>/stability_warnings.json`` (:func:`orchestration.export.places.home`) by the scene's
-    plant, controller and master and the predicting module's source: a warm ``flexpend run``
-    neither imports scipy nor searches the step again. A cache that cannot be read or written
-    is only not used."""
+    """One line when the scene's plant step is near its integrator's stability limit (beyond it
+    the scene is refused: :func:`check_plant_step`) or its communication step is beyond its
+    coupling's predicted largest stable step (:func:`orchestration.studies.stability.
+    step_warning`), else None. Kept in ``<home>/stability_warnings.json``
+    (:func:`orchestration.export.places.home`) by the scene's plant, controller and master and
+    the predicting modules' sources: a warm ``flexpend run`` neither imports scipy nor searches
+    the step again. A cache that cannot be read or written is only not used."""
     import hashlib
     import json
 
     from .export.places import home
 
-    source = Path(__file__).resolve().parent / "studies" / "stability.py"
+    studies = Path(__file__).resolve().parent / "studies"
     try:
         key = hashlib.sha256(repr((scene.plant, scene.controller, scene.master)).encode()
-                             + source.read_bytes()).hexdigest()
+                             + (studies / "stability.py").read_bytes()
+                             + (studies / "plant_step.py").read_bytes()).hexdigest()
     except OSError:
         key = None
     path = home() / "stability_warnings.json"

@@ -63,8 +63,9 @@ def _scene(**values):
 
 def _observe(scene, paths):
     """Observed growth factor per communication step (the start-up steps, whose map differs,
-    left out); ``inf`` if the co-simulation diverged."""
-    r = run_scene(scene, paths, progress=False)
+    left out); ``inf`` if the co-simulation diverged. The plant step's preflight is skipped: the
+    substep-limit points beyond it are what is observed here."""
+    r = run_scene(scene, paths, progress=False, check_step=False)
     if r.summary["stopped"] is not None:
         return math.inf
     skip = scene.master.extrapolation + 2
@@ -221,7 +222,9 @@ def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, 
                       "plant.fidelity": "linear", "plant.n_modes": 2,
                       "controller.filter_order": filter_order, "controller.kx": 3.0,
                       "n_steps": 25})
-    res = run_scene(scene, paths, progress=False).result
+    # explicit Euler is beyond its limit on the damped modes (the plant step's preflight would
+    # refuse it): the map is compared, stable or not
+    res = run_scene(scene, paths, progress=False, check_step=False).result
     hand = hand_stepped(scene, len(res))
     for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
         scale = np.abs(res[col]).max()

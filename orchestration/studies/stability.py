@@ -827,15 +827,14 @@ def _scene_model(scene):
 
 
 def substep_limit(p: PlantParams, method: str):
-    """The largest plant substep for which ``method`` is stable on every damped or undamped mode
-    of the linearised plant (:func:`integrator_step_limit` on each eigenvalue with ``Re <= 0``;
-    a growing mode's growth is the plant's own); ``None`` when it is stable at every step
-    (A-stable methods)."""
-    lam = np.linalg.eigvals(plant_model(p).state_space()[0])
-    lam = lam[(lam.imag >= 0) & (lam.real <= 0) & (np.abs(lam) > 0)]
-    limits = [integrator_step_limit(method, complex(v)) for v in lam]
-    limits = [v for v in limits if v is not None]
-    return min(limits) if limits else None
+    """The largest plant substep for which ``method`` is stable on the linearised plant: the
+    limit that ``flexpend run`` checks ``plant.step`` against
+    (:func:`orchestration.studies.plant_step.step_limit`: the method must amplify no mode that
+    the exact flow does not); ``None`` when it has none (A-stable, adaptive or exact methods)."""
+    from .plant_step import step_limit
+
+    found = step_limit(method, p)
+    return None if found is None else found[0]
 
 
 def assumptions(scene) -> list[str]:
@@ -866,22 +865,33 @@ def stability_report(scene) -> dict:
 
 
 def step_warning(scene) -> str | None:
-    """One line when the scene's communication step is beyond the largest stable step of its
-    coupling (:func:`critical_step`, searched up to the step only), else ``None`` (also for a
-    scene without a transition matrix)."""
+    """One line when the scene's plant substep is beyond or near its integrator's stability limit
+    (:mod:`orchestration.studies.plant_step`: the line names ``plant.step``), or when its
+    communication step is beyond the largest stable step of its coupling (:func:`critical_step`,
+    searched up to the step only; the line names ``master.step``), both joined by "; "; else
+    ``None`` (also for a scene without a transition matrix and a stable plant step). A plant
+    step beyond its limit is the cause whatever the coupling: the coupling is then not judged
+    (its search would find the integrator's limit and blame ``master.step``)."""
+    from .plant_step import checks
+
+    plant = [c for c in checks(scene) if c.verdict != "ok"]
+    beyond = [c.error for c in plant if c.error]
+    if beyond:
+        return beyond[0]
+    lines = [c.warning for c in plant][:1]
     try:
         p, c, integrator, h = _scene_model(scene)
     except ValueError:
-        return None
+        return lines[0] if lines else None
     H = scene.master.step
     Hc = critical_step(p, c, integrator=integrator, substep=h, hi=max(H, STEP_RANGE[0] * 2),
                        **scene_coupling(scene))
-    if not Hc or Hc >= H:       # stable, or unstable at every step: not the step's doing
-        return None
-    where = ("the linearised loop is unstable at every step" if Hc == 0.0 else
-             f"its coupling's predicted largest stable step is {Hc:.4g} s")
-    return (f"master.step = {H:g} s is beyond the stability limit: {where} (flexpend stability "
-            f"{scene.name})")
+    if Hc and Hc < H:       # beyond; 0.0, unstable at every step, is not the step's doing
+        where = ("the linearised loop is unstable at every step" if Hc == 0.0 else
+                 f"its coupling's predicted largest stable step is {Hc:.4g} s")
+        lines.append(f"master.step = {H:g} s is beyond the stability limit: {where} (flexpend "
+                     f"stability {scene.name})")
+    return "; ".join(lines) or None
 
 
 # ---------------------------------------------------------------------- the implicit master
