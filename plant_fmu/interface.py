@@ -21,8 +21,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from fmu_common.variables import (ModelInfo, Variable, parameter, real_input, real_local,
-                                  real_output)
+from fmu_common.variables import (ModelInfo, Variable, independent, parameter, real_input,
+                                  real_local, real_output)
 
 from .params import PlantParams
 
@@ -194,8 +194,9 @@ def _with_states(v: Variable) -> Variable:
         description=v.description + (f" (state; {note})" if v.name in STATES else ""))
 
 
-#: The table, in value-reference order: inputs, outputs, parameters, then the native FMUs'
-#: Model-Exchange locals.
+#: The table, in value-reference order: inputs, outputs, parameters, the native FMUs'
+#: Model-Exchange locals, FMI 3.0's ``time`` (value reference 71). A new variable goes at the
+#: end, so that no existing value reference changes (:mod:`fmu_common.variables`).
 VARIABLES: tuple[Variable, ...] = (
     real_input("F_c", "horizontal force on the cart (at the start of the step)", "N"),
     real_input("dF_c", "time derivative of F_c at the start of the step (polynomial input; "
@@ -208,7 +209,8 @@ VARIABLES: tuple[Variable, ...] = (
     *(parameter(n, INITIAL_STATE[n][1], d, u, INITIAL_STATE[n][0])
       for n, (d, u) in _INITIAL.items()),
 )
-VARIABLES = tuple(_with_states(v) for v in VARIABLES) + _me_variables()
+VARIABLES = (tuple(_with_states(v) for v in VARIABLES) + _me_variables()
+             + (independent("time", "simulation time", "s"),))
 
 MODEL = ModelInfo(
     name="FlexiblePendulum",

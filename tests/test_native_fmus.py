@@ -113,20 +113,24 @@ def test_win64_binaries_export_every_fmi_function(native, native3, tmp_path, ver
 
 def test_variables_are_the_tables_less_the_derivative_inputs(native, native3):
     """One table writes both flavours' descriptions: the same names, value references, units and
-    start values, without the input-derivative variables (fmi2SetRealInputDerivatives)."""
+    start values, without the input-derivative variables (fmi2SetRealInputDerivatives); FMI
+    3.0's ``time`` at its reference in the table."""
     from fmpy import read_model_description
 
+    from fmu_common.variables import independent_variable, native_variables
     from orchestration.export.model_description import TABLES, xml_value
     for name, path in native.items():
         _, table = TABLES[name]
         md2 = read_model_description(path)
         md3 = read_model_description(native3[name])
-        expected = [(vr, v.name) for vr, v in enumerate(table) if v.derivative_of is None]
+        expected = [(vr, v.name) for vr, v in native_variables(table)]
         assert [(v.valueReference, v.name) for v in md2.modelVariables] == expected
         assert [(v.valueReference, v.name) for v in md3.modelVariables
                 if v.name != "time"] == expected
+        assert [v.valueReference for v in md3.modelVariables if v.name == "time"] == \
+            [independent_variable(table)[0]]
         assert md2.coSimulation.canInterpolateInputs
-        for v, t in zip(md2.modelVariables, [t for t in table if t.derivative_of is None]):
+        for v, (_, t) in zip(md2.modelVariables, native_variables(table)):
             assert v.unit == (t.unit if t.type == "Real" else None)
             if t.start is not None:
                 assert str(v.start).lower() == xml_value(t.start, native=True).lower() or \
