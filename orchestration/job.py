@@ -41,6 +41,7 @@ from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
+from .studies.analysis import linearisation
 from .studies.fidelity import available_ladder, climb, select_model
 from .studies.reference import COLUMNS, check_reference, simulate_reference
 
@@ -373,10 +374,10 @@ def paper_figures(runs, folder, renderer: str = "raster") -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     written = [save_figure(figures.paper_overview(runs, renderer=renderer),
                            folder / "paper_overview.png")]
-    plants = {}                            # plant -> the runs on it
+    plants = {}                            # plant (its linearisation's) -> the runs on it
     for r in runs:
         if r.scene.plant.params.n_modes > 0:
-            plants.setdefault(r.scene.plant.params, []).append(r)
+            plants.setdefault(linearisation(r.scene).params, []).append(r)
     if plants:
         labelled = [(f"{', '.join(r.name for r in on)}: {figures.plant_text(on[0].scene)}", p)
                     for p, on in plants.items()]

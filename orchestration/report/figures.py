@@ -102,9 +102,9 @@ def initial_text(initial) -> str:
 def loop_text(scene) -> str:
     """What the linearised loop predicts: stable (its slowest decay) or which roots grow; the
     bending root (:func:`~orchestration.studies.analysis.loop_roots`)."""
-    from ..studies.analysis import loop_roots
+    from ..studies.analysis import linearisation, loop_roots
 
-    r = loop_roots(scene.plant.params, scene.controller)
+    r = loop_roots(linearisation(scene).params, scene.controller)
 
     def name(z):
         if r.bending is not None and complex(z) == r.bending:
@@ -239,7 +239,7 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
     (else stated); an early stop is marked. Drawn by ``renderer``
     (:func:`~orchestration.report.plotting.canvas`): a matplotlib Figure, or a raster canvas to
     save."""
-    from ..studies.analysis import first_bending_frequency
+    from ..studies.analysis import first_bending_frequency, linearisation
     from .summary import BENDING_BAND
 
     t = result["time"]
@@ -270,7 +270,7 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
     if flexible:
         ax = ax_of["bending"]
         _, env = bending_band(t, result["eta_1"], BENDING_BAND[0],
-                              first_bending_frequency(scene.plant.params))
+                              first_bending_frequency(linearisation(scene).params))
         ax.yscale("log")
         ax.line(t, np.maximum(env, 1e-300), lw=0.7, color="C0")
         top_env = float(env.max()) if env.size else 0.0
@@ -539,9 +539,9 @@ def root_map(scenes, *, renderer="matplotlib"):
     them (real axis symmetric-log), right the part near the imaginary axis up to twice the
     first bending frequency; each scene's bending root circled and labelled. Drawn by
     ``renderer``, as :func:`time_histories`."""
-    from ..studies.analysis import loop_roots
+    from ..studies.analysis import linearisation, loop_roots
 
-    roots = [(sc, loop_roots(sc.plant.params, sc.controller)) for sc in scenes]
+    roots = [(sc, loop_roots(linearisation(sc).params, sc.controller)) for sc in scenes]
     width, height = 11.0, 5.2
     fig = canvas(width, height, renderer)
     grid = fig.grid(1, 2, left=0.07, right=0.99, top=1 - 0.95 / height, bottom=0.6 / height,

@@ -31,7 +31,8 @@ def analysis_lines(plant, controller, a) -> list[str]:
     (:class:`~orchestration.studies.analysis.Analysis`)."""
     p, c = plant, controller
     out = [f"plant: n_modes = {p.n_modes}, zeta = {p.zeta:g}, gravity_preload = "
-           f"{str(p.gravity_preload).lower()}  (linearised at the upright rest state)",
+           f"{str(p.gravity_preload).lower()}  (linearised at the upright rest state"
+           + (f": {a.loop})" if a.loop else ")"),
            f"controller: kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}, filter: "
            f"{filter_text(c.filter_order, c.cutoff, c.filter_damping)}"]
     if a.cantilever_frequencies:
@@ -139,6 +140,8 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
         out += [f"    {part}" for part in m["reason"].split("; ")]
     out.append(f"  slow (rigid) oscillation: {mode_text(s.get('slow'))}")
     out.append(f"  bending oscillation:      {mode_text(s.get('bending'))}")
+    if s.get("linear_loop"):
+        out.append(f"  linear: {s['linear_loop']}")
     v = s.get("validity")
     if v and v.get("max_abs_phi") is not None:
         out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}"

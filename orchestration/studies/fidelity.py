@@ -32,7 +32,7 @@ from plant_fmu.interface import FIDELITIES
 
 from ..scene.keys import ConfigError
 from ..scene.records import AUTO
-from .analysis import max_real_part
+from .analysis import linearisation, max_real_part
 from .reference import simulate_reference
 from .validity import assess
 
@@ -144,7 +144,7 @@ def select_model(scene, progress=None, monolithic: bool = False):
         c = scene.controller
         verdicts = []
         for n in range(n_max + 1):
-            mrp = max_real_part(scene.plant.beam.replace(n_modes=n), c)
+            mrp = max_real_part(linearisation(concrete(n, mode_fid)).params, c)
             verdicts.append({"n_modes": n, "max_real_part": mrp, "stable": mrp < 0})
         report["linear_verdicts"] = verdicts
         stable = [v["stable"] for v in verdicts]
