@@ -8,9 +8,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fmu_common.checks import check_bool, check_int, check_real, replace_checked
+from fmu_common.checks import check_bool, check_choice, check_int, check_real, replace_checked
 
-__all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN"]
+__all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN", "DAMPING_LAWS"]
+
+#: The beam's damping laws (MODEL.md section 7), ``plant.damping``:
+#:
+#: * ``"modal"``: the same ratio ``zeta`` in every cantilever mode, ``D = diag(2 zeta omega_j)``
+#:   (the paper's "zeta = 0.1 %" read as this law; the default);
+#: * ``"kelvin-voigt"``: material damping ``beta EI w''''_t`` with ``beta = 2 zeta / omega_1``
+#:   (``omega_1`` the first cantilever frequency of the same mesh), which in the mass-normalised
+#:   cantilever modes is ``D = beta K = diag(2 zeta omega_j^2 / omega_1)``: mode ``j`` has the
+#:   ratio ``zeta omega_j / omega_1``. It acts on the material stiffness only, not on the
+#:   geometric stiffness of the self-weight (``gravity_preload``, the stiffened rung).
+#:
+#: The two agree on the first cantilever mode and differ above it.
+DAMPING_LAWS = ("modal", "kelvin-voigt")
 
 #: The finest mesh the beam model accepts (the eigenproblem is dense).
 MAX_ELEMENTS = 400
@@ -35,7 +48,9 @@ class PlantParams:
     EA : axial stiffness (with ``E`` it fixes the cross-section area ``A = EA/E``).
     EI : bending stiffness.
     E : Young's modulus, used only to read the area off ``EA``.
-    zeta : modal (structural) damping ratio of every cantilever mode, ``0 <= zeta < 1``.
+    zeta : structural damping ratio, ``0 <= zeta < 1``: of every cantilever mode (``damping =
+        "modal"``), or of the first (``"kelvin-voigt"``).
+    damping : the damping law, one of :data:`DAMPING_LAWS`.
     g : gravity.
     n_modes : number of cantilever modes kept; 0 is the rigid pendulum.
     n_elements : number of cubic Hermite beam elements of the finite-element mesh.
@@ -49,6 +64,7 @@ class PlantParams:
     EI: float = 8.75e2
     E: float = 2.1e11
     zeta: float = 0.001
+    damping: str = "modal"
     g: float = 9.81
     n_modes: int = 4
     n_elements: int = 24
@@ -60,6 +76,7 @@ class PlantParams:
             set_(name, check_real(name, getattr(self, name), low=POSITIVE_MIN, low_open=False,
                                   high=1e15))
         set_("zeta", check_real("zeta", self.zeta, low=0.0, high=1.0, low_open=False, high_open=True))
+        set_("damping", check_choice("damping", self.damping, DAMPING_LAWS))
         set_("g", check_real("g", self.g, low=0.0, high=1e3, low_open=False))
         set_("n_elements", check_int("n_elements", self.n_elements, low=1, high=MAX_ELEMENTS))
         set_("n_modes", check_int("n_modes", self.n_modes, low=0, high=self.n_elements))

@@ -374,6 +374,7 @@ def test_native_and_pythonfmu_agree_at_random_parameters(native, fmus, seed):
             f"plant.m={f()}", f"plant.L={f()}", f"plant.EI={875 * f()}", f"plant.rho={7.8e3 * f()}",
             f"plant.g={9.81 * f()}", f"plant.zeta={0.001 * f()}",
             f"plant.gravity_preload={'true' if seed % 2 else 'false'}",
+            f"plant.damping='{'modal' if seed == 1 else 'kelvin-voigt'}'",
             f"controller.cutoff={97.3 * f()}", f"initial.phi={0.3 * f()}", "stop_time=0.5",
             f"plant.fidelity='{'linear' if seed == 2 else 'nonlinear'}'"]
     sc = load_scene("flexible_pd_lowpass", sets)
@@ -389,7 +390,10 @@ def test_bad_parameter_is_an_error_at_exit_initialization(open_native):
     for start, word in (({"n_modes": 9}, "n_modes"), ({"EI": -1.0}, "EI"),
                         ({"integrator": "radau"}, "supported: dopri5, euler, exponential, rk4"),
                         ({"n_elements": 101}, "n_elements"),
-                        ({"integrator": "exponential"}, "fidelity = 'linear'")):
+                        ({"integrator": "exponential"}, "fidelity = 'linear'"),
+                        ({"damping": "viscous"}, "bad parameter: damping = 'viscous' is not "
+                                                 "allowed; allowed: modal, kelvin-voigt"),
+                        ({"damping": "Kelvin-Voigt"}, "damping = 'Kelvin-Voigt' is not")):
         inst = open_native("FlexiblePendulum", initialize=False, **start)
         inst.fmu.enterInitializationMode()
         with pytest.raises(FMICallException) as exc:
