@@ -549,6 +549,32 @@ def test_state_get_set_and_serialisation_are_bit_identical(open_native, integrat
     a.fmu.freeFMUstate(state)
 
 
+def test_a_state_carries_the_damping_law(open_native):
+    """The damping law is a parameter of the state: one saved under the Kelvin-Voigt law and
+    restored into an instance opened with the modal law continues as the Kelvin-Voigt run to
+    the last bit, and the modal run is another."""
+    def run(inst, k0, n):
+        out = []
+        for k in range(k0, k0 + n):
+            inst.set(F_c=10 * math.sin(0.05 * k))
+            assert inst.step(k * 1e-3, 1e-3) == 0
+            out.append(inst.outputs())
+        return np.array(out)
+
+    start = dict(phi0=0.4, zeta=0.02, n_modes=4)
+    a = open_native("FlexiblePendulum", damping="kelvin-voigt", **start)
+    run(a, 0, 50)
+    state = a.fmu.getFMUstate()
+    data = a.fmu.serializeFMUstate(state)
+    first = run(a, 50, 50)
+    b = open_native("FlexiblePendulum", **start)
+    modal = run(b, 0, 100)[50:]
+    b.fmu.setFMUstate(b.fmu.deSerializeFMUstate(data))
+    assert np.array_equal(run(b, 50, 50), first)
+    assert np.max(np.abs(modal - first)) > 1e-6
+    a.fmu.freeFMUstate(state)
+
+
 # ---------------------------------------------------------------------- importers
 def _master(paths, *, algorithm="jacobi", extrapolation=0, step=1e-3, stop=2.0, start=None,
             input_derivatives=False):
