@@ -42,7 +42,7 @@ from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
 from .studies.analysis import linearisation
-from .studies.fidelity import available_ladder, climb, select_model
+from .studies.fidelity import available_ladder, climb, refused_rungs, select_model
 from .studies.reference import COLUMNS, check_reference, simulate_reference
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
@@ -197,10 +197,10 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     out = _run_once(scene, fmus, **kw)
     kw["connections_out"] = None                # the table once
     if model is not None and model["fidelity_auto"]:
-        model["climb"], ladder = [], available_ladder(scene)
+        model["climb"], ladder, refused = [], available_ladder(scene), refused_rungs(scene)
         while not out.interrupted:
             nxt, why = climb(scene.plant.fidelity, out.summary["validity"],
-                             scene.fidelity.tolerance, ladder)
+                             scene.fidelity.tolerance, ladder, refused)
             model["climb"].append(why)
             if nxt is None:
                 break

@@ -4,8 +4,10 @@ fidelity ladder, in radians.
 Each rung (the plant's model: ``plant.fidelity``, ``plant.gravity_preload``, rigid or not) was
 compared with the top rung, the geometrically exact beam (:mod:`plant_fmu.exact`, its C kernel),
 over the paper scenes and a sweep of initial angles and gains (``python3 bench/validity_map.py``,
-which writes ``validity_bound.json`` beside this module). At every output time ``t`` of every
-run of the sweep it recorded
+which writes ``validity_bound.json`` beside this module; the rungs under the scenes' damping law,
+modal, the exact beam under its own, Kelvin-Voigt with the same ``zeta``: the file's ``damping``
+says so, and the errors include the two laws' difference above the first cantilever mode). At
+every output time ``t`` of every run of the sweep it recorded
 
 * ``E(t)``: the largest ``|phi_o - phi_o(exact)|`` up to ``t`` plus the exact rung's own
   discretisation uncertainty up to ``t`` (its mesh doubled and its step halved);

@@ -356,6 +356,15 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         return 0;
     n = (int)r[VR_n_modes];
     m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
+    /* The exact rung's damping law, plant_fmu/params.py's exact_damping_refusal (the one place
+     * that decides it; the same words): it damps by material (Kelvin-Voigt) only, so it refuses
+     * the modal law with zeta > 0 (with zeta = 0 both laws are the same). */
+    if (m->exact && !kv && zeta > 0.0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = 'exact' refuses damping = 'modal' "
+                "with zeta = %g: the exact rung damps by material (Kelvin-Voigt), not by the "
+                "modal law: damping = 'kelvin-voigt' or zeta = 0 runs it", zeta);
+        return 0;
+    }
     if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
     stiffened = strcmp(fid, "stiffened") == 0;  /* the nonlinear rung with the preload and */
     if (stiffened) fid = "nonlinear";           /* the foreshortening's mass points */
