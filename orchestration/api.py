@@ -63,17 +63,18 @@ def stability(scene=None, overrides=None) -> dict:
     """The largest stable communication step of the scene's coupling and of every coupling the
     master offers, and the plant method's substep limit (``flexpend stability``;
     :func:`orchestration.studies.stability.stability_report`), with ``"assumes"``: what the
-    prediction assumes (:func:`~orchestration.studies.stability.assumptions`). A ConfigError
+    prediction assumes (:func:`~orchestration.studies.stability.assumptions`), and ``"loop"``:
+    which linearised loop, its damping law named. A ConfigError
     for a scene whose co-simulation has no transition matrix (adaptive, Model Exchange, an
     adaptive plant method)."""
     from .studies.stability import assumptions, stability_report
 
-    sc, _ = _resolved(scene, overrides, "stability")
+    sc, lin = _resolved(scene, overrides, "stability")
     try:
         report = stability_report(sc)
     except ValueError as exc:
         raise ConfigError(f"{sc.name}: no prediction: {exc}") from None
-    return {**report, "name": sc.name, "assumes": assumptions(sc)}
+    return {**report, "name": sc.name, "loop": lin.text(), "assumes": assumptions(sc)}
 
 
 def design(scene=None, overrides=None, *, design: dict | None = None, workers: int | None = None,

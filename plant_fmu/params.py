@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from fmu_common.checks import check_bool, check_choice, check_int, check_real, replace_checked
 
 __all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN", "DAMPING_LAWS",
-           "exact_damping_refusal"]
+           "exact_damping_refusal", "damping_text"]
 
 #: The beam's damping laws (MODEL.md section 7), ``plant.damping``:
 #:
@@ -95,6 +95,17 @@ class PlantParams:
     def replace(self, **changes) -> "PlantParams":
         """A copy with ``changes`` applied and validated; unknown names raise TypeError."""
         return replace_checked(self, "plant", changes)
+
+
+def damping_text(p: PlantParams) -> str:
+    """The structural damping of ``p`` in words, its law named (every report that states a
+    damping-dependent number says it): ``"modal damping 0.1 %"`` (every cantilever mode),
+    ``"Kelvin-Voigt damping, 0.1 % in mode 1"``, or ``"no structural damping"``."""
+    if p.zeta == 0.0:
+        return "no structural damping"
+    pct = f"{100 * p.zeta:.4g} %"
+    return f"modal damping {pct}" if p.damping == "modal" else \
+        f"Kelvin-Voigt damping, {pct} in mode 1"
 
 
 # ------------------------------------------------------------------ the exact rung's damping law

@@ -90,6 +90,10 @@ def test_the_product_master_reproduces_the_kernel_and_the_numpy_specification():
     run = simulate("flexible_pd_lowpass", ov)
     res, sc = run.result, run.scene
     assert run.completed and len(res) == 301
+    # the summary's linear roots: the floating frame's preloaded loop of the same law, said so
+    assert run.summary["linear_loop"] == (
+        "the floating frame's linearisation (4 modes, preloaded, Kelvin-Voigt damping, 0.1 % in "
+        "mode 1), standing in for the exact rung's")
     plant = ExactPlant(sc.plant.params)
     h = sc.plant.step
     per = round(1e-3 / h)

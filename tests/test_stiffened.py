@@ -320,6 +320,8 @@ def test_a_stiffened_runs_summary_compares_with_analyzes_loop(native):
                     progress=False)
     lin = run.summary["bending"]["linear"]
     assert lin is not None
+    assert run.summary["linear_loop"] == ("the stiffened rung's linearisation (4 modes, "
+                                          "preloaded, modal damping 0.1 %)")
 
     def bending(a):
         return min((z for z in a.eigenvalues if z.imag > 60),

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 
+from plant_fmu.params import damping_text
+
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
            "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
            "stability_lines"]
@@ -30,9 +32,10 @@ def analysis_lines(plant, controller, a) -> list[str]:
     """``flexpend analyze``: the loop, its closed-loop eigenvalues, the verdict and the margins
     (:class:`~orchestration.studies.analysis.Analysis`)."""
     p, c = plant, controller
-    out = [f"plant: n_modes = {p.n_modes}, zeta = {p.zeta:g}, gravity_preload = "
-           f"{str(p.gravity_preload).lower()}  (linearised at the upright rest state"
-           + (f": {a.loop})" if a.loop else ")"),
+    out = [f"plant: n_modes = {p.n_modes}, zeta = {p.zeta:g}, damping = {p.damping}, "
+           f"gravity_preload = {str(p.gravity_preload).lower()}",
+           "  linearised at the upright rest state: "
+           + (a.loop or f"{p.n_modes} modes, {damping_text(p)}"),
            f"controller: kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}, filter: "
            f"{filter_text(c.filter_order, c.cutoff, c.filter_damping)}"]
     if a.cantilever_frequencies:
@@ -199,6 +202,8 @@ def stability_lines(r: dict) -> list[str]:
     h = sc["substep_limit"]
     lines = [f"{r['name']}: the linear co-simulation's largest stable communication step "
              "(rho(Phi) = 1)"]
+    if r.get("loop"):
+        lines.append(f"  plant: {r['loop']}")
     lines += [f"  assumes {a}" for a in r["assumes"]]
     lines += [f"  its coupling: {coupling_text(k)}, master.step = {num(k['step'] * 1e3)} ms",
               f"    largest stable step: {_step_text(sc['critical_step'])}",
@@ -223,13 +228,17 @@ def design_lines(d) -> list[str]:
     def where(pl):
         return f"n_modes = {pl.n_modes}, zeta = {pl.zeta:g}, EI = {pl.EI:.4g}, m = {pl.m:.3g}"
 
+    law = {"modal": "modal damping", "kelvin-voigt": "Kelvin-Voigt damping, zeta in mode 1"}[
+        d.plant.damping]
+
     def root(z):
         return f"{z.real:+.4f} +- {abs(z.imag):.2f}j" if z.imag else f"{z.real:+.4f}"
 
     ch, wc_ = r.chosen, r.worst
     out = [f"robust low-pass design for the PD kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}",
            f"uncertainty: n_modes {uset['n_modes'][0]}..{uset['n_modes'][1]}, zeta "
-           f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g}, EI {uset['EI'][0]:.4g}..{uset['EI'][1]:.4g}, "
+           f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g} ({law}), "
+           f"EI {uset['EI'][0]:.4g}..{uset['EI'][1]:.4g}, "
            f"m {uset['m'][0]:.3g}..{uset['m'][1]:.3g}; searched on {r.levels} levels, checked on "
            f"{r.check_levels} levels ({wc_.n_plants} plants)",
            f"criterion: the smallest closed-loop "

@@ -26,7 +26,7 @@ import numpy as np
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.beam import beam_model
 from plant_fmu.dynamics import plant_model
-from plant_fmu.params import PlantParams
+from plant_fmu.params import PlantParams, damping_text
 
 if TYPE_CHECKING:
     import control
@@ -50,11 +50,13 @@ class Linearisation:
     own: bool = True
 
     def text(self) -> str:
-        """Which loop, in words: ``"the stiffened rung's linearisation (the preloaded loop)"``."""
+        """Which loop, in words, its damping law named: ``"the stiffened rung's linearisation (4
+        modes, preloaded, modal damping 0.1 %)"``."""
         p = self.params
         loop = "rigid" if p.n_modes == 0 else \
             f"{p.n_modes} mode{'s' if p.n_modes != 1 else ''}"
         loop += ", preloaded" if p.gravity_preload else ""
+        loop += f", {damping_text(p)}" if p.n_modes else ""
         if self.own:
             return f"the {self.rung} rung's linearisation ({loop})"
         return (f"the floating frame's linearisation ({loop}), standing in for the {self.rung} "
