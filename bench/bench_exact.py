@@ -18,9 +18,9 @@ after one untimed warm-up, one core):
   and the stiffened rungs with the pythonfmu plant (``--run-span``).
 
 Error against the element count: the filtered scene, 3 s from pi/6 (the paper's, with its
-``zeta = 0.1 %`` as the Kelvin-Voigt law, ``plant.damping = "kelvin-voigt"``), by the C kernel at h = 0.1 ms: the largest ``|phi_o|``
-difference on the output grid of 8, 16 and 32 elements from 64, and the step's own share (16
-elements at h against h / 2).
+``zeta = 0.1 %`` as the Kelvin-Voigt law, ``plant.damping = "kelvin-voigt"``), by the C kernel
+at h = 0.1 ms: the largest ``|phi_o|`` difference on the output grid of 8, 16 and 32 elements
+from 64, and the step's own share (16 elements at h against h / 2).
 
 Measured (one loaded 2-core machine, helpers running beside it; ``python3 bench/bench_exact.py``,
 about 2 min):

@@ -35,7 +35,9 @@ import numpy as np
 
 from .params import PlantParams
 
-__all__ = ["Beam", "beam_model", "damping_diagonal", "MassPoints", "mass_points", "unit_beam", "UnitBeam", "Scales", "analytic_beta_L", "analytic_frequencies", "analytic_mode_shape"]
+__all__ = ["Beam", "beam_model", "damping_diagonal", "MassPoints", "mass_points", "unit_beam",
+           "UnitBeam", "Scales", "analytic_beta_L", "analytic_frequencies",
+           "analytic_mode_shape"]
 
 
 @dataclass(frozen=True)

@@ -2,11 +2,12 @@
 
 Plant (``plant_fmu/native/fp_plant.c``): the right-hand side, outputs and energy of the nonlinear
 and the linearised model at random states, inputs and parameter sets (n_modes 0..8, with and
-without the gravity preload, either damping law) to 1e-12 relative; the linearised right-hand side also against a
-40-digit solution of ``M0 qdd = f``; the fixed-substep loops and the adaptive Dormand-Prince loop
-against the steppers' Python loops. Filter (``controller_fmu/native/fp_filter.c``): the matrix
-exponential and the exact discretisation against scipy's ``expm`` (and a 60-digit one), orders
-0, 1 and 2, held and polynomial inputs, over steps and cutoffs.
+without the gravity preload, either damping law) to 1e-12 relative; the linearised right-hand side
+also against a 40-digit solution of ``M0 qdd = f``; the fixed-substep loops and the adaptive
+Dormand-Prince loop against the steppers' Python loops. Filter
+(``controller_fmu/native/fp_filter.c``): the matrix exponential and the exact discretisation
+against scipy's ``expm`` (and a 60-digit one), orders 0, 1 and 2, held and polynomial inputs,
+over steps and cutoffs.
 """
 import ctypes
 import math
