@@ -117,8 +117,12 @@ def validity_text(v: dict) -> str:
     if v.get("model_form_error") is None:
         return f"model-form error: not measured ({v.get('note') or 'no bound'})"
     at = "" if v["rung"].startswith("rigid") else f"{100 * v['deflection']:.2g} % deflection, "
+    laws = v.get("damping")
+    name = {"modal": "modal", "kelvin-voigt": "Kelvin-Voigt"}
+    under = (f" ({name[laws['rungs']]} damping, against the exact beam's "
+             f"{name[laws['exact']]})" if laws and not v["rung"].startswith("rigid") else "")
     return (f"model-form error <= {v['model_form_error']:.1e} rad ({100 * v['relative']:.2g} % "
-            f"of max |phi_o|; measured bound for the {v['rung']} rung at {at}"
+            f"of max |phi_o|; measured bound for the {v['rung']} rung{under} at {at}"
             f"{v['rate']:.3g} rad/s)")
 
 
