@@ -64,10 +64,12 @@ class Linearisation:
 
 
 def linearisation(scene) -> Linearisation:
-    """The linearisation of a resolved scene's plant, for its rung: the one function that
-    decides it, for the summary's linear roots, ``analyze``, ``stability``, ``design``, the
-    figures, the sweeps' linear rates and the choice of ``n_modes``. The damping law and every
-    other physical parameter are the scene's (they are in the parameter record).
+    """The linearisation of a scene's plant, for its rung: the one function that decides it,
+    for the summary's linear roots, ``analyze``, ``stability``, ``design``, the figures, the
+    sweeps' linear rates and design sets, and the choice of ``n_modes``. The damping law and every
+    other physical parameter are the scene's (they are in the parameter record; while
+    ``plant.n_modes`` is ``"auto"`` the record has 0 modes, and ``plant.fidelity = "auto"`` is
+    linearised as the floating frame the scene sets).
 
     * ``linear``, ``nonlinear``: the plant as the scene sets it (``plant.gravity_preload``
       included);
@@ -77,7 +79,7 @@ def linearisation(scene) -> Linearisation:
       preloaded loop (the exact beam stands compressed by its weight) with the scene's
       ``n_modes`` and damping law stands in for it (``own`` False: the analyses refuse it, the
       summary says which loop it compared with)."""
-    rung, p = scene.plant.fidelity, scene.plant.params
+    rung, p = scene.plant.fidelity, scene.plant.beam
     if rung in ("stiffened", "exact"):
         p = p.replace(gravity_preload=True)
     return Linearisation(p, rung, own=rung != "exact")
