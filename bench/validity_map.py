@@ -17,6 +17,14 @@ the scene's own beam (``rigid_pd``: the rigid model, ``n_modes = 0``, on its sti
 h = 0.1 ms) gives its uncertainty (the coarse-fine difference, which bounds the fine run's error
 when the method converges; both are quoted), added to every measured error.
 
+Damping laws (MODEL.md section 7), named: the exact reference damps by material, Kelvin-Voigt
+with the scene's ``zeta`` (:data:`EXACT_LAW`: its own law, the only one it takes with damping);
+the rungs run under ``--law`` (:data:`LAW`): ``modal`` (the paper's reading and the product's
+default), as ``validity_bound.json`` was measured, so that its errors include the two laws'
+difference above the first cantilever mode (largest on ``flexible_pd``, whose bending root grows
+at +1.64/s under the modal law and +1.21/s under Kelvin-Voigt); or ``kelvin-voigt``, the same law
+on both sides. The output records both (``damping``).
+
 At every output time: the error's running maximum ``E`` and the rung's features
 (:func:`orchestration.studies.validity.features`: the running maxima ``D``, ``W``, ``A`` of the
 tip deflection, ``|omega_o|`` and ``|phi_o|``, ``T`` of the deflection times the time, the
@@ -31,6 +39,7 @@ also prints, per rung, the median of ``E / bound`` (the bound's looseness) with 
 scene from pi/6 the error of each rung, its bound and the monolithic solve's cost.
 
     python3 bench/validity_map.py [--processes 2] [--out orchestration/studies/validity_bound.json]
+                                  [--law modal|kelvin-voigt]
     python3 bench/validity_map.py --refit   # fit the last run's cases again (bench/results/)
 
 Measured (2026-11-26, 2 processes on a shared, loaded machine: 4 to 6.5 min):
@@ -110,6 +119,9 @@ ALTERNATIVES = {"without T": ("D", "I", "V", "W", "A", "A3"),
                 "N for W": ("D", "T", "I", "V", "N", "A", "A3")}
 #: Points kept per case and rung (evenly in time, plus the last).
 POINTS = 24
+#: The damping law of the exact reference (its own) and, by default, of the rungs (see above).
+EXACT_LAW = "kelvin-voigt"
+LAW = "modal"
 
 
 def case_scene(name, phi0, gain, overrides=()):
@@ -121,13 +133,15 @@ def case_scene(name, phi0, gain, overrides=()):
     return load_scene(name, values)
 
 
-def run_case(case):
-    """One case: the exact reference and every rung's points."""
+def run_case(case, law=LAW):
+    """One case: the exact reference (under :data:`EXACT_LAW`) and every rung's points (under
+    ``law``)."""
     name, phi0, gain = case
-    sc = case_scene(name, phi0, gain)
-    fine = exact_run(sc, *FINE, kernel=True)
+    sc = case_scene(name, phi0, gain, {"plant.damping": law})
+    ex = case_scene(name, phi0, gain, {"plant.damping": EXACT_LAW})
+    fine = exact_run(ex, *FINE, kernel=True)
     t0 = time.perf_counter()
-    coarse = exact_run(sc, *COARSE, kernel=True)
+    coarse = exact_run(ex, *COARSE, kernel=True)
     exact_cost = time.perf_counter() - t0           # the coarse one: the rung as one would run it
     u = np.maximum.accumulate(np.abs(fine - coarse))
     L = sc.plant.params.L
@@ -138,7 +152,8 @@ def run_case(case):
         if name == "rigid_pd" and pre:
             continue
         r_sc = case_scene(name, phi0, gain, {"plant.fidelity": fid,
-                                             "plant.gravity_preload": pre})
+                                             "plant.gravity_preload": pre,
+                                             "plant.damping": law})
         t1 = time.perf_counter()
         try:
             r = simulate_reference(r_sc, rtol=RTOL, atol=ATOL)
@@ -157,7 +172,8 @@ def run_case(case):
         rungs[rung_name(r_sc.plant)] = {
             "E": E[keep].tolist(), **{k: v[keep].tolist() for k, v in feats.items()},
             "cost": cost / sc.output.stop_time, "uncertainty": float(u[-1])}
-    return {"case": [name, phi0, gain], "uncertainty": float(u[-1]),
+    return {"case": [name, phi0, gain], "damping": {"rungs": law, "exact": EXACT_LAW},
+            "uncertainty": float(u[-1]),
             "exact_cost": exact_cost / sc.output.stop_time, "duration": sc.output.stop_time,
             "first_cantilever_frequency": cantilever_frequency(sc.plant.params), "rungs": rungs}
 
@@ -196,6 +212,8 @@ def main(argv=None):
     ap.add_argument("--raw", default=str(ROOT / "bench" / "results" / "validity_map.json"),
                     help="the measured cases (written; read back by --refit)")
     ap.add_argument("--refit", action="store_true", help="fit the cases measured before")
+    ap.add_argument("--law", choices=("modal", "kelvin-voigt"), default=LAW,
+                    help=f"the rungs' damping law (the exact reference's: {EXACT_LAW})")
     args = ap.parse_args(argv)
     cases = [(n, a, g) for n in SCENES for a in ANGLES for g in GAINS]
     print(f"{len(cases)} cases x {len(RUNGS)} rungs; exact rung: {FINE[0]} elements at h = "
@@ -205,26 +223,29 @@ def main(argv=None):
     if args.refit:
         results = json.loads(raw.read_text(encoding="utf-8"))
     else:
-        results = measure(cases, args.processes, t0)
+        results = measure(cases, args.processes, t0, args.law)
         raw.parent.mkdir(parents=True, exist_ok=True)
         raw.with_suffix(".tmp").write_text(json.dumps(results), encoding="utf-8")
         raw.with_suffix(".tmp").replace(raw)
     write_bound(results, args.out, t0)
 
 
-def measure(cases, processes, t0):
+def measure(cases, processes, t0, law=LAW):
+    import functools
+
     results = []
+    one = functools.partial(run_case, law=law)
     if processes > 1:
         import multiprocessing as mp
         with mp.get_context("spawn").Pool(processes) as pool:
-            for i, r in enumerate(pool.imap_unordered(run_case, cases), 1):
+            for i, r in enumerate(pool.imap_unordered(one, cases), 1):
                 results.append(r)
                 print(f"  [{i}/{len(cases)}] {r['case'][0]} phi0 = {r['case'][1]:.3g} gain "
                       f"x{r['case'][2]:g}: exact uncertainty {r['uncertainty']:.1e} rad "
                       f"({time.perf_counter() - t0:.0f} s)", flush=True)
     else:
         for i, c in enumerate(cases, 1):
-            results.append(run_case(c))
+            results.append(one(c))
             print(f"  [{i}/{len(cases)}] {c[0]} phi0 = {c[1]:.3g} gain x{c[2]:g}: exact "
                   f"uncertainty {results[-1]['uncertainty']:.1e} rad "
                   f"({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -268,6 +289,7 @@ def write_bound(results, path, t0):
            "exact_rung": {"reference": {"elements": FINE[0], "step": FINE[1]},
                           "uncertainty_against": {"elements": COARSE[0], "step": COARSE[1]},
                           "largest_uncertainty": max(r["uncertainty"] for r in results)},
+           "damping": results[0].get("damping", {"rungs": LAW, "exact": EXACT_LAW}),
            "sweep": {"scenes": list(SCENES), "angles": list(ANGLES), "gains": list(GAINS),
                      "held_out": list(HELD_OUT), "stop_time": STOP, "safety": SAFETY},
            "rungs": {}, "scenes": {}}

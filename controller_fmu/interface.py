@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from fmu_common.variables import (ModelInfo, Variable, parameter, real_input, real_local,
-                                  real_output)
+from fmu_common.variables import (ModelInfo, Variable, independent, parameter, real_input,
+                                  real_local, real_output)
 
 from .pd_lowpass import ControllerParams
 
@@ -45,7 +45,9 @@ _DEFAULTS = {f.name: f.default for f in dataclasses.fields(ControllerParams)}
 _DER_INITIAL = (*SENSORS, "kp", "kd", "kx", "filter_order", "cutoff", "filter_damping")
 
 #: The table, in value-reference order: the sensors, their first and second time derivatives
-#: (FMI's input derivatives as variables), the force, the parameters.
+#: (FMI's input derivatives as variables), the force, the parameters, the native FMUs'
+#: Model-Exchange locals, FMI 3.0's ``time``. A new variable goes at the end, so that no
+#: existing value reference changes (:mod:`fmu_common.variables`).
 VARIABLES: tuple[Variable, ...] = (
     *(real_input(n, d, u) for n, (d, u, _, _) in SENSORS.items()),
     *(real_input(f"d{n}", f"time derivative of {n} at the start of the step (polynomial input; "
@@ -68,6 +70,7 @@ VARIABLES: tuple[Variable, ...] = (
     real_local("der(xc_2)", "time derivative of xc_2", "N/s2", der_of="xc_2",
                depends_on=tuple(SENSORS), state_depends_on=STATES,
                initial_depends_on=_DER_INITIAL),
+    independent("time", "simulation time", "s"),
 )
 # F_c = -sat(xc_1) in Model Exchange (filter order 0: -sat(e), the inputs)
 VARIABLES = tuple(dataclasses.replace(v, state_depends_on=("xc_1",)) if v.name == "F_c" else v

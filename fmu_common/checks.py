@@ -6,7 +6,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-__all__ = ["check_real", "check_int", "check_bool", "replace_checked"]
+__all__ = ["check_real", "check_int", "check_bool", "check_choice", "replace_checked"]
 
 
 def check_real(name: str, value, *, low=None, high=None, low_open=True, high_open=False,
@@ -55,6 +55,14 @@ def check_bool(name: str, value) -> bool:
     if isinstance(value, (int, float)) and value in (0, 1):
         return bool(value)
     raise TypeError(f"{name} must be a boolean (true or false), got {value!r}")
+
+
+def check_choice(name: str, value, allowed) -> str:
+    """Return ``value`` if it is one of the strings ``allowed``, or raise naming ``name`` and
+    them."""
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name} = {value!r} is not allowed; allowed: {', '.join(allowed)}")
+    return value
 
 
 def replace_checked(record, kind: str, changes: dict):

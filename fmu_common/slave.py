@@ -93,14 +93,17 @@ class SlaveBase(Fmi2Slave):
 
     # ------------------------------------------------------------------ variables
     def _register_table(self, table, output_getter):
-        """Register the variables of ``table`` (:mod:`fmu_common.variables`), in its order, so that
-        a variable's value reference is its position in the table: parameters are fixed and
-        kept in ``self._par``, inputs are attributes of the slave, outputs are read through
-        ``output_getter(name)``. The native FMUs' Model-Exchange variables (``me_only``, at the
-        end of the table) are left out: these FMUs are co-simulation only."""
-        from fmu_common.variables import python_variables
+        """Register the variables of ``table`` (:mod:`fmu_common.variables`), in its order, each
+        at its position in the table as its value reference: parameters are fixed and kept in
+        ``self._par``, inputs are attributes of the slave, outputs are read through
+        ``output_getter(name)``. The native FMUs' Model-Exchange variables (``me_only``) and
+        ``time`` are left out (these FMUs are co-simulation FMI 2.0 only); a variable after them
+        keeps its position (pythonfmu's ``register_variable`` numbers in registration order,
+        so the variables are put at their references here, with its defaults: an input's
+        getter and setter read and write the slave's attribute)."""
+        from fmu_common.variables import python_entries
 
-        for index, v in enumerate(python_variables(table)):
+        for index, v in python_entries(table):
             cls = _TYPES[v.type]
             if v.causality == "parameter":
                 self._par[v.name] = v.start
@@ -112,15 +115,17 @@ class SlaveBase(Fmi2Slave):
                 setattr(self, v.name, v.start)
                 var = cls(v.name, causality=Fmi2Causality.input,
                           variability=Fmi2Variability.continuous, start=v.start,
-                          description=v.description)
+                          description=v.description,
+                          getter=lambda n=v.name: getattr(self, n),
+                          setter=lambda value, n=v.name: setattr(self, n, value))
             else:
                 var = cls(v.name, causality=Fmi2Causality.output,
                           variability=Fmi2Variability.continuous, initial=Fmi2Initial.calculated,
                           description=v.description, getter=output_getter(v.name))
-            self.register_variable(var)
-            if var.value_reference != index:  # pragma: no cover - pythonfmu numbers in order
-                raise RuntimeError(f"{v.name}: value reference {var.value_reference}, expected "
-                                   f"{index} (the position in the table)")
+            if index in self.vars:  # pragma: no cover - a table's positions are distinct
+                raise RuntimeError(f"{v.name}: value reference {index} is taken")
+            var.value_reference = index
+            self.vars[index] = var
 
     def set_real(self, vrs, values):
         """pythonfmu's ``set_real``, with a fast path for the real inputs (set every step): one

@@ -12,13 +12,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = ["Variable", "ModelInfo", "CAUSALITIES", "TYPES", "parameter", "real_input",
-           "real_output", "real_local", "native_variables", "python_variables", "states",
-           "derivatives", "event_indicators", "by_name", "value_references",
-           "parameter_defaults", "start_values"]
+           "real_output", "real_local", "independent", "native_variables", "python_variables",
+           "python_entries", "independent_variable", "states", "derivatives", "event_indicators",
+           "by_name", "value_references", "parameter_defaults", "start_values"]
 
 #: "local": a variable of the native FMUs' Model Exchange interface only (a continuous state
 #: that is no output, a state derivative, an event indicator); see ``Variable.me_only``.
-CAUSALITIES = ("parameter", "input", "output", "local")
+#: "independent": FMI 3.0's ``time``, which only the native FMUs' FMI 3.0 descriptions declare:
+#: it is in the table so that it keeps its value reference when variables are appended after it.
+CAUSALITIES = ("parameter", "input", "output", "local", "independent")
 TYPES = {float: "Real", int: "Integer", bool: "Boolean", str: "String"}
 
 
@@ -40,8 +42,7 @@ class Variable:
     is the time derivative of the state of that name. ``state_depends_on``: the states an output
     or a derivative depends on (its ``depends_on`` lists the inputs). ``event_indicator``: a local
     that is an event indicator. ``me_only``: the variable exists in the native FMUs only: the
-    pythonfmu FMUs (co-simulation only) leave it out; such variables come after every other one,
-    so that the pythonfmu FMUs' value references (positions) stay.
+    pythonfmu FMUs (co-simulation only) leave it out.
     """
 
     name: str
@@ -67,9 +68,9 @@ class Variable:
             raise ValueError(f"{self.name}: causality {self.causality!r}; allowed: {CAUSALITIES}")
         if self.type not in TYPES.values():
             raise ValueError(f"{self.name}: type {self.type!r}; allowed: {list(TYPES.values())}")
-        if (self.start is None) != (self.causality in ("output", "local")):
-            raise ValueError(f"{self.name}: parameters and inputs have a start value, outputs "
-                             f"and locals none")
+        if (self.start is None) != (self.causality in ("output", "local", "independent")):
+            raise ValueError(f"{self.name}: parameters and inputs have a start value, outputs, "
+                             f"locals and the independent variable none")
         if self.causality == "local" and not self.me_only:
             raise ValueError(f"{self.name}: a local is a Model-Exchange variable (me_only)")
 
@@ -118,13 +119,31 @@ def real_local(name, description, unit, *, state=False, der_of=None, depends_on=
                     me_only=True)
 
 
+def independent(name, description, unit) -> Variable:
+    """FMI 3.0's independent variable (``time``), which the native FMUs' FMI 3.0 descriptions
+    declare at its position in the table."""
+    return Variable(name, "independent", "Real", description, unit, None)
+
+
+def python_entries(table) -> list:
+    """``[(value reference, Variable)]`` of a pythonfmu FMU (co-simulation, FMI 2.0): the table
+    without the native FMUs' Model-Exchange variables (``me_only``) and ``time``, each variable
+    at its value reference (its position) in the whole table."""
+    return [(vr, v) for vr, v in enumerate(table)
+            if not v.me_only and v.causality != "independent"]
+
+
 def python_variables(table) -> list:
-    """The variables of a pythonfmu FMU (co-simulation only): the table without the native FMUs'
-    Model-Exchange variables (``me_only``, all at the end: every position stays)."""
-    out = [v for v in table if not v.me_only]
-    if list(table[:len(out)]) != out:
-        raise ValueError("the Model-Exchange variables (me_only) must come after every other")
-    return out
+    """The variables of a pythonfmu FMU, in value-reference order (:func:`python_entries`)."""
+    return [v for _, v in python_entries(table)]
+
+
+def independent_variable(table) -> tuple:
+    """``(value reference, Variable)`` of the table's independent variable (``time``)."""
+    found = [(vr, v) for vr, v in enumerate(table) if v.causality == "independent"]
+    if len(found) != 1:
+        raise ValueError(f"a table has one independent variable (time), not {len(found)}")
+    return found[0]
 
 
 def states(table) -> list:
@@ -149,8 +168,10 @@ def event_indicators(table) -> list:
 
 def native_variables(table) -> list:
     """``[(value reference, Variable)]`` of a native FMU: the table without the input-derivative
-    variables (``derivative_of``), each variable at its value reference in the whole table."""
-    return [(vr, v) for vr, v in enumerate(table) if v.derivative_of is None]
+    variables (``derivative_of``) and ``time`` (which the FMI 3.0 description adds on its own,
+    :func:`independent_variable`), each variable at its value reference in the whole table."""
+    return [(vr, v) for vr, v in enumerate(table)
+            if v.derivative_of is None and v.causality != "independent"]
 
 
 def by_name(table) -> dict:

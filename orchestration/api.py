@@ -11,7 +11,6 @@ results, errors that subclass ``ValueError`` or ``TypeError`` and name the bad k
 """
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 from .export import build_fmus as _build_fmus
@@ -21,7 +20,7 @@ from .report.progress import Progress
 from .scene.keys import FMU_FLAVOURS, ConfigError, check_known
 from .scene.records import Scene
 from .scene.schema import load_scene
-from .studies.analysis import Analysis
+from .studies.analysis import Analysis, Linearisation, linearisation
 from .studies.analysis import analyze as _analyze
 from .studies.design import DESIGN_DEFAULTS, design_filter, design_settings
 from .sweeps.executor import open_executor
@@ -31,22 +30,22 @@ __all__ = ["load_scene", "simulate", "analyze", "stability", "design", "sweep", 
            "Analysis", "DesignReport", "Sweep"]
 
 
-def _resolved(scene, overrides, command: str) -> Scene:
-    """The scene (default: the default scene) with its model given: analyses need a model (a
-    floating-frame one: they linearise it)."""
+def _resolved(scene, overrides, command: str) -> tuple[Scene, Linearisation]:
+    """The scene (default: the default scene) with its model given, and its linearisation
+    (:func:`~orchestration.studies.analysis.linearisation`): analyses need a model whose own
+    linearisation the floating frame is."""
     sc = load_scene(scene if scene is not None else {}, overrides)
     if not sc.resolved:
         key = "plant.n_modes" if sc.plant.n_modes_auto else "plant.fidelity"
         raise ConfigError(f"{key} = 'auto' is chosen by a run (flexpend run); {command} needs a "
                           "value")
-    if sc.plant.fidelity == "exact":
-        raise ConfigError(f"plant.fidelity = 'exact': {command} works on the floating frame's "
-                          "linearised loop, which the exact beam does not have here; set "
-                          "plant.fidelity = 'nonlinear' (the same beam with plant.n_modes modes)")
-    if sc.plant.fidelity == "stiffened":       # its linearisation is the preload rung's
-        sc = sc.replace(plant=dataclasses.replace(
-            sc.plant, beam=sc.plant.beam.replace(gravity_preload=True)))
-    return sc
+    lin = linearisation(sc)
+    if not lin.own:
+        raise ConfigError(f"plant.fidelity = '{sc.plant.fidelity}': {command} works on the "
+                          "floating frame's linearised loop, which the exact beam does not have "
+                          "here; set plant.fidelity = 'nonlinear' (the same beam with "
+                          "plant.n_modes modes)")
+    return sc, lin
 
 
 def analyze(scene=None, overrides=None) -> Analysis:
@@ -56,25 +55,26 @@ def analyze(scene=None, overrides=None) -> Analysis:
 
     ``scene``: as :func:`load_scene` takes it (default: the default scene); ``overrides``: a
     dict of scene keys (``{"plant.n_modes": 3, "controller.filter_order": 0}``)."""
-    sc = _resolved(scene, overrides, "analyze")
-    return _analyze(sc.plant.params, sc.controller)
+    sc, lin = _resolved(scene, overrides, "analyze")
+    return _analyze(lin.params, sc.controller, loop=lin.text())
 
 
 def stability(scene=None, overrides=None) -> dict:
     """The largest stable communication step of the scene's coupling and of every coupling the
     master offers, and the plant method's substep limit (``flexpend stability``;
     :func:`orchestration.studies.stability.stability_report`), with ``"assumes"``: what the
-    prediction assumes (:func:`~orchestration.studies.stability.assumptions`). A ConfigError
+    prediction assumes (:func:`~orchestration.studies.stability.assumptions`), and ``"loop"``:
+    which linearised loop, its damping law named. A ConfigError
     for a scene whose co-simulation has no transition matrix (adaptive, Model Exchange, an
     adaptive plant method)."""
     from .studies.stability import assumptions, stability_report
 
-    sc = _resolved(scene, overrides, "stability")
+    sc, lin = _resolved(scene, overrides, "stability")
     try:
         report = stability_report(sc)
     except ValueError as exc:
         raise ConfigError(f"{sc.name}: no prediction: {exc}") from None
-    return {**report, "name": sc.name, "assumes": assumptions(sc)}
+    return {**report, "name": sc.name, "loop": lin.text(), "assumes": assumptions(sc)}
 
 
 def design(scene=None, overrides=None, *, design: dict | None = None, workers: int | None = None,
@@ -84,12 +84,12 @@ def design(scene=None, overrides=None, *, design: dict | None = None, workers: i
     the uncertainty set around the scene's plant. ``design``: the ``design.*`` keys
     (``{"design.criterion": "damping"}``); ``workers``/``scheduler``: check the worst case on
     dask. The result's ``save(folder)`` writes what ``flexpend design`` writes."""
-    sc = _resolved(scene, overrides, "design")
+    sc, lin = _resolved(scene, overrides, "design")
     items = dict(design or {})
     check_known(items, DESIGN_DEFAULTS)
     settings = design_settings({**DESIGN_DEFAULTS, **items})
     bar = Progress("design") if progress else None
-    p, c = sc.plant.params, sc.controller
+    p, c = lin.params, sc.controller
     if workers is None and not scheduler:
         r = design_filter(p, c, settings, progress=bar)
     else:

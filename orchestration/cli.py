@@ -179,7 +179,7 @@ def cmd_stability(args) -> int:
 
     r = stability(args.scene, args.set)
     if args.json:
-        print(_json({"scene": r["scene"], "couplings": r["couplings"]}))
+        print(_json({"scene": r["scene"], "couplings": r["couplings"], "loop": r["loop"]}))
     else:
         _print(stability_lines(r))
     return 0

@@ -46,7 +46,8 @@ from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
-from .studies.fidelity import available_ladder, climb, select_model
+from .studies.analysis import linearisation
+from .studies.fidelity import available_ladder, climb, refused_rungs, select_model
 from .studies.plant_step import checks as plant_step_checks
 from .studies.reference import COLUMNS, check_reference, simulate_reference
 
@@ -233,10 +234,10 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     out = _run_once(scene, fmus, **kw)
     kw["connections_out"] = None                # the table once
     if model is not None and model["fidelity_auto"]:
-        model["climb"], ladder = [], available_ladder(scene)
+        model["climb"], ladder, refused = [], available_ladder(scene), refused_rungs(scene)
         while not out.interrupted:
             nxt, why = climb(scene.plant.fidelity, out.summary["validity"],
-                             scene.fidelity.tolerance, ladder)
+                             scene.fidelity.tolerance, ladder, refused)
             model["climb"].append(why)
             if nxt is None:
                 break
@@ -460,10 +461,10 @@ def paper_figures(runs, folder, renderer: str = "raster") -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     written = [save_figure(figures.paper_overview(runs, renderer=renderer),
                            folder / "paper_overview.png")]
-    plants = {}                            # plant -> the runs on it
+    plants = {}                            # plant (its linearisation's) -> the runs on it
     for r in runs:
         if r.scene.plant.params.n_modes > 0:
-            plants.setdefault(r.scene.plant.params, []).append(r)
+            plants.setdefault(linearisation(r.scene).params, []).append(r)
     if plants:
         labelled = [(f"{', '.join(r.name for r in on)}: {figures.plant_text(on[0].scene)}", p)
                     for p, on in plants.items()]

@@ -8,9 +8,12 @@ invariants of MODEL.md section 3::
     I0 = m + rhoA L     I1 = int rhoA s ds       I2 = int rhoA s^2 ds
     I3 = int rhoA N ds  I4 = int rhoA N^T N ds   I5 = int rhoA s N ds
 
-with ``I4 = identity`` (mass normalisation), the modal stiffness ``K = diag(omega_j^2)``, the modal
-damping ``D = diag(2 zeta omega_j)``, the tip deflection ``N(L)`` and the tip slope ``N'(L)``.
-All integrals of the interpolated shapes are evaluated exactly, element by element.
+with ``I4 = identity`` (mass normalisation), the modal stiffness ``K = diag(omega_j^2)``, the
+damping ``D`` of the law ``p.damping`` (MODEL.md section 7: ``"modal"``, ``D = diag(2 zeta
+omega_j)``; ``"kelvin-voigt"``, ``D = beta K = diag(2 zeta omega_j^2 / omega_1)`` with ``beta =
+2 zeta / omega_1``, the material stiffness's alone: the geometric stiffness ``Kg`` is not
+damped), the tip deflection ``N(L)`` and the tip slope ``N'(L)``. All integrals of the
+interpolated shapes are evaluated exactly, element by element.
 
 With ``gravity_preload`` the geometric stiffness of the self-weight compression is also formed:
 ``Kg = int rhoA g (L - s) N'^T N' ds``; the potential energy then carries
@@ -32,7 +35,9 @@ import numpy as np
 
 from .params import PlantParams
 
-__all__ = ["Beam", "beam_model", "MassPoints", "mass_points", "unit_beam", "UnitBeam", "Scales", "analytic_beta_L", "analytic_frequencies", "analytic_mode_shape"]
+__all__ = ["Beam", "beam_model", "damping_diagonal", "MassPoints", "mass_points", "unit_beam",
+           "UnitBeam", "Scales", "analytic_beta_L", "analytic_frequencies",
+           "analytic_mode_shape"]
 
 
 @dataclass(frozen=True)
@@ -47,7 +52,7 @@ class Beam:
     I4: np.ndarray            # (n, n)
     I5: np.ndarray            # (n,)
     K: np.ndarray             # (n, n) modal stiffness diag(omega^2)
-    D: np.ndarray             # (n, n) modal damping diag(2 zeta omega)
+    D: np.ndarray             # (n, n) damping: diag(2 zeta omega) or beta K (p.damping)
     Kg: np.ndarray            # (n, n) geometric stiffness of the self-weight (zero unless preload)
     tip_deflection: np.ndarray  # (n,) N(L)
     tip_slope: np.ndarray       # (n,) N'(L)
@@ -232,7 +237,7 @@ def beam_model(p: PlantParams) -> Beam:
         frequencies=omega,
         I3=u.I3 * sc.I3, I4=np.eye(n), I5=u.I5 * sc.I5,   # I4 = identity: mass-normalised modes
         K=np.diag(K),
-        D=np.diag(2.0 * p.zeta * omega),
+        D=np.diag(damping_diagonal(p, K)),
         Kg=u.Kg * sc.Kg if p.gravity_preload else np.zeros((n, n)),
         tip_deflection=u.tip_deflection * sc.w,
         tip_slope=u.tip_slope * sc.slope,
@@ -243,6 +248,19 @@ def beam_model(p: PlantParams) -> Beam:
     for a in arrays.values():
         a.setflags(write=False)
     return Beam(I0=p.m + rhoA * L, I1=rhoA * (L * L) / 2, I2=rhoA * (L * L * L) / 3, **arrays)
+
+
+def damping_diagonal(p: PlantParams, K: np.ndarray) -> np.ndarray:
+    """The diagonal of the damping matrix in the mass-normalised cantilever modes, for the law
+    ``p.damping``, from the modal stiffnesses ``K = omega_j^2`` of the mesh (the native FMUs,
+    ``plant_model.c``'s ``prepare``, take the same operations in the same order): ``2 zeta
+    omega_j`` (modal), or ``beta K_j`` with ``beta = 2 zeta / omega_1`` (Kelvin-Voigt)."""
+    if p.damping == "modal":
+        return 2.0 * p.zeta * np.sqrt(K)
+    if not K.size:
+        return np.zeros(0)
+    beta = 2.0 * p.zeta / math.sqrt(K[0])
+    return beta * K
 
 
 @dataclass(frozen=True)

@@ -55,7 +55,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .beam import _element_matrices, unit_beam
-from .params import PlantParams
+from .params import PlantParams, exact_damping_refusal
 
 __all__ = ["CableMesh", "BeamSystem", "ExactPlant", "GeneralizedAlpha", "RadauIIA", "AffineForce",
            "StageForce", "NoConvergence", "exact_plant", "RADAU_C", "RADAU_A", "RADAU_TOL",
@@ -619,6 +619,9 @@ class ExactPlant:
     model has every mode the mesh has, and the self-weight's stiffness by construction)."""
 
     def __init__(self, p: PlantParams):
+        why = exact_damping_refusal(p)          # it damps by material (Kelvin-Voigt) only
+        if why:
+            raise ValueError(why)
         self.params = p
         self.mesh = CableMesh(p.L, p.EA, p.EI, p.rhoA, p.n_elements, p.g)
         self.omega1 = math.sqrt(unit_beam(p.n_elements, 1).lam[0] * p.EI / (p.rhoA * p.L**4))

@@ -21,8 +21,8 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from fmu_common.variables import (ModelInfo, Variable, parameter, real_input, real_local,
-                                  real_output)
+from fmu_common.variables import (ModelInfo, Variable, independent, parameter, real_input,
+                                  real_local, real_output)
 
 from .params import PlantParams
 
@@ -62,12 +62,17 @@ _PARAMS = {  # PlantParams field -> (description, unit)
     "EA": ("axial stiffness", "N"),
     "EI": ("bending stiffness", "N.m2"),
     "E": ("Young's modulus (cross-section area = EA/E)", "Pa"),
-    "zeta": ("modal damping ratio of every cantilever mode", None),
+    "zeta": ("damping ratio: of every cantilever mode (damping = modal), of the first "
+             "(kelvin-voigt)", None),
     "g": ("gravity", "m/s2"),
     "n_modes": ("cantilever modes kept (0: rigid pendulum)", None),
     "n_elements": ("finite elements of the beam mesh", None),
     "gravity_preload": ("geometric stiffness of the beam's self-weight", None),
 }
+#: the damping law (plant_fmu.params.DAMPING_LAWS), after the table's first 72 variables
+_DAMPING = ("damping law: modal (the ratio zeta in every cantilever mode, D = 2 zeta omega_j) or "
+            "kelvin-voigt (material damping of the bending stiffness, beta = 2 zeta / omega_1: "
+            "the ratio zeta omega_j / omega_1 in mode j)")
 _SETTINGS = {
     "fidelity": ("nonlinear or linear (linearised at the upright rest state); exact: the "
                  "geometrically exact beam on n_elements elements (native FMUs, co-simulation); "
@@ -194,8 +199,10 @@ def _with_states(v: Variable) -> Variable:
         description=v.description + (f" (state; {note})" if v.name in STATES else ""))
 
 
-#: The table, in value-reference order: inputs, outputs, parameters, then the native FMUs'
-#: Model-Exchange locals.
+#: The table, in value-reference order: inputs, outputs, parameters, the native FMUs'
+#: Model-Exchange locals, FMI 3.0's ``time`` (value reference 71), then the variables added
+#: since (``damping``, 72). A new variable goes at the end, so that no existing value reference
+#: changes (:mod:`fmu_common.variables`).
 VARIABLES: tuple[Variable, ...] = (
     real_input("F_c", "horizontal force on the cart (at the start of the step)", "N"),
     real_input("dF_c", "time derivative of F_c at the start of the step (polynomial input; "
@@ -208,7 +215,9 @@ VARIABLES: tuple[Variable, ...] = (
     *(parameter(n, INITIAL_STATE[n][1], d, u, INITIAL_STATE[n][0])
       for n, (d, u) in _INITIAL.items()),
 )
-VARIABLES = tuple(_with_states(v) for v in VARIABLES) + _me_variables()
+VARIABLES = (tuple(_with_states(v) for v in VARIABLES) + _me_variables()
+             + (independent("time", "simulation time", "s"),
+                parameter("damping", _DEFAULTS["damping"], _DAMPING, None, "plant.damping")))
 
 MODEL = ModelInfo(
     name="FlexiblePendulum",

@@ -8,9 +8,23 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fmu_common.checks import check_bool, check_int, check_real, replace_checked
+from fmu_common.checks import check_bool, check_choice, check_int, check_real, replace_checked
 
-__all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN"]
+__all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN", "DAMPING_LAWS",
+           "exact_damping_refusal", "damping_text"]
+
+#: The beam's damping laws (MODEL.md section 7), ``plant.damping``:
+#:
+#: * ``"modal"``: the same ratio ``zeta`` in every cantilever mode, ``D = diag(2 zeta omega_j)``
+#:   (the paper's "zeta = 0.1 %" read as this law; the default);
+#: * ``"kelvin-voigt"``: material damping ``beta EI w''''_t`` with ``beta = 2 zeta / omega_1``
+#:   (``omega_1`` the first cantilever frequency of the same mesh), which in the mass-normalised
+#:   cantilever modes is ``D = beta K = diag(2 zeta omega_j^2 / omega_1)``: mode ``j`` has the
+#:   ratio ``zeta omega_j / omega_1``. It acts on the material stiffness only, not on the
+#:   geometric stiffness of the self-weight (``gravity_preload``, the stiffened rung).
+#:
+#: The two agree on the first cantilever mode and differ above it.
+DAMPING_LAWS = ("modal", "kelvin-voigt")
 
 #: The finest mesh the beam model accepts (the eigenproblem is dense).
 MAX_ELEMENTS = 400
@@ -35,7 +49,9 @@ class PlantParams:
     EA : axial stiffness (with ``E`` it fixes the cross-section area ``A = EA/E``).
     EI : bending stiffness.
     E : Young's modulus, used only to read the area off ``EA``.
-    zeta : modal (structural) damping ratio of every cantilever mode, ``0 <= zeta < 1``.
+    zeta : structural damping ratio, ``0 <= zeta < 1``: of every cantilever mode (``damping =
+        "modal"``), or of the first (``"kelvin-voigt"``).
+    damping : the damping law, one of :data:`DAMPING_LAWS`.
     g : gravity.
     n_modes : number of cantilever modes kept; 0 is the rigid pendulum.
     n_elements : number of cubic Hermite beam elements of the finite-element mesh.
@@ -49,6 +65,7 @@ class PlantParams:
     EI: float = 8.75e2
     E: float = 2.1e11
     zeta: float = 0.001
+    damping: str = "modal"
     g: float = 9.81
     n_modes: int = 4
     n_elements: int = 24
@@ -60,6 +77,7 @@ class PlantParams:
             set_(name, check_real(name, getattr(self, name), low=POSITIVE_MIN, low_open=False,
                                   high=1e15))
         set_("zeta", check_real("zeta", self.zeta, low=0.0, high=1.0, low_open=False, high_open=True))
+        set_("damping", check_choice("damping", self.damping, DAMPING_LAWS))
         set_("g", check_real("g", self.g, low=0.0, high=1e3, low_open=False))
         set_("n_elements", check_int("n_elements", self.n_elements, low=1, high=MAX_ELEMENTS))
         set_("n_modes", check_int("n_modes", self.n_modes, low=0, high=self.n_elements))
@@ -77,3 +95,33 @@ class PlantParams:
     def replace(self, **changes) -> "PlantParams":
         """A copy with ``changes`` applied and validated; unknown names raise TypeError."""
         return replace_checked(self, "plant", changes)
+
+
+def damping_text(p: PlantParams) -> str:
+    """The structural damping of ``p`` in words, its law named (every report that states a
+    damping-dependent number says it): ``"modal damping 0.1 %"`` (every cantilever mode),
+    ``"Kelvin-Voigt damping, 0.1 % in mode 1"``, or ``"no structural damping"``."""
+    if p.zeta == 0.0:
+        return "no structural damping"
+    pct = f"{100 * p.zeta:.4g} %"
+    return f"modal damping {pct}" if p.damping == "modal" else \
+        f"Kelvin-Voigt damping, {pct} in mode 1"
+
+
+# ------------------------------------------------------------------ the exact rung's damping law
+def exact_damping_refusal(p: PlantParams, prefix: str = "") -> str | None:
+    """Why the exact rung (``fidelity = "exact"``, :mod:`plant_fmu.exact`) cannot run ``p``, or
+    None: THE ONE PLACE that decides which damping law the exact rung takes.
+
+    The geometrically exact beam damps by material (Kelvin-Voigt) only, so for now it refuses
+    the modal law with damping; with ``zeta = 0`` both laws are the same and it runs. The scene
+    (a ConfigError), :class:`plant_fmu.exact.ExactPlant` (a ValueError) and, in the same words,
+    the native FMU (``plant_model.c``'s ``prepare``: an Error with a log message) refuse with
+    this message; ``prefix`` names the keys (``"plant."`` in a scene). When the exact rung gets
+    the modal law, this returns None and the C check goes."""
+    if p.damping == "modal" and p.zeta > 0:
+        return (f"{prefix}fidelity = 'exact' refuses {prefix}damping = 'modal' with "
+                f"{prefix}zeta = {p.zeta:g}: the exact rung damps by material (Kelvin-Voigt), "
+                f"not by the modal law: {prefix}damping = 'kelvin-voigt' or {prefix}zeta = 0 "
+                f"runs it")
+    return None

@@ -58,7 +58,9 @@ def new_instance():
     return fmu
 
 
-vr_ = st.integers(min_value=0, max_value=N + 3)
+#: value references inside and beyond the table (the plant's reach 72, damping: the pythonfmu
+#: FMUs keep the table's positions, leaving out its Model-Exchange variables and time)
+vr_ = st.integers(min_value=0, max_value=max(v.valueReference for v in VARS) + 3)
 reals = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
                   st.sampled_from([0.0, 0.1, -0.3, 1e-12, 1e300, -1e308]))
 steps = st.sampled_from([1e-3, 1e-3, 1e-3, 5e-4, 0.0, -1e-3, math.nan, math.inf, 1e-12, 0.05])
@@ -99,7 +101,9 @@ def corrupt(data: bytes, how: str) -> bytes:
                 s[key][0] = math.nan
             else:
                 s[key] = math.nan
-        elif how == "n_modes" and "n_modes" in s.get("params", {}):
+        elif how == "n_modes" and "n_modes" in s.get("params", {}) and s.get("initialized"):
+            # (before exitInitializationMode a parameter may hold any value the host set: the
+            # FMU checks it there, so such a state with n_modes = -1 is a legal one)
             s["params"]["n_modes"] = -1
         elif how == "model":
             s["model"] = "PDLowPass" if s.get("model") != "PDLowPass" else "FlexiblePendulum"

@@ -94,3 +94,34 @@ def test_second_order_filter_needs_structural_damping():
     eigs = np.linalg.eigvals(Acl)
     z = min(_upper(eigs), key=lambda e: abs(e.imag - 426.4))
     assert z.real > 0
+
+
+def _bending(a):
+    return min(_upper(a.eigenvalues), key=lambda z: abs(z.imag - 151.3))
+
+
+@pytest.mark.parametrize("n", [4, 6, 8])
+def test_flexible_pd_bending_growth_under_both_damping_laws(n):
+    """MODEL.md sections 6 and 7: ``flexible_pd`` (PD only) has its bending root growing at
+    +1.64/s under the modal law (checked to 1 %, as the table) and at about +1.20/s under the
+    Kelvin-Voigt law, which damps the higher cantilever modes more (``about``: checked to 2 %;
+    the model gives 1.213 .. 1.216). The second check of the Kelvin-Voigt figure is the
+    geometrically exact beam's own linearisation (:meth:`plant_fmu.exact.ExactPlant.state_space`,
+    its material damping in the continuum, with the self-weight's stiffness; MODEL.md: "a refined
+    exact beam agrees"): the floating frame with the preload agrees with it to 1 %."""
+    from plant_fmu.exact import ExactPlant
+    from controller_fmu.pd_lowpass import PDLowPassModel
+    from orchestration.studies.analysis import assemble_closed_loop
+
+    modal = _bending(analyze(PlantParams(n_modes=n), PD))
+    kv = PlantParams(n_modes=n, damping="kelvin-voigt")
+    kelvin = _bending(analyze(kv, PD))
+    assert modal.real == pytest.approx(1.64, rel=0.01)
+    assert kelvin.real == pytest.approx(1.20, rel=0.02)
+    assert abs(kelvin.imag - modal.imag) < 0.01 * modal.imag     # the same mode
+    A, B, C = ExactPlant(PlantParams(n_elements=8, damping="kelvin-voigt")).state_space()
+    exact = min(_upper(np.linalg.eigvals(assemble_closed_loop(
+        A, B, C, PDLowPassModel(PD).state_space()))), key=lambda z: abs(z.imag - 151.3))
+    preloaded = _bending(analyze(kv.replace(gravity_preload=True), PD))
+    assert preloaded.real == pytest.approx(exact.real, rel=0.01)
+    assert preloaded.imag == pytest.approx(exact.imag, rel=1e-3)

@@ -169,3 +169,53 @@ def test_scaled_unit_modes_equal_the_modes_solved_for_the_beam(seed):
     np.testing.assert_allclose(b.I3, I3, rtol=1e-8, atol=1e-10 * scale)
     np.testing.assert_allclose(b.I5, I5, rtol=1e-8, atol=1e-10 * scale * L)
     np.testing.assert_allclose(b.Kg, Kg, rtol=1e-8, atol=1e-10 * np.abs(Kg).max())
+
+
+def _damped_cantilever(p: PlantParams, beta: float):
+    """The clamped finite-element cantilever of ``p`` (every dof of the mesh), undamped and with
+    the material (Kelvin-Voigt) damping ``C = beta K``: ``(omega_j, damped eigenvalues)`` in
+    ascending frequency, from the eigenvalues of the first-order systems."""
+    from plant_fmu.beam import _element_matrices
+
+    ne = p.n_elements
+    nd = 2 * (ne + 1)
+    K, M = np.zeros((nd, nd)), np.zeros((nd, nd))
+    ke, me = _element_matrices(p.L / ne, p.EI, p.rhoA)
+    for e in range(ne):
+        K[2 * e:2 * e + 4, 2 * e:2 * e + 4] += ke
+        M[2 * e:2 * e + 4, 2 * e:2 * e + 4] += me
+    K, M = K[2:, 2:], M[2:, 2:]                    # clamped at s = 0
+    n = K.shape[0]
+
+    def eig(C):
+        A = np.block([[np.zeros((n, n)), np.eye(n)],
+                      [-np.linalg.solve(M, K), -np.linalg.solve(M, C)]])
+        lam = np.linalg.eigvals(A)
+        lam = lam[lam.imag > 0]
+        return lam[np.argsort(np.abs(lam))]
+
+    return np.abs(eig(np.zeros((n, n)))), eig(beta * K)
+
+
+@pytest.mark.parametrize("preload", [False, True])
+def test_kelvin_voigt_damps_mode_j_by_zeta_omega_j_over_omega_1(preload):
+    """MODEL.md section 7: the material damping ``beta EI w''''_t``, ``beta = 2 zeta / omega_1``,
+    gives mode ``j`` the ratio ``zeta omega_j / omega_1``: the eigenvalues of the finite-element
+    cantilever with ``C = beta K`` against the undamped ones, and the model's ``D`` (its ratios
+    ``D_jj / (2 omega_j)``) the same; the modal law gives every mode ``zeta``. The self-weight's
+    geometric stiffness is not damped: the preload leaves ``D`` as it is."""
+    zeta = 0.002
+    p = PlantParams(n_modes=6, n_elements=16, zeta=zeta, damping="kelvin-voigt",
+                    gravity_preload=preload)
+    omega, lam = _damped_cantilever(p, 2 * zeta / _damped_cantilever(p, 0.0)[0][0])
+    ratio = -lam.real / np.abs(lam)                          # damping ratio of each mode
+    n = p.n_modes
+    np.testing.assert_allclose(ratio[:n], zeta * omega[:n] / omega[0], rtol=1e-6)
+    b = beam_model(p)
+    np.testing.assert_allclose(b.frequencies, omega[:n], rtol=1e-10)
+    np.testing.assert_allclose(np.diag(b.D) / (2 * b.frequencies), ratio[:n], rtol=1e-6)
+    assert np.count_nonzero(b.D - np.diag(np.diag(b.D))) == 0
+    assert np.array_equal(b.D, beam_model(p.replace(gravity_preload=not preload)).D)
+    modal = beam_model(p.replace(damping="modal"))
+    np.testing.assert_allclose(np.diag(modal.D) / (2 * modal.frequencies), zeta, rtol=1e-14)
+    assert ratio[1] / zeta > 6 and ratio[n - 1] / zeta > 80    # the laws differ above mode 1

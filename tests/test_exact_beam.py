@@ -115,7 +115,7 @@ def test_energy_drift_is_second_order_without_damping_or_control():
 
 
 def clamped_linearisation(ne, zeta=0.0, g=0.0):
-    p = PlantParams(zeta=zeta, n_elements=ne, g=g)
+    p = PlantParams(zeta=zeta, n_elements=ne, g=g, damping="kelvin-voigt")
     plant = ExactPlant(p)
     mesh = CableMesh(1.0, EA, EI, RHOA, ne, g)
     system = BeamSystem(mesh, {0: 0.0, 1: 0.0, 2: 0.0}, beta=plant.beta_kv)   # r'(0) along y
@@ -299,7 +299,7 @@ def test_tip_angle_converges_at_second_order_in_the_step():
     paper's damping as the Kelvin-Voigt law: the tip angle's step-halving differences over 0.2 s
     fall at the method's order, 2 (without damping the mesh's unresolved high modes ring and
     spoil it: bench/fidelity_gap.py)."""
-    plant = ExactPlant(PlantParams(zeta=0.001, n_elements=4))
+    plant = ExactPlant(PlantParams(zeta=0.001, n_elements=4, damping="kelvin-voigt"))
     x0 = plant.initial_state(phi=0.05)
 
     def run(h):

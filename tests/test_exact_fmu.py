@@ -20,8 +20,12 @@ from plant_fmu.params import PlantParams
 
 
 NE = 4
-#: a short run of the filtered scene on a coarse mesh (fidelity.max_modes <= n_elements)
-EXACT = {"plant.fidelity": "exact", "plant.n_elements": NE, "fidelity.max_modes": NE}
+#: a short run of the filtered scene on a coarse mesh (fidelity.max_modes <= n_elements), under
+#: the exact rung's damping law (Kelvin-Voigt; the floating frame compared with it takes it too)
+EXACT = {"plant.fidelity": "exact", "plant.n_elements": NE, "fidelity.max_modes": NE,
+         "plant.damping": "kelvin-voigt"}
+#: the exact rung in an FMU, with its damping law
+XB = {"fidelity": "exact", "damping": "kelvin-voigt"}
 OUTPUTS = ("x_o", "x_dot", "phi_o", "omega_o", "phi", "tip_deflection", "energy")
 
 
@@ -86,6 +90,10 @@ def test_the_product_master_reproduces_the_kernel_and_the_numpy_specification():
     run = simulate("flexible_pd_lowpass", ov)
     res, sc = run.result, run.scene
     assert run.completed and len(res) == 301
+    # the summary's linear roots: the floating frame's preloaded loop of the same law, said so
+    assert run.summary["linear_loop"] == (
+        "the floating frame's linearisation (4 modes, preloaded, Kelvin-Voigt damping, 0.1 % in "
+        "mode 1), standing in for the exact rung's")
     plant = ExactPlant(sc.plant.params)
     h = sc.plant.exact_step
     per = round(1e-3 / h)
@@ -137,10 +145,10 @@ def test_fmi2_and_fmi3_agree_bit_for_bit_and_with_the_kernel(open_plant):
     """The same steps on both FMI versions give the same outputs to the last bit, and they are
     the kernel's Radau steps under the held force (``ExactKernel``, the same code), at the
     FMU's own default step (its ``step`` parameter, 2.5e-4 s: four substeps per doStep)."""
-    start = dict(fidelity="exact", n_elements=NE, n_modes=0, phi0=0.3, x_dot0=0.2)
+    start = dict(**XB, n_elements=NE, n_modes=0, phi0=0.3, x_dot0=0.2)
     ra, rb = drive(open_plant(2, **start), 100), drive(open_plant(3, **start), 100)
     assert np.array_equal(ra, rb)
-    plant = ExactPlant(PlantParams(n_elements=NE, n_modes=0))
+    plant = ExactPlant(PlantParams(n_elements=NE, n_modes=0, damping="kelvin-voigt"))
     k = ExactKernel(plant, 2.5e-4, method="radau")
     x0 = plant.initial_state(phi=0.3, x_dot=0.2)
     st = k.start(x0[:plant.nq], x0[plant.nq:], forcing(0))
@@ -159,8 +167,8 @@ def test_input_derivatives_give_the_force_at_each_stage_time(open_plant):
     forces gives the FMU's outputs to the last bit."""
     from plant_fmu.exact import RADAU_C
 
-    rows = drive(open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3), 50, derivatives=True)
-    plant = ExactPlant(PlantParams(n_elements=NE))
+    rows = drive(open_plant(2, **XB, n_elements=NE, phi0=0.3), 50, derivatives=True)
+    plant = ExactPlant(PlantParams(n_elements=NE, damping="kelvin-voigt"))
     h = 2.5e-4
     k = ExactKernel(plant, h, method="radau")
     x0 = plant.initial_state(phi=0.3)
@@ -171,14 +179,14 @@ def test_input_derivatives_give_the_force_at_each_stage_time(open_plant):
             dt = [(0.0 + (4 * i + q) * h) - i * 1e-3 + c * h for c in RADAU_C]
             st = k.step(st, StageForce(tuple(u + d * (du + 0.5 * d * 0.0) for d in dt)))
     assert np.array_equal(rows[-1, :7], k.outputs(st))
-    held = drive(open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3), 50)
+    held = drive(open_plant(2, **XB, n_elements=NE, phi0=0.3), 50)
     assert np.max(np.abs(held[:, 2] - rows[:, 2])) > 1e-6      # the derivatives matter
 
 
 def test_a_communication_step_off_the_plant_grid_is_taken_whole(open_plant):
     """A step that is not a multiple of plant.step ends with a shortened substep exactly at the
     communication point (the floating frame's grid)."""
-    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.2)
+    inst = open_plant(2, **XB, n_elements=NE, phi0=0.2)
     t = 0.0
     for h in (1e-3, 3.3e-4, 7.7e-4, 1e-3):
         inst.set(F_c=5.0)
@@ -192,14 +200,14 @@ def test_a_communication_step_off_the_plant_grid_is_taken_whole(open_plant):
 def test_a_restored_state_continues_bit_for_bit(open_plant):
     """Save mid-run (in memory and serialised), run on, restore, run again: the same outputs to
     the last bit (the integrator's accelerations are in the state)."""
-    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    inst = open_plant(2, **XB, n_elements=NE, phi0=0.3)
     drive(inst, 100, derivatives=True)
     mem = inst.fmu.getFMUstate()
     data = inst.fmu.serializeFMUstate(mem)
     first = drive(inst, 100, k0=100, derivatives=True)
     inst.fmu.setFMUstate(mem)
     assert np.array_equal(drive(inst, 100, k0=100, derivatives=True), first)
-    other = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    other = open_plant(2, **XB, n_elements=NE, phi0=0.3)
     state = other.fmu.deSerializeFMUstate(data)
     other.fmu.setFMUstate(state)
     assert np.array_equal(drive(other, 100, k0=100, derivatives=True), first)
@@ -259,7 +267,7 @@ NQ = 4 * NE + 3
 ], ids=["nan", "inf", "norm", "phi-limit"])
 def test_crafted_exact_state_bytes_are_refused_and_change_nothing(open_plant, index, value,
                                                                     why):
-    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    inst = open_plant(2, **XB, n_elements=NE, phi0=0.3)
     drive(inst, 20)
     mem = inst.fmu.getFMUstate()
     data = bytes(inst.fmu.serializeFMUstate(mem))
@@ -276,7 +284,7 @@ def test_crafted_exact_state_bytes_are_refused_and_change_nothing(open_plant, in
 
 def test_a_zero_tip_slope_is_refused(open_plant):
     """A tip slope of zero length has no tangent angle: the restore says so."""
-    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    inst = open_plant(2, **XB, n_elements=NE, phi0=0.3)
     drive(inst, 5)
     data = bytes(inst.fmu.serializeFMUstate(inst.fmu.getFMUstate()))
     q_end = -3 * NQ                                       # q[nq - 2], q[nq - 1] end here
@@ -288,15 +296,14 @@ def test_a_zero_tip_slope_is_refused(open_plant):
 # ---------------------------------------------------------------------- what it refuses
 def test_model_exchange_is_refused_with_a_message(plant_dirs):
     for version in (2, 3):
-        inst = Cs(plant_dirs[version], version, model_exchange=True, fidelity="exact",
-                  n_elements=NE)
+        inst = Cs(plant_dirs[version], version, model_exchange=True, **XB, n_elements=NE)
         assert inst.status == 3
         assert "does not offer Model Exchange" in inst.messages(3)
         inst.fmu.freeInstance()
 
 
 def test_directional_and_output_derivatives_are_refused_with_a_message(open_plant):
-    inst = open_plant(2, fidelity="exact", n_elements=NE, phi0=0.3)
+    inst = open_plant(2, **XB, n_elements=NE, phi0=0.3)
     drive(inst, 2)
     rc = inst.call(inst.fmu.getDirectionalDerivative, inst.vr("phi_o"), inst.vr("F_c"), [1.0])
     assert rc == 3 and "does not offer directional derivatives" in inst.messages(3)
@@ -315,6 +322,51 @@ def test_the_scene_refuses_what_the_exact_rung_cannot_give(keys, what):
         load_scene("rigid_pd", {"plant.fidelity": "exact", **keys})
 
 
+def test_the_exact_rung_refuses_the_modal_law_with_damping(open_plant):
+    """The exact rung damps by material (Kelvin-Voigt): with the modal law and zeta > 0 the scene
+    (a ConfigError), ExactPlant (a ValueError) and the native FMU (an Error at initialisation,
+    with a log message) refuse it in one line naming the keys that run it; with zeta = 0 both
+    laws are the same and it runs, bit for bit as under the Kelvin-Voigt law."""
+    words = "damps by material (Kelvin-Voigt), not by the modal law"
+    with pytest.raises(ConfigError) as exc:
+        load_scene("rigid_pd", {"plant.fidelity": "exact"})
+    msg = str(exc.value)
+    assert words in msg and "plant.damping = 'kelvin-voigt' or plant.zeta = 0 runs it" in msg
+    assert "\n" not in msg
+    with pytest.raises(ValueError, match="damping = 'kelvin-voigt' or zeta = 0 runs it"):
+        ExactPlant(PlantParams(n_elements=NE))
+    for version in (2, 3):
+        inst = open_plant(version, fidelity="exact", n_elements=NE, phi0=0.3, initialize=False)
+        inst.status = inst.call(inst.initialize, False)
+        assert inst.status == 3
+        assert words in inst.messages(3) and "zeta = 0.001" in inst.messages(3)
+    for keys in ({"plant.zeta": 0.0}, {"plant.damping": "kelvin-voigt"}):
+        assert load_scene("rigid_pd", {"plant.fidelity": "exact", **keys}).plant.fidelity == \
+            "exact"
+    modal = drive(open_plant(2, fidelity="exact", zeta=0.0, n_elements=NE, phi0=0.3), 20)
+    assert np.array_equal(modal, drive(open_plant(2, **XB, zeta=0.0, n_elements=NE, phi0=0.3),
+                                       20))
+
+
+def test_fidelity_auto_leaves_the_exact_rung_out_of_a_modal_scene_and_says_why():
+    """available_ladder has no exact rung for a scene under the modal law with damping (and has
+    it under Kelvin-Voigt); the climb that stops below it says why."""
+    from orchestration.studies.fidelity import available_ladder, climb, refused_rungs
+
+    modal = load_scene("flexible_pd")
+    assert available_ladder(modal)[-1] == "stiffened"
+    assert available_ladder(modal.replace(plant=modal.plant.with_model(4, "nonlinear")))[-1] \
+        == "stiffened"
+    assert available_ladder(load_scene("flexible_pd", {"plant.damping": "kelvin-voigt"}))[-1] \
+        == "exact"
+    assert available_ladder(load_scene("flexible_pd", {"plant.zeta": 0.0}))[-1] == "exact"
+    v = {"rung": "stiffened", "model_form_error": 0.5, "relative": 0.9, "outside": []}
+    nxt, why = climb("stiffened", v, 0.05, available_ladder(modal), refused_rungs(modal))
+    assert nxt is None
+    assert "stiffened is the top available rung (exact not available, plant.fidelity = " \
+        "'exact' refuses plant.damping = 'modal'" in why and "runs it): kept" in why
+
+
 def test_the_pythonfmu_plant_refuses_the_exact_rung():
     pytest.importorskip("pythonfmu")
     from plant_fmu.fmu import FMU_DEFAULTS, FlexiblePendulum
@@ -328,7 +380,7 @@ def test_the_pythonfmu_plant_refuses_the_exact_rung():
 def test_linear_studies_say_they_linearise_the_floating_frame():
     from orchestration import analyze
     with pytest.raises(ConfigError, match="floating frame"):
-        analyze("rigid_pd", {"plant.fidelity": "exact"})
+        analyze("rigid_pd", {"plant.fidelity": "exact", "plant.damping": "kelvin-voigt"})
 
 
 def test_the_rigid_scene_runs_its_beam_exactly():

@@ -22,7 +22,9 @@ RTOL = 1e-12
 
 
 def plant(ne: int, zeta: float = 0.001) -> ExactPlant:
-    return ExactPlant(PlantParams().replace(n_modes=1, n_elements=ne, zeta=zeta))
+    """The exact beam (its own damping law: Kelvin-Voigt)."""
+    return ExactPlant(PlantParams().replace(n_modes=1, n_elements=ne, zeta=zeta,
+                                            damping="kelvin-voigt"))
 
 
 def random_state(pl: ExactPlant, rng, phi=0.4):
@@ -110,7 +112,8 @@ def test_many_steps_in_one_call_equal_single_steps():
 def test_closed_loop_1000_steps_with_the_numpy_controller():
     """The filtered paper loop (PD + designed low-pass, in numpy) from pi/6 with 4 elements at
     h = 1 ms: 1000 steps, the force law rebuilt each step from the controller's filter state."""
-    sc = load_scene("flexible_pd_lowpass", {"initial.phi": math.pi / 6})
+    sc = load_scene("flexible_pd_lowpass", {"initial.phi": math.pi / 6,
+                                            "plant.damping": "kelvin-voigt"})
     pl = ExactPlant(sc.plant.params.replace(n_elements=4))
     x0 = pl.initial_state(phi=math.pi / 6)
     out = {}

@@ -90,7 +90,7 @@ def test_one_step_of_an_oscillator_is_the_pade_approximant(wh):
 
 def _beam_open_loop(h, t_end=0.2, method="radau", ne=2):
     """The tip angle after ``t_end`` of a damped 2-element beam driven by a smooth force."""
-    p = PlantParams().replace(n_elements=ne, n_modes=1, zeta=0.05)
+    p = PlantParams().replace(n_elements=ne, n_modes=1, zeta=0.05, damping="kelvin-voigt")
     pl = ExactPlant(p)
     x0 = pl.initial_state(phi=0.3, phi_dot=0.5)
     rad = RadauIIA(pl.system, h, tol=1e-13)
@@ -121,7 +121,8 @@ def test_order_on_the_nonlinear_beam():
 def test_the_kernel_is_the_specification_held_and_closed_loop(ne):
     """fp_radau_step against RadauIIA.step, with a held force and with a closed-loop stage law
     (a dense Q: the force row outside the band for ne > 1), 200 steps: to round-off."""
-    pl = ExactPlant(PlantParams().replace(n_elements=ne, n_modes=1, zeta=0.001))
+    pl = ExactPlant(PlantParams().replace(n_elements=ne, n_modes=1, zeta=0.001,
+                                        damping="kelvin-voigt"))
     h = 1e-3
     x0 = pl.initial_state(phi=0.4, phi_dot=1.0, x_dot=-0.2)
     law = StageForce((3.0, 2.0, 1.0), ((0.3, 0.05, 0.0), (0.02, 0.3, 0.05), (0.0, 0.02, 0.3)),
@@ -148,7 +149,8 @@ def test_the_closed_loop_is_a_second_methods():
     1 ms damps at once and generalized alpha at 25 us resolves until the Kelvin-Voigt damping,
     0.1 % times omega_j / omega_1, takes them: a few ms at 3000 rad/s); 2e-6 from the start."""
     sc = load_scene("flexible_pd_lowpass", {"plant.fidelity": "exact", "plant.n_elements": 6,
-                                            "fidelity.max_modes": 6, "initial.phi": 0.3})
+                                            "fidelity.max_modes": 6, "initial.phi": 0.3,
+                                            "plant.damping": "kelvin-voigt"})
     pl = ExactPlant(sc.plant.params)
     x0 = pl.initial_state(phi=0.3)
     ctrl = PDLowPassModel(sc.controller)
@@ -164,7 +166,8 @@ def test_a_step_that_does_not_converge_is_taken_in_halves():
     so on, RADAU_SPLIT_MAX deep): the numpy loop and the kernel's agree, and the run is close to
     the same loop at the halved step."""
     sc = load_scene("flexible_pd_lowpass", {"plant.fidelity": "exact", "plant.n_elements": 4,
-                                            "fidelity.max_modes": 4})
+                                            "fidelity.max_modes": 4,
+                                            "plant.damping": "kelvin-voigt"})
     pl = ExactPlant(sc.plant.params)
     x0 = pl.initial_state(phi=math.pi / 6)
     ctrl = PDLowPassModel(sc.controller)

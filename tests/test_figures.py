@@ -76,7 +76,7 @@ def test_titles_follow_overridden_gains_and_modes():
     assert "-(5 φₒ + 5 ωₒ)" in kp5 and "500" not in kp5
     assert "UNSTABLE" in kp5 and "real root +6.23 grows" in kp5
     one = figures.scene_title(load_scene("flexible_pd", {"plant.n_modes": 1}))
-    assert "flexible beam, 1 cantilever mode\n" in one
+    assert "flexible beam, 1 cantilever mode, modal damping 0.1 %\n" in one
     assert "4 cantilever" not in one and "151" not in one
     r = loop_roots(load_scene("flexible_pd", {"plant.n_modes": 1}).plant.params,
                    load_scene("flexible_pd").controller)
@@ -85,6 +85,10 @@ def test_titles_follow_overridden_gains_and_modes():
     assert "-0.0518 ± 226.7j" in one and "stable" in one
     default = figures.scene_title(load_scene("flexible_pd"))
     assert "4 cantilever modes" in default and "bending root +1.64 ± 151.2j" in default
+    # the law that root belongs to is named, and the other law's root is its own
+    assert "modal damping 0.1 %" in default
+    kv = figures.scene_title(load_scene("flexible_pd", {"plant.damping": "kelvin-voigt"}))
+    assert "Kelvin-Voigt damping, 0.1 % in mode 1" in kv and "bending root +1.21 ± 151.2j" in kv
     for name in PAPER_SCENES:                       # never the scene file's fixed text
         scene = load_scene(name)
         assert scene.description not in figures.scene_title(scene)
@@ -97,6 +101,13 @@ def test_titles_follow_overridden_gains_and_modes():
                                        "|Fc| ≤ 300 N"]),
     ({"initial.phi": 0.1, "initial.x_dot": 0.5}, ["= 5.73 deg", "ẋ₀ = 0.5 m/s"]),
     ({"plant.EI": 900, "plant.fidelity": "linear"}, ["linearised plant", "EI = 900"]),
+    ({"plant.damping": "kelvin-voigt", "plant.zeta": 0.002},
+     ["Kelvin-Voigt damping, 0.2 % in mode 1"]),
+    ({"plant.zeta": 0.0, "plant.fidelity": "stiffened"},
+     ["stiffened rung, no structural damping"]),
+    ({"plant.fidelity": "exact", "plant.damping": "kelvin-voigt"},
+     ["geometrically exact beam, 24 elements, Kelvin-Voigt damping",
+      "the floating frame's preloaded linearised loop (standing in for the exact rung's)"]),
 ])
 def test_title_names_filter_limit_start_and_changed_parameters(overrides, fragments):
     title = figures.scene_title(load_scene("flexible_pd_lowpass", overrides))

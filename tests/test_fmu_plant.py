@@ -180,6 +180,7 @@ def test_blow_up_is_caught_before_any_output_overflows(open_fmu):
     ("zeta", 1.5, "zeta = 1.5 is out of range"),
     ("integrator", "leapfrog", "integrator = 'leapfrog' is unknown; known: "),
     ("fidelity", "quadratic", "fidelity = 'quadratic' is not allowed"),
+    ("damping", "viscous", "damping = 'viscous' is not allowed; allowed: modal, kelvin-voigt"),
     ("step", -1e-3, "step = -0.001 is out of range"),
     ("phi0", math.nan, "phi0 = nan is out of range"),
     ("integrator", "exponential", "it needs fidelity = 'linear'"),

@@ -131,3 +131,24 @@ def test_a_corrupt_serialised_state_is_an_error_not_a_crash(open_fmu, name):
     assert f"not a valid {name} state (JSONDecodeError" in inst.messages(3)
     assert inst.step(0.0, H) == 0
     assert all(np.isfinite(inst.outputs()))
+
+
+@pytest.mark.parametrize("how", ["memory", "serialized"])
+def test_a_state_carries_the_damping_law(open_fmu, how):
+    """The damping law is a parameter of the state: one saved under the Kelvin-Voigt law and
+    restored into an instance opened with the modal law continues as the Kelvin-Voigt run to
+    the last bit, and the modal run is another."""
+    start = dict(phi0=0.3, zeta=0.02, n_modes=4)
+    plant = open_fmu("FlexiblePendulum", damping="kelvin-voigt", **start)
+    ctrl = open_fmu("PDLowPass")
+    closed_loop(plant, ctrl, 0, 100)
+    saved = [save(plant, how), save(ctrl, how)]
+    first = closed_loop(plant, ctrl, 100, 100)
+    other, ctrl2 = open_fmu("FlexiblePendulum", **start), open_fmu("PDLowPass")
+    modal = closed_loop(other, ctrl2, 0, 200)[100:]
+    if how == "memory":        # a state in memory belongs to its instance
+        other, ctrl2 = plant, ctrl
+    restore(other, saved[0], how)
+    restore(ctrl2, saved[1], how)
+    assert np.array_equal(closed_loop(other, ctrl2, 100, 100), first)
+    assert np.max(np.abs(modal - first)) > 1e-6

@@ -43,7 +43,8 @@ def test_every_regression_input_of_the_corpus_runs_clean(targets, model):
                            "plant-step-5e-324", "phi-dot0-1e160", "L-underflow",
                            "crafted-exact-nan", "crafted-exact-tip-slope"):
                 assert f"regress-fmi{v}-{defect}" in names
-            for seed in ("exact", "stiffened", "stiffened-largest"):     # the rungs' seeds
+            for seed in ("exact", "exact-modal", "stiffened", "stiffened-largest",
+                         "kelvin-voigt"):                # the rungs' and the damping laws' seeds
                 assert f"seed-fmi{v}-{seed}" in names
         assert "regress-fmi3-fmi3-null-arrays" in names
     r = fuzz.replay(exe, corpus, work)

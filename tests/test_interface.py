@@ -12,7 +12,7 @@ from fmpy import read_model_description
 from controller_fmu import interface as ctrl_if
 from controller_fmu.pd_lowpass import ControllerParams
 from orchestration.export.model_description import TABLES, UNITS
-from fmu_common.variables import parameter_defaults, python_variables
+from fmu_common.variables import parameter_defaults, python_entries
 from plant_fmu import interface as plant_if
 from plant_fmu.params import PlantParams
 
@@ -22,12 +22,66 @@ MODELS = ["FlexiblePendulum", "PDLowPass"]
 @pytest.mark.parametrize("name", MODELS)
 def test_built_fmu_declares_exactly_the_table(fmus, name):
     md = read_model_description(fmus[name])
-    table = python_variables(TABLES[name][1])     # co-simulation only: no ME variables
+    entries = python_entries(TABLES[name][1])     # co-simulation only: no ME variables, no time
     declared = [(v.name, v.valueReference, v.causality, v.type, v.unit, v.description)
                 for v in md.modelVariables]
-    assert declared == [(v.name, i, v.causality, v.type, v.unit if v.type == "Real" else None,
-                         v.description) for i, v in enumerate(table)]
-    assert {u.name for u in md.unitDefinitions} == {v.unit for v in table if v.unit}
+    assert declared == [(v.name, vr, v.causality, v.type, v.unit if v.type == "Real" else None,
+                         v.description) for vr, v in entries]
+    assert {u.name for u in md.unitDefinitions} == {v.unit for _, v in entries if v.unit}
+
+
+#: The value references of every variable before issue 34 (FMI 3.0's time included): a variable
+#: is appended to a table, so none of these may change.
+FROZEN = {
+    "FlexiblePendulum": {
+        **{n: i for i, n in enumerate(
+            ["F_c", "dF_c", "d2F_c", "x_o", "x_dot", "phi_o", "omega_o", "tip_deflection",
+             "eta_1", "energy", "phi", *(f"eta_{j}" for j in range(2, 9)), "m", "L", "rho",
+             "EA", "EI", "E", "zeta", "g", "n_modes", "n_elements", "gravity_preload",
+             "fidelity", "integrator", "step", "rtol", "atol", "phi_limit", "energy_limit",
+             "phi0", "x0", "phi_dot0", "x_dot0", "phi_dot", *(f"eta_dot_{j}" for j in range(1, 9)),
+             *(f"der({s})" for s in ("x_o", "phi", *(f"eta_{j}" for j in range(1, 9)), "x_dot",
+                                     "phi_dot", *(f"eta_dot_{j}" for j in range(1, 9)))),
+             "phi_limit_indicator", "energy_limit_indicator", "time"])}},
+    "PDLowPass": {n: i for i, n in enumerate(
+        ["phi_o", "omega_o", "x_o", "dphi_o", "domega_o", "dx_o", "d2phi_o", "d2omega_o",
+         "d2x_o", "F_c", "kp", "kd", "kx", "filter_order", "cutoff", "filter_damping",
+         "force_limit", "xc_1", "xc_2", "der(xc_1)", "der(xc_2)", "time"])},
+}
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_no_value_reference_of_an_existing_variable_changes(name):
+    """Every description (pythonfmu FMI 2.0, native FMI 2.0 and 3.0) keeps the references of
+    :data:`FROZEN`; FMI 3.0's ``time`` keeps its own (71 for the plant); a variable added since
+    takes a reference no existing one has."""
+    import xml.etree.ElementTree as ET
+
+    from orchestration.export.model_description import (fmi2_model_description,
+                                                        fmi3_model_description)
+
+    frozen = FROZEN[name]
+    cs = {"modelIdentifier": name}
+    docs = {"python": fmi2_model_description(name, "{g}", generation_tool="t", co_simulation=cs),
+            "native2": fmi2_model_description(name, "{g}", generation_tool="t", co_simulation=cs,
+                                              native=True),
+            "native3": fmi3_model_description(name, "{g}", generation_tool="t", co_simulation=cs)}
+    seen = set()
+    for flavour, xml in docs.items():
+        vrs = {v.get("name"): int(v.get("valueReference"))
+               for v in ET.fromstring(xml).find("ModelVariables")}
+        old = {n: vr for n, vr in vrs.items() if n in frozen}
+        assert old == {n: frozen[n] for n in old}, flavour
+        new = {n: vr for n, vr in vrs.items() if n not in frozen}
+        assert not set(new.values()) & set(frozen.values()), (flavour, new)
+        seen |= set(old)
+    assert seen == set(frozen)            # every old variable is declared by some flavour
+    time = [v for v in ET.fromstring(docs["native3"]).find("ModelVariables")
+            if v.get("name") == "time"]
+    assert [int(v.get("valueReference")) for v in time] == \
+        [71 if name == "FlexiblePendulum" else 21]
+    assert {n: vr for vr, v in enumerate(TABLES[name][1]) for n in [v.name] if n in frozen} \
+        == frozen
 
 
 def test_parameter_defaults_are_the_records_defaults():
@@ -61,7 +115,8 @@ def test_base_units_are_what_the_unit_name_says(unit):
 
 
 def test_every_physical_variable_has_a_unit():
-    dimensionless = {"zeta", "n_modes", "n_elements", "gravity_preload", "fidelity", "integrator",
+    dimensionless = {"zeta", "damping", "n_modes", "n_elements", "gravity_preload", "fidelity",
+                     "integrator",
                      "rtol", "atol", "filter_order", "filter_damping",
                      "phi_limit_indicator", "energy_limit_indicator"}
     for name, (_, table) in TABLES.items():

@@ -2,11 +2,12 @@
 
 Plant (``plant_fmu/native/fp_plant.c``): the right-hand side, outputs and energy of the nonlinear
 and the linearised model at random states, inputs and parameter sets (n_modes 0..8, with and
-without the gravity preload) to 1e-12 relative; the linearised right-hand side also against a
-40-digit solution of ``M0 qdd = f``; the fixed-substep loops and the adaptive Dormand-Prince loop
-against the steppers' Python loops. Filter (``controller_fmu/native/fp_filter.c``): the matrix
-exponential and the exact discretisation against scipy's ``expm`` (and a 60-digit one), orders
-0, 1 and 2, held and polynomial inputs, over steps and cutoffs.
+without the gravity preload, either damping law) to 1e-12 relative; the linearised right-hand side
+also against a 40-digit solution of ``M0 qdd = f``; the fixed-substep loops and the adaptive
+Dormand-Prince loop against the steppers' Python loops. Filter
+(``controller_fmu/native/fp_filter.c``): the matrix exponential and the exact discretisation
+against scipy's ``expm`` (and a 60-digit one), orders 0, 1 and 2, held and polynomial inputs,
+over steps and cutoffs.
 """
 import ctypes
 import math
@@ -29,12 +30,13 @@ CASES = [(n, pre) for n in range(9) for pre in (False, True)]
 IDS = [f"n{n}{'-preload' if pre else ''}" for n, pre in CASES]
 
 
-def random_params(rng, n, preload) -> PlantParams:
-    """A random but physical parameter set (each value within a factor of about 2 of Table 1)."""
+def random_params(rng, n, preload, damping="modal") -> PlantParams:
+    """A random but physical parameter set (each value within a factor of about 2 of Table 1),
+    under the damping law ``damping``."""
     f = lambda: math.exp(rng.uniform(-0.7, 0.7))  # noqa: E731
     return PlantParams(m=1.0 * f(), L=1.0 * f(), rho=7.8e3 * f(), EA=4.2e8 * f(), EI=875 * f(),
                        zeta=0.001 * f(), g=9.81 * f(), n_modes=n, n_elements=max(n, 12),
-                       gravity_preload=preload)
+                       gravity_preload=preload, damping=damping)
 
 
 def random_state(rng, m):
@@ -50,13 +52,14 @@ def close(a, b, rtol=RTOL):
 
 @pytest.fixture(params=CASES, ids=IDS)
 def models(request):
-    """``(nonlinear, linear, rng)`` for three random parameter sets per case (fresh models: the
-    cache of plant_model is not involved)."""
+    """``(nonlinear, linear, rng)`` for three random parameter sets per case, the first two under
+    the modal damping law, the third under the Kelvin-Voigt law (fresh models: the cache of
+    plant_model is not involved)."""
     n, pre = request.param
     rng = np.random.default_rng(100 * n + pre)
     out = []
-    for _ in range(3):
-        p = random_params(rng, n, pre)
+    for law in ("modal", "modal", "kelvin-voigt"):
+        p = random_params(rng, n, pre, law)
         out.append((PlantModel(p), LinearPlantModel(p)))
     return out, rng
 

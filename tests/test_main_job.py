@@ -101,6 +101,21 @@ def test_small_start_fits_the_linear_growth_closely(paths):
 
 
 @pytest.mark.slow
+def test_the_summary_compares_a_fit_with_the_linear_root_of_its_own_law(paths):
+    """Under the Kelvin-Voigt law flexible_pd's bending grows at about +1.21/s (MODEL.md section
+    7): the fitted rate is that law's linear root (to 1 %), which the summary prints beside it
+    and names, and far from the modal law's +1.64."""
+    scene = load_scene("flexible_pd", ["initial.phi=0.05", "stop_time=3",
+                                       "plant.damping=kelvin-voigt"])
+    r = run_scene(scene, paths, progress=False)
+    _check_against_linear(scene, r.summary["bending"], 0.01)
+    modal = linear_mode_near(load_scene(scene, {"plant.damping": "modal"}), 151.3)
+    assert modal.real - r.summary["bending"]["rate"] > 0.3
+    assert r.summary["linear_loop"] == ("the nonlinear rung's linearisation (4 modes, "
+                                        "Kelvin-Voigt damping, 0.1 % in mode 1)")
+
+
+@pytest.mark.slow
 def test_a_saturated_run_reports_no_mode_the_loop_does_not_have(paths):
     """The old 10 s flexible_pd run saturates and beats (a 1.46 rad/s 'mode' was printed): every
     number in the summary belongs to a mode of the linear loop."""

@@ -113,20 +113,24 @@ def test_win64_binaries_export_every_fmi_function(native, native3, tmp_path, ver
 
 def test_variables_are_the_tables_less_the_derivative_inputs(native, native3):
     """One table writes both flavours' descriptions: the same names, value references, units and
-    start values, without the input-derivative variables (fmi2SetRealInputDerivatives)."""
+    start values, without the input-derivative variables (fmi2SetRealInputDerivatives); FMI
+    3.0's ``time`` at its reference in the table."""
     from fmpy import read_model_description
 
+    from fmu_common.variables import independent_variable, native_variables
     from orchestration.export.model_description import TABLES, xml_value
     for name, path in native.items():
         _, table = TABLES[name]
         md2 = read_model_description(path)
         md3 = read_model_description(native3[name])
-        expected = [(vr, v.name) for vr, v in enumerate(table) if v.derivative_of is None]
+        expected = [(vr, v.name) for vr, v in native_variables(table)]
         assert [(v.valueReference, v.name) for v in md2.modelVariables] == expected
         assert [(v.valueReference, v.name) for v in md3.modelVariables
                 if v.name != "time"] == expected
+        assert [v.valueReference for v in md3.modelVariables if v.name == "time"] == \
+            [independent_variable(table)[0]]
         assert md2.coSimulation.canInterpolateInputs
-        for v, t in zip(md2.modelVariables, [t for t in table if t.derivative_of is None]):
+        for v, (_, t) in zip(md2.modelVariables, native_variables(table)):
             assert v.unit == (t.unit if t.type == "Real" else None)
             if t.start is not None:
                 assert str(v.start).lower() == xml_value(t.start, native=True).lower() or \
@@ -370,6 +374,7 @@ def test_native_and_pythonfmu_agree_at_random_parameters(native, fmus, seed):
             f"plant.m={f()}", f"plant.L={f()}", f"plant.EI={875 * f()}", f"plant.rho={7.8e3 * f()}",
             f"plant.g={9.81 * f()}", f"plant.zeta={0.001 * f()}",
             f"plant.gravity_preload={'true' if seed % 2 else 'false'}",
+            f"plant.damping='{'modal' if seed == 1 else 'kelvin-voigt'}'",
             f"controller.cutoff={97.3 * f()}", f"initial.phi={0.3 * f()}", "stop_time=0.5",
             f"plant.fidelity='{'linear' if seed == 2 else 'nonlinear'}'"]
     sc = load_scene("flexible_pd_lowpass", sets)
@@ -385,7 +390,10 @@ def test_bad_parameter_is_an_error_at_exit_initialization(open_native):
     for start, word in (({"n_modes": 9}, "n_modes"), ({"EI": -1.0}, "EI"),
                         ({"integrator": "radau"}, "supported: dopri5, euler, exponential, rk4"),
                         ({"n_elements": 101}, "n_elements"),
-                        ({"integrator": "exponential"}, "fidelity = 'linear'")):
+                        ({"integrator": "exponential"}, "fidelity = 'linear'"),
+                        ({"damping": "viscous"}, "bad parameter: damping = 'viscous' is not "
+                                                 "allowed; allowed: modal, kelvin-voigt"),
+                        ({"damping": "Kelvin-Voigt"}, "damping = 'Kelvin-Voigt' is not")):
         inst = open_native("FlexiblePendulum", initialize=False, **start)
         inst.fmu.enterInitializationMode()
         with pytest.raises(FMICallException) as exc:
@@ -538,6 +546,32 @@ def test_state_get_set_and_serialisation_are_bit_identical(open_native, integrat
     b = open_native("FlexiblePendulum")                    # another instance, other parameters
     b.fmu.setFMUstate(b.fmu.deSerializeFMUstate(data))
     assert run(b, 50, 50) == first
+    a.fmu.freeFMUstate(state)
+
+
+def test_a_state_carries_the_damping_law(open_native):
+    """The damping law is a parameter of the state: one saved under the Kelvin-Voigt law and
+    restored into an instance opened with the modal law continues as the Kelvin-Voigt run to
+    the last bit, and the modal run is another."""
+    def run(inst, k0, n):
+        out = []
+        for k in range(k0, k0 + n):
+            inst.set(F_c=10 * math.sin(0.05 * k))
+            assert inst.step(k * 1e-3, 1e-3) == 0
+            out.append(inst.outputs())
+        return np.array(out)
+
+    start = dict(phi0=0.4, zeta=0.02, n_modes=4)
+    a = open_native("FlexiblePendulum", damping="kelvin-voigt", **start)
+    run(a, 0, 50)
+    state = a.fmu.getFMUstate()
+    data = a.fmu.serializeFMUstate(state)
+    first = run(a, 50, 50)
+    b = open_native("FlexiblePendulum", **start)
+    modal = run(b, 0, 100)[50:]
+    b.fmu.setFMUstate(b.fmu.deSerializeFMUstate(data))
+    assert np.array_equal(run(b, 50, 50), first)
+    assert np.max(np.abs(modal - first)) > 1e-6
     a.fmu.freeFMUstate(state)
 
 

@@ -57,9 +57,10 @@ def test_the_pythonfmu_tables_keep_every_variable_and_reference():
     from fmu_common.variables import python_variables
     from plant_fmu.interface import STATES, VARIABLES as PV
     py = python_variables(PV)
-    assert len(py) == 40 and [v.name for v in py[:4]] == ["F_c", "dF_c", "d2F_c", "x_o"]
-    assert all(v.me_only for v in PV[40:]) and not any(v.me_only for v in py)
-    assert len(python_variables(CV)) == 17 and all(v.me_only for v in CV[17:])
+    assert [v.name for v in py[:4]] == ["F_c", "dF_c", "d2F_c", "x_o"]
+    assert py[:40] == list(PV[:40]) and all(v.me_only for v in PV[40:71])
+    assert PV[71].name == "time" and not any(v.me_only for v in py)
+    assert python_variables(CV) == list(CV[:17]) and all(v.me_only for v in CV[17:21])
     assert states(PV) == list(STATES) and len(STATES) == 20
     assert derivatives(PV) == [f"der({s})" for s in STATES]
     assert event_indicators(PV) == ["phi_limit_indicator", "energy_limit_indicator"]
@@ -298,16 +299,21 @@ def test_initialization_mode_gives_the_initial_states_and_derivatives(me, versio
 # ---------------------------------------------------------------------- states and derivatives
 @pytest.mark.parametrize("version", [2, 3])
 @pytest.mark.parametrize("fidelity", ["nonlinear", "linear"])
-@pytest.mark.parametrize("n", [0, 3, 8])
-def test_derivatives_are_the_numpy_right_hand_side(me, version, fidelity, n):
+@pytest.mark.parametrize("n,damping", [(0, "modal"), (3, "modal"), (8, "modal"),
+                                       (3, "kelvin-voigt"), (8, "kelvin-voigt")])
+def test_derivatives_are_the_numpy_right_hand_side(me, version, fidelity, n, damping):
     """At random states and force, the FMU's derivatives are rhs_numpy (the kernel's right-hand
-    side, to rounding) in the declared order; the states beyond n_modes stay 0 with derivative
-    0; the outputs follow the states set."""
+    side, to rounding) in the declared order, under either damping law (whose right-hand sides
+    differ far beyond the tolerance); the states beyond n_modes stay 0 with derivative 0; the
+    outputs follow the states set."""
     from plant_fmu.dynamics import LinearPlantModel, PlantModel
     from plant_fmu.params import PlantParams
-    m = me(version, PLANT, n_modes=n, fidelity=fidelity)
+    m = me(version, PLANT, n_modes=n, fidelity=fidelity, zeta=0.01, damping=damping)
     m.initialize()
-    ref = (LinearPlantModel if fidelity == "linear" else PlantModel)(PlantParams(n_modes=n))
+    model = LinearPlantModel if fidelity == "linear" else PlantModel
+    p = PlantParams(n_modes=n, zeta=0.01, damping=damping)
+    ref = model(p)
+    other = model(p.replace(damping="modal" if damping != "modal" else "kelvin-voigt"))
     rng = np.random.default_rng(n)
     order = [_kernel_names(8).index(s) for s in _kernel_names(n)]
     for _ in range(5):
@@ -322,6 +328,9 @@ def test_derivatives_are_the_numpy_right_hand_side(me, version, fidelity, n):
         want = np.zeros(20)
         want[order] = ref.rhs_numpy(0.0, xk, u)
         np.testing.assert_allclose(dx, want, rtol=1e-11, atol=1e-11 * np.abs(want).max())
+        if n:
+            assert np.max(np.abs(ref.rhs_numpy(0.0, xk, u) - other.rhs_numpy(0.0, xk, u))) \
+                > 1e5 * 1e-11 * np.abs(want).max()        # the laws apart, far beyond
         xs = m.states()
         assert np.all(xs[np.setdiff1d(np.arange(20), order)] == 0.0)
         assert np.array_equal(xs[order], xk)

@@ -13,6 +13,7 @@ def test_defaults_are_table_1():
     assert (p.m, p.L, p.rho, p.EA, p.EI, p.zeta) == (1, 1, 7.8e3, 4.2e8, 8.75e2, 0.001)
     assert p.rhoA == pytest.approx(15.6) and p.area == pytest.approx(2e-3)
     assert not p.gravity_preload
+    assert p.damping == "modal"           # the paper's "zeta = 0.1 %" read as the modal law
 
 
 @pytest.mark.parametrize("field,value,match", [
@@ -30,6 +31,9 @@ def test_defaults_are_table_1():
     ("n_modes", 25, "n_modes = 25"),
     ("n_elements", 0, "n_elements = 0"),
     ("n_elements", MAX_ELEMENTS + 1, "n_elements"),
+    ("damping", "kelvin", "damping = 'kelvin' is not allowed; allowed: modal, kelvin-voigt$"),
+    ("damping", "Modal", "damping = 'Modal' is not allowed"),
+    ("damping", None, "damping = None is not allowed; allowed: modal, kelvin-voigt"),
 ])
 def test_bad_value_names_the_field(field, value, match):
     with pytest.raises(ValueError, match=match):

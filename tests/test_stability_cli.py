@@ -43,7 +43,8 @@ def test_json_of_the_filtered_scene(capsys, cached):
     """The documented shape; the scene's critical step is where rho(Phi) of its own transition
     matrix reaches 1: below 1 on a fine grid up to it (400 points), above just beyond it."""
     r = _json(capsys, "flexible_pd_lowpass")
-    assert set(r) == {"scene", "couplings"}
+    assert set(r) == {"scene", "couplings", "loop"}
+    assert r["loop"] == "the nonlinear rung's linearisation (4 modes, modal damping 0.1 %)"
     assert set(r["scene"]) == {"coupling", "critical_step", "substep_limit"}
     assert r["scene"]["coupling"] == {"algorithm": "gauss-seidel", "first": "controller",
                                       "extrapolation": 2, "input_derivatives": True,

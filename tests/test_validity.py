@@ -156,11 +156,13 @@ def test_the_ladder_holds_only_the_rungs_the_scenes_fmus_run():
     """The exact rung runs in the native FMUs' co-simulation only, and the stiffened rung gives
     no Jacobians, which the Model Exchange master needs: a pythonfmu scene climbs to the
     stiffened rung, a Model Exchange one to the nonlinear rung, and each says that is where it
-    stops; a native co-simulation has every rung."""
+    stops; a native co-simulation has every rung (the exact rung's law, Kelvin-Voigt, set: it
+    refuses the modal law with damping, tests/test_exact_fmu.py)."""
     tops = {"master.fmus=native": "exact", "master.fmus=python": "stiffened",
             "master.interface=model-exchange": "nonlinear"}
     for key, want in tops.items():
-        scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto", key])
+        scene = load_scene("flexible_pd_lowpass", ["plant.fidelity=auto",
+                                                   "plant.damping=kelvin-voigt", key])
         ladder = available_ladder(scene)
         assert ladder == available_ladder()[:available_ladder().index(want) + 1], key
         if want == "exact":

@@ -62,7 +62,8 @@ def loader_files() -> list[Path]:
 
 
 def loader_header(model: str, table) -> str:
-    """``fpm_vars.h`` of the loader of ``model``: its whole table (value reference = position)."""
+    """``fpm_vars.h`` of the loader of ``model``: the variables of its pythonfmu FMU, from its
+    whole ``table`` (value reference = position in the table)."""
     from .native_fmus import generate_header
 
     return generate_header(model, "", table=table, mode_tables=False)

@@ -5,7 +5,8 @@
     fmi3_model_description(name, token, ...) -> bytes     (native FMUs)
 
 The tables are :mod:`plant_fmu.interface` and :mod:`controller_fmu.interface`; the value
-reference of a variable is its position in its table. Units are declared in ``UnitDefinitions``
+reference of a variable is its position in its table, in every flavour (a flavour leaves out
+the variables it has not). Units are declared in ``UnitDefinitions``
 with their SI base units, start values are written exactly (``repr`` of the float, ``INF`` for
 infinity in the pythonfmu FMUs; in the native FMUs an infinite start value, "no limit", is written
 as the largest double, :data:`NO_LIMIT`), and ``ModelStructure`` carries the real dependencies of the outputs (pythonfmu writes
@@ -19,8 +20,8 @@ import sys
 import xml.etree.ElementTree as ET
 
 from controller_fmu import interface as controller_interface
-from fmu_common.variables import (derivatives, event_indicators, native_variables,
-                                  python_variables, states)
+from fmu_common.variables import (derivatives, event_indicators, independent_variable,
+                                  native_variables, python_entries, states)
 from plant_fmu import interface as plant_interface
 
 __all__ = ["TABLES", "UNITS", "FMI3_TYPES", "fmi2_model_description", "fmi3_model_description",
@@ -86,11 +87,12 @@ def _units(table) -> list[str]:
 
 
 def _entries(table, native: bool) -> list:
-    """``[(value reference, Variable)]`` written: the whole table, or a native FMU's (without the
-    input-derivative variables, each variable keeping its value reference)."""
+    """``[(value reference, Variable)]`` written: a pythonfmu FMU's (co-simulation only) or a
+    native FMU's (without the input-derivative variables), each variable at its value
+    reference."""
     if native:
         return native_variables(table)
-    return list(enumerate(python_variables(table)))
+    return python_entries(table)
 
 
 def _me_structure(entries):
@@ -206,7 +208,7 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
                            table=None, model=None, model_exchange: dict | None = None) -> bytes:
     """The FMI 3.0 ``modelDescription.xml`` of the native FMU of model ``name``: the same variables
     and value references as its FMI 2.0 description, FMI 3.0 types (Float64, Int32), dependencies
-    by value reference, and the independent variable ``time`` at the first free reference."""
+    by value reference, and the independent variable ``time`` at its reference in the table."""
     if table is None:
         model, table = TABLES[name]
     entries = _entries(table, True)
@@ -223,9 +225,10 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
             sorted({"s", *_units([v for _, v in entries])}))     # "s": the unit of time
     mv = ET.SubElement(root, "ModelVariables")
     vrs = {v.name: vr for vr, v in entries}
-    ET.SubElement(mv, "Float64", {"name": "time", "valueReference": str(len(table)),
+    time_vr, time = independent_variable(table)
+    ET.SubElement(mv, "Float64", {"name": time.name, "valueReference": str(time_vr),
                                   "causality": "independent", "variability": "continuous",
-                                  "description": "simulation time", "unit": "s"})
+                                  "description": time.description, "unit": time.unit})
     for vr, v in entries:
         attrs = {"name": v.name, "valueReference": str(vr), "description": v.description,
                  "causality": v.causality, "variability": v.variability}

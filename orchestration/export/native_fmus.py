@@ -50,8 +50,8 @@ from pathlib import Path
 import numpy as np
 
 from fmu_common import kernels
-from fmu_common.variables import (derivatives, event_indicators, native_variables, states,
-                                  value_references)
+from fmu_common.variables import (derivatives, event_indicators, native_variables,
+                                  python_entries, states, value_references)
 from plant_fmu.beam import _fe_modes_unit, unit_beam
 from plant_fmu.interface import N_ETA_OUTPUTS, VARIABLES
 
@@ -134,17 +134,18 @@ def _hex(x: float) -> str:
 
 def generate_header(name: str, token: str, table=None, mode_tables: bool = True) -> str:
     """``fpm_vars.h`` of model ``name``: its variables, value-reference macros, name, token and,
-    for the plant, the unit beam's modal tables. ``table``: a whole table instead of the native
-    FMU's variables (the pythonfmu loader checks its FMU's calls against it); ``mode_tables``:
+    for the plant, the unit beam's modal tables. ``table``: a model's whole table, whose pythonfmu
+    FMU's variables (:func:`fmu_common.variables.python_entries`) are written instead of the
+    native FMU's (the pythonfmu loader checks its FMU's calls against them); ``mode_tables``:
     False leaves the modal tables out."""
 
     if table is None:
-        entries = native_variables(TABLES[name][1])
         table = TABLES[name][1]
+        entries = native_variables(table)
     else:
-        entries = list(enumerate(table))
+        entries = python_entries(table)
     if len(table) > MAX_VARS:
-        raise NativeBuildError(f"{name} has {len(table)} variables; fpm.h has room for "
+        raise NativeBuildError(f"{name} has {len(table)} value references; fpm.h has room for "
                                f"{MAX_VARS}")
     types = {"Real": "FPM_REAL", "Integer": "FPM_INTEGER", "Boolean": "FPM_BOOLEAN",
              "String": "FPM_STRING"}

@@ -238,11 +238,11 @@ def _worker(args_json: str):
                                canGetAndSetFMUstate=True, canSerializeFMUstate=True)
     cls = getattr(importlib.import_module(a["module"]), a["name"])
     slave = cls(instance_name="build", resources=str(stage))
-    from fmu_common.variables import python_variables
+    from fmu_common.variables import python_entries
 
-    table = python_variables(TABLES[a["name"]][1])     # co-simulation only: no ME variables
+    table = TABLES[a["name"]][1]
     registered = [(v.name, v.value_reference) for v in slave.vars.values()]
-    expected = [(v.name, i) for i, v in enumerate(table)]
+    expected = [(v.name, vr) for vr, v in python_entries(table)]   # co-simulation: no ME variables
     if registered != expected:
         raise SystemExit(f"{a['name']}: the slave registered {registered}, the table says "
                          f"{expected}")

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from plant_fmu.params import damping_text
+
 from ..studies.analysis import frequency_response
 from ..studies.design import root_locus
 from . import figures
@@ -44,8 +46,9 @@ class DesignReport:
         out = {"design_worst_case.png": figures.worst_case(
             r.sweep, (ch.cutoff, r.worst.score(r.criterion), chosen_label), ylabel,
             f"worst case over n_modes {uset['n_modes'][0]}..{uset['n_modes'][1]}, zeta "
-            f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g}, EI +-{100 * r.uncertainty.EI_spread:g} "
-            f"%, m +-{100 * r.uncertainty.m_spread:g} % (PD kp = {c.kp:g}, kd = {c.kd:g})")}
+            f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g} ({p.damping} law), EI "
+            f"+-{100 * r.uncertainty.EI_spread:g} %, m +-{100 * r.uncertainty.m_spread:g} % "
+            f"(PD kp = {c.kp:g}, kd = {c.kd:g})")}
         w = np.logspace(0, np.log10(max(20.0 * ch.cutoff, 5e3)), 3000)
         loops = {"PD, no filter": frequency_response(p, c.replace(filter_order=0), w),
                  chosen_label.replace("chosen: ", "PD + "): frequency_response(p, ch, w)}
@@ -55,7 +58,7 @@ class DesignReport:
                 frequency_response(p, c, w)
         out["design_bode.png"] = figures.loop_bode(
             w, loops, f"loop broken at the force, L = -K G (PD kp = {c.kp:g}, kd = {c.kd:g}; "
-                      f"nominal beam, {p.n_modes} modes)",
+                      f"nominal beam, {p.n_modes} modes, {damping_text(p)})",
             [(ch.cutoff, "cutoff")])
         s = self.settings
         wcs, roots = root_locus(p, ch, np.union1d(
@@ -63,7 +66,7 @@ class DesignReport:
         kind = "1st order" if ch.filter_order == 1 else f"2nd order, zf = {ch.filter_damping:g}"
         out["design_root_locus.png"] = figures.root_locus(
             wcs, roots, ch.cutoff, f"closed-loop roots as the cutoff varies ({kind}; nominal "
-                                   f"beam, {p.n_modes} modes)")
+                                   f"beam, {p.n_modes} modes, {damping_text(p)})")
         return out
 
     def save(self, folder) -> list[Path]:

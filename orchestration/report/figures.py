@@ -36,8 +36,8 @@ def _wrapped(text: str, width: int = 95) -> str:
 # ---------------------------------------------------------------------- what ran, in words
 #: The physical parameters a title names when a scene changes them from the paper's Table 1
 #: (those of a rigid model leave out what only the beam's bending depends on).
-_PHYSICAL = ("m", "L", "rho", "EA", "E", "EI", "zeta", "g", "gravity_preload", "n_elements")
-_BENDING_ONLY = ("EI", "zeta", "gravity_preload", "n_elements")
+_PHYSICAL = ("m", "L", "rho", "EA", "E", "EI", "g", "gravity_preload", "n_elements")
+_BENDING_ONLY = ("EI", "gravity_preload", "n_elements")
 
 
 def root_text(z) -> str:
@@ -49,24 +49,33 @@ def root_text(z) -> str:
 
 
 def plant_text(scene) -> str:
-    """The plant that ran: rigid or its number of cantilever modes, the fidelity, and the
-    physical parameters that differ from the paper's Table 1."""
+    """The plant that ran: rigid or its number of cantilever modes, the fidelity, its damping
+    (the law named: every root and rate the title states depends on it) and the physical
+    parameters that differ from the paper's Table 1."""
     from dataclasses import fields
 
-    from plant_fmu.params import PlantParams
+    from plant_fmu.params import PlantParams, damping_text
 
     p = scene.plant.params
     table1 = {f.name: f.default for f in fields(PlantParams)}     # no record made for it
-    if p.n_modes == 0:
+    exact = scene.plant.fidelity == "exact"
+    if exact:
+        out = f"geometrically exact beam, {p.n_elements} elements"
+    elif p.n_modes == 0:
         out = "rigid pendulum"
     else:
         out = f"flexible beam, {p.n_modes} cantilever mode{'s' if p.n_modes > 1 else ''}"
     if scene.plant.fidelity == "linear":
         out += ", linearised plant"
+    elif scene.plant.fidelity == "stiffened":
+        out += ", stiffened rung"
+    if p.n_modes or exact:
+        out += f", {damping_text(p)}"
     changed = [f"{k} = {getattr(p, k):g}" if not isinstance(getattr(p, k), bool)
                else f"{k} = {str(getattr(p, k)).lower()}"
                for k in _PHYSICAL if getattr(p, k) != table1[k]
-               and not (p.n_modes == 0 and k in _BENDING_ONLY)]
+               and not (p.n_modes == 0 and not exact and k in _BENDING_ONLY)
+               and not (exact and k in ("n_elements", "gravity_preload"))]
     return out + (f" ({', '.join(changed)})" if changed else "")
 
 
@@ -102,9 +111,12 @@ def initial_text(initial) -> str:
 def loop_text(scene) -> str:
     """What the linearised loop predicts: stable (its slowest decay) or which roots grow; the
     bending root (:func:`~orchestration.studies.analysis.loop_roots`)."""
-    from ..studies.analysis import loop_roots
+    from ..studies.analysis import linearisation, loop_roots
 
-    r = loop_roots(scene.plant.params, scene.controller)
+    lin = linearisation(scene)
+    r = loop_roots(lin.params, scene.controller)
+    loop = "linearised loop" if lin.own else \
+        "the floating frame's preloaded linearised loop (standing in for the exact rung's)"
 
     def name(z):
         if r.bending is not None and complex(z) == r.bending:
@@ -112,12 +124,12 @@ def loop_text(scene) -> str:
         return f"{'real root' if complex(z).imag == 0 else 'root'} {root_text(z)}"
 
     if r.stable:
-        out = f"linearised loop: stable, slowest decay {-r.max_real_part:.3g} 1/s"
+        out = f"{loop}: stable, slowest decay {-r.max_real_part:.3g} 1/s"
         if r.bending is not None:
             out += f"; {name(r.bending)}"
         return out
     grow = r.growing()
-    out = "linearised loop: UNSTABLE, " + " and ".join(name(z) for z in grow[:2])
+    out = f"{loop}: UNSTABLE, " + " and ".join(name(z) for z in grow[:2])
     out += (" grows" if len(grow) == 1 else f" grow{' (and more)' if len(grow) > 2 else ''}")
     if r.bending is not None and r.bending.real < 0:
         out += f"; {name(r.bending)}"
@@ -239,7 +251,7 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
     (else stated); an early stop is marked. Drawn by ``renderer``
     (:func:`~orchestration.report.plotting.canvas`): a matplotlib Figure, or a raster canvas to
     save."""
-    from ..studies.analysis import first_bending_frequency
+    from ..studies.analysis import first_bending_frequency, linearisation
     from .summary import BENDING_BAND
 
     t = result["time"]
@@ -270,7 +282,7 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
     if flexible:
         ax = ax_of["bending"]
         _, env = bending_band(t, result["eta_1"], BENDING_BAND[0],
-                              first_bending_frequency(scene.plant.params))
+                              first_bending_frequency(linearisation(scene).params))
         ax.yscale("log")
         ax.line(t, np.maximum(env, 1e-300), lw=0.7, color="C0")
         top_env = float(env.max()) if env.size else 0.0
@@ -539,9 +551,11 @@ def root_map(scenes, *, renderer="matplotlib"):
     them (real axis symmetric-log), right the part near the imaginary axis up to twice the
     first bending frequency; each scene's bending root circled and labelled. Drawn by
     ``renderer``, as :func:`time_histories`."""
-    from ..studies.analysis import loop_roots
+    from plant_fmu.params import damping_text
 
-    roots = [(sc, loop_roots(sc.plant.params, sc.controller)) for sc in scenes]
+    from ..studies.analysis import linearisation, loop_roots
+
+    roots = [(sc, loop_roots(linearisation(sc).params, sc.controller)) for sc in scenes]
     width, height = 11.0, 5.2
     fig = canvas(width, height, renderer)
     grid = fig.grid(1, 2, left=0.07, right=0.99, top=1 - 0.95 / height, bottom=0.6 / height,
@@ -559,7 +573,9 @@ def root_map(scenes, *, renderer="matplotlib"):
             ax.markers(up.real, np.abs(up.imag), marker=markers[k % len(markers)],
                        color=f"C{k}", size=6, hollow=True, mew=1.3, label=f"{sc.name}: "
                        + ("stable" if r.stable else "UNSTABLE")
-                       + f", {sc.plant.params.n_modes} modes" if ax is axes[0] else None)
+                       + f", {sc.plant.params.n_modes} modes"
+                       + (f", {damping_text(sc.plant.params)}" if sc.plant.params.n_modes
+                          else "") if ax is axes[0] else None)
         near += [z for z in up if abs(z.imag) <= zoom_hi]
         if r.bending is not None:
             for ax in axes:

@@ -18,6 +18,11 @@ reported as a number only when it is reliable:
 * the linearised loop has a mode within ``FREQUENCY_MATCH`` of the fitted frequency (no mode is
   reported that the loop does not have); that mode is printed beside the fit.
 
+The linearised loop is the run's rung's, with its damping law
+(:func:`orchestration.studies.analysis.linearisation`, the one ``flexpend analyze`` takes): a fit
+is compared only with the linear root of the same rung and law. The exact rung has no linear loop
+here: the floating frame's preloaded loop of the same law stands in, and ``linear_loop`` says so.
+
 Otherwise the summary says why instead of printing a number.
 
 **Validity.** How far the run's tip angle can be trusted on its rung of the fidelity ladder, in
@@ -38,7 +43,7 @@ import math
 
 import numpy as np
 
-from ..studies.analysis import closed_loop_eigenvalues, first_bending_frequency
+from ..studies.analysis import closed_loop_eigenvalues, first_bending_frequency, linearisation
 from ..studies.fit import fit_mode
 from ..studies.validity import assess
 
@@ -65,9 +70,10 @@ _SIGNALS = {"slow": ("phi_o", SLOW_BAND), "bending": ("eta_1", BENDING_BAND)}
 
 
 def linear_modes(scene) -> np.ndarray:
-    """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop."""
+    """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop
+    (:func:`~orchestration.studies.analysis.linearisation`: its rung's, with its damping law)."""
 
-    lam = closed_loop_eigenvalues(scene.plant.params, scene.controller)
+    lam = closed_loop_eigenvalues(linearisation(scene).params, scene.controller)
     return lam[lam.imag > 1e-9]
 
 
@@ -132,9 +138,10 @@ def fit_modes(res: np.ndarray, scene=None) -> dict:
     """``{"slow": entry, "bending": entry}`` (see :func:`_fit`)."""
     L = scene.plant.params.L if scene is not None else None
     w = linear_window(res, L)
+    lin = linearisation(scene) if scene is not None else None
     modes = linear_modes(scene) if scene is not None else None
     t = res["time"][w]
-    near = {"bending": first_bending_frequency(scene.plant.params) if scene is not None else None}
+    near = {"bending": first_bending_frequency(lin.params) if lin is not None else None}
     out = {key: _fit(t, res[col][w], key, modes, near.get(key))
            for key, (col, _) in _SIGNALS.items()}
     if scene is not None and scene.plant.params.n_modes == 0:
@@ -258,5 +265,6 @@ def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
     else:
         out["stable"] = all(r < 0 for r in rates)
     if scene is not None:
+        out["linear_loop"] = linearisation(scene).text()     # what the "linear" roots are of
         out["validity"] = validity(res, scene)
     return out

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import math
 
+from plant_fmu.params import damping_text
+
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
            "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
            "stability_lines"]
@@ -30,8 +32,10 @@ def analysis_lines(plant, controller, a) -> list[str]:
     """``flexpend analyze``: the loop, its closed-loop eigenvalues, the verdict and the margins
     (:class:`~orchestration.studies.analysis.Analysis`)."""
     p, c = plant, controller
-    out = [f"plant: n_modes = {p.n_modes}, zeta = {p.zeta:g}, gravity_preload = "
-           f"{str(p.gravity_preload).lower()}  (linearised at the upright rest state)",
+    out = [f"plant: n_modes = {p.n_modes}, zeta = {p.zeta:g}, damping = {p.damping}, "
+           f"gravity_preload = {str(p.gravity_preload).lower()}",
+           "  linearised at the upright rest state: "
+           + (a.loop or f"{p.n_modes} modes, {damping_text(p)}"),
            f"controller: kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}, filter: "
            f"{filter_text(c.filter_order, c.cutoff, c.filter_damping)}"]
     if a.cantilever_frequencies:
@@ -113,8 +117,12 @@ def validity_text(v: dict) -> str:
     if v.get("model_form_error") is None:
         return f"model-form error: not measured ({v.get('note') or 'no bound'})"
     at = "" if v["rung"].startswith("rigid") else f"{100 * v['deflection']:.2g} % deflection, "
+    laws = v.get("damping")
+    name = {"modal": "modal", "kelvin-voigt": "Kelvin-Voigt"}
+    under = (f" ({name[laws['rungs']]} damping, against the exact beam's "
+             f"{name[laws['exact']]})" if laws and not v["rung"].startswith("rigid") else "")
     return (f"model-form error <= {v['model_form_error']:.1e} rad ({100 * v['relative']:.2g} % "
-            f"of max |phi_o|; measured bound for the {v['rung']} rung at {at}"
+            f"of max |phi_o|; measured bound for the {v['rung']} rung{under} at {at}"
             f"{v['rate']:.3g} rad/s)")
 
 
@@ -139,6 +147,8 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
         out += [f"    {part}" for part in m["reason"].split("; ")]
     out.append(f"  slow (rigid) oscillation: {mode_text(s.get('slow'))}")
     out.append(f"  bending oscillation:      {mode_text(s.get('bending'))}")
+    if s.get("linear_loop"):
+        out.append(f"  linear: {s['linear_loop']}")
     v = s.get("validity")
     if v and v.get("max_abs_phi") is not None:
         out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}"
@@ -201,6 +211,8 @@ def stability_lines(r: dict) -> list[str]:
     h = sc["substep_limit"]
     lines = [f"{r['name']}: the linear co-simulation's largest stable communication step "
              "(rho(Phi) = 1)"]
+    if r.get("loop"):
+        lines.append(f"  plant: {r['loop']}")
     lines += [f"  assumes {a}" for a in r["assumes"]]
     lines += [f"  its coupling: {coupling_text(k)}, master.step = {num(k['step'] * 1e3)} ms",
               f"    largest stable step: {_step_text(sc['critical_step'])}",
@@ -225,13 +237,17 @@ def design_lines(d) -> list[str]:
     def where(pl):
         return f"n_modes = {pl.n_modes}, zeta = {pl.zeta:g}, EI = {pl.EI:.4g}, m = {pl.m:.3g}"
 
+    law = {"modal": "modal damping", "kelvin-voigt": "Kelvin-Voigt damping, zeta in mode 1"}[
+        d.plant.damping]
+
     def root(z):
         return f"{z.real:+.4f} +- {abs(z.imag):.2f}j" if z.imag else f"{z.real:+.4f}"
 
     ch, wc_ = r.chosen, r.worst
     out = [f"robust low-pass design for the PD kp = {c.kp:g}, kd = {c.kd:g}, kx = {c.kx:g}",
            f"uncertainty: n_modes {uset['n_modes'][0]}..{uset['n_modes'][1]}, zeta "
-           f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g}, EI {uset['EI'][0]:.4g}..{uset['EI'][1]:.4g}, "
+           f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g} ({law}), "
+           f"EI {uset['EI'][0]:.4g}..{uset['EI'][1]:.4g}, "
            f"m {uset['m'][0]:.3g}..{uset['m'][1]:.3g}; searched on {r.levels} levels, checked on "
            f"{r.check_levels} levels ({wc_.n_plants} plants)",
            f"criterion: the smallest closed-loop "

@@ -26,7 +26,7 @@ import numpy as np
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
 from plant_fmu.beam import beam_model
 from plant_fmu.dynamics import plant_model
-from plant_fmu.params import PlantParams
+from plant_fmu.params import PlantParams, damping_text
 
 if TYPE_CHECKING:
     import control
@@ -34,7 +34,55 @@ if TYPE_CHECKING:
 __all__ = ["closed_loop_matrix", "assemble_closed_loop", "loop_transfer", "frequency_response",
            "analyze", "Analysis", "margins", "max_real_part", "first_bending_frequency",
            "closed_loop_eigenvalues",
-           "LoopRoots", "loop_roots"]
+           "LoopRoots", "loop_roots", "Linearisation", "linearisation"]
+
+
+@dataclass(frozen=True)
+class Linearisation:
+    """The linearised plant that a scene's rung is judged by (:func:`linearisation`).
+
+    ``params``: the floating frame's plant linearised at the upright rest state; ``rung``: the
+    scene's ``plant.fidelity``; ``own``: whether that loop is the rung's own linearisation
+    (False for the exact rung, whose loop the floating frame's stands in for)."""
+
+    params: PlantParams
+    rung: str
+    own: bool = True
+
+    def text(self) -> str:
+        """Which loop, in words, its damping law named: ``"the stiffened rung's linearisation (4
+        modes, preloaded, modal damping 0.1 %)"``."""
+        p = self.params
+        loop = "rigid" if p.n_modes == 0 else \
+            f"{p.n_modes} mode{'s' if p.n_modes != 1 else ''}"
+        loop += ", preloaded" if p.gravity_preload else ""
+        loop += f", {damping_text(p)}" if p.n_modes else ""
+        if self.own:
+            return f"the {self.rung} rung's linearisation ({loop})"
+        return (f"the floating frame's linearisation ({loop}), standing in for the {self.rung} "
+                f"rung's")
+
+
+def linearisation(scene) -> Linearisation:
+    """The linearisation of a scene's plant, for its rung: the one function that decides it,
+    for the summary's linear roots, ``analyze``, ``stability``, ``design``, the figures, the
+    sweeps' linear rates and design sets, and the choice of ``n_modes``. The damping law and every
+    other physical parameter are the scene's (they are in the parameter record; while
+    ``plant.n_modes`` is ``"auto"`` the record has 0 modes, and ``plant.fidelity = "auto"`` is
+    linearised as the floating frame the scene sets).
+
+    * ``linear``, ``nonlinear``: the plant as the scene sets it (``plant.gravity_preload``
+      included);
+    * ``stiffened``: the preload rung's (the stiffened rung's small-amplitude dynamics are
+      those of the self-weight's geometric stiffness, ``tests/test_stiffened.py``);
+    * ``exact``: the exact beam's own linearisation is not taken here; the floating frame's
+      preloaded loop (the exact beam stands compressed by its weight) with the scene's
+      ``n_modes`` and damping law stands in for it (``own`` False: the analyses refuse it, the
+      summary says which loop it compared with)."""
+    rung, p = scene.plant.fidelity, scene.plant.beam
+    if rung in ("stiffened", "exact"):
+        p = p.replace(gravity_preload=True)
+    return Linearisation(p, rung, own=rung != "exact")
 
 
 def assemble_closed_loop(A, B, C, controller_ss, gain: float = 1.0) -> np.ndarray:
@@ -290,6 +338,7 @@ class Analysis:
     margins: dict
     plant: PlantParams | None = None
     controller: ControllerParams | None = None
+    loop: str | None = None            # which loop, a scene's (Linearisation.text)
 
     def modes(self):
         """One row per oscillatory closed-loop mode (upper half-plane) or real root:
@@ -304,7 +353,7 @@ class Analysis:
         return sorted(rows, key=lambda r: r[2])
 
     def to_json(self) -> dict:
-        out = {}
+        out = {"loop": self.loop} if self.loop else {}
         if self.plant is not None:
             out["plant"] = dataclasses.asdict(self.plant)
         if self.controller is not None:
@@ -320,8 +369,9 @@ class Analysis:
         }
 
 
-def analyze(p: PlantParams, c: ControllerParams) -> Analysis:
-    """Eigenvalues, stability verdict, damping ratios and margins of the linearised closed loop."""
+def analyze(p: PlantParams, c: ControllerParams, loop: str | None = None) -> Analysis:
+    """Eigenvalues, stability verdict, damping ratios and margins of the linearised closed loop
+    (``loop``: which loop it is, :meth:`Linearisation.text`)."""
     A = plant_model(p).state_space()[0]
     Acl = closed_loop_matrix(p, c)
     eig = np.linalg.eigvals(Acl)
@@ -337,4 +387,5 @@ def analyze(p: PlantParams, c: ControllerParams) -> Analysis:
         margins=margins(p, c),
         plant=p,
         controller=c,
+        loop=loop,
     )

@@ -32,11 +32,12 @@ from plant_fmu.interface import FIDELITIES
 
 from ..scene.keys import ConfigError
 from ..scene.records import AUTO
-from .analysis import max_real_part
+from .analysis import linearisation, max_real_part
 from .reference import simulate_reference
 from .validity import assess
 
-__all__ = ["LADDER", "available_ladder", "climb", "output_difference", "select_model"]
+__all__ = ["LADDER", "available_ladder", "refused_rungs", "climb", "output_difference",
+           "select_model"]
 
 #: The fidelity ladder, bottom to top (``plant.fidelity`` values; ``plant.gravity_preload`` is
 #: kept as the scene sets it). A name that is not (yet) a ``plant.fidelity`` value is skipped.
@@ -58,27 +59,35 @@ def output_difference(a: np.ndarray, b: np.ndarray, outputs) -> dict:
 
 def available_ladder(scene=None) -> tuple:
     """The rungs of :data:`LADDER` this build offers, bottom to top; with a ``scene``, only those
-    its FMUs and master can run (the exact rung refuses, e.g., the pythonfmu plant and Model
-    Exchange: :meth:`orchestration.scene.records.Scene` says why)."""
+    its FMUs, master and damping law can run (the exact rung refuses, e.g., the pythonfmu plant,
+    Model Exchange and the modal law with damping: :func:`refused_rungs` says why)."""
     rungs = tuple(f for f in LADDER if f in FIDELITIES)
     if scene is None:
         return rungs
+    refused = refused_rungs(scene)
+    return tuple(f for f in rungs if f not in refused)
+
+
+def refused_rungs(scene) -> dict:
+    """``{rung: why}``: the rungs of the ladder this build offers that ``scene`` cannot run, each
+    with the scene's one-line refusal (:class:`orchestration.scene.records.Scene`)."""
     n = 0 if scene.plant.n_modes_auto else scene.plant.n_modes
-    return tuple(f for f in rungs if _runs(scene, n, f))
+    out = {}
+    for f in (f for f in LADDER if f in FIDELITIES):
+        try:
+            scene.replace(plant=scene.plant.with_model(n, f))
+        except ConfigError as exc:
+            out[f] = str(exc)
+    return out
 
 
-def _runs(scene, n: int, fidelity: str) -> bool:
-    try:
-        scene.replace(plant=scene.plant.with_model(n, fidelity))
-    except ConfigError:
-        return False
-    return True
-
-
-def climb(fidelity: str, validity: dict, tolerance: float, ladder: tuple | None = None):
+def climb(fidelity: str, validity: dict, tolerance: float, ladder: tuple | None = None,
+          refused: dict | None = None):
     """``(next fidelity or None, reason)``: whether a run on ``fidelity``, whose summary's
     ``validity`` is given (:func:`orchestration.report.summary.validity`), is repeated on the next
-    rung up of ``ladder`` (default :func:`available_ladder`; see the module docstring)."""
+    rung up of ``ladder`` (default :func:`available_ladder`; see the module docstring).
+    ``refused``: why the scene cannot run the rungs left out of ``ladder``
+    (:func:`refused_rungs`), said when the climb stops below them."""
     rung, bound, rel = validity["rung"], validity["model_form_error"], validity["relative"]
     if fidelity == LADDER[-1]:
         return None, f"{rung}: the top rung (the reference of every measured bound): kept"
@@ -96,9 +105,11 @@ def climb(fidelity: str, validity: dict, tolerance: float, ladder: tuple | None 
     i = ladder.index(fidelity) if fidelity in ladder else len(ladder) - 1
     if i + 1 < len(ladder):
         return ladder[i + 1], f"{why}: climbs to {ladder[i + 1]}"
-    missing = [f for f in LADDER[LADDER.index(ladder[-1]) + 1:]]
+    refused = refused or {}
+    missing = [f"{f} not available" + (f", {refused[f]}" if f in refused else "")
+               for f in LADDER[LADDER.index(ladder[-1]) + 1:]]
     return None, (f"{why}; {fidelity} is the top available rung"
-                  + (f" ({', '.join(missing)} not available)" if missing else "") + ": kept")
+                  + (f" ({', '.join(missing)})" if missing else "") + ": kept")
 
 
 def _label(n: int, fid: str) -> str:
@@ -144,7 +155,7 @@ def select_model(scene, progress=None, monolithic: bool = False):
         c = scene.controller
         verdicts = []
         for n in range(n_max + 1):
-            mrp = max_real_part(scene.plant.beam.replace(n_modes=n), c)
+            mrp = max_real_part(linearisation(concrete(n, mode_fid)).params, c)
             verdicts.append({"n_modes": n, "max_real_part": mrp, "stable": mrp < 0})
         report["linear_verdicts"] = verdicts
         stable = [v["stable"] for v in verdicts]
@@ -176,12 +187,12 @@ def select_model(scene, progress=None, monolithic: bool = False):
         n = scene.plant.n_modes
     fid = scene.plant.fidelity
     if auto_f:
-        ladder = available_ladder(scene)
+        ladder, refused = available_ladder(scene), refused_rungs(scene)
         fid = ladder[0]
         reasons.append(f"plant.fidelity = auto: starts on the lowest rung, {fid}")
         while monolithic:
             v = assess(run(n, fid), concrete(n, fid))
-            nxt, why = climb(fid, v, tol, ladder)
+            nxt, why = climb(fid, v, tol, ladder, refused)
             reasons.append(f"{why} (monolithic run)")
             if nxt is None:
                 break

@@ -71,6 +71,7 @@ from plant_fmu.integrators.genalpha import genalpha_parameters
 from plant_fmu.params import PlantParams
 
 from ..scene.keys import ConfigError
+from .analysis import linearisation
 
 __all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", "substep_matrix",
            "plant_step_map", "plant_polynomial_step_map", "controller_polynomial_step_map",
@@ -603,7 +604,8 @@ def scene_transition_matrix(scene, H: float | None = None, step_index=None, drif
     """:func:`transition_matrix` for a scene's plant, controller and master (its step and
     coupling, :func:`scene_coupling`; the plant's integrator and substep)."""
     m = scene.master
-    return transition_matrix(scene.plant.params, scene.controller, m.step if H is None else H,
+    return transition_matrix(linearisation(scene).params, scene.controller,
+                             m.step if H is None else H,
                              **scene_coupling(scene), integrator=scene.plant.integrator,
                              substep=scene.plant.step, drift_free=drift_free,
                              step_index=step_index)
@@ -823,7 +825,11 @@ def _scene_model(scene):
         raise ValueError(f"plant.integrator = {scene.plant.integrator!r} is adaptive in the "
                          f"plant FMU: no fixed transition matrix; allowed: "
                          f"{', '.join(FIXED_STEP_METHODS)}")
-    return scene.plant.params, scene.controller, scene.plant.integrator, scene.plant.step
+    lin = linearisation(scene)
+    if not lin.own:
+        raise ValueError(f"plant.fidelity = {scene.plant.fidelity!r}: the floating frame's "
+                         "transition matrix is not this rung's")
+    return lin.params, scene.controller, scene.plant.integrator, scene.plant.step
 
 
 def substep_limit(p: PlantParams, method: str):

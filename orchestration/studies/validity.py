@@ -4,8 +4,10 @@ fidelity ladder, in radians.
 Each rung (the plant's model: ``plant.fidelity``, ``plant.gravity_preload``, rigid or not) was
 compared with the top rung, the geometrically exact beam (:mod:`plant_fmu.exact`, its C kernel),
 over the paper scenes and a sweep of initial angles and gains (``python3 bench/validity_map.py``,
-which writes ``validity_bound.json`` beside this module). At every output time ``t`` of every
-run of the sweep it recorded
+which writes ``validity_bound.json`` beside this module; the rungs under the scenes' damping law,
+modal, the exact beam under its own, Kelvin-Voigt with the same ``zeta``: the file's ``damping``
+says so, and the errors include the two laws' difference above the first cantilever mode). At
+every output time ``t`` of every run of the sweep it recorded
 
 * ``E(t)``: the largest ``|phi_o - phi_o(exact)|`` up to ``t`` plus the exact rung's own
   discretisation uncertainty up to ``t`` (its mesh doubled and its step halved);
@@ -42,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["BOUND_FILE", "TOP", "TERMS", "RANGE", "rung_name", "term", "RungBound", "bounds",
-           "cantilever_frequency", "features", "assess"]
+           "cantilever_frequency", "features", "assess", "MEASURED_DAMPING", "measured_damping"]
 
 #: The fitted bounds (reference data, written by ``python3 bench/validity_map.py``).
 BOUND_FILE = Path(__file__).with_name("validity_bound.json")
@@ -105,6 +107,16 @@ def _load(path: str) -> dict:
         return json.load(f)
 
 
+#: The damping laws the bounds were measured under when the file does not say (before issue 34
+#: it did not: the rungs under the scenes' modal law, the exact beam under Kelvin-Voigt).
+MEASURED_DAMPING = {"rungs": "modal", "exact": "kelvin-voigt"}
+
+
+def measured_damping(path=BOUND_FILE) -> dict:
+    """``{"rungs": law, "exact": law}``: the damping laws the bounds were measured under."""
+    return dict(_load(str(path)).get("damping", MEASURED_DAMPING))
+
+
 def bounds(path=BOUND_FILE) -> dict:
     """``{rung: RungBound}`` of the reference data."""
     data = _load(str(path))
@@ -139,12 +151,13 @@ def assess(res: np.ndarray, scene, path=BOUND_FILE) -> dict:
     """The run's model-form error bound on its rung, where it was measured, and where the run
     leaves the measured range: ``{"rung", "model_form_error" (rad, or None without a measured
     bound), "relative" (to the largest |phi_o|), "deflection", "rate", "angle", "measured_range",
-    "outside": [what left it, in words], "note"}``."""
+    "outside": [what left it, in words], "note", "damping": the laws it was measured under}``."""
     name = rung_name(scene.plant)
     table = bounds(path)
     L = scene.plant.params.L
     out = {"rung": name, "model_form_error": None, "relative": None, "deflection": None,
-           "rate": None, "angle": None, "measured_range": None, "outside": [], "note": None}
+           "rate": None, "angle": None, "measured_range": None, "outside": [], "note": None,
+           "damping": measured_damping(path)}
     if len(res) == 0:
         return out
     P = features(res, L)

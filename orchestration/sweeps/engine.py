@@ -25,7 +25,7 @@ from ..job import run_scene
 from ..report.files import atomic_path, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
-from ..studies.analysis import max_real_part
+from ..studies.analysis import linearisation, max_real_part
 from .executor import Executor, TaskLost, file_name, scratch_dir, worker_file
 from .plan import Point, SweepPlan
 from .plot import plot_sweep
@@ -101,7 +101,7 @@ def summary_row(summary: dict) -> dict:
 def linear_decay_rate(scene: Scene) -> float:
     """The linearised loop's smallest decay rate ``-max Re(lambda)`` over all its roots, the
     cart's drift roots left aside: ``flexpend design``'s criterion, for this one plant."""
-    return -max_real_part(scene.plant.params, scene.controller)
+    return -max_real_part(linearisation(scene).params, scene.controller)
 
 
 def _one_line(exc: BaseException, limit: int = 500) -> str:

@@ -15,6 +15,7 @@ import numpy as np
 from ..scene.keys import ConfigError, check_known, parse_override, parse_value
 from ..scene.records import Scene
 from ..scene.schema import known_keys, load_scene, scene_from_config
+from ..studies.analysis import linearisation
 from ..studies.design import (
     DESIGN_DEFAULTS,
     UncertaintySet,
@@ -286,8 +287,9 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
         except ConfigError as exc:
             raise ConfigError(f"--set: {exc}") from None
         settings = design_settings({**known, **dict(pairs)})
-        # the nominal beam (its n_modes is the set's; 0 stands for "auto")
-        uncertainty = UncertaintySet.from_settings(base.plant.beam, settings)
+        # the nominal beam, as the scene's rung linearises it (its n_modes is the set's; 0
+        # stands for "auto")
+        uncertainty = UncertaintySet.from_settings(linearisation(base).params, settings)
     elif design_items:
         raise ConfigError(f"--set {design_items[0]!r}: design.* keys shape the design's "
                           "uncertainty set; they need --sample design (or KEY=design)")

@@ -331,8 +331,9 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     const double *r = m->v.real;
     double L = r[VR_L], EI = r[VR_EI], rho = r[VR_rho], EA = r[VR_EA], E = r[VR_E];
     double g = r[VR_g], zeta = r[VR_zeta], rhoA, w, sI3, sI5, slam, sslope, sKg;
-    int n, ne, j, i, stiffened;
+    int n, ne, j, i, stiffened, kv;
     const char *fid = m->v.string[VR_fidelity], *integ = m->v.string[VR_integrator];
+    const char *law = m->v.string[VR_damping];
     static const char *REAL_PARAMS[] = {"m", "L", "rho", "EA", "EI", "E"};
     static const unsigned REAL_VRS[] = {VR_m, VR_L, VR_rho, VR_EA, VR_EI, VR_E};
     m->ready = 0;
@@ -340,6 +341,12 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         if (!check_real(lg, REAL_PARAMS[i], r[REAL_VRS[i]], 1, POSITIVE_MIN, 0, 1, 1e15, 0, 0))
             return 0;
     if (!check_real(lg, "zeta", zeta, 1, 0.0, 0, 1, 1.0, 1, 0)) return 0;
+    kv = strcmp(law, "kelvin-voigt") == 0;      /* the damping law (plant_fmu/params.py) */
+    if (!kv && strcmp(law, "modal") != 0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: damping = '%s' is not allowed; allowed: modal, "
+                "kelvin-voigt", law);
+        return 0;
+    }
     if (!check_real(lg, "g", g, 1, 0.0, 0, 1, 1e3, 0, 0)) return 0;
     if (!check_int(lg, "n_elements", r[VR_n_elements], 1, FPM_NE_MAX,
                    " (the native FMU carries the modes of these meshes; the pythonfmu "
@@ -350,6 +357,15 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         return 0;
     n = (int)r[VR_n_modes];
     m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
+    /* The exact rung's damping law, plant_fmu/params.py's exact_damping_refusal (the one place
+     * that decides it; the same words): it damps by material (Kelvin-Voigt) only, so it refuses
+     * the modal law with zeta > 0 (with zeta = 0 both laws are the same). */
+    if (m->exact && !kv && zeta > 0.0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = 'exact' refuses damping = 'modal' "
+                "with zeta = %g: the exact rung damps by material (Kelvin-Voigt), not by the "
+                "modal law: damping = 'kelvin-voigt' or zeta = 0 runs it", zeta);
+        return 0;
+    }
     if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
     stiffened = strcmp(fid, "stiffened") == 0;  /* the nonlinear rung with the preload and */
     if (stiffened) fid = "nonlinear";           /* the foreshortening's mass points */
@@ -396,7 +412,10 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     for (j = 0; j < n; j++) {
         double K = fpm_unit_lam[ne - 1][j] * slam, omega = sqrt(K);
         m->K[j] = K;
-        m->D[j] = 2.0 * zeta * omega;
+        /* beam.py's damping_diagonal: modal 2 zeta omega_j; Kelvin-Voigt beta K_j with beta =
+         * 2 zeta / omega_1, on the material stiffness alone (not on Kg) */
+        m->D[j] = kv ? 2.0 * zeta / sqrt(fpm_unit_lam[ne - 1][0] * slam) * K
+                     : 2.0 * zeta * omega;
         m->I3[j] = fpm_unit_I3[ne - 1][j] * sI3;
         m->I5[j] = fpm_unit_I5[ne - 1][j] * sI5;
         m->tip_defl[j] = fpm_unit_tip_defl[ne - 1][j] * w;

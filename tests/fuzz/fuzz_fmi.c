@@ -187,9 +187,9 @@ static void edit(input *in, uint8_t *b, size_t n)
     }
 }
 
-static const char *const KNOWN[10] = {"rk4", "euler", "symplectic_euler", "dopri5",
+static const char *const KNOWN[12] = {"rk4", "euler", "symplectic_euler", "dopri5",
                                       "exponential", "linear", "nonlinear", "radau", "exact",
-                                      "stiffened"};
+                                      "stiffened", "modal", "kelvin-voigt"};
 
 #define MAX_BLOB 65536
 static uint8_t blob[MAX_BLOB];
@@ -255,7 +255,7 @@ static void run2(input *in)
             break;
         case 9:
             for (k = 0; k < 3; k++) {
-                unsigned len = u8(in) % 50, j;
+                unsigned len = u8(in) % 52, j;
                 if (len >= 40) {                 /* a value the model knows */
                     strcpy(text[k], KNOWN[len - 40]);
                 } else {
@@ -441,7 +441,7 @@ static void run3(input *in)
             a = u16(in);
             iv[k] = (int32_t)(a | (u16(in) << 16));
             bv[k] = (fmi3Boolean)(u8(in) & 1);
-            sv[k] = KNOWN[u8(in) % 10];
+            sv[k] = KNOWN[u8(in) % 12];
         }
         a = u8(in);                            /* two flags for the operation */
         b = u8(in);

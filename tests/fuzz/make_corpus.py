@@ -34,7 +34,9 @@ INTERESTING = [
     9.223372036854775807e18, 4294967296.0, 2147483648.0, -2147483649.0, 0.1, 97.3, 500.0]
 HEADER = 24
 KNOWN = ["rk4", "euler", "symplectic_euler", "dopri5", "exponential", "linear", "nonlinear",
-         "radau", "exact", "stiffened"]
+         "radau", "exact", "stiffened", "modal", "kelvin-voigt"]
+#: the plant's String parameters' value references (plant_fmu/interface.py)
+FIDELITY, INTEGRATOR, DAMPING = 29, 30, 72
 
 
 def f64(x: float) -> bytes:
@@ -206,11 +208,13 @@ def regressions(model: str, version: int) -> dict:
         out["rho-subnormal"] = P().start(reals=[(vr["rho"], 5e-324)]).outputs().step(1e-3)
         # the exact rung (issue 27): its state [q, qd, qdd, a] follows the floating frame's
         # items; two elements (nq = 11), two modes (nx = 8)
-        ex = layout(model, {"fidelity": "exact"})
+        # (the exact rung damps by material: its runs say damping = 'kelvin-voigt')
+        ex = layout(model, {"fidelity": "exact", "damping": "kelvin-voigt"})
         xb = ex["y"] + 8 * 8 * 2 + 8 * 5 + 4 + 32 + 4
         nq = 4 * 2 + 3
         exact = lambda: P().start(reals=[(vr["phi0"], 0.3)], ints=[(27, 2), (26, 2)],  # noqa: E731
-                                  strings=[(29, "exact")]).step(1e-3)
+                                  strings=[(FIDELITY, "exact"),
+                                           (DAMPING, "kelvin-voigt")]).step(1e-3)
         out["crafted-exact-nan"] = exact().crafted([(xb, 0, math.nan)]).step(1e-3)
         out["crafted-exact-tip-slope"] = exact().crafted(
             [(xb + 8 * (nq - 2), 0, 0.0), (xb + 8 * (nq - 1), 0, 0.0)]).outputs().step(1e-3)
@@ -239,20 +243,28 @@ def seeds(model: str, version: int) -> dict:
                                   ("symplectic_euler", "nonlinear", [(26, 8)]),
                                   ("euler", "nonlinear", [(26, 0)])):
             p = P().start(reals=[(36, 0.3), (34, 0.5)], ints=extra,
-                          strings=[(30, integ), (29, fid)])
+                          strings=[(INTEGRATOR, integ), (FIDELITY, fid)])
             out[f"{integ}"] = (p.derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3)
                                .outputs().step(0.5).step(0.5).outputs())
         out["preload"] = P().start(reals=[(36, 0.3)], ints=[(28, 1)]).step(1e-3).outputs()
         out["exact"] = (P().start(reals=[(36, 0.3)], ints=[(27, 2), (26, 2)],
-                                  strings=[(29, "exact")])
+                                  strings=[(FIDELITY, "exact"), (DAMPING, "kelvin-voigt")])
                         .derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3).outputs()
                         .step(0.5).outputs())
+        # the exact rung refuses the modal law with zeta > 0 (an error at initialisation)
+        out["exact-modal"] = (P().start(reals=[(36, 0.3)], ints=[(27, 2), (26, 2)],
+                                        strings=[(FIDELITY, "exact"), (DAMPING, "modal")])
+                              .step(1e-3).outputs())
+        out["kelvin-voigt"] = (P().start(reals=[(36, 0.3), (24, 0.01)],
+                                         strings=[(DAMPING, "kelvin-voigt")])
+                               .derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3)
+                               .outputs().step(0.5).outputs())
         out["stiffened"] = (P().start(reals=[(36, 0.3)], ints=[(27, 2), (26, 2)],
-                                      strings=[(29, "stiffened")])
+                                      strings=[(FIDELITY, "stiffened")])
                             .derivatives(0, 1, 2.0).step(1e-3).roundtrip().step(2e-3).outputs()
                             .step(0.5).outputs())
         out["stiffened-largest"] = (P().start(reals=[(36, 0.3)], ints=[(27, 100), (26, 8)],
-                                              strings=[(29, "stiffened")])
+                                              strings=[(FIDELITY, "stiffened")])
                                     .step(1e-3).roundtrip().outputs())   # the most mass points
         out["model-exchange"] = P().model_exchange(reals=[(36, 0.3)]).roundtrip()
     else:
