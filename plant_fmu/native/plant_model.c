@@ -63,11 +63,15 @@ static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "e
  * (fp_exact_work_size, checked at initialisation). */
 #define XB_NQ_MAX (4 * FPM_NE_MAX + 3)
 #define XB_S_MAX (4 * XB_NQ_MAX)
-#define XB_WORK_MAX ((3 * 22 + 29) * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
+#define XB_WORK_MAX ((3 * 22 + 31) * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
 
-/* The exact rung's arrays (150 kB at 100 elements), left out of fpm_model_reset: its state,
- * written whole by xb_prepare before any use (and read only at the exact rung), and scratch. */
+/* The exact rung's arrays (1.3 MB at 100 elements, most of it the modal law's C_f and the
+ * scratch that computes it), left out of fpm_model_reset: its state, written whole by
+ * xb_prepare before any use (and read only at the exact rung), the modal law, and scratch. */
+#define XB_NA_MAX (2 * FPM_NE_MAX + 1)
 typedef struct xb_arrays {
+    double modal[XB_NA_MAX * XB_NA_MAX + (XB_NA_MAX - 1) * (XB_NA_MAX - 1)];  /* the modal law */
+    double mwork[2 * XB_NA_MAX * XB_NA_MAX + 2 * XB_NA_MAX + 64];    /* its computation's */
     double s[XB_S_MAX];         /* the state [q, qd, qdd, jerk] */
     double saved[XB_S_MAX];     /* s at a step's start */
     double saved2[XB_S_MAX];    /* s at a substep's start (a halved substep that fails) */
@@ -121,6 +125,7 @@ struct fpm_model {
     double aug[AUG * AUG], E[AUG * AUG];
     /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
     int exact;
+    int xb_kv;                  /* the damping law is Kelvin-Voigt (else modal) */
     fp_exact xb_p, xb_ps;       /* Radau IIA at the step h, and at the substep taken */
     double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
     xb_arrays xb;               /* its state and scratch (not reset by fpm_model_reset) */
@@ -342,6 +347,7 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
             return 0;
     if (!check_real(lg, "zeta", zeta, 1, 0.0, 0, 1, 1.0, 1, 0)) return 0;
     kv = strcmp(law, "kelvin-voigt") == 0;      /* the damping law (plant_fmu/params.py) */
+    m->xb_kv = kv;
     if (!kv && strcmp(law, "modal") != 0) {
         fpm_log(lg, FPM_ERROR, "bad parameter: damping = '%s' is not allowed; allowed: modal, "
                 "kelvin-voigt", law);
@@ -357,15 +363,6 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         return 0;
     n = (int)r[VR_n_modes];
     m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
-    /* The exact rung's damping law, plant_fmu/params.py's exact_damping_refusal (the one place
-     * that decides it; the same words): it damps by material (Kelvin-Voigt) only, so it refuses
-     * the modal law with zeta > 0 (with zeta = 0 both laws are the same). */
-    if (m->exact && !kv && zeta > 0.0) {
-        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = 'exact' refuses damping = 'modal' "
-                "with zeta = %g: the exact rung damps by material (Kelvin-Voigt), not by the "
-                "modal law: damping = 'kelvin-voigt' or zeta = 0 runs it", zeta);
-        return 0;
-    }
     if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
     stiffened = strcmp(fid, "stiffened") == 0;  /* the nonlinear rung with the preload and */
     if (stiffened) fid = "nonlinear";           /* the foreshortening's mass points */
@@ -1449,7 +1446,10 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
     p->rhoA = rhoA;
     p->g = r[VR_g];
     p->m = r[VR_m];
-    p->beta_kv = 2.0 * r[VR_zeta] / omega1;
+    /* the damping law: Kelvin-Voigt (material) or modal (in the root tangent's frame,
+     * fp_exact_modal; computed here, from the parameters, at every preparation) */
+    p->beta_kv = m->xb_kv ? 2.0 * r[VR_zeta] / omega1 : 0.0;
+    p->modal = NULL;
     p->h = m->h;
     p->rho_inf = XB_RHO_INF;
     p->tol = XB_TOL;
@@ -1460,10 +1460,21 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
                 r[VR_EA], r[VR_EI], rhoA, r[VR_m], r[VR_g], r[VR_zeta], m->h);
         return 0;
     }
-    if (fp_radau_work_size(p) > XB_WORK_MAX) {
+    if (fp_radau_work_size(p) > XB_WORK_MAX
+        || fp_exact_modal_size(p) > (long)(sizeof m->xb.modal / sizeof(double))
+        || fp_exact_modal_work_size(p) > (long)(sizeof m->xb.mwork / sizeof(double))) {
         fpm_log(lg, FPM_ERROR, "the exact rung's work (%ld doubles) exceeds its buffer (a broken "
                 "build)", fp_radau_work_size(p));
         return 0;
+    }
+    if (!m->xb_kv && r[VR_zeta] > 0.0) {
+        if (fp_exact_modal(p, r[VR_zeta], m->xb.modal, m->xb.mwork) != FP_OK) {
+            fpm_log(lg, FPM_ERROR, "bad parameter: the modal damping law of the exact beam "
+                    "could not be formed (its clamped modes: EA = %g, EI = %g, rhoA = %g, "
+                    "n_elements = %d)", r[VR_EA], r[VR_EI], rhoA, ne);
+            return 0;
+        }
+        p->modal = m->xb.modal;
     }
     m->xb_ps = *p;
     m->xb_n1 = fpm_unit_tip_defl[ne - 1][0] * (1.0 / sqrt(rhoA * L));
