@@ -156,8 +156,9 @@ def find_reference(fmu, ref_dir, must_exist: bool = True) -> dict:
                 if files[kind].is_file():
                     return files
     if must_exist:
-        raise ReferenceError(f"{ref_dir}: no reference of {fmu.name} ({' or '.join(f'{n}_ref.csv' for n in names)}, "
-                             f"in the folder or in a subfolder of that name)")
+        wanted = " or ".join(f"{n}_ref.csv" for n in names)
+        raise ReferenceError(f"{ref_dir}: no reference of {fmu.name} ({wanted}, in the folder "
+                             "or in a subfolder of that name)")
     name = names[0]
     return _files(ref_dir if ref_dir.name == name else ref_dir / name, name)
 
@@ -177,7 +178,8 @@ def read_opt(path) -> dict:
         try:
             opt[name.strip()] = float(value)
         except ValueError:
-            raise ReferenceError(f"{path}: line {n}: {line.strip()!r} is not 'Name,value'") from None
+            raise ReferenceError(f"{path}: line {n}: {line.strip()!r} is not 'Name,value'") \
+                from None
     missing = [k for k in ("StartTime", "StopTime", "StepSize") if k not in opt]
     if missing:
         raise ReferenceError(f"{path}: {', '.join(missing)} missing")
@@ -197,7 +199,8 @@ def _read_csv(path):
     except OSError as exc:
         raise ReferenceError(f"{path}: cannot read: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - malformed CSV
-        raise ReferenceError(f"{path}: not a result CSV (quoted header, time first): {exc}") from None
+        raise ReferenceError(f"{path}: not a result CSV (quoted header, time first): {exc}") \
+            from None
     if data.dtype.names is None or len(data.dtype.names) < 2 or data.size < 2:
         raise ReferenceError(f"{path}: needs a time column, at least one signal and two rows")
     t = data[data.dtype.names[0]]
@@ -316,7 +319,8 @@ except Exception as exc:
         failure += f" ({log[-1]})"
 if failure is None and bad:
     status, t = bad[0]
-    failure = f"stopped early: doStep at t = {t} returned {status}" + (f": {log[-1]}" if log else "")
+    failure = (f"stopped early: doStep at t = {t} returned {status}"
+               + (f": {log[-1]}" if log else ""))
 if result is not None:
     np.save(a["result"], result)
 notes = [line.strip() for line in out.getvalue().splitlines() if line.strip()]
@@ -492,8 +496,8 @@ def write_reference(fmu, reference, outputs=None) -> dict:
     known = {v.name for v in md.modelVariables}
     unknown = [o for o in outputs if o not in known]
     if unknown or not outputs:
-        raise ReferenceError(f"{fmu.name} has no variable {', '.join(map(repr, unknown))}" if unknown
-                             else f"{fmu.name}: no output to record")
+        raise ReferenceError(f"{fmu.name} has no variable {', '.join(map(repr, unknown))}"
+                             if unknown else f"{fmu.name}: no output to record")
     run = simulate_case(fmu, files, outputs=list(outputs))
     if run.failure is not None:
         raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}")
