@@ -16,7 +16,8 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.util import read_csv, write_csv
 
-from orchestration.export.check import FMPY_RULE, REFERENCE_OUTPUTS, compare, reference_files
+from orchestration.export.check import (FMPY_RULE, REFERENCE_OUTPUTS, Rule, compare,
+                                        reference_files)
 from orchestration.export.python_fmus import ROOT
 
 REFERENCES = ROOT / "tests" / "reference"
@@ -274,6 +275,113 @@ def test_a_window_beyond_the_samples_is_the_whole_signal():
     t = np.linspace(0.0, 1.0, 101)
     y = np.sin(7.0 * t)
     wide = band(t, y, Rule(0.1, 10 ** 20, 0.1))
-    assert np.array_equal(wide[0], band(t, y, Rule(0.1, 2 * y.size + 1, 0.1))[0])
-    assert np.all(wide[0] == y.min() - 0.1 * np.ptp(y))
-    assert np.all(wide[1] == y.max() + 0.1 * np.ptp(y))
+    assert np.array_equal(wide[1], band(t, y, Rule(0.1, 2 * y.size + 1, 0.1))[1])
+    assert np.allclose(wide[1], y.min() - 0.1 * np.ptp(y), rtol=0, atol=1e-15)
+    assert np.allclose(wide[2], y.max() + 0.1 * np.ptp(y), rtol=0, atol=1e-15)
+
+
+# ---------------------------------------------------------------------- the rule on edited results
+@pytest.fixture(scope="module")
+def genuine():
+    """The plant's committed reference: the result of the genuine FMU (a fresh run agrees with it
+    to 3.4e-9 of the range, tests/test_fmu_reference.py)."""
+    return read_csv(str(REFERENCES / "FlexiblePendulum" / "FlexiblePendulum_ref.csv"))
+
+
+def edited(result, how, k=0, offset=0.0):
+    """A copy of ``result`` whose signals are held at zero, delayed by ``k`` samples (the first
+    value held before) or moved by ``offset`` times each signal's range."""
+    out = result.copy()
+    for n in result.dtype.names[1:]:
+        if how == "zero":
+            out[n] = 0.0
+        elif how == "delayed":
+            out[n][k:] = result[n][:-k]
+            out[n][:k] = result[n][0]
+        elif how == "offset":
+            out[n] += offset * np.ptp(result[n])
+    return out
+
+
+RULES = {"fmpy": FMPY_RULE, "1e-6": Rule(1e-6), "ci": Rule(1e-3, 1, 0.0),
+         "reference": Rule(1e-6, 1, 0.0)}
+
+
+@pytest.mark.parametrize("rule", RULES, ids=list(RULES))
+def test_the_rule_passes_the_genuine_result_and_fails_one_held_at_zero(genuine, rule):
+    assert all(s.passed and s.outliers == 0 for s in compare(genuine, genuine, RULES[rule])
+               .values())
+    zero = compare(edited(genuine, "zero"), genuine, RULES[rule])
+    # the cart's position and the energy never come near zero: every rule fails them
+    assert not zero["x_o"].passed and not zero["energy"].passed
+    if rule in ("ci", "reference"):
+        assert not any(s.passed for s in zero.values())
+    else:
+        # widened over 21 samples (21 ms), the band of a signal that rings about zero at 24 Hz
+        # holds zero: the rates and the bending modes held at zero pass FMPy's rule
+        assert zero["omega_o"].passed and zero["eta_1"].passed
+
+
+@pytest.mark.parametrize("k", [1, 5, 10])
+def test_a_result_delayed_by_k_samples_fails_without_the_window(genuine, k):
+    delayed = edited(genuine, "delayed", k)
+    assert all(s.passed for s in compare(delayed, genuine, FMPY_RULE).values())  # the window
+    assert all(s.passed for s in compare(delayed, genuine, RULES["1e-6"]).values())
+    ci = compare(delayed, genuine, RULES["ci"])
+    assert not any(s.passed for s in ci.values())
+
+
+def test_a_result_moved_by_twice_the_band_fails(genuine):
+    for name in ("fmpy", "ci", "reference"):
+        rule = RULES[name]
+        moved = compare(edited(genuine, "offset", offset=2 * rule.tolerance), genuine, rule)
+        assert not any(s.passed for s in moved.values()), name
+        if rule.window == 1:                       # widened, the band holds it where y is steep
+            assert all(s.outliers == s.samples for s in moved.values())
+    # --tolerance 1e-6 alone: the band widened over 21 samples is as wide as the signal moves in
+    # 21 ms, which a move of 2e-6 of the range stays within on most samples
+    moved = compare(edited(genuine, "offset", offset=2e-6), genuine, RULES["1e-6"])
+    assert all(s.passed and 0 < s.outliers < 0.1 * s.samples for s in moved.values())
+
+
+@pytest.mark.parametrize("where", [0, 500, -1])
+def test_one_bad_sample_anywhere_fails_the_strict_rule(genuine, where):
+    """fmpy.util.validate_signal leaves the first and the last sample out of its count, and
+    finds no NaN outside: here every sample counts, and a NaN is outside."""
+    for value in (np.nan, 1e3):
+        bad = genuine.copy()
+        bad["phi_o"][where] = value
+        checks = compare(bad, genuine, RULES["reference"])
+        assert not checks["phi_o"].passed and checks["phi_o"].outliers == 1
+        assert all(s.passed for n, s in checks.items() if n != "phi_o")
+
+
+def test_repeated_times_late_in_a_run_do_not_hang():
+    """fmpy.util.validate_signal moves a repeated time by 1e-13 s in a loop, which never ends
+    beyond 2**10 s (1e-13 is below the spacing of the floats there): an event at t = 1500 s hung
+    the check."""
+    import signal
+
+    def hung(signum, frame):
+        raise TimeoutError("compare() hung")
+
+    t = np.concatenate([np.linspace(1000.0, 1500.0, 501), np.linspace(1500.0, 2000.0, 501)])
+    ref = np.zeros(t.size, dtype=[("time", "f8"), ("y", "f8")])
+    ref["time"], ref["y"] = t, np.where(np.arange(t.size) > 500, 1.0, 0.0) + 1e-3 * t
+    old = signal.signal(signal.SIGALRM, hung)
+    signal.alarm(30)
+    try:
+        checks = compare(ref, ref, FMPY_RULE)
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+    assert checks["y"].passed and checks["y"].samples == t.size
+
+
+def test_a_reference_signal_that_does_not_vary_fails_whatever_the_result(genuine):
+    ref = genuine.copy()
+    ref["x_o"] = 0.0
+    checks = compare(ref, ref, FMPY_RULE)
+    assert checks["x_o"].problem == "constant in the reference: no band"
+    assert not checks["x_o"].passed
+    assert all(s.passed for n, s in checks.items() if n != "x_o")

@@ -4,6 +4,7 @@
     write_reference(fmu, reference)          -> the files (``flexpend check --write-reference``)
     simulate_case(fmu, files)                -> Run: the FMU alone, its input file and options
     compare(result, reference, rule)         -> {signal: SignalCheck}
+    validate(t, y, t_ref, y_ref, rule)       -> fmpy.util.validate_signal's band and outliers
 
 A reference is three files in one folder, named after the model (cross-check layout):
 ``<Model>_in.csv`` (inputs, optional), ``<Model>_ref.csv`` (the expected result: time first, then
@@ -13,16 +14,17 @@ the signals compared) and ``<Model>_ref.opt`` (``StartTime``, ``StopTime``, ``St
 isolated Python process: a pythonfmu FMU runs the first copy of its packages that a process has
 imported, so in the checker's own process a modified FMU would run the installed code and pass.
 
-The comparison is FMPy's cross-check rule (``fmpy.cross_check.validate_signal``): around each
-reference signal a band of half-width ``tolerance`` times the signal's range (max - min), widened
-over ``window`` neighbouring samples (the band's lower edge is the smallest reference value within
-the window, minus the half-width; the upper edge likewise), and a signal passes when at most
-``max_outliers`` of the result's samples fall outside. The defaults are FMPy's: 10 %, 21 samples,
-10 %. Two departures: the band is built on the reference's own samples (FMPy resamples it onto
-1000 points, which a tight band cannot tolerate: linear interpolation between the points is off by
-far more than 1e-6 of the range) and every sample counts, the first and the last included; and a
-constant signal gets the half-width ``tolerance * max(|value|, 1)`` (FMPy: 0.5 around zero, which
-no tolerance would tighten).
+The comparison is FMPy's band rule, computed by ``fmpy.util.validate_signal`` (:func:`validate`):
+around each reference signal a band of half-width ``tolerance`` times the signal's range (max -
+min), widened over ``window`` neighbouring samples (the band's lower edge is the smallest
+reference value within the window, minus the half-width; the upper edge likewise), and a signal
+passes when at most ``max_outliers`` of the result's samples fall outside. The defaults are those
+of FMPy's cross-check (``fmpy.cross_check``): 10 %, 21 samples, 10 %. Where ``validate_signal``
+does not fit, :func:`validate` says why and adds to it: the band is built on as many points as the
+reference has samples (FMPy: 1000, and linear interpolation between 1000 points of a 1001-sample
+signal is off by far more than 1e-6 of the range), both ends count, a NaN is outside, and repeated
+times are separated first. ``fmpy.cross_check.validate_signal`` is the same rule with both ends
+counted, but it imports ``scipy.ndimage.filters``, deprecated and gone in SciPy 2.0.
 
 A run that does not reach ``StopTime`` fails, whatever its samples: ``fmpy.simulate_fmu`` returns
 normally, with a shorter result, when an FMU discards a step (fmi2Discard, then
@@ -51,8 +53,8 @@ from . import places
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
-           "simulate_case", "compare", "band", "check_fmu", "write_reference", "plot_check",
-           "simulate_reference_case", "write_references"]
+           "simulate_case", "compare", "validate", "band", "constant_signals", "check_fmu",
+           "write_reference", "plot_check", "simulate_reference_case", "write_references"]
 
 REFERENCE_DIR = ROOT / "tests" / "reference"
 
@@ -360,54 +362,115 @@ class SignalCheck:
                 f"{self.half_width:.3e}, {self.outliers}/{self.samples} outside: {verdict}")
 
 
-def band(t_ref, y_ref, rule: Rule):
-    """``(lower, upper, half_width)`` of the band around ``y_ref`` on the reference's samples."""
-    from scipy.ndimage import maximum_filter1d, minimum_filter1d
+def _strictly_increasing(t):
+    """``t`` with each repeated time (an event's two samples) moved up to the next float.
+    ``fmpy.util.validate_signal`` moves it by 1e-13 s in a loop that never ends beyond 2**10 s,
+    where 1e-13 is below the spacing of the floats."""
+    t = np.array(t, dtype=float)
+    for i in np.flatnonzero(np.diff(t) <= 0) + 1:          # ascending: a run of repeats too
+        if t[i] <= t[i - 1]:
+            t[i] = np.nextafter(t[i - 1], np.inf)
+    return t
 
+
+def _half_width(y_band, rule: Rule) -> float:
+    """The band's half-width as ``fmpy.util.validate_signal`` computes it from its samples."""
+    lo, hi = float(np.min(y_band)), float(np.max(y_band))
+    if lo == hi:
+        return 0.5 if lo == 0 else abs(lo) * rule.tolerance
+    return (hi - lo) * rule.tolerance
+
+
+def validate(t, y, t_ref, y_ref, rule: Rule = FMPY_RULE):
+    """FMPy's band, by ``fmpy.util.validate_signal``, and the samples of ``y(t)`` outside it:
+    ``(t_band, lower, upper, outside)``, ``outside`` a mask over ``t``.
+
+    ``validate_signal`` resamples the reference linearly onto ``num`` evenly spaced points
+    (FMPy: 1000); it is given the reference's own number of samples, so that on an evenly sampled
+    reference (every one ``--write-reference`` writes) the band's points are its samples: linear
+    interpolation between 1000 points of a 1001-sample signal is off by far more than 1e-6 of its
+    range. A reference with uneven steps or repeated times (events) is resampled as FMPy does,
+    onto as many even points. The band's width is ``dx = window`` samples (clipped to the whole
+    signal: scipy overflows on a huge one), its half-width ``dy = tolerance`` of the range.
+
+    Where ``validate_signal`` does not fit, this adds to it: it leaves the first and the last
+    sample out of its count (``t > t_start``, ``t < t_stop``), and a NaN, which no comparison
+    finds outside, passes; here both ends count and a sample that is not finite is outside. It
+    moves a repeated reference time by 1e-13 s in a loop that never ends beyond 2**10 s (where
+    1e-13 is below the spacing of the floats): they are moved apart to the next float first.
+    (``fmpy.cross_check.validate_signal`` counts both ends, but imports ``scipy.ndimage.filters``,
+    deprecated and gone in SciPy 2.0.)"""
+    from fmpy.util import validate_signal
+
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    t_ref = _strictly_increasing(t_ref)
     y_ref = np.asarray(y_ref, dtype=float)
-    lo_ref, hi_ref = float(np.min(y_ref)), float(np.max(y_ref))
-    span = hi_ref - lo_ref
-    w = rule.tolerance * (span if span > 0 else max(abs(lo_ref), 1.0))
-    if rule.window > 1:
-        size = min(rule.window, 2 * y_ref.size + 1)    # wider than the signal: all of it
-        lower = minimum_filter1d(y_ref, size=size) - w
-        upper = maximum_filter1d(y_ref, size=size) + w
-    else:
-        lower, upper = y_ref - w, y_ref + w
-    return lower, upper, w
+    n = t_ref.size
+    t_band, lower, upper, out = validate_signal(t=t, y=y, t_ref=t_ref, y_ref=y_ref, num=n,
+                                                dx=min(rule.window, 2 * n + 1),
+                                                dy=rule.tolerance)
+    inside = (t >= t_band[0]) & (t <= t_band[-1])
+    ends = inside & ((t == t_band[0]) | (t == t_band[-1]))
+    lo, hi = np.interp(t, t_band, lower), np.interp(t, t_band, upper)
+    out = out | (ends & ((y < lo) | (y > hi))) | (inside & ~np.isfinite(y))
+    return t_band, lower, upper, out
+
+
+def band(t_ref, y_ref, rule: Rule):
+    """``(t_band, lower, upper, half_width)``: FMPy's band around ``y_ref`` (:func:`validate`)."""
+    t_band, lower, upper, _ = validate(t_ref, y_ref, t_ref, y_ref, rule)
+    y_band = np.interp(t_band, _strictly_increasing(t_ref), np.asarray(y_ref, dtype=float))
+    return t_band, lower, upper, _half_width(y_band, rule)
 
 
 def compare(result, reference, rule: Rule = FMPY_RULE) -> dict:
     """Each signal of ``reference`` (a structured array, time first) against its band, at the
-    samples of ``result`` within the reference's time span."""
-    t_ref = np.asarray(reference[reference.dtype.names[0]], dtype=float)
+    samples of ``result`` within the reference's time span (:func:`validate`). A reference
+    signal that does not vary fails here (:func:`constant_signals`)."""
+    t_ref = _strictly_increasing(reference[reference.dtype.names[0]])
     t = np.asarray(result[result.dtype.names[0]], dtype=float)
-    same_grid = t.shape == t_ref.shape and np.allclose(t, t_ref, rtol=0,
-                                                       atol=1e-9 * max(1.0, abs(t_ref[-1])))
-    inside = (t >= t_ref[0] - 1e-12) & (t <= t_ref[-1] + 1e-12)
+    # a sample within round-off of the reference's first or last time is at it
+    eps = 1e-9 * max(1.0, abs(t_ref[-1]))
+    t = np.where(np.abs(t - t_ref[0]) <= eps, t_ref[0],
+                 np.where(np.abs(t - t_ref[-1]) <= eps, t_ref[-1], t))
+    inside = (t >= t_ref[0]) & (t <= t_ref[-1])
+    constant = set(constant_signals(reference))
     out = {}
     for name in reference.dtype.names[1:]:
         if name not in (result.dtype.names or ()):
             out[name] = SignalCheck(name, False, problem="missing from the result")
             continue
         y_ref = np.asarray(reference[name], dtype=float)
-        lower, upper, w = band(t_ref, y_ref, rule)
-        y = np.asarray(result[name], dtype=float)
-        if same_grid:
-            r, lo, hi, yy = y_ref, lower, upper, y
-        else:
-            tt, yy = t[inside], y[inside]
-            r, lo, hi = (np.interp(tt, t_ref, a) for a in (y_ref, lower, upper))
-        ok = (yy >= lo) & (yy <= hi)                  # NaN is outside
-        n_out = int(np.count_nonzero(~ok))
-        dev = float(np.max(np.abs(yy - r))) if yy.size else math.nan
-        if not math.isfinite(dev):
-            dev = math.inf
         span = float(np.max(y_ref) - np.min(y_ref))
+        if not np.all(np.isfinite(y_ref)):
+            out[name] = SignalCheck(name, False, problem="not finite in the reference")
+            continue
+        if name in constant:
+            out[name] = SignalCheck(name, False, span=span,
+                                    problem="constant in the reference: no band")
+            continue
+        y = np.asarray(result[name], dtype=float)
+        t_band, lower, upper, outside = validate(t, y, t_ref, y_ref, rule)
+        w = _half_width(np.interp(t_band, t_ref, y_ref), rule)
+        yy = y[inside]
+        n_out = int(np.count_nonzero(outside[inside]))
+        dev = float(np.max(np.abs(yy - np.interp(t[inside], t_ref, y_ref)))) if yy.size \
+            else math.nan
+        if yy.size and not math.isfinite(dev):
+            dev = math.inf
         passed = yy.size > 0 and n_out <= rule.max_outliers * yy.size
         out[name] = SignalCheck(name, bool(passed), dev, span, w, n_out, int(yy.size),
-                                band=(t_ref, lower, upper))
+                                band=(t_band, lower, upper))
     return out
+
+
+def constant_signals(reference) -> list[str]:
+    """The signals of ``reference`` that do not vary (max == min): around a constant there is
+    no band (FMPy puts one of half-width 0.5 around zero, which no tolerance tightens, and
+    ``tolerance`` x the value elsewhere), so that an FMU whose output is held there passes."""
+    return [n for n in reference.dtype.names[1:]
+            if np.all(np.isfinite(reference[n])) and np.ptp(reference[n]) == 0]
 
 
 @dataclass
