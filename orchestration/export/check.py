@@ -550,7 +550,7 @@ def write_reference(fmu, reference, outputs=None) -> dict:
         if de.tolerance is not None:
             opt["RelTol"] = float(de.tolerance)
         files["dir"].mkdir(parents=True, exist_ok=True)
-        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_text(files["opt"], _opt_text(opt))
     if outputs is None:
         if files["ref"].is_file():
             outputs = list(_read_csv(files["ref"]).dtype.names[1:])
@@ -661,6 +661,22 @@ def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start
     return run.result
 
 
+def _input_table(opt: dict, inputs: dict) -> np.ndarray:
+    """The input file's table: ``inputs`` (name -> f(t)) at every step of the options ``opt``."""
+    n = round((opt["StopTime"] - opt["StartTime"]) / opt["StepSize"])
+    t = opt["StartTime"] + np.arange(n + 1) * opt["StepSize"]
+    arr = np.zeros(t.size, dtype=[("time", "f8")] + [(k, "f8") for k in inputs])
+    arr["time"] = t
+    for k, f in inputs.items():
+        arr[k] = f(t)
+    return arr
+
+
+def _opt_text(opt: dict) -> str:
+    """The text of a ``<Model>_ref.opt``."""
+    return "".join(f"{k},{v!r}\n" for k, v in opt.items())
+
+
 def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
     """Regenerate the input files, options and reference results of the project's FMUs (``fmus``:
     name -> path); return the files of each."""
@@ -668,13 +684,7 @@ def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
     for name, (opt, inputs) in _reference_cases().items():
         files = reference_files(name, ref_dir)
         files["dir"].mkdir(parents=True, exist_ok=True)
-        n = round((opt["StopTime"] - opt["StartTime"]) / opt["StepSize"])
-        t = opt["StartTime"] + np.arange(n + 1) * opt["StepSize"]
-        arr = np.zeros(t.size, dtype=[("time", "f8")] + [(k, "f8") for k in inputs])
-        arr["time"] = t
-        for k, f in inputs.items():
-            arr[k] = f(t)
-        write_csv(files["in"], arr)
-        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_csv(files["in"], _input_table(opt, inputs))
+        write_text(files["opt"], _opt_text(opt))
         written[name] = write_reference(fmus[name], files["dir"], REFERENCE_OUTPUTS[name])
     return written
