@@ -21,9 +21,10 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
-lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written, a
-``--scheduler`` that does not answer as a dask scheduler within 5 s or has no worker within 30 s:
-one line naming it), or an output the system refused (a full disk: one line naming the file;
+lost runs; 2 bad input (an unknown key, a bad value, a ``flexpend check`` reference with a signal
+that does not vary or a ``--write-reference`` that would record one, an output folder that
+cannot be written, a ``--scheduler`` that does not answer as a dask scheduler within 5 s or has
+no worker within 30 s: one line naming it), or an output the system refused (a full disk: one line naming the file;
 every earlier file is kept whole), or an ``--out`` in use by another run, or a limit of the
 machine that the command cannot work within (too few file handles, ``ulimit -n``; too little
 memory, ``ulimit -v``: one line naming the limit); 3 ``flexpend run``: a scene stopped early (an

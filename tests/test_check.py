@@ -202,6 +202,39 @@ def test_write_reference_refuses_a_run_that_stops_early(fmus, tmp_path):
     assert files["ref"].read_bytes() == before
 
 
+def test_refuses_a_reference_of_the_plant_at_rest(fmus, tmp_path):
+    """What --write-reference recorded before (the plant at rest, no input: all 15 signals
+    constant), and a check of it at --tolerance 1e-6 said PASSED, whatever the FMU's outputs."""
+    fmu = fmus["FlexiblePendulum"]
+    outputs = [v.name for v in read_model_description(fmu).modelVariables
+               if v.causality == "output"]
+    rest = simulate_fmu(fmu, stop_time=1.0, step_size=1e-3, output_interval=1e-3,
+                        output=outputs)
+    assert all(np.ptp(rest[n]) == 0 for n in outputs)
+    (tmp_path / "FlexiblePendulum").mkdir()
+    files = reference_files("FlexiblePendulum", tmp_path)
+    write_csv(str(files["ref"]), rest)
+    files["opt"].write_text("StartTime,0.0\nStopTime,1.0\nStepSize,0.001\n")
+    code, out, err = check(fmu, "--reference", tmp_path, "--tolerance", "1e-6")
+    assert code == 2 and out == "", out + err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert err.startswith(f"flexpend: error: {files['ref']}: {', '.join(outputs)} do not vary "
+                          "(a constant gives no band")
+    assert "--write-reference" in err and "leave them out of FlexiblePendulum_ref.csv" in err
+    # one constant signal among varying ones: refused too, naming it alone
+    ref = read_csv(str(REFERENCES / "FlexiblePendulum" / "FlexiblePendulum_ref.csv"))
+    ref["eta_1"] = 0.0
+    shutil.copy(REFERENCES / "FlexiblePendulum" / "FlexiblePendulum_in.csv", files["in"])
+    write_csv(str(files["ref"]), ref)
+    code, out, err = check(fmu, "--reference", tmp_path)
+    assert code == 2 and f"{files['ref']}: eta_1 does not vary (" in err, out + err
+    # and a reference that is not finite
+    ref["eta_1"][3] = np.nan
+    write_csv(str(files["ref"]), ref)
+    code, out, err = check(fmu, "--reference", tmp_path)
+    assert code == 2 and f"{files['ref']}: eta_1 is not finite" in err, out + err
+
+
 @pytest.mark.parametrize("args, fragment", [
     (["{fmu}", "--reference", "{tmp}/nowhere"], "no reference of FlexiblePendulum.fmu"),
     (["{tmp}/missing.fmu", "--reference", "{ref}"], "missing.fmu: no such FMU"),

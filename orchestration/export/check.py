@@ -26,6 +26,11 @@ signal is off by far more than 1e-6 of the range), both ends count, a NaN is out
 times are separated first. ``fmpy.cross_check.validate_signal`` is the same rule with both ends
 counted, but it imports ``scipy.ndimage.filters``, deprecated and gone in SciPy 2.0.
 
+A reference signal that does not vary has no band (FMPy's is +-0.5 around zero, whatever the
+tolerance): an FMU whose outputs were all held at zero passed against the reference of the plant
+at rest that ``--write-reference`` recorded when there was no input file. :func:`check_fmu` refuses
+such a reference (:func:`check_reference`, exit 2).
+
 A run that does not reach ``StopTime`` fails, whatever its samples: ``fmpy.simulate_fmu`` returns
 normally, with a shorter result, when an FMU discards a step (fmi2Discard, then
 ``fmi2Terminated``), so the discard is watched for (through fmpy's FMI call logger) and the run
@@ -53,8 +58,9 @@ from . import places
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
-           "simulate_case", "compare", "validate", "band", "constant_signals", "check_fmu",
-           "write_reference", "plot_check", "simulate_reference_case", "write_references"]
+           "simulate_case", "compare", "validate", "band", "constant_signals", "check_reference",
+           "check_fmu", "write_reference", "plot_check", "simulate_reference_case",
+           "write_references"]
 
 REFERENCE_DIR = ROOT / "tests" / "reference"
 
@@ -510,14 +516,39 @@ class CheckReport:
         return out
 
 
+def _names(names) -> str:
+    """``a does``, ``a, b do``: the subject of a sentence about signals."""
+    return f"{', '.join(names)} {'does' if len(names) == 1 else 'do'}"
+
+
+def check_reference(ref, files: dict) -> None:
+    """Refuse (:class:`ReferenceError`, one line) a reference that cannot fail: a signal that
+    is not finite, or that does not vary (:func:`constant_signals`)."""
+    model = files["model"]
+    bad = [n for n in ref.dtype.names[1:] if not np.all(np.isfinite(ref[n]))]
+    if bad:
+        raise ReferenceError(f"{files['ref']}: {', '.join(bad)} {'is' if len(bad) == 1 else 'are'}"
+                             f" not finite (NaN or inf): a band needs finite values; record the "
+                             f"reference again or leave them out of {model}_ref.csv")
+    constant = constant_signals(ref)
+    if constant:
+        raise ReferenceError(
+            f"{files['ref']}: {_names(constant)} not vary (a constant gives no band: an FMU "
+            f"held there would pass); record a run that moves them (--write-reference drives "
+            f"the FMU with flexpend's excitation when there is no {model}_in.csv) or leave "
+            f"them out of {model}_ref.csv")
+
+
 def check_fmu(fmu, reference, rule: Rule = FMPY_RULE, start_values=None) -> CheckReport:
     """Simulate ``fmu`` with the input file and options of its reference in ``reference`` (a
-    folder) and compare every reference signal (see the module's docstring)."""
+    folder) and compare every reference signal (see the module's docstring). A reference whose
+    signals cannot fail is refused first (:func:`check_reference`)."""
     files = find_reference(fmu, reference)
     for kind in ("ref", "opt"):
         if not files[kind].is_file():
             raise ReferenceError(f"{files[kind]}: missing")
     ref = _read_csv(files["ref"])
+    check_reference(ref, files)
     run = simulate_case(fmu, files, start_values, outputs=list(ref.dtype.names[1:]))
     signals = compare(run.result, ref, rule) if run.result is not None and run.result.size else {}
     if run.result is not None and run.result.size and run.failure is None:
