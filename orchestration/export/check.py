@@ -29,7 +29,9 @@ counted, but it imports ``scipy.ndimage.filters``, deprecated and gone in SciPy 
 A reference signal that does not vary has no band (FMPy's is +-0.5 around zero, whatever the
 tolerance): an FMU whose outputs were all held at zero passed against the reference of the plant
 at rest that ``--write-reference`` recorded when there was no input file. :func:`check_fmu` refuses
-such a reference (:func:`check_reference`, exit 2).
+such a reference (:func:`check_reference`, exit 2), and :func:`write_reference` does not write one:
+without an input file it drives the FMU with flexpend's excitation (:data:`EXCITATIONS`), and it
+leaves out the outputs that still do not vary, or refuses those asked for.
 
 A run that does not reach ``StopTime`` fails, whatever its samples: ``fmpy.simulate_fmu`` returns
 normally, with a shorter result, when an FMU discards a step (fmi2Discard, then
@@ -59,8 +61,8 @@ from . import places
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
            "simulate_case", "compare", "validate", "band", "constant_signals", "check_reference",
-           "check_fmu", "write_reference", "plot_check", "simulate_reference_case",
-           "write_references"]
+           "check_fmu", "write_reference", "Excitation", "EXCITATIONS", "excitation_for",
+           "plot_check", "simulate_reference_case", "write_references"]
 
 REFERENCE_DIR = ROOT / "tests" / "reference"
 
@@ -561,15 +563,59 @@ def check_fmu(fmu, reference, rule: Rule = FMPY_RULE, start_values=None) -> Chec
 
 def write_reference(fmu, reference, outputs=None) -> dict:
     """Write ``<Model>_ref.csv`` from a run of ``fmu`` with the input file and options in
-    ``reference`` (or ``reference/<Model>/``). A missing ``<Model>_ref.opt`` is written from the
-    FMU's default experiment first. ``outputs``: the signals (default: those of an existing
-    ``<Model>_ref.csv``, else every output of the FMU). A run that does not complete writes
-    nothing (:class:`ReferenceError`)."""
+    ``reference`` (or ``reference/<Model>/``); return its files, with ``"written"`` (the files
+    written), ``"excitation"`` (the kind of :data:`EXCITATIONS` written as the input file, or
+    None), ``"signals"`` (those recorded) and ``"left_out"`` (outputs left out as constant).
+
+    Without ``<Model>_in.csv``, an FMU with inputs is driven by flexpend's excitation for them
+    (:func:`excitation_for`), written as the input file, with its options when
+    ``<Model>_ref.opt`` is missing too (an FMU whose inputs it does not know is refused); an
+    options file still missing is written from the FMU's default experiment. ``outputs``: the
+    signals (default: those of an existing ``<Model>_ref.csv``, else every output of the FMU
+    that varies in the run: the others are left out). A chosen signal that does not vary, or a
+    run that does not complete, writes nothing (:class:`ReferenceError`): the files written
+    before the run are removed."""
     from fmpy import read_model_description
 
     fmu = Path(fmu)
     files = find_reference(fmu, reference, must_exist=False)
     md = read_model_description(str(fmu), validate=False)
+    files.update(written=[], excitation=None, signals=[], left_out=[])
+    new_dirs = [d for d in (files["dir"], *files["dir"].parents) if not d.exists()]
+    try:
+        _write_experiment(fmu, md, files)
+        _write_result(fmu, md, files, outputs)
+    except BaseException:
+        for path in files["written"]:
+            Path(path).unlink(missing_ok=True)
+        for d in new_dirs:                              # the folders it made, if still empty
+            if d.is_dir() and not any(d.iterdir()):
+                d.rmdir()
+        files["written"].clear()
+        raise
+    return files
+
+
+def _write_experiment(fmu: Path, md, files: dict) -> None:
+    """The input file (flexpend's excitation, when it is missing and the FMU has inputs) and the
+    options (the excitation's, else the FMU's default experiment, when they are missing)."""
+    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+    if inputs and not files["in"].is_file():
+        found = excitation_for(inputs)
+        if found is None:
+            kinds = "; ".join(f"the {k}'s: {', '.join(e.inputs)}" for k, e in EXCITATIONS.items())
+            raise ReferenceError(
+                f"{files['in']}: missing, and flexpend has no excitation for the inputs of "
+                f"{fmu.name} ({', '.join(inputs)}; it has {kinds}): write {files['model']}_in.csv"
+                f" (quoted header, \"time\" first) with inputs that move every signal compared")
+        kind, opt, columns = found
+        files["dir"].mkdir(parents=True, exist_ok=True)
+        if not files["opt"].is_file():
+            write_text(files["opt"], _opt_text(opt))
+            files["written"].append(files["opt"])
+        write_csv(files["in"], _input_table(read_opt(files["opt"]), columns))
+        files["written"].append(files["in"])
+        files["excitation"] = kind
     if not files["opt"].is_file():
         de = md.defaultExperiment
         step = getattr(de, "stepSize", None) if de is not None else None
@@ -582,6 +628,12 @@ def write_reference(fmu, reference, outputs=None) -> dict:
             opt["RelTol"] = float(de.tolerance)
         files["dir"].mkdir(parents=True, exist_ok=True)
         write_text(files["opt"], _opt_text(opt))
+        files["written"].append(files["opt"])
+
+
+def _write_result(fmu: Path, md, files: dict, outputs) -> list:
+    """Run the FMU and write the signals that vary; a chosen one that does not is refused."""
+    chosen = outputs is not None or files["ref"].is_file()
     if outputs is None:
         if files["ref"].is_file():
             outputs = list(_read_csv(files["ref"]).dtype.names[1:])
@@ -594,10 +646,34 @@ def write_reference(fmu, reference, outputs=None) -> dict:
                              if unknown else f"{fmu.name}: no output to record")
     run = simulate_case(fmu, files, outputs=list(outputs))
     if run.failure is not None:
-        raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}")
+        hint = ""
+        if files["excitation"]:
+            opt, case = read_opt(files["opt"]), _reference_cases()[
+                EXCITATIONS[files["excitation"]].model][0]
+            if opt["StopTime"] - opt["StartTime"] > case["StopTime"] - case["StartTime"]:
+                hint = (f" (flexpend's excitation of the {files['excitation']} is meant for "
+                        f"{case['StopTime'] - case['StartTime']:g} s, {files['opt'].name} asks "
+                        f"{opt['StopTime'] - opt['StartTime']:g} s: remove it to have the "
+                        "excitation's written)")
+        raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}{hint}")
+    constant = constant_signals(run.result)
+    if constant and (chosen or len(constant) == len(outputs)):
+        if files["excitation"]:
+            how = f"flexpend's excitation of the {files['excitation']} does not move them"
+        elif files["in"].is_file():
+            how = f"make {files['in'].name} move them"
+        else:
+            how = f"{fmu.name} has no input to move them"
+        raise ReferenceError(
+            f"{fmu.name}: no reference written: {_names(constant)} not vary in this run (a "
+            f"constant gives no band: an FMU held there would pass); {how}, or leave them out "
+            f"(--outputs)")
+    kept = [n for n in run.result.dtype.names if n not in constant]
     files["dir"].mkdir(parents=True, exist_ok=True)
-    write_csv(files["ref"], run.result)
-    return files
+    write_csv(files["ref"], run.result[kept])
+    files["written"].append(files["ref"])
+    files["signals"], files["left_out"] = kept[1:], constant
+    return kept[1:]
 
 
 # ---------------------------------------------------------------------- plot
@@ -680,6 +756,46 @@ def _reference_cases():
              "x_o": lambda t: 0.5 * t * t,
              **held(*(f"{d}{n}" for d in ("d", "d2") for n in ("phi_o", "omega_o", "x_o")))}),
     }
+
+
+@dataclass(frozen=True)
+class Excitation:
+    """An input file flexpend writes for an FMU with these ``inputs``: the one of the project's
+    reference of ``model`` (:func:`_reference_cases`), with its options."""
+
+    model: str
+    inputs: tuple
+    what: str
+
+
+#: flexpend's excitations, by the kind of FMU whose inputs they drive: what ``--write-reference``
+#: writes as ``<Model>_in.csv`` when there is none. Not the scene's closed loop: the cross-check
+#: layout has one FMU, its inputs from a file and no start values, and the plant alone is
+#: unstable (+7/s). The scenes start the pendulum at pi/6, the FMU at its default, 0; and even
+#: started at pi/6, the plant fed the force of flexible_pd_lowpass's run (recorded every master
+#: step) drifts from that run (the master's quadratic extrapolation and input derivatives are
+#: not the input file's interpolation) and topples within 1.1 s (0.3 s from its own start). The
+#: excitations are short (1 s) and leave the unstable mode nearly unexcited, so that round-off
+#: grows at most ~1e3 times: a run on another machine stays within 1e-6 of the range.
+EXCITATIONS = {
+    "plant": Excitation("FlexiblePendulum", ("F_c",),
+                        "F_c: a push, a pull, a ripple at 24 Hz"),
+    "controller": Excitation("PDLowPass", ("phi_o", "omega_o", "x_o"),
+                             "phi_o, omega_o, x_o: a swing, a step, a ripple, a cart speeding up"),
+}
+
+
+def excitation_for(inputs) -> tuple | None:
+    """``(kind, options, columns)`` of the excitation for an FMU with ``inputs`` (names): the
+    one whose inputs the FMU has, all of its inputs being among the excitation's columns (the
+    input derivatives of a pythonfmu FMU, held at 0, are); None if there is none."""
+    have = set(inputs)
+    cases = _reference_cases()
+    for kind, exc in EXCITATIONS.items():
+        opt, columns = cases[exc.model]
+        if set(exc.inputs) <= have <= set(columns):
+            return kind, dict(opt), {k: f for k, f in columns.items() if k in have}
+    return None
 
 
 def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start_values=None):
