@@ -348,6 +348,25 @@ def test_write_reference_refuses_an_old_reference_of_10_s(fmus, tmp_path):
     assert code == 0, out + err
 
 
+def test_write_reference_refuses_a_result_that_is_not_finite(fmus, tmp_path, monkeypatch):
+    """A run whose output holds a NaN (here: the plant's run with one sample made NaN)."""
+    from orchestration.export import check as module
+
+    simulate = module.simulate_case
+
+    def nan_at_t(*args, **kw):
+        run = simulate(*args, **kw)
+        run.result["phi_o"][500] = np.nan
+        return run
+
+    monkeypatch.setattr(module, "simulate_case", nan_at_t)
+    with pytest.raises(module.ReferenceError, match=r"^FlexiblePendulum.fmu: no reference written: "
+                       r"phi_o is not finite in this run \(NaN or inf\): a band needs finite "
+                       r"values$"):
+        module.write_reference(fmus["FlexiblePendulum"], tmp_path)
+    assert list(tmp_path.iterdir()) == []
+
+
 def renamed_input(fmu, dest):
     """A copy of ``fmu`` whose input F_c is named u in its modelDescription.xml."""
     import re

@@ -656,6 +656,11 @@ def _write_result(fmu: Path, md, files: dict, outputs) -> list:
                         f"{opt['StopTime'] - opt['StartTime']:g} s: remove it to have the "
                         "excitation's written)")
         raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}{hint}")
+    bad = [n for n in outputs if not np.all(np.isfinite(run.result[n]))]
+    if bad:
+        raise ReferenceError(f"{fmu.name}: no reference written: {', '.join(bad)} "
+                             f"{'is' if len(bad) == 1 else 'are'} not finite in this run (NaN or "
+                             "inf): a band needs finite values")
     constant = constant_signals(run.result)
     if constant and (chosen or len(constant) == len(outputs)):
         if files["excitation"]:
