@@ -1,10 +1,14 @@
 """flexpend check: one FMU against reference results in the FMI cross-check layout.
 
 Every verdict is measured against the committed references (tests/reference/, made with the
-physics as it is): they pass; an FMU built from a plant whose EI is 1 % higher fails; a reference
-with one signal shifted by twice its band fails on that signal alone; a run that an FMU stops with
-a discard fails although fmpy.simulate_fmu returns normally from it. Every check runs the command
-line in a child process (an FMU's Python code, once loaded, stays in a process).
+physics as it is) or against those --write-reference writes: they pass; an FMU built from a plant
+whose EI is 1 % higher fails; a reference with one signal shifted by twice its band fails on that
+signal alone; a run that an FMU stops with a discard fails although fmpy.simulate_fmu returns
+normally from it; a controller held at zero, a plant that ignores its input, one moved by 1 mm
+and one fed its force 5 ms late fail; a reference that does not vary is refused. The rule itself
+(fmpy.util.validate_signal) is tested on results edited: held at zero, delayed, moved, a NaN.
+Every check runs the command line in a child process (an FMU's Python code, once loaded, stays in
+a process), or check_fmu, which simulates in one.
 """
 import os
 import shutil
