@@ -21,9 +21,10 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
-lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written, a
-``--scheduler`` that does not answer as a dask scheduler within 5 s or has no worker within 30 s:
-one line naming it), or an output the system refused (a full disk: one line naming the file;
+lost runs; 2 bad input (an unknown key, a bad value, a ``flexpend check`` reference with a signal
+that does not vary or a ``--write-reference`` that would record one, an output folder that
+cannot be written, a ``--scheduler`` that does not answer as a dask scheduler within 5 s or has
+no worker within 30 s: one line naming it), or an output the system refused (a full disk: one line naming the file;
 every earlier file is kept whole), or an ``--out`` in use by another run, or a limit of the
 machine that the command cannot work within (too few file handles, ``ulimit -n``; too little
 memory, ``ulimit -v``: one line naming the limit); 3 ``flexpend run``: a scene stopped early (an
@@ -284,6 +285,30 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _written_lines(files: dict) -> list[str]:
+    """What ``flexpend check --write-reference`` wrote, and what it drove the FMU with."""
+    from .export.check import EXCITATIONS, read_opt
+
+    opt = read_opt(files["opt"])
+    new = {str(p) for p in files["written"]}
+    mark = {True: " (written)", False: ""}
+    n = len(files["signals"])
+    lines = [f"wrote {files['ref']}: {n} signal{'s' * (n != 1)}, {opt['StartTime']:g} to "
+             f"{opt['StopTime']:g} s in steps of {opt['StepSize']:g} s"]
+    if files["excitation"]:
+        exc = EXCITATIONS[files["excitation"]]
+        lines.append(f"  inputs {files['in']} (written): flexpend's excitation of the "
+                     f"{files['excitation']}, {exc.what}")
+    elif files["in"].is_file():
+        lines.append(f"  inputs {files['in']}")
+    else:
+        lines.append("  no input file: the FMU has no inputs")
+    lines.append(f"  options {files['opt']}{mark[str(files['opt']) in new]}")
+    if files["left_out"]:
+        lines.append(f"  left out, constant in this run (no band): {', '.join(files['left_out'])}")
+    return lines
+
+
 def cmd_check(args) -> int:
     from .export.check import (
         ReferenceError,
@@ -302,10 +327,7 @@ def cmd_check(args) -> int:
     outputs = [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
     try:
         if args.write_reference:
-            files = write_reference(args.fmu, args.reference, outputs)
-            print(f"wrote {files['ref']} (options {files['opt']}"
-                  + (f", inputs {files['in']}" if files["in"].is_file() else ", no input file")
-                  + ")")
+            print("\n".join(_written_lines(write_reference(args.fmu, args.reference, outputs))))
             return 0
         report = check_fmu(args.fmu, args.reference, rule)
     except ReferenceError as exc:
@@ -632,20 +654,24 @@ def build_parser() -> argparse.ArgumentParser:
                                       "cross-check layout)",
                         description="Simulate FMU alone with <Model>_in.csv and <Model>_ref.opt "
                                     "of the reference folder and compare every signal of "
-                                    "<Model>_ref.csv within FMPy's cross-check band. Prints one "
-                                    "line per signal; exits 1 on any signal outside its band "
-                                    "or a run that does not reach the stop time, 2 on bad input.")
+                                    "<Model>_ref.csv within FMPy's band (fmpy.util."
+                                    "validate_signal). Prints one line per signal; exits 1 on "
+                                    "any signal outside its band or a run that does not reach "
+                                    "the stop time, 2 on bad input, a reference signal that "
+                                    "does not vary (no band) included.")
     pc.add_argument("fmu", metavar="FMU", help="the .fmu file")
     pc.add_argument("--reference", required=True, metavar="DIR",
                     help="folder with <Model>_ref.csv, <Model>_ref.opt, <Model>_in.csv (or a "
                          "<Model> subfolder with them)")
     pc.add_argument("--plot", metavar="FILE.png", help="draw each signal over its band")
     pc.add_argument("--write-reference", action="store_true",
-                    help="write <Model>_ref.csv from a run instead of checking (and "
-                         "<Model>_ref.opt from the FMU's default experiment if missing)")
+                    help="write <Model>_ref.csv from a run instead of checking; without "
+                         "<Model>_in.csv, flexpend's excitation of a plant (input F_c) or a "
+                         "controller (phi_o, omega_o, x_o) is written as one, with its "
+                         "options if <Model>_ref.opt is missing too")
     pc.add_argument("--outputs", metavar="NAMES",
                     help="with --write-reference: comma-separated signals to record (default: "
-                         "those of the existing reference, else every output)")
+                         "those of the existing reference, else every output that varies)")
     pc.add_argument("--tolerance", type=float, default=0.1,
                     help="band half-width as a fraction of each signal's range (default: 0.1)")
     pc.add_argument("--window", type=int, default=21,
