@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -427,3 +428,44 @@ def test_refining_the_plant_never_makes_the_coupled_error_worse(undamped_referen
         errors.append(err)
     assert errors[0] < 1e-4
     assert all(b <= a for a, b in zip(errors, errors[1:])), errors
+
+
+# ---------------------------------------------------------------------- the work budget
+def _budget():
+    import re
+    src = (Path(__file__).parents[1] / "plant_fmu/native/plant_model.c").read_text()
+    return int(re.search(r"#define FPM_MAX_EXACT_WORK (\d+)L", src).group(1))
+
+
+def test_a_step_whose_substeps_exceed_the_work_budget_is_refused_before_any_work(open_plant):
+    """n_substeps * n_elements above FPM_MAX_EXACT_WORK (below the substep cap): Discard naming
+    the budget and the count, the time and outputs unchanged, and a shorter step then runs."""
+    budget, ne, h_plant = _budget(), 100, 2.5e-4
+    H = 2.0 * budget / ne * h_plant                     # twice the budget's substeps
+    inst = open_plant(2, **XB, n_elements=ne, step=h_plant, phi0=0.2)
+    before = inst.get(*OUTPUTS)
+    assert inst.step(0.0, H) == 2                       # fmi2Discard
+    msg = inst.messages()
+    assert f"budget of {budget} per doStep" in msg and f"on {ne} elements" in msg, msg
+    assert f"{2 * budget}" in msg
+    assert inst.get(*OUTPUTS) == before
+    assert inst.step(0.0, 1e-3) == 0, inst.messages()
+    fresh = open_plant(2, **XB, n_elements=ne, step=h_plant, phi0=0.2)
+    assert fresh.step(0.0, 1e-3) == 0
+    assert inst.get(*OUTPUTS) == fresh.get(*OUTPUTS)
+
+
+@pytest.mark.slow
+def test_a_step_whose_iterations_reach_the_work_budget_is_discarded_unchanged(open_plant):
+    """Substeps within the budget whose Newton iterations (at least one each, usually more) reach
+    it: Discard at the budget, with the state, time and outputs of the step's start."""
+    budget, ne = _budget(), 100
+    H = 0.9 * budget / ne * 1e-3                        # 0.9 of the budget at one iteration
+    inst = open_plant(2, **XB, n_elements=ne, step=1e-3, phi0=0.2)
+    assert inst.step(0.0, 1e-3) == 0
+    before = inst.get(*OUTPUTS)
+    assert inst.step(1e-3, H) == 2
+    msg = inst.messages()
+    assert f"budget of {budget} element-iterations per doStep ran out" in msg, msg
+    assert inst.get(*OUTPUTS) == before
+    assert inst.fmu.getRealStatus(2) == 1e-3            # fmi2LastSuccessfulTime
