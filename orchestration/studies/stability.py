@@ -271,47 +271,70 @@ def plant_step_map(method: str, A, B, nq: int, H: float, h: float, rho_inf: floa
 POLYNOMIAL_METHODS = ("euler", "symplectic_euler", "rk4")
 
 
-def _shift(h: float, m: int) -> np.ndarray:
+def _steps(H, name: str = "H"):
+    """``(Hs, scalar)``: a communication step, or a 1-d array of them, as a 1-d float array, and
+    whether it was one number; a ValueError naming ``name`` for anything else."""
+    try:
+        arr = None if isinstance(H, (str, bytes, bool)) else np.asarray(H, dtype=float)
+    except (TypeError, ValueError):
+        arr = None
+    if (arr is None or arr.ndim > 1 or arr.size == 0 or not np.all(np.isfinite(arr))
+            or np.any(arr <= 0)):
+        raise ValueError(f"{name} = {H!r}; allowed: a finite number > 0 (or a 1-d array of them)")
+    return np.atleast_1d(arr), arr.ndim == 0
+
+
+def _shift(h, m: int) -> np.ndarray:
     """The Taylor coefficients ``[u, u', u'']`` (``m`` inputs each) moved ``h`` ahead: the exact
-    flow of the nilpotent dynamics ``u' = u'``, ``u'' ' = 0``."""
-    T = np.eye(3 * m)
-    T[:m, m:2 * m] = T[m:2 * m, 2 * m:] = h * np.eye(m)
-    T[:m, 2 * m:] = 0.5 * h * h * np.eye(m)
+    flow of the nilpotent dynamics ``u' = u'``, ``u'' ' = 0`` (a stack for an array ``h``)."""
+    h = np.asarray(h, dtype=float)
+    hb = h[..., None, None]
+    I = np.eye(m)
+    T = np.broadcast_to(np.eye(3 * m), h.shape + (3 * m, 3 * m)).copy()
+    T[..., :m, m:2 * m] = T[..., m:2 * m, 2 * m:] = hb * I
+    T[..., :m, 2 * m:] = 0.5 * hb * hb * I
     return T
 
 
-def _at(s: float, m: int) -> np.ndarray:
-    """The row block evaluating ``u(s) = u + u' s + u'' s^2 / 2`` from ``[u, u', u'']``."""
+def _at(s, m: int) -> np.ndarray:
+    """The row block evaluating ``u(s) = u + u' s + u'' s^2 / 2`` from ``[u, u', u'']`` (a
+    stack for an array ``s``)."""
+    s = np.asarray(s, dtype=float)
+    sb = s[..., None, None]
     I = np.eye(m)
-    return np.hstack([I, s * I, 0.5 * s * s * I])
+    return np.concatenate([np.broadcast_to(I, s.shape + (m, m)), sb * I, 0.5 * sb * sb * I],
+                          axis=-1)
 
 
 def _polynomial_substep(method, A, B, nq, h):
     """One substep ``h`` of ``method`` on ``x' = A x + B u(s)`` as a matrix on ``[x, w]``, ``w`` the
     input's Taylor coefficients ``[u, u', u'']`` at the substep's start (moved to its end): the
-    Runge-Kutta stages evaluate ``u`` at ``s = c_i h``, symplectic Euler at ``s = 0``."""
+    Runge-Kutta stages evaluate ``u`` at ``s = c_i h``, symplectic Euler at ``s = 0``. For an
+    array ``h``, the stack of those matrices."""
     n, m = B.shape
     N = n + 3 * m
+    h = np.asarray(h, dtype=float)
+    hb = h[..., None, None]
     X = np.hstack([np.eye(n), np.zeros((n, 3 * m))])          # selects x
     Wsel = np.hstack([np.zeros((3 * m, n)), np.eye(3 * m)])   # selects w
-    S = np.zeros((N, N))
-    S[n:] = _shift(h, m) @ Wsel
+    S = np.zeros(h.shape + (N, N))
+    S[..., n:, :] = _shift(h, m) @ Wsel
     if method == "symplectic_euler":
-        qd = X[nq:] + h * (A[nq:] @ X + B[nq:] @ _at(0.0, m) @ Wsel)
-        S[nq:n] = qd
-        S[:nq] = X[:nq] + h * qd[:n - nq]
+        qd = X[nq:] + hb * (A[nq:] @ X + B[nq:] @ _at(0.0, m) @ Wsel)
+        S[..., nq:n, :] = qd
+        S[..., :nq, :] = X[:nq] + hb * qd[..., :n - nq, :]
         return S
     a, b = _tableau(method)
     c = a.sum(axis=1)
     K = []
     for i in range(b.size):
-        Y = X + h * sum((a[i, j] * K[j] for j in range(i) if a[i, j]), np.zeros((n, N)))
+        Y = X + hb * sum((a[i, j] * K[j] for j in range(i) if a[i, j]), np.zeros((n, N)))
         K.append(A @ Y + B @ _at(c[i] * h, m) @ Wsel)
-    S[:n] = X + h * sum(bi * Ki for bi, Ki in zip(b, K))
+    S[..., :n, :] = X + hb * sum(bi * Ki for bi, Ki in zip(b, K))
     return S
 
 
-def plant_polynomial_step_map(method: str, A, B, nq: int, H: float, h: float,
+def plant_polynomial_step_map(method: str, A, B, nq: int, H, h: float,
                               rho_inf: float = 0.8):
     """``(Phi, Gamma)``: the plant FMU's state after one communication step ``H`` when its input
     is the polynomial ``u(t + s) = u + u' s + u'' s^2 / 2`` (FMI's input derivatives):
@@ -320,40 +343,66 @@ def plant_polynomial_step_map(method: str, A, B, nq: int, H: float, h: float,
     :data:`POLYNOMIAL_METHODS` evaluate the polynomial at their stage times on the substep grid
     of :func:`plant_step_map`; ``genalpha`` and ``exponential`` hold its average over ``H`` (as
     the plant FMUs do). A held input is ``[u, 0, 0]``. ValueError for a method that is no fixed
-    linear map in the FMU (``dopri5``, ``radau``: adaptive there)."""
+    linear map in the FMU (``dopri5``, ``radau``: adaptive there). For a 1-d array ``H``, the
+    stacks of the maps, one per step (the whole substep's matrix and its powers computed
+    once)."""
     if method not in FIXED_STEP_METHODS:
         raise ValueError(f"method = {method!r}: the plant FMU's step is a fixed linear map only "
                          f"for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau run adaptively "
                          f"in the FMU)")
-    if method not in POLYNOMIAL_METHODS:
-        Phi, G = plant_step_map(method, A, B, nq, H, h, rho_inf)
-        return Phi, np.hstack([G, 0.5 * H * G, H * H / 6.0 * G])
-    for name, val in (("H", H), ("h", h)):
-        if not (isinstance(val, (int, float)) and val > 0 and math.isfinite(val)):
-            raise ValueError(f"{name} = {val!r}; allowed: a finite number > 0")
+    Hs, scalar = _steps(H)
+    _steps(h, "h")
     A = np.asarray(A, dtype=float)
     B = np.asarray(B, dtype=float).reshape(A.shape[0], -1)
     n = A.shape[0]
-    T = np.eye(n + 3 * B.shape[1])
-    for count, size in _substeps(H, h):
-        T = np.linalg.matrix_power(_polynomial_substep(method, A, B, nq, size), count) @ T
-    return T[:n, :n], T[:n, n:]
+    if method not in POLYNOMIAL_METHODS:
+        maps = [plant_step_map(method, A, B, nq, float(Hk), h, rho_inf) for Hk in Hs]
+        Phi = np.stack([m[0] for m in maps])
+        G = np.stack([m[1] for m in maps])
+        Hb = Hs[:, None, None]
+        Gamma = np.concatenate([G, 0.5 * Hb * G, Hb * Hb / 6.0 * G], axis=-1)
+    else:
+        S = _polynomial_substep(method, A, B, nq, h)
+        powers = {}
+        T = np.empty((Hs.size,) + S.shape)
+        short, sizes = [], []
+        for k, Hk in enumerate(Hs):
+            T[k] = np.eye(S.shape[0])
+            for count, size in _substeps(float(Hk), h):
+                if size == h:
+                    if count not in powers:
+                        powers[count] = np.linalg.matrix_power(S, count)
+                    T[k] = powers[count]
+                else:                       # the shortened substep, always the last
+                    short.append(k)
+                    sizes.append(size)
+        if short:
+            T[short] = _polynomial_substep(method, A, B, nq, np.array(sizes)) @ T[short]
+        Phi, Gamma = T[:, :n, :n], T[:, :n, n:]
+    return (Phi[0], Gamma[0]) if scalar else (Phi, Gamma)
 
 
-def controller_polynomial_step_map(c: ControllerParams, H: float):
+def controller_polynomial_step_map(c: ControllerParams, H):
     """``(Ad, G)``: the controller FMU's filter state after one communication step ``H`` when its
     sensors are the polynomials ``y(t + s) = y + y' s + y'' s^2 / 2``: ``xc(t + H) = Ad xc(t) + G
     @ [y, y', y'']`` (``y = [x_o, phi_o, omega_o]``; ``G`` has 9 columns), exact (the filter
-    driven by a chain of integrators, one matrix exponential:
-    :meth:`~controller_fmu.pd_lowpass.PDLowPassModel.discretize_polynomial`). Held sensors are
-    ``[y, 0, 0]``. The force is ``F_c = C xc + D y`` (:class:`PDLowPassModel`)."""
+    driven by a chain of integrators, one matrix exponential, as
+    :meth:`~controller_fmu.pd_lowpass.PDLowPassModel.discretize_polynomial` forms it). Held
+    sensors are ``[y, 0, 0]``. The force is ``F_c = C xc + D y`` (:class:`PDLowPassModel`). For
+    a 1-d array ``H``, the stacks of the maps, one per step."""
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
-    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
-        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+    Hs, scalar = _steps(H)
     ctrl = PDLowPassModel(c)
-    Ad, G = ctrl.discretize_polynomial(float(H))
-    return Ad, np.hstack([G[:, j:j + 1] @ ctrl.gains for j in range(3)])
+    n = ctrl.nx
+    M = np.zeros((n + 3, n + 3))          # the generator per second: [xc, e, e', e'']
+    M[:n, :n] = ctrl.Af
+    M[:n, n] = ctrl.Bf[:, 0]
+    M[n, n + 1] = M[n + 1, n + 2] = 1.0
+    E = scipy.linalg.expm(Hs[:, None, None] * M)
+    Ad, Ge = E[:, :n, :n], E[:, :n, n:]
+    G = np.concatenate([Ge[..., j:j + 1] * ctrl.gains for j in range(3)], axis=-1)
+    return (Ad[0], G[0]) if scalar else (Ad, G)
 
 
 # ---------------------------------------------------------------------- the plant, drift-free
@@ -392,25 +441,42 @@ def _linear_plant(p: PlantParams, drift_free: bool) -> LinearPlant:
 
 
 # ---------------------------------------------------------------------- the macro step
-def _taylor_of_samples(nodes, H: float) -> np.ndarray:
+def _taylor_of_samples(nodes, H) -> np.ndarray:
     """``W`` (3 x s): the Taylor coefficients ``[u, u', u'']`` at ``t_k`` (derivatives in
     seconds) of the polynomial through ``s`` samples at ``nodes`` (in steps from ``t_k``, newest
-    first) are ``W @ samples``; the coefficients beyond its degree are 0."""
+    first) are ``W @ samples``; the coefficients beyond its degree are 0. For ``H`` an array of
+    shape ``(K, 1, 1)`` (a batch of steps), the weights are a list of three lists of ``s``
+    weights, each a number (independent of the step) or an array of that shape."""
     s = len(nodes)
     M = np.array([[float(t) ** j / math.factorial(j) for j in range(s)] for t in nodes])
     W = np.zeros((3, s))
     W[:s] = np.linalg.inv(M)[:3]
-    return W / (H ** np.arange(3.0))[:, None]
+    if np.ndim(H) == 0:
+        return W / (H ** np.arange(3.0))[:, None]
+    return [[float(W[i, j]) if i == 0 or W[i, j] == 0 else W[i, j] / H ** i for j in range(s)]
+            for i in range(3)]
 
 
-def _taylor_moved(q: int, delta: float) -> np.ndarray:
-    """``W`` (3 x q+1): the Taylor coefficients at ``t_k`` from the value and ``q`` derivatives
-    at ``t_k + delta`` (seconds), the polynomial of degree ``q`` (output derivatives)."""
-    W = np.zeros((3, q + 1))
+def _taylor_moved(q: int, delta) -> list:
+    """The weights (3 x q+1, as :func:`_taylor_of_samples`' for a batch) giving the Taylor
+    coefficients at ``t_k`` from the value and ``q`` derivatives at ``t_k + delta`` (seconds, a
+    number or a batch of them), the polynomial of degree ``q`` (output derivatives)."""
+    W = [[0.0] * (q + 1) for _ in range(3)]
     for i in range(min(3, q + 1)):
         for j in range(i, q + 1):
-            W[i, j] = (-delta) ** (j - i) / math.factorial(j - i)
+            W[i][j] = 1.0 if j == i else (-delta) ** (j - i) / math.factorial(j - i)
     return W
+
+
+def _dot(w, rows):
+    """``sum w_i rows_i`` over the weights that are not the number 0 (a weight may be an array
+    of shape ``(K, 1, 1)``, a row block ``(r, N)`` or ``(K, r, N)``)."""
+    out = None
+    for wi, r in zip(w, rows):
+        if np.ndim(wi) == 0 and wi == 0:
+            continue
+        out = wi * r if out is None else out + wi * r
+    return np.zeros_like(rows[0]) if out is None else out
 
 
 def _check_scheme(algorithm, first, extrapolation):
@@ -422,35 +488,45 @@ def _check_scheme(algorithm, first, extrapolation):
         raise ValueError(f"extrapolation = {extrapolation!r}; allowed: 0, 1, 2")
 
 
-def _step_maps(p, c, H, extrapolation, input_derivatives, integrator, substep, drift_free,
-               step_index, plant_map):
-    """What :func:`transition_matrix` and :func:`implicit_transition_matrix` share: ``H`` and
-    ``step_index`` checked, the linear plant, the input derivative orders the FMUs take, the
-    plant's step map for a polynomial input (a held-input ``plant_map`` padded) and the filter's:
-    ``(plant, n_der, (Pp, Gp), (Ad, Gc))``."""
-    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
-        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+def _batched(maps, K: int, name: str):
+    """A step map ``(M, G)`` as stacks of ``K`` (a single map is the map of one step)."""
+    M, G = (np.asarray(a, dtype=float) for a in maps)
+    if M.ndim == 2:
+        M, G = M[None], G[None]
+    if M.shape[0] != K or G.shape[0] != K:
+        raise ValueError(f"{name} holds {M.shape[0]} maps for {K} steps; allowed: one per step")
+    return M, G
+
+
+def _step_maps(p, c, Hs, extrapolation, input_derivatives, integrator, substep, drift_free,
+               step_index, plant_map, controller_map=None):
+    """What :func:`transition_matrix` and :func:`implicit_transition_matrix` share for the steps
+    ``Hs`` (a 1-d array): ``step_index`` checked, the linear plant, the input derivative orders
+    the FMUs take, the plant's step maps for a polynomial input (a held-input ``plant_map``
+    padded) and the filter's, stacked over the steps: ``(plant, n_der, (Pp, Gp), (Ad, Gc))``."""
     if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
         raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
     n_der = min(extrapolation, 2) if input_derivatives else 0
     plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
     if plant_map is None:
-        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
-    Pp, Gp = plant_map
-    if Gp.shape[1] == 1:            # a held-input map
+        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, Hs, substep)
+    Pp, Gp = _batched(plant_map, Hs.size, "plant_map")
+    if Gp.shape[-1] == 1:            # a held-input map
         if n_der:
             raise ValueError("plant_map is a held-input map (plant_step_map); input derivatives "
                              "need plant_polynomial_step_map's")
-        Gp = np.hstack([Gp, np.zeros((Gp.shape[0], 2))])
-    return plant, n_der, (Pp, Gp), controller_polynomial_step_map(c, float(H))
+        Gp = np.concatenate([Gp, np.zeros(Gp.shape[:-1] + (2,))], axis=-1)
+    if controller_map is None:
+        controller_map = controller_polynomial_step_map(c, Hs)
+    return plant, n_der, (Pp, Gp), _batched(controller_map, Hs.size, "controller_map")
 
 
-def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
+def transition_matrix(p: PlantParams, c: ControllerParams, H, *,
                       algorithm: str = "gauss-seidel", first: str = "controller",
                       extrapolation: int = 0, input_derivatives: bool = False,
                       output_derivatives: bool = False, integrator: str = "rk4",
                       substep: float = 2.5e-4, drift_free: bool = True,
-                      step_index: int | None = None, plant_map=None,
+                      step_index: int | None = None, plant_map=None, controller_map=None,
                       _predictor: bool = False) -> np.ndarray:
     """``Phi`` with ``z_{k+1} = Phi z_k`` for one communication step ``H`` of the master.
 
@@ -461,7 +537,11 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     up to ``min(p, 2)``) instead of its held step average. ``step_index = k`` gives the map of the
     ``k``-th step, when fewer than ``p + 1`` samples exist (``None``: the steady map).
     ``plant_map`` may pass a precomputed :func:`plant_polynomial_step_map` for the same plant
-    and ``H`` (or :func:`plant_step_map`'s, for held inputs only).
+    and ``H`` (or :func:`plant_step_map`'s, for held inputs only), ``controller_map`` a
+    precomputed :func:`controller_polynomial_step_map`.
+
+    ``H`` may be a 1-d array of steps: then the stack of their matrices, ``(len(H), N, N)``
+    (the maps passed, if any, stacked alike).
 
     With extrapolation from past samples (``p >= 1``, no output derivatives) the master predicts
     the first step with held inputs, rolls it back and takes it again with the inputs
@@ -472,6 +552,7 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     _check_scheme(algorithm, first, extrapolation)
+    Hs, scalar = _steps(H)
     if algorithm == "implicit":
         if output_derivatives:
             raise ValueError("output_derivatives = True: the implicit master interpolates "
@@ -480,7 +561,7 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
                                           input_derivatives=input_derivatives,
                                           integrator=integrator, substep=substep,
                                           drift_free=drift_free, step_index=step_index,
-                                          plant_map=plant_map)
+                                          plant_map=plant_map, controller_map=controller_map)
     if integrator not in FIXED_STEP_METHODS:
         raise ValueError(f"integrator = {integrator!r}: the plant FMU's substeps are a fixed "
                          f"linear map only for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau "
@@ -488,14 +569,25 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     if output_derivatives and not (input_derivatives and extrapolation >= 1):
         raise ValueError("output_derivatives = True needs input_derivatives = True and "
                          "extrapolation >= 1 (as master.output_derivatives)")
+    maps = _step_maps(p, c, Hs, extrapolation, input_derivatives, integrator, substep,
+                      drift_free, step_index, plant_map, controller_map)
+    Phi = _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_derivatives,
+                           integrator, step_index, _predictor)
+    return Phi[0] if scalar else Phi
+
+
+def _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_derivatives,
+                     integrator, step_index, predictor):
+    """:func:`transition_matrix` of an explicit coupling for the steps ``Hs`` (a 1-d array) and
+    their maps (:func:`_step_maps`): the stack ``(K, N, N)``."""
     taylor = bool(output_derivatives)
-    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, H, extrapolation, input_derivatives,
-                                                   integrator, substep, drift_free, step_index,
-                                                   plant_map)
+    plant, n_der, (Pp, Gp), (Ad, Gc) = maps
     ctrl = PDLowPassModel(c)
     Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
     A, B, C = plant.A, plant.B, plant.C
-    nx, nc, ny, P = Pp.shape[0], ctrl.nx, C.shape[0], extrapolation + 1
+    nx, nc, ny, P = Pp.shape[-1], ctrl.nx, C.shape[0], extrapolation + 1
+    K = Hs.size
+    H = Hs[:, None, None]           # the steps, broadcast against (K, rows, N) row blocks
     # state layout
     ix = slice(0, nx)
     ic = slice(nx, nx + nc)
@@ -510,11 +602,8 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     Y = [I[s] for s in iy]          # the registers: y_k, y_k-1, ... (or y_k, y'_k, ...)
     F = [I[s] for s in iF]
     x, xc = I[ix], I[ic]
-    avg = np.array([1.0, H / 2, H * H / 6])   # the step average of the Taylor polynomial
-    end = np.array([1.0, H, H * H / 2])       # its value at t_k+1
-
-    def dot(w, rows):
-        return sum((wi * r for wi, r in zip(w, rows) if wi), np.zeros_like(rows[0]))
+    avg = [1.0, H / 2, H * H / 6]   # the step average of the Taylor polynomial
+    end = [1.0, H, H * H / 2]       # its value at t_k+1
 
     def coefficients(rows, newest=False):
         """The Taylor coefficients at ``t_k`` (three row blocks) of the polynomial through the
@@ -524,43 +613,41 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         else:
             W = _taylor_of_samples([j + (1 if newest else 0) for j in range(0, -len(rows), -1)],
                                    H)
-        return [dot(W[i], rows) for i in range(3)]
+        return [_dot(W[i], rows) for i in range(3)]
 
     def fmu_input(a):
         """What the FMU gets over the step, as Taylor coefficients at t_k: the held average, or
         the value and ``n_der`` derivatives."""
         if not n_der:
-            return [dot(avg, a), 0 * a[0], 0 * a[0]]
+            return [_dot(avg, a), 0 * a[0], 0 * a[0]]
         return [a[j] if j <= n_der else 0 * a[0] for j in range(3)]
 
     def plant_step(a):
         u = fmu_input(a)
-        x1 = Pp @ x + sum(Gp[:, j:j + 1] @ u[j] for j in range(3))
+        x1 = Pp @ x + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
         if integrator not in POLYNOMIAL_METHODS:       # the FMU holds the average
-            u = [dot(avg, u), 0 * u[0], 0 * u[0]]
-        ue, due = dot(end, u), u[1] + H * u[2]          # the stepper's input at t_k+1
+            u = [_dot(avg, u), 0 * u[0], 0 * u[0]]
+        ue, due = _dot(end, u), u[1] + H * u[2]         # the stepper's input at t_k+1
         d1 = A @ x1 + B @ ue
         return x1, [C @ x1, C @ d1, C @ (A @ d1 + B @ due)][:P if taylor else 1]
 
     def ctrl_step(a):
         u = fmu_input(a)
-        xc1 = Ad @ xc + sum(Gc[:, 3 * j:3 * j + 3] @ u[j] for j in range(3))
+        xc1 = Ad @ xc + sum(Gc[..., 3 * j:3 * j + 3] @ u[j] for j in range(3))
         # the force at t_k+1: the sensors moved to their polynomial's value there
-        out = [Cc @ xc1 + Dc @ dot(end, a)]
+        out = [Cc @ xc1 + Dc @ _dot(end, a)]
         if taylor:     # the FMU's derivatives: its step's input polynomial at the step's end
-            ye, dye, d2ye = dot(end, u), u[1] + H * u[2], u[2]
+            ye, dye, d2ye = _dot(end, u), u[1] + H * u[2], u[2]
             d1 = Ac @ xc1 + Bc @ ye
             out += [Cc @ d1 + Dc @ dye, Cc @ (Ac @ d1 + Bc @ dye) + Dc @ d2ye][:P - 1]
         return xc1, out
 
-    if step_index == 0 and P >= 2 and not taylor and not _predictor:
+    if step_index == 0 and P >= 2 and not taylor and not predictor:
         # the corrected first step: the predicted samples at t_1 (the map of the held step) stand
         # in for the newest samples; the first FMU interpolates through them and t_0
-        Mp = transition_matrix(p, c, H, algorithm=algorithm, first=first,
-                               extrapolation=extrapolation, input_derivatives=input_derivatives,
-                               integrator=integrator, substep=substep, drift_free=drift_free,
-                               step_index=0, plant_map=plant_map, _predictor=True)
-        Yold, Fold = [Mp[iy[0]], Y[0]], [Mp[iF[0]], F[0]]
+        Mp = _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation,
+                              output_derivatives, integrator, 0, True)
+        Yold, Fold = [Mp[:, iy[0]], Y[0]], [Mp[:, iF[0]], F[0]]
         old = dict(newest=True)
         s_new = 2
     else:
@@ -579,25 +666,33 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         x1, ys = plant_step(coefficients(Fold, **old))
         xc1, Fs = ctrl_step(coefficients(ys if taylor else [ys[0]] + Y[:s_new - 1],
                                          newest=True))
-    Phi = np.zeros((N, N))
-    Phi[ix] = x1
-    Phi[ic] = xc1
+    Phi = np.zeros((K, N, N))
+    Phi[:, ix] = x1
+    Phi[:, ic] = xc1
     if taylor:
         for j in range(P):
-            Phi[iy[j]] = ys[j]
-            Phi[iF[j]] = Fs[j]
+            Phi[:, iy[j]] = ys[j]
+            Phi[:, iF[j]] = Fs[j]
     else:
-        Phi[iy[0]] = ys[0]
-        Phi[iF[0]] = Fs[0]
+        Phi[:, iy[0]] = ys[0]
+        Phi[:, iF[0]] = Fs[0]
         for j in range(1, P):
-            Phi[iy[j]] = Y[j - 1]
-            Phi[iF[j]] = F[j - 1]
+            Phi[:, iy[j]] = Y[j - 1]
+            Phi[:, iF[j]] = F[j - 1]
     return Phi
 
 
 def spectral_radius(M: np.ndarray) -> float:
     """``max |eig(M)|``."""
     return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
+
+
+def spectral_radii(M: np.ndarray) -> np.ndarray:
+    """``max |eig(M_k)|`` of each matrix of the stack ``M`` (shape ``(K, N, N)``)."""
+    M = np.asarray(M, dtype=float)
+    if not M.shape[-1]:
+        return np.zeros(M.shape[0])
+    return np.max(np.abs(np.linalg.eigvals(M)), axis=-1)
 
 
 def scene_transition_matrix(scene, H: float | None = None, step_index=None, drift_free=True):
@@ -901,11 +996,11 @@ def step_warning(scene) -> str | None:
 
 
 # ---------------------------------------------------------------------- the implicit master
-def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
+def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H, *,
                                extrapolation: int = 2, input_derivatives: bool = True,
                                integrator: str = "rk4", substep: float = 2.5e-4,
                                drift_free: bool = True, step_index: int | None = None,
-                               plant_map=None) -> np.ndarray:
+                               plant_map=None, controller_map=None) -> np.ndarray:
     """``Phi`` with ``z_{k+1} = Phi z_k`` for one converged step ``H`` of the implicit master
     (``master.algorithm = "implicit"``, :mod:`orchestration.cosim.implicit`).
 
@@ -922,16 +1017,19 @@ def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         y_1 = C x_1(y_1, F_1; z),   F_1 = C_c xc_1(y_1, F_1; z) + D_c y_1,
 
     a linear system in ``(y_1, F_1)`` solved here, whose solution is substituted into the step.
-    The master reaches it to within ``master.implicit_tolerance``."""
+    The master reaches it to within ``master.implicit_tolerance``. ``H`` may be a 1-d array of
+    steps (then the stack of their matrices, as :func:`transition_matrix`)."""
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     _check_scheme("gauss-seidel", "controller", extrapolation)
-    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, H, extrapolation, input_derivatives,
+    Hs, scalar = _steps(H)
+    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, Hs, extrapolation, input_derivatives,
                                                    integrator, substep, drift_free, step_index,
-                                                   plant_map)
+                                                   plant_map, controller_map)
     Cc, Dc = PDLowPassModel(c).state_space()[2:]
     C = plant.C
-    nx, nc, ny = Pp.shape[0], Ad.shape[0], C.shape[0]
+    nx, nc, ny = Pp.shape[-1], Ad.shape[-1], C.shape[0]
+    Hb = Hs[:, None, None]
     m = extrapolation + 1
     iy = [slice(nx + nc + j * ny, nx + nc + (j + 1) * ny) for j in range(m)]
     o = nx + nc + m * ny
@@ -942,35 +1040,36 @@ def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     y1, F1 = E[N:N + ny], E[N + ny:]
     k = math.inf if step_index is None else step_index
     s = int(min(extrapolation + 1, k + 2))       # samples through t_k+1
-    W = _taylor_of_samples(list(range(1, 1 - s, -1)), H)
-    avg = np.array([1.0, H / 2, H * H / 6])
+    W = _taylor_of_samples(list(range(1, 1 - s, -1)), Hb)
+    avg = [1.0, Hb / 2, Hb * Hb / 6]
 
     def fmu_input(rows):
         """The Taylor coefficients at t_k of the polynomial through ``rows`` (newest first, the
         first at t_k+1) as the FMU gets them: the value and ``n_der`` derivatives, or held."""
-        a = [sum(W[i, j] * r for j, r in enumerate(rows)) for i in range(3)]
+        a = [_dot(W[i], rows) for i in range(3)]
         if not n_der:
-            return [sum(w * ai for w, ai in zip(avg, a)), 0 * a[0], 0 * a[0]]
+            return [_dot(avg, a), 0 * a[0], 0 * a[0]]
         return [a[j] if j <= n_der else 0 * a[0] for j in range(3)]
 
     u = fmu_input([F1] + [E[f] for f in iF][:s - 1])
-    x1 = Pp @ E[:nx] + sum(Gp[:, j:j + 1] @ u[j] for j in range(3))
+    x1 = Pp @ E[:nx] + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
     v = fmu_input([y1] + [E[r] for r in iy][:s - 1])
-    xc1 = Ad @ E[nx:nx + nc] + sum(Gc[:, 3 * j:3 * j + 3] @ v[j] for j in range(3))
+    xc1 = Ad @ E[nx:nx + nc] + sum(Gc[..., 3 * j:3 * j + 3] @ v[j] for j in range(3))
     # (y_1, F_1) = K [z; y_1; F_1]  =>  (I - K_u) [y_1; F_1] = K_z z
-    K = np.vstack([C @ x1, Cc @ xc1 + Dc @ y1])
-    U = np.linalg.solve(np.eye(ny + 1) - K[:, N:], K[:, :N])
+    Fc1 = Cc @ xc1 + Dc @ y1
+    K = np.concatenate([C @ x1, np.broadcast_to(Fc1, x1.shape[:-2] + Fc1.shape[-2:])], axis=-2)
+    U = np.linalg.solve(np.eye(ny + 1) - K[..., N:], K[..., :N])
 
     def on_z(rows):
-        return rows[:, :N] + rows[:, N:] @ U
+        return rows[..., :N] + rows[..., N:] @ U
 
-    Phi = np.zeros((N, N))
-    Phi[:nx] = on_z(x1)
-    Phi[nx:nx + nc] = on_z(xc1)
-    Phi[iy[0]] = U[:ny]
-    Phi[iF[0]] = U[ny:]
+    Phi = np.zeros((Hs.size, N, N))
+    Phi[:, :nx] = on_z(x1)
+    Phi[:, nx:nx + nc] = on_z(xc1)
+    Phi[:, iy[0]] = U[:, :ny]
+    Phi[:, iF[0]] = U[:, ny:]
     I = np.eye(N)
     for j in range(1, m):
-        Phi[iy[j]] = I[iy[j - 1]]
-        Phi[iF[j]] = I[iF[j - 1]]
-    return Phi
+        Phi[:, iy[j]] = I[iy[j - 1]]
+        Phi[:, iF[j]] = I[iF[j - 1]]
+    return Phi[0] if scalar else Phi
