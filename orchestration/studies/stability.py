@@ -71,18 +71,19 @@ from plant_fmu.integrators.genalpha import genalpha_parameters
 from plant_fmu.params import PlantParams
 
 from ..scene.keys import ConfigError
+from . import stability_intervals as _iv
 from .analysis import linearisation
 
 __all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", "substep_matrix",
            "plant_step_map", "plant_polynomial_step_map", "controller_polynomial_step_map",
            "scene_coupling", "COUPLING_ORDERS", "implicit_transition_matrix", "couplings",
-           "critical_step", "stability_report",
+           "critical_step", "first_unstable", "stability_report", "spectral_radii",
            "substep_limit", "assumptions",
            "step_warning",
            "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
            "first_crossing", "first_instability", "critical_value", "highest_mode", "sdof_matrix",
            "substep_spectral_radius", "integrator_step_limit", "observed_spectral_radius",
-           "hankel_poles", "LinearPlant", "SCHEMES"]
+           "hankel_poles", "LinearPlant", "SCHEMES", "Spectra", "observed_verdict"]
 
 #: plant methods whose substep is a fixed linear map on a linear plant
 METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau", "exponential")
@@ -335,7 +336,7 @@ def _polynomial_substep(method, A, B, nq, h):
 
 
 def plant_polynomial_step_map(method: str, A, B, nq: int, H, h: float,
-                              rho_inf: float = 0.8):
+                              rho_inf: float = 0.8, cache: dict | None = None):
     """``(Phi, Gamma)``: the plant FMU's state after one communication step ``H`` when its input
     is the polynomial ``u(t + s) = u + u' s + u'' s^2 / 2`` (FMI's input derivatives):
     ``x(t + H) = Phi x(t) + Gamma @ [u, u', u'']`` (``Gamma`` has ``3 m`` columns, the ``m``
@@ -345,7 +346,8 @@ def plant_polynomial_step_map(method: str, A, B, nq: int, H, h: float,
     the plant FMUs do). A held input is ``[u, 0, 0]``. ValueError for a method that is no fixed
     linear map in the FMU (``dopri5``, ``radau``: adaptive there). For a 1-d array ``H``, the
     stacks of the maps, one per step (the whole substep's matrix and its powers computed
-    once)."""
+    once). ``cache``: a dict the caller keeps between calls, where the substep's matrix and its
+    powers are kept for the next call (by method, plant and substep)."""
     if method not in FIXED_STEP_METHODS:
         raise ValueError(f"method = {method!r}: the plant FMU's step is a fixed linear map only "
                          f"for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau run adaptively "
@@ -362,8 +364,11 @@ def plant_polynomial_step_map(method: str, A, B, nq: int, H, h: float,
         Hb = Hs[:, None, None]
         Gamma = np.concatenate([G, 0.5 * Hb * G, Hb * Hb / 6.0 * G], axis=-1)
     else:
-        S = _polynomial_substep(method, A, B, nq, h)
-        powers = {}
+        key = (method, float(h), nq, A.tobytes(), B.tobytes())
+        mine = (cache if cache is not None else {}).setdefault(key, {})
+        if "S" not in mine:
+            mine["S"] = _polynomial_substep(method, A, B, nq, h)
+        S, powers = mine["S"], mine.setdefault("powers", {})
         T = np.empty((Hs.size,) + S.shape)
         short, sizes = [], []
         for k, Hk in enumerate(Hs):
@@ -857,13 +862,133 @@ def observed_spectral_radius(signals, rows: int | None = None, rtol: float = 1e-
     return float(np.max(np.abs(hankel_poles(signals, rows, rtol))))
 
 
+# ---------------------------------------------------------------------- the scan's spectra
+#: steps evaluated at once by :class:`Spectra` (bounds the stacks' memory)
+_CHUNK = 512
+#: eigenvalues of at least this modulus are watched for collisions on the real axis
+#: (:func:`~orchestration.studies.stability_intervals.scan`)
+NEAR_CIRCLE = _iv.NEAR_CIRCLE
+
+
+class Spectra:
+    """The spectra of every coupling in ``couplings`` (:func:`transition_matrix`'s keywords)
+    for the plant ``p``, controller ``c`` and the plant FMU's ``integrator`` and ``substep``.
+    ``self(H, which)``: ``rho`` (:meth:`spectra`). The step maps of a call are formed once for
+    all its steps and couplings; the plant substep's matrix and powers once for all calls."""
+
+    def __init__(self, p, c, couplings, *, integrator: str = "rk4", substep: float = 2.5e-4):
+        _check_method(integrator)
+        self.p, self.c, self.couplings = p, c, [dict(k) for k in couplings]
+        self.integrator, self.substep = integrator, substep
+        self.plant = linear_plant(p, drift_free=c.kx == 0.0)
+        self.evaluations = 0
+        self._powers = {}
+
+    def maps(self, Hs):
+        pl = self.plant
+        return (plant_polynomial_step_map(self.integrator, pl.A, pl.B, pl.nq, Hs, self.substep,
+                                          cache=self._powers),
+                controller_polynomial_step_map(self.c, Hs))
+
+    def __call__(self, H, which=None) -> np.ndarray:
+        return self.spectra(H, which)[0]
+
+    def spectra(self, H, which=None):
+        """``(rho, gap)``: the spectral radius and, of the eigenvalues of modulus above
+        :data:`NEAR_CIRCLE`, the smallest ``|Im lambda| / |lambda|`` (how near one is to the
+        real axis, where a complex pair collides and splits; ``inf``: none is that large).
+        ``which``: ``None``, every coupling at every step (arrays ``(len(couplings),
+        len(H))``); a coupling's index, its row; an array of indices as long as ``H``, the
+        coupling of each step (1-d arrays)."""
+        Hs, _ = _steps(H)
+        if which is None:
+            idx = np.repeat(np.arange(len(self.couplings)), Hs.size)
+            steps = np.tile(Hs, len(self.couplings))
+        else:
+            idx = np.broadcast_to(np.asarray(which, dtype=int), Hs.shape)
+            steps = Hs
+        rho, gap = np.empty(steps.size), np.empty(steps.size)
+        uniq, back = np.unique(steps, return_inverse=True)
+        for a in range(0, uniq.size, _CHUNK):
+            part = uniq[a:a + _CHUNK]
+            pm, cm = self.maps(part)
+            sel = np.flatnonzero((back >= a) & (back < a + _CHUNK))
+            for i in np.unique(idx[sel]):
+                mine = sel[idx[sel] == i]
+                at = back[mine] - a
+                M = transition_matrix(self.p, self.c, part[at], integrator=self.integrator,
+                                      substep=self.substep, plant_map=(pm[0][at], pm[1][at]),
+                                      controller_map=(cm[0][at], cm[1][at]),
+                                      **self.couplings[i])
+                ev = np.linalg.eigvals(_deflated(M))
+                mod = np.abs(ev)
+                rho[mine] = mod.max(axis=1) if mod.shape[1] else 0.0
+                near = np.abs(ev.imag) / np.where(mod > NEAR_CIRCLE, mod, np.nan)
+                gap[mine] = np.min(np.where(np.isnan(near), np.inf, near), axis=1,
+                                   initial=np.inf)
+        self.evaluations += steps.size
+        if which is None:
+            shape = (len(self.couplings), Hs.size)
+            return rho.reshape(shape), gap.reshape(shape)
+        return rho, gap
+
+
+def _deflated(M) -> np.ndarray:
+    """The stack ``M`` without the states whose row or column is zero in every matrix of it
+    (repeatedly): such a state only adds an eigenvalue 0 (the determinant of ``lambda I - M``
+    expanded along that row or column is ``lambda`` times the rest's). The registers of a
+    sensor nothing reads (``x_o`` when ``kx = 0``), the implicit master's unused oldest sample."""
+    keep = np.arange(M.shape[-1])
+    while keep.size:
+        S = M[:, keep[:, None], keep]
+        zero = np.all(S == 0, axis=(0, 2)) | np.all(S == 0, axis=(0, 1))
+        if not zero.any():
+            return S
+        keep = keep[~zero]
+    return M[:, :0, :0]
+
+
+def observed_verdict(samples, stopped: bool = False, window: int | None = None):
+    """How a co-simulation from a small initial state ended, from its exchanged outputs sampled
+    once per communication step (``samples``, ``(N, m)``: e.g. ``phi_o, omega_o, F_c``):
+    ``(verdict, ratio, factor)``. ``ratio``: the largest, over the channels, of the amplitude
+    over the last ``window`` samples (default ``max(60, N // 5)``) divided by that channel's
+    over the first ``window``; ``factor``: the growth per step fitted on the last window (the
+    largest pole of its eigensystem realisation, :func:`observed_spectral_radius`; NaN if the
+    run stopped).
+
+    ``"falls"``: the run stopped (the plant FMU refused to go on: the pendulum fell, or its
+    state was no longer finite); ``"grows"``: ``ratio > GROWN`` (1: it ended larger than it
+    began; a growth, which the nonlinear plant may end in a limit cycle), or, when the amplitude
+    decides nothing (``SETTLED < ratio <= GROWN``, ``SETTLED = 0.01``: a slow growth not yet
+    above the decaying modes, or a slow decay), ``factor > 1``; ``"settles"``: ``ratio <=
+    SETTLED``, or undecided and ``factor < 1`` (``GROWN``, ``SETTLED``:
+    :mod:`~orchestration.studies.stability_intervals`). Nothing depends on how long the run
+    took."""
+    Y = np.asarray(samples, dtype=float)
+    Y = Y[:, None] if Y.ndim == 1 else Y
+    if stopped or not np.all(np.isfinite(Y)):
+        return "falls", math.inf, math.nan
+    W = window or max(60, Y.shape[0] // 5)
+    if Y.shape[0] < 2 * W:
+        raise ValueError(f"{Y.shape[0]} samples are too few for two windows of {W}")
+    early = np.max(np.abs(Y[:W]), axis=0)
+    use = early > 0
+    ratio = float(np.max(np.max(np.abs(Y[-W:, use]), axis=0) / early[use]))
+    factor = observed_spectral_radius(Y[-W:], rtol=1e-6)
+    if ratio > _iv.GROWN:
+        return "grows", ratio, factor
+    if ratio <= _iv.SETTLED:
+        return "settles", ratio, factor
+    return ("grows" if factor > 1.0 else "settles"), ratio, factor
+
+
 # ---------------------------------------------------------------------- every coupling of a scene
-#: the range of communication steps searched for the first crossing of rho = 1 (s)
-STEP_RANGE = (1e-4, 1.0)
-#: points per decade of that search: rho(Phi) exceeds 1 in narrow windows too (an eigenvalue's
-#: modulus bumping over 1: 4 % wide for Jacobi with linear Taylor extrapolation on the filtered
-#: scene, at 13.2 ms), so the grid's ratio is 1.2 %; a window narrower than that can be missed
-GRID_PER_DECADE = 500
+#: the range of communication steps :func:`critical_step` searches by default (s); its lower
+#: end is the scan's smallest step
+STEP_RANGE = (_iv.MIN_STEP, 1.0)
+#: grid points per decade of the scans (:mod:`~orchestration.studies.stability_intervals`)
+GRID_PER_DECADE = _iv.GRID_PER_DECADE
 
 
 def couplings(master) -> list[dict]:
@@ -890,22 +1015,26 @@ def couplings(master) -> list[dict]:
 
 def critical_step(p: PlantParams, c: ControllerParams, *, integrator: str = "rk4",
                   substep: float = 2.5e-4, hi: float | None = None, **coupling):
-    """The largest communication step below which every step is stable: the first ``H`` where
-    ``rho(Phi)`` reaches 1 (a log grid of :data:`GRID_PER_DECADE` over :data:`STEP_RANGE`, or up
-    to ``hi``, refined by Brent's method); ``None`` if it never does there, ``0.0`` if the loop is unstable already at
-    the smallest step (the continuous closed loop is). ``coupling``: :func:`transition_matrix`'s
-    keywords."""
-    lo = STEP_RANGE[0]
+    """The largest communication step below which every step is stable: the lower edge of the
+    first unstable interval of :func:`~orchestration.studies.stability_intervals.scan` on
+    ``[STEP_RANGE[0], hi]`` (default ``STEP_RANGE[1]``); ``None`` if there is none, ``0.0`` if
+    the loop is unstable already at the smallest step (the continuous closed loop is). Above it
+    the coupling may be stable again (:func:`stability_report` gives the intervals).
+    ``coupling``: :func:`transition_matrix`'s keywords."""
     hi = STEP_RANGE[1] if hi is None else hi
-    f = lambda H: spectral_radius(transition_matrix(  # noqa: E731
-        p, c, H, integrator=integrator, substep=substep, **coupling))
-    if f(lo) >= 1.0:
-        return 0.0
-    # the grid's points are lo * 10^(j / GRID_PER_DECADE), whatever hi (the same points for
-    # every search), then hi
-    j = np.arange(int(math.floor(GRID_PER_DECADE * math.log10(hi / lo) + 1e-9)) + 1)
-    grid = np.unique(np.append(lo * 10.0 ** (j / GRID_PER_DECADE), hi))
-    return first_instability(f, grid)
+    found = _iv.scan(Spectra(p, c, [coupling], integrator=integrator, substep=substep), hi,
+                     min_step=STEP_RANGE[0])[0]
+    return first_unstable(found)
+
+
+def first_unstable(intervals):
+    """The lower edge of the first unstable interval of ``intervals`` (``[(lo, hi, stable,
+    peak)]``, :func:`~orchestration.studies.stability_intervals.step_intervals`), ``0.0`` if it
+    is the first, ``None`` if there is none."""
+    for i, (lo, _, stable, _) in enumerate(intervals):
+        if not stable:
+            return 0.0 if i == 0 else lo
+    return None
 
 
 def _scene_model(scene):
@@ -949,20 +1078,54 @@ def assumptions(scene) -> list[str]:
     return out
 
 
-def stability_report(scene) -> dict:
+def stability_report(scene, max_step: float | None = None, progress=None) -> dict:
     """For the scene's own coupling and for every coupling the master offers (:func:`couplings`):
-    the largest stable communication step (:func:`critical_step`), and the plant method's
-    substep limit (:func:`substep_limit`; ``None``: A-stable). ``{"scene": {"coupling", "critical_step", "substep_limit"}, "couplings": [{...,
-    "critical_step"}, ...]}``; a ValueError for a scene without a transition matrix."""
+    the stable and unstable intervals of the communication step on ``[MIN_STEP, max_step]``
+    (:func:`~orchestration.studies.stability_intervals.scan`; default
+    :data:`~orchestration.studies.stability_intervals.MAX_STEP`) and the first crossing
+    (:func:`first_unstable`), and the plant method's substep limit (:func:`substep_limit`;
+    ``None``: A-stable)::
+
+        {"min_step", "max_step",
+         "scene": {"coupling": {..., "step"}, "critical_step", "intervals", "rho", "stable",
+                   "substep_limit"},
+         "couplings": [{"algorithm", "first", "extrapolation", "input_derivatives",
+                        "output_derivatives", "critical_step", "intervals"}, ...]}
+
+    an interval being ``{"from", "to", "stable", "rho_max"}`` (seconds; ``rho_max``, of an
+    unstable one: its largest spectral radius, the growth per step at worst; ``None`` for a
+    stable one); ``rho`` and ``stable``: at the scene's own step.
+    ``progress``: called with the fraction done. A ValueError for a scene without a transition
+    matrix, or a bad ``max_step``."""
+    MIN_STEP = _iv.MIN_STEP
+    max_step = _iv.MAX_STEP if max_step is None else max_step
+    if (isinstance(max_step, bool) or not isinstance(max_step, (int, float))
+            or not 10 * MIN_STEP <= max_step <= 10.0):
+        raise ValueError(f"max_step = {max_step!r}; allowed: a step in seconds from "
+                         f"{10 * MIN_STEP:g} to 10")
     p, c, integrator, h = _scene_model(scene)
     own = scene_coupling(scene)
-    model = dict(integrator=integrator, substep=h)
-    rows = [{**k, "critical_step": critical_step(p, c, **model, **k)}
-            for k in couplings(scene.master)]
-    return {"scene": {"coupling": {**own, "step": scene.master.step},
-                      "critical_step": critical_step(p, c, **model, **own),
+    ks = couplings(scene.master)
+    if own not in ks:
+        ks.append(own)
+    spectra = Spectra(p, c, ks, integrator=integrator, substep=h)
+    found = _iv.scan(spectra, float(max_step), progress=progress)
+
+    def row(k, iv):
+        return {**k, "critical_step": first_unstable(iv),
+                "intervals": [{"from": a, "to": b, "stable": st, "rho_max": peak}
+                              for a, b, st, peak in iv]}
+
+    rows = [row(k, iv) for k, iv in zip(ks, found)]
+    mine = rows[ks.index(own)]
+    with _iv.one_blas_thread():
+        rho = float(spectra(scene.master.step, ks.index(own))[0])
+    return {"min_step": MIN_STEP, "max_step": float(max_step),
+            "scene": {"coupling": {**own, "step": scene.master.step},
+                      "critical_step": mine["critical_step"], "intervals": mine["intervals"],
+                      "rho": rho, "stable": rho < 1.0,
                       "substep_limit": substep_limit(p, integrator)},
-            "couplings": rows}
+            "couplings": rows[:len(couplings(scene.master))]}
 
 
 def step_warning(scene) -> str | None:
