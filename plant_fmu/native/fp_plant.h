@@ -254,10 +254,11 @@ FP_API int fp_exact_prepare(fp_exact *p);
  * node) is damped by 1/2 d_t^T C_f d_t, C_f = M_f Phi diag(2 zeta omega_k) Phi^T M_f from the
  * clamped straight beam's modes, bending and axial apart: C_f's axial block ((2 ne + 1)^2,
  * order d0, u_1, u'_1, u_2, ...) then its bending block ((2 ne)^2, order w_1, w'_1, ...),
- * row-major, fp_exact_modal_size doubles. fp_exact_modal computes them (Cholesky, then cyclic
- * Jacobi on L^-1 K_f L^-T) into C with fp_exact_modal_work_size doubles of work; p prepared.
- * With p->modal = C the forces carry the law's force -G^T C_f d_t (not its tangent). FP_OK,
- * FP_BADARG or FP_NOCONVERGE (a mass block not positive definite, Jacobi not converged). */
+ * row-major, fp_exact_modal_size doubles. fp_exact_modal computes them (Cholesky, then
+ * Householder's tridiagonal form and the implicit QL iteration on L^-1 K_f L^-T) into C with
+ * fp_exact_modal_work_size doubles of work; p prepared. With p->modal = C the forces carry the
+ * law's force -G^T C_f d_t (not its tangent). FP_OK, FP_BADARG or FP_NOCONVERGE (a mass block
+ * not positive definite, the QL iteration not converged). */
 FP_API long fp_exact_modal_size(const fp_exact *p);
 FP_API long fp_exact_modal_work_size(const fp_exact *p);
 FP_API int fp_exact_modal(const fp_exact *p, double zeta, double *C, double *work);

@@ -79,6 +79,8 @@ static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "e
 #define XB_NA_MAX (2 * FPM_NE_MAX + 1)
 typedef struct xb_arrays {
     double modal[XB_NA_MAX * XB_NA_MAX + (XB_NA_MAX - 1) * (XB_NA_MAX - 1)];  /* the modal law */
+    double modal_key[8];        /* what modal was formed from (xb_prepare): n_elements, L, EA, */
+    int modal_ok;               /* EI, rhoA, g, m, zeta; modal_ok: it holds them */
     double mwork[2 * XB_NA_MAX * XB_NA_MAX + 2 * XB_NA_MAX + 64];    /* its computation's */
     double s[XB_S_MAX];         /* the state [q, qd, qdd, jerk] */
     double saved[XB_S_MAX];     /* s at a step's start */
@@ -1491,11 +1493,20 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
         return 0;
     }
     if (!m->xb_kv && r[VR_zeta] > 0.0) {
-        if (fp_exact_modal(p, r[VR_zeta], m->xb.modal, m->xb.mwork) != FP_OK) {
-            fpm_log(lg, FPM_ERROR, "bad parameter: the modal damping law of the exact beam "
-                    "could not be formed (its clamped modes: EA = %g, EI = %g, rhoA = %g, "
-                    "n_elements = %d)", r[VR_EA], r[VR_EI], rhoA, ne);
-            return 0;
+        /* formed once per set of the data it depends on (its cost grows as n_elements^3: a
+         * host that reads outputs before initialisation prepares at every read) */
+        const double key[8] = {(double)ne, L, r[VR_EA], r[VR_EI], rhoA, r[VR_g], r[VR_m],
+                               r[VR_zeta]};
+        if (!m->xb.modal_ok || memcmp(key, m->xb.modal_key, sizeof key) != 0) {
+            m->xb.modal_ok = 0;
+            if (fp_exact_modal(p, r[VR_zeta], m->xb.modal, m->xb.mwork) != FP_OK) {
+                fpm_log(lg, FPM_ERROR, "bad parameter: the modal damping law of the exact beam "
+                        "could not be formed (its clamped modes: EA = %g, EI = %g, rhoA = %g, "
+                        "n_elements = %d)", r[VR_EA], r[VR_EI], rhoA, ne);
+                return 0;
+            }
+            memcpy(m->xb.modal_key, key, sizeof key);
+            m->xb.modal_ok = 1;
         }
         p->modal = m->xb.modal;
     }
