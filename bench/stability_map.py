@@ -2,29 +2,37 @@
 
     python bench/stability_map.py            # the full map (a few minutes on one core)
     python bench/stability_map.py --quick    # a coarse map (under a minute)
-    python bench/stability_map.py --table    # the largest stable step per coupling, 2 scenes
+    python bench/stability_map.py --table    # the stable intervals per coupling, 2 scenes, runs
 
 1. Map over the communication step H and the filter cutoff (2nd-order filter, damping 0.5, PD
    500/5, n_modes = 4, plant RK4 with substep 2.5e-4), one panel per coupling scheme (Jacobi,
    Gauss-Seidel controller first, Gauss-Seidel plant first) and extrapolation order (0, 1, 2).
    Predicted: the spectral radius of the transition matrix of one communication step
-   (orchestration/studies/stability.py), shaded, with its contour rho = 1. Observed: the real FMUs on the
-   master with the nonlinear plant from initial.phi = 1e-3, 120 communication steps; the growth
-   factor per step of the sampled outputs (eigensystem realisation) decides grow (x) or decay (o).
+   (orchestration/studies/stability.py), shaded, with its contour rho = 1. Observed: the real
+   FMUs on the master with the nonlinear plant from initial.phi = 1e-3, 120 communication steps;
+   the growth factor per step of the sampled outputs (eigensystem realisation) decides grow (x)
+   or decay (o).
    The critical H at the default cutoff (150 rad/s) is the first crossing of rho = 1.
 2. Substep limits of each plant method on the plant's highest mode for n_modes = 1..8. Predicted:
    the first h where the method's stability function on that eigenvalue exceeds 1. Observed: the
    real stepper on the nonlinear plant, started on the highest mode (amplitude 1e-6), run at
    0.9, 0.98, 1.02 and 1.1 times the predicted limit (A-stable methods: at 10 times RK4's limit);
    the growth per substep along the mode (its left eigenvector of the method's substep matrix).
+3. ``--table``: every coupling the master offers on the filtered scene (to 50 ms) and the rigid
+   one (to 200 ms): the predicted stable and unstable intervals (``flexpend stability``); at the
+   steps just inside and outside each boundary (``probe_steps``) how a run of the scene's plant
+   from initial.phi = 1e-3 ends (``observed_verdict``: settles, grows, falls), as
+   tests/test_stability_intervals.py decides it; and each boundary located from runs of the
+   FMU's linear plant (60 steps, the observed growth factor bisected between the two probes).
 
-Every part is a list of independent tasks (orchestration.sweeps.executor): one after the other here, or
-with ``--workers N`` on a dask LocalCluster (``--scheduler ADDRESS``: an existing cluster), with
-the same numbers.
+Every part is a list of independent tasks (orchestration.sweeps.executor): one after the other
+here, or with ``--workers N`` on a dask LocalCluster (``--scheduler ADDRESS``: an existing
+cluster), with the same numbers.
 
 Writes into bench/results/ (or --out): stability_map.csv (predicted grid), stability_observed.csv
 (observed points with the predicted radius), stability_critical.json (critical steps and substep
-limits, with the agreement counts), stability_map.png and integrator_limits.png.
+limits, with the agreement counts), stability_map.png and integrator_limits.png; with --table,
+stability_table.md and stability_table.json.
 """
 from __future__ import annotations
 
@@ -341,24 +349,31 @@ def write_csv(path, rows):
 
 
 # ---------------------------------------------------------------------- 3. the table per coupling
-TABLE_SCENES = ("flexible_pd_lowpass", "rigid_pd")
-#: the observation: the FMU's linear plant (its samples are exactly a linear system's, so the
-#: observed growth equals rho(Phi) to rounding), a small motion, nothing stops the run
+#: the scenes of the table and the largest step scanned on each (s)
+TABLE_SCENES = {"flexible_pd_lowpass": 0.05, "rigid_pd": 0.2}
+#: the boundaries located from runs: the FMU's linear plant (its samples are exactly a linear
+#: system's, so the observed growth equals rho(Phi) to rounding), a small motion, nothing stops
+#: the run
 OBSERVE_SETS = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
                 "plant.fidelity": "linear"}
-TABLE_STEPS = 60            # communication steps per observed run
-TABLE_LOW = 1e-3            # the observed search starts here (s)
+TABLE_STEPS = 60            # communication steps per run that locates a boundary
+VERDICT_CHANNELS = ("phi_o", "omega_o", "F_c")
+
+
+def _scene_run(name, sets, paths):
+    from orchestration.job import run_scene
+    from orchestration.scene.schema import load_scene
+    scene = load_scene(name, [f"{k}={str(v).lower() if isinstance(v, bool) else v}"
+                              for k, v in sets.items()])
+    return scene, run_scene(scene, paths, progress=False)
 
 
 def _observed_rho(name, coupling, H, paths):
-    """The observed growth factor per step of scene ``name`` with ``coupling`` at step ``H``."""
-    from orchestration.job import run_scene
-    from orchestration.scene.schema import load_scene
+    """The observed growth factor per step of scene ``name`` with ``coupling`` at step ``H``
+    (the linear plant, TABLE_STEPS steps)."""
     sets = {**OBSERVE_SETS, "master.step": H, "output_interval": H, "stop_time": TABLE_STEPS * H,
             **{f"master.{k}": v for k, v in coupling.items()}}
-    scene = load_scene(name, [f"{k}={str(v).lower() if isinstance(v, bool) else v}"
-                              for k, v in sets.items()])
-    r = run_scene(scene, paths, progress=False)
+    scene, r = _scene_run(name, sets, paths)
     if r.summary["stopped"] is not None:
         return math.inf
     Y = np.column_stack([r.result[c] for c in OBSERVED if c in r.result.dtype.names])
@@ -367,56 +382,106 @@ def _observed_rho(name, coupling, H, paths):
     return observed_spectral_radius(Y[scene.master.extrapolation + 2:], rtol=1e-8)
 
 
+def _verdict(name, coupling, H, rho, paths):
+    """How the scene's own plant (its rung) co-simulated with ``coupling`` at ``H`` from
+    initial.phi = 1e-3 ends (``observed_verdict``), run as long as the predicted ``rho`` needs
+    to change the amplitude a thousandfold (200 to 4000 steps), as the tests do."""
+    from orchestration.studies.stability import observed_verdict
+    N = int(min(4000, max(200, math.ceil(math.log(1e3) / abs(math.log(rho))))))
+    sets = {"master.step": H, "output_interval": H, "stop_time": N * H, "initial.phi": 1e-3,
+            **{f"master.{k}": v for k, v in coupling.items()}}
+    _, r = _scene_run(name, sets, paths)
+    Y = np.column_stack([r.result[c] for c in VERDICT_CHANNELS])
+    return observed_verdict(Y, stopped=r.summary["stopped"] is not None)
+
+
 def _table_row(item):
-    """One coupling on one scene: the predicted largest stable step and the observed one: the
-    first step where the real FMUs' co-simulation grows, searched as the prediction is
-    (``first_instability`` on the same grid points, from TABLE_LOW) on the observed growth
-    factor."""
+    """One coupling on one scene: its predicted intervals; at the probe steps beside each
+    boundary (``probe_steps``) how a run of the scene's plant ends; and each boundary located
+    from runs of the linear plant, by bisecting the observed growth factor between the two
+    probes beside it (to 1e-7)."""
     from orchestration.scene.schema import load_scene
-    from orchestration.studies.stability import (GRID_PER_DECADE, critical_step,
-                                                 first_instability)
+    from orchestration.studies.analysis import linearisation
+    from orchestration.studies.stability import (spectral_radius, stability_report,
+                                                 transition_matrix)
+    from orchestration.studies.stability_intervals import probe_steps
     from orchestration.sweeps.executor import worker_file
     name, coupling, fmus = item
     paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
     scene = load_scene(name)
-    pred = critical_step(scene.plant.params, scene.controller, integrator=scene.plant.integrator,
-                         substep=scene.plant.step, **coupling)
-    f = lambda H: _observed_rho(name, coupling, H, paths)  # noqa: E731
-    # the prediction's points (STEP_RANGE[0] * 10^(j / GRID_PER_DECADE)) from TABLE_LOW
-    grid = TABLE_LOW * 10.0 ** (np.arange(3 * GRID_PER_DECADE + 1) / GRID_PER_DECADE)
-    obs = 0.0 if f(TABLE_LOW) >= 1 else first_instability(f, grid)
-    return {"scene": name, **coupling, "predicted": pred, "observed": obs}
+    report = stability_report(scene, max_step=TABLE_SCENES[name])
+    row = next(r for r in report["couplings"] if all(r[k] == v for k, v in coupling.items()))
+    iv = row["intervals"]
+    p = linearisation(scene).params
+    model = dict(integrator=scene.plant.integrator, substep=scene.plant.step)
+    rho = lambda H: spectral_radius(transition_matrix(p, scene.controller, H, **model,  # noqa
+                                                      **coupling))
+    probes = []
+    for H, stable in probe_steps(iv):
+        r = rho(H)
+        verdict, ratio, factor = _verdict(name, coupling, H, r, paths)
+        probes.append({"H": H, "stable": stable, "rho": r, "verdict": verdict, "ratio": ratio,
+                       "factor": factor, "agree": (verdict == "settles") == stable})
+    located = []
+    for a, b in zip(iv, iv[1:]):
+        # the probes beside the boundary a["to"]: the last in a, the first in b
+        left = max(q["H"] for q in probes if a["from"] < q["H"] < a["to"])
+        right = min(q["H"] for q in probes if b["from"] < q["H"] < b["to"])
+        f = lambda H: _observed_rho(name, coupling, H, paths) - 1.0  # noqa: E731
+        lo, hi, below = left, right, f(left) < 0
+        while hi / lo - 1 > 1e-7:
+            mid = math.sqrt(lo * hi)
+            if (f(mid) < 0) == below:
+                lo = mid
+            else:
+                hi = mid
+        located.append({"predicted": a["to"], "observed": math.sqrt(lo * hi)})
+    return {"scene": name, **coupling, "intervals": iv, "probes": probes, "boundaries": located}
 
 
-def _ms(v):
-    return "stable to 1 s" if v is None else "unstable" if v == 0 else f"{v * 1e3:.4g}"
+def _ms_list(iv):
+    parts = [f"{i['from'] * 1e3:.4g}-{i['to'] * 1e3:.4g}" for i in iv if i["stable"]]
+    return ", ".join(parts) or "none"
 
 
 def stability_table(out, ex, fmus):
-    """The largest stable communication step per coupling on the filtered and the rigid scene,
-    predicted and observed: stability_table.json and stability_table.md, the table printed."""
+    """Per coupling on the filtered and the rigid scene: the predicted stable intervals, how
+    many probe runs agree, and the boundaries located from runs against the predicted ones:
+    stability_table.json and stability_table.md, the table printed."""
     from orchestration.report.text import coupling_text
     from orchestration.scene.schema import load_scene
     from orchestration.studies.stability import couplings
+    t0 = time.perf_counter()
     items = [(name, k, fmus) for name in TABLE_SCENES
              for k in couplings(load_scene(name).master)]
     rows = run_tasks(ex, _table_row, items, "stability table")
     by = {(r["scene"], coupling_text(r)): r for r in rows}
     keys = list(dict.fromkeys(coupling_text(r) for r in rows))
-    head = ("| coupling | " + " | ".join(f"{n}: predicted (ms) | observed (ms)"
-                                        for n in TABLE_SCENES) + " |")
+    head = ("| coupling | " + " | ".join(
+        f"{n} to {TABLE_SCENES[n] * 1e3:g} ms: stable (ms) | runs agreeing" for n in TABLE_SCENES)
+        + " |")
     lines = [head, "|" + "---|" * (1 + 2 * len(TABLE_SCENES))]
     for k in keys:
-        cells = [f"{_ms(by[n, k]['predicted'])} | {_ms(by[n, k]['observed'])}"
-                 for n in TABLE_SCENES]
+        cells = []
+        for n in TABLE_SCENES:
+            r = by[n, k]
+            cells.append(f"{_ms_list(r['intervals'])} | "
+                         f"{sum(q['agree'] for q in r['probes'])}/{len(r['probes'])}")
         lines.append(f"| {k} | " + " | ".join(cells) + " |")
     table = "\n".join(lines) + "\n"
     (out / "stability_table.md").write_text(table)
     (out / "stability_table.json").write_text(json.dumps(rows, indent=2))
     print(table)
-    worst = max(abs(r["observed"] / r["predicted"] - 1) for r in rows
-                if r["predicted"] and r["observed"])
-    print(f"largest relative difference observed/predicted: {worst:.2e}")
+    probes = [q for r in rows for q in r["probes"]]
+    bounds = [b for r in rows for b in r["boundaries"]]
+    worst = max((abs(b["observed"] / b["predicted"] - 1) for b in bounds), default=0.0)
+    print(f"probe runs agreeing with the prediction: {sum(q['agree'] for q in probes)} of "
+          f"{len(probes)}; boundaries located from runs: {len(bounds)}, largest relative "
+          f"difference from the predicted: {worst:.2e}; {time.perf_counter() - t0:.0f} s")
+    for r in rows:
+        for q in r["probes"]:
+            if not q["agree"]:
+                print(f"disagreement: {r['scene']}, {coupling_text(r)}: {q}")
     print(f"wrote {out}/stability_table.md, stability_table.json")
     return 0
 
@@ -426,7 +491,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="coarse grids (under a minute)")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results"), help="output folder")
     ap.add_argument("--table", action="store_true",
-                    help="only the table of the largest stable step per coupling on the filtered "
+                    help="only the table of the stable intervals per coupling on the filtered "
                          "and the rigid scene, predicted and observed (docs/stability.md)")
     ap.add_argument("--no-observe", action="store_true",
                     help="predicted map and limits only (no co-simulations)")

@@ -6,6 +6,7 @@ builds, with one front door.
     run = fp.simulate("flexible_pd_lowpass", {"controller.kp": 400, "stop_time": 2})
     run.summary["stable"], run.to_pandas(), run.plot(), run.save("out")
     fp.analyze(overrides={"plant.n_modes": 3}).eigenvalues
+    fp.stability("flexible_pd_lowpass", max_step=0.03)["scene"]["intervals"]
     fp.design(progress=True).result.chosen
     fp.sweep("rigid_pd", grid={"controller.kp": (300, 700, 5)}, serial=True).to_pandas()
     fp.build_fmus("native")
@@ -22,12 +23,12 @@ The layers, from the top (an import goes only downwards; ``tests/test_layers.py`
 """
 from __future__ import annotations
 
-__all__ = ["simulate", "load_scene", "analyze", "design", "sweep", "build_fmus", "Scene", "Run",
-           "Analysis", "DesignReport", "Sweep", "ConfigError", "CoSimulationError",
-           "__version__"]
+__all__ = ["simulate", "load_scene", "analyze", "stability", "design", "sweep", "build_fmus",
+           "Scene", "Run", "Analysis", "DesignReport", "Sweep", "ConfigError",
+           "CoSimulationError", "__version__"]
 
-_API = {"simulate", "load_scene", "analyze", "design", "sweep", "build_fmus", "Scene", "Run",
-        "Analysis", "DesignReport", "Sweep"}
+_API = {"simulate", "load_scene", "analyze", "stability", "design", "sweep", "build_fmus",
+        "Scene", "Run", "Analysis", "DesignReport", "Sweep"}
 
 
 def _version() -> str:

@@ -4,6 +4,7 @@ results, errors that subclass ``ValueError`` or ``TypeError`` and name the bad k
     load_scene(scene, overrides=None) -> Scene
     simulate(scene, overrides=None, *, fmus=None, reference=False, progress=False) -> Run
     analyze(scene=None, overrides=None) -> Analysis
+    stability(scene=None, overrides=None, *, max_step=None, progress=False) -> dict
     design(scene=None, overrides=None, *, design=None, workers=None, scheduler=None,
            progress=False) -> DesignReport
     sweep(scene, *, grid=..., values=..., sample=..., samples=None, ...) -> Sweep
@@ -26,8 +27,8 @@ from .studies.design import DESIGN_DEFAULTS, design_filter, design_settings
 from .sweeps.executor import open_executor
 from .sweeps.job import Sweep, sweep
 
-__all__ = ["load_scene", "simulate", "analyze", "stability", "design", "sweep", "build_fmus", "Scene", "Run",
-           "Analysis", "DesignReport", "Sweep"]
+__all__ = ["load_scene", "simulate", "analyze", "stability", "design", "sweep", "build_fmus",
+           "Scene", "Run", "Analysis", "DesignReport", "Sweep"]
 
 
 def _resolved(scene, overrides, command: str) -> tuple[Scene, Linearisation]:
@@ -59,21 +60,35 @@ def analyze(scene=None, overrides=None) -> Analysis:
     return _analyze(lin.params, sc.controller, loop=lin.text())
 
 
-def stability(scene=None, overrides=None) -> dict:
-    """The largest stable communication step of the scene's coupling and of every coupling the
-    master offers, and the plant method's substep limit (``flexpend stability``;
+def stability(scene=None, overrides=None, *, max_step: float | None = None,
+              progress=False) -> dict:
+    """Where the scene's linearised co-simulation is stable: for its own coupling and for every
+    coupling the master offers, the stable and unstable intervals of the communication step from
+    0.1 ms to ``max_step`` (default 0.05 s), the first crossing of ``rho = 1``, and the plant
+    method's substep limit (``flexpend stability``;
     :func:`orchestration.studies.stability.stability_report`), with ``"assumes"``: what the
-    prediction assumes (:func:`~orchestration.studies.stability.assumptions`), and ``"loop"``:
-    which linearised loop, its damping law named. A ConfigError
-    for a scene whose co-simulation has no transition matrix (adaptive, Model Exchange, an
-    adaptive plant method)."""
+    prediction assumes (:func:`~orchestration.studies.stability.assumptions`), ``"loop"``:
+    which linearised loop, its damping law named, and ``"name"``: the scene's.
+
+    ``progress``: ``True`` for a progress line on stderr, or a callable given the fraction
+    done. A ConfigError for a scene whose co-simulation has no transition matrix (adaptive,
+    Model Exchange, an adaptive plant method); a ValueError naming ``max_step`` for a step
+    outside 1 ms .. 10 s."""
     from .studies.stability import assumptions, stability_report
 
+    if progress is not True and progress is not False and not callable(progress):
+        raise TypeError(f"progress must be True, False or a callable, got {progress!r}")
     sc, lin = _resolved(scene, overrides, "stability")
+    bar = Progress("stability") if progress is True else progress or None
     try:
-        report = stability_report(sc)
+        report = stability_report(sc, max_step=max_step, progress=bar)
     except ValueError as exc:
+        if str(exc).startswith("max_step"):
+            raise
         raise ConfigError(f"{sc.name}: no prediction: {exc}") from None
+    finally:
+        if isinstance(bar, Progress):
+            bar.close()
     return {**report, "name": sc.name, "loop": lin.text(), "assumes": assumptions(sc)}
 
 

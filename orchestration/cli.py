@@ -5,8 +5,8 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
                  [--renderer raster|matplotlib]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
-    flexpend stability SCENE [--set key=value ...] [--json]
-                                                        the largest stable communication steps
+    flexpend stability SCENE [--set key=value ...] [--max-step S] [--json]
+                                                        where the communication step is stable
     flexpend design [--set key=value ...] [--json] [--out DIR] [--workers N | --scheduler ADDR]
                                                         robust low-pass filter design
     flexpend sweep SCENE [--grid ...] [--values ...] [--sample ... --samples N] [--workers N]
@@ -21,9 +21,10 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
-lost runs; 2 bad input (an unknown key, a bad value, an output folder that cannot be written, a
-``--scheduler`` that does not answer as a dask scheduler within 5 s or has no worker within 30 s:
-one line naming it), or an output the system refused (a full disk: one line naming the file;
+lost runs; 2 bad input (an unknown key, a bad value, a ``flexpend check`` reference with a signal
+that does not vary or a ``--write-reference`` that would record one, an output folder that
+cannot be written, a ``--scheduler`` that does not answer as a dask scheduler within 5 s or has
+no worker within 30 s: one line naming it), or an output the system refused (a full disk: one line naming the file;
 every earlier file is kept whole), or an ``--out`` in use by another run, or a limit of the
 machine that the command cannot work within (too few file handles, ``ulimit -n``; too little
 memory, ``ulimit -v``: one line naming the limit); 3 ``flexpend run``: a scene stopped early (an
@@ -46,6 +47,7 @@ import atexit
 import contextlib
 import errno
 import json
+import math
 import os
 import signal
 import sys
@@ -175,14 +177,82 @@ def cmd_analyze(args) -> int:
 
 def cmd_stability(args) -> int:
     from .api import stability
-    from .report.text import stability_lines
+    from .report.progress import Progress
 
-    r = stability(args.scene, args.set)
+    if not math.isfinite(args.max_step) or not 1e-3 <= args.max_step <= 10.0:
+        raise UsageError(f"--max-step {args.max_step:g} is not allowed; allowed: a step in "
+                         "seconds from 0.001 to 10")
+    bar = Progress("flexpend stability")
+
+    def progress(fraction):
+        bar(fraction)
+        INTERRUPTS.check()          # a safe point: between two stacks of matrices
+
+    try:
+        r = stability(args.scene, args.set, max_step=args.max_step, progress=progress)
+    finally:
+        bar.close()
     if args.json:
-        print(_json({"scene": r["scene"], "couplings": r["couplings"], "loop": r["loop"]}))
+        print(_json({k: r[k] for k in ("min_step", "max_step", "scene", "couplings", "loop")}))
     else:
         _print(stability_lines(r))
     return 0
+
+
+def _ms_intervals(intervals, stable: bool, rho: bool = False) -> str:
+    """The stable (or unstable) intervals in milliseconds, joined; with ``rho`` each unstable
+    one's largest spectral radius."""
+    from .report.text import num
+
+    parts = [f"{num(i['from'] * 1e3)}-{num(i['to'] * 1e3)}"
+             + (f" (rho up to {i['rho_max']:.6g})" if rho and i["rho_max"] is not None
+                else "") for i in intervals if i["stable"] == stable]
+    return ", ".join(parts) + " ms" if parts else "none"
+
+
+def stability_lines(r: dict) -> list[str]:
+    """``flexpend stability``'s text: the scene's coupling, the verdict at its step, its stable
+    and unstable intervals up to the maximum step, and the plant's substep limit; then the
+    stable intervals of every coupling the master offers, and the one stable at every step up
+    to the largest step (:func:`orchestration.api.stability`)."""
+    from .report.text import coupling_text, num
+
+    def first(c):
+        H = c["critical_step"]
+        if H is None:
+            return f"stable at every step up to {num(r['max_step'] * 1e3)} ms"
+        if H == 0:
+            return (f"unstable already at {num(r['min_step'] * 1e3)} ms (the continuous loop "
+                    "is)")
+        return f"stable at every step up to {num(H * 1e3)} ms (the first crossing of rho = 1)"
+
+    sc = r["scene"]
+    k = sc["coupling"]
+    h = sc["substep_limit"]
+    lines = [f"{r['name']}: where the linear co-simulation is stable (rho(Phi) < 1), "
+             f"communication steps {num(r['min_step'] * 1e3)} to {num(r['max_step'] * 1e3)} ms"]
+    if r.get("loop"):
+        lines.append(f"  plant: {r['loop']}")
+    lines += [f"  assumes {a}" for a in r["assumes"]]
+    lines += [f"  its coupling: {coupling_text(k)}",
+              f"    master.step = {num(k['step'] * 1e3)} ms: "
+              f"{'stable' if sc['stable'] else 'UNSTABLE'} (rho = {sc['rho']:.6g} per step)",
+              f"    {first(sc)}",
+              f"    stable:   {_ms_intervals(sc['intervals'], True)}",
+              f"    unstable: {_ms_intervals(sc['intervals'], False, rho=True)}",
+              "    plant substep limit: " + ("none (A-stable)" if h is None else
+                                             f"{num(h * 1e3)} ms")]
+    rows = r["couplings"]
+    w = max(len(coupling_text(c)) for c in rows)
+    lines.append(f"  every coupling: the steps at which it is stable (unstable between them and "
+                 f"up to {num(r['max_step'] * 1e3)} ms)")
+    lines += [f"    {coupling_text(c):<{w}}  {_ms_intervals(c['intervals'], True)}"
+              for c in rows]
+    key = lambda c: math.inf if c["critical_step"] is None else c["critical_step"]  # noqa: E731
+    best = max(rows, key=key)
+    lines.append(f"  stable at every step up to the largest first crossing: {coupling_text(best)} "
+                 f"({first(best).removeprefix('stable at every step up to ').split(' (')[0]})")
+    return lines
 
 
 def cmd_design(args) -> int:
@@ -284,6 +354,30 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _written_lines(files: dict) -> list[str]:
+    """What ``flexpend check --write-reference`` wrote, and what it drove the FMU with."""
+    from .export.check import EXCITATIONS, read_opt
+
+    opt = read_opt(files["opt"])
+    new = {str(p) for p in files["written"]}
+    mark = {True: " (written)", False: ""}
+    n = len(files["signals"])
+    lines = [f"wrote {files['ref']}: {n} signal{'s' * (n != 1)}, {opt['StartTime']:g} to "
+             f"{opt['StopTime']:g} s in steps of {opt['StepSize']:g} s"]
+    if files["excitation"]:
+        exc = EXCITATIONS[files["excitation"]]
+        lines.append(f"  inputs {files['in']} (written): flexpend's excitation of the "
+                     f"{files['excitation']}, {exc.what}")
+    elif files["in"].is_file():
+        lines.append(f"  inputs {files['in']}")
+    else:
+        lines.append("  no input file: the FMU has no inputs")
+    lines.append(f"  options {files['opt']}{mark[str(files['opt']) in new]}")
+    if files["left_out"]:
+        lines.append(f"  left out, constant in this run (no band): {', '.join(files['left_out'])}")
+    return lines
+
+
 def cmd_check(args) -> int:
     from .export.check import (
         ReferenceError,
@@ -302,10 +396,7 @@ def cmd_check(args) -> int:
     outputs = [o.strip() for o in args.outputs.split(",") if o.strip()] if args.outputs else None
     try:
         if args.write_reference:
-            files = write_reference(args.fmu, args.reference, outputs)
-            print(f"wrote {files['ref']} (options {files['opt']}"
-                  + (f", inputs {files['in']}" if files["in"].is_file() else ", no input file")
-                  + ")")
+            print("\n".join(_written_lines(write_reference(args.fmu, args.reference, outputs))))
             return 0
         report = check_fmu(args.fmu, args.reference, rule)
     except ReferenceError as exc:
@@ -510,14 +601,18 @@ def build_parser() -> argparse.ArgumentParser:
     pa.add_argument("--json", action="store_true", help="print the result as JSON")
     pa.set_defaults(func=cmd_analyze)
 
-    pt = sub.add_parser("stability", help="the largest stable communication step per coupling",
-                        description="The largest communication step at which the linearised "
+    pt = sub.add_parser("stability", help="the stable intervals of the communication step "
+                                           "per coupling",
+                        description="The communication steps at which the linearised "
                                     "co-simulation is stable (rho of the step's transition matrix "
-                                    "= 1), for the scene's coupling and every coupling the master "
-                                    "offers, and the plant method's substep limit.")
+                                    "< 1), as intervals up to --max-step, for the scene's coupling "
+                                    "and every coupling the master offers, and the plant method's "
+                                    "substep limit.")
     pt.add_argument("scene", metavar="SCENE", help="a scene name or a path to a .toml file")
     pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a scene key, e.g. controller.cutoff=150")
+    pt.add_argument("--max-step", type=float, default=0.05, metavar="SECONDS",
+                    help="the largest communication step scanned (default 0.05 s; 0.001 to 10)")
     pt.add_argument("--json", action="store_true", help="print the result as JSON")
     pt.set_defaults(func=cmd_stability)
 
@@ -632,20 +727,24 @@ def build_parser() -> argparse.ArgumentParser:
                                       "cross-check layout)",
                         description="Simulate FMU alone with <Model>_in.csv and <Model>_ref.opt "
                                     "of the reference folder and compare every signal of "
-                                    "<Model>_ref.csv within FMPy's cross-check band. Prints one "
-                                    "line per signal; exits 1 on any signal outside its band "
-                                    "or a run that does not reach the stop time, 2 on bad input.")
+                                    "<Model>_ref.csv within FMPy's band (fmpy.util."
+                                    "validate_signal). Prints one line per signal; exits 1 on "
+                                    "any signal outside its band or a run that does not reach "
+                                    "the stop time, 2 on bad input, a reference signal that "
+                                    "does not vary (no band) included.")
     pc.add_argument("fmu", metavar="FMU", help="the .fmu file")
     pc.add_argument("--reference", required=True, metavar="DIR",
                     help="folder with <Model>_ref.csv, <Model>_ref.opt, <Model>_in.csv (or a "
                          "<Model> subfolder with them)")
     pc.add_argument("--plot", metavar="FILE.png", help="draw each signal over its band")
     pc.add_argument("--write-reference", action="store_true",
-                    help="write <Model>_ref.csv from a run instead of checking (and "
-                         "<Model>_ref.opt from the FMU's default experiment if missing)")
+                    help="write <Model>_ref.csv from a run instead of checking; without "
+                         "<Model>_in.csv, flexpend's excitation of a plant (input F_c) or a "
+                         "controller (phi_o, omega_o, x_o) is written as one, with its "
+                         "options if <Model>_ref.opt is missing too")
     pc.add_argument("--outputs", metavar="NAMES",
                     help="with --write-reference: comma-separated signals to record (default: "
-                         "those of the existing reference, else every output)")
+                         "those of the existing reference, else every output that varies)")
     pc.add_argument("--tolerance", type=float, default=0.1,
                     help="band half-width as a fraction of each signal's range (default: 0.1)")
     pc.add_argument("--window", type=int, default=21,

@@ -55,7 +55,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .beam import _element_matrices, unit_beam
-from .params import PlantParams, exact_damping_refusal
+from .params import PlantParams
 
 __all__ = ["CableMesh", "BeamSystem", "ExactPlant", "GeneralizedAlpha", "RadauIIA", "AffineForce",
            "StageForce", "NoConvergence", "exact_plant", "RADAU_C", "RADAU_A", "RADAU_TOL",
@@ -212,13 +212,120 @@ class CableMesh:
         return e, ed
 
 
+class FrameModalDamping:
+    """The modal damping law (``damping = "modal"``) on the exact beam: every mode of the beam
+    clamped in the frame of its root tangent gets the damping ratio ``zeta``, as the floating
+    frame gives each of its cantilever modes.
+
+    The frame is the floating frame's: its origin the root ``r_0 = (x, 0)``, its axes
+    ``b1 = r'_0 / |r'_0|`` along the root tangent and ``b2 = (-b1_y, b1_x)`` (MODEL.md's
+    ``b2 = (-cos phi, -sin phi)``). The beam's deformation in it, ``d``, is the root slope's
+    stretch ``|r'_0| - 1`` and, at every other node, ``u = b1.(r_i - r_0) - s_i``,
+    ``w = b2.(r_i - r_0)``, ``u' = b1.r'_i - 1``, ``w' = b2.r'_i``; a rigid motion of the beam
+    with its frame leaves ``d`` unchanged. The dissipation is ``1/2 d_t^T C_f d_t`` with
+    ``C_f = M_f Phi diag(2 zeta omega_k) Phi^T M_f`` from the clamped beam's modes
+    ``(K_f - omega_k^2 M_f) phi_k = 0``, ``Phi^T M_f Phi = I`` (``M_f``, ``K_f``: the mesh's mass
+    and tangent stiffness at the straight beam, in ``d``; bending and axial apart, as they are
+    there), and the generalised force is ``-G^T C_f d_t`` with ``d_t = G(e) e_t``. Linearised at
+    rest this is the floating frame's ``D = diag(2 zeta omega_j)`` on the mesh's cantilever
+    modes (and ``zeta`` on its axial ones); it is objective (a rigid rotation is not damped) and
+    it only dissipates (``dE/dt = -d_t^T C_f d_t``). Kelvin-Voigt damping is the other law
+    (``beta`` of :class:`BeamSystem`)."""
+
+    def __init__(self, mesh: "CableMesh", zeta: float):
+        ne = mesh.ne
+        self.mesh, self.zeta, self.ne = mesh, zeta, ne
+        self.nd = 4 * ne + 1
+        # d <- e at the straight vertical beam: (index of e, sign) per entry of d
+        rows = [(3, 1.0)]
+        for i in range(1, ne + 1):
+            b = 4 * i
+            rows += [(b + 1, 1.0), (b, -1.0), (b + 3, 1.0), (b + 2, -1.0)]
+        P = np.zeros((self.nd, mesh.ndof))
+        for k, (j, sgn) in enumerate(rows):
+            P[k, j] = sgn
+        e0, _ = mesh.straight((0.0, 0.0), 0.0)
+        _, K, _ = mesh.internal(e0, None, 0.0, True)
+        Mf, Kf = P @ mesh.M @ P.T, P @ K @ P.T
+        self.axial = np.array([0] + [1 + 4 * i + k for i in range(ne) for k in (0, 2)])
+        self.bending = np.array([1 + 4 * i + k for i in range(ne) for k in (1, 3)])
+        self.Ca = self._block(Mf, Kf, self.axial)
+        self.Cb = self._block(Mf, Kf, self.bending)
+
+    def _block(self, Mf, Kf, idx):
+        import scipy.linalg
+
+        M, K = Mf[np.ix_(idx, idx)], Kf[np.ix_(idx, idx)]
+        lam, Phi = scipy.linalg.eigh(K, M)
+        MP = M @ Phi
+        return MP @ np.diag(2.0 * self.zeta * np.sqrt(np.maximum(lam, 0.0))) @ MP.T
+
+    @staticmethod
+    def _frame(e):
+        a0 = e[2:4]
+        n0 = float(a0 @ a0)
+        b1 = a0 / math.sqrt(n0)
+        return b1, np.array([-b1[1], b1[0]]), np.array([-a0[1], a0[0]]) / n0
+
+    def rates(self, e, ed) -> np.ndarray:
+        """``d_t`` at the nodal vectors ``e``, ``ed``."""
+        b1, b2, gth = self._frame(e)
+        th = float(gth @ ed[2:4])
+        out = np.empty(self.nd)
+        out[0] = b1 @ ed[2:4]
+        r0, v0 = e[0:2], ed[0:2]
+        for i in range(1, self.ne + 1):
+            r, rp = e[4 * i:4 * i + 2] - r0, e[4 * i + 2:4 * i + 4]
+            v, vp = ed[4 * i:4 * i + 2] - v0, ed[4 * i + 2:4 * i + 4]
+            k = 1 + 4 * (i - 1)
+            out[k] = th * (b2 @ r) + b1 @ v
+            out[k + 1] = -th * (b1 @ r) + b2 @ v
+            out[k + 2] = th * (b2 @ rp) + b1 @ vp
+            out[k + 3] = -th * (b1 @ rp) + b2 @ vp
+        return out
+
+    def transpose(self, e, g) -> np.ndarray:
+        """``G(e)^T g``, over the full nodal vector."""
+        b1, b2, gth = self._frame(e)
+        out = np.zeros(self.mesh.ndof)
+        out[2:4] += g[0] * b1
+        coef = 0.0
+        r0 = e[0:2]
+        for i in range(1, self.ne + 1):
+            r, rp = e[4 * i:4 * i + 2] - r0, e[4 * i + 2:4 * i + 4]
+            k = 1 + 4 * (i - 1)
+            coef += (g[k] * (b2 @ r) - g[k + 1] * (b1 @ r) + g[k + 2] * (b2 @ rp)
+                     - g[k + 3] * (b1 @ rp))
+            pos = g[k] * b1 + g[k + 1] * b2
+            out[4 * i:4 * i + 2] += pos
+            out[0:2] -= pos
+            out[4 * i + 2:4 * i + 4] += g[k + 2] * b1 + g[k + 3] * b2
+        out[2:4] += coef * gth
+        return out
+
+    def force(self, e, ed) -> np.ndarray:
+        """The damping's generalised force ``-G^T C_f d_t`` over the full nodal vector."""
+        d = self.rates(e, ed)
+        c = np.zeros(self.nd)
+        c[self.axial] = self.Ca @ d[self.axial]
+        c[self.bending] = self.Cb @ d[self.bending]
+        return -self.transpose(e, c)
+
+    def matrix(self, e) -> np.ndarray:
+        """``G^T C_f G`` at ``e`` (dense, full nodal): the law's velocity tangent, and its
+        linearisation at rest."""
+        n = self.mesh.ndof
+        return np.stack([-self.force(e, col) for col in np.eye(n)], axis=1)
+
+
 class BeamSystem:
     """A cable mesh with some nodal coordinates held (``fixed``: index -> value) and, optionally,
     a cart of mass ``cart_mass`` that carries the root's x coordinate (``e[0]``) and takes the
     force ``u``. The free coordinates are ``q``; ``e = embed(q)``."""
 
-    def __init__(self, mesh: CableMesh, fixed: dict, cart_mass: float = 0.0, beta: float = 0.0):
-        self.mesh, self.beta = mesh, beta
+    def __init__(self, mesh: CableMesh, fixed: dict, cart_mass: float = 0.0, beta: float = 0.0,
+                 modal: FrameModalDamping | None = None):
+        self.mesh, self.beta, self.modal = mesh, beta, modal
         self.fixed = dict(fixed)
         self.free = np.array([i for i in range(mesh.ndof) if i not in self.fixed])
         self.nq = self.free.size
@@ -240,9 +347,15 @@ class BeamSystem:
         return e
 
     def forces(self, q, qd, u: float = 0.0, tangent: bool = True):
-        """``(f, K, C)``: ``M qdd = f(q, qd, u)``, ``K = -df/dq``, ``C = -df/dqd``."""
-        fi, Ki, Ci = self.mesh.internal(self.embed(q), self.embed(qd, rate=True), self.beta, tangent)
+        """``(f, K, C)``: ``M qdd = f(q, qd, u)``, ``K = -df/dq``, ``C = -df/dqd``. The modal
+        law's force (``modal``) is in ``f``; its tangent is not in ``K`` and ``C`` (the Newton
+        iterations converge without it: the law is light against the stiffness, and the C
+        kernel's band would not hold it; :meth:`modal_matrix` gives it)."""
+        e, ed = self.embed(q), self.embed(qd, rate=True)
+        fi, Ki, Ci = self.mesh.internal(e, ed, self.beta, tangent)
         f = self.f_gravity - fi[self.free]
+        if self.modal is not None:
+            f = f + self.modal.force(e, ed)[self.free]
         if self.cart:
             f[0] += u
         if not tangent:
@@ -253,6 +366,12 @@ class BeamSystem:
     def energy(self, q, qd) -> float:
         """``T + V`` (the cart's own weight left out: it does not move vertically)."""
         return float(0.5 * qd @ self.M @ qd) + self.mesh.potential(self.embed(q))
+
+    def modal_matrix(self, q) -> np.ndarray:
+        """The modal law's damping matrix ``-d f / d qd`` at ``q`` (zeros without it)."""
+        if self.modal is None:
+            return np.zeros((self.nq, self.nq))
+        return self.modal.matrix(self.embed(q))[np.ix_(self.free, self.free)]
 
     def static(self, q0, u: float = 0.0, hold=(), load=None, steps: int = 1, tol: float = 1e-12,
                max_iter: int = 50):
@@ -619,14 +738,15 @@ class ExactPlant:
     model has every mode the mesh has, and the self-weight's stiffness by construction)."""
 
     def __init__(self, p: PlantParams):
-        why = exact_damping_refusal(p)          # it damps by material (Kelvin-Voigt) only
-        if why:
-            raise ValueError(why)
         self.params = p
         self.mesh = CableMesh(p.L, p.EA, p.EI, p.rhoA, p.n_elements, p.g)
         self.omega1 = math.sqrt(unit_beam(p.n_elements, 1).lam[0] * p.EI / (p.rhoA * p.L**4))
-        self.beta_kv = 2.0 * p.zeta / self.omega1
-        self.system = BeamSystem(self.mesh, {1: 0.0}, cart_mass=p.m, beta=self.beta_kv)
+        kv = p.damping == "kelvin-voigt"
+        self.beta_kv = 2.0 * p.zeta / self.omega1 if kv else 0.0
+        self.modal = (FrameModalDamping(self.mesh, p.zeta)
+                      if p.damping == "modal" and p.zeta > 0 else None)
+        self.system = BeamSystem(self.mesh, {1: 0.0}, cart_mass=p.m, beta=self.beta_kv,
+                                 modal=self.modal)
         self.nq = self.system.nq
         self.nx = 2 * self.nq
 
@@ -671,6 +791,7 @@ class ExactPlant:
         nq, nx = self.nq, self.nx
         q = self.upright_equilibrium()
         _, K, Cd = self.system.forces(q, np.zeros(nq))
+        Cd = Cd + self.system.modal_matrix(q)
         Minv = np.linalg.inv(self.system.M)
         A = np.zeros((nx, nx))
         A[:nq, nq:] = np.eye(nq)

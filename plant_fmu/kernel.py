@@ -81,7 +81,7 @@ class _Exact(ctypes.Structure):
                 ("m", _D), ("beta_kv", _D), ("h", _D), ("rho_inf", _D), ("tol", _D),
                 ("max_iter", ctypes.c_int), ("nq", ctypes.c_int), ("le", _D), ("am", _D),
                 ("af", _D), ("gamma", _D), ("beta", _D), ("bp", _D), ("gw", _D * 5),
-                ("gd1", _D * 20), ("gd2", _D * 20)]
+                ("gd1", _D * 20), ("gd2", _D * 20), ("modal", ctypes.c_void_p)]
 
 
 class _ExactForce(ctypes.Structure):
@@ -106,6 +106,8 @@ def library() -> ctypes.CDLL:
         lib.fp_jacobian_work_size.restype = ctypes.c_long
         lib.fp_exact_work_size.restype = ctypes.c_long
         lib.fp_radau_work_size.restype = ctypes.c_long
+        lib.fp_exact_modal_size.restype = ctypes.c_long
+        lib.fp_exact_modal_work_size.restype = ctypes.c_long
         for name in ("fp_rhs", "fp_tip", "fp_outputs"):
             getattr(lib, name).restype = None
         _lib = lib
@@ -378,6 +380,14 @@ class ExactKernel:
             raise ValueError(f"the exact beam's data are out of range (h = {h!r}, max_iter = "
                              f"{max_iter!r}, or a parameter is not finite and positive)")
         self.h, self.nq = h, self._struct.nq
+        self._modal = None                  # the modal law's C_f (fp_exact_modal), kept alive
+        if getattr(plant, "modal", None) is not None:
+            self._modal = np.zeros(lib.fp_exact_modal_size(self._p))
+            mwork = np.zeros(lib.fp_exact_modal_work_size(self._p))
+            if lib.fp_exact_modal(self._p, _D(float(p.zeta)), _addr(self._modal),
+                                  _addr(mwork)) != FP_OK:
+                raise ValueError("the exact beam's modal damping law could not be formed")
+            self._struct.modal = self._modal.ctypes.data
         size = (lib.fp_radau_work_size if method == "radau" else lib.fp_exact_work_size)(self._p)
         self._work = np.zeros(size)
         self._pwork = _addr(self._work)

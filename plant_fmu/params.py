@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from fmu_common.checks import check_bool, check_choice, check_int, check_real, replace_checked
 
 __all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN", "DAMPING_LAWS",
-           "exact_damping_refusal", "damping_text"]
+           "damping_text"]
 
 #: The beam's damping laws (MODEL.md section 7), ``plant.damping``:
 #:
@@ -109,19 +109,5 @@ def damping_text(p: PlantParams) -> str:
 
 
 # ------------------------------------------------------------------ the exact rung's damping law
-def exact_damping_refusal(p: PlantParams, prefix: str = "") -> str | None:
-    """Why the exact rung (``fidelity = "exact"``, :mod:`plant_fmu.exact`) cannot run ``p``, or
-    None: THE ONE PLACE that decides which damping law the exact rung takes.
 
-    The geometrically exact beam damps by material (Kelvin-Voigt) only, so for now it refuses
-    the modal law with damping; with ``zeta = 0`` both laws are the same and it runs. The scene
-    (a ConfigError), :class:`plant_fmu.exact.ExactPlant` (a ValueError) and, in the same words,
-    the native FMU (``plant_model.c``'s ``prepare``: an Error with a log message) refuse with
-    this message; ``prefix`` names the keys (``"plant."`` in a scene). When the exact rung gets
-    the modal law, this returns None and the C check goes."""
-    if p.damping == "modal" and p.zeta > 0:
-        return (f"{prefix}fidelity = 'exact' refuses {prefix}damping = 'modal' with "
-                f"{prefix}zeta = {p.zeta:g}: the exact rung damps by material (Kelvin-Voigt), "
-                f"not by the modal law: {prefix}damping = 'kelvin-voigt' or {prefix}zeta = 0 "
-                f"runs it")
-    return None
+

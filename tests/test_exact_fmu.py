@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -322,49 +323,40 @@ def test_the_scene_refuses_what_the_exact_rung_cannot_give(keys, what):
         load_scene("rigid_pd", {"plant.fidelity": "exact", **keys})
 
 
-def test_the_exact_rung_refuses_the_modal_law_with_damping(open_plant):
-    """The exact rung damps by material (Kelvin-Voigt): with the modal law and zeta > 0 the scene
-    (a ConfigError), ExactPlant (a ValueError) and the native FMU (an Error at initialisation,
-    with a log message) refuse it in one line naming the keys that run it; with zeta = 0 both
-    laws are the same and it runs, bit for bit as under the Kelvin-Voigt law."""
-    words = "damps by material (Kelvin-Voigt), not by the modal law"
-    with pytest.raises(ConfigError) as exc:
-        load_scene("rigid_pd", {"plant.fidelity": "exact"})
-    msg = str(exc.value)
-    assert words in msg and "plant.damping = 'kelvin-voigt' or plant.zeta = 0 runs it" in msg
-    assert "\n" not in msg
-    with pytest.raises(ValueError, match="damping = 'kelvin-voigt' or zeta = 0 runs it"):
-        ExactPlant(PlantParams(n_elements=NE))
-    for version in (2, 3):
-        inst = open_plant(version, fidelity="exact", n_elements=NE, phi0=0.3, initialize=False)
-        inst.status = inst.call(inst.initialize, False)
-        assert inst.status == 3
-        assert words in inst.messages(3) and "zeta = 0.001" in inst.messages(3)
-    for keys in ({"plant.zeta": 0.0}, {"plant.damping": "kelvin-voigt"}):
-        assert load_scene("rigid_pd", {"plant.fidelity": "exact", **keys}).plant.fidelity == \
-            "exact"
-    modal = drive(open_plant(2, fidelity="exact", zeta=0.0, n_elements=NE, phi0=0.3), 20)
-    assert np.array_equal(modal, drive(open_plant(2, **XB, zeta=0.0, n_elements=NE, phi0=0.3),
-                                       20))
+def test_the_exact_rung_takes_the_modal_law(open_plant):
+    """Under the modal law (zeta in every mode of the beam clamped in its root tangent's frame,
+    plant_fmu.exact.FrameModalDamping) the scene runs, and the native FMU (both FMI versions)
+    steps the kernel's Radau steps to the last bit and the numpy specification's to round-off;
+    it differs from the Kelvin-Voigt law's run, and with zeta = 0 the two laws are one, bit for
+    bit."""
+    assert load_scene("rigid_pd", {"plant.fidelity": "exact"}).plant.fidelity == "exact"
+    start = dict(fidelity="exact", n_elements=NE, n_modes=0, phi0=0.3, x_dot0=0.2, zeta=0.02)
+    ra, rb = drive(open_plant(2, **start), 100), drive(open_plant(3, **start), 100)
+    assert np.array_equal(ra, rb)
+    plant = ExactPlant(PlantParams(n_elements=NE, n_modes=0, zeta=0.02))
+    assert plant.modal is not None and plant.beta_kv == 0.0
+    x0 = plant.initial_state(phi=0.3, x_dot=0.2)
+    k, spec = ExactKernel(plant, 2.5e-4, method="radau"), RadauIIA(plant.system, 2.5e-4)
+    sk = k.start(x0[:plant.nq], x0[plant.nq:], forcing(0))
+    ss = spec.start(x0[:plant.nq], x0[plant.nq:], forcing(0))
+    for i in range(100):
+        sk = k.steps(sk, forcing(i), 4)
+        for _ in range(4):
+            ss = spec.step(ss, forcing(i))
+    assert np.array_equal(ra[-1, :7], k.outputs(sk))
+    assert abs(k.outputs(ss)[2] - ra[-1, 2]) <= 1e-10
+    kv = drive(open_plant(2, **{**start, "damping": "kelvin-voigt"}), 100)
+    assert np.max(np.abs(kv[:, 2] - ra[:, 2])) > 1e-7                 # phi_o
+    undamped = dict(start, zeta=0.0)
+    assert np.array_equal(drive(open_plant(2, **undamped), 20),
+                          drive(open_plant(2, **undamped, damping="kelvin-voigt"), 20))
 
 
-def test_fidelity_auto_leaves_the_exact_rung_out_of_a_modal_scene_and_says_why():
-    """available_ladder has no exact rung for a scene under the modal law with damping (and has
-    it under Kelvin-Voigt); the climb that stops below it says why."""
-    from orchestration.studies.fidelity import available_ladder, climb, refused_rungs
+def test_fidelity_auto_climbs_to_the_exact_rung_under_either_law():
+    from orchestration.studies.fidelity import available_ladder
 
-    modal = load_scene("flexible_pd")
-    assert available_ladder(modal)[-1] == "stiffened"
-    assert available_ladder(modal.replace(plant=modal.plant.with_model(4, "nonlinear")))[-1] \
-        == "stiffened"
-    assert available_ladder(load_scene("flexible_pd", {"plant.damping": "kelvin-voigt"}))[-1] \
-        == "exact"
-    assert available_ladder(load_scene("flexible_pd", {"plant.zeta": 0.0}))[-1] == "exact"
-    v = {"rung": "stiffened", "model_form_error": 0.5, "relative": 0.9, "outside": []}
-    nxt, why = climb("stiffened", v, 0.05, available_ladder(modal), refused_rungs(modal))
-    assert nxt is None
-    assert "stiffened is the top available rung (exact not available, plant.fidelity = " \
-        "'exact' refuses plant.damping = 'modal'" in why and "runs it): kept" in why
+    for keys in ({}, {"plant.damping": "kelvin-voigt"}, {"plant.zeta": 0.0}):
+        assert available_ladder(load_scene("flexible_pd", keys))[-1] == "exact"
 
 
 def test_the_pythonfmu_plant_refuses_the_exact_rung():
@@ -436,3 +428,44 @@ def test_refining_the_plant_never_makes_the_coupled_error_worse(undamped_referen
         errors.append(err)
     assert errors[0] < 1e-4
     assert all(b <= a for a, b in zip(errors, errors[1:])), errors
+
+
+# ---------------------------------------------------------------------- the work budget
+def _budget():
+    import re
+    src = (Path(__file__).parents[1] / "plant_fmu/native/plant_model.c").read_text()
+    return int(re.search(r"#define FPM_MAX_EXACT_WORK (\d+)L", src).group(1))
+
+
+def test_a_step_whose_substeps_exceed_the_work_budget_is_refused_before_any_work(open_plant):
+    """n_substeps * n_elements above FPM_MAX_EXACT_WORK (below the substep cap): Discard naming
+    the budget and the count, the time and outputs unchanged, and a shorter step then runs."""
+    budget, ne, h_plant = _budget(), 100, 2.5e-4
+    H = 2.0 * budget / ne * h_plant                     # twice the budget's substeps
+    inst = open_plant(2, **XB, n_elements=ne, step=h_plant, phi0=0.2)
+    before = inst.get(*OUTPUTS)
+    assert inst.step(0.0, H) == 2                       # fmi2Discard
+    msg = inst.messages()
+    assert f"budget of {budget} per doStep" in msg and f"on {ne} elements" in msg, msg
+    assert f"{2 * budget}" in msg
+    assert inst.get(*OUTPUTS) == before
+    assert inst.step(0.0, 1e-3) == 0, inst.messages()
+    fresh = open_plant(2, **XB, n_elements=ne, step=h_plant, phi0=0.2)
+    assert fresh.step(0.0, 1e-3) == 0
+    assert inst.get(*OUTPUTS) == fresh.get(*OUTPUTS)
+
+
+@pytest.mark.slow
+def test_a_step_whose_iterations_reach_the_work_budget_is_discarded_unchanged(open_plant):
+    """Substeps within the budget whose Newton iterations (at least one each, usually more) reach
+    it: Discard at the budget, with the state, time and outputs of the step's start."""
+    budget, ne = _budget(), 100
+    H = 0.9 * budget / ne * 1e-3                        # 0.9 of the budget at one iteration
+    inst = open_plant(2, **XB, n_elements=ne, step=1e-3, phi0=0.2)
+    assert inst.step(0.0, 1e-3) == 0
+    before = inst.get(*OUTPUTS)
+    assert inst.step(1e-3, H) == 2
+    msg = inst.messages()
+    assert f"budget of {budget} element-iterations per doStep ran out" in msg, msg
+    assert inst.get(*OUTPUTS) == before
+    assert inst.fmu.getRealStatus(2) == 1e-3            # fmi2LastSuccessfulTime

@@ -147,6 +147,28 @@ def test_controller_polynomial_map_is_the_filter_driven_by_the_polynomial():
     np.testing.assert_allclose(Ad @ xc0 + G @ y.ravel(), sol.y[:, -1], rtol=1e-9)
 
 
+@pytest.mark.parametrize("method", ["rk4", "genalpha"])
+@pytest.mark.parametrize("algorithm,first,e,ind,outd", [
+    ("jacobi", "controller", 1, True, True), ("gauss-seidel", "plant", 2, False, False),
+    ("gauss-seidel", "controller", 2, True, False), ("implicit", "controller", 1, False, False)])
+def test_a_stack_of_steps_is_the_matrices_one_by_one(method, algorithm, first, e, ind, outd):
+    """``transition_matrix`` of a 1-d array of steps (the scan's path: the substep's powers and
+    the filter's exponentials formed once for the stack) equals its matrices computed one step
+    at a time, on and off the substep grid, start-up steps included."""
+    p, c = PlantParams(n_modes=2), ControllerParams()
+    Hs = np.array([1e-4, 1.1e-3, 5e-3, 2.31e-2])
+    for step_index in (None, 0):
+        stack = transition_matrix(p, c, Hs, algorithm=algorithm, first=first, extrapolation=e,
+                                  input_derivatives=ind, output_derivatives=outd,
+                                  integrator=method, step_index=step_index)
+        for k, H in enumerate(Hs):
+            one = transition_matrix(p, c, float(H), algorithm=algorithm, first=first,
+                                    extrapolation=e, input_derivatives=ind,
+                                    output_derivatives=outd, integrator=method,
+                                    step_index=step_index)
+            np.testing.assert_allclose(stack[k], one, rtol=0, atol=1e-13 * np.abs(one).max())
+
+
 def test_stability_functions_at_known_limits():
     """Textbook limits on the imaginary axis and for a damped mode."""
     assert integrator_step_limit("rk4", 1j) == pytest.approx(2 * math.sqrt(2), rel=1e-6)

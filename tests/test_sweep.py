@@ -138,7 +138,7 @@ def test_failing_run_is_a_failed_row_and_the_others_complete(paths, tmp_path):
     assert bad["stable"] is None and 0 < bad["stopped_at"] < 0.05 and bad["wall_time"] > 0
     assert res.rows[0]["stable"] is True and res.rows[2]["stable"] is True
     stats = sweep_stats(res.rows)
-    assert (stats["ok"], stats["failed"], stats["stable"], stats["no_verdict"]) == (2, 1, 2, 1)
+    assert (stats["ok"], stats["failed"], stats["stable"], stats["undetermined"]) == (2, 1, 2, 1)
     assert (tmp_path / "sweep.png").stat().st_size > 10_000              # the line plot
 
 
@@ -241,7 +241,7 @@ def test_cli_sweep_prints_counts_writes_record_and_resumes(fmus, tmp_path, capsy
     assert "run 1 failed: the beam tilted past plant.phi_limit = 1.571 rad (90 deg) by t = 0.0" \
         in out
     assert "verdicts of the 2 finished runs: 1 stable (100.0 % of those with a verdict), 0 " \
-           "unstable, 1 no verdict (1 stopped early)" in out
+           "unstable, 1 undetermined (1 stopped early)" in out
     assert "2/2 finished, 1 failed, 0 remaining" in err
     record = json.loads((tmp_path / "sweep.json").read_text())
     assert record["stats"]["ok"] == 1 and record["grid"] == {"controller.kp": [600.0, 1e5]}

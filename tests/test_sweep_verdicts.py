@@ -1,4 +1,4 @@
-"""A sweep's verdicts: "no verdict" (no reliable fit, too short a run, or stopped early) is counted
+"""A sweep's verdicts: "undetermined" (no fit decides, too short a run, or stopped early) is counted
 and shown apart from "unstable" in the terminal, the table and the plot; a short run says what
 the linearised loop says instead; the plot gives each quantity an axis of its own, with its unit,
 and a legend of the series it drew (orchestration/sweeps/, orchestration/report/text.py)."""
@@ -26,47 +26,47 @@ def test_short_runs_have_no_verdict_and_say_the_linearised_loop_is_stable(fmus, 
     out = capsys.readouterr().out
     # the linearised loops of the same runs, from flexpend analyze
     assert all(analyze(overrides=[f"controller.kp={kp}"]).stable for kp in KPS)
-    assert "verdicts of the 2 finished runs: 0 stable, 0 unstable, 2 no verdict (2 without a " \
-           "reliable fit)" in out, out
-    assert "no verdict from the 2 runs without a reliable fit" in out
+    assert ("verdicts of the 2 finished runs: 0 stable, 0 unstable, 2 undetermined (2 whose fits "
+            "do not decide)") in out, out
+    assert "undetermined: the 2 runs whose fits do not decide" in out
     assert out.count("the linearised loop is stable in both") == 1
     assert "stable: 0 of 2" not in out and "0.0 %" not in out
     record = json.loads((tmp_path / "sweep.json").read_text())
     stats = record["stats"]
-    assert (stats["stable"], stats["unstable"], stats["no_verdict"], stats["no_fit"],
+    assert (stats["stable"], stats["unstable"], stats["undetermined"], stats["no_fit"],
             stats["no_fit_linear_stable"], stats["stable_fraction"]) == (0, 0, 2, 2, 2, None)
     rows = read_table(record["table"])
-    assert [r["verdict"] for r in rows] == ["no verdict"] * 2
+    assert [r["verdict"] for r in rows] == ["undetermined"] * 2
     assert [r["stable"] for r in rows] == [None] * 2
     assert [r["linear_stable"] for r in rows] == [True] * 2
     assert all("periods" in (r["bending_note"] or "") for r in rows)
 
 
 def rows_of_each_kind():
-    """Four runs of a 1-D grid: stable, no verdict (no reliable fit), unstable, stopped."""
+    """Four runs of a 1-D grid: stable, undetermined (no fit decides), unstable, stopped."""
     base = {"status": "ok", "slow_rate": None, "slow_rate_linear": None, "bending_rate": None,
             "bending_rate_linear": None, "decay_rate": None, "linear_decay_rate": None}
     return [
         {**base, "run": 0, "stable": True, "verdict": "stable", "decay_rate": 0.6,
          "linear_decay_rate": 0.59, "slow_rate": -0.6, "slow_rate_linear": -0.59,
          "bending_rate_linear": -1.9},
-        {**base, "run": 1, "stable": None, "verdict": "no verdict", "linear_decay_rate": 0.58,
+        {**base, "run": 1, "stable": None, "verdict": "undetermined", "linear_decay_rate": 0.58,
          "bending_rate_linear": -1.95},
         {**base, "run": 2, "stable": False, "verdict": "unstable", "decay_rate": -0.1,
          "linear_decay_rate": -0.12, "slow_rate": 0.1, "slow_rate_linear": 0.12},
-        {**base, "run": 3, "status": "failed", "stable": None, "verdict": "no verdict"},
+        {**base, "run": 3, "status": "failed", "stable": None, "verdict": "undetermined"},
     ]
 
 
 def test_stats_count_no_verdict_apart_from_unstable():
     s = sweep_stats(rows_of_each_kind())
-    assert (s["stable"], s["unstable"], s["no_verdict"], s["no_fit"], s["failed"]) == \
+    assert (s["stable"], s["unstable"], s["undetermined"], s["no_fit"], s["failed"]) == \
         (1, 1, 2, 1, 1)
     assert s["stable_fraction"] == 0.5                 # of the two runs with a verdict
     assert (s["linear_stable"], s["linear_unstable"], s["no_fit_linear_stable"]) == (2, 1, 1)
     lines = verdict_lines(s)
     assert lines[0] == ("  verdicts of the 4 finished runs: 1 stable (50.0 % of those with a "
-                        "verdict), 1 unstable, 2 no verdict (1 without a reliable fit; 1 "
+                        "verdict), 1 unstable, 2 undetermined (1 whose fits do not decide; 1 "
                         "stopped early)")
     assert lines[1].endswith("the linearised loop is stable")
 
@@ -96,24 +96,24 @@ def test_line_plot_gives_each_quantity_its_axis_and_unit_and_no_empty_legend():
                              "linearised loop: -max Re(lambda)"]
     assert legend(slow) == ["fitted", "linearised loop"]
     assert legend(bending) == ["linearised loop"]      # no run has a fitted bending rate
-    # the verdict strip: each run on its own row, "no verdict" apart from "unstable"
+    # the verdict strip: each run on its own row, "undetermined" apart from "unstable"
     assert strip.get_ylabel() == "verdict" and legend(strip) == []
     cats = [t.get_text() for t in strip.get_yticklabels()]
-    assert cats == ["stable", "unstable", "no verdict", "stopped early"]
+    assert cats == ["stable", "unstable", "undetermined", "stopped early"]
     assert [cats[int(line.get_ydata()[0])] for line in strip.get_lines()] == \
-        ["stable", "no verdict", "unstable", "stopped early"]
+        ["stable", "undetermined", "unstable", "stopped early"]
     assert strip.get_xlabel() == "controller.kp"
-    assert decay.get_title().endswith("verdicts: 1 stable, 1 unstable, 2 no verdict (1 without "
-                                      "a reliable fit, 1 stopped early)")
+    assert decay.get_title().endswith("verdicts: 1 stable, 1 unstable, 2 undetermined (1 whose "
+                                      "fits do not decide, 1 stopped early)")
 
 
 def test_line_plot_without_any_mode_has_no_mode_axes():
     plan = plan_sweep("flexible_pd_lowpass", values=["controller.kp=400,500"])
-    rows = [{"run": i, "status": "ok", "stable": None, "verdict": "no verdict",
+    rows = [{"run": i, "status": "ok", "stable": None, "verdict": "undetermined",
              "decay_rate": None, "linear_decay_rate": 0.6} for i in range(2)]
     decay, strip = sweep_figure(plan, rows).axes
     assert legend(decay) == ["linearised loop: -max Re(lambda)"]
-    assert "2 no verdict (2 without a reliable fit)" in decay.get_title()
+    assert "2 undetermined (2 whose fits do not decide)" in decay.get_title()
 
 
 def test_heat_map_and_histogram_count_the_verdicts():
@@ -121,11 +121,11 @@ def test_heat_map_and_histogram_count_the_verdicts():
                                                      "controller.kd=4,5"])
     rows = rows_of_each_kind()
     ax = sweep_figure(plan, rows).axes[0]
-    assert "verdicts: 1 stable, 1 unstable, 2 no verdict" in ax.get_title()
-    assert "grey: no verdict (no reliable fit)" in ax.get_title()
+    assert "verdicts: 1 stable, 1 unstable, 2 undetermined" in ax.get_title()
+    assert "grey: undetermined (no fit decides)" in ax.get_title()
     assert [t.get_text() for t in ax.texts].count("no\nverdict") == 1
     plan = plan_sweep("flexible_pd_lowpass", samples=["controller.kp=uniform:400:700"],
                       n_samples=4)
     ax = sweep_figure(plan, rows).axes[0]
     assert ax.get_xlabel() == "decay rate, 1/s" and ax.get_ylabel() == "runs"
-    assert "verdicts: 1 stable, 1 unstable, 2 no verdict" in ax.get_title()
+    assert "verdicts: 1 stable, 1 unstable, 2 undetermined" in ax.get_title()

@@ -4,6 +4,7 @@
     write_reference(fmu, reference)          -> the files (``flexpend check --write-reference``)
     simulate_case(fmu, files)                -> Run: the FMU alone, its input file and options
     compare(result, reference, rule)         -> {signal: SignalCheck}
+    validate(t, y, t_ref, y_ref, rule)       -> fmpy.util.validate_signal's band and outliers
 
 A reference is three files in one folder, named after the model (cross-check layout):
 ``<Model>_in.csv`` (inputs, optional), ``<Model>_ref.csv`` (the expected result: time first, then
@@ -13,16 +14,24 @@ the signals compared) and ``<Model>_ref.opt`` (``StartTime``, ``StopTime``, ``St
 isolated Python process: a pythonfmu FMU runs the first copy of its packages that a process has
 imported, so in the checker's own process a modified FMU would run the installed code and pass.
 
-The comparison is FMPy's cross-check rule (``fmpy.cross_check.validate_signal``): around each
-reference signal a band of half-width ``tolerance`` times the signal's range (max - min), widened
-over ``window`` neighbouring samples (the band's lower edge is the smallest reference value within
-the window, minus the half-width; the upper edge likewise), and a signal passes when at most
-``max_outliers`` of the result's samples fall outside. The defaults are FMPy's: 10 %, 21 samples,
-10 %. Two departures: the band is built on the reference's own samples (FMPy resamples it onto
-1000 points, which a tight band cannot tolerate: linear interpolation between the points is off by
-far more than 1e-6 of the range) and every sample counts, the first and the last included; and a
-constant signal gets the half-width ``tolerance * max(|value|, 1)`` (FMPy: 0.5 around zero, which
-no tolerance would tighten).
+The comparison is FMPy's band rule, computed by ``fmpy.util.validate_signal`` (:func:`validate`):
+around each reference signal a band of half-width ``tolerance`` times the signal's range (max -
+min), widened over ``window`` neighbouring samples (the band's lower edge is the smallest
+reference value within the window, minus the half-width; the upper edge likewise), and a signal
+passes when at most ``max_outliers`` of the result's samples fall outside. The defaults are those
+of FMPy's cross-check (``fmpy.cross_check``): 10 %, 21 samples, 10 %. Where ``validate_signal``
+does not fit, :func:`validate` says why and adds to it: the band is built on as many points as the
+reference has samples (FMPy: 1000, and linear interpolation between 1000 points of a 1001-sample
+signal is off by far more than 1e-6 of the range), both ends count, a NaN is outside, and repeated
+times are separated first. ``fmpy.cross_check.validate_signal`` is the same rule with both ends
+counted, but it imports ``scipy.ndimage.filters``, deprecated and gone in SciPy 2.0.
+
+A reference signal that does not vary has no band (FMPy's is +-0.5 around zero, whatever the
+tolerance): an FMU whose outputs were all held at zero passed against the reference of the plant
+at rest that ``--write-reference`` recorded when there was no input file. :func:`check_fmu` refuses
+such a reference (:func:`check_reference`, exit 2), and :func:`write_reference` does not write one:
+without an input file it drives the FMU with flexpend's excitation (:data:`EXCITATIONS`), and it
+leaves out the outputs that still do not vary, or refuses those asked for.
 
 A run that does not reach ``StopTime`` fails, whatever its samples: ``fmpy.simulate_fmu`` returns
 normally, with a shorter result, when an FMU discards a step (fmi2Discard, then
@@ -51,8 +60,9 @@ from . import places
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
-           "simulate_case", "compare", "band", "check_fmu", "write_reference", "plot_check",
-           "simulate_reference_case", "write_references"]
+           "simulate_case", "compare", "validate", "band", "constant_signals", "check_reference",
+           "check_fmu", "write_reference", "Excitation", "EXCITATIONS", "excitation_for",
+           "plot_check", "simulate_reference_case", "write_references"]
 
 REFERENCE_DIR = ROOT / "tests" / "reference"
 
@@ -156,8 +166,9 @@ def find_reference(fmu, ref_dir, must_exist: bool = True) -> dict:
                 if files[kind].is_file():
                     return files
     if must_exist:
-        raise ReferenceError(f"{ref_dir}: no reference of {fmu.name} ({' or '.join(f'{n}_ref.csv' for n in names)}, "
-                             f"in the folder or in a subfolder of that name)")
+        wanted = " or ".join(f"{n}_ref.csv" for n in names)
+        raise ReferenceError(f"{ref_dir}: no reference of {fmu.name} ({wanted}, in the folder "
+                             "or in a subfolder of that name)")
     name = names[0]
     return _files(ref_dir if ref_dir.name == name else ref_dir / name, name)
 
@@ -177,7 +188,8 @@ def read_opt(path) -> dict:
         try:
             opt[name.strip()] = float(value)
         except ValueError:
-            raise ReferenceError(f"{path}: line {n}: {line.strip()!r} is not 'Name,value'") from None
+            raise ReferenceError(f"{path}: line {n}: {line.strip()!r} is not 'Name,value'") \
+                from None
     missing = [k for k in ("StartTime", "StopTime", "StepSize") if k not in opt]
     if missing:
         raise ReferenceError(f"{path}: {', '.join(missing)} missing")
@@ -197,7 +209,8 @@ def _read_csv(path):
     except OSError as exc:
         raise ReferenceError(f"{path}: cannot read: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - malformed CSV
-        raise ReferenceError(f"{path}: not a result CSV (quoted header, time first): {exc}") from None
+        raise ReferenceError(f"{path}: not a result CSV (quoted header, time first): {exc}") \
+            from None
     if data.dtype.names is None or len(data.dtype.names) < 2 or data.size < 2:
         raise ReferenceError(f"{path}: needs a time column, at least one signal and two rows")
     t = data[data.dtype.names[0]]
@@ -316,7 +329,8 @@ except Exception as exc:
         failure += f" ({log[-1]})"
 if failure is None and bad:
     status, t = bad[0]
-    failure = f"stopped early: doStep at t = {t} returned {status}" + (f": {log[-1]}" if log else "")
+    failure = (f"stopped early: doStep at t = {t} returned {status}"
+               + (f": {log[-1]}" if log else ""))
 if result is not None:
     np.save(a["result"], result)
 notes = [line.strip() for line in out.getvalue().splitlines() if line.strip()]
@@ -356,54 +370,115 @@ class SignalCheck:
                 f"{self.half_width:.3e}, {self.outliers}/{self.samples} outside: {verdict}")
 
 
-def band(t_ref, y_ref, rule: Rule):
-    """``(lower, upper, half_width)`` of the band around ``y_ref`` on the reference's samples."""
-    from scipy.ndimage import maximum_filter1d, minimum_filter1d
+def _strictly_increasing(t):
+    """``t`` with each repeated time (an event's two samples) moved up to the next float.
+    ``fmpy.util.validate_signal`` moves it by 1e-13 s in a loop that never ends beyond 2**10 s,
+    where 1e-13 is below the spacing of the floats."""
+    t = np.array(t, dtype=float)
+    for i in np.flatnonzero(np.diff(t) <= 0) + 1:          # ascending: a run of repeats too
+        if t[i] <= t[i - 1]:
+            t[i] = np.nextafter(t[i - 1], np.inf)
+    return t
 
+
+def _half_width(y_band, rule: Rule) -> float:
+    """The band's half-width as ``fmpy.util.validate_signal`` computes it from its samples."""
+    lo, hi = float(np.min(y_band)), float(np.max(y_band))
+    if lo == hi:
+        return 0.5 if lo == 0 else abs(lo) * rule.tolerance
+    return (hi - lo) * rule.tolerance
+
+
+def validate(t, y, t_ref, y_ref, rule: Rule = FMPY_RULE):
+    """FMPy's band, by ``fmpy.util.validate_signal``, and the samples of ``y(t)`` outside it:
+    ``(t_band, lower, upper, outside)``, ``outside`` a mask over ``t``.
+
+    ``validate_signal`` resamples the reference linearly onto ``num`` evenly spaced points
+    (FMPy: 1000); it is given the reference's own number of samples, so that on an evenly sampled
+    reference (every one ``--write-reference`` writes) the band's points are its samples: linear
+    interpolation between 1000 points of a 1001-sample signal is off by far more than 1e-6 of its
+    range. A reference with uneven steps or repeated times (events) is resampled as FMPy does,
+    onto as many even points. The band's width is ``dx = window`` samples (clipped to the whole
+    signal: scipy overflows on a huge one), its half-width ``dy = tolerance`` of the range.
+
+    Where ``validate_signal`` does not fit, this adds to it: it leaves the first and the last
+    sample out of its count (``t > t_start``, ``t < t_stop``), and a NaN, which no comparison
+    finds outside, passes; here both ends count and a sample that is not finite is outside. It
+    moves a repeated reference time by 1e-13 s in a loop that never ends beyond 2**10 s (where
+    1e-13 is below the spacing of the floats): they are moved apart to the next float first.
+    (``fmpy.cross_check.validate_signal`` counts both ends, but imports ``scipy.ndimage.filters``,
+    deprecated and gone in SciPy 2.0.)"""
+    from fmpy.util import validate_signal
+
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    t_ref = _strictly_increasing(t_ref)
     y_ref = np.asarray(y_ref, dtype=float)
-    lo_ref, hi_ref = float(np.min(y_ref)), float(np.max(y_ref))
-    span = hi_ref - lo_ref
-    w = rule.tolerance * (span if span > 0 else max(abs(lo_ref), 1.0))
-    if rule.window > 1:
-        size = min(rule.window, 2 * y_ref.size + 1)    # wider than the signal: all of it
-        lower = minimum_filter1d(y_ref, size=size) - w
-        upper = maximum_filter1d(y_ref, size=size) + w
-    else:
-        lower, upper = y_ref - w, y_ref + w
-    return lower, upper, w
+    n = t_ref.size
+    t_band, lower, upper, out = validate_signal(t=t, y=y, t_ref=t_ref, y_ref=y_ref, num=n,
+                                                dx=min(rule.window, 2 * n + 1),
+                                                dy=rule.tolerance)
+    inside = (t >= t_band[0]) & (t <= t_band[-1])
+    ends = inside & ((t == t_band[0]) | (t == t_band[-1]))
+    lo, hi = np.interp(t, t_band, lower), np.interp(t, t_band, upper)
+    out = out | (ends & ((y < lo) | (y > hi))) | (inside & ~np.isfinite(y))
+    return t_band, lower, upper, out
+
+
+def band(t_ref, y_ref, rule: Rule):
+    """``(t_band, lower, upper, half_width)``: FMPy's band around ``y_ref`` (:func:`validate`)."""
+    t_band, lower, upper, _ = validate(t_ref, y_ref, t_ref, y_ref, rule)
+    y_band = np.interp(t_band, _strictly_increasing(t_ref), np.asarray(y_ref, dtype=float))
+    return t_band, lower, upper, _half_width(y_band, rule)
 
 
 def compare(result, reference, rule: Rule = FMPY_RULE) -> dict:
     """Each signal of ``reference`` (a structured array, time first) against its band, at the
-    samples of ``result`` within the reference's time span."""
-    t_ref = np.asarray(reference[reference.dtype.names[0]], dtype=float)
+    samples of ``result`` within the reference's time span (:func:`validate`). A reference
+    signal that does not vary fails here (:func:`constant_signals`)."""
+    t_ref = _strictly_increasing(reference[reference.dtype.names[0]])
     t = np.asarray(result[result.dtype.names[0]], dtype=float)
-    same_grid = t.shape == t_ref.shape and np.allclose(t, t_ref, rtol=0,
-                                                       atol=1e-9 * max(1.0, abs(t_ref[-1])))
-    inside = (t >= t_ref[0] - 1e-12) & (t <= t_ref[-1] + 1e-12)
+    # a sample within round-off of the reference's first or last time is at it
+    eps = 1e-9 * max(1.0, abs(t_ref[-1]))
+    t = np.where(np.abs(t - t_ref[0]) <= eps, t_ref[0],
+                 np.where(np.abs(t - t_ref[-1]) <= eps, t_ref[-1], t))
+    inside = (t >= t_ref[0]) & (t <= t_ref[-1])
+    constant = set(constant_signals(reference))
     out = {}
     for name in reference.dtype.names[1:]:
         if name not in (result.dtype.names or ()):
             out[name] = SignalCheck(name, False, problem="missing from the result")
             continue
         y_ref = np.asarray(reference[name], dtype=float)
-        lower, upper, w = band(t_ref, y_ref, rule)
-        y = np.asarray(result[name], dtype=float)
-        if same_grid:
-            r, lo, hi, yy = y_ref, lower, upper, y
-        else:
-            tt, yy = t[inside], y[inside]
-            r, lo, hi = (np.interp(tt, t_ref, a) for a in (y_ref, lower, upper))
-        ok = (yy >= lo) & (yy <= hi)                  # NaN is outside
-        n_out = int(np.count_nonzero(~ok))
-        dev = float(np.max(np.abs(yy - r))) if yy.size else math.nan
-        if not math.isfinite(dev):
-            dev = math.inf
         span = float(np.max(y_ref) - np.min(y_ref))
+        if not np.all(np.isfinite(y_ref)):
+            out[name] = SignalCheck(name, False, problem="not finite in the reference")
+            continue
+        if name in constant:
+            out[name] = SignalCheck(name, False, span=span,
+                                    problem="constant in the reference: no band")
+            continue
+        y = np.asarray(result[name], dtype=float)
+        t_band, lower, upper, outside = validate(t, y, t_ref, y_ref, rule)
+        w = _half_width(np.interp(t_band, t_ref, y_ref), rule)
+        yy = y[inside]
+        n_out = int(np.count_nonzero(outside[inside]))
+        dev = float(np.max(np.abs(yy - np.interp(t[inside], t_ref, y_ref)))) if yy.size \
+            else math.nan
+        if yy.size and not math.isfinite(dev):
+            dev = math.inf
         passed = yy.size > 0 and n_out <= rule.max_outliers * yy.size
         out[name] = SignalCheck(name, bool(passed), dev, span, w, n_out, int(yy.size),
-                                band=(t_ref, lower, upper))
+                                band=(t_band, lower, upper))
     return out
+
+
+def constant_signals(reference) -> list[str]:
+    """The signals of ``reference`` that do not vary (max == min): around a constant there is
+    no band (FMPy puts one of half-width 0.5 around zero, which no tolerance tightens, and
+    ``tolerance`` x the value elsewhere), so that an FMU whose output is held there passes."""
+    return [n for n in reference.dtype.names[1:]
+            if np.all(np.isfinite(reference[n])) and np.ptp(reference[n]) == 0]
 
 
 @dataclass
@@ -443,14 +518,39 @@ class CheckReport:
         return out
 
 
+def _names(names) -> str:
+    """``a does``, ``a, b do``: the subject of a sentence about signals."""
+    return f"{', '.join(names)} {'does' if len(names) == 1 else 'do'}"
+
+
+def check_reference(ref, files: dict) -> None:
+    """Refuse (:class:`ReferenceError`, one line) a reference that cannot fail: a signal that
+    is not finite, or that does not vary (:func:`constant_signals`)."""
+    model = files["model"]
+    bad = [n for n in ref.dtype.names[1:] if not np.all(np.isfinite(ref[n]))]
+    if bad:
+        raise ReferenceError(f"{files['ref']}: {', '.join(bad)} {'is' if len(bad) == 1 else 'are'}"
+                             f" not finite (NaN or inf): a band needs finite values; record the "
+                             f"reference again or leave them out of {model}_ref.csv")
+    constant = constant_signals(ref)
+    if constant:
+        raise ReferenceError(
+            f"{files['ref']}: {_names(constant)} not vary (a constant gives no band: an FMU "
+            f"held there would pass); record a run that moves them (--write-reference drives "
+            f"the FMU with flexpend's excitation when there is no {model}_in.csv) or leave "
+            f"them out of {model}_ref.csv")
+
+
 def check_fmu(fmu, reference, rule: Rule = FMPY_RULE, start_values=None) -> CheckReport:
     """Simulate ``fmu`` with the input file and options of its reference in ``reference`` (a
-    folder) and compare every reference signal (see the module's docstring)."""
+    folder) and compare every reference signal (see the module's docstring). A reference whose
+    signals cannot fail is refused first (:func:`check_reference`)."""
     files = find_reference(fmu, reference)
     for kind in ("ref", "opt"):
         if not files[kind].is_file():
             raise ReferenceError(f"{files[kind]}: missing")
     ref = _read_csv(files["ref"])
+    check_reference(ref, files)
     run = simulate_case(fmu, files, start_values, outputs=list(ref.dtype.names[1:]))
     signals = compare(run.result, ref, rule) if run.result is not None and run.result.size else {}
     if run.result is not None and run.result.size and run.failure is None:
@@ -463,15 +563,59 @@ def check_fmu(fmu, reference, rule: Rule = FMPY_RULE, start_values=None) -> Chec
 
 def write_reference(fmu, reference, outputs=None) -> dict:
     """Write ``<Model>_ref.csv`` from a run of ``fmu`` with the input file and options in
-    ``reference`` (or ``reference/<Model>/``). A missing ``<Model>_ref.opt`` is written from the
-    FMU's default experiment first. ``outputs``: the signals (default: those of an existing
-    ``<Model>_ref.csv``, else every output of the FMU). A run that does not complete writes
-    nothing (:class:`ReferenceError`)."""
+    ``reference`` (or ``reference/<Model>/``); return its files, with ``"written"`` (the files
+    written), ``"excitation"`` (the kind of :data:`EXCITATIONS` written as the input file, or
+    None), ``"signals"`` (those recorded) and ``"left_out"`` (outputs left out as constant).
+
+    Without ``<Model>_in.csv``, an FMU with inputs is driven by flexpend's excitation for them
+    (:func:`excitation_for`), written as the input file, with its options when
+    ``<Model>_ref.opt`` is missing too (an FMU whose inputs it does not know is refused); an
+    options file still missing is written from the FMU's default experiment. ``outputs``: the
+    signals (default: those of an existing ``<Model>_ref.csv``, else every output of the FMU
+    that varies in the run: the others are left out). A chosen signal that does not vary, or a
+    run that does not complete, writes nothing (:class:`ReferenceError`): the files written
+    before the run are removed."""
     from fmpy import read_model_description
 
     fmu = Path(fmu)
     files = find_reference(fmu, reference, must_exist=False)
     md = read_model_description(str(fmu), validate=False)
+    files.update(written=[], excitation=None, signals=[], left_out=[])
+    new_dirs = [d for d in (files["dir"], *files["dir"].parents) if not d.exists()]
+    try:
+        _write_experiment(fmu, md, files)
+        _write_result(fmu, md, files, outputs)
+    except BaseException:
+        for path in files["written"]:
+            Path(path).unlink(missing_ok=True)
+        for d in new_dirs:                              # the folders it made, if still empty
+            if d.is_dir() and not any(d.iterdir()):
+                d.rmdir()
+        files["written"].clear()
+        raise
+    return files
+
+
+def _write_experiment(fmu: Path, md, files: dict) -> None:
+    """The input file (flexpend's excitation, when it is missing and the FMU has inputs) and the
+    options (the excitation's, else the FMU's default experiment, when they are missing)."""
+    inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+    if inputs and not files["in"].is_file():
+        found = excitation_for(inputs)
+        if found is None:
+            kinds = "; ".join(f"the {k}'s: {', '.join(e.inputs)}" for k, e in EXCITATIONS.items())
+            raise ReferenceError(
+                f"{files['in']}: missing, and flexpend has no excitation for the inputs of "
+                f"{fmu.name} ({', '.join(inputs)}; it has {kinds}): write {files['model']}_in.csv"
+                f" (quoted header, \"time\" first) with inputs that move every signal compared")
+        kind, opt, columns = found
+        files["dir"].mkdir(parents=True, exist_ok=True)
+        if not files["opt"].is_file():
+            write_text(files["opt"], _opt_text(opt))
+            files["written"].append(files["opt"])
+        write_csv(files["in"], _input_table(read_opt(files["opt"]), columns))
+        files["written"].append(files["in"])
+        files["excitation"] = kind
     if not files["opt"].is_file():
         de = md.defaultExperiment
         step = getattr(de, "stepSize", None) if de is not None else None
@@ -483,7 +627,13 @@ def write_reference(fmu, reference, outputs=None) -> dict:
         if de.tolerance is not None:
             opt["RelTol"] = float(de.tolerance)
         files["dir"].mkdir(parents=True, exist_ok=True)
-        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_text(files["opt"], _opt_text(opt))
+        files["written"].append(files["opt"])
+
+
+def _write_result(fmu: Path, md, files: dict, outputs) -> list:
+    """Run the FMU and write the signals that vary; a chosen one that does not is refused."""
+    chosen = outputs is not None or files["ref"].is_file()
     if outputs is None:
         if files["ref"].is_file():
             outputs = list(_read_csv(files["ref"]).dtype.names[1:])
@@ -492,14 +642,43 @@ def write_reference(fmu, reference, outputs=None) -> dict:
     known = {v.name for v in md.modelVariables}
     unknown = [o for o in outputs if o not in known]
     if unknown or not outputs:
-        raise ReferenceError(f"{fmu.name} has no variable {', '.join(map(repr, unknown))}" if unknown
-                             else f"{fmu.name}: no output to record")
+        raise ReferenceError(f"{fmu.name} has no variable {', '.join(map(repr, unknown))}"
+                             if unknown else f"{fmu.name}: no output to record")
     run = simulate_case(fmu, files, outputs=list(outputs))
     if run.failure is not None:
-        raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}")
+        hint = ""
+        if files["excitation"]:
+            opt, case = read_opt(files["opt"]), _reference_cases()[
+                EXCITATIONS[files["excitation"]].model][0]
+            if opt["StopTime"] - opt["StartTime"] > case["StopTime"] - case["StartTime"]:
+                hint = (f" (flexpend's excitation of the {files['excitation']} is meant for "
+                        f"{case['StopTime'] - case['StartTime']:g} s, {files['opt'].name} asks "
+                        f"{opt['StopTime'] - opt['StartTime']:g} s: remove it to have the "
+                        "excitation's written)")
+        raise ReferenceError(f"{fmu.name}: no reference written: {run.failure}{hint}")
+    bad = [n for n in outputs if not np.all(np.isfinite(run.result[n]))]
+    if bad:
+        raise ReferenceError(f"{fmu.name}: no reference written: {', '.join(bad)} "
+                             f"{'is' if len(bad) == 1 else 'are'} not finite in this run (NaN or "
+                             "inf): a band needs finite values")
+    constant = constant_signals(run.result)
+    if constant and (chosen or len(constant) == len(outputs)):
+        if files["excitation"]:
+            how = f"flexpend's excitation of the {files['excitation']} does not move them"
+        elif files["in"].is_file():
+            how = f"make {files['in'].name} move them"
+        else:
+            how = f"{fmu.name} has no input to move them"
+        raise ReferenceError(
+            f"{fmu.name}: no reference written: {_names(constant)} not vary in this run (a "
+            f"constant gives no band: an FMU held there would pass); {how}, or leave them out "
+            f"(--outputs)")
+    kept = [n for n in run.result.dtype.names if n not in constant]
     files["dir"].mkdir(parents=True, exist_ok=True)
-    write_csv(files["ref"], run.result)
-    return files
+    write_csv(files["ref"], run.result[kept])
+    files["written"].append(files["ref"])
+    files["signals"], files["left_out"] = kept[1:], constant
+    return kept[1:]
 
 
 # ---------------------------------------------------------------------- plot
@@ -584,6 +763,46 @@ def _reference_cases():
     }
 
 
+@dataclass(frozen=True)
+class Excitation:
+    """An input file flexpend writes for an FMU with these ``inputs``: the one of the project's
+    reference of ``model`` (:func:`_reference_cases`), with its options."""
+
+    model: str
+    inputs: tuple
+    what: str
+
+
+#: flexpend's excitations, by the kind of FMU whose inputs they drive: what ``--write-reference``
+#: writes as ``<Model>_in.csv`` when there is none. Not the scene's closed loop: the cross-check
+#: layout has one FMU, its inputs from a file and no start values, and the plant alone is
+#: unstable (+7/s). The scenes start the pendulum at pi/6, the FMU at its default, 0; and even
+#: started at pi/6, the plant fed the force of flexible_pd_lowpass's run (recorded every master
+#: step) drifts from that run (the master's quadratic extrapolation and input derivatives are
+#: not the input file's interpolation) and topples within 1.1 s (0.3 s from its own start). The
+#: excitations are short (1 s) and leave the unstable mode nearly unexcited, so that round-off
+#: grows at most ~1e3 times: a run on another machine stays within 1e-6 of the range.
+EXCITATIONS = {
+    "plant": Excitation("FlexiblePendulum", ("F_c",),
+                        "F_c: a push, a pull, a ripple at 24 Hz"),
+    "controller": Excitation("PDLowPass", ("phi_o", "omega_o", "x_o"),
+                             "phi_o, omega_o, x_o: a swing, a step, a ripple, a cart speeding up"),
+}
+
+
+def excitation_for(inputs) -> tuple | None:
+    """``(kind, options, columns)`` of the excitation for an FMU with ``inputs`` (names): the
+    one whose inputs the FMU has, all of its inputs being among the excitation's columns (the
+    input derivatives of a pythonfmu FMU, held at 0, are); None if there is none."""
+    have = set(inputs)
+    cases = _reference_cases()
+    for kind, exc in EXCITATIONS.items():
+        opt, columns = cases[exc.model]
+        if set(exc.inputs) <= have <= set(columns):
+            return kind, dict(opt), {k: f for k, f in columns.items() if k in have}
+    return None
+
+
 def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start_values=None):
     """A fresh run of one of the project's FMUs with its committed input file and options (the
     result array; a run that does not complete raises ``RuntimeError``)."""
@@ -594,6 +813,22 @@ def simulate_reference_case(fmu, name: str, ref_dir: Path = REFERENCE_DIR, start
     return run.result
 
 
+def _input_table(opt: dict, inputs: dict) -> np.ndarray:
+    """The input file's table: ``inputs`` (name -> f(t)) at every step of the options ``opt``."""
+    n = round((opt["StopTime"] - opt["StartTime"]) / opt["StepSize"])
+    t = opt["StartTime"] + np.arange(n + 1) * opt["StepSize"]
+    arr = np.zeros(t.size, dtype=[("time", "f8")] + [(k, "f8") for k in inputs])
+    arr["time"] = t
+    for k, f in inputs.items():
+        arr[k] = f(t)
+    return arr
+
+
+def _opt_text(opt: dict) -> str:
+    """The text of a ``<Model>_ref.opt``."""
+    return "".join(f"{k},{v!r}\n" for k, v in opt.items())
+
+
 def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
     """Regenerate the input files, options and reference results of the project's FMUs (``fmus``:
     name -> path); return the files of each."""
@@ -601,13 +836,7 @@ def write_references(fmus: dict, ref_dir: Path = REFERENCE_DIR) -> dict:
     for name, (opt, inputs) in _reference_cases().items():
         files = reference_files(name, ref_dir)
         files["dir"].mkdir(parents=True, exist_ok=True)
-        n = round((opt["StopTime"] - opt["StartTime"]) / opt["StepSize"])
-        t = opt["StartTime"] + np.arange(n + 1) * opt["StepSize"]
-        arr = np.zeros(t.size, dtype=[("time", "f8")] + [(k, "f8") for k in inputs])
-        arr["time"] = t
-        for k, f in inputs.items():
-            arr[k] = f(t)
-        write_csv(files["in"], arr)
-        write_text(files["opt"], "".join(f"{k},{v!r}\n" for k, v in opt.items()))
+        write_csv(files["in"], _input_table(opt, inputs))
+        write_text(files["opt"], _opt_text(opt))
         written[name] = write_reference(fmus[name], files["dir"], REFERENCE_OUTPUTS[name])
     return written

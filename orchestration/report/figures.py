@@ -147,9 +147,9 @@ def outcome_text(summary) -> str:
     if stopped:
         at = f" at t = {stopped['time']:.4g} s" if stopped.get("time") is not None else ""
         return f"co-simulation STOPPED{at}: {stopped['reason']}"
-    out = "co-simulation: " + {True: "stable (every reliable fit decays)",
-                               False: "UNSTABLE (a reliable fit grows)",
-                               None: "no verdict (no reliable fit)"}[summary.get("stable")]
+    out = "co-simulation: " + {True: "stable (every oscillation's fit decays)",
+                               False: "UNSTABLE (a fit grows)",
+                               None: "undetermined (no fit decides)"}[summary.get("stable")]
     f = summary.get("error_figure")
     if f:
         c = f["companion"]
@@ -477,7 +477,7 @@ def paper_overview(runs, *, renderer="matplotlib"):
             row[1].ylabel(label, size=9)
         stop = run.summary.get("stopped") if run.summary else None
         verdict = ("STOPPED" if stop else {True: "stable", False: "UNSTABLE",
-                                           None: "no verdict"}[run.summary.get("stable")])
+                                           None: "undetermined"}[run.summary.get("stable")])
         row[0].title(f"{sc.name} ({verdict}): {plant_text(sc)}; "
                      f"{controller_text(sc.controller)}"
                      + ("" if len(starts) == 1 else f"; {initial_text(sc.initial)}"),

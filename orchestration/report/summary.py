@@ -33,9 +33,17 @@ was measured (a larger deflection or rate than the sweep reached) is flagged: it
 an extrapolation. A beam turned past the horizontal (``|phi| > pi/2``), or past the plant's own
 ``phi_limit``, is flagged too.
 
-**Verdict.** ``stable`` is False when a reliable fit grows, True when every reliable fit decays,
-None when no fit is reliable (the run says nothing either way); a run that stopped early has no
-verdict either.
+**Verdict** (:func:`verdict`). A reliable fit counts only when its rate is further from zero
+than its uncertainty (``rate_uncertainty``: how far it moves on the window's halves, at the next
+order, with the residual). ``verdict`` is ``"unstable"`` when a counted fit grows,
+``"stable"`` when every oscillation the model has (the slow one, and the bending one unless the
+model is rigid) has a counted fit that decays, and ``"undetermined"`` otherwise, with the reason
+and, when a longer run would decide, the stop time that would (``decide_by``); a run that stopped
+early has ``"stopped"``. When a counted fit and the linear root of the same rung and law
+disagree in sign, the summary says so: the fit is trusted only when it is three uncertainties
+clear of zero (the run's own measurement over the linearisation at rest, which is exact only at
+small amplitude); otherwise the mode is undetermined. ``stable`` is True, False or None
+(undetermined, stopped), as the verdict.
 """
 from __future__ import annotations
 
@@ -50,7 +58,8 @@ from ..studies.validity import assess
 __all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "FIT_DEFLECTION",
            "FIT_RESIDUAL", "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window",
            "iteration_counts",
-           "fit_modes", "first_bending_frequency", "validity", "summarize"]
+           "fit_modes", "first_bending_frequency", "validity", "verdict", "summarize",
+           "TRUST_AGAINST_LINEAR"]
 
 #: Bands (rad/s) of the rigid (slow) and the bending oscillation.
 SLOW_BAND = (0.5, 60.0)
@@ -77,12 +86,17 @@ def linear_modes(scene) -> np.ndarray:
     return lam[lam.imag > 1e-9]
 
 
-def linear_window(res: np.ndarray, L: float | None) -> slice:
-    """The longest stretch of output points where the loop is in its linear range."""
+def _in_linear_range(res: np.ndarray, L: float | None) -> np.ndarray:
     phi = res["phi"] if "phi" in res.dtype.names else res["phi_o"]
     ok = np.abs(phi) <= LINEAR_PHI
     if L is not None and "tip_deflection" in res.dtype.names:
         ok &= np.abs(res["tip_deflection"]) <= FIT_DEFLECTION * L
+    return ok
+
+
+def linear_window(res: np.ndarray, L: float | None) -> slice:
+    """The longest stretch of output points where the loop is in its linear range."""
+    ok = _in_linear_range(res, L)
     edges = np.diff(np.concatenate(([0], ok.astype(np.int8), [0])))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
     if not starts.size:
@@ -96,7 +110,14 @@ def _fit(t, y, key, modes, near=None):
     fit is reliable (``note`` says why not)."""
     band = _SIGNALS[key][1]
     entry = {"signal": _SIGNALS[key][0], "rate": None, "frequency": None, "reliable": False,
-             "linear": None, "note": None, "fit": None}
+             "linear": None, "note": None, "fit": None,
+             "window": [float(t[0]), float(t[-1])] if len(t) else None}
+    if modes is not None and len(modes):        # the loop's own mode of this band, by default
+        lo, hi = band if near is None else (0.7 * near, 1.3 * near)
+        inband = modes[(modes.imag >= lo) & (modes.imag <= hi)]
+        if inband.size:
+            m0 = inband[np.argmax(inband.real)]
+            entry["linear"] = {"rate": float(m0.real), "frequency": float(m0.imag)}
     if len(t) < 8 or np.ptp(y) == 0:
         entry["note"] = "no oscillation in the linear range of the run"
         return entry
@@ -115,6 +136,7 @@ def _fit(t, y, key, modes, near=None):
                     "rate_uncertainty": f.rate_uncertainty,
                     "frequency_uncertainty": f.frequency_uncertainty}
     if modes is not None and len(modes):
+        entry["linear"] = None
         near = modes[np.argmin(np.abs(modes.imag - f.frequency))]
         if abs(near.imag - f.frequency) <= FREQUENCY_MATCH * near.imag:
             entry["linear"] = {"rate": float(near.real), "frequency": float(near.imag)}
@@ -249,6 +271,110 @@ def iteration_counts(stats) -> dict:
             "jacobian_steps": stats.jacobian_steps}
 
 
+#: A fit whose rate is this many uncertainties from zero overrules a linear root of the other sign.
+TRUST_AGAINST_LINEAR = 3.0
+
+
+def _needed_span(f: dict, periods_short: bool) -> float:
+    """The fit window a mode would need to decide: ``MIN_PERIODS`` periods, or (when its rate's
+    uncertainty is the problem) the window grown until the uncertainty, which falls about as
+    the window's length to the power -3/2 (the Cramer-Rao rate of a damped sinusoid's decay),
+    is a third of the rate: an estimate."""
+    span = f["window"][1] - f["window"][0]
+    if periods_short:
+        return MIN_PERIODS * 2 * math.pi / f["frequency"] * 1.2
+    ratio = f["rate_uncertainty"] / max(abs(f["rate"]), 1e-12)
+    return span * (3.0 * ratio) ** (2.0 / 3.0) * 1.2
+
+
+def verdict(modes: dict, res: np.ndarray, stopped: dict | None, rigid: bool,
+            L: float | None = None) -> dict:
+    """The run's verdict (see the module): ``{"verdict", "reason", "decide_by", "modes"}``, the
+    last a per-mode note of what decided it or why not."""
+    if stopped is not None:
+        return {"verdict": "stopped", "reason": f"the run stopped at t = {stopped['time']:.4g} s",
+                "decide_by": None, "modes": {}}
+    keys = ["slow"] + ([] if rigid else ["bending"])
+    t_end = float(res["time"][-1]) if len(res) else 0.0
+    dt = float(res["time"][1] - res["time"][0]) if len(res) > 1 else 0.0
+    decided, notes, needs = {}, {}, []
+    for key in keys:
+        m = modes.get(key)
+        f = m.get("fit") if m else None
+        if m is None or f is None:
+            notes[key] = (m or {}).get("note") or "no fit"
+            lin, win = (m or {}).get("linear"), (m or {}).get("window")
+            if lin is not None and win is not None:      # the linear loop's period instead
+                needs.append(({"window": win, "frequency": lin["frequency"]}, True))
+            continue
+        rate, u = f["rate"], f["rate_uncertainty"]
+        lin = m.get("linear")
+        if not m["reliable"]:
+            notes[key] = m["note"]
+            if "periods in the linear range" in (m["note"] or ""):
+                needs.append((f, True))
+            continue
+        if u is None:
+            notes[key] = (f"rate {rate:+.3g} 1/s: its uncertainty could not be estimated (the "
+                          "window is too short to fit its halves)")
+            needs.append((f, True))
+            continue
+        text = f"rate {rate:+.3g} +- {u:.2g} 1/s"
+        if not abs(rate) > u:
+            notes[key] = f"{text}: its uncertainty exceeds its distance from zero"
+            needs.append((f, False))
+            continue
+        if lin is not None and (lin["rate"] > 0) != (rate > 0):
+            if abs(rate) > TRUST_AGAINST_LINEAR * u:
+                notes[key] = (f"{text}, against the linear root {lin['rate']:+.3g}: the fit is "
+                              f"trusted, {TRUST_AGAINST_LINEAR:g} uncertainties clear of zero "
+                              "(the linearisation holds at small amplitude only)")
+                decided[key] = rate
+            else:
+                notes[key] = (f"{text} disagrees in sign with the linear root {lin['rate']:+.3g} "
+                              f"and is within {TRUST_AGAINST_LINEAR:g} uncertainties of zero")
+                needs.append((f, False))
+            continue
+        decided[key] = rate
+        notes[key] = text
+    out = {"modes": notes, "decide_by": None}
+    growing = [k for k, r in decided.items() if r > 0]
+    if growing:
+        out.update(verdict="unstable", reason=f"{growing[0]}: {notes[growing[0]]}")
+        return out
+    if len(decided) == len(keys):
+        out.update(verdict="stable", reason="every oscillation decays: " + "; ".join(
+            f"{k}: {notes[k]}" for k in keys))
+        return out
+    undecided = [k for k in keys if k not in decided]
+    reason = "; ".join(f"{k}: {notes[k]}" for k in undecided)
+    # would a longer run decide? if the run ends in its linear range, a window from the last
+    # entry into it on; if it ends outside, a longer run may (a decaying motion) or may not
+    ok = _in_linear_range(res, L) if len(res) else np.zeros(0, bool)
+    grows = [(k, modes[k]["linear"]) for k in keys
+             if modes.get(k) and modes[k].get("linear") and modes[k]["linear"]["rate"] > 0]
+    if needs and grows:
+        k, lin = grows[0]
+        reason += (f"; the linearised loop grows ({k}: {lin['rate']:+.3g} +- "
+                   f"{lin['frequency']:.4g}j): a longer run leaves the linear range, a start "
+                   "nearer rest (a smaller initial.phi) would decide")
+    elif needs and ok.size and ok[-1]:
+        start = float(res["time"][len(ok) - np.argmin(ok[::-1])]) if not ok.all() \
+            else float(res["time"][0])
+        stop = max(max(start, f["window"][0]) + _needed_span(f, short) for f, short in needs)
+        stop = max(stop, t_end + dt)
+        stop = math.ceil(stop / max(dt, 1e-12) - 1e-9) * dt if dt else stop
+        out["decide_by"] = float(stop)
+        reason += f"; a stop time of about {stop:.3g} s would decide"
+    elif needs:
+        reason += ("; at the stop the motion is outside the linear range (|phi| > "
+                   f"{LINEAR_PHI:g} rad or the tip beyond {100 * FIT_DEFLECTION:g} % of L): a "
+                   "longer run, if it decays, or a start nearer rest (a smaller initial.phi) "
+                   "would decide")
+    out.update(verdict="undetermined", reason=reason)
+    return out
+
+
 def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
     """Verdict, fitted modes beside the linear ones, validity, largest force and cart travel.
 
@@ -259,11 +385,11 @@ def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
            "max_abs_x": float(np.max(np.abs(res["x"]))) if len(res) else None}
     modes = fit_modes(res, scene) if len(res) else {k: None for k in _SIGNALS}
     out.update(modes)
-    rates = [m["rate"] for m in modes.values() if m and m["reliable"]]
-    if stopped is not None or not rates:
-        out["stable"] = None
-    else:
-        out["stable"] = all(r < 0 for r in rates)
+    rigid = scene is not None and scene.plant.params.n_modes == 0
+    v = verdict(modes, res, stopped, rigid, scene.plant.params.L if scene is not None else None)
+    out.update(verdict=v["verdict"], verdict_reason=v["reason"], decide_by=v["decide_by"],
+               verdict_modes=v["modes"],
+               stable={"stable": True, "unstable": False}.get(v["verdict"]))
     if scene is not None:
         out["linear_loop"] = linearisation(scene).text()     # what the "linear" roots are of
         out["validity"] = validity(res, scene)

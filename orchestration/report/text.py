@@ -109,7 +109,13 @@ def mode_text(m) -> str:
     lin = m.get("linear")
     lin_text = (f"   (linear: {lin['rate']:+.3f} +- {lin['frequency']:.2f}j)" if lin else "")
     if m["reliable"]:
-        return f"rate {m['rate']:+.3f} 1/s at {m['frequency']:.2f} rad/s{lin_text}"
+        u = (m.get("fit") or {}).get("rate_uncertainty")
+        unc = f" (+- {u:.2g})" if u is not None else ""
+        weak = (": not counted, its uncertainty unknown" if u is None else
+                ": not counted, its uncertainty exceeds its distance from zero"
+                if not abs(m["rate"]) > u else "")
+        return (f"rate {m['rate']:+.3f} 1/s{unc} at {m['frequency']:.2f} rad/s{weak}"
+                f"{lin_text}")
     return f"{m['note']}{lin_text}"
 
 
@@ -148,8 +154,10 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
     if s["stopped"] is not None:
         verdict = f"STOPPED at t = {num(s['stopped']['time'], '.4g')} s"
     else:
-        verdict = {True: "stable", False: "UNSTABLE", None: "no verdict (no reliable fit)"}[
-            s["stable"]]
+        verdict = {"stable": "stable", "unstable": "UNSTABLE",
+                   "undetermined": "undetermined"}.get(s.get("verdict"), "undetermined")
+        if s.get("verdict") == "undetermined" and s.get("verdict_reason"):
+            verdict += f" ({s['verdict_reason']})"
     out = [f"{name}: {verdict}"]
     if s["stopped"] is not None:
         out.append(f"  stopped: {s['stopped']['reason']}")
@@ -296,18 +304,18 @@ def design_lines(d) -> list[str]:
 
 def verdict_lines(stats) -> list[str]:
     """A sweep's verdicts (:func:`orchestration.sweeps.engine.sweep_stats`): stable, unstable
-    and "no verdict" apart, and, for the runs without a reliable fit, what the linearised loop
+    and undetermined apart, and, for the runs whose fits do not decide, what the linearised loop
     says instead."""
     finished = stats["ok"] + stats["failed"]
     if not finished:
         return []
     share = stats["stable_fraction"]
-    why = "; ".join(f"{n} {text}" for n, text in ((stats["no_fit"], "without a reliable fit"),
+    why = "; ".join(f"{n} {text}" for n, text in ((stats["no_fit"], "whose fits do not decide"),
                                                   (stats["failed"], "stopped early")) if n)
     out = [f"  verdicts of the {finished} finished run{'s' if finished != 1 else ''}: "
            f"{stats['stable']} stable"
            + (f" ({100 * share:.1f} % of those with a verdict)" if share is not None else "")
-           + f", {stats['unstable']} unstable, {stats['no_verdict']} no verdict"
+           + f", {stats['unstable']} unstable, {stats['undetermined']} undetermined"
            + (f" ({why})" if why else "")
            + (f"; {stats['invalid']} left their rung's measured range" if stats["invalid"] else "")]
     n, k = stats["no_fit"], stats["no_fit_linear_stable"]
@@ -316,9 +324,9 @@ def verdict_lines(stats) -> list[str]:
         every = "" if n == 1 else " in both" if n == 2 else f" in all {n}"
         linear = f"stable{every}" if k == n else f"unstable{every}" if k == 0 else \
             f"stable in {k} of them, unstable in {n - k}"
-        out.append(f"  no verdict from {runs} without a reliable fit (too short, or too few "
-                   f"periods in the linear range: the table's slow_note, bending_note); the "
-                   f"linearised loop is {linear}")
+        out.append(f"  undetermined: {runs} whose fits do not decide (too short, too few "
+                   f"periods in the linear range, or a rate within its uncertainty of zero: the "
+                   f"table's verdict_reason); the linearised loop is {linear}")
     return out
 
 

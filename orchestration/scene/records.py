@@ -31,7 +31,7 @@ from controller_fmu.pd_lowpass import ControllerParams
 from fmu_common.checks import check_bool, check_int, check_real
 from plant_fmu.integrators import REGISTRY
 from plant_fmu.interface import FIDELITIES, FMU_SETTINGS
-from plant_fmu.params import PlantParams, exact_damping_refusal
+from plant_fmu.params import PlantParams
 
 from .keys import FMU_FLAVOURS, ConfigError
 from .wiring import Connection, parse_connection
@@ -402,8 +402,8 @@ class Scene:
     def _check_exact(self):
         """``plant.fidelity = "exact"`` runs in the native FMUs' co-simulation interface only, at
         a fixed step (``plant.exact_step``, :attr:`run_master`): the pythonfmu plant, Model
-        Exchange, output derivatives and the adaptive step are not offered by it; and it damps
-        by material (Kelvin-Voigt) only (:func:`plant_fmu.params.exact_damping_refusal`)."""
+        Exchange, output derivatives and the adaptive step are not offered by it. It takes
+        either damping law (:class:`plant_fmu.exact.FrameModalDamping` for the modal one)."""
         if self.plant.fidelity != "exact":
             return
         m = self.master
@@ -417,9 +417,6 @@ class Scene:
                if m.output_derivatives else None)
         if why:
             raise ConfigError(f"plant.fidelity = 'exact' cannot be used with {why}")
-        why = exact_damping_refusal(self.plant.beam, "plant.")
-        if why:
-            raise ConfigError(why)
 
     def _check_stiffened(self):
         """``plant.fidelity = "stiffened"`` gives no directional or output derivatives (its

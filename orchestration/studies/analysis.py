@@ -216,7 +216,10 @@ def _response(L: control.StateSpace, w: np.ndarray) -> np.ndarray:
     linear solve per frequency (python-control's evaluation, without its overhead)."""
     A, B, C, D = (np.asarray(m, dtype=float) for m in (L.A, L.B, L.C, L.D))
     eye = np.eye(A.shape[0])
-    return (C @ np.linalg.solve(1j * w[:, None, None] * eye - A, B))[:, 0, 0] + D[0, 0]
+    # B stacked as the matrices are: a right-hand side of one dimension less is a vector under
+    # numpy 2 but a stack of vectors under numpy 1 (numpy.linalg.solve's rule changed)
+    rhs = np.broadcast_to(B.astype(complex), (len(w), *B.shape))
+    return (C @ np.linalg.solve(1j * w[:, None, None] * eye - A, rhs))[:, 0, 0] + D[0, 0]
 
 
 def frequency_response(p: PlantParams, c: ControllerParams, w) -> np.ndarray:

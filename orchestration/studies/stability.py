@@ -71,18 +71,19 @@ from plant_fmu.integrators.genalpha import genalpha_parameters
 from plant_fmu.params import PlantParams
 
 from ..scene.keys import ConfigError
+from . import stability_intervals as _iv
 from .analysis import linearisation
 
 __all__ = ["METHODS", "FIXED_STEP_METHODS", "POLYNOMIAL_METHODS", "ALGORITHMS", "substep_matrix",
            "plant_step_map", "plant_polynomial_step_map", "controller_polynomial_step_map",
            "scene_coupling", "COUPLING_ORDERS", "implicit_transition_matrix", "couplings",
-           "critical_step", "stability_report",
+           "critical_step", "first_unstable", "stability_report", "spectral_radii",
            "substep_limit", "assumptions",
            "step_warning",
            "linear_plant", "transition_matrix", "spectral_radius", "scene_transition_matrix",
            "first_crossing", "first_instability", "critical_value", "highest_mode", "sdof_matrix",
            "substep_spectral_radius", "integrator_step_limit", "observed_spectral_radius",
-           "hankel_poles", "LinearPlant", "SCHEMES"]
+           "hankel_poles", "LinearPlant", "SCHEMES", "Spectra", "observed_verdict"]
 
 #: plant methods whose substep is a fixed linear map on a linear plant
 METHODS = ("euler", "symplectic_euler", "rk4", "dopri5", "genalpha", "radau", "exponential")
@@ -271,48 +272,71 @@ def plant_step_map(method: str, A, B, nq: int, H: float, h: float, rho_inf: floa
 POLYNOMIAL_METHODS = ("euler", "symplectic_euler", "rk4")
 
 
-def _shift(h: float, m: int) -> np.ndarray:
+def _steps(H, name: str = "H"):
+    """``(Hs, scalar)``: a communication step, or a 1-d array of them, as a 1-d float array, and
+    whether it was one number; a ValueError naming ``name`` for anything else."""
+    try:
+        arr = None if isinstance(H, (str, bytes, bool)) else np.asarray(H, dtype=float)
+    except (TypeError, ValueError):
+        arr = None
+    if (arr is None or arr.ndim > 1 or arr.size == 0 or not np.all(np.isfinite(arr))
+            or np.any(arr <= 0)):
+        raise ValueError(f"{name} = {H!r}; allowed: a finite number > 0 (or a 1-d array of them)")
+    return np.atleast_1d(arr), arr.ndim == 0
+
+
+def _shift(h, m: int) -> np.ndarray:
     """The Taylor coefficients ``[u, u', u'']`` (``m`` inputs each) moved ``h`` ahead: the exact
-    flow of the nilpotent dynamics ``u' = u'``, ``u'' ' = 0``."""
-    T = np.eye(3 * m)
-    T[:m, m:2 * m] = T[m:2 * m, 2 * m:] = h * np.eye(m)
-    T[:m, 2 * m:] = 0.5 * h * h * np.eye(m)
+    flow of the nilpotent dynamics ``u' = u'``, ``u'' ' = 0`` (a stack for an array ``h``)."""
+    h = np.asarray(h, dtype=float)
+    hb = h[..., None, None]
+    I = np.eye(m)
+    T = np.broadcast_to(np.eye(3 * m), h.shape + (3 * m, 3 * m)).copy()
+    T[..., :m, m:2 * m] = T[..., m:2 * m, 2 * m:] = hb * I
+    T[..., :m, 2 * m:] = 0.5 * hb * hb * I
     return T
 
 
-def _at(s: float, m: int) -> np.ndarray:
-    """The row block evaluating ``u(s) = u + u' s + u'' s^2 / 2`` from ``[u, u', u'']``."""
+def _at(s, m: int) -> np.ndarray:
+    """The row block evaluating ``u(s) = u + u' s + u'' s^2 / 2`` from ``[u, u', u'']`` (a
+    stack for an array ``s``)."""
+    s = np.asarray(s, dtype=float)
+    sb = s[..., None, None]
     I = np.eye(m)
-    return np.hstack([I, s * I, 0.5 * s * s * I])
+    return np.concatenate([np.broadcast_to(I, s.shape + (m, m)), sb * I, 0.5 * sb * sb * I],
+                          axis=-1)
 
 
 def _polynomial_substep(method, A, B, nq, h):
     """One substep ``h`` of ``method`` on ``x' = A x + B u(s)`` as a matrix on ``[x, w]``, ``w`` the
     input's Taylor coefficients ``[u, u', u'']`` at the substep's start (moved to its end): the
-    Runge-Kutta stages evaluate ``u`` at ``s = c_i h``, symplectic Euler at ``s = 0``."""
+    Runge-Kutta stages evaluate ``u`` at ``s = c_i h``, symplectic Euler at ``s = 0``. For an
+    array ``h``, the stack of those matrices."""
     n, m = B.shape
     N = n + 3 * m
+    h = np.asarray(h, dtype=float)
+    hb = h[..., None, None]
     X = np.hstack([np.eye(n), np.zeros((n, 3 * m))])          # selects x
     Wsel = np.hstack([np.zeros((3 * m, n)), np.eye(3 * m)])   # selects w
-    S = np.zeros((N, N))
-    S[n:] = _shift(h, m) @ Wsel
+    S = np.zeros(h.shape + (N, N))
+    S[..., n:, :] = _shift(h, m) @ Wsel
     if method == "symplectic_euler":
-        qd = X[nq:] + h * (A[nq:] @ X + B[nq:] @ _at(0.0, m) @ Wsel)
-        S[nq:n] = qd
-        S[:nq] = X[:nq] + h * qd[:n - nq]
+        qd = X[nq:] + hb * (A[nq:] @ X + B[nq:] @ _at(0.0, m) @ Wsel)
+        S[..., nq:n, :] = qd
+        S[..., :nq, :] = X[:nq] + hb * qd[..., :n - nq, :]
         return S
     a, b = _tableau(method)
     c = a.sum(axis=1)
     K = []
     for i in range(b.size):
-        Y = X + h * sum((a[i, j] * K[j] for j in range(i) if a[i, j]), np.zeros((n, N)))
+        Y = X + hb * sum((a[i, j] * K[j] for j in range(i) if a[i, j]), np.zeros((n, N)))
         K.append(A @ Y + B @ _at(c[i] * h, m) @ Wsel)
-    S[:n] = X + h * sum(bi * Ki for bi, Ki in zip(b, K))
+    S[..., :n, :] = X + hb * sum(bi * Ki for bi, Ki in zip(b, K))
     return S
 
 
-def plant_polynomial_step_map(method: str, A, B, nq: int, H: float, h: float,
-                              rho_inf: float = 0.8):
+def plant_polynomial_step_map(method: str, A, B, nq: int, H, h: float,
+                              rho_inf: float = 0.8, cache: dict | None = None):
     """``(Phi, Gamma)``: the plant FMU's state after one communication step ``H`` when its input
     is the polynomial ``u(t + s) = u + u' s + u'' s^2 / 2`` (FMI's input derivatives):
     ``x(t + H) = Phi x(t) + Gamma @ [u, u', u'']`` (``Gamma`` has ``3 m`` columns, the ``m``
@@ -320,40 +344,70 @@ def plant_polynomial_step_map(method: str, A, B, nq: int, H: float, h: float,
     :data:`POLYNOMIAL_METHODS` evaluate the polynomial at their stage times on the substep grid
     of :func:`plant_step_map`; ``genalpha`` and ``exponential`` hold its average over ``H`` (as
     the plant FMUs do). A held input is ``[u, 0, 0]``. ValueError for a method that is no fixed
-    linear map in the FMU (``dopri5``, ``radau``: adaptive there)."""
+    linear map in the FMU (``dopri5``, ``radau``: adaptive there). For a 1-d array ``H``, the
+    stacks of the maps, one per step (the whole substep's matrix and its powers computed
+    once). ``cache``: a dict the caller keeps between calls, where the substep's matrix and its
+    powers are kept for the next call (by method, plant and substep)."""
     if method not in FIXED_STEP_METHODS:
         raise ValueError(f"method = {method!r}: the plant FMU's step is a fixed linear map only "
                          f"for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau run adaptively "
                          f"in the FMU)")
-    if method not in POLYNOMIAL_METHODS:
-        Phi, G = plant_step_map(method, A, B, nq, H, h, rho_inf)
-        return Phi, np.hstack([G, 0.5 * H * G, H * H / 6.0 * G])
-    for name, val in (("H", H), ("h", h)):
-        if not (isinstance(val, (int, float)) and val > 0 and math.isfinite(val)):
-            raise ValueError(f"{name} = {val!r}; allowed: a finite number > 0")
+    Hs, scalar = _steps(H)
+    _steps(h, "h")
     A = np.asarray(A, dtype=float)
     B = np.asarray(B, dtype=float).reshape(A.shape[0], -1)
     n = A.shape[0]
-    T = np.eye(n + 3 * B.shape[1])
-    for count, size in _substeps(H, h):
-        T = np.linalg.matrix_power(_polynomial_substep(method, A, B, nq, size), count) @ T
-    return T[:n, :n], T[:n, n:]
+    if method not in POLYNOMIAL_METHODS:
+        maps = [plant_step_map(method, A, B, nq, float(Hk), h, rho_inf) for Hk in Hs]
+        Phi = np.stack([m[0] for m in maps])
+        G = np.stack([m[1] for m in maps])
+        Hb = Hs[:, None, None]
+        Gamma = np.concatenate([G, 0.5 * Hb * G, Hb * Hb / 6.0 * G], axis=-1)
+    else:
+        key = (method, float(h), nq, A.tobytes(), B.tobytes())
+        mine = (cache if cache is not None else {}).setdefault(key, {})
+        if "S" not in mine:
+            mine["S"] = _polynomial_substep(method, A, B, nq, h)
+        S, powers = mine["S"], mine.setdefault("powers", {})
+        T = np.empty((Hs.size,) + S.shape)
+        short, sizes = [], []
+        for k, Hk in enumerate(Hs):
+            T[k] = np.eye(S.shape[0])
+            for count, size in _substeps(float(Hk), h):
+                if size == h:
+                    if count not in powers:
+                        powers[count] = np.linalg.matrix_power(S, count)
+                    T[k] = powers[count]
+                else:                       # the shortened substep, always the last
+                    short.append(k)
+                    sizes.append(size)
+        if short:
+            T[short] = _polynomial_substep(method, A, B, nq, np.array(sizes)) @ T[short]
+        Phi, Gamma = T[:, :n, :n], T[:, :n, n:]
+    return (Phi[0], Gamma[0]) if scalar else (Phi, Gamma)
 
 
-def controller_polynomial_step_map(c: ControllerParams, H: float):
+def controller_polynomial_step_map(c: ControllerParams, H):
     """``(Ad, G)``: the controller FMU's filter state after one communication step ``H`` when its
     sensors are the polynomials ``y(t + s) = y + y' s + y'' s^2 / 2``: ``xc(t + H) = Ad xc(t) + G
     @ [y, y', y'']`` (``y = [x_o, phi_o, omega_o]``; ``G`` has 9 columns), exact (the filter
-    driven by a chain of integrators, one matrix exponential:
-    :meth:`~controller_fmu.pd_lowpass.PDLowPassModel.discretize_polynomial`). Held sensors are
-    ``[y, 0, 0]``. The force is ``F_c = C xc + D y`` (:class:`PDLowPassModel`)."""
+    driven by a chain of integrators, one matrix exponential, as
+    :meth:`~controller_fmu.pd_lowpass.PDLowPassModel.discretize_polynomial` forms it). Held
+    sensors are ``[y, 0, 0]``. The force is ``F_c = C xc + D y`` (:class:`PDLowPassModel`). For
+    a 1-d array ``H``, the stacks of the maps, one per step."""
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
-    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
-        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+    Hs, scalar = _steps(H)
     ctrl = PDLowPassModel(c)
-    Ad, G = ctrl.discretize_polynomial(float(H))
-    return Ad, np.hstack([G[:, j:j + 1] @ ctrl.gains for j in range(3)])
+    n = ctrl.nx
+    M = np.zeros((n + 3, n + 3))          # the generator per second: [xc, e, e', e'']
+    M[:n, :n] = ctrl.Af
+    M[:n, n] = ctrl.Bf[:, 0]
+    M[n, n + 1] = M[n + 1, n + 2] = 1.0
+    E = scipy.linalg.expm(Hs[:, None, None] * M)
+    Ad, Ge = E[:, :n, :n], E[:, :n, n:]
+    G = np.concatenate([Ge[..., j:j + 1] * ctrl.gains for j in range(3)], axis=-1)
+    return (Ad[0], G[0]) if scalar else (Ad, G)
 
 
 # ---------------------------------------------------------------------- the plant, drift-free
@@ -392,25 +446,42 @@ def _linear_plant(p: PlantParams, drift_free: bool) -> LinearPlant:
 
 
 # ---------------------------------------------------------------------- the macro step
-def _taylor_of_samples(nodes, H: float) -> np.ndarray:
+def _taylor_of_samples(nodes, H) -> np.ndarray:
     """``W`` (3 x s): the Taylor coefficients ``[u, u', u'']`` at ``t_k`` (derivatives in
     seconds) of the polynomial through ``s`` samples at ``nodes`` (in steps from ``t_k``, newest
-    first) are ``W @ samples``; the coefficients beyond its degree are 0."""
+    first) are ``W @ samples``; the coefficients beyond its degree are 0. For ``H`` an array of
+    shape ``(K, 1, 1)`` (a batch of steps), the weights are a list of three lists of ``s``
+    weights, each a number (independent of the step) or an array of that shape."""
     s = len(nodes)
     M = np.array([[float(t) ** j / math.factorial(j) for j in range(s)] for t in nodes])
     W = np.zeros((3, s))
     W[:s] = np.linalg.inv(M)[:3]
-    return W / (H ** np.arange(3.0))[:, None]
+    if np.ndim(H) == 0:
+        return W / (H ** np.arange(3.0))[:, None]
+    return [[float(W[i, j]) if i == 0 or W[i, j] == 0 else W[i, j] / H ** i for j in range(s)]
+            for i in range(3)]
 
 
-def _taylor_moved(q: int, delta: float) -> np.ndarray:
-    """``W`` (3 x q+1): the Taylor coefficients at ``t_k`` from the value and ``q`` derivatives
-    at ``t_k + delta`` (seconds), the polynomial of degree ``q`` (output derivatives)."""
-    W = np.zeros((3, q + 1))
+def _taylor_moved(q: int, delta) -> list:
+    """The weights (3 x q+1, as :func:`_taylor_of_samples`' for a batch) giving the Taylor
+    coefficients at ``t_k`` from the value and ``q`` derivatives at ``t_k + delta`` (seconds, a
+    number or a batch of them), the polynomial of degree ``q`` (output derivatives)."""
+    W = [[0.0] * (q + 1) for _ in range(3)]
     for i in range(min(3, q + 1)):
         for j in range(i, q + 1):
-            W[i, j] = (-delta) ** (j - i) / math.factorial(j - i)
+            W[i][j] = 1.0 if j == i else (-delta) ** (j - i) / math.factorial(j - i)
     return W
+
+
+def _dot(w, rows):
+    """``sum w_i rows_i`` over the weights that are not the number 0 (a weight may be an array
+    of shape ``(K, 1, 1)``, a row block ``(r, N)`` or ``(K, r, N)``)."""
+    out = None
+    for wi, r in zip(w, rows):
+        if np.ndim(wi) == 0 and wi == 0:
+            continue
+        out = wi * r if out is None else out + wi * r
+    return np.zeros_like(rows[0]) if out is None else out
 
 
 def _check_scheme(algorithm, first, extrapolation):
@@ -422,35 +493,45 @@ def _check_scheme(algorithm, first, extrapolation):
         raise ValueError(f"extrapolation = {extrapolation!r}; allowed: 0, 1, 2")
 
 
-def _step_maps(p, c, H, extrapolation, input_derivatives, integrator, substep, drift_free,
-               step_index, plant_map):
-    """What :func:`transition_matrix` and :func:`implicit_transition_matrix` share: ``H`` and
-    ``step_index`` checked, the linear plant, the input derivative orders the FMUs take, the
-    plant's step map for a polynomial input (a held-input ``plant_map`` padded) and the filter's:
-    ``(plant, n_der, (Pp, Gp), (Ad, Gc))``."""
-    if not (isinstance(H, (int, float)) and H > 0 and math.isfinite(H)):
-        raise ValueError(f"H = {H!r}; allowed: a finite number > 0")
+def _batched(maps, K: int, name: str):
+    """A step map ``(M, G)`` as stacks of ``K`` (a single map is the map of one step)."""
+    M, G = (np.asarray(a, dtype=float) for a in maps)
+    if M.ndim == 2:
+        M, G = M[None], G[None]
+    if M.shape[0] != K or G.shape[0] != K:
+        raise ValueError(f"{name} holds {M.shape[0]} maps for {K} steps; allowed: one per step")
+    return M, G
+
+
+def _step_maps(p, c, Hs, extrapolation, input_derivatives, integrator, substep, drift_free,
+               step_index, plant_map, controller_map=None):
+    """What :func:`transition_matrix` and :func:`implicit_transition_matrix` share for the steps
+    ``Hs`` (a 1-d array): ``step_index`` checked, the linear plant, the input derivative orders
+    the FMUs take, the plant's step maps for a polynomial input (a held-input ``plant_map``
+    padded) and the filter's, stacked over the steps: ``(plant, n_der, (Pp, Gp), (Ad, Gc))``."""
     if step_index is not None and (not isinstance(step_index, int) or step_index < 0):
         raise ValueError(f"step_index = {step_index!r}; allowed: None or an integer >= 0")
     n_der = min(extrapolation, 2) if input_derivatives else 0
     plant = linear_plant(p, drift_free=drift_free and c.kx == 0.0)
     if plant_map is None:
-        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, H, substep)
-    Pp, Gp = plant_map
-    if Gp.shape[1] == 1:            # a held-input map
+        plant_map = plant_polynomial_step_map(integrator, plant.A, plant.B, plant.nq, Hs, substep)
+    Pp, Gp = _batched(plant_map, Hs.size, "plant_map")
+    if Gp.shape[-1] == 1:            # a held-input map
         if n_der:
             raise ValueError("plant_map is a held-input map (plant_step_map); input derivatives "
                              "need plant_polynomial_step_map's")
-        Gp = np.hstack([Gp, np.zeros((Gp.shape[0], 2))])
-    return plant, n_der, (Pp, Gp), controller_polynomial_step_map(c, float(H))
+        Gp = np.concatenate([Gp, np.zeros(Gp.shape[:-1] + (2,))], axis=-1)
+    if controller_map is None:
+        controller_map = controller_polynomial_step_map(c, Hs)
+    return plant, n_der, (Pp, Gp), _batched(controller_map, Hs.size, "controller_map")
 
 
-def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
+def transition_matrix(p: PlantParams, c: ControllerParams, H, *,
                       algorithm: str = "gauss-seidel", first: str = "controller",
                       extrapolation: int = 0, input_derivatives: bool = False,
                       output_derivatives: bool = False, integrator: str = "rk4",
                       substep: float = 2.5e-4, drift_free: bool = True,
-                      step_index: int | None = None, plant_map=None,
+                      step_index: int | None = None, plant_map=None, controller_map=None,
                       _predictor: bool = False) -> np.ndarray:
     """``Phi`` with ``z_{k+1} = Phi z_k`` for one communication step ``H`` of the master.
 
@@ -461,7 +542,11 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     up to ``min(p, 2)``) instead of its held step average. ``step_index = k`` gives the map of the
     ``k``-th step, when fewer than ``p + 1`` samples exist (``None``: the steady map).
     ``plant_map`` may pass a precomputed :func:`plant_polynomial_step_map` for the same plant
-    and ``H`` (or :func:`plant_step_map`'s, for held inputs only).
+    and ``H`` (or :func:`plant_step_map`'s, for held inputs only), ``controller_map`` a
+    precomputed :func:`controller_polynomial_step_map`.
+
+    ``H`` may be a 1-d array of steps: then the stack of their matrices, ``(len(H), N, N)``
+    (the maps passed, if any, stacked alike).
 
     With extrapolation from past samples (``p >= 1``, no output derivatives) the master predicts
     the first step with held inputs, rolls it back and takes it again with the inputs
@@ -472,6 +557,7 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     _check_scheme(algorithm, first, extrapolation)
+    Hs, scalar = _steps(H)
     if algorithm == "implicit":
         if output_derivatives:
             raise ValueError("output_derivatives = True: the implicit master interpolates "
@@ -480,7 +566,7 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
                                           input_derivatives=input_derivatives,
                                           integrator=integrator, substep=substep,
                                           drift_free=drift_free, step_index=step_index,
-                                          plant_map=plant_map)
+                                          plant_map=plant_map, controller_map=controller_map)
     if integrator not in FIXED_STEP_METHODS:
         raise ValueError(f"integrator = {integrator!r}: the plant FMU's substeps are a fixed "
                          f"linear map only for {', '.join(FIXED_STEP_METHODS)} (dopri5 and radau "
@@ -488,14 +574,25 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     if output_derivatives and not (input_derivatives and extrapolation >= 1):
         raise ValueError("output_derivatives = True needs input_derivatives = True and "
                          "extrapolation >= 1 (as master.output_derivatives)")
+    maps = _step_maps(p, c, Hs, extrapolation, input_derivatives, integrator, substep,
+                      drift_free, step_index, plant_map, controller_map)
+    Phi = _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_derivatives,
+                           integrator, step_index, _predictor)
+    return Phi[0] if scalar else Phi
+
+
+def _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_derivatives,
+                     integrator, step_index, predictor):
+    """:func:`transition_matrix` of an explicit coupling for the steps ``Hs`` (a 1-d array) and
+    their maps (:func:`_step_maps`): the stack ``(K, N, N)``."""
     taylor = bool(output_derivatives)
-    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, H, extrapolation, input_derivatives,
-                                                   integrator, substep, drift_free, step_index,
-                                                   plant_map)
+    plant, n_der, (Pp, Gp), (Ad, Gc) = maps
     ctrl = PDLowPassModel(c)
     Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
     A, B, C = plant.A, plant.B, plant.C
-    nx, nc, ny, P = Pp.shape[0], ctrl.nx, C.shape[0], extrapolation + 1
+    nx, nc, ny, P = Pp.shape[-1], ctrl.nx, C.shape[0], extrapolation + 1
+    K = Hs.size
+    H = Hs[:, None, None]           # the steps, broadcast against (K, rows, N) row blocks
     # state layout
     ix = slice(0, nx)
     ic = slice(nx, nx + nc)
@@ -510,11 +607,8 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     Y = [I[s] for s in iy]          # the registers: y_k, y_k-1, ... (or y_k, y'_k, ...)
     F = [I[s] for s in iF]
     x, xc = I[ix], I[ic]
-    avg = np.array([1.0, H / 2, H * H / 6])   # the step average of the Taylor polynomial
-    end = np.array([1.0, H, H * H / 2])       # its value at t_k+1
-
-    def dot(w, rows):
-        return sum((wi * r for wi, r in zip(w, rows) if wi), np.zeros_like(rows[0]))
+    avg = [1.0, H / 2, H * H / 6]   # the step average of the Taylor polynomial
+    end = [1.0, H, H * H / 2]       # its value at t_k+1
 
     def coefficients(rows, newest=False):
         """The Taylor coefficients at ``t_k`` (three row blocks) of the polynomial through the
@@ -524,43 +618,41 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         else:
             W = _taylor_of_samples([j + (1 if newest else 0) for j in range(0, -len(rows), -1)],
                                    H)
-        return [dot(W[i], rows) for i in range(3)]
+        return [_dot(W[i], rows) for i in range(3)]
 
     def fmu_input(a):
         """What the FMU gets over the step, as Taylor coefficients at t_k: the held average, or
         the value and ``n_der`` derivatives."""
         if not n_der:
-            return [dot(avg, a), 0 * a[0], 0 * a[0]]
+            return [_dot(avg, a), 0 * a[0], 0 * a[0]]
         return [a[j] if j <= n_der else 0 * a[0] for j in range(3)]
 
     def plant_step(a):
         u = fmu_input(a)
-        x1 = Pp @ x + sum(Gp[:, j:j + 1] @ u[j] for j in range(3))
+        x1 = Pp @ x + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
         if integrator not in POLYNOMIAL_METHODS:       # the FMU holds the average
-            u = [dot(avg, u), 0 * u[0], 0 * u[0]]
-        ue, due = dot(end, u), u[1] + H * u[2]          # the stepper's input at t_k+1
+            u = [_dot(avg, u), 0 * u[0], 0 * u[0]]
+        ue, due = _dot(end, u), u[1] + H * u[2]         # the stepper's input at t_k+1
         d1 = A @ x1 + B @ ue
         return x1, [C @ x1, C @ d1, C @ (A @ d1 + B @ due)][:P if taylor else 1]
 
     def ctrl_step(a):
         u = fmu_input(a)
-        xc1 = Ad @ xc + sum(Gc[:, 3 * j:3 * j + 3] @ u[j] for j in range(3))
+        xc1 = Ad @ xc + sum(Gc[..., 3 * j:3 * j + 3] @ u[j] for j in range(3))
         # the force at t_k+1: the sensors moved to their polynomial's value there
-        out = [Cc @ xc1 + Dc @ dot(end, a)]
+        out = [Cc @ xc1 + Dc @ _dot(end, a)]
         if taylor:     # the FMU's derivatives: its step's input polynomial at the step's end
-            ye, dye, d2ye = dot(end, u), u[1] + H * u[2], u[2]
+            ye, dye, d2ye = _dot(end, u), u[1] + H * u[2], u[2]
             d1 = Ac @ xc1 + Bc @ ye
             out += [Cc @ d1 + Dc @ dye, Cc @ (Ac @ d1 + Bc @ dye) + Dc @ d2ye][:P - 1]
         return xc1, out
 
-    if step_index == 0 and P >= 2 and not taylor and not _predictor:
+    if step_index == 0 and P >= 2 and not taylor and not predictor:
         # the corrected first step: the predicted samples at t_1 (the map of the held step) stand
         # in for the newest samples; the first FMU interpolates through them and t_0
-        Mp = transition_matrix(p, c, H, algorithm=algorithm, first=first,
-                               extrapolation=extrapolation, input_derivatives=input_derivatives,
-                               integrator=integrator, substep=substep, drift_free=drift_free,
-                               step_index=0, plant_map=plant_map, _predictor=True)
-        Yold, Fold = [Mp[iy[0]], Y[0]], [Mp[iF[0]], F[0]]
+        Mp = _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation,
+                              output_derivatives, integrator, 0, True)
+        Yold, Fold = [Mp[:, iy[0]], Y[0]], [Mp[:, iF[0]], F[0]]
         old = dict(newest=True)
         s_new = 2
     else:
@@ -579,25 +671,33 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         x1, ys = plant_step(coefficients(Fold, **old))
         xc1, Fs = ctrl_step(coefficients(ys if taylor else [ys[0]] + Y[:s_new - 1],
                                          newest=True))
-    Phi = np.zeros((N, N))
-    Phi[ix] = x1
-    Phi[ic] = xc1
+    Phi = np.zeros((K, N, N))
+    Phi[:, ix] = x1
+    Phi[:, ic] = xc1
     if taylor:
         for j in range(P):
-            Phi[iy[j]] = ys[j]
-            Phi[iF[j]] = Fs[j]
+            Phi[:, iy[j]] = ys[j]
+            Phi[:, iF[j]] = Fs[j]
     else:
-        Phi[iy[0]] = ys[0]
-        Phi[iF[0]] = Fs[0]
+        Phi[:, iy[0]] = ys[0]
+        Phi[:, iF[0]] = Fs[0]
         for j in range(1, P):
-            Phi[iy[j]] = Y[j - 1]
-            Phi[iF[j]] = F[j - 1]
+            Phi[:, iy[j]] = Y[j - 1]
+            Phi[:, iF[j]] = F[j - 1]
     return Phi
 
 
 def spectral_radius(M: np.ndarray) -> float:
     """``max |eig(M)|``."""
     return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
+
+
+def spectral_radii(M: np.ndarray) -> np.ndarray:
+    """``max |eig(M_k)|`` of each matrix of the stack ``M`` (shape ``(K, N, N)``)."""
+    M = np.asarray(M, dtype=float)
+    if not M.shape[-1]:
+        return np.zeros(M.shape[0])
+    return np.max(np.abs(np.linalg.eigvals(M)), axis=-1)
 
 
 def scene_transition_matrix(scene, H: float | None = None, step_index=None, drift_free=True):
@@ -762,13 +862,133 @@ def observed_spectral_radius(signals, rows: int | None = None, rtol: float = 1e-
     return float(np.max(np.abs(hankel_poles(signals, rows, rtol))))
 
 
+# ---------------------------------------------------------------------- the scan's spectra
+#: steps evaluated at once by :class:`Spectra` (bounds the stacks' memory)
+_CHUNK = 512
+#: eigenvalues of at least this modulus are watched for collisions on the real axis
+#: (:func:`~orchestration.studies.stability_intervals.scan`)
+NEAR_CIRCLE = _iv.NEAR_CIRCLE
+
+
+class Spectra:
+    """The spectra of every coupling in ``couplings`` (:func:`transition_matrix`'s keywords)
+    for the plant ``p``, controller ``c`` and the plant FMU's ``integrator`` and ``substep``.
+    ``self(H, which)``: ``rho`` (:meth:`spectra`). The step maps of a call are formed once for
+    all its steps and couplings; the plant substep's matrix and powers once for all calls."""
+
+    def __init__(self, p, c, couplings, *, integrator: str = "rk4", substep: float = 2.5e-4):
+        _check_method(integrator)
+        self.p, self.c, self.couplings = p, c, [dict(k) for k in couplings]
+        self.integrator, self.substep = integrator, substep
+        self.plant = linear_plant(p, drift_free=c.kx == 0.0)
+        self.evaluations = 0
+        self._powers = {}
+
+    def maps(self, Hs):
+        pl = self.plant
+        return (plant_polynomial_step_map(self.integrator, pl.A, pl.B, pl.nq, Hs, self.substep,
+                                          cache=self._powers),
+                controller_polynomial_step_map(self.c, Hs))
+
+    def __call__(self, H, which=None) -> np.ndarray:
+        return self.spectra(H, which)[0]
+
+    def spectra(self, H, which=None):
+        """``(rho, gap)``: the spectral radius and, of the eigenvalues of modulus above
+        :data:`NEAR_CIRCLE`, the smallest ``|Im lambda| / |lambda|`` (how near one is to the
+        real axis, where a complex pair collides and splits; ``inf``: none is that large).
+        ``which``: ``None``, every coupling at every step (arrays ``(len(couplings),
+        len(H))``); a coupling's index, its row; an array of indices as long as ``H``, the
+        coupling of each step (1-d arrays)."""
+        Hs, _ = _steps(H)
+        if which is None:
+            idx = np.repeat(np.arange(len(self.couplings)), Hs.size)
+            steps = np.tile(Hs, len(self.couplings))
+        else:
+            idx = np.broadcast_to(np.asarray(which, dtype=int), Hs.shape)
+            steps = Hs
+        rho, gap = np.empty(steps.size), np.empty(steps.size)
+        uniq, back = np.unique(steps, return_inverse=True)
+        for a in range(0, uniq.size, _CHUNK):
+            part = uniq[a:a + _CHUNK]
+            pm, cm = self.maps(part)
+            sel = np.flatnonzero((back >= a) & (back < a + _CHUNK))
+            for i in np.unique(idx[sel]):
+                mine = sel[idx[sel] == i]
+                at = back[mine] - a
+                M = transition_matrix(self.p, self.c, part[at], integrator=self.integrator,
+                                      substep=self.substep, plant_map=(pm[0][at], pm[1][at]),
+                                      controller_map=(cm[0][at], cm[1][at]),
+                                      **self.couplings[i])
+                ev = np.linalg.eigvals(_deflated(M))
+                mod = np.abs(ev)
+                rho[mine] = mod.max(axis=1) if mod.shape[1] else 0.0
+                near = np.abs(ev.imag) / np.where(mod > NEAR_CIRCLE, mod, np.nan)
+                gap[mine] = np.min(np.where(np.isnan(near), np.inf, near), axis=1,
+                                   initial=np.inf)
+        self.evaluations += steps.size
+        if which is None:
+            shape = (len(self.couplings), Hs.size)
+            return rho.reshape(shape), gap.reshape(shape)
+        return rho, gap
+
+
+def _deflated(M) -> np.ndarray:
+    """The stack ``M`` without the states whose row or column is zero in every matrix of it
+    (repeatedly): such a state only adds an eigenvalue 0 (the determinant of ``lambda I - M``
+    expanded along that row or column is ``lambda`` times the rest's). The registers of a
+    sensor nothing reads (``x_o`` when ``kx = 0``), the implicit master's unused oldest sample."""
+    keep = np.arange(M.shape[-1])
+    while keep.size:
+        S = M[:, keep[:, None], keep]
+        zero = np.all(S == 0, axis=(0, 2)) | np.all(S == 0, axis=(0, 1))
+        if not zero.any():
+            return S
+        keep = keep[~zero]
+    return M[:, :0, :0]
+
+
+def observed_verdict(samples, stopped: bool = False, window: int | None = None):
+    """How a co-simulation from a small initial state ended, from its exchanged outputs sampled
+    once per communication step (``samples``, ``(N, m)``: e.g. ``phi_o, omega_o, F_c``):
+    ``(verdict, ratio, factor)``. ``ratio``: the largest, over the channels, of the amplitude
+    over the last ``window`` samples (default ``max(60, N // 5)``) divided by that channel's
+    over the first ``window``; ``factor``: the growth per step fitted on the last window (the
+    largest pole of its eigensystem realisation, :func:`observed_spectral_radius`; NaN if the
+    run stopped).
+
+    ``"falls"``: the run stopped (the plant FMU refused to go on: the pendulum fell, or its
+    state was no longer finite); ``"grows"``: ``ratio > GROWN`` (1: it ended larger than it
+    began; a growth, which the nonlinear plant may end in a limit cycle), or, when the amplitude
+    decides nothing (``SETTLED < ratio <= GROWN``, ``SETTLED = 0.01``: a slow growth not yet
+    above the decaying modes, or a slow decay), ``factor > 1``; ``"settles"``: ``ratio <=
+    SETTLED``, or undecided and ``factor < 1`` (``GROWN``, ``SETTLED``:
+    :mod:`~orchestration.studies.stability_intervals`). Nothing depends on how long the run
+    took."""
+    Y = np.asarray(samples, dtype=float)
+    Y = Y[:, None] if Y.ndim == 1 else Y
+    if stopped or not np.all(np.isfinite(Y)):
+        return "falls", math.inf, math.nan
+    W = window or max(60, Y.shape[0] // 5)
+    if Y.shape[0] < 2 * W:
+        raise ValueError(f"{Y.shape[0]} samples are too few for two windows of {W}")
+    early = np.max(np.abs(Y[:W]), axis=0)
+    use = early > 0
+    ratio = float(np.max(np.max(np.abs(Y[-W:, use]), axis=0) / early[use]))
+    factor = observed_spectral_radius(Y[-W:], rtol=1e-6)
+    if ratio > _iv.GROWN:
+        return "grows", ratio, factor
+    if ratio <= _iv.SETTLED:
+        return "settles", ratio, factor
+    return ("grows" if factor > 1.0 else "settles"), ratio, factor
+
+
 # ---------------------------------------------------------------------- every coupling of a scene
-#: the range of communication steps searched for the first crossing of rho = 1 (s)
-STEP_RANGE = (1e-4, 1.0)
-#: points per decade of that search: rho(Phi) exceeds 1 in narrow windows too (an eigenvalue's
-#: modulus bumping over 1: 4 % wide for Jacobi with linear Taylor extrapolation on the filtered
-#: scene, at 13.2 ms), so the grid's ratio is 1.2 %; a window narrower than that can be missed
-GRID_PER_DECADE = 500
+#: the range of communication steps :func:`critical_step` searches by default (s); its lower
+#: end is the scan's smallest step
+STEP_RANGE = (_iv.MIN_STEP, 1.0)
+#: grid points per decade of the scans (:mod:`~orchestration.studies.stability_intervals`)
+GRID_PER_DECADE = _iv.GRID_PER_DECADE
 
 
 def couplings(master) -> list[dict]:
@@ -795,22 +1015,26 @@ def couplings(master) -> list[dict]:
 
 def critical_step(p: PlantParams, c: ControllerParams, *, integrator: str = "rk4",
                   substep: float = 2.5e-4, hi: float | None = None, **coupling):
-    """The largest communication step below which every step is stable: the first ``H`` where
-    ``rho(Phi)`` reaches 1 (a log grid of :data:`GRID_PER_DECADE` over :data:`STEP_RANGE`, or up
-    to ``hi``, refined by Brent's method); ``None`` if it never does there, ``0.0`` if the loop is unstable already at
-    the smallest step (the continuous closed loop is). ``coupling``: :func:`transition_matrix`'s
-    keywords."""
-    lo = STEP_RANGE[0]
+    """The largest communication step below which every step is stable: the lower edge of the
+    first unstable interval of :func:`~orchestration.studies.stability_intervals.scan` on
+    ``[STEP_RANGE[0], hi]`` (default ``STEP_RANGE[1]``); ``None`` if there is none, ``0.0`` if
+    the loop is unstable already at the smallest step (the continuous closed loop is). Above it
+    the coupling may be stable again (:func:`stability_report` gives the intervals).
+    ``coupling``: :func:`transition_matrix`'s keywords."""
     hi = STEP_RANGE[1] if hi is None else hi
-    f = lambda H: spectral_radius(transition_matrix(  # noqa: E731
-        p, c, H, integrator=integrator, substep=substep, **coupling))
-    if f(lo) >= 1.0:
-        return 0.0
-    # the grid's points are lo * 10^(j / GRID_PER_DECADE), whatever hi (the same points for
-    # every search), then hi
-    j = np.arange(int(math.floor(GRID_PER_DECADE * math.log10(hi / lo) + 1e-9)) + 1)
-    grid = np.unique(np.append(lo * 10.0 ** (j / GRID_PER_DECADE), hi))
-    return first_instability(f, grid)
+    found = _iv.scan(Spectra(p, c, [coupling], integrator=integrator, substep=substep), hi,
+                     min_step=STEP_RANGE[0])[0]
+    return first_unstable(found)
+
+
+def first_unstable(intervals):
+    """The lower edge of the first unstable interval of ``intervals`` (``[(lo, hi, stable,
+    peak)]``, :func:`~orchestration.studies.stability_intervals.step_intervals`), ``0.0`` if it
+    is the first, ``None`` if there is none."""
+    for i, (lo, _, stable, _) in enumerate(intervals):
+        if not stable:
+            return 0.0 if i == 0 else lo
+    return None
 
 
 def _scene_model(scene):
@@ -854,20 +1078,54 @@ def assumptions(scene) -> list[str]:
     return out
 
 
-def stability_report(scene) -> dict:
+def stability_report(scene, max_step: float | None = None, progress=None) -> dict:
     """For the scene's own coupling and for every coupling the master offers (:func:`couplings`):
-    the largest stable communication step (:func:`critical_step`), and the plant method's
-    substep limit (:func:`substep_limit`; ``None``: A-stable). ``{"scene": {"coupling", "critical_step", "substep_limit"}, "couplings": [{...,
-    "critical_step"}, ...]}``; a ValueError for a scene without a transition matrix."""
+    the stable and unstable intervals of the communication step on ``[MIN_STEP, max_step]``
+    (:func:`~orchestration.studies.stability_intervals.scan`; default
+    :data:`~orchestration.studies.stability_intervals.MAX_STEP`) and the first crossing
+    (:func:`first_unstable`), and the plant method's substep limit (:func:`substep_limit`;
+    ``None``: A-stable)::
+
+        {"min_step", "max_step",
+         "scene": {"coupling": {..., "step"}, "critical_step", "intervals", "rho", "stable",
+                   "substep_limit"},
+         "couplings": [{"algorithm", "first", "extrapolation", "input_derivatives",
+                        "output_derivatives", "critical_step", "intervals"}, ...]}
+
+    an interval being ``{"from", "to", "stable", "rho_max"}`` (seconds; ``rho_max``, of an
+    unstable one: its largest spectral radius, the growth per step at worst; ``None`` for a
+    stable one); ``rho`` and ``stable``: at the scene's own step.
+    ``progress``: called with the fraction done. A ValueError for a scene without a transition
+    matrix, or a bad ``max_step``."""
+    MIN_STEP = _iv.MIN_STEP
+    max_step = _iv.MAX_STEP if max_step is None else max_step
+    if (isinstance(max_step, bool) or not isinstance(max_step, (int, float))
+            or not 10 * MIN_STEP <= max_step <= 10.0):
+        raise ValueError(f"max_step = {max_step!r}; allowed: a step in seconds from "
+                         f"{10 * MIN_STEP:g} to 10")
     p, c, integrator, h = _scene_model(scene)
     own = scene_coupling(scene)
-    model = dict(integrator=integrator, substep=h)
-    rows = [{**k, "critical_step": critical_step(p, c, **model, **k)}
-            for k in couplings(scene.master)]
-    return {"scene": {"coupling": {**own, "step": scene.master.step},
-                      "critical_step": critical_step(p, c, **model, **own),
+    ks = couplings(scene.master)
+    if own not in ks:
+        ks.append(own)
+    spectra = Spectra(p, c, ks, integrator=integrator, substep=h)
+    found = _iv.scan(spectra, float(max_step), progress=progress)
+
+    def row(k, iv):
+        return {**k, "critical_step": first_unstable(iv),
+                "intervals": [{"from": a, "to": b, "stable": st, "rho_max": peak}
+                              for a, b, st, peak in iv]}
+
+    rows = [row(k, iv) for k, iv in zip(ks, found)]
+    mine = rows[ks.index(own)]
+    with _iv.one_blas_thread():
+        rho = float(spectra(scene.master.step, ks.index(own))[0])
+    return {"min_step": MIN_STEP, "max_step": float(max_step),
+            "scene": {"coupling": {**own, "step": scene.master.step},
+                      "critical_step": mine["critical_step"], "intervals": mine["intervals"],
+                      "rho": rho, "stable": rho < 1.0,
                       "substep_limit": substep_limit(p, integrator)},
-            "couplings": rows}
+            "couplings": rows[:len(couplings(scene.master))]}
 
 
 def step_warning(scene) -> str | None:
@@ -901,11 +1159,11 @@ def step_warning(scene) -> str | None:
 
 
 # ---------------------------------------------------------------------- the implicit master
-def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
+def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H, *,
                                extrapolation: int = 2, input_derivatives: bool = True,
                                integrator: str = "rk4", substep: float = 2.5e-4,
                                drift_free: bool = True, step_index: int | None = None,
-                               plant_map=None) -> np.ndarray:
+                               plant_map=None, controller_map=None) -> np.ndarray:
     """``Phi`` with ``z_{k+1} = Phi z_k`` for one converged step ``H`` of the implicit master
     (``master.algorithm = "implicit"``, :mod:`orchestration.cosim.implicit`).
 
@@ -922,16 +1180,19 @@ def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
         y_1 = C x_1(y_1, F_1; z),   F_1 = C_c xc_1(y_1, F_1; z) + D_c y_1,
 
     a linear system in ``(y_1, F_1)`` solved here, whose solution is substituted into the step.
-    The master reaches it to within ``master.implicit_tolerance``."""
+    The master reaches it to within ``master.implicit_tolerance``. ``H`` may be a 1-d array of
+    steps (then the stack of their matrices, as :func:`transition_matrix`)."""
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     _check_scheme("gauss-seidel", "controller", extrapolation)
-    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, H, extrapolation, input_derivatives,
+    Hs, scalar = _steps(H)
+    plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, Hs, extrapolation, input_derivatives,
                                                    integrator, substep, drift_free, step_index,
-                                                   plant_map)
+                                                   plant_map, controller_map)
     Cc, Dc = PDLowPassModel(c).state_space()[2:]
     C = plant.C
-    nx, nc, ny = Pp.shape[0], Ad.shape[0], C.shape[0]
+    nx, nc, ny = Pp.shape[-1], Ad.shape[-1], C.shape[0]
+    Hb = Hs[:, None, None]
     m = extrapolation + 1
     iy = [slice(nx + nc + j * ny, nx + nc + (j + 1) * ny) for j in range(m)]
     o = nx + nc + m * ny
@@ -942,35 +1203,36 @@ def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H: float, *,
     y1, F1 = E[N:N + ny], E[N + ny:]
     k = math.inf if step_index is None else step_index
     s = int(min(extrapolation + 1, k + 2))       # samples through t_k+1
-    W = _taylor_of_samples(list(range(1, 1 - s, -1)), H)
-    avg = np.array([1.0, H / 2, H * H / 6])
+    W = _taylor_of_samples(list(range(1, 1 - s, -1)), Hb)
+    avg = [1.0, Hb / 2, Hb * Hb / 6]
 
     def fmu_input(rows):
         """The Taylor coefficients at t_k of the polynomial through ``rows`` (newest first, the
         first at t_k+1) as the FMU gets them: the value and ``n_der`` derivatives, or held."""
-        a = [sum(W[i, j] * r for j, r in enumerate(rows)) for i in range(3)]
+        a = [_dot(W[i], rows) for i in range(3)]
         if not n_der:
-            return [sum(w * ai for w, ai in zip(avg, a)), 0 * a[0], 0 * a[0]]
+            return [_dot(avg, a), 0 * a[0], 0 * a[0]]
         return [a[j] if j <= n_der else 0 * a[0] for j in range(3)]
 
     u = fmu_input([F1] + [E[f] for f in iF][:s - 1])
-    x1 = Pp @ E[:nx] + sum(Gp[:, j:j + 1] @ u[j] for j in range(3))
+    x1 = Pp @ E[:nx] + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
     v = fmu_input([y1] + [E[r] for r in iy][:s - 1])
-    xc1 = Ad @ E[nx:nx + nc] + sum(Gc[:, 3 * j:3 * j + 3] @ v[j] for j in range(3))
+    xc1 = Ad @ E[nx:nx + nc] + sum(Gc[..., 3 * j:3 * j + 3] @ v[j] for j in range(3))
     # (y_1, F_1) = K [z; y_1; F_1]  =>  (I - K_u) [y_1; F_1] = K_z z
-    K = np.vstack([C @ x1, Cc @ xc1 + Dc @ y1])
-    U = np.linalg.solve(np.eye(ny + 1) - K[:, N:], K[:, :N])
+    Fc1 = Cc @ xc1 + Dc @ y1
+    K = np.concatenate([C @ x1, np.broadcast_to(Fc1, x1.shape[:-2] + Fc1.shape[-2:])], axis=-2)
+    U = np.linalg.solve(np.eye(ny + 1) - K[..., N:], K[..., :N])
 
     def on_z(rows):
-        return rows[:, :N] + rows[:, N:] @ U
+        return rows[..., :N] + rows[..., N:] @ U
 
-    Phi = np.zeros((N, N))
-    Phi[:nx] = on_z(x1)
-    Phi[nx:nx + nc] = on_z(xc1)
-    Phi[iy[0]] = U[:ny]
-    Phi[iF[0]] = U[ny:]
+    Phi = np.zeros((Hs.size, N, N))
+    Phi[:, :nx] = on_z(x1)
+    Phi[:, nx:nx + nc] = on_z(xc1)
+    Phi[:, iy[0]] = U[:, :ny]
+    Phi[:, iF[0]] = U[:, ny:]
     I = np.eye(N)
     for j in range(1, m):
-        Phi[iy[j]] = I[iy[j - 1]]
-        Phi[iF[j]] = I[iF[j - 1]]
-    return Phi
+        Phi[:, iy[j]] = I[iy[j - 1]]
+        Phi[:, iF[j]] = I[iF[j - 1]]
+    return Phi[0] if scalar else Phi

@@ -29,7 +29,7 @@
   the end. A run is keyed by the digest of its whole resolved scene (and ``--reference``): a rerun
   with the same ``--out`` runs only the keys without an ``ok`` or ``failed`` row (with
   ``--retry-failed``, without an ``ok`` row).
-* **Verdicts**: stable, unstable, or "no verdict" (no reliable fit, too short a run, or stopped
+* **Verdicts**: stable, unstable, or "undetermined" (no fit decides, too short a run, or stopped
   early), counted apart in the terminal, the table (``verdict``) and the plot.
 * **Plots** (``DIR/sweep.png``): a heat map of the decay rate over a 2-D grid, line plots of
   the rates over a 1-D grid (each quantity on its own axis), a histogram of the decay rates of a

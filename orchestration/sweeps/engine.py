@@ -46,14 +46,16 @@ DONE = ("ok", "failed")
 
 
 # ---------------------------------------------------------------------------- one run
-#: A finished run's ``verdict``: what its fits say (``stable`` True, False, None).
-VERDICTS = {True: "stable", False: "unstable", None: "no verdict"}
+#: A finished run's ``verdict`` from ``stable`` (True, False, None) when its summary has none.
+VERDICTS = {True: "stable", False: "unstable", None: "undetermined"}
 
 
 def verdict_of(row: dict) -> str:
-    """``stable``, ``unstable``, or ``no verdict``: no fit is reliable (too short a run, too few
-    periods in the linear range) or the run stopped early. No verdict is not "unstable"."""
-    return VERDICTS[row.get("stable")]
+    """The run's verdict (:func:`orchestration.report.summary.verdict`): ``stable``,
+    ``unstable``, ``undetermined`` (no fit decides: too short a run, too few periods in the
+    linear range, a rate within its uncertainty of zero) or ``stopped`` (early). Undetermined is
+    not "unstable"."""
+    return row.get("verdict") or VERDICTS[row.get("stable")]
 
 
 def summary_row(summary: dict) -> dict:
@@ -68,8 +70,10 @@ def summary_row(summary: dict) -> dict:
     (:mod:`orchestration.studies.validity`); ``model_form_basis``: what the figure compares with,
     or why there is none."""
     stopped = summary.get("stopped") or {}
-    row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable")}
+    row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable"),
+           "verdict": summary.get("verdict")}
     row["verdict"] = verdict_of(row)
+    row["verdict_reason"] = summary.get("verdict_reason")
     rates = []
     for key in ("slow", "bending"):
         mode = summary.get(key) or {}
@@ -78,8 +82,9 @@ def summary_row(summary: dict) -> dict:
         row[f"{key}_frequency"] = mode.get("frequency")
         row[f"{key}_rate_linear"] = linear.get("rate")
         row[f"{key}_note"] = mode.get("note")
-        if mode.get("reliable"):
-            rates.append(mode["rate"])
+        u = (mode.get("fit") or {}).get("rate_uncertainty")
+        if mode.get("reliable") and u is not None and abs(mode["rate"]) > u:
+            rates.append(mode["rate"])          # a fit that counts toward the verdict
     row["decay_rate"] = -max(rates) if rates else None
     row["max_abs_F_c"] = summary.get("max_abs_F_c")
     row["max_abs_x"] = summary.get("max_abs_x")
@@ -539,7 +544,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
 def sweep_stats(rows) -> dict:
     """Counts, the verdicts and the decay rates (worst, median, best) of the finished runs.
 
-    ``stable``, ``unstable``, ``no_verdict``: the finished runs' verdicts (:func:`verdict_of`);
+    ``stable``, ``unstable``, ``undetermined``: the finished runs' verdicts (:func:`verdict_of`;
+    a run stopped early counts as undetermined here);
     ``no_fit``: the runs that completed without a reliable fit (the failed ones stopped early);
     ``stable_fraction``: stable among the runs with a verdict (None without any);
     ``linear_stable``, ``linear_unstable``: the linearised loops of the completed runs, and
@@ -553,7 +559,7 @@ def sweep_stats(rows) -> dict:
            "unstable": sum(r.get("stable") is False for r in rows),
            "invalid": sum(r.get("valid") is False for r in rows)}
     finished = out["ok"] + out["failed"]
-    out["no_verdict"] = finished - out["stable"] - out["unstable"]
+    out["undetermined"] = finished - out["stable"] - out["unstable"]
     no_fit = [r for r in ok if r.get("stable") is None]
     out["no_fit"] = len(no_fit)
     judged = out["stable"] + out["unstable"]

@@ -1,5 +1,5 @@
 """The sweep's figure: a heat map, line plots or a histogram of the decay rates. Each counts the
-runs' verdicts with "no verdict" (no reliable fit, or stopped early) apart from "unstable", and
+runs' verdicts with "undetermined" (no fit decides, or stopped early) apart from "unstable", and
 each quantity has an axis of its own, with its unit.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from .plan import SweepPlan, design_worst_case
 __all__ = ["plot_sweep", "sweep_figure", "verdict_text"]
 
 #: The verdict strip of a line plot: category -> (colour, marker), in the strip's order.
-_STRIP = {"stable": ("C2", "o"), "unstable": ("C3", "v"), "no verdict": ("0.5", "s"),
+_STRIP = {"stable": ("C2", "o"), "unstable": ("C3", "v"), "undetermined": ("0.5", "s"),
           "stopped early": ("k", "x"), "lost": ("m", "d")}
 
 
@@ -45,19 +45,20 @@ def _category(r) -> str:
     """A run's place in the verdict strip."""
     if r["status"] in ("failed", "lost"):
         return "stopped early" if r["status"] == "failed" else "lost"
-    return r.get("verdict") or "no verdict"
+    v = r.get("verdict") or "undetermined"
+    return "undetermined" if v == "stopped" else v
 
 
 def verdict_text(rows) -> str:
-    """``verdicts: 3 stable, 1 unstable, 2 no verdict (1 without a reliable fit, 1 stopped
+    """``verdicts: 3 stable, 1 unstable, 2 undetermined (1 whose fits do not decide, 1 stopped
     early)``."""
     cats = [_category(r) for r in rows]
     why = ", ".join(f"{n} {text}" for n, text in
-                    ((cats.count("no verdict"), "without a reliable fit"),
+                    ((cats.count("undetermined"), "whose fits do not decide"),
                      (cats.count("stopped early"), "stopped early")) if n)
     lost = cats.count("lost")
     return (f"verdicts: {cats.count('stable')} stable, {cats.count('unstable')} unstable, "
-            f"{cats.count('no verdict') + cats.count('stopped early')} no verdict"
+            f"{cats.count('undetermined') + cats.count('stopped early')} undetermined"
             + (f" ({why})" if why else "") + (f", {lost} lost" if lost else ""))
 
 
@@ -197,7 +198,7 @@ def sweep_figure(plan: SweepPlan, rows):
         _ticks(ax, ax1, ax1.values, "y")
         fig.colorbar(im, ax=ax, extend="both",
                      label="decay rate -max(fitted rate), 1/s (red: grows)")
-        ax.set_title(f"{title}\n{verdict_text(rows)}\ngrey: no verdict (no reliable fit); "
+        ax.set_title(f"{title}\n{verdict_text(rows)}\ngrey: undetermined (no fit decides); "
                      "x: stopped early", fontsize=9)
     else:
         return None

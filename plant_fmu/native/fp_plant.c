@@ -1168,7 +1168,8 @@ int fp_exact_prepare(fp_exact *p)
  * nodal vectors e and ed (2 (nq + 1)). */
 long fp_exact_work_size(const fp_exact *p)
 {
-    return p == NULL ? 0 : (long)p->nq * (EX_W + 15) + 2 * ((long)p->nq + 1) + 8;
+    /* the layouts end with e and ed; after them the modal law's d_t and C_f d_t (2 nq) */
+    return p == NULL ? 0 : (long)p->nq * (EX_W + 17) + 2 * ((long)p->nq + 1) + 8;
 }
 
 /* The q index of the full nodal index k (-1: the root's y, held at 0). */
@@ -1314,6 +1315,8 @@ typedef struct ex_target {
 static int ex_forces_to(const fp_exact *p, const double *q, const double *qd, double u,
                         double *f, double *K, double *C, double *M, const ex_target *tg, int ntg,
                         double *e, double *ed);
+static void ex_modal_force(const fp_exact *p, const double *e, const double *ed, double *f,
+                           double *scratch);
 
 static int ex_forces(const fp_exact *p, const double *q, const double *qd, double u, double *f,
                      double *K, double *C, double *M, double *band, double cm, double ck,
@@ -1379,8 +1382,266 @@ static int ex_forces_to(const fp_exact *p, const double *q, const double *qd, do
             }
         }
     }
+    if (p->modal != NULL) ex_modal_force(p, e, ed, f, ed + nd);
     f[0] += u;
     return finite_array(f, nq) ? FP_OK : FP_NONFINITE;
+}
+
+/* ================================================ the modal law (plant_fmu/exact.py: FrameModalDamping)
+ * d: [d0 = |r'_0| - 1, then per node i = 1..ne: u, w, u', w'] in the root tangent's frame. */
+
+/* The frame at the nodal vector e: b1 (along the root tangent), b2 = (-b1y, b1x) and the
+ * gradient of its angle with respect to the root slope, g = (-a0y, a0x) / |a0|^2. */
+static void ex_frame(const double *e, double *b1, double *b2, double *g)
+{
+    const double ax = e[2], ay = e[3], n0 = ax * ax + ay * ay, r = sqrt(n0);
+    b1[0] = ax / r;
+    b1[1] = ay / r;
+    b2[0] = -b1[1];
+    b2[1] = b1[0];
+    g[0] = -ay / n0;
+    g[1] = ax / n0;
+}
+
+/* f (the free coordinates) += -G^T C_f G ed at e; scratch: 2 nd doubles. */
+static void ex_modal_force(const fp_exact *p, const double *e, const double *ed, double *f,
+                           double *scratch)
+{
+    const int ne = p->ne, nd = 4 * ne + 1, na = 2 * ne + 1, nb = 2 * ne;
+    const double *Ca = p->modal, *Cb = p->modal + (long)na * na;
+    double b1[2], b2[2], g[2], th, coef = 0.0, *d = scratch, *c = scratch + nd, ga[2] = {0, 0};
+    double gr0[2] = {0, 0};
+    int i, j, k;
+    ex_frame(e, b1, b2, g);
+    th = g[0] * ed[2] + g[1] * ed[3];
+    d[0] = b1[0] * ed[2] + b1[1] * ed[3];
+    for (i = 1; i <= ne; i++) {
+        const double rx = e[4 * i] - e[0], ry = e[4 * i + 1] - e[1];
+        const double vx = ed[4 * i] - ed[0], vy = ed[4 * i + 1] - ed[1];
+        const double *rp = e + 4 * i + 2, *vp = ed + 4 * i + 2;
+        k = 1 + 4 * (i - 1);
+        d[k] = th * (b2[0] * rx + b2[1] * ry) + b1[0] * vx + b1[1] * vy;
+        d[k + 1] = -th * (b1[0] * rx + b1[1] * ry) + b2[0] * vx + b2[1] * vy;
+        d[k + 2] = th * (b2[0] * rp[0] + b2[1] * rp[1]) + b1[0] * vp[0] + b1[1] * vp[1];
+        d[k + 3] = -th * (b1[0] * rp[0] + b1[1] * rp[1]) + b2[0] * vp[0] + b2[1] * vp[1];
+    }
+    /* c = C_f d, block by block: axial (d0, u_i, u'_i) and bending (w_i, w'_i) */
+    for (i = 0; i < na; i++) {
+        const int di = i == 0 ? 0 : 1 + 4 * ((i - 1) / 2) + 2 * ((i - 1) % 2);
+        double v = 0.0;
+        for (j = 0; j < na; j++) {
+            const int dj = j == 0 ? 0 : 1 + 4 * ((j - 1) / 2) + 2 * ((j - 1) % 2);
+            v += Ca[(long)i * na + j] * d[dj];
+        }
+        c[di] = v;
+    }
+    for (i = 0; i < nb; i++) {
+        const int di = 2 + 4 * (i / 2) + 2 * (i % 2);
+        double v = 0.0;
+        for (j = 0; j < nb; j++) v += Cb[(long)i * nb + j] * d[2 + 4 * (j / 2) + 2 * (j % 2)];
+        c[di] = v;
+    }
+    /* f -= G^T c, onto the free coordinates (q[0] = e[0], q[k - 1] = e[k] for k >= 2) */
+    ga[0] = c[0] * b1[0];
+    ga[1] = c[0] * b1[1];
+    for (i = 1; i <= ne; i++) {
+        const double rx = e[4 * i] - e[0], ry = e[4 * i + 1] - e[1];
+        const double *rp = e + 4 * i + 2;
+        double px, py;
+        k = 1 + 4 * (i - 1);
+        coef += c[k] * (b2[0] * rx + b2[1] * ry) - c[k + 1] * (b1[0] * rx + b1[1] * ry)
+                + c[k + 2] * (b2[0] * rp[0] + b2[1] * rp[1])
+                - c[k + 3] * (b1[0] * rp[0] + b1[1] * rp[1]);
+        px = c[k] * b1[0] + c[k + 1] * b2[0];
+        py = c[k] * b1[1] + c[k + 1] * b2[1];
+        f[4 * i - 1] -= px;                       /* e[4 i], e[4 i + 1] */
+        f[4 * i] -= py;
+        gr0[0] += px;
+        gr0[1] += py;
+        f[4 * i + 1] -= c[k + 2] * b1[0] + c[k + 3] * b2[0];   /* e[4 i + 2], e[4 i + 3] */
+        f[4 * i + 2] -= c[k + 2] * b1[1] + c[k + 3] * b2[1];
+    }
+    ga[0] += coef * g[0];
+    ga[1] += coef * g[1];
+    f[0] += gr0[0];                               /* the root's x (its y is held) */
+    f[1] -= ga[0];                                /* the root slope, e[2], e[3] */
+    f[2] -= ga[1];
+}
+
+long fp_exact_modal_size(const fp_exact *p)
+{
+    long na, nb;
+    if (p == NULL) return 0;
+    na = 2L * p->ne + 1;
+    nb = 2L * p->ne;
+    return na * na + nb * nb;
+}
+
+long fp_exact_modal_work_size(const fp_exact *p)
+{
+    long na = p == NULL ? 0 : 2L * p->ne + 1;
+    return 2 * na * na + 2 * na + 64;
+}
+
+/* The d index (block order) of the element dof 2 k + c of element el, and its sign; -1 when
+ * the coordinate is clamped in the frame. block: 0 axial, 1 bending. */
+static int ex_modal_index(int el, int k, int c, int *block, double *sign)
+{
+    const int j = 4 * el + 2 * k + c, node = j / 4, r = j % 4;      /* e index, its node */
+    if (node == 0) {
+        if (r != 3) return -1;                    /* the root's position and slope direction */
+        *block = 0;
+        *sign = 1.0;
+        return 0;                                  /* d0: the root slope's stretch */
+    }
+    switch (r) {
+    case 0: *block = 1; *sign = -1.0; return 2 * (node - 1);         /* w = -r_x */
+    case 1: *block = 0; *sign = 1.0; return 1 + 2 * (node - 1);      /* u = r_y - s */
+    case 2: *block = 1; *sign = -1.0; return 2 * (node - 1) + 1;     /* w' = -r'_x */
+    default: *block = 0; *sign = 1.0; return 2 + 2 * (node - 1);     /* u' = r'_y - 1 */
+    }
+}
+
+/* The generalized symmetric eigenproblem (K, M) of size n (row-major, overwritten): C =
+ * (L V) diag(2 zeta sqrt(lambda)) (L V)^T into C (n x n), M = L L^T. work: n (lambda). */
+static int ex_modal_block(int n, double *M, double *K, double *C, double zeta, double *lam)
+{
+    int i, j, k, sweep;
+    double *V = C;
+    /* Cholesky in place (lower) */
+    for (j = 0; j < n; j++) {
+        double s = M[(long)j * n + j];
+        for (k = 0; k < j; k++) s -= M[(long)j * n + k] * M[(long)j * n + k];
+        if (!(s > 0.0) || !isfinite(s)) return FP_NOCONVERGE;
+        M[(long)j * n + j] = sqrt(s);
+        for (i = j + 1; i < n; i++) {
+            double t = M[(long)i * n + j];
+            for (k = 0; k < j; k++) t -= M[(long)i * n + k] * M[(long)j * n + k];
+            M[(long)i * n + j] = t / M[(long)j * n + j];
+        }
+    }
+    /* K <- L^-1 K (columns), then K <- K L^-T (rows): the symmetric A */
+    for (j = 0; j < n; j++)
+        for (i = 0; i < n; i++) {
+            double t = K[(long)i * n + j];
+            for (k = 0; k < i; k++) t -= M[(long)i * n + k] * K[(long)k * n + j];
+            K[(long)i * n + j] = t / M[(long)i * n + i];
+        }
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) {
+            double t = K[(long)i * n + j];
+            for (k = 0; k < j; k++) t -= K[(long)i * n + k] * M[(long)j * n + k];
+            K[(long)i * n + j] = t / M[(long)j * n + j];
+        }
+    for (i = 0; i < n; i++)                       /* symmetric to round-off: make it exact */
+        for (j = 0; j < i; j++) {
+            double a = 0.5 * (K[(long)i * n + j] + K[(long)j * n + i]);
+            K[(long)i * n + j] = K[(long)j * n + i] = a;
+        }
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) V[(long)i * n + j] = i == j ? 1.0 : 0.0;
+    /* cyclic Jacobi */
+    for (sweep = 0; sweep < 100; sweep++) {
+        double off = 0.0, diag = 0.0;
+        for (i = 0; i < n; i++) {
+            diag += K[(long)i * n + i] * K[(long)i * n + i];
+            for (j = i + 1; j < n; j++) off += K[(long)i * n + j] * K[(long)i * n + j];
+        }
+        if (off <= 1e-34 * diag) break;
+        for (i = 0; i < n - 1; i++)
+            for (j = i + 1; j < n; j++) {
+                double aij = K[(long)i * n + j], aii, ajj, th, t, c, s;
+                if (aij == 0.0) continue;
+                aii = K[(long)i * n + i];
+                ajj = K[(long)j * n + j];
+                th = (ajj - aii) / (2.0 * aij);
+                t = (th >= 0.0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1.0));
+                c = 1.0 / sqrt(t * t + 1.0);
+                s = t * c;
+                for (k = 0; k < n; k++) {             /* columns i, j */
+                    double ki = K[(long)k * n + i], kj = K[(long)k * n + j];
+                    K[(long)k * n + i] = c * ki - s * kj;
+                    K[(long)k * n + j] = s * ki + c * kj;
+                }
+                for (k = 0; k < n; k++) {             /* rows i, j */
+                    double ik = K[(long)i * n + k], jk = K[(long)j * n + k];
+                    K[(long)i * n + k] = c * ik - s * jk;
+                    K[(long)j * n + k] = s * ik + c * jk;
+                }
+                for (k = 0; k < n; k++) {
+                    double vi = V[(long)k * n + i], vj = V[(long)k * n + j];
+                    V[(long)k * n + i] = c * vi - s * vj;
+                    V[(long)k * n + j] = s * vi + c * vj;
+                }
+            }
+    }
+    if (sweep == 100) return FP_NOCONVERGE;
+    for (i = 0; i < n; i++) {
+        double l = K[(long)i * n + i];
+        lam[i] = 2.0 * zeta * sqrt(l > 0.0 ? l : 0.0);
+    }
+    /* W = L V into K, row by row */
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) {
+            double t = 0.0;
+            for (k = 0; k <= i; k++) t += M[(long)i * n + k] * V[(long)k * n + j];
+            K[(long)i * n + j] = t;
+        }
+    /* C = W diag W^T */
+    for (i = 0; i < n; i++)
+        for (j = 0; j <= i; j++) {
+            double t = 0.0;
+            for (k = 0; k < n; k++) t += K[(long)i * n + k] * lam[k] * K[(long)j * n + k];
+            C[(long)i * n + j] = C[(long)j * n + i] = t;
+        }
+    return FP_OK;
+}
+
+int fp_exact_modal(const fp_exact *p, double zeta, double *C, double *work)
+{
+    const int ne = p == NULL ? 0 : p->ne, na = 2 * ne + 1, nb = 2 * ne;
+    double *M, *K, *lam, fe[8], ke[64], ce[64], ee[8], eed[8];
+    fp_exact flat;
+    int el, blk, rc, k, c, k2, c2;
+    if (p == NULL || C == NULL || work == NULL || !(zeta >= 0.0) || !isfinite(zeta))
+        return FP_BADARG;
+    flat = *p;
+    flat.beta_kv = 0.0;
+    flat.modal = NULL;
+    M = work;
+    K = M + (long)na * na;
+    lam = K + (long)na * na;
+    for (blk = 0; blk < 2; blk++) {
+        const int n = blk == 0 ? na : nb;
+        double *out = blk == 0 ? C : C + (long)na * na;
+        int i;
+        for (i = 0; i < n * n; i++) M[i] = K[i] = 0.0;
+        for (el = 0; el < ne; el++) {
+            /* the straight vertical beam: r = (0, s), r' = (0, 1) */
+            const double s0 = p->le * el, s1 = p->le * (el + 1);
+            ee[0] = 0.0; ee[1] = s0; ee[2] = 0.0; ee[3] = 1.0;
+            ee[4] = 0.0; ee[5] = s1; ee[6] = 0.0; ee[7] = 1.0;
+            for (i = 0; i < 8; i++) eed[i] = 0.0;
+            ex_element(&flat, ee, eed, fe, ke, ce);
+            for (k = 0; k < 4; k++)
+                for (c = 0; c < 2; c++) {
+                    int bi, bj;
+                    double si, sj;
+                    const int di = ex_modal_index(el, k, c, &bi, &si);
+                    if (di < 0 || bi != blk) continue;
+                    for (k2 = 0; k2 < 4; k2++)
+                        for (c2 = 0; c2 < 2; c2++) {
+                            const int dj = ex_modal_index(el, k2, c2, &bj, &sj);
+                            if (dj < 0 || bj != blk) continue;
+                            M[(long)di * n + dj] += si * sj * ex_mass(p, 2 * k + c, 2 * k2 + c2);
+                            K[(long)di * n + dj] += si * sj * ke[8 * (2 * k + c) + 2 * k2 + c2];
+                        }
+                }
+        }
+        rc = ex_modal_block(n, M, K, out, zeta, lam);
+        if (rc != FP_OK) return rc;
+    }
+    return FP_OK;
 }
 
 /* M v (nq) by elements. */
@@ -1823,7 +2084,7 @@ long fp_radau_work_size(const fp_exact *p)
 {
     long ga = fp_exact_work_size(p), n;
     if (p == NULL) return 0;
-    n = (long)p->nq * (3 * EX_W + 29) + 2 * ((long)p->nq + 1) + 8;
+    n = (long)p->nq * (3 * EX_W + 31) + 2 * ((long)p->nq + 1) + 8;
     return n > ga ? n : ga;
 }
 

@@ -237,6 +237,7 @@ typedef struct fp_exact {
     int nq;                      /* derived: 4 ne + 3 */
     double le, am, af, gamma, beta, bp;  /* derived: element length, method parameters */
     double gw[5], gd1[20], gd2[20];  /* derived: Gauss weights (ds), Hermite d/ds, d2/ds2 */
+    const double *modal;         /* in: the modal law's C_f blocks (fp_exact_modal), or NULL */
 } fp_exact;
 
 /* The force on the cart during a step, at the step's end: F = F0 - Q0 (kx x + kp phi_o +
@@ -247,6 +248,19 @@ typedef struct fp_exact_force {
 
 /* Check the "in" fields and fill the derived ones. FP_OK or FP_BADARG. */
 FP_API int fp_exact_prepare(fp_exact *p);
+
+/* The modal damping law on the exact beam (plant_fmu/exact.py's FrameModalDamping): in the frame
+ * of the root tangent the beam's deformation d (the root slope's stretch, then u, w, u', w' per
+ * node) is damped by 1/2 d_t^T C_f d_t, C_f = M_f Phi diag(2 zeta omega_k) Phi^T M_f from the
+ * clamped straight beam's modes, bending and axial apart: C_f's axial block ((2 ne + 1)^2,
+ * order d0, u_1, u'_1, u_2, ...) then its bending block ((2 ne)^2, order w_1, w'_1, ...),
+ * row-major, fp_exact_modal_size doubles. fp_exact_modal computes them (Cholesky, then cyclic
+ * Jacobi on L^-1 K_f L^-T) into C with fp_exact_modal_work_size doubles of work; p prepared.
+ * With p->modal = C the forces carry the law's force -G^T C_f d_t (not its tangent). FP_OK,
+ * FP_BADARG or FP_NOCONVERGE (a mass block not positive definite, Jacobi not converged). */
+FP_API long fp_exact_modal_size(const fp_exact *p);
+FP_API long fp_exact_modal_work_size(const fp_exact *p);
+FP_API int fp_exact_modal(const fp_exact *p, double zeta, double *C, double *work);
 
 /* Doubles of work for fp_exact_forces, fp_exact_start and fp_exact_steps. */
 FP_API long fp_exact_work_size(const fp_exact *p);

@@ -17,7 +17,12 @@
  *
  * Bounded work: a doStep takes at most FPM_MAX_SUBSTEPS substeps, counted in floating point and
  * checked against the cap before any conversion to an integer; beyond it the step is discarded
- * with the state unchanged, and the log says so (the cap and what the step needed).
+ * with the state unchanged, and the log says so (the cap and what the step needed). On the exact
+ * rung a substep's cost grows with the element count and with its Newton iterations (and the
+ * halvings of a substep that does not converge), so its cap follows the cost: a doStep spends at
+ * most FPM_MAX_EXACT_WORK element-iterations (n_elements per Radau Newton iteration, halvings
+ * included), refused before any work when the substeps alone would need more, and discarded
+ * with the state unchanged when the iterations reach it (docs/fmus.md: the budget).
  *
  * No silent wrong answer: the outputs are computed at every accepted step (and at
  * initialisation) and a step whose outputs would not be finite is refused like a divergence; the
@@ -47,6 +52,9 @@
 #ifndef FPM_MAX_SUBSTEPS
 #define FPM_MAX_SUBSTEPS 1000000L
 #endif
+#ifndef FPM_MAX_EXACT_WORK
+#define FPM_MAX_EXACT_WORK 2000000L     /* element-iterations per doStep: about 8 s here */
+#endif
 #define STATE_NORM2_LIMIT 1e200
 #define SNAP 1e-7
 #define EPS 2.220446049250313e-16
@@ -63,11 +71,15 @@ static const char *METHODS[] = {"euler", "rk4", "symplectic_euler", "dopri5", "e
  * (fp_exact_work_size, checked at initialisation). */
 #define XB_NQ_MAX (4 * FPM_NE_MAX + 3)
 #define XB_S_MAX (4 * XB_NQ_MAX)
-#define XB_WORK_MAX ((3 * 22 + 29) * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
+#define XB_WORK_MAX ((3 * 22 + 31) * XB_NQ_MAX + 2 * (XB_NQ_MAX + 1) + 8)
 
-/* The exact rung's arrays (150 kB at 100 elements), left out of fpm_model_reset: its state,
- * written whole by xb_prepare before any use (and read only at the exact rung), and scratch. */
+/* The exact rung's arrays (1.3 MB at 100 elements, most of it the modal law's C_f and the
+ * scratch that computes it), left out of fpm_model_reset: its state, written whole by
+ * xb_prepare before any use (and read only at the exact rung), the modal law, and scratch. */
+#define XB_NA_MAX (2 * FPM_NE_MAX + 1)
 typedef struct xb_arrays {
+    double modal[XB_NA_MAX * XB_NA_MAX + (XB_NA_MAX - 1) * (XB_NA_MAX - 1)];  /* the modal law */
+    double mwork[2 * XB_NA_MAX * XB_NA_MAX + 2 * XB_NA_MAX + 64];    /* its computation's */
     double s[XB_S_MAX];         /* the state [q, qd, qdd, jerk] */
     double saved[XB_S_MAX];     /* s at a step's start */
     double saved2[XB_S_MAX];    /* s at a substep's start (a halved substep that fails) */
@@ -121,8 +133,10 @@ struct fpm_model {
     double aug[AUG * AUG], E[AUG * AUG];
     /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
     int exact;
+    int xb_kv;                  /* the damping law is Kelvin-Voigt (else modal) */
     fp_exact xb_p, xb_ps;       /* Radau IIA at the step h, and at the substep taken */
     double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
+    double xb_work;             /* the element-iterations this doStep has spent (xb_step) */
     xb_arrays xb;               /* its state and scratch (not reset by fpm_model_reset) */
 };
 
@@ -342,6 +356,7 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
             return 0;
     if (!check_real(lg, "zeta", zeta, 1, 0.0, 0, 1, 1.0, 1, 0)) return 0;
     kv = strcmp(law, "kelvin-voigt") == 0;      /* the damping law (plant_fmu/params.py) */
+    m->xb_kv = kv;
     if (!kv && strcmp(law, "modal") != 0) {
         fpm_log(lg, FPM_ERROR, "bad parameter: damping = '%s' is not allowed; allowed: modal, "
                 "kelvin-voigt", law);
@@ -357,15 +372,6 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
         return 0;
     n = (int)r[VR_n_modes];
     m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
-    /* The exact rung's damping law, plant_fmu/params.py's exact_damping_refusal (the one place
-     * that decides it; the same words): it damps by material (Kelvin-Voigt) only, so it refuses
-     * the modal law with zeta > 0 (with zeta = 0 both laws are the same). */
-    if (m->exact && !kv && zeta > 0.0) {
-        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = 'exact' refuses damping = 'modal' "
-                "with zeta = %g: the exact rung damps by material (Kelvin-Voigt), not by the "
-                "modal law: damping = 'kelvin-voigt' or zeta = 0 runs it", zeta);
-        return 0;
-    }
     if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
     stiffened = strcmp(fid, "stiffened") == 0;  /* the nonlinear rung with the preload and */
     if (stiffened) fid = "nonlinear";           /* the foreshortening's mass points */
@@ -525,7 +531,8 @@ static int finite_state(const double *y, int nx)
     return s < INFINITY;
 }
 
-/* n substeps of h from the stepper's time (base.py's _full_substeps); the message on failure. */
+/* n substeps of h from the stepper's time (base.py's _full_substeps): 1, 0 with the message on
+ * failure, or -1 when the exact rung's work budget ran out (xb_substeps). */
 static int substeps(fpm_model *m, double h, long n, char *why)
 {
     stepper *s = &m->s;
@@ -605,10 +612,11 @@ static int short_substep(fpm_model *m, double t_bound, char *why)
         long k0 = s->k;
         s->t_base = s->t;                 /* one substep of hs from s->t */
         s->k = 0;
-        if (!substeps(m, hs, 1, why)) {
+        int rc = substeps(m, hs, 1, why);
+        if (rc != 1) {
             s->t_base = t_base;
             s->k = k0;
-            return 0;
+            return rc;
         }
         s->t_base = t_base;
         s->k = k0;
@@ -624,7 +632,8 @@ static int short_substep(fpm_model *m, double t_bound, char *why)
 }
 
 /* The fixed-step advance to t_end (base.py's _advance_fixed): 1, or 0 with why on failure, or
- * -1 (nothing done) if it would take more than FPM_MAX_SUBSTEPS substeps. */
+ * -1 if it would take more than FPM_MAX_SUBSTEPS substeps (nothing done) or, on the exact rung,
+ * more than FPM_MAX_EXACT_WORK element-iterations (the caller restores the state). */
 static int advance_fixed(fpm_model *m, double t_end, char *why)
 {
     stepper *s = &m->s;
@@ -644,7 +653,18 @@ static int advance_fixed(fpm_model *m, double t_end, char *why)
                  "plant step", t_end, n_full + short_, h, FPM_MAX_SUBSTEPS);
         return -1;
     }
-    if (!substeps(m, h, (long)n_full, why)) return 0;
+    if (m->exact && !((n_full + short_) * m->xb_p.ne <= (double)FPM_MAX_EXACT_WORK)) {
+        snprintf(why, FPM_MSG_MAX, "the step to t = %.17g needs %.17g substeps of %.17g s on %d "
+                 "elements, at least %.17g element-iterations, more than the exact rung's budget "
+                 "of %ld per doStep: take shorter communication steps, a larger plant step or "
+                 "fewer elements", t_end, n_full + short_, h, m->xb_p.ne,
+                 (n_full + short_) * m->xb_p.ne, FPM_MAX_EXACT_WORK);
+        return -1;
+    }
+    {
+        int rc = substeps(m, h, (long)n_full, why);
+        if (rc != 1) return rc;
+    }
     if (!short_) {
         s->t = t_end;
         return 1;
@@ -1449,7 +1469,10 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
     p->rhoA = rhoA;
     p->g = r[VR_g];
     p->m = r[VR_m];
-    p->beta_kv = 2.0 * r[VR_zeta] / omega1;
+    /* the damping law: Kelvin-Voigt (material) or modal (in the root tangent's frame,
+     * fp_exact_modal; computed here, from the parameters, at every preparation) */
+    p->beta_kv = m->xb_kv ? 2.0 * r[VR_zeta] / omega1 : 0.0;
+    p->modal = NULL;
     p->h = m->h;
     p->rho_inf = XB_RHO_INF;
     p->tol = XB_TOL;
@@ -1460,10 +1483,21 @@ static int xb_prepare(fpm_model *m, const fpm_logger *lg)
                 r[VR_EA], r[VR_EI], rhoA, r[VR_m], r[VR_g], r[VR_zeta], m->h);
         return 0;
     }
-    if (fp_radau_work_size(p) > XB_WORK_MAX) {
+    if (fp_radau_work_size(p) > XB_WORK_MAX
+        || fp_exact_modal_size(p) > (long)(sizeof m->xb.modal / sizeof(double))
+        || fp_exact_modal_work_size(p) > (long)(sizeof m->xb.mwork / sizeof(double))) {
         fpm_log(lg, FPM_ERROR, "the exact rung's work (%ld doubles) exceeds its buffer (a broken "
                 "build)", fp_radau_work_size(p));
         return 0;
+    }
+    if (!m->xb_kv && r[VR_zeta] > 0.0) {
+        if (fp_exact_modal(p, r[VR_zeta], m->xb.modal, m->xb.mwork) != FP_OK) {
+            fpm_log(lg, FPM_ERROR, "bad parameter: the modal damping law of the exact beam "
+                    "could not be formed (its clamped modes: EA = %g, EI = %g, rhoA = %g, "
+                    "n_elements = %d)", r[VR_EA], r[VR_EI], rhoA, ne);
+            return 0;
+        }
+        p->modal = m->xb.modal;
     }
     m->xb_ps = *p;
     m->xb_n1 = fpm_unit_tip_defl[ne - 1][0] * (1.0 / sqrt(rhoA * L));
@@ -1563,9 +1597,20 @@ static int xb_substeps(fpm_model *m, double h, long n, char *why)
     for (q = 0; q < n && rc == FP_OK; q++) {   /* the force at each stage's time */
         const double t0 = (s->t_base + (double)(s->k + q) * h) - s->tu;
         memcpy(m->xb.saved2, m->xb.s, sizeof(double) * 4 * m->xb_p.nq);
+        iters = 0;
         rc = xb_radau(m, p, t0, h, 0, &iters);
+        m->xb_work += (double)iters * m->xb_p.ne;
         if (rc == FP_OK) done++;
         else memcpy(m->xb.s, m->xb.saved2, sizeof(double) * 4 * m->xb_p.nq);
+        if (rc == FP_OK && q + 1 < n && m->xb_work > (double)FPM_MAX_EXACT_WORK) {
+            s->k += done;
+            s->t = s->t_base + s->k * h;
+            snprintf(why, FPM_MSG_MAX, "the exact rung's budget of %ld element-iterations per "
+                     "doStep ran out at t = %.17g (%.17g spent on %d elements, Newton iterations "
+                     "and halvings included): take shorter communication steps, a larger plant "
+                     "step or fewer elements", FPM_MAX_EXACT_WORK, s->t, m->xb_work, m->xb_p.ne);
+            return -1;
+        }
     }
     s->k += done;
     s->t = s->t_base + s->k * h;
@@ -1612,6 +1657,7 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
     stepper *s = &m->s;
     int rc;
     memcpy(m->xb.saved, m->xb.s, sizeof(double) * n4);
+    m->xb_work = 0.0;
     s->u = m->v.real[VR_F_c];
     s->du = m->dF;
     s->d2u = m->d2F;
@@ -1629,7 +1675,7 @@ static int xb_step(fpm_model *m, const fpm_logger *lg, double t, double h)
         }
     }
     rc = t + h <= s->t ? 1 : advance_fixed(m, t + h, why);
-    if (rc < 0) {                               /* the cap: nothing accepted, retry allowed */
+    if (rc < 0) {                   /* a cap or the budget: nothing accepted, retry allowed */
         m->s = saved;
         memcpy(m->xb.s, m->xb.saved, sizeof(double) * n4);
         xb_outputs_ok(m, NULL);

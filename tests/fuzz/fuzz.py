@@ -31,6 +31,7 @@ CORPUS = HERE / "corpus"
 MODELS = ("FlexiblePendulum", "PDLowPass")
 FUZZ_TOKEN = "{f0220000-0000-4000-8000-000000000023}"
 FUZZ_MAX_SUBSTEPS = 1000
+FUZZ_MAX_EXACT_WORK = 20000     # element-iterations (plant_model.c: FPM_MAX_EXACT_WORK)
 FLAGS = ["-g", "-O1", "-std=c99", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off",
          "-fsanitize=fuzzer,address,undefined,float-divide-by-zero", "-fno-sanitize-recover=all",
          "-fno-omit-frame-pointer"]
@@ -71,7 +72,7 @@ def build(model: str, out_dir: Path, cc: str | None = None, flags=None, suffix="
         includes.append(native)
     exe = out_dir / f"fuzz_{model}{suffix}"
     cmd = [cc, *(FLAGS if flags is None else flags), "-DFP_API=", "-DFPF_API=", f"-DFPM_MAX_SUBSTEPS={FUZZ_MAX_SUBSTEPS}L",
-           *(f"-I{d}" for d in includes), "-o", str(exe), *map(str, sources), "-lm"]
+           f"-DFPM_MAX_EXACT_WORK={FUZZ_MAX_EXACT_WORK}L", *(f"-I{d}" for d in includes), "-o", str(exe), *map(str, sources), "-lm"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise FuzzError(f"building the fuzzer of {model} failed:\n{' '.join(cmd)}\n"
@@ -114,10 +115,12 @@ def fuzz(exe: Path, corpus: Path, seconds: int, workdir: Path) -> dict:
         for p in corpus.iterdir():
             if p.is_file():
                 shutil.copy(p, scratch / p.name)
+    artifacts = workdir / f"findings_{exe.name}"     # this target's own: not another's
+    artifacts.mkdir(exist_ok=True)
     proc = subprocess.run([str(exe), *RUN_OPTIONS, f"-max_total_time={seconds}",
-                           f"-artifact_prefix={workdir}/", str(scratch)],
+                           f"-artifact_prefix={artifacts}/", str(scratch)],
                           capture_output=True, text=True, timeout=seconds + 600)
-    findings = sorted(str(p) for p in workdir.iterdir()
+    findings = sorted(str(p) for p in artifacts.iterdir()
                       if p.name.startswith(("crash-", "leak-", "timeout-", "oom-")))
     return {"ok": proc.returncode == 0 and not findings, "output": proc.stderr[-6000:],
             "findings": findings, "scratch": scratch, **_stats(proc.stderr)}

@@ -321,6 +321,18 @@ static void radau_checks(int ne)
         double dx = s[nq - 4] - s[0], dy = s[nq - 3];
         check(fabs(sqrt(dx * dx + dy * dy) - 1.0) < 1e-6, "radau: the beam keeps its length");
     }
+    {   /* the modal law: its blocks, then steps with it (the force reads them) */
+        double *C = calloc((size_t)fp_exact_modal_size(&e), sizeof(double));
+        double *mw = calloc((size_t)fp_exact_modal_work_size(&e), sizeof(double));
+        check(fp_exact_modal(&e, 0.01, C, mw) == FP_OK, "radau: the modal law formed");
+        check(fp_exact_modal(&e, NAN, C, mw) == FP_BADARG, "radau: a NaN zeta refused");
+        e.modal = C;
+        for (k = 0; k < 5; k++)
+            check(fp_radau_step(&e, &F, s, work, &iters, es) == FP_OK, "radau: a modal step");
+        e.modal = NULL;
+        free(C);
+        free(mw);
+    }
     memset(F.Q, 0, sizeof F.Q);                         /* a held force */
     check(fp_radau_step(&e, &F, s, work, &iters, NULL) == FP_OK, "radau: a held-force step");
     memcpy(s1, s, sizeof(double) * (size_t)(4 * nq));
