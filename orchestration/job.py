@@ -47,6 +47,8 @@ from .scene.records import Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
 from .studies.analysis import linearisation
+from .studies.error_figure import assess as assess_figure
+from .studies.error_figure import companion_scene, companion_text, own_companion
 from .studies.fidelity import available_ladder, climb, refused_rungs, select_model
 from .studies.plant_step import checks as plant_step_checks
 from .studies.reference import COLUMNS, check_reference, simulate_reference
@@ -233,16 +235,24 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
               snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool)
     out = _run_once(scene, fmus, **kw)
     kw["connections_out"] = None                # the table once
+    companions = []                             # [(scene, Run)]: each companion runs once
+    _error_figure(out, fmus, kw, companions, check_step)
     if model is not None and model["fidelity_auto"]:
         model["climb"], ladder, refused = [], available_ladder(scene), refused_rungs(scene)
         while not out.interrupted:
-            nxt, why = climb(scene.plant.fidelity, out.summary["validity"],
-                             scene.fidelity.tolerance, ladder, refused)
+            nxt, why = climb(scene.plant.fidelity, out.summary.get("error_figure")
+                             or out.summary["validity"], scene.fidelity.tolerance, ladder,
+                             refused, bound=out.summary["validity"])
             model["climb"].append(why)
             if nxt is None:
                 break
             scene = scene.replace(plant=scene.plant.with_model(scene.plant.params.n_modes, nxt))
-            out = _run_once(scene, fmus, **kw)
+            out = next((c for s, c in companions if s == scene), None)
+            if out is not None:                 # the companion was this rung's run
+                model["climb"][-1] += " (its run: the companion's)"
+            else:
+                out = _run_once(scene, fmus, **kw)
+            _error_figure(out, fmus, kw, companions, check_step)
         model["fidelity"] = scene.plant.fidelity
         model["reason"] = "; ".join([model["reason"], *model["climb"]])
     if model is not None:
@@ -257,6 +267,40 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
         out.summary["max_error_phi_o"] = float(np.max(np.abs(out.result["phi_o"] - ref["phi_o"])))
         out.summary["max_error_eta_1"] = float(np.max(np.abs(out.result["eta_1"] - ref["eta_1"])))
     return out
+
+
+def _error_figure(run: Run, fmus: dict, kw: dict, companions: list, check_step: bool) -> None:
+    """Put the run's error figure into its summary (``error_figure``,
+    :func:`orchestration.studies.error_figure.assess`): a run on a floating-frame rung is
+    compared with its companion, the same scene on the stiffened rung with the companion's
+    modes through the same FMUs and master (run here once per scene and kept in
+    ``companions``, ``[(scene, Run)]``: a climb compares every rung with the same one, and a
+    rung that is the companion takes its run). The exact rung states its numerical error
+    instead (:func:`_exact_numerical_error`); ``fidelity.companion = false`` states none (the
+    measured global bound only)."""
+    scene = run.scene
+    if (scene.plant.fidelity == "exact" or not scene.fidelity.companion
+            or "error_figure" in run.summary):
+        return
+    integrator = None
+    if not check_step:                      # checked before the run otherwise
+        bad = [c.error for c in plant_step_checks(scene) if c.error]
+        integrator = bad[0] if bad else None
+    companion, why = None, None
+    if not (run.interrupted or run.summary["stopped"] or integrator or own_companion(scene)):
+        try:
+            cs = companion_scene(scene)
+            check_plant_step(cs)
+        except ConfigError as exc:
+            why = f"it cannot run: {exc}"
+        else:
+            companion = next((c for s, c in companions if s == cs), None)
+            if companion is None:
+                companion = _run_once(cs, fmus, **{
+                    **kw, "connections_out": None,
+                    "label": f"{scene.name}: the companion ({companion_text(scene)})"})
+                companions.append((cs, companion))
+    run.summary["error_figure"] = assess_figure(run, scene, companion, why, integrator)
 
 
 def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict) -> dict:

@@ -17,6 +17,7 @@ import math
 
 import numpy as np
 
+from ..studies.error_figure import UNTRUSTED
 from .layout import SUPERSCRIPT
 from .mpl_canvas import new_figure, plain_log_labels, ticks_in_view
 from .plotting import canvas
@@ -137,8 +138,9 @@ def loop_text(scene) -> str:
 
 
 def outcome_text(summary) -> str:
-    """What the co-simulation did: its stop, or its verdict, its model-form error bound, and
-    whether it left its rung's measured range."""
+    """What the co-simulation did: its stop, or its verdict, and its error figure (what it
+    compares with, or why there is none); without one, its model-form error bound and whether
+    it left its rung's measured range."""
     if summary is None:
         return ""
     stopped = summary.get("stopped")
@@ -148,6 +150,14 @@ def outcome_text(summary) -> str:
     out = "co-simulation: " + {True: "stable (every oscillation's fit decays)",
                                False: "UNSTABLE (a fit grows)",
                                None: "undetermined (no fit decides)"}[summary.get("stable")]
+    f = summary.get("error_figure")
+    if f:
+        c = f["companion"]
+        against = (f"stiffened, {c['n_modes']} modes, {c['damping']}"
+                   + ("" if c["zeta"] else ", undamped"))
+        out += (f"; error <= {f['figure']:.1e} rad (against {against})" if f["figure"] is not None
+                else f"; no error figure: {UNTRUSTED[f['untrusted']]}")
+        return out
     v = summary.get("validity") or {}
     if v.get("model_form_error") is not None:
         out += f"; model-form error <= {v['model_form_error']:.1e} rad ({v['rung']})"

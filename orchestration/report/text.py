@@ -10,6 +10,7 @@ import math
 from plant_fmu.params import damping_text
 
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
+           "figure_text",
            "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
            "stability_lines"]
 
@@ -132,6 +133,22 @@ def validity_text(v: dict) -> str:
             f"{v['rate']:.3g} rad/s)")
 
 
+def figure_text(f: dict) -> str:
+    """A run's error figure (the summary's ``error_figure``,
+    :func:`orchestration.studies.error_figure.assess`) in one phrase: the figure, its share of
+    the largest ``|phi_o|`` and what it compares with; or why there is none."""
+    c = f["companion"]
+    if f["figure"] is None:
+        return f"error: no figure ({f['why']})"
+    if c["own"]:
+        how = f"the run is on its companion's model, {c['text']}: its own error, the floor"
+    else:
+        how = (f"{f['kappa']:.3g} x its difference from {c['text']}, "
+               f"{f['difference']:.1e}, + {f['floor']:.1e}")
+    return (f"error <= {f['figure']:.1e} rad ({100 * f['relative']:.2g} % of max |phi_o|; "
+            f"{how})")
+
+
 def run_lines(name: str, s: dict, written=()) -> list[str]:
     """A run's summary (:func:`orchestration.report.summary.summarize`) for the terminal."""
     if s["stopped"] is not None:
@@ -157,11 +174,15 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
     out.append(f"  bending oscillation:      {mode_text(s.get('bending'))}")
     if s.get("linear_loop"):
         out.append(f"  linear: {s['linear_loop']}")
+    if s.get("error_figure"):
+        out.append(f"  {figure_text(s['error_figure'])}")
     v = s.get("validity")
     if v and v.get("max_abs_phi") is not None:
+        beyond = (f"; WARNING, outside its measured range: {'; '.join(v['warnings'])}"
+                  if v["warnings"] else "")
         out.append(f"  {'up to the stop, ' if s['stopped'] is not None else ''}"
-                   f"{validity_text(v)}")
-        out += [f"  WARNING, outside the measured range: {w}" for w in v["warnings"]]
+                   f"{'global bound: ' if s.get('error_figure') else ''}{validity_text(v)}"
+                   f"{beyond}")
     ne = s.get("numerical_error")
     if ne is not None:
         out.append("  numerical error: " + (

@@ -240,15 +240,19 @@ class InitialState:
 @dataclass(frozen=True)
 class FidelitySettings:
     """``fidelity.*``: how a run chooses the model when ``plant.n_modes`` or ``plant.fidelity``
-    is ``"auto"`` (:mod:`orchestration.studies.fidelity`)."""
+    is ``"auto"`` (:mod:`orchestration.studies.fidelity`), and whether a run states its error
+    figure (``companion``: the companion run it is made from,
+    :mod:`orchestration.studies.error_figure`; off, the measured global bound only)."""
 
     tolerance: float = 0.05
     max_modes: int = 8
     outputs: tuple = ("x", "phi_o", "omega_o", "F_c")
+    companion: bool = True
 
     def __post_init__(self):
         _set(self, "tolerance", _checked("fidelity.tolerance", check_real, self.tolerance,
                                          low=0.0, high=1.0))
+        _set(self, "companion", _checked("fidelity.companion", check_bool, self.companion))
         _set(self, "max_modes", _checked("fidelity.max_modes", check_int, self.max_modes,
                                          low=1, high=400))
         outs = self.outputs

@@ -81,26 +81,50 @@ def refused_rungs(scene) -> dict:
     return out
 
 
-def climb(fidelity: str, validity: dict, tolerance: float, ladder: tuple | None = None,
-          refused: dict | None = None):
-    """``(next fidelity or None, reason)``: whether a run on ``fidelity``, whose summary's
-    ``validity`` is given (:func:`orchestration.report.summary.validity`), is repeated on the next
+def climb(fidelity: str, figure: dict, tolerance: float, ladder: tuple | None = None,
+          refused: dict | None = None, bound: dict | None = None):
+    """``(next fidelity or None, reason)``: whether a run on ``fidelity`` is repeated on the next
     rung up of ``ladder`` (default :func:`available_ladder`; see the module docstring).
+
+    ``figure``: the run's error figure (the summary's ``error_figure``,
+    :func:`orchestration.studies.error_figure.assess`): the run climbs while the figure is more
+    than ``tolerance`` times the run's largest ``|phi_o|``, or while it cannot be trusted; when
+    its companion could not run, the measured global bound (``bound``, the summary's
+    ``validity``) decides instead. A ``validity`` entry in place of ``figure`` (a run without
+    a figure: ``flexpend export``'s monolithic runs) is judged by its bound.
     ``refused``: why the scene cannot run the rungs left out of ``ladder``
     (:func:`refused_rungs`), said when the climb stops below them."""
-    rung, bound, rel = validity["rung"], validity["model_form_error"], validity["relative"]
     if fidelity == LADDER[-1]:
-        return None, f"{rung}: the top rung (the reference of every measured bound): kept"
-    if bound is None:
-        why = f"{rung}: no measured bound"
-    elif validity["outside"]:
-        why = f"{rung}: outside its measured range ({validity['outside'][0]})"
-    elif rel > tolerance:
-        why = (f"{rung}: model-form error <= {bound:.1e} rad, {100 * rel:.3g} % of max "
-               f"|phi_o| > {100 * tolerance:g} %")
+        rung = figure.get("rung", fidelity)
+        return None, f"{rung}: the top rung (the reference of every measured error): kept"
+    if "figure" in figure and not (figure["untrusted"] == "companion" and bound is not None
+                                   and bound.get("model_form_error") is not None):
+        rung, rel = figure["rung"], figure["relative"]
+        if figure["figure"] is None:
+            why = f"{rung}: no error figure ({figure['why']})"
+        elif rel > tolerance:
+            why = (f"{rung}: error <= {figure['figure']:.1e} rad, {100 * rel:.3g} % of max "
+                   f"|phi_o| > {100 * tolerance:g} %")
+        else:
+            return None, (f"{rung}: error <= {figure['figure']:.1e} rad, {100 * rel:.3g} % "
+                          f"of max |phi_o| <= {100 * tolerance:g} %: kept")
     else:
-        return None, (f"{rung}: model-form error <= {bound:.1e} rad, {100 * rel:.3g} % of max "
-                      f"|phi_o| <= {100 * tolerance:g} %: kept")
+        if "figure" in figure:
+            fallback = f" (no error figure, {figure['why']}: the measured global bound)"
+            figure = bound
+        else:
+            fallback = ""
+        rung, b, rel = figure["rung"], figure["model_form_error"], figure["relative"]
+        if b is None:
+            why = f"{rung}: no measured bound{fallback}"
+        elif figure["outside"]:
+            why = f"{rung}: outside its measured range ({figure['outside'][0]}){fallback}"
+        elif rel > tolerance:
+            why = (f"{rung}: model-form error <= {b:.1e} rad, {100 * rel:.3g} % of max "
+                   f"|phi_o| > {100 * tolerance:g} %{fallback}")
+        else:
+            return None, (f"{rung}: model-form error <= {b:.1e} rad, {100 * rel:.3g} % of max "
+                          f"|phi_o| <= {100 * tolerance:g} %{fallback}: kept")
     ladder = available_ladder() if ladder is None else ladder
     i = ladder.index(fidelity) if fidelity in ladder else len(ladder) - 1
     if i + 1 < len(ladder):

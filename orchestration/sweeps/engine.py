@@ -64,8 +64,11 @@ def summary_row(summary: dict) -> dict:
 
     A fitted rate is a number only where the summary found the fit reliable (the note says why
     not); ``decay_rate`` is minus the largest reliable rate; ``valid`` is False when the run
-    left its rung's measured range (``validity`` says how); ``model_form_error``: the measured
-    bound of the run's tip-angle error against the exact rung (rad)."""
+    left its rung's measured range (``validity`` says how); ``model_form_error``: the run's
+    error figure (rad; :mod:`orchestration.studies.error_figure`: its tip angle's error against
+    the exact beam, from its companion run), or without a companion the measured bound
+    (:mod:`orchestration.studies.validity`); ``model_form_basis``: what the figure compares with,
+    or why there is none."""
     stopped = summary.get("stopped") or {}
     row = {"status": "failed" if stopped else "ok", "stable": summary.get("stable"),
            "verdict": summary.get("verdict")}
@@ -89,7 +92,16 @@ def summary_row(summary: dict) -> dict:
     warnings = validity.get("warnings") or []
     row["valid"] = not warnings
     row["validity"] = "; ".join(warnings) or None
-    row["model_form_error"] = validity.get("model_form_error")
+    figure = summary.get("error_figure")
+    if figure:
+        row["model_form_error"] = figure["figure"]
+        row["model_form_basis"] = (f"against {figure['companion']['text']}"
+                                   if figure["figure"] is not None else figure["why"])
+    else:
+        row["model_form_error"] = validity.get("model_form_error")
+        row["model_form_basis"] = (f"the measured bound of the {validity['rung']} rung"
+                                   if row["model_form_error"] is not None else
+                                   validity.get("note"))
     if "max_error_phi_o" in summary:
         row["max_error_phi_o"] = summary["max_error_phi_o"]
         row["max_error_eta_1"] = summary["max_error_eta_1"]
@@ -224,7 +236,8 @@ _NUMBERS = ("run", "sample", "decay_rate", "linear_decay_rate", "max_abs_F_c", "
             "wall_time", *(f"{m}_{q}" for m in ("slow", "bending")
                            for q in ("rate", "frequency", "rate_linear")))
 _FLAGS = ("stable", "valid")
-_TEXTS = ("message", "fmu_message", "model", "validity", "slow_note", "bending_note")
+_TEXTS = ("message", "fmu_message", "model", "validity", "model_form_basis", "slow_note",
+          "bending_note")
 
 
 def _sound(row) -> bool:
@@ -380,7 +393,8 @@ def read_table(path) -> list[dict]:
     def cell(k, v):
         if v == "":                 # text fields are None when empty, as in the rows
             return None
-        if k in ("message", "fmu_message", "key", "status", "model", "validity") \
+        if k in ("message", "fmu_message", "key", "status", "model", "validity",
+                 "model_form_basis") \
                 or k.endswith("_note"):
             return v
         if v in ("True", "False"):
