@@ -30,8 +30,8 @@ A figure that cannot be trusted is not stated as a number; :func:`assess` says w
   ``growth.rate``). The models' differences then grow exponentially, and so does the
   companion's own error, which the floor, measured on loops that do not grow, does not follow;
 * ``outside``: the run is outside what was measured: the companion's motion beyond the largest
-  the study reached (``range``, with its margin), or a coupling the study did not measure
-  (its numerical error is part of the floor).
+  the study reached (``range``, with its margin), a coupling the study did not measure
+  (its numerical error is part of the floor), or a mesh too coarse for the companion's modes.
 """
 from __future__ import annotations
 
@@ -75,15 +75,16 @@ UNTRUSTED = {"diverged": "the run diverged",
 
 @functools.lru_cache(maxsize=64)
 def _modes_below(p) -> int:
-    w = beam_model(p.replace(n_modes=COMPANION_MODES)).frequencies
+    fine = max(p.n_elements, 3 * COMPANION_MODES)       # a mesh that resolves the 8th mode
+    w = beam_model(p.replace(n_elements=fine, n_modes=COMPANION_MODES)).frequencies
     return int(np.count_nonzero(w <= COMPANION_FREQUENCY))
 
 
 def companion_modes(p, n_modes: int) -> int:
     """The companion's modes for the plant ``p`` and a run of ``n_modes``: every cantilever mode
     up to :data:`COMPANION_FREQUENCY`, at least one and at least ``n_modes``, at most
-    :data:`COMPANION_MODES`."""
-    return min(COMPANION_MODES, max(n_modes, _modes_below(p), 1))
+    :data:`COMPANION_MODES` and at most the mesh's ``n_elements``."""
+    return min(COMPANION_MODES, p.n_elements, max(n_modes, _modes_below(p), 1))
 
 
 def companion_step(scene, n_modes: int) -> float:
@@ -330,6 +331,11 @@ def assess(run, scene, companion=None, companion_why: str | None = None,
                               f"second half of the run (the stable loops measured: at most "
                               f"{g['largest_measured']:+.2g} 1/s)")
     outside = _outside(P, m, own)
+    p = scene.plant.params
+    want = min(COMPANION_MODES, max(_modes_below(p), 1))
+    if p.n_elements < want:
+        outside.append(f"plant.n_elements = {p.n_elements} carries fewer modes than the "
+                       f"companion measured ({want})")
     why = coupling_outside(scene, m)
     if why:
         outside.append(f"the coupling: {why}; its numerical error was not measured")
