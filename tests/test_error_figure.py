@@ -113,7 +113,7 @@ def test_the_figure_is_kappa_times_the_difference_from_the_companion_plus_the_fl
     assert len(mine) == 1 and len(bound) == 1
     assert f"error <= {f['figure']:.1e} rad" in mine[0]
     assert "the stiffened rung, 8 modes, modal damping 0.1 %" in mine[0]
-    assert "against stiffened, 8 modes, modal" in outcome_text(r.summary)
+    assert "(companion: stiffened, 8 modes, modal" in outcome_text(r.summary)
     row = summary_row(r.summary)
     assert row["model_form_error"] == f["figure"]
     assert row["model_form_basis"] == "against the stiffened rung, 8 modes, modal damping 0.1 %"

@@ -155,7 +155,8 @@ def outcome_text(summary) -> str:
         c = f["companion"]
         against = (f"stiffened, {c['n_modes']} modes, {c['damping']}"
                    + ("" if c["zeta"] else ", undamped"))
-        out += (f"; error <= {f['figure']:.1e} rad (against {against})" if f["figure"] is not None
+        out += (f"; error vs the exact beam <= {f['figure']:.1e} rad (companion: {against})"
+                if f["figure"] is not None
                 else f"; no error figure: {UNTRUSTED[f['untrusted']]}")
         return out
     v = summary.get("validity") or {}

@@ -143,10 +143,10 @@ def figure_text(f: dict) -> str:
     if c["own"]:
         how = f"the run is on its companion's model, {c['text']}: its own error, the floor"
     else:
-        how = (f"{f['kappa']:.3g} x its difference from {c['text']}, "
-               f"{f['difference']:.1e}, + {f['floor']:.1e}")
-    return (f"error <= {f['figure']:.1e} rad ({100 * f['relative']:.2g} % of max |phi_o|; "
-            f"{how})")
+        how = (f"{f['kappa']:.3g} x its difference {f['difference']:.1e} from its companion "
+               f"run ({c['text']}) + the companion's own error {f['floor']:.1e}")
+    return (f"error <= {f['figure']:.1e} rad ({100 * f['relative']:.2g} % of max |phi_o|) "
+            f"against the exact beam: {how}")
 
 
 def run_lines(name: str, s: dict, written=()) -> list[str]:
@@ -166,7 +166,7 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
         auto = " and ".join(k for k, on in (("plant.n_modes", m["n_modes_auto"]),
                                                ("plant.fidelity", m["fidelity_auto"])) if on)
         on = (f"on {', '.join(m['outputs'])}" if m["n_modes_auto"] else
-              "of max |phi_o| for the measured bound")
+              "of max |phi_o| for the error figure")
         out.append(f"  model: {m['n_modes']} modes, {m['fidelity']} ({auto} = auto, tolerance "
                    f"{100 * m['tolerance']:g} % {on})")
         out += [f"    {part}" for part in m["reason"].split("; ")]

@@ -314,13 +314,14 @@ def assess(run, scene, companion=None, companion_why: str | None = None,
     out["difference"] = float(d.max()) if len(d) else 0.0
     P = features(c.result, c.scene, m["damped"])
     out["floor"] = floor(P, m)
-    growing = [who for who, s in (("the run", run.summary), ("its companion", c.summary))
-               if s.get("stable") is False]
+    grows = [(who, s) for who, s in (("the run", run.summary), ("its companion", c.summary))
+             if s.get("stable") is False]
+    growing = [who for who, _ in grows]
     if growing:
-        rate = max((s.get(k) or {}).get("rate") or -math.inf for s in (run.summary, c.summary)
+        rate = max((s.get(k) or {}).get("rate") or -math.inf for _, s in grows
                    for k in ("slow", "bending") if (s.get(k) or {}).get("reliable"))
         return _untrusted(out, "grows", f"{' and '.join(growing)} grow{'s' * (len(growing) == 1)}"
-                          f" (a fitted oscillation at {rate:+.3g} 1/s); the models' differences "
+                          f" (a fitted oscillation at {rate:+.3g} 1/s), and the models' differences "
                           "grow with it")
     g = m["growth"]
     if not own:
@@ -338,9 +339,9 @@ def assess(run, scene, companion=None, companion_why: str | None = None,
                        f"companion measured ({want})")
     why = coupling_outside(scene, m)
     if why:
-        outside.append(f"the coupling: {why}; its numerical error was not measured")
+        outside.append(f"the coupling: {why}, whose numerical error was not measured")
     if outside:
-        return _untrusted(out, "outside", "; ".join(outside))
+        return _untrusted(out, "outside", ", and ".join(outside))
     out["figure"] = m["kappa"] * out["difference"] + out["floor"]
     A = out["max_abs_phi_o"]
     out["relative"] = out["figure"] / A if A else math.inf

@@ -13,12 +13,14 @@ closed loop (:func:`orchestration.studies.reference.simulate_reference`, DOP853 
    ``fidelity.max_modes``, the richest is taken and the summary says the ladder did not converge.
    The modes are compared with the nonlinear model when the fidelity is also ``auto``.
 2. Fidelity (``fidelity = "auto"``). The run starts on the lowest rung of :data:`LADDER` that
-   is a ``plant.fidelity`` value and climbs: after each run, if the rung's measured model-form
-   error bound (:mod:`orchestration.studies.validity`, evaluated on the run's own history) is
-   more than ``fidelity.tolerance`` times the largest ``|phi_o|`` of the run, or the run leaves
-   the range where the rung was measured, or the rung has no measured bound, the run is repeated
-   on the next rung up (:func:`climb`; the run loop is :func:`orchestration.job.run_scene`). The
-   top available rung is kept, and the summary says so.
+   is a ``plant.fidelity`` value and climbs: after each run, if the run's error figure
+   (:mod:`orchestration.studies.error_figure`: its difference from its companion run, scaled,
+   plus the companion's own error) is more than ``fidelity.tolerance`` times the largest
+   ``|phi_o|`` of the run, or the figure cannot be trusted (it then says why), the run is
+   repeated on the next rung up (:func:`climb`; the run loop is
+   :func:`orchestration.job.run_scene`). When the companion cannot run, the rung's measured
+   global bound (:mod:`orchestration.studies.validity`) decides instead, and the reason says so.
+   The top available rung is kept, and the summary says so.
 
 For ``n_modes``, two runs agree when, for every output in ``fidelity.outputs``, the largest
 difference over the run is at most ``tolerance`` times the largest magnitude of that output in the
