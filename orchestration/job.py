@@ -207,10 +207,15 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     (a sweep's runs reuse them); without one they are made here and freed at the end.
     ``connections_out``: a stream for the connection table.
 
+    A run on a floating-frame rung is followed by its companion run, and its summary states the
+    error figure made from the two (``error_figure``, :func:`_error_figure`; not with
+    ``fidelity.companion = false``); a run on the exact rung states its numerical error.
+
     With ``plant.fidelity = "auto"`` the run climbs the fidelity ladder: it is repeated on the
-    next rung up while its measured model-form error bound exceeds ``fidelity.tolerance`` or it
-    leaves its rung's measured range (:func:`orchestration.studies.fidelity.climb`); the summary's
-    ``model`` says which rung ran and why.
+    next rung up while its error figure exceeds ``fidelity.tolerance`` times its largest
+    ``|phi_o|`` or cannot be trusted (without a companion: while its measured global bound
+    does; :func:`orchestration.studies.fidelity.climb`); the summary's ``model`` says which rung
+    ran and why.
 
     Before it runs, the plant's substep is checked against its integrator's stability limit on
     the rung, and on every rung the ladder may climb to (:func:`check_plant_step`: a ConfigError
