@@ -165,7 +165,7 @@ def observe_cosim(paths, alg, first, e, H, wc, n_steps, n_modes, ind=False):
         "controller.filter_damping": 0.5, "initial.phi": 1e-3, "master.step": float(H),
         "output_interval": float(H), "stop_time": n_steps * float(H), "master.algorithm": alg,
         "master.first": first, "master.extrapolation": e, "plant.fidelity": "nonlinear",
-        "master.input_derivatives": ind})
+        "master.input_derivatives": ind, "fidelity.companion": False})
     r = run_scene(scene, paths, progress=False)
     if r.summary["stopped"] is not None:   # diverged (phi beyond pi/2, energy beyond 1e6): grows
         return math.inf, r.summary["stopped"]["reason"]
@@ -354,8 +354,8 @@ TABLE_SCENES = {"flexible_pd_lowpass": 0.05, "rigid_pd": 0.2}
 #: the boundaries located from runs: the FMU's linear plant (its samples are exactly a linear
 #: system's, so the observed growth equals rho(Phi) to rounding), a small motion, nothing stops
 #: the run
-OBSERVE_SETS = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
-                "plant.fidelity": "linear"}
+OBSERVE_SETS = {"initial.phi": 1e-3, "fidelity.companion": False, "plant.phi_limit": "inf",
+                "plant.energy_limit": "inf", "plant.fidelity": "linear"}
 TABLE_STEPS = 60            # communication steps per run that locates a boundary
 VERDICT_CHANNELS = ("phi_o", "omega_o", "F_c")
 
@@ -389,7 +389,7 @@ def _verdict(name, coupling, H, rho, paths):
     from orchestration.studies.stability import observed_verdict
     N = int(min(4000, max(200, math.ceil(math.log(1e3) / abs(math.log(rho))))))
     sets = {"master.step": H, "output_interval": H, "stop_time": N * H, "initial.phi": 1e-3,
-            **{f"master.{k}": v for k, v in coupling.items()}}
+            "fidelity.companion": False, **{f"master.{k}": v for k, v in coupling.items()}}
     _, r = _scene_run(name, sets, paths)
     Y = np.column_stack([r.result[c] for c in VERDICT_CHANNELS])
     return observed_verdict(Y, stopped=r.summary["stopped"] is not None)

@@ -56,6 +56,7 @@ def _run(scene, k, H, rho):
     step ``H`` (:func:`observed_verdict`), with ``N`` from the predicted ``rho``."""
     N = int(min(4000, max(200, math.ceil(math.log(1e3) / abs(math.log(rho))))))
     sets = {"master.step": H, "output_interval": H, "stop_time": N * H, "initial.phi": 1e-3,
+            "fidelity.companion": False,     # the coupling is observed, not the model's error
             **{f"master.{key}": k[key] for key in KEYS}}
     run = fp.simulate(scene, sets)
     Y = np.column_stack([run.result[c] for c in CHANNELS])
