@@ -348,3 +348,18 @@ def test_an_immutable_journal_is_one_line(finished, tmp_path, capsys):
     assert code == 2, (stdout, err)
     assert err.startswith("flexpend: error: ") and "runs.jsonl: cannot be written" in err
     assert len(err.strip().splitlines()) == 1
+
+
+def test_a_sweep_leaves_the_companion_out_unless_it_is_set():
+    """A sweep's runs state the measured bound (the companion run costs about 50 default runs);
+    --set or a swept fidelity.companion keeps what the user asked."""
+    from orchestration.sweeps.plan import plan_sweep
+
+    plain = plan_sweep("rigid_pd", values=["controller.kp=400,500"])
+    assert plain.scene.fidelity.companion is False
+    assert all(p.scene.fidelity.companion is False for p in plain.points)
+    asked = plan_sweep("rigid_pd", values=["controller.kp=400,500"],
+                       overrides=["fidelity.companion=true"])
+    assert all(p.scene.fidelity.companion is True for p in asked.points)
+    swept = plan_sweep("rigid_pd", values=["fidelity.companion=true,false"])
+    assert [p.scene.fidelity.companion for p in swept.points] == [True, False]
