@@ -2133,6 +2133,25 @@ static void ex_radau_constants(ex_radau *r)
     r->dend[2] = (2.0 - r->c[0] - r->c[1]) / ((1.0 - r->c[0]) * (1.0 - r->c[1]));
 }
 
+/* The stages' velocities Vs and positions Qs (3 x nq each) of the stage accelerations W from
+ * the step's start (q0, v0): V_i = v0 + h sum_j A_ij W_j, Q_i = q0 + c_i h v0 + h^2 sum_j
+ * (A^2)_ij W_j. */
+static void ex_radau_stages(const ex_radau *R, int nq, double h, const double *q0,
+                            const double *v0, const double *W, double *Qs, double *Vs)
+{
+    int i, j, k;
+    for (i = 0; i < 3; i++)
+        for (k = 0; k < nq; k++) {
+            double a = 0.0, b = 0.0;
+            for (j = 0; j < 3; j++) {
+                a += R->A[3 * i + j] * W[j * nq + k];
+                b += R->A2[3 * i + j] * W[j * nq + k];
+            }
+            Vs[i * nq + k] = v0[k] + h * a;
+            Qs[i * nq + k] = q0[k] + h * R->c[i] * v0[k] + h * h * b;
+        }
+}
+
 /* e = kx x + kp phi_o + kd omega_o at (q, qd) and, if gq != NULL, de/dq and de/dqd. */
 static double ex_stage_error(const fp_exact *p, const fp_radau_force *F, const double *q,
                              const double *qd, double *gq, double *gv)
@@ -2287,17 +2306,7 @@ int fp_radau_step(const fp_exact *p, const fp_radau_force *F, double *s, double 
         for (k = 0; k < nq; k++) W[i * nq + k] = qdd0[k] + R.c[i] * h * jerk0[k];
     for (it = 0; it < p->max_iter; it++) {
         double size, scale, vmax = 0.0;
-        /* the stages */
-        for (i = 0; i < 3; i++)
-            for (k = 0; k < nq; k++) {
-                double a = 0.0, b = 0.0;
-                for (j = 0; j < 3; j++) {
-                    a += R.A[3 * i + j] * W[j * nq + k];
-                    b += R.A2[3 * i + j] * W[j * nq + k];
-                }
-                Vs[i * nq + k] = v0[k] + h * a;
-                Qs[i * nq + k] = q0[k] + h * R.c[i] * v0[k] + h * h * b;
-            }
+        ex_radau_stages(&R, nq, h, q0, v0, W, Qs, Vs);         /* the stages */
         if (need) {
             /* the tangent at the second stage (of the first guess, or of the iterate when the
              * iteration contracts slowly), the force law's gradient there */
@@ -2434,16 +2443,7 @@ int fp_radau_step(const fp_exact *p, const fp_radau_force *F, double *s, double 
     }
     if (!converged) return FP_NOCONVERGE;
     /* the step's end: the last stage of the converged accelerations */
-    for (i = 0; i < 3; i++)
-        for (k = 0; k < nq; k++) {
-            double a = 0.0, b = 0.0;
-            for (j = 0; j < 3; j++) {
-                a += R.A[3 * i + j] * W[j * nq + k];
-                b += R.A2[3 * i + j] * W[j * nq + k];
-            }
-            Vs[i * nq + k] = v0[k] + h * a;
-            Qs[i * nq + k] = q0[k] + h * R.c[i] * v0[k] + h * h * b;
-        }
+    ex_radau_stages(&R, nq, h, q0, v0, W, Qs, Vs);
     if (!finite_array(Qs, 3L * nq) || !finite_array(Vs, 3L * nq)) return FP_NONFINITE;
     if (e_out != NULL) {
         for (i = 0; i < 3; i++) {
