@@ -99,34 +99,36 @@ def climb(fidelity: str, figure: dict, tolerance: float, ladder: tuple | None = 
     if fidelity == LADDER[-1]:
         rung = figure.get("rung", fidelity)
         return None, f"{rung}: the top rung (the reference of every measured error): kept"
+    def judged(what, value, rel, tail=""):
+        """The reason for a stated ``value`` (rad): the text, and whether it meets the
+        tolerance."""
+        ok = rel <= tolerance
+        return (f"{rung}: {what} <= {value:.1e} rad, {100 * rel:.3g} % of max |phi_o| "
+                f"{'<=' if ok else '>'} {100 * tolerance:g} %{tail}"), ok
+
+    ok = False
     if "figure" in figure and not (figure["untrusted"] == "companion" and bound is not None
                                    and bound.get("model_form_error") is not None):
-        rung, rel = figure["rung"], figure["relative"]
+        rung = figure["rung"]
         if figure["figure"] is None:
             why = f"{rung}: no error figure ({figure['why']})"
-        elif rel > tolerance:
-            why = (f"{rung}: error <= {figure['figure']:.1e} rad, {100 * rel:.3g} % of max "
-                   f"|phi_o| > {100 * tolerance:g} %")
         else:
-            return None, (f"{rung}: error <= {figure['figure']:.1e} rad, {100 * rel:.3g} % "
-                          f"of max |phi_o| <= {100 * tolerance:g} %: kept")
+            why, ok = judged("error", figure["figure"], figure["relative"])
     else:
         if "figure" in figure:
             fallback = f" (no error figure, {figure['why']}: the measured global bound)"
             figure = bound
         else:
             fallback = ""
-        rung, b, rel = figure["rung"], figure["model_form_error"], figure["relative"]
+        rung, b = figure["rung"], figure["model_form_error"]
         if b is None:
             why = f"{rung}: no measured bound{fallback}"
         elif figure["outside"]:
             why = f"{rung}: outside its measured range ({figure['outside'][0]}){fallback}"
-        elif rel > tolerance:
-            why = (f"{rung}: model-form error <= {b:.1e} rad, {100 * rel:.3g} % of max "
-                   f"|phi_o| > {100 * tolerance:g} %{fallback}")
         else:
-            return None, (f"{rung}: model-form error <= {b:.1e} rad, {100 * rel:.3g} % of max "
-                          f"|phi_o| <= {100 * tolerance:g} %{fallback}: kept")
+            why, ok = judged("model-form error", b, figure["relative"], fallback)
+    if ok:
+        return None, f"{why}: kept"
     ladder = available_ladder() if ladder is None else ladder
     i = ladder.index(fidelity) if fidelity in ladder else len(ladder) - 1
     if i + 1 < len(ladder):
