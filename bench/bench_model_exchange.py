@@ -19,7 +19,7 @@
   plant integrates exactly; fmpy 0.3.32's own ``set_input_derivatives`` fails on this input). fmpy 0.3.32's CVode applies a
   continuous input in its root function but not in its right-hand side (with the plant's event
   indicators the derivative then sees the input of the last root evaluation, and CVode stalls
-  or drifts): the bench applies it in the right-hand side too, as ``tests/test_native_me.py``
+  or drifts): the bench applies it in the right-hand side too, as ``tests/export/test_native_me.py``
   does.
 
 Times are medians of ``--runs`` runs after a warm-up, the compared settings alternated point by

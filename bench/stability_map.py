@@ -22,7 +22,7 @@
    one (to 200 ms): the predicted stable and unstable intervals (``flexpend stability``); at the
    steps just inside and outside each boundary (``probe_steps``) how a run of the scene's plant
    from initial.phi = 1e-3 ends (``observed_verdict``: settles, grows, falls), as
-   tests/test_stability_intervals.py decides it; and each boundary located from runs of the
+   tests/studies/test_stability_intervals.py decides it; and each boundary located from runs of the
    FMU's linear plant (60 steps, the observed growth factor bisected between the two probes).
 
 Every part is a list of independent tasks (orchestration.sweeps.executor): one after the other

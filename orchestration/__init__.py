@@ -16,7 +16,8 @@ error in the input is a ``ValueError`` (:class:`ConfigError` for a scene key) or
 whose message names the bad key or argument; a co-simulation that an FMU stops is not an error:
 its summary says when and why.
 
-The layers, from the top (an import goes only downwards; ``tests/test_layers.py`` checks it):
+The layers, from the top (an import goes only downwards; ``tests/project/test_layers.py`` checks
+it):
 ``cli`` -> this front door (``api``) -> ``sweeps`` -> ``job`` -> ``export`` -> ``report`` ->
 ``studies`` -> ``cosim`` -> ``scene`` -> the models (``plant_fmu``, ``controller_fmu``) ->
 ``fmu_common``.

@@ -226,7 +226,7 @@ def unit_beam(n_elements: int, n_modes: int) -> UnitBeam:
 @functools.lru_cache(maxsize=64)
 def beam_model(p: PlantParams) -> Beam:
     """The modal data of the beam described by ``p`` (cached per parameter record): the unit
-    beam's (:func:`unit_beam`), scaled by :class:`Scales` (``tests/test_beam.py`` checks the
+    beam's (:func:`unit_beam`), scaled by :class:`Scales` (``tests/plant/test_beam.py`` checks the
     scaling against the FE model solved for the beam itself)."""
     n, ne, L, rhoA = p.n_modes, p.n_elements, p.L, p.rhoA
     u = unit_beam(ne, n)

@@ -21,7 +21,7 @@ deflection ``N(L) eta``, the modal coordinates and the total energy ``T + V``.
 
 The Jacobian at any state (``jacobian_numpy``, ``output_jacobian_numpy``): ``d qdd/dz = M^-1
 (df/dz - (dM/dz) qdd)`` with ``df/dz`` and ``dM/dz`` by hand, checked against sympy's derivatives
-of the Lagrange equations (``tests/test_lagrange.py``); ``state_space`` is its value at the
+of the Lagrange equations (``tests/plant/test_lagrange.py``); ``state_space`` is its value at the
 upright rest state.
 
 :class:`StiffenedPlantModel` (``fidelity = "stiffened"``) adds the kinetic energy of the beam's
@@ -168,7 +168,7 @@ class PlantModel:
         (``J = d(dx/dt)/dx``, nx x nx) and to the force (``b = d(dx/dt)/dF_c``), at any state.
 
         From ``M(q) qdd = f(q, qd, u)``: ``d qdd/dz = M^-1 (df/dz - (dM/dz) qdd)``, with ``df/dz``
-        and ``dM/dz`` differentiated by hand below (``tests/test_lagrange.py`` checks them
+        and ``dM/dz`` differentiated by hand below (``tests/plant/test_lagrange.py`` checks them
         against sympy's derivatives of the Lagrange equations; the kernel's ``fp_jacobian``
         computes the same by Jacobian-vector products)."""
         n, nq, nx = self.n, self.nq, self.nx
@@ -490,7 +490,8 @@ def _output_derivatives(m, x, u, du, linear):
     differentiated once more by hand; the energy's second derivative is that of the power balance
     ``dE/dt = F_c xd - etad.D.etad + c etad.Kga.eta`` (``Kga`` the skew part of ``Kg``, ``c = cos
     phi``, 1 in the linear model): the equations are Lagrange's for this energy with the Rayleigh
-    damping and the force on the cart (``tests/test_lagrange.py``), and ``Kg eta``'s skew part is
+    damping and the force on the cart (``tests/plant/test_lagrange.py``), and ``Kg eta``'s skew
+    part is
     the only force of ``f`` no potential gives.
     """
     n, nq = m.n, m.nq
@@ -558,7 +559,8 @@ class StiffenedPlantModel(PlantModel):
     gravity and the cart's acceleration along the beam compress it, the centrifugal load stretches
     it; the angular acceleration and the accelerations across the beam load it transversely and
     enter at third order. The load's ``xdd`` is a term of the mass matrix (``M_x,eta`` gains
-    ``s Fa eta``), not a lagged acceleration (``tests/test_stiffened.py`` checks this ``K_G``). ``dT``
+    ``s Fa eta``), not a lagged acceleration (``tests/plant/test_stiffened.py`` checks this
+    ``K_G``). ``dT``
     is kept in full rather than to second order: truncated, the mass matrix loses
     positive definiteness once ``eta.(Fb - I).eta`` exceeds the rotation's residual inertia
     ``I2 - I5.I5`` (3.2e-3 kg m^2 at 4 modes, 4.1e-4 at 8), which the filtered scene reaches from

@@ -13,7 +13,7 @@ element rather than a co-rotational one or a Reissner/Simo beam:
   a constant load and the pin is linear (the root's position is the cart's);
 - it is an Euler-Bernoulli (shear-rigid) beam, like the floating frame, and at small amplitude its
   transverse stiffness and mass are the Hermite matrices of :mod:`.beam` (the two rungs then
-  share their linearisation exactly: ``tests/test_exact_beam.py``);
+  share their linearisation exactly: ``tests/plant/test_exact_beam.py``);
 - the sensors are read off the tip node: the tip tangent is ``r'(L)`` itself.
 
 Strains (the shear-rigid limit of Reissner's geometrically exact beam, exact for any rotation):
@@ -33,7 +33,8 @@ with the analytic tangent. Why: the axial modes (first about 8000 rad/s) and the
 bending modes (~1e5 rad/s) are far above anything the loop excites; an implicit method is stable at
 a step set by the motion of interest, and ``rho_inf < 1`` damps the unresolved modes while staying
 second order. ``rho_inf = 1`` is the trapezoidal rule (no numerical damping; energy drift bounded
-and of second order: ``tests/test_exact_beam.py``). A caveat, measured: without structural damping
+and of second order: ``tests/plant/test_exact_beam.py``). A caveat, measured: without structural
+damping
 the mesh's bending modes above ``1/h``, once excited (an undeformed start excites them), ring at
 ~1e-5 rad in the tip slope, which the method resolves only when ``h`` resolves them; the tip angle
 then converges at first order at practical steps (``bench/fidelity_gap.py``). With the paper's
@@ -485,7 +486,7 @@ class GeneralizedAlpha:
 #: Radau IIA with three stages (order 5, L-stable; Hairer & Wanner, Solving ODEs II, IV.5):
 #: the nodes ``c``, the matrix ``A`` and the real Schur-like form of ``A^-1`` that the transformed
 #: Newton iteration uses, ``T^-1 A^-1 T = [[gamma, 0, 0], [0, alpha, -beta], [0, beta, alpha]]``
-#: (RADAU5's constants, ``tests/test_exact_beam.py`` checks them against ``A``).
+#: (RADAU5's constants, ``tests/plant/test_exact_beam.py`` checks them against ``A``).
 _S6 = math.sqrt(6.0)
 RADAU_C = np.array([(4.0 - _S6) / 10.0, (4.0 + _S6) / 10.0, 1.0])
 RADAU_A = np.array([[(88.0 - 7.0 * _S6) / 360.0, (296.0 - 169.0 * _S6) / 1800.0,

@@ -137,7 +137,8 @@ _NOMINALS = {
     "eta": "nominal 0.01 L / |N_j(L)| (a tip deflection of 1 % of L)",
     "eta_dot": "nominal omega_j times the nominal of eta_j",
 }
-#: Structural dependencies (what the modal coupling gives; tests/test_native_me.py checks them
+#: Structural dependencies (what the modal coupling gives; tests/export/test_native_me.py checks
+#: them
 #: against the nonzero pattern of PlantModel.jacobian_numpy and output_jacobian_numpy at random
 #: states): the accelerations depend on every state but x and x_dot, and on the force.
 _ACC_STATES = ("phi", *_ETAS, "phi_dot", *_ETA_DOTS)

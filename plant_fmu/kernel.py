@@ -5,7 +5,8 @@
 and energy, the exact Jacobians and output time derivatives, the fixed-substep loop of the
 explicit methods and the adaptive Dormand-Prince loop.
 :class:`plant_fmu.dynamics.PlantModel` and ``LinearPlantModel`` build one (their ``kernel``); the
-numpy code there stays the specification, and ``tests/test_kernels.py`` holds the two to 1e-12.
+numpy code there stays the specification, and ``tests/common/test_kernels.py`` holds the two to
+1e-12.
 
 Why ctypes. The kernel is a plain C library, not a Python extension, so that one binary serves
 every consumer: this package under any CPython 3 (no rebuild per Python version), the pythonfmu

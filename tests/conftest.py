@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 # The checkout's packages are imported in the test process on purpose: the FMUs must not run them
-# (each FMU loads its own copy under a private name; tests/test_fmu_robustness.py checks it).
+# (each FMU loads its own copy under a private name; tests/common/test_fmu_robustness.py checks it).
 import controller_fmu.pd_lowpass  # noqa: E402,F401
 import plant_fmu.dynamics  # noqa: E402,F401
 

@@ -1,4 +1,5 @@
-"""Runs in a child process of ``tests/test_fmu_robustness.py`` (a crash of the host must not take
+"""Runs in a child process of ``tests/common/test_fmu_robustness.py`` (a crash of the host must not
+take
 pytest down): drives one FMU through fmpy's FMU2Slave with hypothesis-generated FMI call sequences
 and checks, after every call, the invariants of issue 16:
 

@@ -74,7 +74,7 @@ def linearisation(scene) -> Linearisation:
     * ``linear``, ``nonlinear``: the plant as the scene sets it (``plant.gravity_preload``
       included);
     * ``stiffened``: the preload rung's (the stiffened rung's small-amplitude dynamics are
-      those of the self-weight's geometric stiffness, ``tests/test_stiffened.py``);
+      those of the self-weight's geometric stiffness, ``tests/plant/test_stiffened.py``);
     * ``exact``: the exact beam's own linearisation is not taken here; the floating frame's
       preloaded loop (the exact beam stands compressed by its weight) with the scene's
       ``n_modes`` and damping law stands in for it (``own`` False: the analyses refuse it, the

@@ -1,7 +1,7 @@
 """The exact rung's monolithic closed loop: the geometrically exact beam on the cart
 (:mod:`plant_fmu.exact`) with the PD + low-pass controller, stepped as one system by generalized
 alpha, by the numpy specification or by the C kernel (``kernel=True``: ``fp_exact_steps``, the
-same steps to round-off, ``tests/test_exact_kernel.py``): the monolithic reference of a scene
+same steps to round-off, ``tests/plant/test_exact_kernel.py``): the monolithic reference of a scene
 whose ``plant.fidelity`` is ``"exact"`` (:func:`orchestration.studies.reference.simulate_reference`)
 and the studies ``bench/fidelity_gap.py``, ``bench/bench_exact.py``.
 """

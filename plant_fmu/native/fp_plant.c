@@ -3,7 +3,7 @@
  *
  * Each function computes exactly what its numpy counterpart in plant_fmu/dynamics.py computes,
  * and the loops do what plant_fmu/integrators/rk.py does, in the same order of operations where
- * that order decides the result (tests/test_kernels.py holds them to 1e-12).
+ * that order decides the result (tests/common/test_kernels.py holds them to 1e-12).
  */
 #include "fp_plant.h"
 
@@ -1095,7 +1095,7 @@ int fp_output_derivatives(const fp_plant *p, const double *x, double u, double d
     /* the energy: the power balance dE/dt = F_c xd - etad.D.etad (+ the power of the skew part of
      * Kg, c (etad.Kg.eta - eta.Kg.etad) / 2, zero for a symmetric Kg): exact, since the equations
      * are Lagrange's for the kinetic and potential energies fp_energy sums (MODEL.md, section 4;
-     * tests/test_lagrange.py) with the Rayleigh damping and the force on the cart. */
+     * tests/plant/test_lagrange.py) with the Rayleigh damping and the force on the cart. */
     P = u * qd[0] - diss;
     dP = du * qd[0] + u * a[0] - ddiss;
     if (p->preload) {

@@ -4,7 +4,7 @@
 
 Each input is a program for ``fuzz_fmi.c`` (the encoder below mirrors its decoder) that replays
 one defect of issue 23 on both FMI versions, so that the corpus replay (``fuzz.py``, the test
-``tests/test_fuzz.py``) fails if it comes back:
+``tests/export/test_fuzz.py``) fails if it comes back:
 
 * a crafted FMU state: a serialised state edited (a parameter, a size, a mode, the stepper, the
   filter) with its checksum recomputed, deserialised and restored, then stepped;

@@ -3,7 +3,8 @@
  * plant and the controller FMU binaries (dlopen with RTLD_LOCAL, or LoadLibrary on Windows),
  * runs the closed loop with the Jacobi coupling and held inputs (every FMU gets its sources'
  * outputs of the last communication point, then both step), and prints one line per step:
- * t, x_o, phi_o, omega_o, F_c (%.17g). Used by tests/test_native_fmus.py (linux64, win64 under
+ * t, x_o, phi_o, omega_o, F_c (%.17g). Used by tests/export/test_native_fmus.py (linux64, win64
+ * under
  * wine, and under the sanitizers) and by bench/bench_native.py (argument "bench": the time per
  * macro step instead of the trajectory).
  *

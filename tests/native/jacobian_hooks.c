@@ -2,7 +2,8 @@
  * jacobian_hooks.c - a test host of the models' issue-24 hooks (fpm.h: fpm_model_nx,
  * fpm_model_jacobian, fpm_model_output_derivative), before the FMI core calls them.
  *
- * Compiled by tests/test_jacobian.py with the model's source included (-DMODEL_C="...") so that
+ * Compiled by tests/common/test_jacobian.py with the model's source included (-DMODEL_C="...") so
+ * that
  * the host reads the model's state, with fpm_guard.c and the kernels, against the model's
  * generated fpm_vars.h. Usage:
  *

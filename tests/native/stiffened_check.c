@@ -1,5 +1,5 @@
 /* stiffened_check.c - the stiffened rung of the plant kernel (fp_plant.c, rhs_stiffened) driven
- * under the sanitizers by tests/test_stiffened.py.
+ * under the sanitizers by tests/plant/test_stiffened.py.
  *
  * Reads from the file argv[1]: n, npts, then I0 I1 I2 g, I3, I5, K, D, tip_slope, tip_defl (n
  * each), Kg (n x n), the points (npts x (2 + n + n^2)), then a state (2 (n + 2)) and a force.

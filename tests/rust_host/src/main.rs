@@ -4,7 +4,7 @@
 //! calls the crate's instance API. The loop is the C host's: Jacobi coupling with held inputs
 //! (every FMU gets its sources' outputs of the last communication point, then both step), and one
 //! line per step: t x_o phi_o omega_o F_c, 17 significant digits each. Used by
-//! tests/test_fmu_rust_host.py.
+//! tests/export/test_fmu_rust_host.py.
 //!
 //! usage: rust_host PLANT_FMU CTRL_FMU STEPS H [PLANT_PARAM=VALUE ...] [bench]
 //!        rust_host --misuse PLANT_FMU

@@ -85,7 +85,7 @@ def test_the_product_master_reproduces_the_kernel_and_the_numpy_specification():
     """The product's master (plant first, held force) on the native plant at the exact rung,
     replayed with the force it recorded: the C kernel (the FMU's own code, Radau IIA) gives the
     same tip angle to the last bit, and the numpy specification to round-off (the kernel's own
-    test holds the two together: tests/test_exact_kernel.py)."""
+    test holds the two together: tests/plant/test_exact_kernel.py)."""
     ov = {**EXACT, "stop_time": 0.3, "master.first": "plant", "master.extrapolation": 0,
           "master.input_derivatives": False, "master.step": 1e-3, "output_interval": 1e-3}
     run = simulate("flexible_pd_lowpass", ov)
@@ -433,7 +433,7 @@ def test_refining_the_plant_never_makes_the_coupled_error_worse(undamped_referen
 # ---------------------------------------------------------------------- the work budget
 def _budget():
     import re
-    src = (Path(__file__).parents[1] / "plant_fmu/native/plant_model.c").read_text()
+    src = (Path(__file__).parents[2] / "plant_fmu/native/plant_model.c").read_text()
     return int(re.search(r"#define FPM_MAX_EXACT_WORK (\d+)L", src).group(1))
 
 

@@ -23,7 +23,7 @@ import pytest
 from fmpy.fmi1 import FMICallException
 
 H = 1e-3
-HERE = Path(__file__).parent
+HERE = Path(__file__).parents[1]
 
 
 def status_of(fun, *args):

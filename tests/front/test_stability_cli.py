@@ -1,7 +1,7 @@
 """``flexpend stability`` and the run's warning: the stable and unstable intervals of the
 communication step of every coupling, checked against the spectral radius of the transition
 matrix itself (one matrix at a time), the text, ``--max-step``, progress, Ctrl-C and the
-refusals. The intervals against runs of the FMUs: tests/test_stability_intervals.py."""
+refusals. The intervals against runs of the FMUs: tests/studies/test_stability_intervals.py."""
 import json
 import math
 

@@ -27,7 +27,7 @@ from orchestration.scene.schema import load_scene
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux") or not shutil.which("gcc"),
                                 reason="needs Linux and gcc")
 
-HOST_C = Path(__file__).parent / "c_host" / "fmi2_host.c"
+HOST_C = Path(__file__).parents[1] / "c_host" / "fmi2_host.c"
 SYSTEM_PATH = "/usr/local/bin:/usr/bin:/bin"
 #: The coupling the C host implements: the master's Gauss-Seidel with the inputs held
 #: (zero-order hold), controller first, 1 ms.

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PLACEHOLDER = re.compile(r"\[|\]|\.\.\.|<[^>]*>|/path/to/|\b(SCENE|KEY|VALUE|DIR|FILE|FMU|N|S|T|"
                          r"ADDRESS|VENV|DIST|START|STOP|NUM|V1|V2|SAMPLES)\b")
 

@@ -159,7 +159,7 @@ def test_the_ladder_holds_only_the_rungs_the_scenes_fmus_run():
     no Jacobians, which the Model Exchange master needs: a pythonfmu scene climbs to the
     stiffened rung, a Model Exchange one to the nonlinear rung, and each says that is where it
     stops; a native co-simulation has every rung (the exact rung's law, Kelvin-Voigt, set: it
-    refuses the modal law with damping, tests/test_exact_fmu.py)."""
+    refuses the modal law with damping, tests/export/test_exact_fmu.py)."""
     tops = {"master.fmus=native": "exact", "master.fmus=python": "stiffened",
             "master.interface=model-exchange": "nonlinear"}
     for key, want in tops.items():

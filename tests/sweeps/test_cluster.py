@@ -164,7 +164,7 @@ def test_scheduler_without_workers_waits_with_a_message_then_one_line(fmus, monk
 
 
 # ---------------------------------------------------------------------------- a real cluster
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: runs whose fits are reliable (3 s from 0.05 rad), so that the tables hold numbers to compare
 RELIABLE = ["--set", "stop_time=3", "--set", "initial.phi=0.05"]
 UNTIMED = ("wall_time", "cosim_time")

@@ -21,7 +21,7 @@ from orchestration.studies.fidelity import select_model
 from orchestration.job import run_scene
 from orchestration.scene.schema import SCENE_DIR, load_scene, scene_from_config
 
-FOREIGN = Path(__file__).parent / "data" / "ssp_foreign"
+FOREIGN = Path(__file__).parents[1] / "data" / "ssp_foreign"
 
 
 def flexpend(*args, cwd=None):

@@ -21,7 +21,7 @@ from orchestration.export import fmu_pair
 from orchestration.job import run_scene
 from test_fmu_c_host import host_command, system_env, zoh_scene
 
-HERE = Path(__file__).parent / "jvm_host"
+HERE = Path(__file__).parents[1] / "jvm_host"
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not all(shutil.which(t) for t in ("java", "javac", "mvn"))
                                  or not sys.platform.startswith("linux"),

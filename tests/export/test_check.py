@@ -519,7 +519,7 @@ def test_a_window_beyond_the_samples_is_the_whole_signal():
 @pytest.fixture(scope="module")
 def genuine():
     """The plant's committed reference: the result of the genuine FMU (a fresh run agrees with it
-    to 3.4e-9 of the range, tests/test_fmu_reference.py)."""
+    to 3.4e-9 of the range, tests/export/test_fmu_reference.py)."""
     return read_csv(str(REFERENCES / "FlexiblePendulum" / "FlexiblePendulum_ref.csv"))
 
 

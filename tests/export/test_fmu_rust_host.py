@@ -5,7 +5,8 @@ through the crate's instance API (Jacobi, held inputs, ``h`` = 1 ms exactly), in
 environment (no ``PYTHON*`` variables, system ``PATH``).
 
 * 2 s of closed loop match the fmpy master's Jacobi run to 1e-12, as the C host's do
-  (``tests/test_native_fmus.py``). They are not bit-identical, and neither is the C host (up to
+  (``tests/export/test_native_fmus.py``). They are not bit-identical, and neither is the C host (up
+  to
   6e-13 in F_c, from the ninth step on). The step size is not the cause: since issue 25 the
   master steps every FMU by ``h`` from ``t0 + k h``, as these hosts do; the cause
   is not yet known.
@@ -17,7 +18,8 @@ The build (``cargo build --release --locked``, about 55 s cold on 2 cores, most 
 ``zip`` pulls in) goes to a temporary target folder. Skipped without ``cargo``, when crates.io
 cannot be reached and the crates are not cached, or without libclang (``fmi-sys`` generates its
 bindings with bindgen at build time: ``apt-get install libclang1-14 libclang-common-14-dev`` on
-Debian 12; ``.ci/run`` installs them). Run alone: ``python -m pytest tests/test_fmu_rust_host.py``.
+Debian 12; ``.ci/run`` installs them). Run alone: ``python -m pytest
+tests/export/test_fmu_rust_host.py``.
 """
 import os
 import shutil
@@ -31,7 +33,7 @@ import pytest
 from test_fmu_c_host import system_env
 from test_native_fmus import _host, _host_args, _master, _parse
 
-HERE = Path(__file__).parent / "rust_host"
+HERE = Path(__file__).parents[1] / "rust_host"
 CARGO = shutil.which("cargo") or str(Path.home() / ".cargo" / "bin" / "cargo")
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux")

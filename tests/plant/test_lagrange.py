@@ -104,7 +104,7 @@ def _derive(n: int, preload: bool):
     outs = outs_t.subs(sub).subs(sub_q)
     out_args = [*z, *params, *ts, *td]
     # their first and second time derivatives along q(t), with the accelerations acc and the
-    # jerks jerk as symbols (tests/test_jacobian.py gives them their values)
+    # jerks jerk as symbols (tests/common/test_jacobian.py gives them their values)
     jerk = sp.symbols(f"j0:{n + 2}")
     sub3 = {qi.diff(t, 3): js for qi, js in zip(q, jerk)}
     d_outs = [outs_t.diff(t, k).subs(sub3).subs(sub).subs(sub_q) for k in (1, 2)]

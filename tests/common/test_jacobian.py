@@ -2,7 +2,7 @@
 
 Plant (``fp_jacobian``, ``fp_jvp``, ``fp_output_jacobian``, ``fp_output_derivatives``):
 - against the numpy specification (``jacobian_numpy``, ``output_jacobian_numpy``,
-  ``output_derivatives_numpy``; ``tests/test_lagrange.py`` checks those against sympy);
+  ``output_derivatives_numpy``; ``tests/plant/test_lagrange.py`` checks those against sympy);
 - against central differences of the kernel's own right-hand side and outputs;
 - the output derivatives against central differences in time along an accurate trajectory
   driven by a polynomial force (scipy's DOP853 at rtol 1e-13 on the kernel's rhs), and the
@@ -332,7 +332,7 @@ def test_filter_output_derivatives_against_the_exact_response(order, limit):
 
 
 # ---------------------------------------------------------------------- the models' hooks
-HOOKS_C = Path(__file__).parent / "native" / "jacobian_hooks.c"
+HOOKS_C = Path(__file__).parents[1] / "native" / "jacobian_hooks.c"
 
 
 @pytest.fixture(scope="module")
@@ -345,7 +345,7 @@ def _build_hooks(out, extra=()):
     from fmu_common import kernels
     from orchestration.export.native_fmus import generate_header
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     exes = {}
     for name, src, define in (("FlexiblePendulum", "plant_fmu/native/plant_model.c", "PLANT"),
                               ("PDLowPass", "controller_fmu/native/controller_model.c", "CTRL")):
@@ -471,7 +471,7 @@ def test_controller_hooks_are_the_kernel_at_the_models_point(hooks, order, limit
 @pytest.mark.parametrize("n,preload", [(1, False), (2, True)])
 def test_output_derivatives_against_sympy(n, preload):
     """The outputs (T + V for the energy, not the power balance) differentiated twice in time by
-    sympy along q(t) (tests/test_lagrange.py's derivation from the kinematics), evaluated with
+    sympy along q(t) (tests/plant/test_lagrange.py's derivation from the kinematics), evaluated with
     the accelerations M^-1 f and the jerks M^-1 (df/dz [qd, qdd, dF] - (dM/dt) qdd) from sympy's
     own M, f and their derivatives."""
     from test_lagrange import _derive, _param_values

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("fmu_common", "plant_fmu", "controller_fmu", "orchestration")
 #: (module prefix, layer), the most specific prefix first; a higher number is a higher layer
 LAYERS = [

@@ -23,7 +23,7 @@ import pytest
 
 from conftest import FmuInstance, opened_by
 
-HOST_C = Path(__file__).parent / "native" / "fmi2_host.c"
+HOST_C = Path(__file__).parents[1] / "native" / "fmi2_host.c"
 linux_gcc = pytest.mark.skipif(not sys.platform.startswith("linux") or not shutil.which("gcc"),
                                reason="needs Linux and gcc")
 
@@ -729,7 +729,7 @@ def test_fmus_and_host_under_the_sanitizers(tmp_path):
 
 @pytest.mark.skipif(shutil.which("wine64") is None and shutil.which("wine") is None,
                     reason="needs wine (Debian's wine64): the separate command "
-                           "`python -m pytest tests/test_native_fmus.py -k wine` after "
+                           "`python -m pytest tests/export/test_native_fmus.py -k wine` after "
                            "apt-get install wine64")
 def test_win64_host_under_wine_agrees_with_linux64(native, tmp_path):
     if shutil.which("x86_64-w64-mingw32-gcc") is None:
@@ -810,7 +810,7 @@ def _refix(blob: bytearray) -> bytes:
 
 
 def _state_offsets(name: str) -> dict:
-    sys.path.insert(0, str(Path(__file__).parent / "fuzz"))
+    sys.path.insert(0, str(Path(__file__).parents[1] / "fuzz"))
     from make_corpus import layout
     return layout(name, {})
 

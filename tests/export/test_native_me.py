@@ -361,7 +361,7 @@ def test_nominals_are_the_physical_scales(me, version):
 def _input_signal():
     """The committed input file of the plant (the cross-check layout), F_c only."""
     from pathlib import Path
-    data = np.genfromtxt(Path(__file__).parent / "reference" / PLANT / f"{PLANT}_in.csv",
+    data = np.genfromtxt(Path(__file__).parents[1] / "reference" / PLANT / f"{PLANT}_in.csv",
                          delimiter=",", names=True)
     sig = np.zeros(len(data), dtype=[("time", float), ("F_c", float)])
     sig["time"], sig["F_c"] = data["time"], data["F_c"]

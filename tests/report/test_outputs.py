@@ -14,7 +14,7 @@ import pytest
 
 from orchestration.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RUN = ["run", "rigid_pd", "--set", "stop_time=1"]
 SWEEP = ["sweep", "rigid_pd", "--values", "controller.kp=300,400", "--serial"]
 
