@@ -14,9 +14,18 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import ctypes  # noqa: E402
 import math  # noqa: E402
 import shutil  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
+
+# The tests live in one folder per package (tests/plant, tests/export, ...); a few import another
+# folder's test module by its name (a shared derivation or host: ``from test_lagrange import
+# _derive``), so every folder is on the path, as pytest puts the folder of each file it collects.
+for _folder in sorted(Path(__file__).parent.iterdir()):
+    if _folder.is_dir() and any(_folder.glob("test_*.py")) and str(_folder) not in sys.path:
+        sys.path.append(str(_folder))
 
 # The checkout's packages are imported in the test process on purpose: the FMUs must not run them
 # (each FMU loads its own copy under a private name; tests/common/test_fmu_robustness.py checks it).
