@@ -12,7 +12,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from setuptools import setup
+from setuptools import Distribution, setup
 from setuptools.command.build_py import build_py
 
 HERE = Path(__file__).resolve().parent
@@ -44,6 +44,16 @@ class build_py_with_kernels(build_py):
             sys.exit(f"error: {exc}")
 
 
+class BinaryDistribution(Distribution):
+    """A distribution that carries binaries (the kernels) though it declares no Python extension:
+    its packages install into ``platlib``, not ``purelib``, so the wheel's root is the platform
+    library folder (``auditwheel repair``, which makes the wheel a ``manylinux`` one, refuses
+    shared libraries under ``purelib``)."""
+
+    def has_ext_modules(self):
+        return True
+
+
 def _bdist_wheel():
     """``bdist_wheel`` tagged for this platform and any CPython 3 (``py3-none-<platform>``): the
     wheel carries compiled C libraries, loaded by ctypes, not Python extensions."""
@@ -71,6 +81,7 @@ def _bdist_wheel():
 SCRATCH = tempfile.mkdtemp(prefix="flexpend-setup-")
 atexit.register(shutil.rmtree, SCRATCH, ignore_errors=True)
 
-setup(cmdclass={"build_py": build_py_with_kernels, **_bdist_wheel()},
+setup(distclass=BinaryDistribution,
+      cmdclass={"build_py": build_py_with_kernels, **_bdist_wheel()},
       options={"build": {"build_base": str(Path(SCRATCH) / "build")},
                "egg_info": {"egg_base": SCRATCH}})
