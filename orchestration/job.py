@@ -37,8 +37,9 @@ from .cosim.master import Master
 from .cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
 from .export import flavour_fmus
+from .files import write_csv, write_json
 from .report import figures
-from .report.files import save_figure, write_csv, write_json
+from .report.files import save_figure
 from .report.plotting import check_renderer
 from .report.progress import Progress
 from .report.summary import iteration_counts, stop_reason, summarize

@@ -3,7 +3,7 @@ count), and imports go only from a higher layer to a lower one (or within one ro
 
 The layers, top to bottom, as ``orchestration/__init__.py`` states them: the command line, the
 front door, sweeps, the job, the FMU factory, reports, studies, the co-simulation engine, scenes,
-the models, what every FMU shares. Two rooms of one layer (the plant and the controller) import
+the output files, the models, what every FMU shares. Two rooms of one layer (the plant and the controller) import
 nothing from each other."""
 import ast
 from pathlib import Path
@@ -23,6 +23,7 @@ LAYERS = [
     ("orchestration.studies", 4),
     ("orchestration.cosim", 3),
     ("orchestration.scene", 2),
+    ("orchestration.files", 1.5),  # output files, complete or absent: below all that write
     ("orchestration", 10),         # the front door (its __init__), on the api
     ("plant_fmu", 1),
     ("controller_fmu", 1),

@@ -53,8 +53,9 @@ import numpy as np
 
 from fmu_common.kernels import ROOT
 
+from ..files import write_csv, write_text
 from ..report.figures import new_figure
-from ..report.files import save_figure, write_csv, write_text
+from ..report.files import save_figure
 from ..scene import archive
 from . import places
 

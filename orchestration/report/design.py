@@ -10,10 +10,11 @@ import numpy as np
 
 from plant_fmu.params import damping_text
 
+from ..files import atomic_path, write_json
 from ..studies.analysis import frequency_response
 from ..studies.design import root_locus
 from . import figures
-from .files import atomic_path, save_figure, write_json
+from .files import save_figure
 from .text import filter_text
 
 __all__ = ["DesignReport"]

@@ -22,7 +22,7 @@ from ..cosim.pool import SlavePool
 from ..export import flavour_fmus
 from ..export.native_fmus import GENERATION_TOOL
 from ..job import run_scene
-from ..report.files import atomic_path, output_error
+from ..files import atomic_path, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
 from ..studies.analysis import linearisation, max_real_part
