@@ -383,9 +383,9 @@ def cmd_check(args) -> int:
         ReferenceError,
         Rule,
         check_fmu,
-        plot_check,
         write_reference,
     )
+    from .report.check import plot_check
 
     try:
         rule = Rule(args.tolerance, args.window, args.max_outliers)

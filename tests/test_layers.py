@@ -159,3 +159,19 @@ def test_a_model_imports_nothing_of_the_other_nor_of_the_host(model, other):
     bad = [(m, t) for m, ts in graph.items() if m.startswith(model)
            for t, _ in ts if t.startswith((other, "orchestration"))]
     assert bad == []
+
+
+#: (importer, imported): rooms that the layers would allow to meet but that must not. The FMU
+#: factory writes its files with :mod:`orchestration.files`, not through the reports.
+APART = [("orchestration.export", "orchestration.report")]
+
+
+def within(mod: str, prefix: str) -> bool:
+    return mod == prefix or mod.startswith(prefix + ".")
+
+
+@pytest.mark.parametrize("importer,imported", APART)
+def test_rooms_kept_apart(importer, imported):
+    bad = [f"{m}:{line} imports {t}" for m, ts in imports(ROOT).items() if within(m, importer)
+           for t, line in sorted(ts) if within(t, imported)]
+    assert bad == []
