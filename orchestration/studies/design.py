@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.optimize
 
-from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from controller_fmu.pd_lowpass import ControllerParams
+from controller_fmu.spec import model_for as controller_model
 from fmu_common.checks import check_int, check_real
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
@@ -199,7 +200,7 @@ class RobustLoop:
     def eigenvalues(self, c: ControllerParams):
         """``(plants, roots)`` per group; ``roots[k]`` are the closed-loop roots with
         ``plants[k]``, the cart's drift roots left aside when the cart is not fed back."""
-        ctrl = PDLowPassModel(c).state_space()
+        ctrl = controller_model(c).state_space()
         for ps, A, B, C in self.groups:
             yield ps, np.linalg.eigvals(_drift_free(assemble_closed_loop(A, B, C, ctrl), ps[0]))
 
