@@ -42,7 +42,6 @@ from .report import figures
 from .report.files import save_figure
 from .report.plotting import check_renderer
 from .report.progress import Progress
-from .report.summary import iteration_counts, stop_reason, summarize
 from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
@@ -53,6 +52,7 @@ from .studies.error_figure import companion_scene, companion_text, own_companion
 from .studies.fidelity import available_ladder, climb, refused_rungs, select_model
 from .studies.plant_step import checks as plant_step_checks
 from .studies.reference import COLUMNS, check_reference, simulate_reference
+from .studies.summary import iteration_counts, stop_reason, summarize
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
            "step_warning", "check_plant_step",

@@ -263,7 +263,7 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
     (:func:`~orchestration.report.plotting.canvas`): a matplotlib Figure, or a raster canvas to
     save."""
     from ..studies.analysis import first_bending_frequency, linearisation
-    from .summary import BENDING_BAND
+    from ..studies.summary import BENDING_BAND
 
     t = result["time"]
     flexible = scene.plant.params.n_modes > 0 and np.any(result["eta_1"]) and len(t) >= 16

@@ -51,9 +51,9 @@ import math
 
 import numpy as np
 
-from ..studies.analysis import closed_loop_eigenvalues, first_bending_frequency, linearisation
-from ..studies.fit import fit_mode
-from ..studies.validity import assess
+from .analysis import closed_loop_eigenvalues, first_bending_frequency, linearisation
+from .fit import fit_mode
+from .validity import assess
 
 __all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "FIT_DEFLECTION",
            "FIT_RESIDUAL", "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window",
