@@ -74,7 +74,7 @@ def split(runs: int, warmup: int) -> dict:
     from threadpoolctl import threadpool_limits
 
     import orchestration.job as job
-    import orchestration.report.summary as summary
+    import orchestration.studies.summary as summary
     import orchestration.sweeps.engine as engine
     from orchestration.sweeps.executor import file_name
 

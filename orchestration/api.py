@@ -23,7 +23,7 @@ from .scene.records import Scene
 from .scene.schema import load_scene
 from .studies.analysis import Analysis, Linearisation, linearisation
 from .studies.analysis import analyze as _analyze
-from .studies.design import DESIGN_DEFAULTS, design_filter, design_settings
+from .studies.design import DESIGN_DEFAULTS, design_curves, design_filter, design_settings
 from .sweeps.executor import open_executor
 from .sweeps.job import Sweep, sweep
 
@@ -110,7 +110,7 @@ def design(scene=None, overrides=None, *, design: dict | None = None, workers: i
     else:
         with open_executor(workers, scheduler) as ex:
             r = design_filter(p, c, settings, progress=bar, executor=ex)
-    return DesignReport(r, p, c, settings)
+    return DesignReport(r, p, c, settings, design_curves(r, p, c, settings))
 
 
 def build_fmus(flavour: str = "native", *, fmi_version: int = 2, out=None,

@@ -122,12 +122,12 @@ _HELD = contextlib.ExitStack()
 
 def _output_dir(text: str):
     """The output folder, created, and held for this command alone until it ends
-    (:func:`~orchestration.report.files.folder_lock`): a path that is a file, cannot be written
+    (:func:`~orchestration.files.folder_lock`): a path that is a file, cannot be written
     or is in use by another run is a UsageError."""
     import tempfile
     from pathlib import Path
 
-    from .report.files import OutputError, folder_lock
+    from .files import OutputError, folder_lock
 
     out = Path(text)
     if out.exists() and not out.is_dir():
@@ -145,7 +145,7 @@ def _output_dir(text: str):
 
 
 def _json(obj) -> str:
-    from .report.files import json_safe
+    from .files import json_safe
     return json.dumps(json_safe(obj), indent=2)
 
 
@@ -383,9 +383,9 @@ def cmd_check(args) -> int:
         ReferenceError,
         Rule,
         check_fmu,
-        plot_check,
         write_reference,
     )
+    from .report.check import plot_check
 
     try:
         rule = Rule(args.tolerance, args.window, args.max_outliers)
@@ -763,7 +763,7 @@ _WRITE_ERRNOS = {getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EFBIG", 
 
 def _output_failure(exc: OSError) -> str | None:
     """The one line of an output that could not be written (a full disk...), else None."""
-    from .report.files import OutputError
+    from .files import OutputError
 
     if isinstance(exc, OutputError):
         return str(exc)

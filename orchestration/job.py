@@ -21,6 +21,7 @@ ends.
 """
 from __future__ import annotations
 
+import functools
 import math
 import os
 import warnings
@@ -37,11 +38,11 @@ from .cosim.master import Master
 from .cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
 from .export import flavour_fmus
+from .files import write_csv, write_json
 from .report import figures
-from .report.files import save_figure, write_csv, write_json
+from .report.files import save_figure
 from .report.plotting import check_renderer
 from .report.progress import Progress
-from .report.summary import iteration_counts, stop_reason, summarize
 from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
 from .scene.schema import load_scene, start_values
@@ -52,6 +53,7 @@ from .studies.error_figure import companion_scene, companion_text, own_companion
 from .studies.fidelity import available_ladder, climb, refused_rungs, select_model
 from .studies.plant_step import checks as plant_step_checks
 from .studies.reference import COLUMNS, check_reference, simulate_reference
+from .studies.summary import ReportFacts, iteration_counts, report_facts, stop_reason, summarize
 
 __all__ = ["Run", "JobResult", "simulate", "run_scene", "run_job", "paper_figures", "load_job",
            "step_warning", "check_plant_step",
@@ -91,7 +93,9 @@ class Run:
     output points reached, a numpy structured array (``time`` first, then the CSV's columns in SI
     units); ``summary``: what ``summary.json`` holds for it; ``stats``: the master's counts and
     wall time; ``reference``: the monolithic reference on the same grid (when asked);
-    ``interrupted``: stopped by its ``stop`` callback."""
+    ``interrupted``: stopped by its ``stop`` callback; ``facts``: what its figures draw besides
+    the summary (:class:`~orchestration.studies.summary.ReportFacts`: its linearised loop's
+    roots), computed once, on first use."""
 
     scene: Scene
     result: np.ndarray
@@ -104,6 +108,10 @@ class Run:
     @property
     def name(self) -> str:
         return self.scene.name
+
+    @functools.cached_property
+    def facts(self) -> ReportFacts:
+        return report_facts(self.scene)
 
     @property
     def completed(self) -> bool:
@@ -123,7 +131,7 @@ class Run:
         position) as a matplotlib Figure (the process's backend is left alone), or drawn by
         another ``renderer`` (:data:`~orchestration.report.plotting.RENDERERS`)."""
         return figures.time_histories(self.result, self.scene, self.reference, self.summary,
-                                      renderer=renderer)
+                                      facts=self.facts, renderer=renderer)
 
     def plot_shapes(self, renderer: str = "matplotlib"):
         """The beam and the cart at eight times over the run, a Figure (None before two output
@@ -515,12 +523,12 @@ def paper_figures(runs, folder, renderer: str = "raster") -> list[Path]:
         if r.scene.plant.params.n_modes > 0:
             plants.setdefault(linearisation(r.scene).params, []).append(r)
     if plants:
-        labelled = [(f"{', '.join(r.name for r in on)}: {figures.plant_text(on[0].scene)}", p)
-                    for p, on in plants.items()]
+        labelled = [(f"{', '.join(r.name for r in on)}: {figures.plant_text(on[0].scene)}", p,
+                     on[0].facts.roots.bending_frequency) for p, on in plants.items()]
         written.append(save_figure(figures.mode_shapes(labelled, renderer=renderer),
                                    folder / "mode_shapes.png"))
-    written.append(save_figure(figures.root_map([r.scene for r in runs], renderer=renderer),
-                               folder / "root_map.png"))
+    written.append(save_figure(figures.root_map([r.scene for r in runs], [r.facts for r in runs],
+                                                renderer=renderer), folder / "root_map.png"))
     return written
 
 

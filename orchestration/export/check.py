@@ -53,8 +53,7 @@ import numpy as np
 
 from fmu_common.kernels import ROOT
 
-from ..report.figures import new_figure
-from ..report.files import save_figure, write_csv, write_text
+from ..files import write_csv, write_text
 from ..scene import archive
 from . import places
 
@@ -62,7 +61,7 @@ __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceErr
            "SignalCheck", "CheckReport", "reference_files", "find_reference", "read_opt",
            "simulate_case", "compare", "validate", "band", "constant_signals", "check_reference",
            "check_fmu", "write_reference", "Excitation", "EXCITATIONS", "excitation_for",
-           "plot_check", "simulate_reference_case", "write_references"]
+           "simulate_reference_case", "write_references"]
 
 REFERENCE_DIR = ROOT / "tests" / "reference"
 
@@ -679,47 +678,6 @@ def _write_result(fmu: Path, md, files: dict, outputs) -> list:
     files["written"].append(files["ref"])
     files["signals"], files["left_out"] = kept[1:], constant
     return kept[1:]
-
-
-# ---------------------------------------------------------------------- plot
-def plot_check(report: CheckReport, path) -> Path:
-    """Each signal over its band: the reference, the band, the result, the samples outside."""
-
-    signals = list(report.signals.values())
-    n = max(1, len(signals))
-    fig = new_figure(9, 1.9 * n + 0.8)
-    axes = fig.subplots(n, 1, sharex=True, squeeze=False)
-    res = report.run.result
-    ref = report.reference
-    t_ref = ref[ref.dtype.names[0]]
-    for ax, s in zip(axes[:, 0], signals):
-        if s.band:
-            ax.fill_between(s.band[0], s.band[1], s.band[2], color="tab:green", alpha=0.25,
-                            lw=0, label="band")
-        ax.plot(t_ref, ref[s.name], color="black", lw=0.8, label="reference")
-        if res is not None and s.name in (res.dtype.names or ()):
-            t = res[res.dtype.names[0]]
-            ax.plot(t, res[s.name], color="tab:blue", lw=0.8, ls="--", label="result")
-            if s.band and s.outliers:
-                lo = np.interp(t, s.band[0], s.band[1])
-                hi = np.interp(t, s.band[0], s.band[2])
-                bad = ~((res[s.name] >= lo) & (res[s.name] <= hi))
-                ax.plot(t[bad], res[s.name][bad], ".", color="tab:red", ms=3, label="outside")
-        ax.set_ylabel(s.name)
-        ax.set_title(f"{s.name}: {'pass' if s.passed else 'FAIL'} ({s.outliers}/{s.samples} "
-                     f"outside)", fontsize=8, loc="left")
-        ax.grid(alpha=0.3)
-    axes[0, 0].legend(loc="upper right", fontsize=7)
-    axes[-1, 0].set_xlabel("time (s)")
-    verdict = "PASSED" if report.passed else "FAILED"
-    extra = f"; {report.failure}" if report.failure else ""
-    fig.suptitle(f"{report.fmu.name}: {verdict} ({report.rule.describe()}){extra}"[:160],
-                 fontsize=9)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_figure(fig, path)
-    return path
 
 
 # ---------------------------------------------------------------------- the project's references

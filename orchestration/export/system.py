@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..report.files import output_error
+from ..files import output_error
 from ..scene.ssp import write_ssp
 from ..studies.fidelity import select_model
 from . import flavour_fmus

@@ -10,10 +10,9 @@ import numpy as np
 
 from plant_fmu.params import damping_text
 
-from ..studies.analysis import frequency_response
-from ..studies.design import root_locus
+from ..files import atomic_path, write_json
 from . import figures
-from .files import atomic_path, save_figure, write_json
+from .files import save_figure
 from .text import filter_text
 
 __all__ = ["DesignReport"]
@@ -22,12 +21,15 @@ __all__ = ["DesignReport"]
 @dataclass
 class DesignReport:
     """A design (:class:`~orchestration.studies.design.DesignResult`) of the filter of
-    ``controller``'s PD on the nominal ``plant``, with its figures and files."""
+    ``controller``'s PD on the nominal ``plant``, with its figures and files; ``curves``: what
+    the figures draw, computed with the design
+    (:class:`~orchestration.studies.design.DesignCurves`)."""
 
     result: object
     plant: object
     controller: object
     settings: dict
+    curves: object = field(repr=False)
     written: list = field(default_factory=list)
     record: dict = field(default_factory=dict)     # design.json, once saved
 
@@ -49,20 +51,16 @@ class DesignReport:
             f"{uset['zeta'][0]:g}..{uset['zeta'][1]:g} ({p.damping} law), EI "
             f"+-{100 * r.uncertainty.EI_spread:g} %, m +-{100 * r.uncertainty.m_spread:g} % "
             f"(PD kp = {c.kp:g}, kd = {c.kd:g})")}
-        w = np.logspace(0, np.log10(max(20.0 * ch.cutoff, 5e3)), 3000)
-        loops = {"PD, no filter": frequency_response(p, c.replace(filter_order=0), w),
-                 chosen_label.replace("chosen: ", "PD + "): frequency_response(p, ch, w)}
-        if (c.filter_order, c.cutoff, c.filter_damping) != \
-                (ch.filter_order, ch.cutoff, ch.filter_damping) and c.filter_order:
-            loops[f"PD + given {filter_text(c.filter_order, c.cutoff, c.filter_damping)}"] = \
-                frequency_response(p, c, w)
+        cv = self.curves
+        w = cv.w
+        labels = {"none": "PD, no filter", "chosen": chosen_label.replace("chosen: ", "PD + "),
+                  "given": f"PD + given {filter_text(c.filter_order, c.cutoff, c.filter_damping)}"}
+        loops = {labels[k]: L for k, L in cv.loops.items()}
         out["design_bode.png"] = figures.loop_bode(
             w, loops, f"loop broken at the force, L = -K G (PD kp = {c.kp:g}, kd = {c.kd:g}; "
                       f"nominal beam, {p.n_modes} modes, {damping_text(p)})",
             [(ch.cutoff, "cutoff")])
-        s = self.settings
-        wcs, roots = root_locus(p, ch, np.union1d(
-            np.geomspace(s["design.cutoff_min"], s["design.cutoff_max"], 300), [ch.cutoff]))
+        wcs, roots = cv.cutoffs, cv.roots
         kind = "1st order" if ch.filter_order == 1 else f"2nd order, zf = {ch.filter_damping:g}"
         out["design_root_locus.png"] = figures.root_locus(
             wcs, roots, ch.cutoff, f"closed-loop roots as the cutoff varies ({kind}; nominal "

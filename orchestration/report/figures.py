@@ -17,7 +17,6 @@ import math
 
 import numpy as np
 
-from ..studies.error_figure import UNTRUSTED
 from .layout import SUPERSCRIPT
 from .mpl_canvas import new_figure, plain_log_labels, ticks_in_view
 from .plotting import canvas
@@ -109,14 +108,12 @@ def initial_text(initial) -> str:
     return out
 
 
-def loop_text(scene) -> str:
+def loop_text(facts) -> str:
     """What the linearised loop predicts: stable (its slowest decay) or which roots grow; the
-    bending root (:func:`~orchestration.studies.analysis.loop_roots`)."""
-    from ..studies.analysis import linearisation, loop_roots
-
-    lin = linearisation(scene)
-    r = loop_roots(lin.params, scene.controller)
-    loop = "linearised loop" if lin.own else \
+    bending root; from a run's facts (:class:`~orchestration.studies.summary.ReportFacts`: its
+    loop's roots, :func:`~orchestration.studies.analysis.loop_roots`)."""
+    r = facts.roots
+    loop = "linearised loop" if facts.own else \
         "the floating frame's preloaded linearised loop (standing in for the exact rung's)"
 
     def name(z):
@@ -137,10 +134,10 @@ def loop_text(scene) -> str:
     return out
 
 
-def outcome_text(summary) -> str:
+def outcome_text(summary, facts=None) -> str:
     """What the co-simulation did: its stop, or its verdict, and its error figure (what it
-    compares with, or why there is none); without one, its model-form error bound and whether
-    it left its rung's measured range."""
+    compares with, or why there is none, in the words of ``facts.untrusted``); without one, its
+    model-form error bound and whether it left its rung's measured range."""
     if summary is None:
         return ""
     stopped = summary.get("stopped")
@@ -157,7 +154,7 @@ def outcome_text(summary) -> str:
                    + ("" if c["zeta"] else ", undamped"))
         out += (f"; error vs the exact beam <= {f['figure']:.1e} rad (companion: {against})"
                 if f["figure"] is not None
-                else f"; no error figure: {UNTRUSTED[f['untrusted']]}")
+                else f"; no error figure: {facts.untrusted[f['untrusted']]}")
         return out
     v = summary.get("validity") or {}
     if v.get("model_form_error") is not None:
@@ -167,12 +164,13 @@ def outcome_text(summary) -> str:
     return out
 
 
-def scene_title(scene, summary=None) -> str:
-    """A figure's title, from the records of the scene that ran (and its summary): the plant,
-    the control law, the initial state, the linear prediction, the outcome."""
+def scene_title(scene, summary=None, *, facts) -> str:
+    """A figure's title, from the records of the scene that ran, its facts
+    (:class:`~orchestration.studies.summary.ReportFacts`) and its summary: the plant, the
+    control law, the initial state, the linear prediction, the outcome."""
     lines = [f"{scene.name}: {plant_text(scene)}",
              f"{controller_text(scene.controller)}; {initial_text(scene.initial)}",
-             loop_text(scene), outcome_text(summary)]
+             loop_text(facts), outcome_text(summary, facts)]
     return "\n".join(_wrapped(line, 130) for line in lines if line)
 
 
@@ -249,10 +247,13 @@ def bending_band(t, y, low: float, frequency: float | None = None):
     return hp, np.lib.stride_tricks.sliding_window_view(edge, size).max(axis=1)
 
 
-def time_histories(result, scene, reference=None, summary=None, *, renderer="matplotlib"):
+def time_histories(result, scene, reference=None, summary=None, *, facts,
+                   renderer="matplotlib"):
     """The paper's time histories (Figs. 3, 4, 6, 7): tip angle, first modal coordinate, the
     envelope of its bending band, tip deflection, force and cart position against time; the
     bending panels are left out for a rigid model. The title says what ran (:func:`scene_title`).
+    ``facts`` (:class:`~orchestration.studies.summary.ReportFacts`): the linearised loop's roots
+    for the title, the bending band and the first bending frequency for its envelope.
 
     With a ``summary``: each fit window is shaded on the trace that was fitted, with the fitted
     rate: the slow fit on the tip angle, the bending fit on the envelope of ``eta_1``'s bending
@@ -262,13 +263,10 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
     (else stated); an early stop is marked. Drawn by ``renderer``
     (:func:`~orchestration.report.plotting.canvas`): a matplotlib Figure, or a raster canvas to
     save."""
-    from ..studies.analysis import first_bending_frequency, linearisation
-    from .summary import BENDING_BAND
-
     t = result["time"]
     flexible = scene.plant.params.n_modes > 0 and np.any(result["eta_1"]) and len(t) >= 16
     cols = [c for c in PANELS if flexible or c not in ("eta_1", "bending", "tip_deflection")]
-    title = scene_title(scene, summary)
+    title = scene_title(scene, summary, facts=facts)
     top = _title_height(title)
     height = 1.55 * len(cols) + top + 0.5
     fig = canvas(9, height, renderer)
@@ -292,8 +290,8 @@ def time_histories(result, scene, reference=None, summary=None, *, renderer="mat
                     label="monolithic reference")
     if flexible:
         ax = ax_of["bending"]
-        _, env = bending_band(t, result["eta_1"], BENDING_BAND[0],
-                              first_bending_frequency(linearisation(scene).params))
+        _, env = bending_band(t, result["eta_1"], facts.bending_band,
+                              facts.roots.bending_frequency)
         ax.yscale("log")
         ax.line(t, np.maximum(env, 1e-300), lw=0.7, color="C0")
         top_env = float(env.max()) if env.size else 0.0
@@ -509,7 +507,9 @@ def _hermite(nodes, values, slopes, s):
 def mode_shapes(plants, *, renderer="matplotlib"):
     """The cantilever mode shapes a plant uses (:func:`plant_fmu.beam.beam_model`: ``nodes``,
     ``shapes``, ``slopes``, ``frequencies``), the beam upright as in the snapshots: one panel per
-    plant of ``plants`` (a list of ``(label, PlantParams)``; rigid ones are left out), each mode
+    plant of ``plants`` (a list of ``(label, PlantParams, its first bending frequency with the
+    hinge free)``, :attr:`~orchestration.studies.analysis.LoopRoots.bending_frequency`; rigid
+    ones are left out), each mode
     drawn between the nodes as the finite elements shape it (cubic Hermite, from the nodal
     deflections and slopes) and scaled to a tip deflection of 1 (the model's mass-normalised
     shapes differ only in scale), with its frequency. These are the modes clamped at the hinge;
@@ -517,9 +517,7 @@ def mode_shapes(plants, *, renderer="matplotlib"):
     Drawn by ``renderer``, as :func:`time_histories`."""
     from plant_fmu.beam import beam_model
 
-    from ..studies.analysis import first_bending_frequency
-
-    plants = [(label, p) for label, p in plants if p.n_modes > 0]
+    plants = [(label, p, wb) for label, p, wb in plants if p.n_modes > 0]
     n = max(len(plants), 1)
     panel, legend_w, left, top, bottom = 3.0, 2.6, 0.65, 0.75, 0.5
     width = left + n * (panel + legend_w)
@@ -528,7 +526,7 @@ def mode_shapes(plants, *, renderer="matplotlib"):
     grid = fig.grid(1, n, left=left / width, right=1 - legend_w / width, top=1 - top / height,
                     bottom=bottom / height, wspace=legend_w / panel)
     axes = fig.panels(grid)[0]
-    for ax, (label, p) in zip(axes, plants):
+    for ax, (label, p, _) in zip(axes, plants):
         b = beam_model(p)
         s = np.linspace(0.0, b.nodes[-1], 40 * len(b.nodes))
         for j in range(p.n_modes):
@@ -545,10 +543,10 @@ def mode_shapes(plants, *, renderer="matplotlib"):
         ax.tick_labels(8)
         ax.grid()
         ax.legend(size=7.5, outside=True)
-    for ax, (label, p) in zip(axes, plants):             # beside the panel, under its legend
+    for ax, (label, p, wb) in zip(axes, plants):         # beside the panel, under its legend
         x0, y0, x1, y1 = ax.box
         fig.text(x1 + 0.1 / width, y0, f"hinge free, the first bending\nmode is at "
-                 f"{first_bending_frequency(p):.4g} rad/s:\nthe loop's bending root is\nnear it",
+                 f"{wb:.4g} rad/s:\nthe loop's bending root is\nnear it",
                  size=7.5, va="bottom", color="0.3")
     axes[0].ylabel("position along the beam s (m)", size=8)
     fig.title("The cantilever modes the plant uses\n(floating frame, clamped at the hinge)",
@@ -556,17 +554,16 @@ def mode_shapes(plants, *, renderer="matplotlib"):
     return fig.result()
 
 
-def root_map(scenes, *, renderer="matplotlib"):
-    """The closed-loop roots of each scene's linearised loop (:func:`~orchestration.studies.
-    analysis.loop_roots`, the cart's drift roots left aside), upper half-plane: left all of
+def root_map(scenes, facts, *, renderer="matplotlib"):
+    """The closed-loop roots of each scene's linearised loop (``facts``, one per scene:
+    :class:`~orchestration.studies.summary.ReportFacts`, its roots by :func:`~orchestration.
+    studies.analysis.loop_roots`, the cart's drift roots left aside), upper half-plane: left all of
     them (real axis symmetric-log), right the part near the imaginary axis up to twice the
     first bending frequency; each scene's bending root circled and labelled. Drawn by
     ``renderer``, as :func:`time_histories`."""
     from plant_fmu.params import damping_text
 
-    from ..studies.analysis import linearisation, loop_roots
-
-    roots = [(sc, loop_roots(linearisation(sc).params, sc.controller)) for sc in scenes]
+    roots = [(sc, f.roots) for sc, f in zip(scenes, facts, strict=True)]
     width, height = 11.0, 5.2
     fig = canvas(width, height, renderer)
     grid = fig.grid(1, 2, left=0.07, right=0.99, top=1 - 0.95 / height, bottom=0.6 / height,

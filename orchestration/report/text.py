@@ -150,7 +150,7 @@ def figure_text(f: dict) -> str:
 
 
 def run_lines(name: str, s: dict, written=()) -> list[str]:
-    """A run's summary (:func:`orchestration.report.summary.summarize`) for the terminal."""
+    """A run's summary (:func:`orchestration.studies.summary.summarize`) for the terminal."""
     if s["stopped"] is not None:
         verdict = f"STOPPED at t = {num(s['stopped']['time'], '.4g')} s"
     else:

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from controller_fmu.pd_lowpass import ControllerParams
+from controller_fmu.spec import model_for as controller_model
 from plant_fmu.beam import beam_model
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams, damping_text
@@ -116,7 +117,7 @@ def closed_loop_matrix(p: PlantParams, c: ControllerParams, gain: float = 1.0) -
     ``gain`` multiplies the controller's output (for margin scans); 1 is the nominal loop.
     """
     A, B, C, _ = _plant_state_space(p)
-    return assemble_closed_loop(A, B, C, PDLowPassModel(c).state_space(), gain)
+    return assemble_closed_loop(A, B, C, controller_model(c).state_space(), gain)
 
 
 @lru_cache(maxsize=_CACHE)
@@ -207,7 +208,7 @@ def loop_transfer(p: PlantParams, c: ControllerParams) -> control.StateSpace:
         keep = [i for i in range(A.shape[0]) if i not in (0, nq)]
         A, B, C = A[np.ix_(keep, keep)], B[keep], C[:, keep]
     G = control.ss(A, B, C, D)
-    K = control.ss(*PDLowPassModel(c).state_space())
+    K = control.ss(*controller_model(c).state_space())
     return -control.series(G, K)
 
 

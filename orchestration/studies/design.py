@@ -25,17 +25,18 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.optimize
 
-from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from controller_fmu.pd_lowpass import ControllerParams
+from controller_fmu.spec import model_for as controller_model
 from fmu_common.checks import check_int, check_real
 from plant_fmu.dynamics import plant_model
 from plant_fmu.params import PlantParams
 
 from ..scene.keys import ConfigError
-from .analysis import _drift_free, assemble_closed_loop
+from .analysis import _drift_free, assemble_closed_loop, frequency_response
 
 __all__ = ["DESIGN_DEFAULTS", "CRITERIA", "UncertaintySet", "RobustLoop", "WorstCase",
            "DesignResult", "design_settings", "design_filter", "root_locus", "FILTER_KEYS",
-           "worst_cases"]
+           "worst_cases", "DesignCurves", "design_curves"]
 
 #: Scores of a candidate filter: the worst-case decay rate or the worst-case damping ratio.
 CRITERIA = ("decay", "damping")
@@ -199,7 +200,7 @@ class RobustLoop:
     def eigenvalues(self, c: ControllerParams):
         """``(plants, roots)`` per group; ``roots[k]`` are the closed-loop roots with
         ``plants[k]``, the cart's drift roots left aside when the cart is not fed back."""
-        ctrl = PDLowPassModel(c).state_space()
+        ctrl = controller_model(c).state_space()
         for ps, A, B, C in self.groups:
             yield ps, np.linalg.eigvals(_drift_free(assemble_closed_loop(A, B, C, ctrl), ps[0]))
 
@@ -387,3 +388,35 @@ def root_locus(p: PlantParams, c: ControllerParams, cutoffs) -> tuple[np.ndarray
     loop = RobustLoop([p])
     roots = [next(loop.eigenvalues(c.replace(cutoff=float(wc))))[1][0] for wc in cutoffs]
     return np.asarray(cutoffs, dtype=float), np.array(roots)
+
+
+@dataclass(frozen=True)
+class DesignCurves:
+    """The curves the design's figures draw (:func:`design_curves`, computed once with the
+    design and handed to :class:`~orchestration.report.design.DesignReport`): ``w`` (rad/s) and
+    ``loops``, the loop broken at the force ``L(jw)`` (:func:`~orchestration.studies.analysis.
+    frequency_response`) of the PD without a filter (``"none"``), with the chosen filter
+    (``"chosen"``) and, when it differs and has one, with the scene's own (``"given"``);
+    ``cutoffs`` and ``roots``, the root locus over the cutoff (:func:`root_locus`)."""
+
+    w: np.ndarray
+    loops: dict
+    cutoffs: np.ndarray
+    roots: np.ndarray
+
+
+def design_curves(result: DesignResult, p: PlantParams, c: ControllerParams,
+                  settings: dict) -> DesignCurves:
+    """:class:`DesignCurves` of a design ``result`` of the filter of ``c``'s PD on the nominal
+    plant ``p``, with its ``settings`` (the cutoff range of the root locus)."""
+    ch = result.chosen
+    w = np.logspace(0, np.log10(max(20.0 * ch.cutoff, 5e3)), 3000)
+    loops = {"none": frequency_response(p, c.replace(filter_order=0), w),
+             "chosen": frequency_response(p, ch, w)}
+    if (c.filter_order, c.cutoff, c.filter_damping) != \
+            (ch.filter_order, ch.cutoff, ch.filter_damping) and c.filter_order:
+        loops["given"] = frequency_response(p, c, w)
+    cutoffs, roots = root_locus(p, ch, np.union1d(
+        np.geomspace(settings["design.cutoff_min"], settings["design.cutoff_max"], 300),
+        [ch.cutoff]))
+    return DesignCurves(w, loops, cutoffs, roots)

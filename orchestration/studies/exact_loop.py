@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller_fmu.pd_lowpass import PDLowPassModel
-from plant_fmu.exact import (RADAU_A, RADAU_SPLIT_MAX, AffineForce, ExactPlant, GeneralizedAlpha,
-                             NoConvergence, RadauIIA, StageForce)
+from controller_fmu.spec import model_for as controller_model
+from plant_fmu.exact import (RADAU_A, RADAU_SPLIT_MAX, AffineForce, GeneralizedAlpha, NoConvergence,
+                             RadauIIA, StageForce, exact_plant)
 from plant_fmu.kernel import FP_NOCONVERGE, ExactKernel, ExactStepError
 
 __all__ = ["ExactLoop", "exact_run"]
@@ -28,9 +28,12 @@ class ExactLoop:
 
     ``method = "genalpha"`` (:class:`plant_fmu.exact.GeneralizedAlpha`, ``rho_inf``): the filter
     by the trapezoidal rule over each step, so ``F_{n+1} = F0 - Q0 e(q_{n+1}, qd_{n+1})`` with
-    ``e = kx x_o + kp phi_o + kd omega_o``: the force is part of the step's Newton solve."""
+    ``e = kx x_o + kp phi_o + kd omega_o``: the force is part of the step's Newton solve.
 
-    def __init__(self, plant: ExactPlant, ctrl: PDLowPassModel, h: float, rho_inf: float = 0.9,
+    ``plant``: the exact beam (:func:`plant_fmu.exact.exact_plant`); ``ctrl``: the controller's
+    model (:func:`controller_fmu.spec.model_for`)."""
+
+    def __init__(self, plant, ctrl, h: float, rho_inf: float = 0.9,
                  kernel: bool = False, method: str = "radau"):
         if ctrl.params.saturates:
             raise ValueError("the exact loop has no force saturation")
@@ -148,8 +151,8 @@ def exact_run(scene, n_elements: int, h: float, kernel: bool = False,
     ``method`` (``"radau"`` or ``"genalpha"``), by the numpy specification or (``kernel``) the C
     kernel."""
     p = scene.plant.params.replace(n_elements=n_elements)
-    plant = ExactPlant(p)
-    loop = ExactLoop(plant, PDLowPassModel(scene.controller), h, kernel=kernel, method=method)
+    plant = exact_plant(p)
+    loop = ExactLoop(plant, controller_model(scene.controller), h, kernel=kernel, method=method)
     x0 = plant.initial_state(phi=scene.initial.phi, x=scene.initial.x,
                              phi_dot=scene.initial.phi_dot, x_dot=scene.initial.x_dot)
     return loop.run(x0, scene.output.stop_time, scene.output.output_interval)[1]

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from controller_fmu.pd_lowpass import PDLowPassModel
+from controller_fmu.spec import model_for as controller_model
 from plant_fmu.dynamics import model_for
 
 from ..scene.keys import ConfigError
@@ -37,7 +37,7 @@ class ClosedLoop:
                               "the model first (orchestration.studies.fidelity.select_model)")
         p, c = scene.plant.params, scene.controller
         self.plant = model_for(p, scene.plant.fidelity)
-        self.ctrl = PDLowPassModel(c)
+        self.ctrl = controller_model(c)
         self.np = self.plant.nx
         self.x0 = np.concatenate([
             self.plant.initial_state(phi=scene.initial.phi, x=scene.initial.x,
@@ -129,7 +129,7 @@ def check_reference(scene) -> None:
 
 
 def _exact_loop(scene):
-    from plant_fmu.exact import ExactPlant
+    from plant_fmu.exact import exact_plant
 
     from .exact_loop import ExactLoop
 
@@ -141,7 +141,7 @@ def _exact_loop(scene):
     if per < 1 or abs(per * h - dt) > 1e-12 * dt:
         raise ConfigError(f"{scene.name}: the exact reference steps at plant.exact_step = {h:g}, "
                           f"which must divide output_interval = {dt:g}")
-    return ExactLoop(ExactPlant(scene.plant.params), PDLowPassModel(scene.controller), h,
+    return ExactLoop(exact_plant(scene.plant.params), controller_model(scene.controller), h,
                      kernel=True, method="radau")
 
 

@@ -42,7 +42,8 @@ Two public step maps are the building blocks (a scheme other than the explicit o
 iterated one, is composed from them): :func:`plant_polynomial_step_map` ``(Phi, Gamma)`` with
 ``x(t+H) = Phi x(t) + Gamma [u, u', u'']`` for the plant FMU's method, and
 :func:`controller_polynomial_step_map` ``(Ad, G)`` with ``xc(t+H) = Ad xc(t) + G [y, y', y'']``
-(``F_c = C xc + D y`` with :class:`~controller_fmu.pd_lowpass.PDLowPassModel`'s ``C, D``).
+(``F_c = C xc + D y`` with the ``C, D`` of the controller's model,
+:func:`controller_fmu.spec.model_for`).
 
 The spectral radius ``rho(Phi)`` decides: the co-simulation of the linearised loop decays iff
 ``rho < 1``. With ``kx = 0`` the cart's position and velocity are neither fed back nor felt by the
@@ -65,7 +66,8 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from controller_fmu.pd_lowpass import ControllerParams
+from controller_fmu.spec import model_for as controller_model
 from plant_fmu.dynamics import plant_model
 from plant_fmu.integrators.genalpha import genalpha_parameters
 from plant_fmu.params import PlantParams
@@ -392,13 +394,13 @@ def controller_polynomial_step_map(c: ControllerParams, H):
     sensors are the polynomials ``y(t + s) = y + y' s + y'' s^2 / 2``: ``xc(t + H) = Ad xc(t) + G
     @ [y, y', y'']`` (``y = [x_o, phi_o, omega_o]``; ``G`` has 9 columns), exact (the filter
     driven by a chain of integrators, one matrix exponential, as
-    :meth:`~controller_fmu.pd_lowpass.PDLowPassModel.discretize_polynomial` forms it). Held
-    sensors are ``[y, 0, 0]``. The force is ``F_c = C xc + D y`` (:class:`PDLowPassModel`). For
+    the model's ``discretize_polynomial`` forms it). Held sensors are ``[y, 0, 0]``. The force is
+    ``F_c = C xc + D y`` (the model's, :func:`controller_fmu.spec.model_for`). For
     a 1-d array ``H``, the stacks of the maps, one per step."""
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     Hs, scalar = _steps(H)
-    ctrl = PDLowPassModel(c)
+    ctrl = controller_model(c)
     n = ctrl.nx
     M = np.zeros((n + 3, n + 3))          # the generator per second: [xc, e, e', e'']
     M[:n, :n] = ctrl.Af
@@ -587,7 +589,7 @@ def _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_der
     their maps (:func:`_step_maps`): the stack ``(K, N, N)``."""
     taylor = bool(output_derivatives)
     plant, n_der, (Pp, Gp), (Ad, Gc) = maps
-    ctrl = PDLowPassModel(c)
+    ctrl = controller_model(c)
     Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
     A, B, C = plant.A, plant.B, plant.C
     nx, nc, ny, P = Pp.shape[-1], ctrl.nx, C.shape[0], extrapolation + 1
@@ -1189,7 +1191,7 @@ def implicit_transition_matrix(p: PlantParams, c: ControllerParams, H, *,
     plant, n_der, (Pp, Gp), (Ad, Gc) = _step_maps(p, c, Hs, extrapolation, input_derivatives,
                                                    integrator, substep, drift_free, step_index,
                                                    plant_map, controller_map)
-    Cc, Dc = PDLowPassModel(c).state_space()[2:]
+    Cc, Dc = controller_model(c).state_space()[2:]
     C = plant.C
     nx, nc, ny = Pp.shape[-1], Ad.shape[-1], C.shape[0]
     Hb = Hs[:, None, None]

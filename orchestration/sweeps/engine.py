@@ -22,7 +22,7 @@ from ..cosim.pool import SlavePool
 from ..export import flavour_fmus
 from ..export.native_fmus import GENERATION_TOOL
 from ..job import run_scene
-from ..report.files import atomic_path, output_error
+from ..files import atomic_path, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
 from ..studies.analysis import linearisation, max_real_part
@@ -51,7 +51,7 @@ VERDICTS = {True: "stable", False: "unstable", None: "undetermined"}
 
 
 def verdict_of(row: dict) -> str:
-    """The run's verdict (:func:`orchestration.report.summary.verdict`): ``stable``,
+    """The run's verdict (:func:`orchestration.studies.summary.verdict`): ``stable``,
     ``unstable``, ``undetermined`` (no fit decides: too short a run, too few periods in the
     linear range, a rate within its uncertainty of zero) or ``stopped`` (early). Undetermined is
     not "unstable"."""
@@ -59,7 +59,7 @@ def verdict_of(row: dict) -> str:
 
 
 def summary_row(summary: dict) -> dict:
-    """The table's fields of one run, from its summary (:func:`orchestration.report.summary.summarize`
+    """The table's fields of one run, from its summary (:func:`orchestration.studies.summary.summarize`
     and :func:`orchestration.job.run_scene`): the one place that knows the summary's layout.
 
     A fitted rate is a number only where the summary found the fit reliable (the note says why

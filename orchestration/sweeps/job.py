@@ -6,7 +6,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..report.files import write_json
+from ..files import write_json
 from ..scene.keys import ConfigError, toml_value
 from .engine import fmus_for, pending, run_sweep, sweep_stats
 from .executor import (CLUSTER_START, Executor, cluster_limits, cluster_workers, default_workers,

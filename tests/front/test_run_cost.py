@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from orchestration.export.places import ROOT
-from orchestration.report.files import write_csv
+from orchestration.files import write_csv
 
 #: Modules the paper's scenes do not use (an SSP archive, ``--reference``, a design, a sweep or
 #: ``to_pandas()`` import theirs when asked).

@@ -3,8 +3,8 @@ count), and imports go only from a higher layer to a lower one (or within one ro
 
 The layers, top to bottom, as ``orchestration/__init__.py`` states them: the command line, the
 front door, sweeps, the job, the FMU factory, reports, studies, the co-simulation engine, scenes,
-the models, what every FMU shares. Two rooms of one layer (the plant and the controller) import
-nothing from each other."""
+the output files, the models, what every FMU shares. Two rooms of one layer (the plant and the
+controller) import nothing from each other."""
 import ast
 from pathlib import Path
 
@@ -23,6 +23,7 @@ LAYERS = [
     ("orchestration.studies", 4),
     ("orchestration.cosim", 3),
     ("orchestration.scene", 2),
+    ("orchestration.files", 1.5),  # output files, complete or absent: below all that write
     ("orchestration", 10),         # the front door (its __init__), on the api
     ("plant_fmu", 1),
     ("controller_fmu", 1),
@@ -158,3 +159,56 @@ def test_a_model_imports_nothing_of_the_other_nor_of_the_host(model, other):
     bad = [(m, t) for m, ts in graph.items() if m.startswith(model)
            for t, _ in ts if t.startswith((other, "orchestration"))]
     assert bad == []
+
+
+#: (importer, imported): rooms that the layers would allow to meet but that must not. The FMU
+#: factory writes its files with :mod:`orchestration.files`, not through the reports; the reports
+#: format what the job computed (the summary, its facts, the design's curves) and call no study.
+APART = [("orchestration.export", "orchestration.report"),
+         ("orchestration.report", "orchestration.studies")]
+
+
+def within(mod: str, prefix: str) -> bool:
+    return mod == prefix or mod.startswith(prefix + ".")
+
+
+@pytest.mark.parametrize("importer,imported", APART)
+def test_rooms_kept_apart(importer, imported):
+    bad = [f"{m}:{line} imports {t}" for m, ts in imports(ROOT).items() if within(m, importer)
+           for t, line in sorted(ts) if within(t, imported)]
+    assert bad == []
+
+
+def model_class_names() -> set:
+    """The names of every model class of the controller's laws
+    (:func:`controller_fmu.spec.model_classes`) and of the plant's rungs (the classes of what
+    :func:`plant_fmu.dynamics.model_for` and :func:`plant_fmu.exact.exact_plant` return for each
+    of :data:`plant_fmu.interface.FIDELITIES`), with their base classes within the models."""
+    from controller_fmu.spec import model_classes
+    from plant_fmu.dynamics import model_for
+    from plant_fmu.exact import exact_plant
+    from plant_fmu.interface import FIDELITIES
+    from plant_fmu.params import PlantParams
+
+    p = PlantParams()
+    classes = list(model_classes()) + [type(exact_plant(p) if f == "exact" else model_for(p, f))
+                                       for f in FIDELITIES]
+    return {c.__name__ for cls in classes for c in cls.__mro__
+            if c.__module__.startswith(("plant_fmu", "controller_fmu"))}
+
+
+def test_the_host_names_no_model_class():
+    """The host obtains the models from their specifications (``model_for``), so a new
+    controller law or plant rung touches no module of ``orchestration`` by name: no file there
+    names a model class, not even in a docstring."""
+    import re
+
+    names = model_class_names()
+    assert {"PDLowPassModel", "PlantModel", "StiffenedPlantModel", "LinearPlantModel",
+            "ExactPlant"} <= names
+    word = re.compile(r"\b(" + "|".join(sorted(names)) + r")\b")
+    found = [f"{f.relative_to(ROOT)}:{i}: {m.group(0)}"
+             for f in sorted((ROOT / "orchestration").rglob("*.py"))
+             for i, line in enumerate(f.read_text().splitlines(), 1)
+             for m in [word.search(line)] if m]
+    assert found == []

@@ -11,7 +11,8 @@ from matplotlib.text import Text
 from orchestration.job import Run, paper_figures, run_scene
 from orchestration.report import figures, mpl_canvas
 from orchestration.scene.schema import PAPER_SCENES, load_scene
-from orchestration.studies.analysis import loop_roots
+from orchestration.studies.analysis import first_bending_frequency, loop_roots
+from orchestration.studies.summary import report_facts
 from plant_fmu.beam import beam_model
 
 
@@ -69,13 +70,18 @@ def assert_labels_fit(fig):
 
 
 # ---------------------------------------------------------------------- titles from the records
+def title_of(scene) -> str:
+    """The title of ``scene``'s figures before it runs (no summary), from its facts."""
+    return figures.scene_title(scene, facts=report_facts(scene))
+
+
 def test_titles_follow_overridden_gains_and_modes():
     """`--set controller.kp=5` must not be titled '-500 phi_o'; `--set plant.n_modes=1` must not
     say '4 cantilever modes ... 151 rad/s grows' (its bending root is -0.052 +- 226.7j)."""
-    kp5 = figures.scene_title(load_scene("rigid_pd", {"controller.kp": 5}))
+    kp5 = title_of(load_scene("rigid_pd", {"controller.kp": 5}))
     assert "-(5 φₒ + 5 ωₒ)" in kp5 and "500" not in kp5
     assert "UNSTABLE" in kp5 and "real root +6.23 grows" in kp5
-    one = figures.scene_title(load_scene("flexible_pd", {"plant.n_modes": 1}))
+    one = title_of(load_scene("flexible_pd", {"plant.n_modes": 1}))
     assert "flexible beam, 1 cantilever mode, modal damping 0.1 %\n" in one
     assert "4 cantilever" not in one and "151" not in one
     r = loop_roots(load_scene("flexible_pd", {"plant.n_modes": 1}).plant.params,
@@ -83,15 +89,15 @@ def test_titles_follow_overridden_gains_and_modes():
     assert r.bending.imag == pytest.approx(226.7, abs=0.1) and r.bending.real < 0
     assert f"bending root {figures.root_text(r.bending)}" in one
     assert "-0.0518 ± 226.7j" in one and "stable" in one
-    default = figures.scene_title(load_scene("flexible_pd"))
+    default = title_of(load_scene("flexible_pd"))
     assert "4 cantilever modes" in default and "bending root +1.64 ± 151.2j" in default
     # the law that root belongs to is named, and the other law's root is its own
     assert "modal damping 0.1 %" in default
-    kv = figures.scene_title(load_scene("flexible_pd", {"plant.damping": "kelvin-voigt"}))
+    kv = title_of(load_scene("flexible_pd", {"plant.damping": "kelvin-voigt"}))
     assert "Kelvin-Voigt damping, 0.1 % in mode 1" in kv and "bending root +1.21 ± 151.2j" in kv
     for name in PAPER_SCENES:                       # never the scene file's fixed text
         scene = load_scene(name)
-        assert scene.description not in figures.scene_title(scene)
+        assert scene.description not in title_of(scene)
 
 
 @pytest.mark.parametrize("overrides,fragments", [
@@ -110,7 +116,7 @@ def test_titles_follow_overridden_gains_and_modes():
       "the floating frame's preloaded linearised loop (standing in for the exact rung's)"]),
 ])
 def test_title_names_filter_limit_start_and_changed_parameters(overrides, fragments):
-    title = figures.scene_title(load_scene("flexible_pd_lowpass", overrides))
+    title = title_of(load_scene("flexible_pd_lowpass", overrides))
     for f in fragments:
         assert f in title, (f, title)
 
@@ -118,7 +124,7 @@ def test_title_names_filter_limit_start_and_changed_parameters(overrides, fragme
 def test_run_figures_carry_the_records_title(paper_runs):
     run = paper_runs["flexible_pd"]
     fig = run.plot()
-    assert fig._suptitle.get_text() == figures.scene_title(run.scene, run.summary)
+    assert fig._suptitle.get_text() == figures.scene_title(run.scene, run.summary, facts=run.facts)
     assert "co-simulation: UNSTABLE" in fig._suptitle.get_text()
 
 
@@ -321,7 +327,7 @@ def test_overview_gives_each_run_its_own_time_axis_and_no_empty_panel(paper_runs
 def test_mode_shapes_are_the_plants_with_their_frequencies():
     p = load_scene("flexible_pd").plant.params
     beam = beam_model(p)
-    fig = figures.mode_shapes([("flexible_pd", p)])
+    fig = figures.mode_shapes([("flexible_pd", p, first_bending_frequency(p))])
     assert_labels_fit(fig)
     (ax,) = [a for a in fig.axes if a.lines]
     modes = [ln for ln in ax.lines if ln.get_label().startswith("mode ")]
@@ -334,12 +340,12 @@ def test_mode_shapes_are_the_plants_with_their_frequencies():
         assert w[-1] == pytest.approx(1.0)
         assert f"{beam.frequencies[j]:.4g} rad/s" in ln.get_label()
     assert "26.33 rad/s" in modes[0].get_label()
-    assert figures.mode_shapes([("rigid", load_scene("rigid_pd").plant.params)]).axes
+    assert figures.mode_shapes([("rigid", load_scene("rigid_pd").plant.params, None)]).axes
 
 
 def test_root_map_holds_each_scenes_closed_loop_roots_and_marks_the_bending_root():
     scenes = [load_scene(n) for n in PAPER_SCENES]
-    fig = figures.root_map(scenes)
+    fig = figures.root_map(scenes, [report_facts(sc) for sc in scenes])
     assert_labels_fit(fig)
     ax = fig.axes[1]
     for k, sc in enumerate(scenes):
@@ -407,10 +413,11 @@ def test_figures_leave_the_backend_alone(paper_runs, tmp_path):
     code = ("import matplotlib, sys; matplotlib.use('svg'); "
             "from orchestration.report import figures; from orchestration.scene.schema import "
             "load_scene; from orchestration.report.files import save_figure; "
-            f"d = {str(tmp_path)!r}; "
-            "save_figure(figures.root_map([load_scene('flexible_pd')]), d + '/r.png'); "
-            "save_figure(figures.mode_shapes([('a', load_scene('flexible_pd').plant.params)]), "
-            "d + '/m.png'); "
+            "from orchestration.studies.summary import report_facts; "
+            f"d = {str(tmp_path)!r}; s = load_scene('flexible_pd'); f = report_facts(s); "
+            "save_figure(figures.root_map([s], [f]), d + '/r.png'); "
+            "save_figure(figures.mode_shapes([('a', s.plant.params, "
+            "f.roots.bending_frequency)]), d + '/m.png'); "
             "assert matplotlib.get_backend() == 'svg', matplotlib.get_backend(); "
             "import matplotlib.pyplot as plt; assert plt.get_fignums() == []")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
@@ -490,12 +497,13 @@ def test_both_renderers_draw_the_same_panels_titles_labels_and_legends(paper_run
     what matplotlib's Figure holds (panels, titles, axis labels and scales, legend entries, the
     number of curves, patches and notes) is what the raster renderer was given to draw."""
     runs = [paper_runs[n] for n in PAPER_SCENES]
-    labelled = [(runs[1].name, runs[1].scene.plant.params)]
+    labelled = [(runs[1].name, runs[1].scene.plant.params, runs[1].facts.roots.bending_frequency)]
     makers = [lambda r: runs[0].plot(r), lambda r: runs[1].plot(r),
               lambda r: runs[2].plot_shapes(r), lambda r: runs[0].plot_shapes(r),
               lambda r: figures.paper_overview(runs, renderer=r),
               lambda r: figures.mode_shapes(labelled, renderer=r),
-              lambda r: figures.root_map([r_.scene for r_ in runs], renderer=r)]
+              lambda r: figures.root_map([r_.scene for r_ in runs], [r_.facts for r_ in runs],
+                                         renderer=r)]
     for make in makers:
         mpl, ras = _mpl_structure(make("matplotlib")), _raster_structure(make("raster"))
         assert mpl["panels"] and mpl == ras

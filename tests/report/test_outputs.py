@@ -66,7 +66,7 @@ def test_the_lock_is_released_however_its_holder_ends(fmus, tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
     with subprocess.Popen(
-            [sys.executable, "-c", "import sys; from orchestration.report.files import "
+            [sys.executable, "-c", "import sys; from orchestration.files import "
              "folder_lock\nwith folder_lock(sys.argv[1]):\n    print('held', flush=True); "
              "sys.stdin.read()", str(out)],
             cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True) as holder:
@@ -141,7 +141,7 @@ def test_a_full_disk_in_a_sweep_keeps_the_table_and_a_whole_journal(fmus, small_
 def test_a_journal_row_is_appended_whole_or_not_at_all(small_disk):
     """A row that the disk has room for only in part (it crosses into a page the full disk
     cannot give) is not left torn: the journal keeps its whole rows and says which file."""
-    from orchestration.report.files import OutputError
+    from orchestration.files import OutputError
     from orchestration.sweeps.engine import Journal
 
     mnt, fill = small_disk

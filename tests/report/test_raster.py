@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from orchestration.files import OutputError
 from orchestration.report import raster
-from orchestration.report.files import OutputError, save_figure
+from orchestration.report.files import save_figure
 from orchestration.report.plotting import canvas
 
 RED = (214, 39, 40)                 # "C3"

@@ -1,4 +1,4 @@
-"""A run's verdict is earned (orchestration.report.summary.verdict): a fitted rate counts only
+"""A run's verdict is earned (orchestration.studies.summary.verdict): a fitted rate counts only
 when it is further from zero than its uncertainty; a fit that disagrees in sign with the linear
 root of the same rung is trusted only three uncertainties clear of zero; when nothing decides,
 the verdict is ``undetermined``, with the reason and, when a longer run would decide, the stop
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from orchestration import simulate
-from orchestration.report.summary import TRUST_AGAINST_LINEAR, verdict
+from orchestration.studies.summary import TRUST_AGAINST_LINEAR, verdict
 
 
 def _mode(rate, u, lin_rate=None, window=(0.0, 5.0), reliable=True, freq=10.0):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from orchestration.job import run_scene
-from orchestration.report.summary import summarize
+from orchestration.studies.summary import summarize
 from orchestration.report.text import run_lines
 from orchestration.scene.schema import load_scene
 from orchestration.studies.fidelity import available_ladder, climb

@@ -135,7 +135,7 @@ def test_linear_window_is_the_first_longest_stretch():
 
     import numpy as np
 
-    from orchestration.report.summary import LINEAR_PHI, linear_window
+    from orchestration.studies.summary import LINEAR_PHI, linear_window
 
     def scan(ok):
         best, i = (0, 0), 0

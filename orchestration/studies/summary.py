@@ -48,18 +48,21 @@ small amplitude); otherwise the mode is undetermined. ``stable`` is True, False 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..studies.analysis import closed_loop_eigenvalues, first_bending_frequency, linearisation
-from ..studies.fit import fit_mode
-from ..studies.validity import assess
+from .analysis import (LoopRoots, closed_loop_eigenvalues, first_bending_frequency, linearisation,
+                       loop_roots)
+from .error_figure import UNTRUSTED
+from .fit import fit_mode
+from .validity import assess
 
 __all__ = ["stop_reason", "SLOW_BAND", "BENDING_BAND", "LINEAR_PHI", "FIT_DEFLECTION",
            "FIT_RESIDUAL", "FREQUENCY_MATCH", "MIN_PERIODS", "linear_modes", "linear_window",
            "iteration_counts",
            "fit_modes", "first_bending_frequency", "validity", "verdict", "summarize",
-           "TRUST_AGAINST_LINEAR"]
+           "TRUST_AGAINST_LINEAR", "ReportFacts", "report_facts"]
 
 #: Bands (rad/s) of the rigid (slow) and the bending oscillation.
 SLOW_BAND = (0.5, 60.0)
@@ -394,3 +397,27 @@ def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
         out["linear_loop"] = linearisation(scene).text()     # what the "linear" roots are of
         out["validity"] = validity(res, scene)
     return out
+
+
+@dataclass(frozen=True)
+class ReportFacts:
+    """What the figures of a run draw besides its summary, computed once by the job
+    (:func:`report_facts`) and handed to :mod:`orchestration.report` as data: ``roots``, the
+    closed-loop roots of the scene's linearised loop (its rung's, with its damping law:
+    :func:`~orchestration.studies.analysis.linearisation`), with its bending root and first
+    bending frequency; ``own``, whether that loop is the rung's own (False for the exact rung,
+    whose loop the floating frame's stands in for); ``bending_band``, the lowest frequency
+    (rad/s) of the bending oscillation the summary fits (:data:`BENDING_BAND`); ``untrusted``,
+    the words for the codes of why a run has no error figure
+    (:data:`orchestration.studies.error_figure.UNTRUSTED`)."""
+
+    roots: LoopRoots
+    own: bool = True
+    bending_band: float = BENDING_BAND[0]
+    untrusted: dict = field(default_factory=lambda: dict(UNTRUSTED), repr=False)
+
+
+def report_facts(scene) -> ReportFacts:
+    """:class:`ReportFacts` of a scene: its linearised loop's roots, once."""
+    lin = linearisation(scene)
+    return ReportFacts(loop_roots(lin.params, scene.controller), own=lin.own)
