@@ -4,9 +4,8 @@ The exact discretisation of the low-pass filter over a step (a matrix exponentia
 squaring with a Pade approximant, in C) and the filter step with a held or polynomial input; the
 PDLowPass FMU steps with it. :meth:`controller_fmu.pd_lowpass.PDLowPassModel.discretize_polynomial`
 (scipy's ``expm``) is the specification, and ``tests/common/test_kernels.py`` holds the two
-together.
-ctypes for the reasons given in :mod:`plant_fmu.kernel` (a plain C library that any Python, and
-the native FMUs, can load).
+together. ctypes for the reasons given in :mod:`plant_fmu.kernel` (a plain C library that any
+Python, and the native FMUs, can load).
 """
 from __future__ import annotations
 

@@ -17,10 +17,9 @@ whose message names the bad key or argument; a co-simulation that an FMU stops i
 its summary says when and why.
 
 The layers, from the top (an import goes only downwards; ``tests/project/test_layers.py`` checks
-it):
-``cli`` -> this front door (``api``) -> ``sweeps`` -> ``job`` -> ``export`` -> ``report`` ->
-``studies`` -> ``cosim`` -> ``scene`` -> ``files`` (output files, complete or absent) -> the
-models (``plant_fmu``, ``controller_fmu``) -> ``fmu_common``.
+it): ``cli`` -> this front door (``api``) -> ``sweeps`` -> ``job`` -> ``export`` -> ``report`` ->
+``studies`` -> ``cosim`` -> ``scene`` -> ``files`` (output files, complete or absent) -> the models
+(``plant_fmu``, ``controller_fmu``) -> ``fmu_common``.
 """
 from __future__ import annotations
 

@@ -491,8 +491,7 @@ def _output_derivatives(m, x, u, du, linear):
     ``dE/dt = F_c xd - etad.D.etad + c etad.Kga.eta`` (``Kga`` the skew part of ``Kg``, ``c = cos
     phi``, 1 in the linear model): the equations are Lagrange's for this energy with the Rayleigh
     damping and the force on the cart (``tests/plant/test_lagrange.py``), and ``Kg eta``'s skew
-    part is
-    the only force of ``f`` no potential gives.
+    part is the only force of ``f`` no potential gives.
     """
     n, nq = m.n, m.nq
     f = m.rhs_numpy(0.0, x, u)
@@ -560,11 +559,10 @@ class StiffenedPlantModel(PlantModel):
     it; the angular acceleration and the accelerations across the beam load it transversely and
     enter at third order. The load's ``xdd`` is a term of the mass matrix (``M_x,eta`` gains
     ``s Fa eta``), not a lagged acceleration (``tests/plant/test_stiffened.py`` checks this
-    ``K_G``). ``dT``
-    is kept in full rather than to second order: truncated, the mass matrix loses
-    positive definiteness once ``eta.(Fb - I).eta`` exceeds the rotation's residual inertia
-    ``I2 - I5.I5`` (3.2e-3 kg m^2 at 4 modes, 4.1e-4 at 8), which the filtered scene reaches from
-    pi/6 at 8 modes within 0.04 s.
+    ``K_G``). ``dT`` is kept in full rather than to second order: truncated, the mass matrix loses
+    positive definiteness once ``eta.(Fb - I).eta`` exceeds the rotation's residual inertia ``I2 -
+    I5.I5`` (3.2e-3 kg m^2 at 4 modes, 4.1e-4 at 8), which the filtered scene reaches from pi/6 at 8
+    modes within 0.04 s.
 
     At the upright rest state ``dT`` is of fourth order: the linearisation is the preload rung's,
     whatever ``gravity_preload`` says (the stiffened model always carries the self-weight).

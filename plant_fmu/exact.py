@@ -34,10 +34,9 @@ bending modes (~1e5 rad/s) are far above anything the loop excites; an implicit 
 a step set by the motion of interest, and ``rho_inf < 1`` damps the unresolved modes while staying
 second order. ``rho_inf = 1`` is the trapezoidal rule (no numerical damping; energy drift bounded
 and of second order: ``tests/plant/test_exact_beam.py``). A caveat, measured: without structural
-damping
-the mesh's bending modes above ``1/h``, once excited (an undeformed start excites them), ring at
-~1e-5 rad in the tip slope, which the method resolves only when ``h`` resolves them; the tip angle
-then converges at first order at practical steps (``bench/fidelity_gap.py``). With the paper's
+damping the mesh's bending modes above ``1/h``, once excited (an undeformed start excites them),
+ring at ~1e-5 rad in the tip slope, which the method resolves only when ``h`` resolves them; the tip
+angle then converges at first order at practical steps (``bench/fidelity_gap.py``). With the paper's
 ``zeta = 0.1 %`` (Kelvin-Voigt damps them) it converges at second order. The floating frame's few
 modes have no such content.
 

@@ -138,8 +138,7 @@ _NOMINALS = {
     "eta_dot": "nominal omega_j times the nominal of eta_j",
 }
 #: Structural dependencies (what the modal coupling gives; tests/export/test_native_me.py checks
-#: them
-#: against the nonzero pattern of PlantModel.jacobian_numpy and output_jacobian_numpy at random
+#: them against the nonzero pattern of PlantModel.jacobian_numpy and output_jacobian_numpy at random
 #: states): the accelerations depend on every state but x and x_dot, and on the force.
 _ACC_STATES = ("phi", *_ETAS, "phi_dot", *_ETA_DOTS)
 _OUTPUT_STATES = {

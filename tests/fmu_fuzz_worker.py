@@ -1,7 +1,6 @@
 """Runs in a child process of ``tests/common/test_fmu_robustness.py`` (a crash of the host must not
-take
-pytest down): drives one FMU through fmpy's FMU2Slave with hypothesis-generated FMI call sequences
-and checks, after every call, the invariants of issue 16:
+take pytest down): drives one FMU through fmpy's FMU2Slave with hypothesis-generated FMI call
+sequences and checks, after every call, the invariants of issue 16:
 
 * the process survives (the parent sees the exit status);
 * every value a getter returns with status OK or warning is finite;

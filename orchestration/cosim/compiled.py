@@ -7,8 +7,7 @@ instantiated and initialised by fmpy; the C loop receives their instance pointer
 addresses of the FMI functions fmpy loaded, and makes the calls the Python loop makes, in the
 same order, with the same arguments. Its results are bit-identical to the Python loop's
 (``tests/cosim/test_compiled_master.py``): the extrapolation weights come from the same cache, and
-the
-arithmetic is done operation for operation as numpy does it.
+the arithmetic is done operation for operation as numpy does it.
 
 What stays in Python: instantiation, initialisation, the consistent initial outputs and the first
 output row; the rows' array (the C loop writes into it); raising :class:`CoSimulationError` with the

@@ -1,12 +1,11 @@
 """The master's compiled loop (orchestration/cosim/native/fm_master.c) under AddressSanitizer and
 UndefinedBehaviorSanitizer: the library is rebuilt with the project's flags plus
 ``-fsanitize=address,undefined`` and the whole of ``tests/cosim/test_compiled_master.py`` (every
-coupling,
-traced FMI calls, every injected failure, divergence, stop, a million steps) runs against it in
-a child Python that preloads the sanitizers' runtimes. Any report aborts the child
-(``-fno-sanitize-recover=all``, ``halt_on_error``): the test then fails with the report.
-Independent value: the bit-identity to the Python loop that those tests assert, now with every
-memory access of the C loop checked. Skipped without gcc's sanitizer runtimes (Linux only).
+coupling, traced FMI calls, every injected failure, divergence, stop, a million steps) runs against
+it in a child Python that preloads the sanitizers' runtimes. Any report aborts the child
+(``-fno-sanitize-recover=all``, ``halt_on_error``): the test then fails with the report. Independent
+value: the bit-identity to the Python loop that those tests assert, now with every memory access of
+the C loop checked. Skipped without gcc's sanitizer runtimes (Linux only).
 """
 from __future__ import annotations
 

@@ -2,9 +2,8 @@
 with the real native FMUs on the filtered scene (flexible_pd_lowpass).
 
 Stability is observed as in tests/studies/test_stability_boundaries.py: the largest pole of the
-output
-samples of a small motion (``initial.phi = 1e-3``, the linear plant, so the samples are those of a
-linear system), realised from their block-Hankel matrix.
+output samples of a small motion (``initial.phi = 1e-3``, the linear plant, so the samples are those
+of a linear system), realised from their block-Hankel matrix.
 
 The scene's own explicit coupling (Gauss-Seidel, controller first, quadratic extrapolation passed
 as input derivatives) is not monotone in the step: stable below ~15 ms, with windows of growth and

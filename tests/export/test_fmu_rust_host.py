@@ -5,11 +5,9 @@ through the crate's instance API (Jacobi, held inputs, ``h`` = 1 ms exactly), in
 environment (no ``PYTHON*`` variables, system ``PATH``).
 
 * 2 s of closed loop match the fmpy master's Jacobi run to 1e-12, as the C host's do
-  (``tests/export/test_native_fmus.py``). They are not bit-identical, and neither is the C host (up
-  to
-  6e-13 in F_c, from the ninth step on). The step size is not the cause: since issue 25 the
-  master steps every FMU by ``h`` from ``t0 + k h``, as these hosts do; the cause
-  is not yet known.
+  (``tests/export/test_native_importers.py``). They are not bit-identical, and neither is the C host
+  (up to 6e-13 in F_c, from the ninth step on). The step size is not the cause: since issue 25 the
+  master steps every FMU by ``h`` from ``t0 + k h``, as these hosts do; the cause is not yet known.
 * The Rust and the C host give the same bits (the crate passes the calls through unchanged).
 * An FMU's message reaches the crate's logger callback (``fmi-sys``'s C shim and ``log``) and
   the host prints it; the host lives.
@@ -31,7 +29,7 @@ import numpy as np
 import pytest
 
 from test_fmu_c_host import system_env
-from test_native_fmus import _host, _host_args, _master, _parse
+from test_native_importers import _host, _host_args, _master, _parse
 
 HERE = Path(__file__).parents[1] / "rust_host"
 CARGO = shutil.which("cargo") or str(Path.home() / ".cargo" / "bin" / "cargo")

@@ -3,10 +3,9 @@
  * plant and the controller FMU binaries (dlopen with RTLD_LOCAL, or LoadLibrary on Windows),
  * runs the closed loop with the Jacobi coupling and held inputs (every FMU gets its sources'
  * outputs of the last communication point, then both step), and prints one line per step:
- * t, x_o, phi_o, omega_o, F_c (%.17g). Used by tests/export/test_native_fmus.py (linux64, win64
- * under
- * wine, and under the sanitizers) and by bench/bench_native.py (argument "bench": the time per
- * macro step instead of the trajectory).
+ * t, x_o, phi_o, omega_o, F_c (%.17g). Used by tests/export/test_native_importers.py (linux64,
+ * win64 under wine, and under the sanitizers) and by bench/bench_native.py (argument "bench": the
+ * time per macro step instead of the trajectory).
  *
  * usage: fmi2_host PLANT_LIB PLANT_GUID CTRL_LIB CTRL_GUID STEPS H
  *                  VR_F_c VR_x_o VR_phi_o VR_omega_o  CVR_x_o CVR_phi_o CVR_omega_o CVR_F_c

@@ -3,8 +3,7 @@
  * fpm_model_jacobian, fpm_model_output_derivative), before the FMI core calls them.
  *
  * Compiled by tests/common/test_jacobian.py with the model's source included (-DMODEL_C="...") so
- * that
- * the host reads the model's state, with fpm_guard.c and the kernels, against the model's
+ * that the host reads the model's state, with fpm_guard.c and the kernels, against the model's
  * generated fpm_vars.h. Usage:
  *
  *     jacobian_hooks H N name=value... [d1:name=value] [d2:name=value] [after:name=value]

@@ -1,8 +1,7 @@
 /*
  * kernel_check.c - drives both C kernels through every entry point, for the build under
  * -fsanitize=address,undefined (tests/common/test_kernel_sanitizers.py). Besides "no memory error
- * and
- * no undefined behaviour", it checks properties with known answers:
+ * and no undefined behaviour", it checks properties with known answers:
  *   - the fixed-step loop over n substeps equals n calls of one substep (held input), bitwise;
  *   - the adaptive loop in chunks (a cap of 2 steps per call) equals one call, bitwise;
  *   - Euler far beyond its stability limit stops with FP_NONFINITE and a finite state;
