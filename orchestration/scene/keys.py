@@ -109,6 +109,9 @@ def parse_override(item: str) -> tuple[str, object]:
 #: Where the scene keys are listed, by who reads the message.
 KEYS_LISTED = {"python": "orchestration.scene_keys() lists the scene keys",
                "cli": "flexpend keys lists the scene keys"}
+_DESIGN = "orchestration.studies.design.DESIGN_DEFAULTS lists the design keys"
+#: Where the ``design.*`` keys are listed.
+DESIGN_LISTED = {"python": _DESIGN, "cli": _DESIGN}
 
 
 def unknown_key(key, known, what: str = "key", listed: dict | None = KEYS_LISTED

@@ -395,6 +395,15 @@ class Scene:
             raise ConfigError(f"output_interval = {out.output_interval} must be a multiple of "
                               f"{key} = {m.step}")
 
+    def __repr__(self) -> str:
+        """One line: the name, the model, the controller, the coupling and the stop time."""
+        pl, c, m = self.plant, self.controller, self.master
+        filt = ("no filter" if c.filter_order == 0 else
+                f"order-{c.filter_order} filter {c.cutoff:g} rad/s")
+        step = "adaptive" if m.adaptive else f"step {self.run_master.step:g} s"
+        return (f"Scene({self.name!r}: {pl.n_modes} modes {pl.fidelity}, PD kp={c.kp:g} "
+                f"kd={c.kd:g} {filt}, {m.algorithm} {step}, stop_time {self.output.stop_time:g} s)")
+
     @property
     def run_master(self) -> MasterSettings:
         """The master's settings a run uses: the scene's, but at the exact rung
@@ -449,11 +458,13 @@ class Scene:
         exceeds ``plant.phi_limit`` or whose ``|energy|`` exceeds ``plant.energy_limit``, so a
         scene that starts beyond them would stop at its first step."""
         phi, lim = self.initial.phi, min(self.plant.phi_limit, PHI_MAX)
+        if not abs(phi) <= lim and lim < PHI_MAX:
+            raise ConfigError(f"initial.phi = {phi:.6g} is beyond plant.phi_limit = {lim:.4g} rad "
+                              f"({math.degrees(lim):.4g} deg), where the plant stops a run; "
+                              f"allowed: |initial.phi| <= {lim:.6g}")
         if not abs(phi) <= lim:
-            why = ("plant.phi_limit, where the plant stops a run" if lim < PHI_MAX else
-                   "the largest initial angle")
-            raise ConfigError(f"initial.phi = {phi:.6g} is out of range; allowed: "
-                              f"|initial.phi| <= {lim:.4g} rad ({why})")
+            raise ConfigError(f"initial.phi = {phi:.6g} is out of range; allowed: |initial.phi| "
+                              f"<= {lim:g}")
         e_lim = self.plant.energy_limit
         if math.isfinite(e_lim):
             energy = initial_energy(self.plant.beam, self.initial,

@@ -31,6 +31,15 @@ class Sweep:
     def rows(self) -> list:
         return self.result.rows
 
+    def __repr__(self) -> str:
+        """One line: the scene, the keys swept, the runs and how they ended, the executor."""
+        keys = ", ".join(self.plan.keys)
+        if len(keys) > 60:
+            keys = keys[:57] + "..."
+        lost = self.stats.get("lost", 0) if isinstance(self.stats, dict) else 0
+        return (f"Sweep({self.plan.scene.name!r} over {keys or 'nothing'}: "
+                f"{len(self.result.rows)} runs, {lost} lost; {self.executor})"[:200])
+
     def to_pandas(self):
         """One row per run, as a pandas DataFrame indexed by the run's number."""
         import pandas as pd
