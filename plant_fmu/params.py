@@ -76,7 +76,8 @@ class PlantParams:
     g: float = real(9.81, "gravity", "m/s2", low=0.0, high=1e3, low_open=False)
     n_modes: int = integer(4, "cantilever modes kept (0: rigid pendulum)", low=0,
                            high_field="n_elements")
-    n_elements: int = integer(24, "finite elements of the beam mesh", low=1, high=MAX_ELEMENTS)
+    n_elements: int = integer(24, "finite elements of the beam mesh", low=1, high=MAX_ELEMENTS,
+                              note="at least plant.n_modes")
     gravity_preload: bool = boolean(False, "geometric stiffness of the beam's self-weight")
 
     def __post_init__(self):
