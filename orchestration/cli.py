@@ -349,7 +349,7 @@ def cmd_export(args) -> int:
         r = export_scene(scene, args.fmus, args.out,
                          progress=Progress(f"{scene.name}: choosing the model"))
     except ValueError as exc:           # an FMU without a parameter the scene sets, ...
-        raise UsageError(str(exc)) from None
+        raise UsageError(_cli_text(exc)) from None
     sc = r.scene
     print(f"wrote {r.path}: plant {Path(r.fmus['plant']).name}, controller "
           f"{Path(r.fmus['controller']).name} ({args.fmus} FMUs), {len(sc.connections)} "
