@@ -77,7 +77,7 @@ class PlantParams:
     n_modes: int = integer(4, "cantilever modes kept (0: rigid pendulum)", low=0,
                            high_field="n_elements")
     n_elements: int = integer(24, "finite elements of the beam mesh", low=1, high=MAX_ELEMENTS,
-                              note="at least plant.n_modes")
+                              note="at least plant.n_modes and fidelity.max_modes")
     gravity_preload: bool = boolean(False, "geometric stiffness of the beam's self-weight")
 
     def __post_init__(self):

@@ -523,8 +523,9 @@ class KeySpec:
     meaning: str
 
     def __repr__(self) -> str:
-        return (f"KeySpec({self.key}: {self.type} = {self.default!r}"
-                f"{' ' + self.unit if self.unit else ''}; {self.allowed})")
+        allowed = self.allowed if len(self.allowed) <= 70 else self.allowed[:67] + "..."
+        return (f"KeySpec({self.key}: {self.type} = {shown(self.default)}"
+                f"{' ' + self.unit if self.unit else ''}; {allowed})")
 
 
 _TYPES = {"real": "float", "int": "int", "bool": "bool", "choice": "str"}

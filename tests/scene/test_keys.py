@@ -92,7 +92,7 @@ def test_the_help_of_every_command_with_set_points_to_flexpend_keys(command):
 #: A partner field that a bound ties a key to, moved out of the way of the probe value ``v``.
 PARTNERS = {
     "master.min_step": lambda v: {"max_step": 1e6},
-    "plant.n_elements": lambda v: {"n_modes": 0},
+    "plant.n_elements": lambda v: {"n_modes": 0},     # (and fidelity.max_modes: the scene's)
     "master.max_step": lambda v: {"min_step": min(v, 1e-6)} if v > 0 else {},
     "stop_time": lambda v: {"output_interval": v} if 0 < v <= 1e6 else {},
     "output_interval": lambda v: {"stop_time": v} if 0 < v <= 1e6 else {},
