@@ -558,6 +558,14 @@ class JobResult:
     def summaries(self) -> dict:
         return {r.name: r.summary for r in self.runs}
 
+    def __repr__(self) -> str:
+        """One line: the runs' names, the exit code, the number of files written."""
+        names = ", ".join(r.name for r in self.runs)
+        if len(names) > 100:
+            names = names[:97] + "..."
+        return (f"JobResult({len(self.runs)} runs: {names}; code {self.code}, "
+                f"{len(self.written)} files)")
+
 
 def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,
             overview: bool = False, announce=None, report=None,

@@ -241,3 +241,24 @@ def test_every_exported_name_imports_and_is_documented():
     assert {"ConfigError", "CoSimulationError", "scene_keys"} <= set(fp.__all__)
     assert set(api.__all__) <= set(fp.__all__)
     assert sorted(dir(fp)) == sorted(fp.__all__)
+
+
+def test_the_results_inside_the_results_have_a_short_repr():
+    """What a result holds (the job's, the design's, the sweep's plan and runs) is short too."""
+    from types import SimpleNamespace
+
+    from orchestration.job import JobResult
+    from orchestration.studies.design import DesignResult
+    from orchestration.sweeps.engine import SweepResult
+    from orchestration.sweeps.plan import SweepPlan
+
+    runs = [_run("rigid_pd"), _run("flexible_pd"), _run("flexible_pd_lowpass")]
+    _short(JobResult(runs, 0, ["a"] * 9), "3 runs", "rigid_pd", "code 0", "9 files")
+    ch = fp.load_scene("flexible_pd_lowpass").controller
+    worst = SimpleNamespace(decay=1.5, damping=0.02)
+    _short(DesignResult("decay", None, ch, worst, {}, {}), f"cutoff {ch.cutoff:g} rad/s",
+           "decay rate 1.5", "criterion decay")
+    _short(SweepResult([{}] * 1000, 990, 10, 12.0), "1000 rows", "990 ran", "10 found")
+    plan = SweepPlan(fp.load_scene("rigid_pd"), [SimpleNamespace(key="controller.kp")] * 30, [],
+                     0, None, False, [None] * 500)
+    _short(plan, "rigid_pd", "controller.kp", "500 runs")

@@ -228,6 +228,13 @@ class SweepPlan:
         """The swept keys, in the table's order."""
         return [a.key for a in self.axes] + [s.key for s in self.samplers]
 
+    def __repr__(self) -> str:
+        """One line: the scene, the keys swept, the number of runs."""
+        keys = ", ".join(self.keys)
+        if len(keys) > 80:
+            keys = keys[:77] + "..."
+        return f"SweepPlan({self.scene.name!r} over {keys or 'nothing'}: {len(self.points)} runs)"
+
     def describe(self) -> dict:
         out = {"scene": self.scene.name, "set": self.overrides,
                "grid": {a.key: list(a.values) for a in self.axes},
