@@ -214,7 +214,8 @@ def test_a_design_report_and_a_sweep_have_a_short_repr():
 
     ch = fp.load_scene("flexible_pd_lowpass").controller.replace(cutoff=97.3)
     worst = SimpleNamespace(decay=1.5, damping=0.02, n_plants=125)
-    d = DesignReport(SimpleNamespace(chosen=ch, worst=worst, criterion="decay"), None, ch, {})
+    d = DesignReport(SimpleNamespace(chosen=ch, worst=worst, criterion="decay"), None, ch, {},
+                     None)
     _short(d, "97.3 rad/s", "decay rate 1.5", "125 plants", "criterion decay")
     plan = SimpleNamespace(keys=["controller.kp"] * 40, scene=fp.load_scene("rigid_pd"))
     s = Sweep(plan, SimpleNamespace(rows=[{}] * 7), {"lost": 1}, {}, "serial")
