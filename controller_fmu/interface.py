@@ -32,15 +32,9 @@ SENSORS = {
     "x_o": ("cart position", "m", "m/s", "m/s2"),
 }
 
-_PARAMS = {
-    "kp": ("proportional gain on phi_o", "N/rad"),
-    "kd": ("derivative gain (on omega_o)", "N.s/rad"),
-    "kx": ("gain on the cart position x_o (0: no cart feedback)", "N/m"),
-    "filter_order": ("order of the unit-DC-gain low-pass filter: 0 (none), 1 or 2", None),
-    "cutoff": ("filter cutoff frequency", "rad/s"),
-    "filter_damping": ("damping ratio of the 2nd-order filter", None),
-    "force_limit": ("saturation |F_c| <= force_limit (inf, or the largest double: none)", "N"),
-}
+#: the parameters: name -> (description, unit), from the record's fields (fmu_common.checks.Param)
+_PARAMS = {f.name: (f.metadata["param"].meaning, f.metadata["param"].unit)
+           for f in dataclasses.fields(ControllerParams)}
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(ControllerParams)}
 _DER_INITIAL = (*SENSORS, "kp", "kd", "kx", "filter_order", "cutoff", "filter_damping")
 

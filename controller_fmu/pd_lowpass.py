@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fmu_common.checks import check_int, check_real, replace_checked
+from fmu_common.checks import check_fields, integer, real, replace_checked
 
 __all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES", "NO_LIMIT"]
 
@@ -39,23 +39,21 @@ class ControllerParams:
     MODEL.md's acceptance table also uses 150 rad/s with damping 0.5.
     """
 
-    kp: float = 500.0
-    kd: float = 5.0
-    kx: float = 0.0
-    filter_order: int = 2
-    cutoff: float = 97.3
-    filter_damping: float = 0.1
-    force_limit: float = NO_LIMIT
+    kp: float = real(500.0, "proportional gain on phi_o", "N/rad", low=-1e12,
+                     high=1e12)
+    kd: float = real(5.0, "derivative gain (on omega_o)", "N.s/rad", low=-1e12,
+                     high=1e12)
+    kx: float = real(0.0, "gain on the cart position x_o (0: no cart feedback)",
+                     "N/m", low=-1e12, high=1e12)
+    filter_order: int = integer(2, "order of the unit-DC-gain low-pass filter: 0 (none), 1 or 2", low=0, high=2)
+    cutoff: float = real(97.3, "filter cutoff frequency", "rad/s", low=0.0, high=1e9)
+    filter_damping: float = real(0.1, "damping ratio of the 2nd-order filter", low=0.0,
+                                 high=100.0)
+    force_limit: float = real(NO_LIMIT, "saturation |F_c| <= force_limit (inf, or the largest "
+                              "double: none)", "N", low=0.0, allow_inf=True)
 
     def __post_init__(self):
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
-        for name in ("kp", "kd", "kx"):
-            set_(name, check_real(name, getattr(self, name), low=-1e12, high=1e12))
-        set_("filter_order", check_int("filter_order", self.filter_order, low=0, high=2))
-        set_("cutoff", check_real("cutoff", self.cutoff, low=0.0, high=1e9))
-        set_("filter_damping", check_real("filter_damping", self.filter_damping, low=0.0,
-                                          high=100.0))
-        set_("force_limit", check_real("force_limit", self.force_limit, low=0.0, allow_inf=True))
+        check_fields(self)
 
     @property
     def saturates(self) -> bool:

@@ -10,11 +10,13 @@ builds, with one front door.
     fp.design(progress=True).result.chosen
     fp.sweep("rigid_pd", grid={"controller.kp": (300, 700, 5)}, serial=True).to_pandas()
     fp.build_fmus("native")
+    fp.scene_keys()           # every scene key: type, default, unit, allowed values, meaning
 
 The names are loaded on first use (``import orchestration`` itself imports nothing heavy). Every
 error in the input is a ``ValueError`` (:class:`ConfigError` for a scene key) or a ``TypeError``
-whose message names the bad key or argument; a co-simulation that an FMU stops is not an error:
-its summary says when and why.
+(a value of the wrong type: a string for a number) whose one-line message names the bad key or
+argument, what is allowed and, for an unknown key, the closest one; a co-simulation that an FMU
+stops is not an error: its summary says when and why.
 
 The layers, from the top (an import goes only downwards; ``tests/project/test_layers.py`` checks
 it): ``cli`` -> this front door (``api``) -> ``sweeps`` -> ``job`` -> ``export`` -> ``report`` ->
@@ -24,11 +26,11 @@ it): ``cli`` -> this front door (``api``) -> ``sweeps`` -> ``job`` -> ``export``
 from __future__ import annotations
 
 __all__ = ["simulate", "load_scene", "analyze", "stability", "design", "sweep", "build_fmus",
-           "Scene", "Run", "Analysis", "DesignReport", "Sweep", "ConfigError",
-           "CoSimulationError", "__version__"]
+           "scene_keys", "Scene", "Run", "Analysis", "DesignReport", "Sweep", "KeySpec",
+           "ConfigError", "CoSimulationError", "__version__"]
 
 _API = {"simulate", "load_scene", "analyze", "stability", "design", "sweep", "build_fmus",
-        "Scene", "Run", "Analysis", "DesignReport", "Sweep"}
+        "scene_keys", "Scene", "Run", "Analysis", "DesignReport", "Sweep", "KeySpec"}
 
 
 def _version() -> str:

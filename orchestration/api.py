@@ -9,6 +9,7 @@ results, errors that subclass ``ValueError`` or ``TypeError`` and name the bad k
            progress=False) -> DesignReport
     sweep(scene, *, grid=..., values=..., sample=..., samples=None, ...) -> Sweep
     build_fmus(flavour="native", *, fmi_version=2, out=None, force=False) -> {name: path}
+    scene_keys() -> (KeySpec, ...)
 """
 from __future__ import annotations
 
@@ -18,8 +19,8 @@ from .export import build_fmus as _build_fmus
 from .job import Run, simulate
 from .report.design import DesignReport
 from .report.progress import Progress
-from .scene.keys import FMU_FLAVOURS, ConfigError, check_known
-from .scene.records import Scene
+from .scene.keys import DESIGN_LISTED, FMU_FLAVOURS, ConfigError, check_known
+from .scene.records import KeySpec, Scene, key_specs
 from .scene.schema import load_scene
 from .studies.analysis import Analysis, Linearisation, linearisation
 from .studies.analysis import analyze as _analyze
@@ -28,7 +29,19 @@ from .sweeps.executor import open_executor
 from .sweeps.job import Sweep, sweep
 
 __all__ = ["load_scene", "simulate", "analyze", "stability", "design", "sweep", "build_fmus",
-           "Scene", "Run", "Analysis", "DesignReport", "Sweep"]
+           "scene_keys", "Scene", "Run", "Analysis", "DesignReport", "Sweep", "KeySpec",
+           "ConfigError"]
+
+
+def scene_keys() -> tuple:
+    """Every scene key, in the order of a scene file, as a
+    :class:`~orchestration.scene.records.KeySpec`: its ``key``, ``type``, ``default``, ``unit``,
+    ``allowed`` (the rule the scene's records enforce, then what it needs with other keys) and
+    ``meaning``; what ``flexpend keys`` prints.
+
+        {k.key: k.default for k in scene_keys()}["controller.kp"]    # 500.0
+    """
+    return key_specs()
 
 
 def _resolved(scene, overrides, command: str) -> tuple[Scene, Linearisation]:
@@ -38,8 +51,9 @@ def _resolved(scene, overrides, command: str) -> tuple[Scene, Linearisation]:
     sc = load_scene(scene if scene is not None else {}, overrides)
     if not sc.resolved:
         key = "plant.n_modes" if sc.plant.n_modes_auto else "plant.fidelity"
-        raise ConfigError(f"{key} = 'auto' is chosen by a run (flexpend run); {command} needs a "
-                          "value")
+        raise ConfigError(f"{key} = 'auto' is chosen by a run (simulate); {command} needs a "
+                          "value", cli=f"{key} = 'auto' is chosen by a run (flexpend run); "
+                          f"{command} needs a value")
     lin = linearisation(sc)
     if not lin.own:
         raise ConfigError(f"plant.fidelity = '{sc.plant.fidelity}': {command} works on the "
@@ -101,7 +115,7 @@ def design(scene=None, overrides=None, *, design: dict | None = None, workers: i
     dask. The result's ``save(folder)`` writes what ``flexpend design`` writes."""
     sc, lin = _resolved(scene, overrides, "design")
     items = dict(design or {})
-    check_known(items, DESIGN_DEFAULTS)
+    check_known(items, DESIGN_DEFAULTS, listed=DESIGN_LISTED)
     settings = design_settings({**DESIGN_DEFAULTS, **items})
     bar = Progress("design") if progress else None
     p, c = lin.params, sc.controller

@@ -13,6 +13,7 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
                                                         many runs, on dask.distributed
     flexpend build [--force] [--out DIR] [--fmus F]     build the FMUs (pythonfmu, native)
     flexpend scenes                                     list the scenes
+    flexpend keys [--markdown]                          list every scene key
     flexpend export SCENE [--fmus python|native] [--out FILE.ssp]   the scene as an SSP archive
     flexpend check FMU --reference DIR [--plot FILE.png] [--write-reference]   regress an FMU
     flexpend --version
@@ -156,9 +157,14 @@ def _split_design(items):
     return scene_items, design
 
 
+def _cli_text(exc) -> str:
+    """An error's message as the command line words it (:attr:`ConfigError.cli`)."""
+    return getattr(exc, "cli", None) or str(exc)
+
+
 def _set_error(exc):
     """A ``--set`` problem of analyze/design, named as such."""
-    text = str(exc)
+    text = _cli_text(exc)
     return ConfigError(text if text.startswith("--set") else f"--set: {text}")
 
 
@@ -343,7 +349,7 @@ def cmd_export(args) -> int:
         r = export_scene(scene, args.fmus, args.out,
                          progress=Progress(f"{scene.name}: choosing the model"))
     except ValueError as exc:           # an FMU without a parameter the scene sets, ...
-        raise UsageError(str(exc)) from None
+        raise UsageError(_cli_text(exc)) from None
     sc = r.scene
     print(f"wrote {r.path}: plant {Path(r.fmus['plant']).name}, controller "
           f"{Path(r.fmus['controller']).name} ({args.fmus} FMUs), {len(sc.connections)} "
@@ -568,6 +574,13 @@ def cmd_build(args) -> int:
     return 0
 
 
+def cmd_keys(args) -> int:
+    from .report.keys import keys_lines, keys_markdown
+
+    print(keys_markdown() if args.markdown else "\n".join(keys_lines()))
+    return 0
+
+
 def cmd_scenes(args) -> int:
     from .scene.schema import list_scenes, load_scene
     for name in list_scenes():
@@ -588,6 +601,10 @@ class _VersionAction(argparse.Action):
         parser.exit()
 
 
+#: Where ``--set``'s help sends the reader for the keys.
+_KEYS_HINT = "(every key: flexpend keys)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="flexpend", description="Flexible inverted pendulum: analysis and "
                                                   "co-simulation of the FMUs.")
@@ -597,7 +614,8 @@ def build_parser() -> argparse.ArgumentParser:
     pa = sub.add_parser("analyze", help="linear analysis of the closed loop",
                         description="Eigenvalues, stability and margins of the linearised loop.")
     pa.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a parameter, e.g. plant.n_modes=4 or controller.cutoff=150")
+                    help="override a scene key, e.g. plant.n_modes=4 or controller.cutoff=150 "
+                         f"{_KEYS_HINT}")
     pa.add_argument("--json", action="store_true", help="print the result as JSON")
     pa.set_defaults(func=cmd_analyze)
 
@@ -610,7 +628,7 @@ def build_parser() -> argparse.ArgumentParser:
                                     "substep limit.")
     pt.add_argument("scene", metavar="SCENE", help="a scene name or a path to a .toml file")
     pt.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a scene key, e.g. controller.cutoff=150")
+                    help=f"override a scene key, e.g. controller.cutoff=150 {_KEYS_HINT}")
     pt.add_argument("--max-step", type=float, default=0.05, metavar="SECONDS",
                     help="the largest communication step scanned (default 0.05 s; 0.001 to 10)")
     pt.add_argument("--json", action="store_true", help="print the result as JSON")
@@ -622,7 +640,8 @@ def build_parser() -> argparse.ArgumentParser:
                                     "uncertainty set of beams; write <out>/design.json, "
                                     "design_sweep.csv and three plots.")
     pd.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a key, e.g. controller.kd=6 or design.criterion=damping")
+                    help="override a key, e.g. controller.kd=6 or design.criterion=damping "
+                         f"{_KEYS_HINT}")
     pd.add_argument("--out", default="out", help="output folder (default: out)")
     pd.add_argument("--json", action="store_true", help="print the result as JSON")
     pd.add_argument("--workers", type=int, default=None, metavar="N",
@@ -640,7 +659,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="scene names (see 'flexpend scenes'), paths to .toml files or SSP "
                          "archives (.ssp)")
     pr.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a scene key, e.g. master.step=5e-4")
+                    help=f"override a scene key, e.g. master.step=5e-4 {_KEYS_HINT}")
     pr.add_argument("--out", default="out", help="output folder (default: out)")
     pr.add_argument("--json", action="store_true", help="print the summary as JSON")
     pr.add_argument("--connections", action="store_true",
@@ -683,7 +702,8 @@ def build_parser() -> argparse.ArgumentParser:
     pw.add_argument("--seed", type=int, default=None, metavar="S",
                     help="seed of the samples (default 0)")
     pw.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="a fixed scene key (or a design.* key of the uncertainty set)")
+                    help="a fixed scene key (or a design.* key of the uncertainty set) "
+                         f"{_KEYS_HINT}")
     pw.add_argument("--reference", action="store_true",
                     help="also solve each run's monolithic reference and report the error")
     pw.add_argument("--workers", type=int, default=None, metavar="N",
@@ -709,6 +729,15 @@ def build_parser() -> argparse.ArgumentParser:
     ps = sub.add_parser("scenes", help="list the scenes")
     ps.set_defaults(func=cmd_scenes)
 
+    pk = sub.add_parser("keys", help="list every scene key (type, default, unit, allowed, "
+                                     "meaning)",
+                        description="Every key a scene file, --set, a sweep axis or the API "
+                                    "takes: its type, default, unit, the values allowed and "
+                                    "its meaning, one line each.")
+    pk.add_argument("--markdown", action="store_true",
+                    help="print the manual's page (docs/keys.md) instead")
+    pk.set_defaults(func=cmd_keys)
+
     pe = sub.add_parser("export", help="write a scene as an SSP archive (both FMUs, wiring, "
                                        "parameters, experiment)",
                         description="Write SCENE as an SSP 1.0 archive: SystemStructure.ssd and "
@@ -720,7 +749,7 @@ def build_parser() -> argparse.ArgumentParser:
     pe.add_argument("--out", default=None, metavar="FILE.ssp",
                     help="the archive (default: out/<scene>.ssp)")
     pe.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                    help="override a scene key, e.g. master.algorithm=jacobi")
+                    help=f"override a scene key, e.g. master.algorithm=jacobi {_KEYS_HINT}")
     pe.set_defaults(func=cmd_export)
 
     pc = sub.add_parser("check", help="regress an FMU against reference results (FMI "
@@ -795,7 +824,7 @@ def main(argv=None) -> int:
             return EXIT_INTERRUPTED
         return code
     except (UsageError, ConfigError) as exc:
-        print(f"flexpend: error: {exc}", file=sys.stderr)
+        print(f"flexpend: error: {_cli_text(exc)}", file=sys.stderr)
         return EXIT_USAGE
     except BrokenPipeError:  # e.g. piped into head
         sys.stderr.close()

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["OutputError", "output_error", "atomic_path", "folder_lock", "LOCK_FILE", "write_text",
-           "write_json", "write_csv", "json_safe"]
+           "write_json", "write_csv", "json_safe", "check_folder", "FILE_SUFFIXES"]
 
 #: The lock file :func:`folder_lock` holds in an output folder.
 LOCK_FILE = ".flexpend.lock"
@@ -157,3 +157,24 @@ def write_csv(path, result: np.ndarray) -> Path:
     text = ",".join(f'"{n}"' for n in names) + "\n" \
         + "".join(",".join(map(repr, row)) + "\n" for row in rows)
     return write_text(path, text)
+
+
+#: Suffixes that name a file, not a folder: a ``save(folder)`` given one was handed a file name.
+FILE_SUFFIXES = frozenset((".csv", ".json", ".jsonl", ".png", ".pdf", ".svg", ".txt", ".md",
+                           ".parquet", ".toml", ".ssp", ".fmu", ".zip", ".xml", ".npz", ".npy",
+                           ".h5", ".html"))
+
+
+def check_folder(folder) -> Path:
+    """``folder`` as a Path, or a ValueError naming it when it names an existing file or has a
+    file's suffix (:data:`FILE_SUFFIXES`: ``save("x.csv")`` would make a folder ``x.csv``)."""
+    if isinstance(folder, bool) or not isinstance(folder, (str, os.PathLike)):
+        raise TypeError(f"folder must be a path (str or os.PathLike), got {type(folder).__name__}")
+    path = Path(folder)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"folder = {str(path)!r} is a file; allowed: a folder, where the files "
+                         "are written (it is made if missing)")
+    if path.suffix.lower() in FILE_SUFFIXES:
+        raise ValueError(f"folder = {str(path)!r} names a {path.suffix} file; allowed: a folder, "
+                         "where the files are written (it is made if missing)")
+    return path

@@ -38,7 +38,7 @@ from .cosim.master import Master
 from .cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
 from .export import flavour_fmus
-from .files import write_csv, write_json
+from .files import check_folder, write_csv, write_json
 from .report import figures
 from .report.files import save_figure
 from .report.plotting import check_renderer
@@ -109,6 +109,18 @@ class Run:
     def name(self) -> str:
         return self.scene.name
 
+    def __repr__(self) -> str:
+        """One line: the scene, its rung, how far it ran, the verdict."""
+        sc, s = self.scene, self.summary or {}
+        ran = ("completed" if s.get("stopped") is None else "stopped early") + \
+            (", interrupted" if self.interrupted else "")
+        end = float(self.result["time"][-1]) if self.result is not None and len(self.result) \
+            else 0.0
+        return (f"Run({sc.name!r}: {sc.plant.n_modes} modes {sc.plant.fidelity}, "
+                f"{ran} at {end:g} of {sc.output.stop_time:g} s, verdict "
+                f"{s.get('verdict', 'none')}, {len(self.result)} points"
+                f"{', with reference' if self.reference is not None else ''})")
+
     @functools.cached_property
     def facts(self) -> ReportFacts:
         return report_facts(self.scene)
@@ -143,12 +155,14 @@ class Run:
                                  travel=(float(x.min()), float(x.max())), renderer=renderer)
 
     def save(self, folder, *, summary: bool = True, renderer: str = "raster") -> list[Path]:
-        """Write what ``flexpend run`` writes for this run into ``folder``: ``<name>.csv``,
-        ``<name>.png``, ``<name>_shapes.png`` (drawn by ``renderer``: by default the raster
-        renderer, no matplotlib) and (``summary``) this run's entry of ``summary.json`` (other
-        entries kept); the paths written. Each file is complete or absent."""
+        """Write what ``flexpend run`` writes for this run into the folder ``folder`` (a
+        ValueError for a path that names a file, or has a file's suffix: ``.csv``...):
+        ``<name>.csv``, ``<name>.png``, ``<name>_shapes.png`` (drawn by ``renderer``: by default
+        the raster renderer, no matplotlib) and (``summary``) this run's entry of
+        ``summary.json`` (other entries kept); the paths written. Each file is complete or
+        absent."""
         check_renderer(renderer)
-        folder = Path(folder)
+        folder = check_folder(folder)
         folder.mkdir(parents=True, exist_ok=True)
         written = [write_csv(folder / f"{self.name}.csv", self.result)]
         if len(self.result) >= 2:
@@ -543,6 +557,14 @@ class JobResult:
     @property
     def summaries(self) -> dict:
         return {r.name: r.summary for r in self.runs}
+
+    def __repr__(self) -> str:
+        """One line: the runs' names, the exit code, the number of files written."""
+        names = ", ".join(r.name for r in self.runs)
+        if len(names) > 100:
+            names = names[:97] + "..."
+        return (f"JobResult({len(self.runs)} runs: {names}; code {self.code}, "
+                f"{len(self.written)} files)")
 
 
 def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,

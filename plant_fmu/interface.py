@@ -55,20 +55,10 @@ INITIAL_STATE = {
     "x_dot0": ("initial.x_dot", 0.0),
 }
 
-_PARAMS = {  # PlantParams field -> (description, unit)
-    "m": ("cart mass", "kg"),
-    "L": ("beam length", "m"),
-    "rho": ("beam density", "kg/m3"),
-    "EA": ("axial stiffness", "N"),
-    "EI": ("bending stiffness", "N.m2"),
-    "E": ("Young's modulus (cross-section area = EA/E)", "Pa"),
-    "zeta": ("damping ratio: of every cantilever mode (damping = modal), of the first "
-             "(kelvin-voigt)", None),
-    "g": ("gravity", "m/s2"),
-    "n_modes": ("cantilever modes kept (0: rigid pendulum)", None),
-    "n_elements": ("finite elements of the beam mesh", None),
-    "gravity_preload": ("geometric stiffness of the beam's self-weight", None),
-}
+#: PlantParams field -> (description, unit), from the record's fields (fmu_common.checks.Param);
+#: the damping law has its own, longer description (_DAMPING)
+_PARAMS = {f.name: (f.metadata["param"].meaning, f.metadata["param"].unit)
+           for f in dataclasses.fields(PlantParams) if f.name != "damping"}
 #: the damping law (plant_fmu.params.DAMPING_LAWS), after the table's first 72 variables
 _DAMPING = ("damping law: modal (the ratio zeta in every cantilever mode, D = 2 zeta omega_j) or "
             "kelvin-voigt (material damping of the bending stiffness, beta = 2 zeta / omega_1: "

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from fmu_common.checks import check_bool, check_choice, check_int, check_real, replace_checked
+from fmu_common.checks import (boolean, check_fields, choice, integer, real,
+                                replace_checked)
 
 __all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN", "DAMPING_LAWS",
            "damping_text"]
@@ -58,30 +59,29 @@ class PlantParams:
     gravity_preload : add the geometric stiffness of the beam's self-weight compression.
     """
 
-    m: float = 1.0
-    L: float = 1.0
-    rho: float = 7.8e3
-    EA: float = 4.2e8
-    EI: float = 8.75e2
-    E: float = 2.1e11
-    zeta: float = 0.001
-    damping: str = "modal"
-    g: float = 9.81
-    n_modes: int = 4
-    n_elements: int = 24
-    gravity_preload: bool = False
+    m: float = real(1.0, "cart mass", "kg", low=POSITIVE_MIN, low_open=False, high=1e15)
+    L: float = real(1.0, "beam length", "m", low=POSITIVE_MIN, low_open=False, high=1e15)
+    rho: float = real(7.8e3, "beam density", "kg/m3", low=POSITIVE_MIN, low_open=False,
+                      high=1e15)
+    EA: float = real(4.2e8, "axial stiffness", "N", low=POSITIVE_MIN, low_open=False, high=1e15)
+    EI: float = real(8.75e2, "bending stiffness", "N.m2", low=POSITIVE_MIN, low_open=False,
+                     high=1e15)
+    E: float = real(2.1e11, "Young's modulus (cross-section area = EA/E)", "Pa",
+                    low=POSITIVE_MIN, low_open=False, high=1e15)
+    zeta: float = real(0.001, "damping ratio: of every cantilever mode (damping = modal), of "
+                       "the first (kelvin-voigt)", low=0.0, high=1.0, low_open=False,
+                       high_open=True)
+    damping: str = choice("modal", "damping law: modal (zeta in every cantilever mode) or "
+                          "kelvin-voigt (material damping, zeta in mode 1)", DAMPING_LAWS)
+    g: float = real(9.81, "gravity", "m/s2", low=0.0, high=1e3, low_open=False)
+    n_modes: int = integer(4, "cantilever modes kept (0: rigid pendulum)", low=0,
+                           high_field="n_elements")
+    n_elements: int = integer(24, "finite elements of the beam mesh", low=1, high=MAX_ELEMENTS,
+                              note="at least plant.n_modes and fidelity.max_modes")
+    gravity_preload: bool = boolean(False, "geometric stiffness of the beam's self-weight")
 
     def __post_init__(self):
-        set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 (frozen dataclass)
-        for name in ("m", "L", "rho", "EA", "EI", "E"):
-            set_(name, check_real(name, getattr(self, name), low=POSITIVE_MIN, low_open=False,
-                                  high=1e15))
-        set_("zeta", check_real("zeta", self.zeta, low=0.0, high=1.0, low_open=False, high_open=True))
-        set_("damping", check_choice("damping", self.damping, DAMPING_LAWS))
-        set_("g", check_real("g", self.g, low=0.0, high=1e3, low_open=False))
-        set_("n_elements", check_int("n_elements", self.n_elements, low=1, high=MAX_ELEMENTS))
-        set_("n_modes", check_int("n_modes", self.n_modes, low=0, high=self.n_elements))
-        set_("gravity_preload", check_bool("gravity_preload", self.gravity_preload))
+        check_fields(self)
 
     @property
     def area(self) -> float:

@@ -10,7 +10,7 @@ import numpy as np
 
 from plant_fmu.params import damping_text
 
-from ..files import atomic_path, write_json
+from ..files import atomic_path, check_folder, write_json
 from . import figures
 from .files import save_figure
 from .text import filter_text
@@ -67,10 +67,19 @@ class DesignReport:
                                    f"beam, {p.n_modes} modes, {damping_text(p)})")
         return out
 
+    def __repr__(self) -> str:
+        """One line: the filter chosen, its worst case and the criterion."""
+        r = self.result
+        ch, w = r.chosen, r.worst
+        return (f"DesignReport(chosen {filter_text(ch.filter_order, ch.cutoff, ch.filter_damping)}"
+                f"; worst case decay rate {w.decay:.4g} 1/s, damping ratio {w.damping:.4g} over "
+                f"{w.n_plants} plants; criterion {r.criterion})")
+
     def save(self, folder) -> list[Path]:
-        """Write ``design.json``, ``design_sweep.csv`` and the figures into ``folder``; the
-        paths written (each file complete or absent)."""
-        folder = Path(folder)
+        """Write ``design.json``, ``design_sweep.csv`` and the figures into the folder
+        ``folder`` (a ValueError for a path that names a file); the paths written (each file
+        complete or absent)."""
+        folder = check_folder(folder)
         folder.mkdir(parents=True, exist_ok=True)
         r = self.result
         labels = list(r.sweep)

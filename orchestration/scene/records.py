@@ -28,17 +28,18 @@ from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 
 from controller_fmu.pd_lowpass import ControllerParams
-from fmu_common.checks import check_bool, check_int, check_real
+from fmu_common.checks import Param, boolean, check_fields, choice, integer, real, shown
 from plant_fmu.integrators import REGISTRY
 from plant_fmu.interface import FIDELITIES, FMU_SETTINGS
-from plant_fmu.params import PlantParams
+from plant_fmu.params import MAX_ELEMENTS, PlantParams
 
-from .keys import FMU_FLAVOURS, ConfigError
+from .keys import FMU_FLAVOURS, ConfigError, ConfigTypeError, config_error
 from .wiring import Connection, parse_connection
 
 __all__ = ["AUTO", "ALGORITHMS", "FIRST", "FMU_FLAVOURS", "COMPARABLE_OUTPUTS", "PlantSetup",
            "MasterSettings", "InitialState", "FidelitySettings", "OutputSettings", "Scene",
-           "DEFAULT_CONNECTIONS", "KEYS", "initial_energy", "MAX_DESCRIPTION"]
+           "DEFAULT_CONNECTIONS", "KEYS", "initial_energy", "MAX_DESCRIPTION", "PHI_MAX", "KeySpec",
+           "key_specs"]
 
 #: The value of ``plant.n_modes`` and ``plant.fidelity`` that lets a run choose the model.
 AUTO = "auto"
@@ -63,6 +64,8 @@ SOLVERS = ("radau", "bdf")
 COMPARABLE_OUTPUTS = ("x", "x_dot", "phi_o", "omega_o", "F_c", "tip_deflection", "eta_1")
 #: The longest ``description`` (characters): a line or two of text, not a document.
 MAX_DESCRIPTION = 1000
+#: The largest ``|initial.phi|`` whatever ``plant.phi_limit`` (``inf`` included), rad.
+PHI_MAX = 1e6
 #: The paper's loop: the sensors to the controller, the force to the plant.
 DEFAULT_CONNECTIONS = (
     "plant.x_o -> controller.x_o",
@@ -76,19 +79,13 @@ def _set(obj, name, value):
     object.__setattr__(obj, name, value)
 
 
-def _checked(key, check, *args, **kw):
-    """``check(key, *args, **kw)``, its TypeError or ValueError as a ConfigError."""
+def _checked(check, *args, **kw):
+    """``check(*args, **kw)``, its TypeError or ValueError as a ConfigError (a
+    :class:`~orchestration.scene.keys.ConfigTypeError` for a TypeError)."""
     try:
-        return check(key, *args, **kw)
+        return check(*args, **kw)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(str(exc)) from None
-
-
-def _choice(key, value, allowed):
-    if value not in allowed:
-        raise ConfigError(f"{key} = {value!r} is not allowed; allowed: "
-                          f"{', '.join(map(str, allowed))}")
-    return value
+        raise config_error(exc) from None
 
 
 @dataclass(frozen=True)
@@ -102,27 +99,30 @@ class PlantSetup:
 
     beam: PlantParams = PlantParams()      # with n_modes = 0 while n_modes is "auto"
     n_modes_auto: bool = False
-    fidelity: str = FMU_SETTINGS["fidelity"]
-    integrator: str = FMU_SETTINGS["integrator"]
-    step: float = FMU_SETTINGS["step"]
-    rtol: float = FMU_SETTINGS["rtol"]
-    atol: float = FMU_SETTINGS["atol"]
-    phi_limit: float = FMU_SETTINGS["phi_limit"]
-    energy_limit: float = FMU_SETTINGS["energy_limit"]
-    exact_step: float = EXACT_STEP
+    fidelity: str = choice(FMU_SETTINGS["fidelity"], "the plant model: nonlinear, linear "
+                           "(linearised upright), exact (geometrically exact beam), stiffened, "
+                           "or auto (a run chooses)", (*FIDELITIES, AUTO))
+    integrator: str = choice(FMU_SETTINGS["integrator"], "the plant FMU's integration method "
+                             "(docs/integrators.md)", sorted(REGISTRY))
+    step: float = real(FMU_SETTINGS["step"], "the plant's substep (initial step of the adaptive "
+                       "methods); not the exact rung's", "s", low=0.0, high=1e6,
+                       note="below the method's stability limit on the fastest mode")
+    rtol: float = real(FMU_SETTINGS["rtol"], "relative tolerance of the adaptive and implicit "
+                       "methods", low=0.0, high=1e6)
+    atol: float = real(FMU_SETTINGS["atol"], "absolute tolerance of the adaptive and implicit "
+                       "methods", low=0.0, high=1e6)
+    phi_limit: float = real(FMU_SETTINGS["phi_limit"], "divergence bound on |phi|: the plant "
+                            "stops a run beyond it", "rad", low=0.0, allow_inf=True)
+    energy_limit: float = real(FMU_SETTINGS["energy_limit"], "divergence bound on |energy|: the "
+                               "plant stops a run beyond it", "J", low=0.0, allow_inf=True)
+    exact_step: float = real(EXACT_STEP, "the exact rung's Radau IIA step, also its "
+                             "communication step", "s", low=0.0, high=1e6)
 
     def __post_init__(self):
 
         if not isinstance(self.beam, PlantParams):
             raise TypeError(f"beam must be a PlantParams, got {type(self.beam).__name__}")
-        _choice("plant.fidelity", self.fidelity, (*FIDELITIES, AUTO))
-        _choice("plant.integrator", self.integrator, sorted(REGISTRY))
-        for name in ("step", "rtol", "atol", "exact_step"):
-            _set(self, name, _checked(f"plant.{name}", check_real, getattr(self, name),
-                                      low=0.0, high=1e6))
-        for name in ("phi_limit", "energy_limit"):
-            _set(self, name, _checked(f"plant.{name}", check_real, getattr(self, name),
-                                      low=0.0, allow_inf=True))
+        _checked(check_fields, self, "plant.")
         if self.integrator == "exponential" and self.fidelity != "linear":
             raise ConfigError("plant.integrator = 'exponential' integrates the linearised plant; "
                               "it needs plant.fidelity = 'linear'")
@@ -155,44 +155,49 @@ class PlantSetup:
 class MasterSettings:
     """``master.*``: the co-simulation's coupling (see ``orchestration.cosim``)."""
 
-    algorithm: str = "gauss-seidel"
-    first: str = "controller"
-    step: float = 2e-3
-    extrapolation: int = 2
-    adaptive: bool = False
-    tolerance: float = 1e-4
-    min_step: float = 1e-6
-    max_step: float = 2e-2
-    error_estimator: str = "extrapolation"
-    input_derivatives: bool = True
-    fmus: str = "native"
-    compiled: object = "auto"
-    output_derivatives: bool = False
-    interface: str = "co-simulation"
-    solver: str = "radau"
-    rtol: float = 1e-6
-    atol: float = 1e-8
-    implicit_tolerance: float = 1e-9
-    max_iterations: int = 20
-    implicit_jacobian: str = "newton"
+    algorithm: str = choice("gauss-seidel", "the coupling: gauss-seidel, jacobi, or implicit "
+                            "(strongly coupled)", ALGORITHMS)
+    first: str = choice("controller", "which FMU steps first in Gauss-Seidel", FIRST)
+    step: float = real(2e-3, "communication step (initial step when adaptive)", "s", low=0.0,
+                       high=1e6, note="at most stop_time; output_interval a multiple of it")
+    extrapolation: int = integer(2, "input extrapolation: 0 (zero-order hold), 1 (linear), "
+                                 "2 (quadratic)", low=0, high=2)
+    adaptive: bool = boolean(False, "adaptive communication step",
+                             note="not with master.algorithm = implicit")
+    tolerance: float = real(1e-4, "the adaptive step's error tolerance", low=0.0, high=1e6)
+    min_step: float = real(1e-6, "the adaptive step's lower bound", "s", low=0.0, high=1e6,
+                           note="at most master.max_step")
+    max_step: float = real(2e-2, "the adaptive step's upper bound (and the model-exchange "
+                           "solver's)", "s", low=0.0, high=1e6)
+    error_estimator: str = choice("extrapolation", "the adaptive step's error estimate",
+                                  ESTIMATORS)
+    input_derivatives: bool = boolean(True, "pass the extrapolation polynomial to FMUs that "
+                                      "take input derivatives")
+    fmus: str = choice("native", "the FMUs run: native (C) or python (pythonfmu)", FMU_FLAVOURS)
+    compiled: object = field(default="auto", metadata={"param": Param(
+        "other", "the fixed-step loop in C: auto (where the FMUs allow it), true, false",
+        note="auto, true or false")})
+    output_derivatives: bool = boolean(False, "extrapolate outputs by the FMUs' output "
+                                       "derivatives", note="native FMUs, master.input_derivatives")
+    interface: str = choice("co-simulation", "the FMUs stepped as slaves, or their Model "
+                            "Exchange interfaces solved as one system", INTERFACES)
+    solver: str = choice("radau", "the model-exchange master's stiff solver", SOLVERS)
+    rtol: float = real(1e-6, "the model-exchange solver's relative tolerance", low=1e-14,
+                       high=0.1)
+    atol: float = real(1e-8, "the model-exchange solver's absolute tolerance (times each "
+                       "state's nominal value)", low=1e-300, high=1e6)
+    implicit_tolerance: float = real(1e-9, "the implicit master's interface tolerance "
+                                     "(relative to max(1, |output|))", low=1e-15, high=1.0)
+    max_iterations: int = integer(20, "the implicit master's iterations per step", low=1,
+                                  high=1000)
+    implicit_jacobian: str = choice("newton", "the implicit master's update: newton or "
+                                    "iqn-ils", IMPLICIT_JACOBIANS)
 
     def __post_init__(self):
-        _choice("master.algorithm", self.algorithm, ALGORITHMS)
-        _choice("master.implicit_jacobian", self.implicit_jacobian, IMPLICIT_JACOBIANS)
-        _set(self, "implicit_tolerance", _checked("master.implicit_tolerance", check_real,
-                                                  self.implicit_tolerance, low=1e-15, high=1.0))
-        _set(self, "max_iterations", _checked("master.max_iterations", check_int,
-                                              self.max_iterations, low=1, high=1000))
+        _checked(check_fields, self, "master.")
         if self.algorithm == "implicit" and self.adaptive:
             raise ConfigError("master.algorithm = 'implicit' takes a fixed step; "
                               "master.adaptive = true is not allowed with it")
-        _choice("master.error_estimator", self.error_estimator, ESTIMATORS)
-        _choice("master.first", self.first, FIRST)
-        _choice("master.fmus", self.fmus, FMU_FLAVOURS)
-        _choice("master.interface", self.interface, INTERFACES)
-        _choice("master.solver", self.solver, SOLVERS)
-        _set(self, "rtol", _checked("master.rtol", check_real, self.rtol, low=1e-14, high=0.1))
-        _set(self, "atol", _checked("master.atol", check_real, self.atol, low=1e-300, high=1e6))
         if self.output_derivatives:
             why = ("the pythonfmu FMUs give none" if self.fmus != "native" else
                    "the implicit master interpolates between the step's samples"
@@ -207,13 +212,6 @@ class MasterSettings:
         if self.interface == "model-exchange" and self.fmus != "native":
             raise ConfigError(f"master.interface = 'model-exchange' needs master.fmus = 'native' "
                               f"(the {self.fmus} FMUs are co-simulation only)")
-        for name in ("step", "tolerance", "min_step", "max_step"):
-            _set(self, name, _checked(f"master.{name}", check_real, getattr(self, name),
-                                      low=0.0, high=1e6))
-        _set(self, "extrapolation", _checked("master.extrapolation", check_int,
-                                             self.extrapolation, low=0, high=2))
-        for name in ("adaptive", "input_derivatives", "output_derivatives"):
-            _set(self, name, _checked(f"master.{name}", check_bool, getattr(self, name)))
         if not (isinstance(self.compiled, bool) or self.compiled == "auto"):
             raise ConfigError(f"master.compiled = {self.compiled!r} is not allowed; allowed: "
                               "'auto', true, false")
@@ -226,15 +224,24 @@ class MasterSettings:
 class InitialState:
     """``initial.*``: the initial state (the beam undeformed)."""
 
-    phi: float = math.pi / 6
-    x: float = 0.0
-    phi_dot: float = 0.0
-    x_dot: float = 0.0
+    phi: float = real(math.pi / 6, "initial angle of the (undeformed) beam from the upward "
+                      "vertical", "rad", check=False,
+                      note="|initial.phi| <= plant.phi_limit (and <= 1e+06)")
+    x: float = real(0.0, "initial cart position", "m", low=-1e6, high=1e6)
+    phi_dot: float = real(0.0, "initial angular rate", "rad/s", low=-1e6, high=1e6,
+                          note="the energy within plant.energy_limit")
+    x_dot: float = real(0.0, "initial cart velocity", "m/s", low=-1e6, high=1e6,
+                        note="the energy within plant.energy_limit")
 
     def __post_init__(self):
-        for f in fields(self):
-            _set(self, f.name, _checked(f"initial.{f.name}", check_real, getattr(self, f.name),
-                                        low=-1e6, high=1e6))
+        _checked(check_fields, self, "initial.")
+        # initial.phi's range is checked by the scene, against plant.phi_limit: its real limit
+        if isinstance(self.phi, bool) or not isinstance(self.phi, (int, float)):
+            raise ConfigTypeError(f"initial.phi must be a real number, got {shown(self.phi)}")
+        try:
+            _set(self, "phi", float(self.phi))
+        except OverflowError:
+            _set(self, "phi", math.inf)             # an integer beyond a double: out of range
 
 
 @dataclass(frozen=True)
@@ -244,17 +251,18 @@ class FidelitySettings:
     figure (``companion``: the companion run it is made from,
     :mod:`orchestration.studies.error_figure`; off, the measured global bound only)."""
 
-    tolerance: float = 0.05
-    max_modes: int = 8
-    outputs: tuple = ("x", "phi_o", "omega_o", "F_c")
-    companion: bool = True
+    tolerance: float = real(0.05, "relative agreement that makes a smaller model enough (auto)",
+                            low=0.0, high=1.0)
+    max_modes: int = integer(8, "the richest model plant.n_modes = auto tries", low=1,
+                             high=MAX_ELEMENTS, note="at most plant.n_elements")
+    outputs: tuple = field(default=("x", "phi_o", "omega_o", "F_c"), metadata={"param": Param(
+        "other", "the outputs auto compares", note="a non-empty list of "
+        + ", ".join(COMPARABLE_OUTPUTS))})
+    companion: bool = boolean(True, "the run states its error figure, from a companion run "
+                              "(false: the measured bound only)")
 
     def __post_init__(self):
-        _set(self, "tolerance", _checked("fidelity.tolerance", check_real, self.tolerance,
-                                         low=0.0, high=1.0))
-        _set(self, "companion", _checked("fidelity.companion", check_bool, self.companion))
-        _set(self, "max_modes", _checked("fidelity.max_modes", check_int, self.max_modes,
-                                         low=1, high=400))
+        _checked(check_fields, self, "fidelity.")
         outs = self.outputs
         if (not isinstance(outs, (list, tuple)) or not outs
                 or not all(isinstance(o, str) and o in COMPARABLE_OUTPUTS for o in outs)):
@@ -267,13 +275,12 @@ class FidelitySettings:
 class OutputSettings:
     """``stop_time`` and ``output_interval``: the run's length and its output grid (s)."""
 
-    stop_time: float = 10.0
-    output_interval: float = 0.002
+    stop_time: float = real(10.0, "the run's length", "s", low=0.0, high=1e6,
+                            note="a multiple of output_interval")
+    output_interval: float = real(0.002, "the output grid's interval", "s", low=0.0, high=1e6)
 
     def __post_init__(self):
-        for f in fields(self):
-            _set(self, f.name, _checked(f.name, check_real, getattr(self, f.name), low=0.0,
-                                        high=1e6))
+        _checked(check_fields, self)
         n_out = self.stop_time / self.output_interval
         if not math.isfinite(n_out) or n_out < 1 - 1e-9 or abs(n_out - round(n_out)) > 1e-9 * n_out:
             raise ConfigError(f"stop_time = {self.stop_time} must be a positive multiple of "
@@ -353,8 +360,12 @@ class Scene:
     initial: InitialState = InitialState()
     fidelity: FidelitySettings = FidelitySettings()
     output: OutputSettings = OutputSettings()
-    connections: tuple = field(default=DEFAULT_CONNECTIONS)
-    description: str = ""
+    connections: tuple = field(default=DEFAULT_CONNECTIONS, metadata={"param": Param(
+        "other", "the wiring", note="a non-empty list of 'fmu.variable -> fmu.variable' "
+        "(FMUs plant, controller)")})
+    description: str = field(default="", metadata={"param": Param(
+        "other", "what the scene shows", note=f"a string of at most {MAX_DESCRIPTION} "
+        "characters")})
 
     def __post_init__(self):
         for name, cls in (("plant", PlantSetup), ("controller", ControllerParams),
@@ -383,6 +394,15 @@ class Scene:
         if not m.adaptive and (not math.isfinite(ratio) or abs(ratio - round(ratio)) > 1e-9 * ratio):
             raise ConfigError(f"output_interval = {out.output_interval} must be a multiple of "
                               f"{key} = {m.step}")
+
+    def __repr__(self) -> str:
+        """One line: the name, the model, the controller, the coupling and the stop time."""
+        pl, c, m = self.plant, self.controller, self.master
+        filt = ("no filter" if c.filter_order == 0 else
+                f"order-{c.filter_order} filter {c.cutoff:g} rad/s")
+        step = "adaptive" if m.adaptive else f"step {self.run_master.step:g} s"
+        return (f"Scene({self.name!r}: {pl.n_modes} modes {pl.fidelity}, PD kp={c.kp:g} "
+                f"kd={c.kd:g} {filt}, {m.algorithm} {step}, stop_time {self.output.stop_time:g} s)")
 
     @property
     def run_master(self) -> MasterSettings:
@@ -433,14 +453,18 @@ class Scene:
                               "the stiffened rung does not give")
 
     def _check_initial_state(self):
-        """The initial state within the plant's limits: the plant FMU stops a run whose ``|phi|``
+        """The initial state within the plant's limits: ``|initial.phi|`` at most
+        ``plant.phi_limit`` (and :data:`PHI_MAX`); the plant FMU stops a run whose ``|phi|``
         exceeds ``plant.phi_limit`` or whose ``|energy|`` exceeds ``plant.energy_limit``, so a
         scene that starts beyond them would stop at its first step."""
-        phi, lim = self.initial.phi, self.plant.phi_limit
-        if not abs(phi) <= lim:
+        phi, lim = self.initial.phi, min(self.plant.phi_limit, PHI_MAX)
+        if not abs(phi) <= lim and lim < PHI_MAX:
             raise ConfigError(f"initial.phi = {phi:.6g} is beyond plant.phi_limit = {lim:.4g} rad "
                               f"({math.degrees(lim):.4g} deg), where the plant stops a run; "
-                              f"allowed: |initial.phi| <= {lim:.4g}")
+                              f"allowed: |initial.phi| <= {lim:.6g}")
+        if not abs(phi) <= lim:
+            raise ConfigError(f"initial.phi = {phi:.6g} is out of range; allowed: |initial.phi| "
+                              f"<= {lim:g}")
         e_lim = self.plant.energy_limit
         if math.isfinite(e_lim):
             energy = initial_energy(self.plant.beam, self.initial,
@@ -482,3 +506,57 @@ class Scene:
 
 #: scene key -> (record, attribute path) (see :func:`_keys`)
 KEYS = _keys()
+
+
+@dataclass(frozen=True)
+class KeySpec:
+    """One scene key as ``flexpend keys`` lists it: its ``type``, ``default``, ``unit`` (None:
+    none), ``allowed`` (the rule its record enforces, and what it needs with other keys) and
+    one line of ``meaning``. Read off the records' fields (:class:`fmu_common.checks.Param`),
+    which check the values by the same rule."""
+
+    key: str
+    type: str
+    default: object
+    unit: str | None
+    allowed: str
+    meaning: str
+
+    def __repr__(self) -> str:
+        allowed = self.allowed if len(self.allowed) <= 70 else self.allowed[:67] + "..."
+        return (f"KeySpec({self.key}: {self.type} = {shown(self.default)}"
+                f"{' ' + self.unit if self.unit else ''}; {allowed})")
+
+
+_TYPES = {"real": "float", "int": "int", "bool": "bool", "choice": "str"}
+
+
+def _param(key: str):
+    """The Param of ``key`` and the prefix its record's messages give field names."""
+    record, path = KEYS[key]
+    cls = {"": Scene, "plant": PlantSetup, "controller": ControllerParams, "master": MasterSettings,
+           "initial": InitialState, "fidelity": FidelitySettings, "output": OutputSettings}[record]
+    name = path
+    if path.startswith("beam."):
+        cls, name = PlantParams, path[len("beam."):]
+    elif key == "plant.n_modes":
+        cls = PlantParams
+    f = next(f for f in fields(cls) if f.name == name)
+    return f.metadata["param"], (f"{record}." if record and record != "output" else "")
+
+
+def key_specs() -> tuple:
+    """Every scene key, in the order of a scene file, as a :class:`KeySpec`."""
+    default = Scene(name="default")
+    out = []
+    for key in KEYS:
+        param, prefix = _param(key)
+        value = default.get(key)
+        kind = _TYPES.get(param.kind) or ("list of str" if isinstance(value, list) else
+                                          "str or bool" if key == "master.compiled" else
+                                          type(value).__name__)
+        allowed = param.allowed(prefix)
+        if key == "plant.n_modes":
+            kind, allowed = "int or str", f"{allowed}, or {AUTO!r} (a run chooses)"
+        out.append(KeySpec(key, kind, value, param.unit, allowed, param.meaning))
+    return tuple(out)

@@ -17,10 +17,11 @@ from pathlib import Path
 import tomllib
 
 from controller_fmu.pd_lowpass import ControllerParams
+from fmu_common.checks import shown
 from fmu_common.variables import start_values as _start_values
 from plant_fmu.params import PlantParams
 
-from .keys import ConfigError, check_known, parse_override
+from .keys import ConfigError, ConfigTypeError, check_known, config_error, parse_override
 from .records import (
     AUTO,
     KEYS,
@@ -43,7 +44,12 @@ MAX_SCENE_BYTES = 1 << 20
 
 
 class OverrideError(ConfigError):
-    """A bad ``--set`` item (reported without the scene file's name)."""
+    """A bad override (a ``--set`` item): reported without the scene file's name; the command
+    line says ``--set: `` before it (:attr:`ConfigError.cli`)."""
+
+
+def _override_error(exc: ConfigError) -> OverrideError:
+    return exc.prefixed("", "--set: ", OverrideError)
 
 
 def known_keys() -> dict:
@@ -60,15 +66,15 @@ def _plant(cfg: dict) -> PlantSetup:
     n_modes = cfg["plant.n_modes"]
     auto = n_modes == AUTO
     if isinstance(n_modes, str) and not auto:
-        raise ConfigError(f"plant.n_modes = {n_modes!r} is not allowed; allowed: an integer "
-                          f"0..plant.n_elements or {AUTO!r}")
+        raise ConfigTypeError(f"plant.n_modes = {shown(n_modes)} is not allowed; allowed: an "
+                              f"integer 0..plant.n_elements or {AUTO!r}")
     physical = _section(cfg, "plant.", PlantParams)
     if auto:
         physical["n_modes"] = 0
     try:
         beam = PlantParams(**physical)
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"plant.{exc}") from None
+        raise config_error(exc, "plant.") from None
     settings = {f.name: cfg[f"plant.{f.name}"] for f in dataclasses.fields(PlantSetup)
                 if f.name not in ("beam", "n_modes_auto")}
     return PlantSetup(beam, auto, **settings)
@@ -78,7 +84,7 @@ def _controller(cfg: dict) -> ControllerParams:
     try:
         return ControllerParams(**_section(cfg, "controller.", ControllerParams))
     except (TypeError, ValueError) as exc:
-        raise ConfigError(f"controller.{exc}") from None
+        raise config_error(exc, "controller.") from None
 
 
 def _build(name: str, cfg: dict) -> Scene:
@@ -119,13 +125,13 @@ def scene_from_config(name: str, values: dict, overrides=None) -> Scene:
     try:
         check_known([k for k, _ in pairs], known)
     except ConfigError as exc:
-        raise OverrideError(f"--set: {exc}") from None
+        raise _override_error(exc) from None
     cfg = {**known, **values, **dict(pairs)}
     try:
         return _build(name, cfg)
     except ConfigError as exc:
         if any(re.search(rf"(?<![\w.]){re.escape(k)}(?![\w.])", str(exc)) for k, _ in pairs):
-            raise OverrideError(f"--set: {exc}") from None     # a check that involves a --set key
+            raise _override_error(exc) from None     # a check that involves an override
         raise
 
 
@@ -193,7 +199,7 @@ def load_scene(ref, overrides=None) -> Scene:
     except OverrideError:
         raise
     except ConfigError as exc:
-        raise ConfigError(f"{path.name}: {exc}") from None
+        raise exc.prefixed(f"{path.name}: ") from None
 
 
 def list_scenes() -> list[str]:

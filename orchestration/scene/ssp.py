@@ -50,7 +50,7 @@ from plant_fmu import interface as plant_interface
 from . import archive
 from .keys import ConfigError, parse_value, toml_value
 from .records import OutputSettings
-from .schema import scene_from_config, start_values
+from .schema import OverrideError, scene_from_config, start_values
 
 __all__ = ["SspError", "SspSystem", "write_ssp", "read_ssp",
            "validate_ssd", "fmpy_parameter_set", "ssd_of", "SSD_NAME", "NS", "SCENE_ANNOTATION",
@@ -518,10 +518,10 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
     name = _scene_name(root, path)
     try:
         scene = scene_from_config(name, values, overrides)
+    except OverrideError:
+        raise
     except ConfigError as exc:
-        if str(exc).startswith("--set"):
-            raise
-        raise SspError(f"{label}: {exc}") from None
+        raise exc.prefixed(f"{label}: ", cls=SspError) from None
     fmus = {role[n]: p for n, (p, _) in info.items()}
     components = {role[n]: n for n in info}
     return SspSystem(path, scene, fmus, components, tmpdir)

@@ -344,6 +344,15 @@ class Analysis:
     controller: ControllerParams | None = None
     loop: str | None = None            # which loop, a scene's (Linearisation.text)
 
+    def __repr__(self) -> str:
+        """One line: the verdict, the largest real part, the number of roots, the loop."""
+        loop = self.loop or (f"{self.plant.n_modes} modes" if self.plant is not None else "")
+        if len(loop) > 80:
+            loop = loop[:77] + "..."
+        return (f"Analysis({'stable' if self.stable else 'unstable'}: max Re(lambda) = "
+                f"{self.max_real_part:.4g} 1/s, {len(self.eigenvalues)} closed-loop roots"
+                f"{'; ' + loop if loop else ''})")
+
     def modes(self):
         """One row per oscillatory closed-loop mode (upper half-plane) or real root:
         ``(real, imag, frequency rad/s, damping ratio)``."""

@@ -284,6 +284,13 @@ class DesignResult:
     levels: int = 3
     check_levels: int = 5
 
+    def __repr__(self) -> str:
+        """One line: the filter chosen, its worst case, the criterion."""
+        c, w = self.chosen, self.worst
+        return (f"DesignResult(order {c.filter_order}, cutoff {c.cutoff:g} rad/s, damping "
+                f"{c.filter_damping:g}; worst decay rate {w.decay:.4g} 1/s, damping ratio "
+                f"{w.damping:.4g}; criterion {self.criterion})")
+
     def filter_keys(self) -> dict:
         c = self.chosen
         return {"controller.filter_order": c.filter_order, "controller.cutoff": c.cutoff,

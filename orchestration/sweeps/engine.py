@@ -458,6 +458,11 @@ class SweepResult:
     def count(self, status: str) -> int:
         return sum(r["status"] == status for r in self.rows)
 
+    def __repr__(self) -> str:
+        """One line: the rows, how many ran and were skipped, the time."""
+        return (f"SweepResult({len(self.rows)} rows: {self.ran} ran, {self.skipped} found "
+                f"finished; {self.seconds:.3g} s)")
+
 
 def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
     """The point's identity (run number, key, swept values, sample), then ``result``'s fields

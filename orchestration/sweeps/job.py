@@ -2,6 +2,7 @@
 executor (serial, a LocalCluster or a scheduler), the runs, the statistics and ``sweep.json``."""
 from __future__ import annotations
 
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +31,15 @@ class Sweep:
     @property
     def rows(self) -> list:
         return self.result.rows
+
+    def __repr__(self) -> str:
+        """One line: the scene, the keys swept, the runs and how they ended, the executor."""
+        keys = ", ".join(self.plan.keys)
+        if len(keys) > 60:
+            keys = keys[:57] + "..."
+        lost = self.stats.get("lost", 0) if isinstance(self.stats, dict) else 0
+        return (f"Sweep({self.plan.scene.name!r} over {keys or 'nothing'}: "
+                f"{len(self.result.rows)} runs, {lost} lost; {self.executor})"[:200])
 
     def to_pandas(self):
         """One row per run, as a pandas DataFrame indexed by the run's number."""
@@ -66,9 +76,12 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
                           "one of them")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise ConfigError(f"batch = {batch!r} is not allowed; allowed: an integer >= 1")
-    plan = plan_sweep(scene, grids=_items("grid", grid), values=_items("values", values),
-                      samples=_items("sample", sample), n_samples=samples, seed=seed,
-                      overrides=_overrides(overrides), reference=reference)
+    try:
+        plan = plan_sweep(scene, grids=_items("grid", grid), values=_items("values", values),
+                          samples=_items("sample", sample), n_samples=samples, seed=seed,
+                          overrides=_overrides(overrides), reference=reference)
+    except ConfigError as exc:
+        raise _in_python(exc) from None
     out_dir = Path(out)
     todo = pending(plan, out_dir, retry_failed)
     done = len({p.key for p in plan.points}) - todo
@@ -112,6 +125,20 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
               "plot": None if res.plot is None else str(res.plot)}
     write_json(out_dir / "sweep.json", record)
     return Sweep(plan, res, stats, record, executor.describe())
+
+
+#: The command line's options of a sweep and the arguments of :func:`sweep` that take them.
+_ARGUMENTS = {"--grid": "grid", "--values": "values", "--sample": "sample",
+              "--samples": "samples", "--seed": "seed", "--set": "overrides"}
+
+
+def _in_python(exc: ConfigError) -> ConfigError:
+    """A plan's error (worded for the command line: ``--grid ...``) with the arguments of
+    :func:`sweep` for the options; :attr:`ConfigError.cli` keeps the command line's words."""
+    text = re.sub(r"(?<![\w-])--(grid|values|samples|sample|seed|set)(?![\w-])",
+                  lambda m: _ARGUMENTS[m[0]], str(exc))
+    out = type(exc)(text, cli=exc.cli)
+    return out
 
 
 def _items(option: str, spec) -> list:

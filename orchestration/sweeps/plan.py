@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..scene.keys import ConfigError, check_known, parse_override, parse_value
+from ..scene.keys import DESIGN_LISTED, ConfigError, check_known, parse_override, parse_value
 from ..scene.records import Scene
 from ..scene.schema import known_keys, load_scene, scene_from_config
 from ..studies.analysis import linearisation
@@ -60,7 +60,7 @@ def _known_key(key: str, option: str) -> str:
     try:
         check_known([key], known_keys())
     except ConfigError as exc:
-        raise ConfigError(f"{option}: {exc}") from None
+        raise exc.prefixed(f"{option}: ") from None
     return key
 
 
@@ -228,6 +228,13 @@ class SweepPlan:
         """The swept keys, in the table's order."""
         return [a.key for a in self.axes] + [s.key for s in self.samplers]
 
+    def __repr__(self) -> str:
+        """One line: the scene, the keys swept, the number of runs."""
+        keys = ", ".join(self.keys)
+        if len(keys) > 80:
+            keys = keys[:77] + "..."
+        return f"SweepPlan({self.scene.name!r} over {keys or 'nothing'}: {len(self.points)} runs)"
+
     def describe(self) -> dict:
         out = {"scene": self.scene.name, "set": self.overrides,
                "grid": {a.key: list(a.values) for a in self.axes},
@@ -287,9 +294,9 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
         known = dict(DESIGN_DEFAULTS)
         pairs = [parse_override(o) for o in design_items]
         try:
-            check_known([k for k, _ in pairs], known)
+            check_known([k for k, _ in pairs], known, listed=DESIGN_LISTED)
         except ConfigError as exc:
-            raise ConfigError(f"--set: {exc}") from None
+            raise exc.prefixed("", "--set: ") from None
         settings = design_settings({**known, **dict(pairs)})
         # the nominal beam, as the scene's rung linearises it (its n_modes is the set's; 0
         # stands for "auto")
