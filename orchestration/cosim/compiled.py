@@ -6,7 +6,7 @@ take it (:func:`unavailable` says why not) and the key ``compiled`` allows it. T
 instantiated and initialised by fmpy; the C loop receives their instance pointers and the
 addresses of the FMI functions fmpy loaded, and makes the calls the Python loop makes, in the
 same order, with the same arguments. Its results are bit-identical to the Python loop's
-(``tests/cosim/test_compiled_master.py``): the extrapolation weights come from the same cache, and
+(``tests/cosim/test_compiled.py``): the extrapolation weights come from the same cache, and
 the arithmetic is done operation for operation as numpy does it.
 
 What stays in Python: instantiation, initialisation, the consistent initial outputs and the first

@@ -18,7 +18,7 @@ every output time ``t`` of every run of the sweep it recorded
   travel ``V = integral |d tip_deflection / dt| / L dt`` (a bending oscillation accumulates a
   phase error, cycle after cycle, that its amplitude alone does not tell; ``V`` counts its cycles
   weighted by their amplitude, measured on the output grid, which must resolve the bending: the
-  scenes' grids do, ``tests/front/test_main_job.py``), and ``T``, the largest ``|tip_deflection| / L
+  scenes' grids do, ``tests/front/test_job.py``), and ``T``, the largest ``|tip_deflection| / L
   * t`` (s: an oscillation's phase error grows with the time it has run, the tip angle's error
   with the amplitude it has then);
 

@@ -1,7 +1,7 @@
 """The strongly coupled master (``master.algorithm = "implicit"``, orchestration/cosim/implicit.py)
 with the real native FMUs on the filtered scene (flexible_pd_lowpass).
 
-Stability is observed as in tests/studies/test_stability_boundaries.py: the largest pole of the
+Stability is observed as in tests/studies/test_stability.py: the largest pole of the
 output samples of a small motion (``initial.phi = 1e-3``, the linear plant, so the samples are those
 of a linear system), realised from their block-Hankel matrix.
 

@@ -1,6 +1,6 @@
 """The master's compiled loop (orchestration/cosim/native/fm_master.c) under AddressSanitizer and
 UndefinedBehaviorSanitizer: the library is rebuilt with the project's flags plus
-``-fsanitize=address,undefined`` and the whole of ``tests/cosim/test_compiled_master.py`` (every
+``-fsanitize=address,undefined`` and the whole of ``tests/cosim/test_compiled.py`` (every
 coupling, traced FMI calls, every injected failure, divergence, stop, a million steps) runs against
 it in a child Python that preloads the sanitizers' runtimes. Any report aborts the child
 (``-fno-sanitize-recover=all``, ``halt_on_error``): the test then fails with the report. Independent
@@ -78,7 +78,7 @@ def test_the_compiled_loop_tests_pass_under_the_sanitizers(tmp_path):
                PYTHONPATH=os.pathsep.join([str(tmp_path), str(HERE.parent)]))
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "sanitized_master",
                            "-p", "no:cacheprovider", "-s",
-                           str(Path(__file__).parent / "test_compiled_master.py")],
+                           str(Path(__file__).parent / "test_compiled.py")],
                           env=env, capture_output=True, text=True, timeout=1200, cwd=tmp_path)
     text = proc.stdout + proc.stderr
     assert proc.returncode == 0, text[-4000:]
