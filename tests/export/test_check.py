@@ -67,8 +67,8 @@ def stiffer_plant(tmp_path_factory):
         shutil.copytree(ROOT / pkg, src / pkg, ignore=shutil.ignore_patterns("__pycache__"))
     params = src / "plant_fmu" / "params.py"
     text = params.read_text()
-    assert text.count("EI: float = 8.75e2") == 1
-    params.write_text(text.replace("EI: float = 8.75e2", "EI: float = 8.8375e2"))
+    assert text.count("EI: float = real(8.75e2,") == 1
+    params.write_text(text.replace("EI: float = real(8.75e2,", "EI: float = real(8.8375e2,"))
     env = {**os.environ, "PYTHONPATH": str(src)}
     code = ("import sys; from orchestration.export.python_fmus import build_fmus; "
             "print(build_fmus(sys.argv[1], ['FlexiblePendulum'])['FlexiblePendulum'])")
