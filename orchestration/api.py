@@ -141,7 +141,7 @@ def design(scene=None, overrides=None, *, design: dict | None = None, workers: i
                 r = design_filter(p, c, settings, progress=search, executor=ex)
         steps.part(1, f"{sc.name}: design: the frequency responses and the root locus")
         report = DesignReport(r, p, c, settings, design_curves(r, p, c, settings))
-        steps.finish()
+        steps.finish(f"{sc.name}: design")
     finally:
         if sink is not None:
             sink.close()

@@ -583,7 +583,7 @@ def cmd_build(args) -> int:
             for name, path in build_fmus(folder, force=args.force, flavour=flavour,
                                          fmi_version=version, progress=part).items():
                 print(f"{name} ({flavour}, FMI {version}.0): {path}")
-        steps.finish()
+        steps.finish("flexpend build")
     except BuildError as exc:
         print(f"flexpend: {exc}", file=sys.stderr)
         return 2

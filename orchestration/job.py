@@ -347,7 +347,7 @@ def _run_scene(scene: Scene, fmus: dict, sink, *, reference, connections_out, st
         out.summary["max_error_phi_o"] = float(np.max(np.abs(out.result["phi_o"] - ref["phi_o"])))
         out.summary["max_error_eta_1"] = float(np.max(np.abs(out.result["eta_1"] - ref["eta_1"])))
     if out.summary["stopped"] is None:
-        steps.finish()
+        steps.finish(name)
     return out
 
 
@@ -558,7 +558,7 @@ def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool 
         run = run_scene(sc, pair, reference=reference,
                         progress=steps.part(19, sc.name) if sink is not None else False)
         if sink is not None and run.summary["stopped"] is None:
-            steps.finish()
+            steps.finish(sc.name)
         return run
     finally:
         if sink is not None:

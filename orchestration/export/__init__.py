@@ -66,7 +66,8 @@ def flavour_fmus(flavour: str, *, portable: bool = False, progress=None) -> dict
     from fmu_common.kernels import host_platform
 
     platforms = None if portable or flavour != "native" else [host_platform()]
-    return fmu_pair(build_fmus(flavour=flavour, platforms=platforms, progress=progress))
+    told = {} if progress is None else {"progress": progress}
+    return fmu_pair(build_fmus(flavour=flavour, platforms=platforms, **told))
 
 
 # ---------------------------------------------------------------------- command line

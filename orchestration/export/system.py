@@ -43,6 +43,6 @@ def export_scene(scene, flavour: str = "native", out=None, progress=None) -> Exp
         write_ssp(scene, fmus, path, model=model)       # complete or absent
     except OSError as exc:                              # a full disk: an OutputError naming it
         raise output_error(path, exc) from None
-    steps.finish()
+    steps.finish(f"{scene.name}: archive written")
     return ExportResult(path, scene, model, fmus)
 
