@@ -55,6 +55,7 @@ from fmu_common.variables import (derivatives, event_indicators, native_variable
 from plant_fmu.beam import _fe_modes_unit, unit_beam
 from plant_fmu.interface import N_ETA_OUTPUTS, VARIABLES
 
+from ..notes import note
 from . import places
 from .model_description import TABLES, fmi2_model_description, fmi3_model_description
 
@@ -292,9 +293,7 @@ def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: 
 
 
 def _say(line: str) -> None:
-    from ..report.progress import note     # silent within quiet() (flexpend --quiet)
-
-    note(line)
+    note(line)                              # silent within quiet() (flexpend --quiet)
 
 
 def skipped_platforms() -> dict:
@@ -499,7 +498,7 @@ def build_native_fmus(out_dir: Path | None = None, names=None, force: bool = Fal
     other binaries it has; one that misses some gets them compiled and keeps those it has; one
     built from other sources is built anew for ``platforms``. Every binary to compile is
     compiled at once (:func:`_build_all`); each FMU is written complete or not at all. Says on
-    stderr one line per binary compiled (not within :func:`orchestration.report.progress.quiet`).
+    stderr one line per binary compiled (not within :func:`orchestration.notes.quiet`).
     ``progress(fraction, label)``: told as each binary is compiled and each FMU written."""
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")

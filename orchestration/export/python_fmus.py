@@ -182,17 +182,19 @@ def build_fmus(out_dir: Path | None = None, names=None, force: bool = False,
                progress=None) -> dict:
     """Build (if stale) every FMU of :data:`SPECS` (or ``names``); return name -> path.
     ``progress(fraction, label)``: told each step of each FMU built."""
-    from ..report.progress import Steps
-
     names = list(SPECS) if names is None else list(names)
     unknown = sorted(set(names) - set(SPECS))
     if unknown:
         raise ValueError(f"unknown FMU(s) {', '.join(unknown)}; known: {', '.join(SPECS)}")
     stale = [n for n in names if force or is_stale(n, out_dir)]
-    steps = Steps(progress, len(stale))
-    out = {n: build_fmu(n, out_dir, force, steps.part(1, f"building {n} (python, FMI 2.0)")
-                        if n in stale else None) for n in names}
-    steps.finish()
+
+    def share(i):                   # the i-th stale FMU's steps, as its share of the whole
+        return None if progress is None else \
+            (lambda f, label=None: progress((i + f) / len(stale), label))
+    out = {n: build_fmu(n, out_dir, force, share(stale.index(n)) if n in stale else None)
+           for n in names}
+    if progress is not None:
+        progress(1.0)
     return out
 
 

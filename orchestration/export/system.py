@@ -29,20 +29,24 @@ def export_scene(scene, flavour: str = "native", out=None, progress=None) -> Exp
     ladder climbed on the scene's monolithic runs), and the chosen model is written.
     ``progress(fraction, label)``: told as the FMUs are built and the model chosen
     (:mod:`orchestration.report.progress`)."""
-    from ..report.progress import Steps
-
-    steps = Steps(progress, 1 if scene.resolved else 4)
+    def share(start, end, label):           # a part of the whole: from start to end
+        if progress is None:
+            return None
+        progress(start, label)
+        return lambda f, now=None: progress(start + (end - start) * f, now or label)
+    split = 1.0 if scene.resolved else 0.25          # the FMUs, then the model's choice
     fmus = flavour_fmus(flavour, portable=True,
-                        progress=steps.part(1, f"{scene.name}: the {flavour} FMUs"))
+                        progress=share(0.0, split, f"{scene.name}: the {flavour} FMUs"))
     model = None
     if not scene.resolved:
-        scene, model = select_model(scene, steps.part(3, f"{scene.name}: choosing the model"),
-                                    monolithic=True)
+        scene, model = select_model(scene, share(split, 1.0, f"{scene.name}: choosing the "
+                                                             "model"), monolithic=True)
     path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
     try:
         write_ssp(scene, fmus, path, model=model)       # complete or absent
     except OSError as exc:                              # a full disk: an OutputError naming it
         raise output_error(path, exc) from None
-    steps.finish(f"{scene.name}: archive written")
+    if progress is not None:
+        progress(1.0, f"{scene.name}: archive written")
     return ExportResult(path, scene, model, fmus)
 

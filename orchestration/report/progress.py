@@ -18,16 +18,18 @@ FMUs of a build, the models compared), each part reporting its own fraction with
 On a terminal a bar redraws one line (a new line when its label changes); otherwise it prints a
 line at each quarter and one whenever its label changes. A bar shows only once the work has
 lasted :func:`delay_seconds` (1 s; the environment variable ``FLEXPEND_PROGRESS_DELAY`` sets
-another, ``0`` shows every bar at once). :func:`quiet` silences every bar and :func:`note`
-(``flexpend --quiet``); errors and warnings are not progress and are not silenced."""
+another, ``0`` shows every bar at once). :func:`~orchestration.notes.quiet` silences every bar
+and every note (``flexpend --quiet``); errors and warnings are not progress and are not
+silenced."""
 from __future__ import annotations
 
-import contextlib
 import inspect
 import math
 import os
 import sys
 import time
+
+from ..notes import is_quiet, note, quiet
 
 __all__ = ["Progress", "Steps", "sink_for", "check_progress", "delay_seconds", "quiet",
            "is_quiet", "note", "DELAY_ENV"]
@@ -38,9 +40,6 @@ DELAY_ENV = "FLEXPEND_PROGRESS_DELAY"
 #: The delay when the environment does not set one (s).
 DEFAULT_DELAY = 1.0
 
-_QUIET = [False]
-
-
 def delay_seconds() -> float:
     """The seconds a bar waits before it shows: ``FLEXPEND_PROGRESS_DELAY`` when it is a finite
     number >= 0, else 1."""
@@ -50,30 +49,6 @@ def delay_seconds() -> float:
     except ValueError:
         return DEFAULT_DELAY
     return value if math.isfinite(value) and value >= 0 else DEFAULT_DELAY
-
-
-def is_quiet() -> bool:
-    """Whether bars and notes are silenced (:func:`quiet`)."""
-    return _QUIET[0]
-
-
-@contextlib.contextmanager
-def quiet(on: bool = True):
-    """Within it, no bar and no :func:`note` is written (``flexpend --quiet``)."""
-    before = _QUIET[0]
-    _QUIET[0] = bool(on) or before
-    try:
-        yield
-    finally:
-        _QUIET[0] = before
-
-
-def note(text: str, stream=None) -> None:
-    """A line of chatter on stderr (what a command is about to do), unless :func:`quiet`."""
-    if not _QUIET[0]:
-        stream = stream or sys.stderr
-        stream.write(text + "\n")
-        stream.flush()
 
 
 class Progress:
@@ -103,7 +78,7 @@ class Progress:
             self.shown = False
 
     def __call__(self, fraction: float, label: str | None = None):
-        if _QUIET[0]:
+        if is_quiet():
             return
         changed = label is not None and label != self.label
         if changed:
