@@ -26,6 +26,7 @@ from __future__ import annotations
 import inspect
 import math
 import os
+import shutil
 import sys
 import time
 
@@ -77,6 +78,21 @@ class Progress:
             self.stream.flush()
             self.shown = False
 
+    def _line(self, fraction: float, elapsed: float, columns: int) -> str:
+        """The terminal's line, within ``columns``: the label first (the rung, the model), then
+        the bar, the percentage, the time and the time left, the bar narrowed, then the time
+        left dropped, then the label cut, as the width asks."""
+        eta = elapsed * (1 - fraction) / max(fraction, 1e-9)
+        left = f", ~{eta:.1f} s left" if 0.01 <= fraction < 1.0 else ""
+        for width, time_left in ((30, left), (20, left), (10, left), (10, "")):
+            n = int(width * fraction)
+            tail = (f" [{'#' * n}{'.' * (width - n)}] {100 * fraction:5.1f} % {elapsed:.1f} s"
+                    f"{time_left} ")
+            if len(self.label) + len(tail) <= columns:
+                return self.label + tail
+        room = max(columns - len(tail), 4)
+        return self.label[:room - 3] + "..." + tail
+
     def __call__(self, fraction: float, label: str | None = None):
         if is_quiet():
             return
@@ -94,10 +110,7 @@ class Progress:
             if fraction < 1.0 and not changed and elapsed - self._last < 0.1:
                 return
             self._last = elapsed
-            n = int(30 * fraction)
-            eta = elapsed * (1 - fraction) / max(fraction, 1e-9)
-            text = (f"{self.label} [{'#' * n}{'.' * (30 - n)}] {100 * fraction:5.1f} % "
-                    f"{elapsed:6.1f} s, ~{eta:5.1f} s left ")
+            text = self._line(fraction, elapsed, shutil.get_terminal_size().columns - 1)
             self.stream.write("\r" + text + " " * max(0, self.width - len(text)))
             self.width = len(text)
             self.shown = True

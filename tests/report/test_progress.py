@@ -101,6 +101,18 @@ def test_a_bar_on_a_terminal_redraws_and_starts_a_new_line_for_a_new_label():
     assert " 100.0 %" in lines[1].split("\r")[-1]
 
 
+def test_a_terminal_line_keeps_the_label_whole_within_the_width():
+    bar = pg.Progress("flexible_pd: nonlinear rung (2 of 4)", Tty(), delay=0.0)
+    for columns in (120, 80, 66):
+        line = bar._line(0.5, 3.0, columns)
+        assert line.startswith("flexible_pd: nonlinear rung (2 of 4) [") and len(line) <= columns
+        assert " 50.0 % 3.0 s" in line
+    assert "s left" in bar._line(0.5, 3.0, 120) and "s left" not in bar._line(0.5, 3.0, 66)
+    bar.label = "flexible_pd: " + "x" * 200
+    line = bar._line(0.5, 3.0, 80)
+    assert len(line) <= 80 and line.startswith("flexible_pd: xxx") and "... [" in line
+
+
 def test_the_delay_is_set_by_the_environment(monkeypatch):
     for text, seconds in (("0", 0.0), ("2.5", 2.5), ("-1", 1.0), ("soon", 1.0), ("nan", 1.0)):
         monkeypatch.setenv(pg.DELAY_ENV, text)
