@@ -22,7 +22,7 @@ from ..cosim.pool import SlavePool
 from ..export import flavour_fmus
 from ..export.native_fmus import GENERATION_TOOL
 from ..job import run_scene
-from ..report.progress import is_quiet
+from ..report.progress import is_quiet, sink_for
 from ..files import atomic_path, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
@@ -489,10 +489,19 @@ def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
     return row
 
 
-def fmus_for(plan: SweepPlan) -> dict:
+def fmus_for(plan: SweepPlan, progress: bool = False) -> dict:
     """``{flavour: {"plant": path, "controller": path}}`` for the FMU flavours (``master.fmus``)
-    the plan's runs use, built if missing or stale."""
-    return {fl: flavour_fmus(fl) for fl in dict.fromkeys(p.scene.master.fmus for p in plan.points)}
+    the plan's runs use, built if missing or stale; ``progress``: a bar on stderr for each
+    build."""
+    out = {}
+    for fl in dict.fromkeys(p.scene.master.fmus for p in plan.points):
+        sink = sink_for(progress, f"the {fl} FMUs")
+        try:
+            out[fl] = flavour_fmus(fl, progress=sink)
+        finally:
+            if sink is not None:
+                sink.close()
+    return out
 
 
 def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:

@@ -93,7 +93,7 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     say = note if progress is True else (lambda text: None)
     say(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
         + (f", {done} already finished in {out_dir}" if done else ""))
-    fmus = fmus_for(plan)
+    fmus = fmus_for(plan, progress is True)
     if not (serial or scheduler or workers is not None or todo == 0):
         seconds = sum(expected_run_seconds(p.scene, plan.reference) for p in plan.points) \
             / len(plan.points)
