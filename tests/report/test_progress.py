@@ -182,6 +182,11 @@ def test_simulate_names_each_rung_of_the_auto_ladder():
     # the rungs in the order they ran, each reached at a larger fraction than the one before
     firsts = [next(f for f, label in rec.calls if label == want) for want in rung_labels]
     assert firsts == sorted(firsts) and len(set(firsts)) == len(firsts)
+    # each rung's share of the bar ends where the next one's starts: no rung fills the bar
+    for want, nxt in zip(rung_labels, firsts[1:]):
+        assert max(f for f, label in rec.calls if label.startswith(want)) <= nxt
+    last = next(i for i, (_, label) in enumerate(rec.calls) if label == rung_labels[-1])
+    assert max(f for f, _ in rec.calls[:last]) < 1.0
     # and no rung that did not run
     for r in set(ladder) - set(ran):
         assert not any(f"flexible_pd: {r} rung (" in label for label in labels)
@@ -240,6 +245,12 @@ def test_stability_design_sweep_and_build_report_to_one_callable(tmp_path, monke
     rec = Recorder()                            # up to date: nothing to do, done at once
     api.build_fmus("native", out=tmp_path / "fmus", progress=rec)
     assert rec.fractions == [1.0]
+    rec = Recorder()
+    paths = api.build_fmus("python", out=tmp_path / "python", force=True, progress=rec)
+    rec.check_complete()
+    labels = [label for _, label in rec.calls]
+    for name in paths:
+        assert f"building {name} (python, FMI 2.0): packaging with pythonfmu" in labels, labels
 
 
 def test_true_draws_a_bar_and_false_is_silent(capsys):
