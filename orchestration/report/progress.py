@@ -70,6 +70,7 @@ class Progress:
         self.last_quarter = 0
         self.width = 0
         self._last = -math.inf
+        self.complete = False          # 100 % shown
 
     def close(self):
         """End the bar's line early (a run that stopped before the end)."""
@@ -100,9 +101,10 @@ class Progress:
         if changed:
             self.label = label
         elapsed = time.perf_counter() - self.start
-        if elapsed < self.delay:
+        if elapsed < self.delay or self.complete:     # after 100 %: nothing more to show
             return
         fraction = min(max(float(fraction), 0.0), 1.0)
+        self.complete = fraction >= 1.0
         if self.tty:
             if changed and self.shown:
                 self.stream.write("\n")

@@ -88,6 +88,14 @@ def test_a_bar_off_a_terminal_prints_quarters_and_each_new_label():
         ("scene: second rung", 75), ("scene: second rung", 100)]
 
 
+def test_a_bar_says_nothing_after_100_percent():
+    out = io.StringIO()
+    bar = pg.Progress("scene", out, delay=0.0)
+    bar(1.0, "scene: the reference")
+    bar(1.0, "scene")
+    assert progress_lines(out.getvalue()) == [("scene: the reference", 100)]
+
+
 def test_a_bar_on_a_terminal_redraws_and_starts_a_new_line_for_a_new_label():
     out = Tty()
     bar = pg.Progress("scene", out, delay=0.0)
@@ -258,7 +266,9 @@ def test_true_draws_a_bar_and_false_is_silent(capsys):
     assert capsys.readouterr().err == ""
     fp.simulate("rigid_pd", {"stop_time": 0.2}, progress=True)
     lines = progress_lines(capsys.readouterr().err)
-    assert lines and lines[-1] == ("rigid_pd", 100)
+    assert lines and lines[-1][1] == 100 and lines[0][0] == "rigid_pd: the native FMUs"
+    assert all(label.startswith("rigid_pd") for label, _ in lines) and \
+        [p for _, p in lines] == sorted(p for _, p in lines)
 
 
 # ---------------------------------------------------------------------- the commands
