@@ -20,8 +20,9 @@ stops is not an error: its summary says when and why.
 
 The layers, from the top (an import goes only downwards; ``tests/project/test_layers.py`` checks
 it): ``cli`` -> this front door (``api``) -> ``sweeps`` -> ``job`` -> ``export`` -> ``report`` ->
-``studies`` -> ``cosim`` -> ``scene`` -> ``files`` (output files, complete or absent) -> the models
-(``plant_fmu``, ``controller_fmu``) -> ``fmu_common``.
+``studies`` -> ``cosim`` -> ``scene`` -> ``files`` (output files, complete or absent) and
+``notes`` (what a command says on stderr, silenced by ``--quiet``) -> the models (``plant_fmu``,
+``controller_fmu``) -> ``fmu_common``.
 """
 from __future__ import annotations
 

@@ -7,9 +7,17 @@ results, errors that subclass ``ValueError`` or ``TypeError`` and name the bad k
     stability(scene=None, overrides=None, *, max_step=None, progress=False) -> dict
     design(scene=None, overrides=None, *, design=None, workers=None, scheduler=None,
            progress=False) -> DesignReport
-    sweep(scene, *, grid=..., values=..., sample=..., samples=None, ...) -> Sweep
-    build_fmus(flavour="native", *, fmi_version=2, out=None, force=False) -> {name: path}
+    sweep(scene, *, grid=..., values=..., sample=..., samples=None, ..., progress=False) -> Sweep
+    build_fmus(flavour="native", *, fmi_version=2, out=None, force=False,
+               progress=False) -> {name: path}
     scene_keys() -> (KeySpec, ...)
+
+``progress=``, the same in every function that takes it: ``False`` (the default: silent),
+``True`` (a bar on stderr, shown once the work has lasted a second) or a callable
+``progress(fraction, label)``, called with the fraction of the whole call done (0 to 1, never
+decreasing, 1.0 last when the work completes) and a str naming what is being done (the rung,
+the model, the FMU); anything else is a TypeError naming ``progress``
+(:mod:`orchestration.report.progress`).
 """
 from __future__ import annotations
 
@@ -18,7 +26,7 @@ from pathlib import Path
 from .export import build_fmus as _build_fmus
 from .job import Run, simulate
 from .report.design import DesignReport
-from .report.progress import Progress
+from .report.progress import Steps, check_progress, sink_for
 from .scene.keys import DESIGN_LISTED, FMU_FLAVOURS, ConfigError, check_known
 from .scene.records import KeySpec, Scene, key_specs
 from .scene.schema import load_scene
@@ -84,55 +92,78 @@ def stability(scene=None, overrides=None, *, max_step: float | None = None,
     prediction assumes (:func:`~orchestration.studies.stability.assumptions`), ``"loop"``:
     which linearised loop, its damping law named, and ``"name"``: the scene's.
 
-    ``progress``: ``True`` for a progress line on stderr, or a callable given the fraction
-    done. A ConfigError for a scene whose co-simulation has no transition matrix (adaptive,
+    ``progress``: as the module's docstring says (the fraction of the scan's grid of steps).
+    A ConfigError for a scene whose co-simulation has no transition matrix (adaptive,
     Model Exchange, an adaptive plant method); a ValueError naming ``max_step`` for a step
     outside 1 ms .. 10 s."""
     from .studies.stability import assumptions, stability_report
 
-    if progress is not True and progress is not False and not callable(progress):
-        raise TypeError(f"progress must be True, False or a callable, got {progress!r}")
+    check_progress(progress)
     sc, lin = _resolved(scene, overrides, "stability")
-    bar = Progress("stability") if progress is True else progress or None
+    sink = sink_for(progress, f"{sc.name}: stability")
     try:
-        report = stability_report(sc, max_step=max_step, progress=bar)
+        report = stability_report(sc, max_step=max_step, progress=sink)
+        if sink is not None:
+            sink.finish()
     except ValueError as exc:
         if str(exc).startswith("max_step"):
             raise
         raise ConfigError(f"{sc.name}: no prediction: {exc}") from None
     finally:
-        if isinstance(bar, Progress):
-            bar.close()
+        if sink is not None:
+            sink.close()        # a bar's line ended, had the work stopped before its end
     return {**report, "name": sc.name, "loop": lin.text(), "assumes": assumptions(sc)}
 
 
 def design(scene=None, overrides=None, *, design: dict | None = None, workers: int | None = None,
-           scheduler: str | None = None, progress: bool = False) -> DesignReport:
+           scheduler: str | None = None, progress=False) -> DesignReport:
     """The robust low-pass filter for the scene's PD gains (``flexpend design``): the filter
     order, cutoff and damping with the largest worst-case decay rate (or damping ratio) over
     the uncertainty set around the scene's plant. ``design``: the ``design.*`` keys
     (``{"design.criterion": "damping"}``); ``workers``/``scheduler``: check the worst case on
-    dask. The result's ``save(folder)`` writes what ``flexpend design`` writes."""
+    dask. ``progress``: as the module's docstring says (the candidate filters searched, the
+    check, the curves). The result's ``save(folder)`` writes what ``flexpend design``
+    writes."""
+    check_progress(progress)
     sc, lin = _resolved(scene, overrides, "design")
     items = dict(design or {})
     check_known(items, DESIGN_DEFAULTS, listed=DESIGN_LISTED)
     settings = design_settings({**DESIGN_DEFAULTS, **items})
-    bar = Progress("design") if progress else None
+    sink = sink_for(progress, f"{sc.name}: design")
+    steps = Steps(sink, 20)
+    search = steps.part(19, f"{sc.name}: design: searching the filters")
     p, c = lin.params, sc.controller
-    if workers is None and not scheduler:
-        r = design_filter(p, c, settings, progress=bar)
-    else:
-        with open_executor(workers, scheduler) as ex:
-            r = design_filter(p, c, settings, progress=bar, executor=ex)
-    return DesignReport(r, p, c, settings, design_curves(r, p, c, settings))
+    try:
+        if workers is None and not scheduler:
+            r = design_filter(p, c, settings, progress=search)
+        else:
+            with open_executor(workers, scheduler) as ex:
+                r = design_filter(p, c, settings, progress=search, executor=ex)
+        steps.part(1, f"{sc.name}: design: the frequency responses and the root locus")
+        report = DesignReport(r, p, c, settings, design_curves(r, p, c, settings))
+        steps.finish(f"{sc.name}: design")
+    finally:
+        if sink is not None:
+            sink.close()
+    return report
 
 
 def build_fmus(flavour: str = "native", *, fmi_version: int = 2, out=None,
-               force: bool = False) -> dict:
+               force: bool = False, progress=False) -> dict:
     """Build the plant and controller FMUs of ``flavour`` (``"native"``: C, FMI 2.0 or 3.0;
-    ``"python"``: pythonfmu, FMI 2.0) if missing or stale; ``{model name: path}``."""
+    ``"python"``: pythonfmu, FMI 2.0) if missing or stale; ``{model name: path}``.
+    ``progress``: as the module's docstring says (each step of each FMU built, named:
+    ``"building PDLowPass (native, FMI 2.0): compiled its linux64 binary"``)."""
     if flavour not in FMU_FLAVOURS:
         raise ValueError(f"flavour = {flavour!r} is not allowed; allowed: "
                          f"{', '.join(map(repr, FMU_FLAVOURS))}")
-    return _build_fmus(Path(out) if out is not None else None, force=force, flavour=flavour,
-                       fmi_version=fmi_version)
+    sink = sink_for(progress, f"building the {flavour} FMUs (FMI {fmi_version}.0)")
+    try:
+        paths = _build_fmus(Path(out) if out is not None else None, force=force,
+                            flavour=flavour, fmi_version=fmi_version, progress=sink)
+        if sink is not None:
+            sink.finish()
+    finally:
+        if sink is not None:
+            sink.close()
+    return paths

@@ -20,6 +20,13 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 
 ``flexpend run`` also runs an SSP archive (``flexpend run FILE.ssp``).
 
+The commands that can take long (``run``, ``stability``, ``design``, ``build``, ``sweep``,
+``export``) show their progress on stderr (:mod:`orchestration.report.progress`): a bar redrawn
+on a terminal, else a line at each quarter and one when the bar's label changes (the rung, the
+model, the FMU it is on), once the work has lasted a second (``FLEXPEND_PROGRESS_DELAY``: other
+seconds). ``--quiet`` (``-q``; before or after the command's name) silences the progress and the
+other chatter on stderr; errors, warnings and the results on stdout are kept.
+
 Exit codes: 0 done (``flexpend run``: every scene ran to its stop time, stable or not); 1
 ``flexpend check`` found a signal outside its band or a run that did not complete, or a sweep
 lost runs; 2 bad input (an unknown key, a bad value, a ``flexpend check`` reference with a signal
@@ -190,7 +197,7 @@ def cmd_stability(args) -> int:
                          "seconds from 0.001 to 10")
     bar = Progress("flexpend stability")
 
-    def progress(fraction):
+    def progress(fraction, label=None):
         bar(fraction)
         INTERRUPTS.check()          # a safe point: between two stacks of matrices
 
@@ -271,7 +278,7 @@ def cmd_design(args) -> int:
     out_dir = _output_dir(args.out)
     try:
         d = design(overrides=scene_items, design=design_keys, workers=workers,
-                   scheduler=scheduler, progress=True)
+                   scheduler=scheduler, progress=not args.quiet)
     except SchedulerError as exc:
         raise _scheduler_error(exc) from None
     except ConfigError as exc:
@@ -288,6 +295,7 @@ def cmd_run(args) -> int:
     from .job import EXIT_INTERRUPTED as JOB_INTERRUPTED
     from .job import EXIT_STOPPED as JOB_STOPPED
     from .job import load_job, run_job, step_warning
+    from .report.progress import note
     from .report.text import run_lines
     from .scene.schema import PAPER_SCENES
 
@@ -300,8 +308,7 @@ def cmd_run(args) -> int:
             m = scene.run_master
             how = (f"model exchange, {m.solver} at rtol {m.rtol:g}"
                    if m.interface == "model-exchange" else f"communication step {m.step:g} s")
-            print(f"{scene.name}: running {scene.output.stop_time:g} s ({how})", file=sys.stderr,
-                  flush=True)
+            note(f"{scene.name}: running {scene.output.stop_time:g} s ({how})")
             warning = step_warning(scene)
             if warning:
                 print(f"{scene.name}: warning: {warning}", file=sys.stderr, flush=True)
@@ -313,7 +320,7 @@ def cmd_run(args) -> int:
         job = run_job(items, out_dir, reference=args.reference,
                       connections_out=sys.stderr if args.connections else None, stop=stop,
                       overview=not args.scenes, announce=announce, report=report,
-                      renderer=args.renderer)
+                      renderer=args.renderer, progress=not args.quiet)
     finally:
         for _, system in items:
             if system is not None:
@@ -339,17 +346,20 @@ def cmd_export(args) -> int:
     from pathlib import Path
 
     from .export.system import export_scene
-    from .report.progress import Progress
+    from .report.progress import sink_for
     from .scene.schema import load_scene
 
     if args.out is not None and Path(args.out).suffix != ".ssp":
         raise UsageError(f"--out {args.out}: the archive's name must end in .ssp")
     scene = load_scene(args.scene, args.set)
+    sink = sink_for(not args.quiet, f"{scene.name}: export")
     try:
-        r = export_scene(scene, args.fmus, args.out,
-                         progress=Progress(f"{scene.name}: choosing the model"))
+        r = export_scene(scene, args.fmus, args.out, progress=sink)
     except ValueError as exc:           # an FMU without a parameter the scene sets, ...
         raise UsageError(_cli_text(exc)) from None
+    finally:
+        if sink is not None:
+            sink.close()
     sc = r.scene
     print(f"wrote {r.path}: plant {Path(r.fmus['plant']).name}, controller "
           f"{Path(r.fmus['controller']).name} ({args.fmus} FMUs), {len(sc.connections)} "
@@ -504,6 +514,7 @@ def _address_space_mib() -> int | None:
 
 
 def cmd_sweep(args) -> int:
+    from .report.progress import note
     from .report.text import sweep_lines
     from .sweeps.executor import SchedulerError
     from .sweeps.job import sweep
@@ -516,10 +527,10 @@ def cmd_sweep(args) -> int:
     _output_dir(args.out)
 
     def on_executor(ex):
-        print(f"running on {ex.describe()}", file=sys.stderr)
-        note = getattr(ex, "dashboard_note", lambda: None)()
-        if note:
-            print(note, file=sys.stderr)
+        note(f"running on {ex.describe()}")
+        dashboard = getattr(ex, "dashboard_note", lambda: None)()
+        if dashboard:
+            note(dashboard)
 
     argv = sys.argv[1:] if args.argv is None else args.argv
     try:
@@ -528,7 +539,7 @@ def cmd_sweep(args) -> int:
                   reference=args.reference, workers=workers, scheduler=scheduler,
                   serial=args.serial, batch=args.batch, retry_failed=args.retry_failed,
                   out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor,
-                  stop=INTERRUPTS.requested)
+                  stop=INTERRUPTS.requested, progress=not args.quiet)
     except SchedulerError as exc:
         raise _scheduler_error(exc) from None
     except ValueError as exc:
@@ -558,19 +569,27 @@ def cmd_build(args) -> int:
     from pathlib import Path
 
     from .export import BuildError, build_fmus
+    from .report.progress import Steps, sink_for
     out = None if args.out is None else Path(args.out)
     builds = [("python", 2, out), ("native", 2, out and out / "native"),
               ("native", 3, out and out / "native")]
     if args.fmus:
         builds = [b for b in builds if b[0] == args.fmus]
+    sink = sink_for(not args.quiet, "flexpend build")
+    steps = Steps(sink, len(builds))
     try:
         for flavour, version, folder in builds:
+            part = steps.part(1, f"building the {flavour} FMUs (FMI {version}.0)")
             for name, path in build_fmus(folder, force=args.force, flavour=flavour,
-                                         fmi_version=version).items():
+                                         fmi_version=version, progress=part).items():
                 print(f"{name} ({flavour}, FMI {version}.0): {path}")
+        steps.finish("flexpend build")
     except BuildError as exc:
         print(f"flexpend: {exc}", file=sys.stderr)
         return 2
+    finally:
+        if sink is not None:
+            sink.close()
     return 0
 
 
@@ -601,6 +620,17 @@ class _VersionAction(argparse.Action):
         parser.exit()
 
 
+#: ``--quiet``'s help.
+_QUIET_HELP = ("no progress and no other chatter on stderr (errors, warnings and the results "
+               "on stdout are kept)")
+
+
+def _add_quiet(p) -> None:
+    """``-q``/``--quiet`` on a command (as well as before it: the flag is set by either)."""
+    p.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                   help=_QUIET_HELP)
+
+
 #: Where ``--set``'s help sends the reader for the keys.
 _KEYS_HINT = "(every key: flexpend keys)"
 
@@ -610,6 +640,8 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "co-simulation of the FMUs.")
     parser.add_argument("--version", action=_VersionAction,
                         help="print the installed version and exit")
+    parser.add_argument("-q", "--quiet", action="store_true",
+                        help=_QUIET_HELP + " (also after the command's name)")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     pa = sub.add_parser("analyze", help="linear analysis of the closed loop",
                         description="Eigenvalues, stability and margins of the linearised loop.")
@@ -617,6 +649,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="override a scene key, e.g. plant.n_modes=4 or controller.cutoff=150 "
                          f"{_KEYS_HINT}")
     pa.add_argument("--json", action="store_true", help="print the result as JSON")
+    _add_quiet(pa)
     pa.set_defaults(func=cmd_analyze)
 
     pt = sub.add_parser("stability", help="the stable intervals of the communication step "
@@ -632,6 +665,7 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("--max-step", type=float, default=0.05, metavar="SECONDS",
                     help="the largest communication step scanned (default 0.05 s; 0.001 to 10)")
     pt.add_argument("--json", action="store_true", help="print the result as JSON")
+    _add_quiet(pt)
     pt.set_defaults(func=cmd_stability)
 
     pd = sub.add_parser("design", help="robust design of the low-pass filter",
@@ -650,6 +684,7 @@ def build_parser() -> argparse.ArgumentParser:
     pd.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="check it on the dask cluster of this scheduler (it must answer "
                          "dask's handshake within 5 s)")
+    _add_quiet(pd)
     pd.set_defaults(func=cmd_design)
 
     pr = sub.add_parser("run", help="co-simulate scenes (default: the paper's three)",
@@ -668,6 +703,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also solve the monolithic reference and report the error against it")
     pr.add_argument("--renderer", choices=("raster", "matplotlib"), default="raster",
                     help="what draws the PNGs: raster (default: Pillow, fast) or matplotlib")
+    _add_quiet(pr)
     pr.set_defaults(func=cmd_run)
 
     pb = sub.add_parser("build", help="build the two FMUs (only when their sources changed)")
@@ -676,6 +712,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "FMUs in its native/fmi2 and native/fmi3)")
     pb.add_argument("--fmus", choices=("native", "python"), default=None,
                     help="build only this flavour (default: both)")
+    _add_quiet(pb)
     pb.set_defaults(func=cmd_build)
 
     pw = sub.add_parser("sweep", help="many runs of a scene over a grid or a random sample, "
@@ -724,6 +761,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="rerun the runs that failed in an earlier sweep into the same --out")
     pw.add_argument("--out", default="out/sweep", help="output folder (default: out/sweep)")
     pw.add_argument("--json", action="store_true", help="print the sweep's record as JSON")
+    _add_quiet(pw)
     pw.set_defaults(func=cmd_sweep)
 
     ps = sub.add_parser("scenes", help="list the scenes")
@@ -750,6 +788,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the archive (default: out/<scene>.ssp)")
     pe.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help=f"override a scene key, e.g. master.algorithm=jacobi {_KEYS_HINT}")
+    _add_quiet(pe)
     pe.set_defaults(func=cmd_export)
 
     pc = sub.add_parser("check", help="regress an FMU against reference results (FMI "
@@ -780,6 +819,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="samples the band is widened over (default: 21; 1: none)")
     pc.add_argument("--max-outliers", type=float, default=0.1,
                     help="fraction of samples allowed outside the band (default: 0.1; 0: none)")
+    _add_quiet(pc)
     pc.set_defaults(func=cmd_check)
     return parser
 
@@ -818,7 +858,11 @@ def main(argv=None) -> int:
             return EXIT_USAGE
         args = build_parser().parse_args(argv)
         args.argv = None if argv is None else list(argv)
-        code = args.func(args)
+        args.quiet = getattr(args, "quiet", False)
+        from .report.progress import quiet
+
+        with quiet(args.quiet):
+            code = args.func(args)
         if INTERRUPTS.requested() and code != EXIT_INTERRUPTED:  # after the last safe point
             print("flexpend: interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED

@@ -42,9 +42,9 @@ from .files import check_folder, write_csv, write_json
 from .report import figures
 from .report.files import save_figure
 from .report.plotting import check_renderer
-from .report.progress import Progress
+from .report.progress import Steps, check_progress, sink_for
 from .scene.keys import FMU_FLAVOURS, ConfigError
-from .scene.records import Scene
+from .scene.records import AUTO, Scene
 from .scene.schema import load_scene, start_values
 from .scene.ssp import read_ssp
 from .studies.analysis import linearisation
@@ -216,7 +216,7 @@ def check_plant_step(scene: Scene, rungs=None) -> str | None:
     return lines[0] if lines else None
 
 
-def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bool = True,
+def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress=True,
               connections_out=None, stop=None, snapshot_times=None,
               unzipdirs: dict | None = None, pool=None, check_step: bool = True) -> Run:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
@@ -227,7 +227,11 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     (a sweep unpacks once per process). ``pool``: a
     :class:`~orchestration.cosim.pool.SlavePool` that gives the FMU instances and takes them back
     (a sweep's runs reuse them); without one they are made here and freed at the end.
-    ``connections_out``: a stream for the connection table.
+    ``connections_out``: a stream for the connection table. ``progress``: ``True`` (a bar on
+    stderr), ``False`` or a callable ``progress(fraction, label)``
+    (:mod:`orchestration.report.progress`): the fraction of the whole call (the model's choice,
+    every rung's run and companion, the reference), the label naming the rung or the model it
+    is on.
 
     A run on a floating-frame rung is followed by its companion run, and its summary states the
     error figure made from the two (``error_figure``, :func:`_error_figure`; not with
@@ -243,10 +247,41 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
     the rung, and on every rung the ladder may climb to (:func:`check_plant_step`: a ConfigError
     beyond it). ``check_step = False`` skips that check: the run then shows what the limit
     predicts (the tests that observe the growth beyond it)."""
+    sink = sink_for(progress, scene.name)
+    try:
+        return _run_scene(scene, fmus, sink, reference=reference,
+                          connections_out=connections_out, stop=stop,
+                          snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool,
+                          check_step=check_step)
+    finally:
+        if sink is not None:
+            sink.close()
+
+
+def _work(scene: Scene, reference: bool) -> tuple:
+    """``(rungs, total, {rung: its weight})``: what :func:`run_scene` will run, counted in
+    runs (each a part of its progress): the choice of ``plant.n_modes`` (one, for its
+    monolithic runs), each rung's run and its companion (the exact rung: its run at twice the
+    step instead), and the reference. A climb that stops early leaves the higher rungs'
+    share."""
+    rungs = available_ladder(scene) if scene.plant.fidelity == AUTO else (scene.plant.fidelity,)
+    per_rung = {f: 2 if f == "exact" or scene.fidelity.companion else 1 for f in rungs}
+    return rungs, ((1 if scene.plant.n_modes_auto else 0) + sum(per_rung.values())
+                   + (1 if reference else 0)), per_rung
+
+
+def _run_scene(scene: Scene, fmus: dict, sink, *, reference, connections_out, stop,
+               snapshot_times, unzipdirs, pool, check_step) -> Run:
+    """:func:`run_scene`, its progress told to ``sink`` (:mod:`orchestration.report.progress`)
+    in parts (:func:`_work`), each labelled with the rung or the model it is on."""
+    name = scene.name
+    rungs, total, per_rung = _work(scene, reference)
+    steps = Steps(sink, total)
     model = None
     if not scene.resolved:
-        scene, model = select_model(scene, Progress(f"{scene.name}: choosing the model")
-                                    if progress else None)
+        choice = steps.part(1, f"{name}: choosing the model") \
+            if scene.plant.n_modes_auto else None      # fidelity "auto" alone: no runs here
+        scene, model = select_model(scene, choice)
     if check_step:
         try:
             check_plant_step(scene, available_ladder(scene) if model is not None
@@ -258,13 +293,28 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
                               f"{model['fidelity']})") from None
     if reference:
         check_reference(scene)
-    kw = dict(progress=progress, connections_out=connections_out, stop=stop,
+    climbing = model is not None and model["fidelity_auto"]
+
+    def rung_label(sc):
+        f = sc.plant.fidelity
+        if not climbing:
+            return name
+        i = rungs.index(f) + 1 if f in rungs else 0
+        return f"{name}: {f} rung" + (f" ({i} of {len(rungs)})" if i else "")
+
+    def rung_steps(sc):
+        """The parts of a rung's runs: its run, then its companion (or second run)."""
+        return Steps(steps.part(per_rung.get(sc.plant.fidelity, 1), rung_label(sc)),
+                     per_rung.get(sc.plant.fidelity, 1))
+
+    kw = dict(connections_out=connections_out, stop=stop,
               snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool)
-    out = _run_once(scene, fmus, **kw)
+    parts = rung_steps(scene)
+    out = _run_once(scene, fmus, progress=parts.part(1, rung_label(scene)), **kw)
     kw["connections_out"] = None                # the table once
     companions = []                             # [(scene, Run)]: each companion runs once
-    _error_figure(out, fmus, kw, companions, check_step)
-    if model is not None and model["fidelity_auto"]:
+    _error_figure(out, fmus, kw, companions, check_step, parts, rung_label(scene))
+    if climbing:
         model["climb"], ladder, refused = [], available_ladder(scene), refused_rungs(scene)
         while not out.interrupted:
             nxt, why = climb(scene.plant.fidelity, out.summary.get("error_figure")
@@ -274,29 +324,35 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress: bo
             if nxt is None:
                 break
             scene = scene.replace(plant=scene.plant.with_model(scene.plant.params.n_modes, nxt))
+            parts = rung_steps(scene)
             out = next((c for s, c in companions if s == scene), None)
             if out is not None:                 # the companion was this rung's run
                 model["climb"][-1] += " (its run: the companion's)"
+                parts.part(1, rung_label(scene))
             else:
-                out = _run_once(scene, fmus, **kw)
-            _error_figure(out, fmus, kw, companions, check_step)
+                out = _run_once(scene, fmus, progress=parts.part(1, rung_label(scene)), **kw)
+            _error_figure(out, fmus, kw, companions, check_step, parts, rung_label(scene))
         model["fidelity"] = scene.plant.fidelity
         model["reason"] = "; ".join([model["reason"], *model["climb"]])
     if model is not None:
         out.summary["model"] = model
     if scene.plant.fidelity == "exact" and not out.interrupted:
-        out.summary["numerical_error"] = _exact_numerical_error(scene, fmus, out, kw)
+        out.summary["numerical_error"] = _exact_numerical_error(
+            scene, fmus, out, kw, parts.part(1, f"{rung_label(scene)}: numerical error (the run "
+                                                "at twice the step)"))
     if reference and out.summary["stopped"] is None:
-        exact = progress and scene.plant.fidelity == "exact"      # seconds, not a blink
-        ref = simulate_reference(scene, progress=Progress(f"{scene.name}: exact reference")
-                                 if exact else None)
+        ref = simulate_reference(scene, progress=steps.part(1, f"{name}: the monolithic "
+                                                               "reference"))
         out.reference = ref
         out.summary["max_error_phi_o"] = float(np.max(np.abs(out.result["phi_o"] - ref["phi_o"])))
         out.summary["max_error_eta_1"] = float(np.max(np.abs(out.result["eta_1"] - ref["eta_1"])))
+    if out.summary["stopped"] is None:
+        steps.finish(name)
     return out
 
 
-def _error_figure(run: Run, fmus: dict, kw: dict, companions: list, check_step: bool) -> None:
+def _error_figure(run: Run, fmus: dict, kw: dict, companions: list, check_step: bool,
+                  parts=None, label: str | None = None) -> None:
     """Put the run's error figure into its summary (``error_figure``,
     :func:`orchestration.studies.error_figure.assess`): a run on a floating-frame rung is
     compared with its companion, the same scene on the stiffened rung with the companion's
@@ -304,7 +360,8 @@ def _error_figure(run: Run, fmus: dict, kw: dict, companions: list, check_step: 
     ``companions``, ``[(scene, Run)]``: a climb compares every rung with the same one, and a
     rung that is the companion takes its run). The exact rung states its numerical error
     instead (:func:`_exact_numerical_error`); ``fidelity.companion = false`` states none (the
-    measured global bound only)."""
+    measured global bound only). ``parts``: the rung's :class:`~orchestration.report.progress.
+    Steps`, whose next part the companion's run is (``label``: the rung's)."""
     scene = run.scene
     if (scene.plant.fidelity == "exact" or not scene.fidelity.companion
             or "error_figure" in run.summary):
@@ -323,21 +380,24 @@ def _error_figure(run: Run, fmus: dict, kw: dict, companions: list, check_step: 
         else:
             companion = next((c for s, c in companions if s == cs), None)
             if companion is None:
-                companion = _run_once(cs, fmus, **{
-                    **kw, "connections_out": None,
-                    "label": f"{scene.name}: the companion ({companion_text(scene)})"})
+                part = parts and parts.part(1, f"{label or scene.name}: the companion "
+                                                f"({companion_text(scene)})")
+                companion = _run_once(cs, fmus, **{**kw, "connections_out": None,
+                                                   "progress": part})
                 companions.append((cs, companion))
     run.summary["error_figure"] = assess_figure(run, scene, companion, why, integrator)
 
 
-def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict) -> dict:
+def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict,
+                           progress=None) -> dict:
     """The exact rung's own numerical error, from the run itself: the same run at twice the
     step (``plant.exact_step``, which is also the communication step), and the largest
     ``|phi_o|`` difference from it on their common output points. In the convergence study
     (``python3 bench/exact_convergence.py``, docs/exact.md) the error fell about in proportion
     to the step (what the L-stable step damps of the beam's undamped high modes dominates it,
     not the method's order), and this difference was 1.2 to 2 times the run's error against a
-    refined reference: it is stated as the run's error bound. A run stopped early gets none."""
+    refined reference: it is stated as the run's error bound. A run stopped early gets none.
+    ``progress``: the run at twice the step's (fraction, label) callback."""
     h = scene.plant.exact_step
     out = {"phi_o": None, "method": "step doubling: the run at plant.exact_step = "
            f"{2 * h:g} s", "step": h, "note": None}
@@ -358,8 +418,7 @@ def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict) -> dict
     except ConfigError as exc:
         out["note"] = f"no run at twice the step: {exc}"
         return out
-    kw = {**kw, "connections_out": None, "snapshot_times": (),
-          "label": f"{scene.name}: numerical error (the run at twice the step)"}
+    kw = {**kw, "connections_out": None, "snapshot_times": (), "progress": progress}
     shadow = _run_once(coarse, fmus, **kw)
     if shadow.interrupted or shadow.summary["stopped"] is not None:
         out["note"] = ("the run at twice the step stopped: "
@@ -374,9 +433,9 @@ def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict) -> dict
 
 
 def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snapshot_times,
-              unzipdirs, pool, label: str | None = None) -> Run:
+              unzipdirs, pool) -> Run:
     """One co-simulation of a resolved scene (:func:`run_scene` without the model's choice and
-    the reference); ``label``: its progress bar's (the scene's name)."""
+    the reference); ``progress``: called with the fraction of it done (or None)."""
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     reusable = False                # the instances may serve another run (pool)
@@ -398,10 +457,9 @@ def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snap
             raise ConfigError(f"{scene.name}: {exc}") from None
         if connections_out is not None:
             connections_out.write(f"{scene.name}: connections\n{master.connection_table()}\n")
-        bar = Progress(label or scene.name) if progress else None
         try:
             res, stats = master.run(0.0, scene.output.stop_time, scene.output.output_interval,
-                                    progress=bar, stop=stop)
+                                    progress=progress, stop=stop)
             reusable = True
         except CoSimulationError as exc:
             res, stats = exc.result, exc.stats
@@ -412,8 +470,6 @@ def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snap
             res, stats, interrupted = exc.result, exc.stats, True
             stopped = {"time": exc.time, "reason": "interrupted (Ctrl-C)"}
             reusable = True
-        if bar is not None and stopped is not None:
-            bar.close()
     finally:
         for s in slaves.values():
             if pool is None:
@@ -461,7 +517,7 @@ def _frames(res, n_eta, times):
 
 # ---------------------------------------------------------------------- the front door's run
 def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool = False,
-             progress: bool = False) -> Run:
+             progress=False) -> Run:
     """Co-simulate one scene and return its :class:`Run`.
 
     ``scene``: a scene name (``flexpend scenes``), a path to a ``.toml`` scene file or to an SSP
@@ -470,7 +526,10 @@ def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool 
     (``{"controller.kp": 400, "stop_time": 2}``). ``fmus``: ``"native"`` or ``"python"`` (the
     scene key ``master.fmus``; default: the scene's, native unless it says otherwise), built if
     missing or stale. ``reference``: also solve the monolithic reference and put the error
-    against it in the summary. ``progress``: a progress bar on stderr for a long run.
+    against it in the summary. ``progress``: ``False`` (silent), ``True`` (a bar on stderr) or
+    a callable ``progress(fraction, label)`` (:mod:`orchestration.report.progress`): the
+    fraction of the whole call (building missing FMUs, choosing an ``"auto"`` model, every
+    rung's run and companion, the reference), the label naming the rung or the model.
 
     A bad scene, key or value raises :class:`~orchestration.scene.keys.ConfigError` (a
     ``ValueError``) naming it; a wrong type, ``TypeError``. A run that an FMU stops early is
@@ -480,20 +539,30 @@ def simulate(scene, overrides=None, *, fmus: str | None = None, reference: bool 
     if fmus is not None and fmus not in FMU_FLAVOURS:
         raise ValueError(f"fmus = {fmus!r} is not allowed; allowed: "
                          f"{', '.join(map(repr, FMU_FLAVOURS))}")
-    for name, value in (("reference", reference), ("progress", progress)):
-        if not isinstance(value, bool):
-            raise TypeError(f"{name} must be True or False, got {value!r}")
+    if not isinstance(reference, bool):
+        raise TypeError(f"reference must be True or False, got {reference!r}")
+    check_progress(progress)                  # a TypeError naming progress, before any work
     (sc, own), = load_job([scene], overrides)
+    sink = None
     try:
         if fmus is not None and own is None:
             sc = sc.replace(master=replace(sc.master, fmus=fmus))
         warning = check_plant_step(sc)
         if warning:
             warnings.warn(f"{sc.name}: {warning}", RuntimeWarning, stacklevel=2)
-        pair = own.fmus if own is not None else flavour_fmus(sc.master.fmus)
+        sink = sink_for(progress, sc.name)
+        steps = Steps(sink, 20)                    # the FMUs 1, the run 19
+        build = steps.part(1, f"{sc.name}: the {sc.master.fmus} FMUs")
+        pair = own.fmus if own is not None else flavour_fmus(sc.master.fmus, progress=build)
         check_wiring(sc, pair)
-        return run_scene(sc, pair, reference=reference, progress=progress)
+        run = run_scene(sc, pair, reference=reference,
+                        progress=steps.part(19, sc.name) if sink is not None else False)
+        if sink is not None and run.summary["stopped"] is None:
+            steps.finish(sc.name)
+        return run
     finally:
+        if sink is not None:
+            sink.close()
         if own is not None:
             own.close()
 
@@ -569,7 +638,7 @@ class JobResult:
 
 def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,
             overview: bool = False, announce=None, report=None,
-            renderer: str = "raster") -> JobResult:
+            renderer: str = "raster", progress: bool = True) -> JobResult:
     """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
     folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
     ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json``
@@ -583,7 +652,8 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     scene's plant step is checked before any runs (:func:`check_plant_step`; a scene with
     ``plant.n_modes = "auto"`` once its model is chosen, when it runs).
     ``renderer``: what draws the PNGs (:data:`~orchestration.report.plotting.RENDERERS`; by
-    default the raster renderer, which does not import matplotlib)."""
+    default the raster renderer, which does not import matplotlib). ``progress``: a bar on
+    stderr for the FMUs' build and for each scene (:func:`run_scene`)."""
     check_renderer(renderer)
     out = Path(out)
     job = JobResult([])
@@ -596,7 +666,12 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 if stop is not None and stop():
                     job.code = EXIT_INTERRUPTED
                     return job
-                pairs[scene.master.fmus] = flavour_fmus(scene.master.fmus)
+                sink = sink_for(progress, f"the {scene.master.fmus} FMUs")
+                try:
+                    pairs[scene.master.fmus] = flavour_fmus(scene.master.fmus, progress=sink)
+                finally:
+                    if sink is not None:
+                        sink.close()
             check_wiring(scene, system.fmus if system is not None else pairs[scene.master.fmus])
             if reference:
                 check_reference(scene)
@@ -608,7 +683,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 announce(scene)
             fmus = system.fmus if system is not None else pairs[scene.master.fmus]
             run = run_scene(scene, fmus, reference=reference and not (stop and stop()),
-                            progress=True, connections_out=connections_out, stop=stop,
+                            progress=progress, connections_out=connections_out, stop=stop,
                             unzipdirs=unpacked.of(fmus))
             job.runs.append(run)
             written = run.save(out, summary=False, renderer=renderer)

@@ -28,13 +28,15 @@ __all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "flavour_fmus
 
 
 def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = "python",
-               fmi_version: int = 2, platforms=None) -> dict:
+               fmi_version: int = 2, platforms=None, progress=None) -> dict:
     """Build (if stale) the FMUs of a flavour and return ``{model name: path}``.
 
     ``flavour``: ``"python"`` (pythonfmu, FMI 2.0 only; ``out_dir`` default ``build/fmus``) or
     ``"native"`` (C; ``fmi_version`` 2 or 3; ``out_dir`` default ``build/fmus/native``, the FMUs in
     its ``fmi2``/``fmi3`` folder). ``platforms`` (native): the binaries each FMU must have (default:
-    every platform this machine builds; :func:`.native_fmus.build_native_fmus`). Raises
+    every platform this machine builds; :func:`.native_fmus.build_native_fmus`).
+    ``progress(fraction, label)``: told each step of each FMU built, the label naming the FMU,
+    its flavour and FMI version, and the step (:mod:`orchestration.report.progress`). Raises
     :class:`BuildError` when a build fails and ValueError on a bad argument."""
     if flavour not in FMU_FLAVOURS:
         raise ValueError(f"flavour = {flavour!r}; allowed: {', '.join(FMU_FLAVOURS)}")
@@ -42,10 +44,10 @@ def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = 
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2 (both flavours), 3 (native)")
     with places.build_lock():
         if flavour == "python":
-            return build_python(Path(out_dir) if out_dir else None, names, force)
+            return build_python(Path(out_dir) if out_dir else None, names, force, progress)
         try:
             return build_native_fmus(Path(out_dir) if out_dir else None, names, force,
-                                     fmi_version, platforms)
+                                     fmi_version, platforms, progress)
         except NativeBuildError as exc:
             raise BuildError(str(exc)) from None
 
@@ -55,15 +57,17 @@ def fmu_pair(paths: dict) -> dict:
     return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
 
 
-def flavour_fmus(flavour: str, *, portable: bool = False) -> dict:
+def flavour_fmus(flavour: str, *, portable: bool = False, progress=None) -> dict:
     """``{"plant": path, "controller": path}``: the FMI 2.0 FMUs a scene of ``master.fmus =
     flavour`` runs on, built if missing or stale. A run needs the native FMUs' binaries for this
     machine alone: they are all that is built for it (an FMU that has them is up to date);
-    ``portable`` (an archive to hand on): those of every platform this machine builds."""
+    ``portable`` (an archive to hand on): those of every platform this machine builds.
+    ``progress``: as :func:`build_fmus`'."""
     from fmu_common.kernels import host_platform
 
     platforms = None if portable or flavour != "native" else [host_platform()]
-    return fmu_pair(build_fmus(flavour=flavour, platforms=platforms))
+    told = {} if progress is None else {"progress": progress}
+    return fmu_pair(build_fmus(flavour=flavour, platforms=platforms, **told))
 
 
 # ---------------------------------------------------------------------- command line

@@ -55,6 +55,7 @@ from fmu_common.variables import (derivatives, event_indicators, native_variable
 from plant_fmu.beam import _fe_modes_unit, unit_beam
 from plant_fmu.interface import N_ETA_OUTPUTS, VARIABLES
 
+from ..notes import note
 from . import places
 from .model_description import TABLES, fmi2_model_description, fmi3_model_description
 
@@ -292,7 +293,7 @@ def compile_command(name: str, fmi_version: int, platform: str, out: Path, gen: 
 
 
 def _say(line: str) -> None:
-    print(line, file=sys.stderr, flush=True)
+    note(line)                              # silent within quiet() (flexpend --quiet)
 
 
 def skipped_platforms() -> dict:
@@ -366,13 +367,25 @@ def _compile(build: _Build, platform: str, gen: Path, tmp: Path) -> tuple[str, b
     return entry, lib.read_bytes(), cc
 
 
-def _build_all(builds: list) -> None:
+def _build_all(builds: list, progress=None) -> None:
     """Compile every missing binary of ``builds`` at once (one compiler process per binary, as
-    many at a time as there are cores), then write each FMU: complete, or not at all."""
+    many at a time as there are cores), then write each FMU: complete, or not at all.
+    ``progress(fraction, label)``: told as each binary is compiled and each FMU written."""
+    def what(b):
+        return f"building {b.name} (native, FMI {b.fmi_version}.0)"
+    n_jobs = sum(len(b.compile) for b in builds)
+    total = n_jobs + 0.1 * len(builds)                 # writing an FMU: a tenth of a compile
+    done_work = 0.0
+
+    def tell(label, work=0.0):
+        nonlocal done_work
+        done_work += work
+        if progress is not None:
+            progress(min(done_work / total, 1.0), label)
     with tempfile.TemporaryDirectory(prefix="flexpend_native_") as tmp:
         tmp = Path(tmp)
         jobs = {}
-        from concurrent.futures import ThreadPoolExecutor   # only when building (6 ms)
+        from concurrent.futures import ThreadPoolExecutor, as_completed   # only when building
 
         with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
             for b in builds:
@@ -381,14 +394,28 @@ def _build_all(builds: list) -> None:
                 (gen / "fpm_vars.h").write_text(generate_header(b.name, _token(b.name, b.digest)))
                 for plat in b.compile:
                     jobs[b.name, b.fmi_version, plat] = pool.submit(_compile, b, plat, gen, tmp)
-            done = {key: job.result() for key, job in jobs.items()}    # the first error raises
+            compiling = [f"{b.name} {plat}" for b in builds for plat in b.compile]
+            if builds:
+                names = ", ".join(dict.fromkeys(b.name for b in builds))
+                tell(f"building {names} (native, FMI {builds[0].fmi_version}.0): compiling "
+                     f"{', '.join(compiling)}")
+            keys = {job: key for key, job in jobs.items()}
+            for job in as_completed(keys):
+                name, version, plat = keys[job]
+                job.result()                                            # the first error raises
+                compiling.remove(f"{name} {plat}")
+                tell(f"building {name} (native, FMI {version}.0): compiled {plat}"
+                     + (f"; compiling {', '.join(compiling)}" if compiling else ""), 1.0)
+            done = {key: job.result() for key, job in jobs.items()}
         for b in builds:
             binaries = dict(b.kept)
             for plat in b.compile:
                 entry, data, cc = done[b.name, b.fmi_version, plat]
                 binaries[entry] = data
                 _say(f"{b.name} (FMI {b.fmi_version}): built {plat} ({entry}) with {cc}")
+            tell(f"{what(b)}: writing {b.target.name}")
             _write_fmu(b, binaries, tmp)
+            tell(f"{what(b)}: written", 0.1)
 
 
 def _write_fmu(b: _Build, binaries: dict, tmp: Path) -> None:
@@ -462,7 +489,7 @@ def max_output_derivative_order(name: str) -> int:
 
 
 def build_native_fmus(out_dir: Path | None = None, names=None, force: bool = False,
-                      fmi_version: int = 2, platforms=None) -> dict:
+                      fmi_version: int = 2, platforms=None, progress=None) -> dict:
     """Build the native FMUs of one FMI version that are missing or stale; ``{name: path}``.
 
     ``platforms``: the binaries each FMU must have (default: every platform this machine can
@@ -471,7 +498,8 @@ def build_native_fmus(out_dir: Path | None = None, names=None, force: bool = Fal
     other binaries it has; one that misses some gets them compiled and keeps those it has; one
     built from other sources is built anew for ``platforms``. Every binary to compile is
     compiled at once (:func:`_build_all`); each FMU is written complete or not at all. Says on
-    stderr one line per binary compiled."""
+    stderr one line per binary compiled (not within :func:`orchestration.notes.quiet`).
+    ``progress(fraction, label)``: told as each binary is compiled and each FMU written."""
     if fmi_version not in (2, 3):
         raise ValueError(f"fmi_version = {fmi_version!r}; allowed: 2, 3")
     names = list(MODELS) if names is None else list(names)
@@ -485,11 +513,12 @@ def build_native_fmus(out_dir: Path | None = None, names=None, force: bool = Fal
         builds = [b for b in (_plan(n, fmi_version, out_dir, force, platforms) for n in names)
                   if b is not None]
         if builds:
-            _build_all(builds)
+            _build_all(builds, progress)
             for b in builds:
                 for plat, why in skipped.items():
-                    _say(f"{b.name} (FMI {fmi_version}): {plat} skipped: {why} (Debian: apt-get "
-                         f"install gcc-mingw-w64-x86-64); the FMU has no {plat} binary")
+                    print(f"{b.name} (FMI {fmi_version}): {plat} skipped: {why} (Debian: "
+                          f"apt-get install gcc-mingw-w64-x86-64); the FMU has no {plat} binary",
+                          file=sys.stderr, flush=True)     # a warning: not silenced by quiet
     except kernels.CompilerNotFound as exc:
         raise NativeBuildError(str(exc)) from None
     return {n: out_dir / f"fmi{fmi_version}" / f"{n}.fmu" for n in names}

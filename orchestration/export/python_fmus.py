@@ -128,9 +128,11 @@ def is_stale(name: str, out_dir: Path | None = None) -> bool:
 
 
 # ---------------------------------------------------------------------- build
-def build_fmu(name: str, out_dir: Path | None = None, force: bool = False) -> Path:
+def build_fmu(name: str, out_dir: Path | None = None, force: bool = False,
+              progress=None) -> Path:
     """Build one FMU into ``out_dir`` (default: :func:`.places.fmu_dir`) unless it is up to
-    date; return its path."""
+    date; return its path. ``progress(fraction, label)``: told each step (compiling the
+    kernels, packaging with pythonfmu)."""
     spec = SPECS[name]
     out_dir = Path(out_dir or places.fmu_dir())
     target = out_dir / f"{name}.fmu"
@@ -139,6 +141,9 @@ def build_fmu(name: str, out_dir: Path | None = None, force: bool = False) -> Pa
     if not force and fmu_digest(target) == digest:
         return target
     out_dir.mkdir(parents=True, exist_ok=True)
+    what = f"building {name} (python, FMI 2.0)"
+    if progress is not None:
+        progress(0.0, f"{what}: compiling its kernels")
     try:
         libs = kernels.ensure_kernels(platforms, spec_kernels(spec))
     except kernels.KernelBuildError as exc:
@@ -156,6 +161,8 @@ def build_fmu(name: str, out_dir: Path | None = None, force: bool = False) -> Pa
                            "digest": digest})
         env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
         env["PYTHONPATH"] = os.pathsep.join([str(stage), str(ROOT)])
+        if progress is not None:
+            progress(0.3, f"{what}: packaging with pythonfmu")
         proc = subprocess.run([sys.executable, "-c", _WORKER_CALL, args], cwd=tmp, env=env,
                               capture_output=True, text=True)
         if proc.returncode != 0 or not built.is_file():
@@ -166,16 +173,29 @@ def build_fmu(name: str, out_dir: Path | None = None, force: bool = False) -> Pa
         shutil.copyfile(built, part)
         os.chmod(part, 0o644)      # mkstemp makes 0600; an FMU is meant to be shared
         os.replace(part, target)
+    if progress is not None:
+        progress(1.0, f"{what}: written")
     return target
 
 
-def build_fmus(out_dir: Path | None = None, names=None, force: bool = False) -> dict:
-    """Build (if stale) every FMU of :data:`SPECS` (or ``names``); return name -> path."""
+def build_fmus(out_dir: Path | None = None, names=None, force: bool = False,
+               progress=None) -> dict:
+    """Build (if stale) every FMU of :data:`SPECS` (or ``names``); return name -> path.
+    ``progress(fraction, label)``: told each step of each FMU built."""
     names = list(SPECS) if names is None else list(names)
     unknown = sorted(set(names) - set(SPECS))
     if unknown:
         raise ValueError(f"unknown FMU(s) {', '.join(unknown)}; known: {', '.join(SPECS)}")
-    return {n: build_fmu(n, out_dir, force) for n in names}
+    stale = [n for n in names if force or is_stale(n, out_dir)]
+
+    def share(i):                   # the i-th stale FMU's steps, as its share of the whole
+        return None if progress is None else \
+            (lambda f, label=None: progress((i + f) / len(stale), label))
+    out = {n: build_fmu(n, out_dir, force, share(stale.index(n)) if n in stale else None)
+           for n in names}
+    if progress is not None:
+        progress(1.0)
+    return out
 
 
 #: The slave module the pythonfmu builder imports (``<name>.py`` in the stage): the model's class.

@@ -26,15 +26,27 @@ def export_scene(scene, flavour: str = "native", out=None, progress=None) -> Exp
     """Write ``scene`` as an SSP archive with the FMUs of ``flavour`` (``"native"`` or
     ``"python"``); ``plant.n_modes``/``plant.fidelity``
     ``"auto"`` are chosen first (:func:`orchestration.studies.fidelity.select_model`; the fidelity
-    ladder climbed on the scene's monolithic runs), and the chosen model is written."""
-    fmus = flavour_fmus(flavour, portable=True)
+    ladder climbed on the scene's monolithic runs), and the chosen model is written.
+    ``progress(fraction, label)``: told as the FMUs are built and the model chosen
+    (:mod:`orchestration.report.progress`)."""
+    def share(start, end, label):           # a part of the whole: from start to end
+        if progress is None:
+            return None
+        progress(start, label)
+        return lambda f, now=None: progress(start + (end - start) * f, now or label)
+    split = 1.0 if scene.resolved else 0.25          # the FMUs, then the model's choice
+    fmus = flavour_fmus(flavour, portable=True,
+                        progress=share(0.0, split, f"{scene.name}: the {flavour} FMUs"))
     model = None
     if not scene.resolved:
-        scene, model = select_model(scene, progress, monolithic=True)
+        scene, model = select_model(scene, share(split, 1.0, f"{scene.name}: choosing the "
+                                                             "model"), monolithic=True)
     path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
     try:
         write_ssp(scene, fmus, path, model=model)       # complete or absent
     except OSError as exc:                              # a full disk: an OutputError naming it
         raise output_error(path, exc) from None
+    if progress is not None:
+        progress(1.0, f"{scene.name}: archive written")
     return ExportResult(path, scene, model, fmus)
 

@@ -149,25 +149,36 @@ def select_model(scene, progress=None, monolithic: bool = False):
     ``plant.fidelity = "auto"`` on the lowest rung (the run climbs from there:
     :func:`orchestration.job.run_scene`), and a JSON-ready report of the choice and the
     differences measured. ``monolithic``: climb here, on the monolithic runs of the scene (for a
-    scene that is not co-simulated: ``flexpend export``)."""
+    scene that is not co-simulated: ``flexpend export``). ``progress(fraction, label)``: the
+    fraction of the monolithic runs done (counted: every model the choice may solve), the label
+    naming the model being solved (``"flexible_pd: choosing the model: solving 3 modes,
+    nonlinear"``)."""
     tol, outs, n_max = scene.fidelity.tolerance, scene.fidelity.outputs, scene.fidelity.max_modes
     auto_n, auto_f = scene.plant.n_modes_auto, scene.plant.fidelity == AUTO
     mode_fid = "nonlinear" if auto_f else scene.plant.fidelity
     runs = {}
-    total = (n_max + 2 if auto_n else 0) + (len(available_ladder()) if auto_f else 0)
+    total = (n_max + 2 if auto_n else 0) + (len(available_ladder()) if auto_f and monolithic
+                                            else 0)
 
     def concrete(n, fid):
         return scene.replace(plant=scene.plant.with_model(n, fid))
 
     def run(n, fid):
         if (n, fid) not in runs:
+            sub, k = None, len(runs)
+            if progress is not None:
+                label = f"{scene.name}: choosing the model: solving {_label(n, fid)}"
+
+                def solving(f):
+                    progress(min(1.0, (k + f) / max(total, 1)), label)
+                sub = solving
+                sub(0.0)
             try:
-                runs[(n, fid)] = simulate_reference(concrete(n, fid), rtol=RTOL, atol=ATOL)
+                runs[(n, fid)] = simulate_reference(concrete(n, fid), rtol=RTOL, atol=ATOL,
+                                                    progress=sub)
             except RuntimeError as exc:
                 raise ConfigError(f"{scene.name}: fidelity selection: the {_label(n, fid)} model "
                                   f"could not be solved ({exc})") from None
-            if progress is not None:
-                progress(min(1.0, len(runs) / max(total, 1)))
         return runs[(n, fid)]
 
     def compare(small, rich):

@@ -74,9 +74,10 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
                        progress=None):
     """Solve the scene's closed loop monolithically; a structured array on the output grid.
 
-    At ``plant.fidelity = "exact"`` the loop is the exact beam's (:func:`exact_reference`, which
-    calls ``progress(fraction)``; ``rtol``, ``atol`` and ``method`` do not apply). Raises
-    ``RuntimeError`` if the solver fails (the message is scipy's).
+    At ``plant.fidelity = "exact"`` the loop is the exact beam's (:func:`exact_reference`;
+    ``rtol``, ``atol`` and ``method`` do not apply). ``progress(fraction)``: called as the
+    solution advances (the fraction: the solver's time over the stop time), and with 1.0 at the
+    end. Raises ``RuntimeError`` if the solver fails (the message is scipy's).
     """
     import scipy.integrate      # here: a run without ``--reference`` does not need it
 
@@ -87,13 +88,25 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
     n_out = int(round(t_end / dt))
     t_eval = np.arange(n_out + 1) * dt
     t_eval[-1] = min(t_eval[-1], t_end)
-    sol = scipy.integrate.solve_ivp(loop.rhs, (0.0, t_end), loop.x0, method=method, rtol=rtol,
+    rhs = loop.rhs
+    if progress is not None and t_end > 0:
+        reached = [0.0]
+
+        def telling(t, z, f=loop.rhs):
+            if t >= reached[0] + 1e-3 * t_end:     # at most a thousand reports
+                reached[0] = t
+                progress(min(t / t_end, 1.0))
+            return f(t, z)
+        rhs = telling
+    sol = scipy.integrate.solve_ivp(rhs, (0.0, t_end), loop.x0, method=method, rtol=rtol,
                                     atol=atol, t_eval=t_eval)
     if not sol.success:
         raise RuntimeError(f"reference solution failed: {sol.message}")
     out = np.zeros(sol.t.size, dtype=[(c, "f8") for c in COLUMNS])
     for i, t in enumerate(sol.t):
         out[i] = loop.row(t, sol.y[:, i])
+    if progress is not None:
+        progress(1.0)
     return out
 
 

@@ -22,6 +22,7 @@ from ..cosim.pool import SlavePool
 from ..export import flavour_fmus
 from ..export.native_fmus import GENERATION_TOOL
 from ..job import run_scene
+from ..report.progress import is_quiet, sink_for
 from ..files import atomic_path, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
@@ -406,10 +407,14 @@ def read_table(path) -> list[dict]:
 # ---------------------------------------------------------------------------- progress
 class SweepProgress:
     """A bar on stderr: finished, failed and remaining runs, the elapsed time and an estimate
-    of the rest. On a terminal it redraws one line; otherwise it prints a line every 10 %."""
+    of the rest. On a terminal it redraws one line; otherwise it prints a line every 10 %.
+    Silent within :func:`orchestration.report.progress.quiet`. With ``callback``, no bar:
+    ``callback(fraction, label)`` is told the fraction of the runs finished
+    (:mod:`orchestration.report.progress`)."""
 
-    def __init__(self, total: int, stream=None):
+    def __init__(self, total: int, stream=None, callback=None, name: str = "sweep"):
         self.total, self.stream = max(total, 0), stream or sys.stderr
+        self.callback, self.name = callback, name
         self.ok = self.failed = self.lost = 0
         self.t0 = time.perf_counter()
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
@@ -432,6 +437,13 @@ class SweepProgress:
     def update(self, status: str):
         setattr(self, status, getattr(self, status) + 1)
         done = self.finished >= self.total
+        if self.callback is not None:
+            self.callback(self.finished / max(self.total, 1),
+                          f"{self.name}: {self.finished} of {self.total} runs finished, "
+                          f"{self.failed} failed" + (f", {self.lost} lost" if self.lost else ""))
+            return
+        if is_quiet():
+            return
         if self.tty:
             now = time.perf_counter()
             if done or now - self._last > 0.2:
@@ -477,10 +489,19 @@ def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
     return row
 
 
-def fmus_for(plan: SweepPlan) -> dict:
+def fmus_for(plan: SweepPlan, progress: bool = False) -> dict:
     """``{flavour: {"plant": path, "controller": path}}`` for the FMU flavours (``master.fmus``)
-    the plan's runs use, built if missing or stale."""
-    return {fl: flavour_fmus(fl) for fl in dict.fromkeys(p.scene.master.fmus for p in plan.points)}
+    the plan's runs use, built if missing or stale; ``progress``: a bar on stderr for each
+    build."""
+    out = {}
+    for fl in dict.fromkeys(p.scene.master.fmus for p in plan.points):
+        sink = sink_for(progress, f"the {fl} FMUs")
+        try:
+            out[fl] = flavour_fmus(fl, progress=sink)
+        finally:
+            if sink is not None:
+                sink.close()
+    return out
 
 
 def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
@@ -502,7 +523,9 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     per scene key ``master.fmus`` (built once by the caller, :func:`fmus_for`; a dask executor
     must have been opened with ``files=`` these paths). ``stop``: asked before the first run
     and after each (Ctrl-C); when it returns True the sweep ends with KeyboardInterrupt, every
-    finished run in the journal."""
+    finished run in the journal. ``progress``: ``True`` (a bar on stderr), a stream for the
+    bar, a callable ``progress(fraction, label)`` told the runs finished, or ``False``
+    (:class:`SweepProgress`)."""
 
     executor = executor or Executor()
     out_dir = Path(out_dir)
@@ -521,7 +544,12 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
         return shipped[None] if None in shipped else shipped[p.scene.master.fmus]
     tasks = [(p.scene, plan.reference, pair(p), model_sources_digest())
              for p in todo]
-    bar = SweepProgress(len(todo), None if progress is True else progress) if progress else None
+    if progress is True or hasattr(progress, "write"):
+        bar = SweepProgress(len(todo), None if progress is True else progress)
+    elif progress:
+        bar = SweepProgress(len(todo), callback=progress, name=f"sweep of {plan.scene.name}")
+    else:
+        bar = None
     t0 = time.perf_counter()
     if stop is not None and stop():
         raise KeyboardInterrupt

@@ -3,11 +3,11 @@ executor (serial, a LocalCluster or a scheduler), the runs, the statistics and `
 from __future__ import annotations
 
 import re
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..files import write_json
+from ..report.progress import check_progress, note, sink_for
 from ..scene.keys import ConfigError, toml_value
 from .engine import fmus_for, pending, run_sweep, sweep_stats
 from .executor import (CLUSTER_START, Executor, cluster_limits, cluster_workers, default_workers,
@@ -51,7 +51,7 @@ class Sweep:
 def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
           seed: int | None = None, overrides=(), reference: bool = False,
           workers: int | None = None, scheduler: str | None = None, serial: bool = False,
-          batch: int = 1, retry_failed: bool = False, out="out/sweep", progress: bool = True,
+          batch: int = 1, retry_failed: bool = False, out="out/sweep", progress=False,
           command: str | None = None, on_executor=None, stop=None) -> Sweep:
     """Run a sweep of ``scene`` into the folder ``out`` (see :mod:`orchestration.sweeps`).
 
@@ -64,8 +64,13 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     rule of :func:`~orchestration.sweeps.executor.cluster_workers` on the runs' expected length
     (:func:`~orchestration.sweeps.plan.expected_run_seconds`), else serial. ``stop``: asked before the first run and after each
     (Ctrl-C): when it returns True the sweep ends with KeyboardInterrupt (the finished runs are
-    in the journal, and the same call continues the sweep). Errors name the bad argument
+    in the journal, and the same call continues the sweep). ``progress``: ``False`` (the
+    default: silent), ``True`` (the runs finished, failed and left on stderr, and a line on
+    what runs where) or a callable ``progress(fraction, label)`` told the fraction of the runs
+    finished (:mod:`orchestration.report.progress`; a TypeError naming ``progress`` for
+    anything else). Errors name the bad argument
     (:class:`~orchestration.scene.keys.ConfigError`, a ``ValueError``)."""
+    check_progress(progress)
     if serial and (workers is not None or scheduler):
         raise ConfigError("serial runs here, without dask: it takes no workers or scheduler")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
@@ -85,10 +90,10 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     out_dir = Path(out)
     todo = pending(plan, out_dir, retry_failed)
     done = len({p.key for p in plan.points}) - todo
-    if progress:
-        print(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
-              + (f", {done} already finished in {out_dir}" if done else ""), file=sys.stderr)
-    fmus = fmus_for(plan)
+    say = note if progress is True else (lambda text: None)
+    say(f"sweep of {plan.scene.name}: {len(plan.points)} runs"
+        + (f", {done} already finished in {out_dir}" if done else ""))
+    fmus = fmus_for(plan, progress is True)
     if not (serial or scheduler or workers is not None or todo == 0):
         seconds = sum(expected_run_seconds(p.scene, plan.reference) for p in plan.points) \
             / len(plan.points)
@@ -96,15 +101,13 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
         problem = workers and cluster_limits(workers)
         if problem:
             workers = None
-            if progress:
-                print(f"running here, one run after the other: {problem}", file=sys.stderr)
+            say(f"running here, one run after the other: {problem}")
         serial = workers is None
-        if serial and progress and not problem:
-            print(f"running here, one run after the other: a LocalCluster would not win "
-                  f"for {todo} run{'s' if todo != 1 else ''} of about {seconds:.2g} s on "
-                  f"{default_workers()} core{'s' if default_workers() != 1 else ''} (it "
-                  f"takes about {CLUSTER_START:g} s to start; --workers N starts one anyway)",
-                  file=sys.stderr)
+        if serial and not problem:
+            say(f"running here, one run after the other: a LocalCluster would not win "
+                f"for {todo} run{'s' if todo != 1 else ''} of about {seconds:.2g} s on "
+                f"{default_workers()} core{'s' if default_workers() != 1 else ''} (it "
+                f"takes about {CLUSTER_START:g} s to start; --workers N starts one anyway)")
     if serial or todo == 0:
         executor = Executor()
     else:
@@ -112,9 +115,12 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
                                  files=[f for pair in fmus.values() for f in pair.values()])
         if on_executor is not None:
             on_executor(executor)
+    sink = None if progress is True else sink_for(progress, f"sweep of {plan.scene.name}")
     with executor:
         res = run_sweep(plan, fmus, out_dir, executor, batch=batch, retry_failed=retry_failed,
-                        progress=progress, stop=stop)
+                        progress=sink or progress, stop=stop)
+    if sink is not None:
+        sink.finish()
     stats = sweep_stats(res.rows)
     design = design_worst_case(plan)
     if design is not None:

@@ -154,7 +154,7 @@ def test_max_step_and_progress(capsys, monkeypatch):
     none below 5 ms: every coupling stable throughout); a bad one is one line, exit 2. The
     progress callback sees the fraction done grow to 1; on stderr it is a progress line."""
     seen = []
-    r = api.stability("rigid_pd", max_step=0.005, progress=seen.append)
+    r = api.stability("rigid_pd", max_step=0.005, progress=lambda f, label: seen.append(f))
     assert r["max_step"] == 0.005 and seen == sorted(seen) and seen[-1] == 1.0
     assert all(c["intervals"] == [{"from": 1e-4, "to": 0.005, "stable": True, "rho_max": None}]
                and c["critical_step"] is None for c in r["couplings"])

@@ -24,6 +24,7 @@ LAYERS = [
     ("orchestration.cosim", 3),
     ("orchestration.scene", 2),
     ("orchestration.files", 1.5),  # output files, complete or absent: below all that write
+    ("orchestration.notes", 1.5),  # what a command says on stderr, silenced by --quiet
     ("orchestration", 10),         # the front door (its __init__), on the api
     ("plant_fmu", 1),
     ("controller_fmu", 1),
