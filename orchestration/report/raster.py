@@ -22,7 +22,7 @@ from PIL import Image, ImageDraw, ImageFont
 from .layout import SUPERSCRIPT, Grid
 
 __all__ = ["RasterCanvas", "RasterPanel", "nice_ticks", "log_ticks", "symlog_ticks",
-           "tick_text", "font_path", "rgb", "write_png", "DPI", "OVERSAMPLE"]
+           "tick_text", "font_path", "rgb", "DPI", "OVERSAMPLE"]
 
 #: Dots per inch of the PNG (as ``save_figure``'s default), and the factor it is drawn larger by.
 DPI = 110
@@ -298,37 +298,15 @@ class RasterCanvas:
         return pen.img
 
     def save(self, path, dpi: int = DPI, fmt: str = "png"):
-        """Write the figure to ``path`` as PNG (:func:`write_png`)."""
+        """Write the figure to ``path`` as PNG, by Pillow at ``files.PNG_COMPRESS_LEVEL``
+        (:func:`~orchestration.report.files.save_figure` writes it under a temporary name and
+        renames it into place)."""
         if fmt != "png":
             raise ValueError(f"the raster renderer writes PNG files, not {fmt!r}; use "
                              "renderer='matplotlib' for other formats")
-        write_png(self.image(dpi), path)
+        from .files import PNG_COMPRESS_LEVEL
 
-
-def write_png(img: Image.Image, path) -> None:
-    """``img`` (RGB) as a PNG file: every row filtered by "Up" (its difference from the row
-    above), zlib at ``files.PNG_COMPRESS_LEVEL``. Pillow's own encoder tries every filter on
-    every row of an RGB image: three times the time for a file of the same size."""
-    import struct
-    import zlib
-
-    from .files import PNG_COMPRESS_LEVEL
-
-    rows = np.asarray(img if img.mode == "RGB" else img.convert("RGB"))
-    h, w = rows.shape[:2]
-    rows = rows.reshape(h, 3 * w)
-    raw = np.empty((h, 3 * w + 1), np.uint8)
-    raw[:, 0] = 2                                   # the filter: Up
-    raw[0, 1:] = rows[0]
-    np.subtract(rows[1:], rows[:-1], out=raw[1:, 1:])   # modulo 256
-
-    with open(path, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n")
-        for kind, data in ((b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)),
-                           (b"IDAT", zlib.compress(raw, PNG_COMPRESS_LEVEL)), (b"IEND", b"")):
-            f.write(struct.pack(">I", len(data)) + kind)
-            f.write(data)
-            f.write(struct.pack(">I", zlib.crc32(data, zlib.crc32(kind))))
+        self.image(dpi).save(path, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
 
 
 class RasterPanel:
