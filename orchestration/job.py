@@ -41,7 +41,7 @@ from .export import flavour_fmus
 from .files import check_folder, write_csv, write_json
 from .report import figures
 from .report.files import save_figure
-from .report.plotting import check_renderer
+from .report.plotting import check_figures, check_renderer
 from .report.progress import Progress
 from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import Scene
@@ -154,22 +154,25 @@ class Run:
         return figures.snapshots(beam_model(self.scene.plant.params), self.frames, self.scene,
                                  travel=(float(x.min()), float(x.max())), renderer=renderer)
 
-    def save(self, folder, *, summary: bool = True, renderer: str = "raster") -> list[Path]:
+    def save(self, folder, *, summary: bool = True, renderer: str = "raster",
+             figures: str = "png") -> list[Path]:
         """Write what ``flexpend run`` writes for this run into the folder ``folder`` (a
         ValueError for a path that names a file, or has a file's suffix: ``.csv``...):
         ``<name>.csv``, ``<name>.png``, ``<name>_shapes.png`` (drawn by ``renderer``: by default
         the raster renderer, no matplotlib) and (``summary``) this run's entry of
         ``summary.json`` (other entries kept); the paths written. Each file is complete or
-        absent."""
+        absent. ``figures="none"`` draws and writes no PNG (the rest is the same)."""
         check_renderer(renderer)
+        check_figures(figures)
         folder = check_folder(folder)
         folder.mkdir(parents=True, exist_ok=True)
         written = [write_csv(folder / f"{self.name}.csv", self.result)]
-        if len(self.result) >= 2:
-            written.append(save_figure(self.plot(renderer), folder / f"{self.name}.png"))
-        shapes = self.plot_shapes(renderer)
-        if shapes is not None:
-            written.append(save_figure(shapes, folder / f"{self.name}_shapes.png"))
+        if figures == "png":
+            if len(self.result) >= 2:
+                written.append(save_figure(self.plot(renderer), folder / f"{self.name}.png"))
+            shapes = self.plot_shapes(renderer)
+            if shapes is not None:
+                written.append(save_figure(shapes, folder / f"{self.name}_shapes.png"))
         if summary:
             entries = _read_summaries(folder / "summary.json")
             entries[self.name] = self.summary
@@ -569,7 +572,7 @@ class JobResult:
 
 def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,
             overview: bool = False, announce=None, report=None,
-            renderer: str = "raster") -> JobResult:
+            renderer: str = "raster", figures: str = "png") -> JobResult:
     """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
     folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
     ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json``
@@ -583,8 +586,10 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     scene's plant step is checked before any runs (:func:`check_plant_step`; a scene with
     ``plant.n_modes = "auto"`` once its model is chosen, when it runs).
     ``renderer``: what draws the PNGs (:data:`~orchestration.report.plotting.RENDERERS`; by
-    default the raster renderer, which does not import matplotlib)."""
+    default the raster renderer, which does not import matplotlib); ``figures="none"``: no
+    PNG is drawn or written (:data:`~orchestration.report.plotting.FIGURES`)."""
     check_renderer(renderer)
+    check_figures(figures)
     out = Path(out)
     job = JobResult([])
     pairs = {}
@@ -611,7 +616,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                             progress=True, connections_out=connections_out, stop=stop,
                             unzipdirs=unpacked.of(fmus))
             job.runs.append(run)
-            written = run.save(out, summary=False, renderer=renderer)
+            written = run.save(out, summary=False, renderer=renderer, figures=figures)
             write_json(out / "summary.json", job.summaries)
             job.written += written
             if report is not None:
@@ -621,7 +626,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 break
             if not run.completed:
                 job.code = EXIT_STOPPED
-        if overview and job.code != EXIT_INTERRUPTED and len(job.runs) == len(items) \
+        if overview and figures == "png" and job.code != EXIT_INTERRUPTED and len(job.runs) == len(items) \
                 and not (stop and stop()):
             job.written += paper_figures(job.runs, out, renderer)
         if stop is not None and stop():

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from .layout import SUPERSCRIPT, Grid
 
-__all__ = ["RENDERERS", "check_renderer", "canvas", "Grid", "SUPERSCRIPT"]
+__all__ = ["RENDERERS", "check_renderer", "FIGURES", "check_figures", "canvas", "Grid", "SUPERSCRIPT"]
 
 #: The renderers of :func:`canvas`.
 RENDERERS = ("raster", "matplotlib")
@@ -43,6 +43,19 @@ def check_renderer(renderer) -> str:
         raise ValueError(f"renderer = {renderer!r} is not allowed; allowed: "
                          + ", ".join(repr(r) for r in RENDERERS))
     return renderer
+
+
+#: What ``flexpend run --figures`` (``Run.save(figures=)``) writes: the PNGs, or none (nothing
+#: drawn; the CSV files and the summary are the same).
+FIGURES = ("png", "none")
+
+
+def check_figures(figures) -> str:
+    """``figures`` if it is one of :data:`FIGURES`, else a ValueError naming it."""
+    if figures not in FIGURES:
+        raise ValueError(f"figures = {figures!r} is not allowed; allowed: "
+                         + ", ".join(repr(f) for f in FIGURES))
+    return figures
 
 
 def canvas(width: float, height: float, renderer: str = "matplotlib"):
