@@ -109,8 +109,9 @@ def initial_text(initial) -> str:
 
 
 def loop_text(facts) -> str:
-    """What the linearised loop predicts: stable (its slowest decay) or which roots grow; the
-    bending root; from a run's facts (:class:`~orchestration.studies.summary.ReportFacts`: its
+    """What the linearised loop predicts: stable (its slowest root's rate σ = Re(λ), negative;
+    every rate a figure states is signed so: negative decays, positive grows) or which roots
+    grow; the bending root; from a run's facts (:class:`~orchestration.studies.summary.ReportFacts`: its
     loop's roots, :func:`~orchestration.studies.analysis.loop_roots`)."""
     r = facts.roots
     loop = "linearised loop" if facts.own else \
@@ -122,7 +123,7 @@ def loop_text(facts) -> str:
         return f"{'real root' if complex(z).imag == 0 else 'root'} {root_text(z)}"
 
     if r.stable:
-        out = f"{loop}: stable, slowest decay {-r.max_real_part:.3g} 1/s"
+        out = f"{loop}: stable, slowest root's rate σ = Re(λ) = {r.max_real_part:+.3g} 1/s"
         if r.bending is not None:
             out += f"; {name(r.bending)}"
         return out
@@ -304,7 +305,7 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
         m = summary.get("slow")
         if m and m.get("fit"):
             lo, hi = m["fit"]["window"]
-            what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
+            what = (f"σ = {m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
                     else "unreliable")
             ax_of["phi_o"].xspan(lo, hi, color="C2", alpha=0.12,
                                  label=f"slow fit window: {what}")
@@ -314,7 +315,7 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
             ax = ax_of["bending"]
             lo, hi = m["fit"]["window"]
             f = m["fit"]
-            what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
+            what = (f"σ = {m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
                     else "unreliable")
             ax.xspan(lo, hi, color="C2", alpha=0.12, label=f"bending fit window: {what}")
             inside = (t >= lo) & (t <= hi)
@@ -325,7 +326,7 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
                 a0 = float(env[first].max()) if np.any(first) else float(env[inside][0])
                 tt = np.array([lo, hi])
                 ax.line(tt, a0 * np.exp(f["rate"] * (tt - lo)), style="--", color="C3", lw=1.0,
-                        label=f"fitted rate {f['rate']:+.3g} 1/s")
+                        label=f"fitted rate σ = {f['rate']:+.3g} 1/s")
             legend["bending"] = True
         v = summary.get("validity")
         if v and v.get("tip_deflection_limit") and "tip_deflection" in ax_of:
