@@ -339,8 +339,7 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
                              label=f"measured range ±{lim:.3g} m" if sign > 0 else None)
                 legend["tip_deflection"] = True
             else:
-                ax.text(0.995, 0.96, f"measured range ±{lim:.3g} m: off this scale",
-                        coords="axes", color="C3", size=7, ha="right", va="top")
+                ax.note(f"measured range ±{lim:.3g} m: off this scale", color="C3", size=7)
         stopped = summary.get("stopped")
         if stopped and stopped.get("time") is not None:
             for ax in axes:

@@ -24,8 +24,9 @@ The vocabulary (sizes in points, figure sizes in inches, colours as matplotlib n
   ``"data"``, ``"axes"`` or ``"xaxis"`` coordinates: x in data, y in axes fraction),
   ``xlabel``, ``ylabel``, ``title``, ``xlim``, ``ylim``, ``xscale``/``yscale`` (``"linear"``,
   ``"log"``, ``"symlog"``), ``equal_aspect``, ``grid`` (at the ticks, or at given positions),
-  ``ticks`` (fixed positions; empty: none), ``tick_labels(size)``, ``legend``, ``hide``, ``box``
-  (its place in figure fractions).
+  ``ticks`` (fixed positions; empty: none), ``tick_labels(size)``, ``legend``, ``note`` (a
+  note in the strip above the frame, right-aligned, off the data), ``hide``, ``box`` (its place
+  in figure fractions).
 """
 from __future__ import annotations
 

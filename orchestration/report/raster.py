@@ -19,7 +19,7 @@ from functools import lru_cache
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from .layout import SUPERSCRIPT, Grid
+from .layout import NOTE_GAP, SUPERSCRIPT, Grid
 
 __all__ = ["RasterCanvas", "RasterPanel", "nice_ticks", "log_ticks", "symlog_ticks",
            "tick_text", "font_path", "rgb", "DPI", "OVERSAMPLE"]
@@ -323,6 +323,8 @@ class RasterPanel:
         self.grid_at = None                     # True: at the ticks; (xs, ys): there
         self.label_size = 10.0
         self.legend_spec = None                 # (loc, size, outside)
+        self.notes: list = []                   # (text, size, color): above the frame
+        self.note_boxes: list = []              # their (left, top, right, bottom), drawn
         self.hidden = False
         self.equal = False
         self.x_tick_labels = True
@@ -368,6 +370,10 @@ class RasterPanel:
                              "'xaxis'")
         self._add("text", 3, x=float(x), y=float(y), text=text, coords=coords, size=size,
                   color=color, ha=ha, va=va)
+
+    def note(self, text, *, size=7.0, color="C3"):
+        """A note in the strip above the panel's frame, right-aligned: never on the data."""
+        self.notes.append((text, size, color))
 
     def xlabel(self, text, *, size=8.0, pad=None):
         self.x_label = (text, size, LABEL_PAD if pad is None else pad)
@@ -516,6 +522,13 @@ class RasterPanel:
             if kind == "text":
                 x, y = self.to_px(d["x"], d["y"], d["coords"])
                 pen.text(float(x), float(y), d["text"], d["size"], d["color"], d["ha"], d["va"])
+        self.note_boxes = []
+        x = right
+        for text, size, color in self.notes:            # right to left, above the frame
+            y = top - NOTE_GAP * pen.scale
+            w, h = pen.text(x, y, text, size, color, "right", "bottom")
+            self.note_boxes.append((x - w, y - h, x, y))
+            x -= w + pen.length("  ", size)
         if self.legend_spec is not None:
             entries = self.legend_entries()
             loc, size, outside = self.legend_spec
