@@ -166,7 +166,8 @@ class MplPanel:
             xy, xycoords, gap = (1.0, 1.0), "axes fraction", 0.0
         self.notes.append(self.ax.annotate(
             text, xy=xy, xycoords=xycoords, xytext=(gap, NOTE_GAP), textcoords="offset points",
-            ha="right", va="bottom", fontsize=size, color=color, annotation_clip=False))
+            ha="right", va="bottom", fontsize=size, color=color, annotation_clip=False,
+            gid="note"))
 
     def xlabel(self, text, *, size=8.0, pad=None):
         self.ax.set_xlabel(text, fontsize=size, labelpad=pad)
