@@ -183,6 +183,9 @@ def _title_height(title: str) -> float:
 # ---------------------------------------------------------------------- time histories
 #: Time-history panels: column -> (quantity, unit) of the axis label (SI units; eta_j belong to
 #: mass-normalised modes, in m kg^(1/2)); symbols in plain Unicode, no mathtext.
+#: The colour of a fit window marked unreliable (outlined, not shaded: :func:`_fit_window`).
+UNRELIABLE_COLOR = "0.45"
+
 PANELS = {
     "phi_o": ("tip angle φₒ", "rad"),
     "eta_1": ("1st modal coord. η₁", "m·kg½"),
@@ -304,20 +307,14 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
     if summary is not None:
         m = summary.get("slow")
         if m and m.get("fit"):
-            lo, hi = m["fit"]["window"]
-            what = (f"σ = {m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
-                    else "unreliable")
-            ax_of["phi_o"].xspan(lo, hi, color="C2", alpha=0.12,
-                                 label=f"slow fit window: {what}")
+            _fit_window(ax_of["phi_o"], "slow", m)
             legend["phi_o"] = True
         m = summary.get("bending")
         if flexible and m and m.get("fit"):
             ax = ax_of["bending"]
             lo, hi = m["fit"]["window"]
             f = m["fit"]
-            what = (f"σ = {m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
-                    else "unreliable")
-            ax.xspan(lo, hi, color="C2", alpha=0.12, label=f"bending fit window: {what}")
+            _fit_window(ax, "bending", m)
             inside = (t >= lo) & (t <= hi)
             if m["reliable"] and np.any(inside) and env[inside].max() > 0:
                 # the fitted rate through the envelope's level at the window's start
@@ -353,6 +350,19 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
     fig.title(title, size=9, y=1 - 0.08 / height)
     return fig.result()
 
+
+
+def _fit_window(ax, mode: str, m: dict) -> None:
+    """The window a mode's rate was fitted over: shaded, its rate in the legend, when the fit
+    is reliable; else outlined only (dashed edges, grey), "unreliable: no rate" in the legend,
+    so that it is not read as a fit."""
+    lo, hi = m["fit"]["window"]
+    if m["reliable"]:
+        ax.xspan(lo, hi, color="C2", alpha=0.12, label=f"{mode} fit window: σ = "
+                 f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s")
+    else:
+        ax.xspan(lo, hi, color=UNRELIABLE_COLOR, outline=True,
+                 label=f"{mode} fit window (outlined): unreliable, no rate")
 
 
 # ---------------------------------------------------------------------- shapes

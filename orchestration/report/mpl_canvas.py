@@ -144,8 +144,11 @@ class MplPanel:
     def vline(self, x, *, color="k", lw=1.0, style="-", label=None):
         self.ax.axvline(x, color=color, lw=lw, ls=style, label=label)
 
-    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None):
-        self.ax.axvspan(lo, hi, color=color, alpha=alpha, lw=0, label=label)
+    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None, outline=False):
+        if outline:                     # its edges, dashed: not filled
+            self.ax.axvspan(lo, hi, fill=False, edgecolor=color, ls="--", lw=1.0, label=label)
+        else:
+            self.ax.axvspan(lo, hi, color=color, alpha=alpha, lw=0, label=label)
 
     def rect(self, x, y, width, height, *, color="C1"):
         from matplotlib.patches import Rectangle

@@ -20,7 +20,8 @@ The vocabulary (sizes in points, figure sizes in inches, colours as matplotlib n
   col, colspan=, sharex=)``, ``title`` (the figure's, top at ``y``), ``text``, ``legend`` (of
   every panel's labelled items, across the top), ``locate(lo, hi, n)`` (at most ``n + 1`` nice
   ticks), ``result()`` (what the figure function returns);
-* a panel: ``line``, ``markers``, ``hline``, ``vline``, ``xspan``, ``rect``, ``text`` (in
+* a panel: ``line``, ``markers``, ``hline``, ``vline``, ``xspan`` (filled, or with
+  ``outline=True`` only its dashed edges), ``rect``, ``text`` (in
   ``"data"``, ``"axes"`` or ``"xaxis"`` coordinates: x in data, y in axes fraction),
   ``xlabel``, ``ylabel``, ``title``, ``xlim``, ``ylim``, ``xscale``/``yscale`` (``"linear"``,
   ``"log"``, ``"symlog"``), ``equal_aspect``, ``grid`` (at the ticks, or at given positions),

@@ -37,6 +37,8 @@ TICK, TICK_W, MINOR, MINOR_W, TICK_PAD, LABEL_PAD, TITLE_PAD, FRAME_W = (
     3.5, 0.8, 2.0, 0.6, 3.5, 4.0, 6.0, 0.8)
 #: The grid: matplotlib's #b0b0b0 at alpha 0.3, as it shows on white (drawn opaque: no layer).
 GRID_COLOR, GRID_W, MARGIN = "#e7e7e7", 0.8, 0.05
+#: The line width of an outlined span (``xspan(outline=True)``), points.
+OUTLINE_W = 1.0
 #: (on, off) lengths of a line style, in line widths (matplotlib's, scaled by the width).
 DASHES = {"--": (3.7, 1.6), ":": (1.0, 1.65), "-.": (6.4, 1.6, 1.0, 1.6)}
 
@@ -356,8 +358,9 @@ class RasterPanel:
     def vline(self, x, *, color="k", lw=1.0, style="-", label=None):
         self._add("vline", 2, x=float(x), color=color, lw=lw, style=style, label=label)
 
-    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None):
-        self._add("xspan", 1, lo=float(lo), hi=float(hi), color=color, alpha=alpha, label=label)
+    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None, outline=False):
+        self._add("xspan", 1, lo=float(lo), hi=float(hi), color=color, alpha=alpha, label=label,
+                  outline=bool(outline))
 
     def rect(self, x, y, width, height, *, color="C1"):
         self._add("rect", 1, x=float(x), y=float(y), w=float(width), h=float(height),
@@ -565,6 +568,11 @@ class RasterPanel:
                 x, _ = self.to_px(d["x"], 0.0)
                 px, py = np.array([x, x]), np.array([top, bottom])
             pen.polyline(px, py, d["color"], d["lw"], d["style"], None)
+        elif kind == "xspan" and d["outline"]:         # its edges, dashed: not filled
+            (x0, x1), _ = self.to_px([d["lo"], d["hi"]], [0.0, 0.0])
+            for x in (x0, x1):
+                pen.polyline(np.array([x, x]), np.array([top, bottom]), d["color"], OUTLINE_W,
+                             "--", None)
         elif kind == "xspan":
             (x0, x1), _ = self.to_px([d["lo"], d["hi"]], [0.0, 0.0])
             pen.box(x0, top, x1, bottom, d["color"], d["alpha"])
@@ -861,7 +869,11 @@ class _Pen:
             self.text(cx + handle + gap, cy, str(d["label"]), size, "k", "left", "center")
 
     def _handle(self, kind, d, x, y, length, fs):
-        if kind == "xspan":
+        if kind == "xspan" and d.get("outline"):
+            y0, y1 = y - 0.35 * fs, y + 0.35 * fs
+            self.polyline(np.array([x, x + length, x + length, x, x]),
+                          np.array([y0, y0, y1, y1, y0]), d["color"], OUTLINE_W, "--", None)
+        elif kind == "xspan":
             self.box(x, y - 0.35 * fs, x + length, y + 0.35 * fs, d["color"], d["alpha"])
         elif kind == "markers":
             self.markers([x + length / 2], [y], d["marker"], d["color"], d["size"],
