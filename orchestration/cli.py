@@ -3,7 +3,7 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
 :mod:`orchestration.export`), the text in :mod:`orchestration.report.text`.
 
     flexpend run [SCENE ...] [--set key=value ...] [--out DIR] [--json] [--reference]
-                 [--renderer raster|matplotlib]
+                 [--renderer raster|matplotlib] [--figures png|none]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
     flexpend stability SCENE [--set key=value ...] [--max-step S] [--json]
                                                         where the communication step is stable
@@ -320,7 +320,8 @@ def cmd_run(args) -> int:
         job = run_job(items, out_dir, reference=args.reference,
                       connections_out=sys.stderr if args.connections else None, stop=stop,
                       overview=not args.scenes, announce=announce, report=report,
-                      renderer=args.renderer, progress=not args.quiet)
+                      renderer=args.renderer, figures=args.figures,
+                      progress=not args.quiet)
     finally:
         for _, system in items:
             if system is not None:
@@ -703,6 +704,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also solve the monolithic reference and report the error against it")
     pr.add_argument("--renderer", choices=("raster", "matplotlib"), default="raster",
                     help="what draws the PNGs: raster (default: Pillow, fast) or matplotlib")
+    pr.add_argument("--figures", choices=("png", "none"), default="png",
+                    help="png (default): write the PNG figures; none: skip them (the CSV files, "
+                         "the summary and the text are the same)")
     _add_quiet(pr)
     pr.set_defaults(func=cmd_run)
 

@@ -41,7 +41,7 @@ from .export import flavour_fmus
 from .files import check_folder, write_csv, write_json
 from .report import figures
 from .report.files import save_figure
-from .report.plotting import check_renderer
+from .report.plotting import check_figures, check_renderer
 from .report.progress import Steps, check_progress, sink_for
 from .scene.keys import FMU_FLAVOURS, ConfigError
 from .scene.records import AUTO, Scene
@@ -154,22 +154,25 @@ class Run:
         return figures.snapshots(beam_model(self.scene.plant.params), self.frames, self.scene,
                                  travel=(float(x.min()), float(x.max())), renderer=renderer)
 
-    def save(self, folder, *, summary: bool = True, renderer: str = "raster") -> list[Path]:
+    def save(self, folder, *, summary: bool = True, renderer: str = "raster",
+             figures: str = "png") -> list[Path]:
         """Write what ``flexpend run`` writes for this run into the folder ``folder`` (a
         ValueError for a path that names a file, or has a file's suffix: ``.csv``...):
         ``<name>.csv``, ``<name>.png``, ``<name>_shapes.png`` (drawn by ``renderer``: by default
         the raster renderer, no matplotlib) and (``summary``) this run's entry of
         ``summary.json`` (other entries kept); the paths written. Each file is complete or
-        absent."""
+        absent. ``figures="none"`` draws and writes no PNG (the rest is the same)."""
         check_renderer(renderer)
+        check_figures(figures)
         folder = check_folder(folder)
         folder.mkdir(parents=True, exist_ok=True)
         written = [write_csv(folder / f"{self.name}.csv", self.result)]
-        if len(self.result) >= 2:
-            written.append(save_figure(self.plot(renderer), folder / f"{self.name}.png"))
-        shapes = self.plot_shapes(renderer)
-        if shapes is not None:
-            written.append(save_figure(shapes, folder / f"{self.name}_shapes.png"))
+        if figures == "png":
+            if len(self.result) >= 2:
+                written.append(save_figure(self.plot(renderer), folder / f"{self.name}.png"))
+            shapes = self.plot_shapes(renderer)
+            if shapes is not None:
+                written.append(save_figure(shapes, folder / f"{self.name}_shapes.png"))
         if summary:
             entries = _read_summaries(folder / "summary.json")
             entries[self.name] = self.summary
@@ -426,7 +429,8 @@ def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict,
         return out
     t, ts = run.result["time"], shadow.result["time"]
     idx = np.searchsorted(t, ts)
-    ok = (idx < len(t)) & (np.abs(t[np.minimum(idx, len(t) - 1)] - ts) <= 1e-9 * max(1.0, o.stop_time))
+    near = np.abs(t[np.minimum(idx, len(t) - 1)] - ts) <= 1e-9 * max(1.0, o.stop_time)
+    ok = (idx < len(t)) & near
     diff = np.abs(run.result["phi_o"][idx[ok]] - shadow.result["phi_o"][ok])
     out["phi_o"] = float(diff.max()) if diff.size else None
     return out
@@ -638,7 +642,7 @@ class JobResult:
 
 def run_job(items, out, *, reference: bool = False, connections_out=None, stop=None,
             overview: bool = False, announce=None, report=None,
-            renderer: str = "raster", progress: bool = True) -> JobResult:
+            renderer: str = "raster", figures: str = "png", progress: bool = True) -> JobResult:
     """``flexpend run``: run ``items`` (from :func:`load_job`) one after the other into the
     folder ``out``, each run's files written as soon as it ends (:meth:`Run.save`), then, with
     ``overview``, the figures of the runs side by side (:func:`paper_figures`); ``summary.json``
@@ -652,9 +656,11 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
     scene's plant step is checked before any runs (:func:`check_plant_step`; a scene with
     ``plant.n_modes = "auto"`` once its model is chosen, when it runs).
     ``renderer``: what draws the PNGs (:data:`~orchestration.report.plotting.RENDERERS`; by
-    default the raster renderer, which does not import matplotlib). ``progress``: a bar on
+    default the raster renderer, which does not import matplotlib); ``figures="none"``: no
+    PNG is drawn or written (:data:`~orchestration.report.plotting.FIGURES`). ``progress``: a bar on
     stderr for the FMUs' build and for each scene (:func:`run_scene`)."""
     check_renderer(renderer)
+    check_figures(figures)
     out = Path(out)
     job = JobResult([])
     pairs = {}
@@ -686,7 +692,7 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                             progress=progress, connections_out=connections_out, stop=stop,
                             unzipdirs=unpacked.of(fmus))
             job.runs.append(run)
-            written = run.save(out, summary=False, renderer=renderer)
+            written = run.save(out, summary=False, renderer=renderer, figures=figures)
             write_json(out / "summary.json", job.summaries)
             job.written += written
             if report is not None:
@@ -696,8 +702,8 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                 break
             if not run.completed:
                 job.code = EXIT_STOPPED
-        if overview and job.code != EXIT_INTERRUPTED and len(job.runs) == len(items) \
-                and not (stop and stop()):
+        if (overview and figures == "png" and job.code != EXIT_INTERRUPTED
+                and len(job.runs) == len(items) and not (stop and stop())):
             job.written += paper_figures(job.runs, out, renderer)
         if stop is not None and stop():
             job.code = EXIT_INTERRUPTED

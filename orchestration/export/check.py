@@ -490,6 +490,8 @@ class CheckReport:
     run: Run
     reference: np.ndarray
     signals: dict = field(default_factory=dict)
+    #: ``{variable: unit}`` of the FMU's variables (:func:`variable_units`).
+    units: dict = field(default_factory=dict)
 
     @property
     def failure(self) -> str | None:
@@ -557,7 +559,17 @@ def check_fmu(fmu, reference, rule: Rule = FMPY_RULE, start_values=None) -> Chec
         if t[0] > t_ref[0] + 1e-9 or t[-1] < t_ref[-1] - 1e-9 * max(1.0, abs(t_ref[-1])):
             run.failure = (f"the run covers {t[0]:g}..{t[-1]:g} s, the reference "
                            f"{t_ref[0]:g}..{t_ref[-1]:g} s")
-    return CheckReport(Path(fmu), files, rule, run, ref, signals)
+    return CheckReport(Path(fmu), files, rule, run, ref, signals, variable_units(fmu))
+
+
+def variable_units(fmu) -> dict:
+    """``{name: unit}`` of every variable of ``fmu``'s model description: its ``unit``, else its
+    declared type's, else ``"1"`` (dimensionless)."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(fmu), validate=False)
+    return {v.name: v.unit or getattr(v.declaredType, "unit", None) or "1"
+            for v in md.modelVariables}
 
 
 def write_reference(fmu, reference, outputs=None) -> dict:

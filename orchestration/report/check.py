@@ -9,12 +9,23 @@ import numpy as np
 from .mpl_canvas import new_figure
 from .files import save_figure
 
-__all__ = ["plot_check"]
+__all__ = ["plot_check", "check_figure"]
 
 
 def plot_check(report, path) -> Path:
+    """Write :func:`check_figure` of ``report`` to ``path`` (PNG, or the format of its
+    suffix)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    save_figure(check_figure(report), path)
+    return path
+
+
+def check_figure(report):
     """Each signal over its band: the reference, the band, the result, the samples outside, of
-    a check's report (:class:`~orchestration.export.check.CheckReport`)."""
+    a check's report (:class:`~orchestration.export.check.CheckReport`), a matplotlib Figure.
+    Every axis is labelled with its unit (the signal's in the FMU's model description, "1"
+    when it has none)."""
 
     signals = list(report.signals.values())
     n = max(1, len(signals))
@@ -36,7 +47,7 @@ def plot_check(report, path) -> Path:
                 hi = np.interp(t, s.band[0], s.band[2])
                 bad = ~((res[s.name] >= lo) & (res[s.name] <= hi))
                 ax.plot(t[bad], res[s.name][bad], ".", color="tab:red", ms=3, label="outside")
-        ax.set_ylabel(s.name)
+        ax.set_ylabel(f"{s.name} ({report.units.get(s.name, '1')})")
         ax.set_title(f"{s.name}: {'pass' if s.passed else 'FAIL'} ({s.outliers}/{s.samples} "
                      f"outside)", fontsize=8, loc="left")
         ax.grid(alpha=0.3)
@@ -47,7 +58,4 @@ def plot_check(report, path) -> Path:
     fig.suptitle(f"{report.fmu.name}: {verdict} ({report.rule.describe()}){extra}"[:160],
                  fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    save_figure(fig, path)
-    return path
+    return fig

@@ -109,8 +109,9 @@ def initial_text(initial) -> str:
 
 
 def loop_text(facts) -> str:
-    """What the linearised loop predicts: stable (its slowest decay) or which roots grow; the
-    bending root; from a run's facts (:class:`~orchestration.studies.summary.ReportFacts`: its
+    """What the linearised loop predicts: stable (its slowest root's rate σ = Re(λ), negative;
+    every rate a figure states is signed so: negative decays, positive grows) or which roots
+    grow; the bending root; from a run's facts (:class:`~orchestration.studies.summary.ReportFacts`: its
     loop's roots, :func:`~orchestration.studies.analysis.loop_roots`)."""
     r = facts.roots
     loop = "linearised loop" if facts.own else \
@@ -122,7 +123,7 @@ def loop_text(facts) -> str:
         return f"{'real root' if complex(z).imag == 0 else 'root'} {root_text(z)}"
 
     if r.stable:
-        out = f"{loop}: stable, slowest decay {-r.max_real_part:.3g} 1/s"
+        out = f"{loop}: stable, slowest root's rate σ = Re(λ) = {r.max_real_part:+.3g} 1/s"
         if r.bending is not None:
             out += f"; {name(r.bending)}"
         return out
@@ -182,6 +183,9 @@ def _title_height(title: str) -> float:
 # ---------------------------------------------------------------------- time histories
 #: Time-history panels: column -> (quantity, unit) of the axis label (SI units; eta_j belong to
 #: mass-normalised modes, in m kg^(1/2)); symbols in plain Unicode, no mathtext.
+#: The colour of a fit window marked unreliable (outlined, not shaded: :func:`_fit_window`).
+UNRELIABLE_COLOR = "0.45"
+
 PANELS = {
     "phi_o": ("tip angle φₒ", "rad"),
     "eta_1": ("1st modal coord. η₁", "m·kg½"),
@@ -303,20 +307,14 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
     if summary is not None:
         m = summary.get("slow")
         if m and m.get("fit"):
-            lo, hi = m["fit"]["window"]
-            what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
-                    else "unreliable")
-            ax_of["phi_o"].xspan(lo, hi, color="C2", alpha=0.12,
-                                 label=f"slow fit window: {what}")
+            _fit_window(ax_of["phi_o"], "slow", m)
             legend["phi_o"] = True
         m = summary.get("bending")
         if flexible and m and m.get("fit"):
             ax = ax_of["bending"]
             lo, hi = m["fit"]["window"]
             f = m["fit"]
-            what = (f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s" if m["reliable"]
-                    else "unreliable")
-            ax.xspan(lo, hi, color="C2", alpha=0.12, label=f"bending fit window: {what}")
+            _fit_window(ax, "bending", m)
             inside = (t >= lo) & (t <= hi)
             if m["reliable"] and np.any(inside) and env[inside].max() > 0:
                 # the fitted rate through the envelope's level at the window's start
@@ -325,7 +323,7 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
                 a0 = float(env[first].max()) if np.any(first) else float(env[inside][0])
                 tt = np.array([lo, hi])
                 ax.line(tt, a0 * np.exp(f["rate"] * (tt - lo)), style="--", color="C3", lw=1.0,
-                        label=f"fitted rate {f['rate']:+.3g} 1/s")
+                        label=f"fitted rate σ = {f['rate']:+.3g} 1/s")
             legend["bending"] = True
         v = summary.get("validity")
         if v and v.get("tip_deflection_limit") and "tip_deflection" in ax_of:
@@ -338,8 +336,7 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
                              label=f"measured range ±{lim:.3g} m" if sign > 0 else None)
                 legend["tip_deflection"] = True
             else:
-                ax.text(0.995, 0.96, f"measured range ±{lim:.3g} m: off this scale",
-                        coords="axes", color="C3", size=7, ha="right", va="top")
+                ax.note(f"measured range ±{lim:.3g} m: off this scale", color="C3", size=7)
         stopped = summary.get("stopped")
         if stopped and stopped.get("time") is not None:
             for ax in axes:
@@ -353,6 +350,19 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
     fig.title(title, size=9, y=1 - 0.08 / height)
     return fig.result()
 
+
+
+def _fit_window(ax, mode: str, m: dict) -> None:
+    """The window a mode's rate was fitted over: shaded, its rate in the legend, when the fit
+    is reliable; else outlined only (dashed edges, grey), "unreliable: no rate" in the legend,
+    so that it is not read as a fit."""
+    lo, hi = m["fit"]["window"]
+    if m["reliable"]:
+        ax.xspan(lo, hi, color="C2", alpha=0.12, label=f"{mode} fit window: σ = "
+                 f"{m['rate']:+.3g} 1/s at {m['frequency']:.4g} rad/s")
+    else:
+        ax.xspan(lo, hi, color=UNRELIABLE_COLOR, outline=True,
+                 label=f"{mode} fit window (outlined): unreliable, no rate")
 
 
 # ---------------------------------------------------------------------- shapes

@@ -1,10 +1,14 @@
 """What both renderers of the plotting vocabulary (:mod:`orchestration.report.plotting`)
-share: the grid of panels, the superscript digits."""
+share: the grid of panels, the superscript digits, the gap above a panel for its notes."""
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["Grid", "SUPERSCRIPT"]
+__all__ = ["Grid", "SUPERSCRIPT", "NOTE_GAP"]
+
+#: The gap in points between a panel's frame and the notes above it (``panel.note``): a note
+#: sits in the strip between two panels, never on the data.
+NOTE_GAP = 2.0
 
 #: Digits and signs as Unicode superscripts: ``"-2".translate(SUPERSCRIPT) == "⁻²"``.
 SUPERSCRIPT = str.maketrans("-−0123456789", "⁻⁻⁰¹²³⁴⁵⁶⁷⁸⁹")

@@ -7,7 +7,7 @@ from contextlib import contextmanager
 
 import numpy as np
 
-from .layout import SUPERSCRIPT, Grid
+from .layout import NOTE_GAP, SUPERSCRIPT, Grid
 
 __all__ = ["new_figure", "MplCanvas", "MplPanel", "ticks_in_view", "plain_log_labels"]
 
@@ -126,6 +126,7 @@ class MplPanel:
 
     def __init__(self, ax):
         self.ax = ax
+        self.notes: list = []           # the Annotations of :meth:`note`
 
     def line(self, x, y, *, color="C0", lw=1.0, style="-", alpha=None, label=None,
              butt=False):
@@ -143,8 +144,11 @@ class MplPanel:
     def vline(self, x, *, color="k", lw=1.0, style="-", label=None):
         self.ax.axvline(x, color=color, lw=lw, ls=style, label=label)
 
-    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None):
-        self.ax.axvspan(lo, hi, color=color, alpha=alpha, lw=0, label=label)
+    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None, outline=False):
+        if outline:                     # its edges, dashed: not filled
+            self.ax.axvspan(lo, hi, fill=False, edgecolor=color, ls="--", lw=1.0, label=label)
+        else:
+            self.ax.axvspan(lo, hi, color=color, alpha=alpha, lw=0, label=label)
 
     def rect(self, x, y, width, height, *, color="C1"):
         from matplotlib.patches import Rectangle
@@ -155,6 +159,18 @@ class MplPanel:
         transform = (self.ax.get_xaxis_transform() if coords == "xaxis"
                      else getattr(self.ax, _COORDS[coords]))
         self.ax.text(x, y, text, transform=transform, fontsize=size, color=color, ha=ha, va=va)
+
+    def note(self, text, *, size=7.0, color="C3"):
+        """A note in the strip above the panel's frame, right-aligned: never on the data (a
+        second note ends where the one before begins)."""
+        if self.notes:
+            xy, xycoords, gap = (0.0, 1.0), (self.notes[-1], "axes fraction"), -size
+        else:
+            xy, xycoords, gap = (1.0, 1.0), "axes fraction", 0.0
+        self.notes.append(self.ax.annotate(
+            text, xy=xy, xycoords=xycoords, xytext=(gap, NOTE_GAP), textcoords="offset points",
+            ha="right", va="bottom", fontsize=size, color=color, annotation_clip=False,
+            gid="note"))
 
     def xlabel(self, text, *, size=8.0, pad=None):
         self.ax.set_xlabel(text, fontsize=size, labelpad=pad)

@@ -20,18 +20,20 @@ The vocabulary (sizes in points, figure sizes in inches, colours as matplotlib n
   col, colspan=, sharex=)``, ``title`` (the figure's, top at ``y``), ``text``, ``legend`` (of
   every panel's labelled items, across the top), ``locate(lo, hi, n)`` (at most ``n + 1`` nice
   ticks), ``result()`` (what the figure function returns);
-* a panel: ``line``, ``markers``, ``hline``, ``vline``, ``xspan``, ``rect``, ``text`` (in
+* a panel: ``line``, ``markers``, ``hline``, ``vline``, ``xspan`` (filled, or with
+  ``outline=True`` only its dashed edges), ``rect``, ``text`` (in
   ``"data"``, ``"axes"`` or ``"xaxis"`` coordinates: x in data, y in axes fraction),
   ``xlabel``, ``ylabel``, ``title``, ``xlim``, ``ylim``, ``xscale``/``yscale`` (``"linear"``,
   ``"log"``, ``"symlog"``), ``equal_aspect``, ``grid`` (at the ticks, or at given positions),
-  ``ticks`` (fixed positions; empty: none), ``tick_labels(size)``, ``legend``, ``hide``, ``box``
-  (its place in figure fractions).
+  ``ticks`` (fixed positions; empty: none), ``tick_labels(size)``, ``legend``, ``note`` (a
+  note in the strip above the frame, right-aligned, off the data), ``hide``, ``box`` (its place
+  in figure fractions).
 """
 from __future__ import annotations
 
 from .layout import SUPERSCRIPT, Grid
 
-__all__ = ["RENDERERS", "check_renderer", "canvas", "Grid", "SUPERSCRIPT"]
+__all__ = ["RENDERERS", "check_renderer", "FIGURES", "check_figures", "canvas", "Grid", "SUPERSCRIPT"]
 
 #: The renderers of :func:`canvas`.
 RENDERERS = ("raster", "matplotlib")
@@ -43,6 +45,19 @@ def check_renderer(renderer) -> str:
         raise ValueError(f"renderer = {renderer!r} is not allowed; allowed: "
                          + ", ".join(repr(r) for r in RENDERERS))
     return renderer
+
+
+#: What ``flexpend run --figures`` (``Run.save(figures=)``) writes: the PNGs, or none (nothing
+#: drawn; the CSV files and the summary are the same).
+FIGURES = ("png", "none")
+
+
+def check_figures(figures) -> str:
+    """``figures`` if it is one of :data:`FIGURES`, else a ValueError naming it."""
+    if figures not in FIGURES:
+        raise ValueError(f"figures = {figures!r} is not allowed; allowed: "
+                         + ", ".join(repr(f) for f in FIGURES))
+    return figures
 
 
 def canvas(width: float, height: float, renderer: str = "matplotlib"):

@@ -19,10 +19,10 @@ from functools import lru_cache
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from .layout import SUPERSCRIPT, Grid
+from .layout import NOTE_GAP, SUPERSCRIPT, Grid
 
 __all__ = ["RasterCanvas", "RasterPanel", "nice_ticks", "log_ticks", "symlog_ticks",
-           "tick_text", "font_path", "rgb", "write_png", "DPI", "OVERSAMPLE"]
+           "tick_text", "font_path", "rgb", "DPI", "OVERSAMPLE"]
 
 #: Dots per inch of the PNG (as ``save_figure``'s default), and the factor it is drawn larger by.
 DPI = 110
@@ -37,6 +37,8 @@ TICK, TICK_W, MINOR, MINOR_W, TICK_PAD, LABEL_PAD, TITLE_PAD, FRAME_W = (
     3.5, 0.8, 2.0, 0.6, 3.5, 4.0, 6.0, 0.8)
 #: The grid: matplotlib's #b0b0b0 at alpha 0.3, as it shows on white (drawn opaque: no layer).
 GRID_COLOR, GRID_W, MARGIN = "#e7e7e7", 0.8, 0.05
+#: The line width of an outlined span (``xspan(outline=True)``), points.
+OUTLINE_W = 1.0
 #: (on, off) lengths of a line style, in line widths (matplotlib's, scaled by the width).
 DASHES = {"--": (3.7, 1.6), ":": (1.0, 1.65), "-.": (6.4, 1.6, 1.0, 1.6)}
 
@@ -298,37 +300,15 @@ class RasterCanvas:
         return pen.img
 
     def save(self, path, dpi: int = DPI, fmt: str = "png"):
-        """Write the figure to ``path`` as PNG (:func:`write_png`)."""
+        """Write the figure to ``path`` as PNG, by Pillow at ``files.PNG_COMPRESS_LEVEL``
+        (:func:`~orchestration.report.files.save_figure` writes it under a temporary name and
+        renames it into place)."""
         if fmt != "png":
             raise ValueError(f"the raster renderer writes PNG files, not {fmt!r}; use "
                              "renderer='matplotlib' for other formats")
-        write_png(self.image(dpi), path)
+        from .files import PNG_COMPRESS_LEVEL
 
-
-def write_png(img: Image.Image, path) -> None:
-    """``img`` (RGB) as a PNG file: every row filtered by "Up" (its difference from the row
-    above), zlib at ``files.PNG_COMPRESS_LEVEL``. Pillow's own encoder tries every filter on
-    every row of an RGB image: three times the time for a file of the same size."""
-    import struct
-    import zlib
-
-    from .files import PNG_COMPRESS_LEVEL
-
-    rows = np.asarray(img if img.mode == "RGB" else img.convert("RGB"))
-    h, w = rows.shape[:2]
-    rows = rows.reshape(h, 3 * w)
-    raw = np.empty((h, 3 * w + 1), np.uint8)
-    raw[:, 0] = 2                                   # the filter: Up
-    raw[0, 1:] = rows[0]
-    np.subtract(rows[1:], rows[:-1], out=raw[1:, 1:])   # modulo 256
-
-    with open(path, "wb") as f:
-        f.write(b"\x89PNG\r\n\x1a\n")
-        for kind, data in ((b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)),
-                           (b"IDAT", zlib.compress(raw, PNG_COMPRESS_LEVEL)), (b"IEND", b"")):
-            f.write(struct.pack(">I", len(data)) + kind)
-            f.write(data)
-            f.write(struct.pack(">I", zlib.crc32(data, zlib.crc32(kind))))
+        self.image(dpi).save(path, format="PNG", compress_level=PNG_COMPRESS_LEVEL)
 
 
 class RasterPanel:
@@ -345,6 +325,8 @@ class RasterPanel:
         self.grid_at = None                     # True: at the ticks; (xs, ys): there
         self.label_size = 10.0
         self.legend_spec = None                 # (loc, size, outside)
+        self.notes: list = []                   # (text, size, color): above the frame
+        self.note_boxes: list = []              # their (left, top, right, bottom), drawn
         self.hidden = False
         self.equal = False
         self.x_tick_labels = True
@@ -376,8 +358,9 @@ class RasterPanel:
     def vline(self, x, *, color="k", lw=1.0, style="-", label=None):
         self._add("vline", 2, x=float(x), color=color, lw=lw, style=style, label=label)
 
-    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None):
-        self._add("xspan", 1, lo=float(lo), hi=float(hi), color=color, alpha=alpha, label=label)
+    def xspan(self, lo, hi, *, color="C2", alpha=None, label=None, outline=False):
+        self._add("xspan", 1, lo=float(lo), hi=float(hi), color=color, alpha=alpha, label=label,
+                  outline=bool(outline))
 
     def rect(self, x, y, width, height, *, color="C1"):
         self._add("rect", 1, x=float(x), y=float(y), w=float(width), h=float(height),
@@ -390,6 +373,10 @@ class RasterPanel:
                              "'xaxis'")
         self._add("text", 3, x=float(x), y=float(y), text=text, coords=coords, size=size,
                   color=color, ha=ha, va=va)
+
+    def note(self, text, *, size=7.0, color="C3"):
+        """A note in the strip above the panel's frame, right-aligned: never on the data."""
+        self.notes.append((text, size, color))
 
     def xlabel(self, text, *, size=8.0, pad=None):
         self.x_label = (text, size, LABEL_PAD if pad is None else pad)
@@ -538,6 +525,13 @@ class RasterPanel:
             if kind == "text":
                 x, y = self.to_px(d["x"], d["y"], d["coords"])
                 pen.text(float(x), float(y), d["text"], d["size"], d["color"], d["ha"], d["va"])
+        self.note_boxes = []
+        x = right
+        for text, size, color in self.notes:            # right to left, above the frame
+            y = top - NOTE_GAP * pen.scale
+            w, h = pen.text(x, y, text, size, color, "right", "bottom")
+            self.note_boxes.append((x - w, y - h, x, y))
+            x -= w + pen.length("  ", size)
         if self.legend_spec is not None:
             entries = self.legend_entries()
             loc, size, outside = self.legend_spec
@@ -574,6 +568,11 @@ class RasterPanel:
                 x, _ = self.to_px(d["x"], 0.0)
                 px, py = np.array([x, x]), np.array([top, bottom])
             pen.polyline(px, py, d["color"], d["lw"], d["style"], None)
+        elif kind == "xspan" and d["outline"]:         # its edges, dashed: not filled
+            (x0, x1), _ = self.to_px([d["lo"], d["hi"]], [0.0, 0.0])
+            for x in (x0, x1):
+                pen.polyline(np.array([x, x]), np.array([top, bottom]), d["color"], OUTLINE_W,
+                             "--", None)
         elif kind == "xspan":
             (x0, x1), _ = self.to_px([d["lo"], d["hi"]], [0.0, 0.0])
             pen.box(x0, top, x1, bottom, d["color"], d["alpha"])
@@ -870,7 +869,11 @@ class _Pen:
             self.text(cx + handle + gap, cy, str(d["label"]), size, "k", "left", "center")
 
     def _handle(self, kind, d, x, y, length, fs):
-        if kind == "xspan":
+        if kind == "xspan" and d.get("outline"):
+            y0, y1 = y - 0.35 * fs, y + 0.35 * fs
+            self.polyline(np.array([x, x + length, x + length, x, x]),
+                          np.array([y0, y0, y1, y1, y0]), d["color"], OUTLINE_W, "--", None)
+        elif kind == "xspan":
             self.box(x, y - 0.35 * fs, x + length, y + 0.35 * fs, d["color"], d["alpha"])
         elif kind == "markers":
             self.markers([x + length / 2], [y], d["marker"], d["color"], d["size"],

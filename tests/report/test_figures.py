@@ -36,9 +36,10 @@ def texts(fig):
 
 def assert_labels_fit(fig):
     """Everything drawn lies inside the figure (the axes with their titles, labels, tick labels
-    in view and legends; the figure's title, texts and legends), a note written inside an axes
-    stays inside it, and no title (the figure's or an axes') overlaps another title or an axes'
-    drawing area."""
+    in view and legends; the figure's title, texts and legends), a text written inside an axes
+    stays inside it, a panel's note (``panel.note``, above the frame) inside the figure and off
+    every axes' drawing area, and no title (the figure's or an axes') overlaps another title or
+    an axes' drawing area."""
     renderer = drawn(fig)
     box = fig.bbox
 
@@ -49,8 +50,15 @@ def assert_labels_fit(fig):
         if ax.get_visible():
             inside(ax.get_tightbbox(renderer), f"axes {ax.get_title() or ax.get_ylabel()!r}")
             frame = ax.get_window_extent(renderer)
-            for t in ax.texts:                      # a note inside the axes stays inside them
+            for t in ax.texts:                      # a text inside the axes stays inside them
                 b = t.get_window_extent(renderer)
+                if t.get_gid() == "note":           # a note: off every axes' data
+                    inside(b, f"note {t.get_text()!r}")
+                    for other in fig.axes:
+                        assert not (other.get_visible()
+                                    and b.overlaps(other.get_window_extent(renderer))), \
+                            f"note on an axes: {t.get_text()!r}"
+                    continue
                 assert (b.x0 >= frame.x0 - 1 and b.x1 <= frame.x1 + 1 and b.y0 >= frame.y0 - 1
                         and b.y1 <= frame.y1 + 1), f"crosses the axes' border: {t.get_text()!r}"
     for t in [fig._suptitle, *fig.texts, *fig.legends]:
@@ -485,7 +493,8 @@ def _raster_structure(fig) -> dict:
                        else []),
             "lines": sum(k in ("line", "markers", "hline", "vline") for k in kinds),
             "patches": sum(k in ("xspan", "rect") for k in kinds),
-            "texts": sorted(d["text"] for k, _, d in p.items if k == "text")})
+            "texts": sorted([d["text"] for k, _, d in p.items if k == "text"]
+                            + [n[0] for n in p.notes])})
     return {"title": fig.suptitle[0] if fig.suptitle else None,
             "texts": [t[2] for t in fig.texts], "panels": panels,
             "legend": ([str(d["label"]) for p in fig.panels_made if not p.hidden

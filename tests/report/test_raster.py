@@ -144,11 +144,11 @@ def test_a_failed_write_leaves_the_earlier_file_whole(tmp_path, monkeypatch):
     path = save_figure(fig, tmp_path / "f.png")
     before = path.read_bytes()
 
-    def full_disk(img, p):
+    def full_disk(img, p, **kwargs):
         with open(p, "wb") as f:
             f.write(b"\x89PNG half")
         raise OSError(28, "No space left on device")
-    monkeypatch.setattr(raster, "write_png", full_disk)
+    monkeypatch.setattr(Image.Image, "save", full_disk)
     with pytest.raises(OutputError, match="f.png"):
         save_figure(fig, path)
     assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["f.png"]
