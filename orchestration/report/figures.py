@@ -24,8 +24,8 @@ from .plotting import canvas
 __all__ = ["time_histories", "snapshots", "beam_shape", "paper_overview", "mode_shapes",
            "root_map", "loop_bode", "root_locus", "worst_case", "new_figure", "scene_title",
            "plant_text", "controller_text", "initial_text", "loop_text", "outcome_text",
-           "root_text", "bending_band", "DEFLECTION_SCALE", "ticks_in_view", "plain_log_labels",
-           "SUPERSCRIPT"]
+           "root_text", "RATE_CONVENTION", "bending_band", "DEFLECTION_SCALE", "ticks_in_view",
+           "plain_log_labels", "SUPERSCRIPT"]
 
 
 def _wrapped(text: str, width: int = 95) -> str:
@@ -38,6 +38,11 @@ def _wrapped(text: str, width: int = 95) -> str:
 #: (those of a rigid model leave out what only the beam's bending depends on).
 _PHYSICAL = ("m", "L", "rho", "EA", "E", "EI", "g", "gravity_preload", "n_elements")
 _BENDING_ONLY = ("EI", "gravity_preload", "n_elements")
+
+
+#: The sign convention of every rate a figure states, as the text summaries state it (``rate
+#: -0.643 1/s``): the real part of a root; a figure that states rates names it once.
+RATE_CONVENTION = "growth rate σ = Re(λ), 1/s; negative decays"
 
 
 def root_text(z) -> str:

@@ -1,6 +1,8 @@
-"""The sweep's figure: a heat map, line plots or a histogram of the decay rates. Each counts the
-runs' verdicts with "undetermined" (no fit decides, or stopped early) apart from "unstable", and
-each quantity has an axis of its own, with its unit.
+"""The sweep's figure: a heat map, line plots or a histogram of the runs' largest growth rates
+(the figures' one sign convention, :data:`~orchestration.report.figures.RATE_CONVENTION`: the
+table's ``decay_rate`` with its sign turned). Each counts the runs' verdicts with "undetermined"
+(no fit decides, or stopped early) apart from "unstable", and each quantity has an axis of its
+own, with its unit.
 """
 from __future__ import annotations
 
@@ -9,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..report.figures import new_figure
+from ..report.figures import RATE_CONVENTION, new_figure
 from ..report.files import save_figure
 from .plan import SweepPlan, design_worst_case
 
@@ -35,8 +37,10 @@ def _ticks(ax, axis, values, which):
 
 
 def _value(r, column):
-    """A run's value of ``column``, NaN where it has none: a fit only from a completed run, the
-    linearised loop's from any run that had one."""
+    """A run's value of ``column`` (``-column``: its negative), NaN where it has none: a fit only
+    from a completed run, the linearised loop's from any run that had one."""
+    if column.startswith("-"):
+        return -_value(r, column[1:])
     v = r.get(column) if r["status"] == "ok" or "linear" in column else None
     return math.nan if v is None else v
 
@@ -85,21 +89,22 @@ def plot_sweep(plan: SweepPlan, rows, path: Path) -> Path | None:
 
 
 def sweep_figure(plan: SweepPlan, rows):
-    """Heat map (2 swept axes), line plots (1 axis) or histogram (a sample) of the decay rate
-    ``-max(fitted rate)``, the verdicts counted in the title; None when the sweep has no such
-    shape."""
+    """Heat map (2 swept axes), line plots (1 axis) or histogram (a sample) of the largest
+    growth rate ``σ = max(fitted rate)`` (minus the table's ``decay_rate``; negative: every mode
+    decays), the verdicts counted in the title; None when the sweep has no such shape."""
 
     title = f"flexpend sweep {plan.scene.name}" + (
         f" ({' '.join('--set ' + o for o in plan.overrides)})" if plan.overrides else "")
+    rates = f"rates: {RATE_CONVENTION}"
     if plan.samplers:
         fig = new_figure(8, 5)
         ax = fig.subplots()
-        vals = np.array([_value(r, "decay_rate") for r in rows])
+        vals = np.array([_value(r, "-decay_rate") for r in rows])
         vals = vals[np.isfinite(vals)]
-        lin = np.array([r.get("linear_decay_rate") for r in rows if r["status"] == "ok"
-                        and r.get("linear_decay_rate") is not None], dtype=float)
+        lin = -np.array([r.get("linear_decay_rate") for r in rows if r["status"] == "ok"
+                         and r.get("linear_decay_rate") is not None], dtype=float)
         design = design_worst_case(plan)
-        marks = [*vals, *lin, *([] if design is None else [design.decay])]
+        marks = [*vals, *lin, *([] if design is None else [-design.decay])]
         if marks:
             lo, hi = min(marks), max(marks)
             pad = 0.05 * (hi - lo or 1.0)
@@ -107,44 +112,44 @@ def sweep_figure(plan: SweepPlan, rows):
                                max(10, min(60, int(np.sqrt(max(len(vals), len(lin)))) * 2)))
             if len(vals):
                 ax.hist(vals, bins=bins, color="C0", edgecolor="white",
-                        label="co-simulation: -max(fitted rate)")
+                        label="co-simulation: max(fitted σ)")
             if len(lin):
                 ax.hist(lin, bins=bins, histtype="step", color="C1", lw=1.5,
-                        label="linearised loop: -max Re(lambda)")
+                        label="linearised loop: max Re(λ)")
             if len(vals):
-                ax.axvline(vals.min(), color="C0", lw=1.2, ls=":",
-                           label=f"worst fitted {vals.min():+.4g} 1/s")
+                ax.axvline(vals.max(), color="C0", lw=1.2, ls=":",
+                           label=f"worst fitted σ = {vals.max():+.4g} 1/s")
             if design is not None:
-                ax.axvline(design.decay, color="k", lw=1.2, ls="--",
+                ax.axvline(-design.decay, color="k", lw=1.2, ls="--",
                            label=f"flexpend design's worst case over the set (linear) "
-                                 f"{design.decay:+.4g} 1/s")
+                                 f"σ = {-design.decay:+.4g} 1/s")
             if lo - pad < 0 < hi + pad:
-                ax.axvline(0.0, color="r", lw=1, label="0: grows to the left")
+                ax.axvline(0.0, color="r", lw=1, label="0: grows to the right")
             ax.legend(fontsize=8)
         else:
-            ax.text(0.5, 0.5, "no run has a reliable fit or a linearised loop: no decay rate "
+            ax.text(0.5, 0.5, "no run has a reliable fit or a linearised loop: no growth rate "
                     "to show", transform=ax.transAxes,
                     ha="center", va="center", fontsize=9, color="0.3")
-        ax.set_xlabel("decay rate, 1/s")
+        ax.set_xlabel("largest growth rate σ, 1/s")
         ax.set_ylabel("runs")
         from matplotlib.ticker import MaxNLocator
         ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         keys = ", ".join(s.key for s in plan.samplers)
         ax.set_title(f"{title}\n{len(rows)} runs ({len(plan.points) // max(plan.n_samples, 1)} "
                      f"x {plan.n_samples} samples of {keys}, seed {plan.seed})\n"
-                     f"{verdict_text(rows)}", fontsize=9)
+                     f"{verdict_text(rows)}\n{rates}", fontsize=9)
     elif len(plan.axes) == 1:
         axis = plan.axes[0]
         x = np.arange(len(axis.values))
         panels = [
-            ([("decay_rate", "co-simulation: -max(fitted rate)", "k-o"),
-              ("linear_decay_rate", "linearised loop: -max Re(lambda)", "k:")],
-             "decay rate, 1/s\n(> 0: decays)"),
+            ([("-decay_rate", "co-simulation: max(fitted σ)", "k-o"),
+              ("-linear_decay_rate", "linearised loop: max Re(λ)", "k:")],
+             "largest growth rate\nσ, 1/s"),
             ([("slow_rate", "fitted", "C0-s"), ("slow_rate_linear", "linearised loop", "C0:")],
-             "slow (rigid) mode:\nrate Re(lambda), 1/s"),
+             "slow (rigid) mode:\nσ = Re(λ), 1/s"),
             ([("bending_rate", "fitted", "C1-^"),
               ("bending_rate_linear", "linearised loop", "C1:")],
-             "bending mode:\nrate Re(lambda), 1/s")]
+             "bending mode:\nσ = Re(λ), 1/s")]
         # a mode's panel only where some run has that mode (fitted or linear)
         panels = panels[:1] + [pn for pn in panels[1:] if any(
             math.isfinite(_value(r, col)) for r in rows for col, _, _ in pn[0])]
@@ -167,11 +172,12 @@ def sweep_figure(plan: SweepPlan, rows):
         strip.set_ylabel("verdict", fontsize=8)
         strip.grid(alpha=0.3, axis="x")
         _ticks(strip, axis, axis.values, "x")
-        axes[0].set_title(f"{title}\n{verdict_text(rows)}", fontsize=9)
+        axes[0].set_title(f"{title}\n{verdict_text(rows)}\n{rates}", fontsize=9)
     elif len(plan.axes) == 2:
         from matplotlib.colors import TwoSlopeNorm
         ax0, ax1 = plan.axes
-        grid = np.array([_value(r, "decay_rate") for r in rows]).reshape(len(ax0.values), len(ax1.values))
+        grid = np.array([_value(r, "-decay_rate") for r in rows]).reshape(len(ax0.values),
+                                                                           len(ax1.values))
         fig = new_figure(9, 6.5)
         ax = fig.subplots()
         finite = grid[np.isfinite(grid)]
@@ -180,7 +186,7 @@ def sweep_figure(plan: SweepPlan, rows):
         lim = max(float(np.percentile(np.abs(finite), 95)) if finite.size else 1.0, 1e-12)
         from matplotlib import colormaps
         im = ax.imshow(np.ma.masked_invalid(grid.T), origin="lower", aspect="auto",
-                       cmap=colormaps["RdBu"].with_extremes(bad="0.8"),
+                       cmap=colormaps["RdBu_r"].with_extremes(bad="0.8"),
                        norm=TwoSlopeNorm(vmin=-lim, vcenter=0.0, vmax=lim))
         if grid.size <= 150:
             for (i, j), v in np.ndenumerate(grid):
@@ -197,9 +203,9 @@ def sweep_figure(plan: SweepPlan, rows):
         _ticks(ax, ax0, ax0.values, "x")
         _ticks(ax, ax1, ax1.values, "y")
         fig.colorbar(im, ax=ax, extend="both",
-                     label="decay rate -max(fitted rate), 1/s (red: grows)")
+                     label="largest growth rate σ = max(fitted rate), 1/s (red: grows)")
         ax.set_title(f"{title}\n{verdict_text(rows)}\ngrey: undetermined (no fit decides); "
-                     "x: stopped early", fontsize=9)
+                     f"x: stopped early\n{rates}", fontsize=9)
     else:
         return None
     fig.tight_layout()

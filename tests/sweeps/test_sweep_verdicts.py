@@ -4,6 +4,7 @@ the linearised loop says instead; the plot gives each quantity an axis of its ow
 and a legend of the series it drew (orchestration/sweeps/, orchestration/report/text.py)."""
 import json
 
+import numpy as np
 import pytest
 
 from orchestration.api import analyze
@@ -89,11 +90,19 @@ def test_line_plot_gives_each_quantity_its_axis_and_unit_and_no_empty_legend():
     plan = plan_sweep("flexible_pd_lowpass", values=["controller.kp=400,500,600,700"])
     fig = sweep_figure(plan, rows_of_each_kind())
     decay, slow, bending, strip = fig.axes
-    assert decay.get_ylabel() == "decay rate, 1/s\n(> 0: decays)"
-    assert slow.get_ylabel() == "slow (rigid) mode:\nrate Re(lambda), 1/s"
-    assert bending.get_ylabel() == "bending mode:\nrate Re(lambda), 1/s"
-    assert legend(decay) == ["co-simulation: -max(fitted rate)",
-                             "linearised loop: -max Re(lambda)"]
+    assert decay.get_ylabel() == "largest growth rate\nσ, 1/s"
+    assert slow.get_ylabel() == "slow (rigid) mode:\nσ = Re(λ), 1/s"
+    assert bending.get_ylabel() == "bending mode:\nσ = Re(λ), 1/s"
+    assert legend(decay) == ["co-simulation: max(fitted σ)", "linearised loop: max Re(λ)"]
+    # one sign convention: the largest growth rate is the slow mode's rate where it is the
+    # only one (the table's decay_rate with its sign turned), the same sign in both panels
+    rows = rows_of_each_kind()
+    fitted = decay.get_lines()[0].get_ydata()
+    np.testing.assert_array_equal(fitted, [-0.6, np.nan, 0.1, np.nan])
+    np.testing.assert_array_equal(slow.get_lines()[0].get_ydata(),
+                                  [r["slow_rate"] if r["slow_rate"] is not None else np.nan
+                                   for r in rows])
+    assert "rates: growth rate σ = Re(λ), 1/s; negative decays" in decay.get_title()
     assert legend(slow) == ["fitted", "linearised loop"]
     assert legend(bending) == ["linearised loop"]      # no run has a fitted bending rate
     # the verdict strip: each run on its own row, "undetermined" apart from "unstable"
@@ -103,8 +112,8 @@ def test_line_plot_gives_each_quantity_its_axis_and_unit_and_no_empty_legend():
     assert [cats[int(line.get_ydata()[0])] for line in strip.get_lines()] == \
         ["stable", "undetermined", "unstable", "stopped early"]
     assert strip.get_xlabel() == "controller.kp"
-    assert decay.get_title().endswith("verdicts: 1 stable, 1 unstable, 2 undetermined (1 whose "
-                                      "fits do not decide, 1 stopped early)")
+    assert decay.get_title().splitlines()[1] == ("verdicts: 1 stable, 1 unstable, 2 undetermined "
+                                                 "(1 whose fits do not decide, 1 stopped early)")
 
 
 def test_line_plot_without_any_mode_has_no_mode_axes():
@@ -112,7 +121,8 @@ def test_line_plot_without_any_mode_has_no_mode_axes():
     rows = [{"run": i, "status": "ok", "stable": None, "verdict": "undetermined",
              "decay_rate": None, "linear_decay_rate": 0.6} for i in range(2)]
     decay, strip = sweep_figure(plan, rows).axes
-    assert legend(decay) == ["linearised loop: -max Re(lambda)"]
+    assert legend(decay) == ["linearised loop: max Re(λ)"]
+    np.testing.assert_array_equal(decay.get_lines()[0].get_ydata(), [-0.6, -0.6])
     assert "2 undetermined (2 whose fits do not decide)" in decay.get_title()
 
 
@@ -127,5 +137,6 @@ def test_heat_map_and_histogram_count_the_verdicts():
     plan = plan_sweep("flexible_pd_lowpass", samples=["controller.kp=uniform:400:700"],
                       n_samples=4)
     ax = sweep_figure(plan, rows).axes[0]
-    assert ax.get_xlabel() == "decay rate, 1/s" and ax.get_ylabel() == "runs"
+    assert ax.get_xlabel() == "largest growth rate σ, 1/s" and ax.get_ylabel() == "runs"
+    assert "worst fitted σ = +0.1 1/s" in legend(ax) and "0: grows to the right" in legend(ax)
     assert "verdicts: 1 stable, 1 unstable, 2 undetermined" in ax.get_title()
