@@ -17,7 +17,7 @@ the scene's own beam (``rigid_pd``: the rigid model, ``n_modes = 0``, on its sti
 h = 0.1 ms) gives its uncertainty (the coarse-fine difference, which bounds the fine run's error
 when the method converges; both are quoted), added to every measured error.
 
-Damping laws (MODEL.md section 7), named: the exact reference damps by material, Kelvin-Voigt
+Damping laws (docs/model.md section 7), named: the exact reference damps by material, Kelvin-Voigt
 with the scene's ``zeta`` (:data:`EXACT_LAW`: its own law, the only one it takes with damping);
 the rungs run under ``--law`` (:data:`LAW`): ``modal`` (the paper's reading and the product's
 default), as ``validity_bound.json`` was measured, so that its errors include the two laws'

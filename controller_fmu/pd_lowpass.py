@@ -1,4 +1,4 @@
-"""PD on the tip sensors followed by a unit-DC-gain low-pass filter (MODEL.md section 5).
+"""PD on the tip sensors followed by a unit-DC-gain low-pass filter (docs/model.md section 5).
 
     e   = kp*phi_o + kd*omega_o + kx*x_o
     F_c = -H(s) e,   H = 1 (order 0),  wc/(s + wc) (order 1),  wc^2/(s^2 + 2 zf wc s + wc^2) (order 2)
@@ -36,7 +36,7 @@ class ControllerParams:
 
     The defaults are the paper's PD (``kp = 500``, ``kd = 5``) and the robust second-order
     filter that ``flexpend design`` chooses for it (97.3 rad/s, damping 0.1; ``docs/spillover.md``).
-    MODEL.md's acceptance table also uses 150 rad/s with damping 0.5.
+    docs/model.md's acceptance table also uses 150 rad/s with damping 0.5.
     """
 
     kp: float = real(500.0, "proportional gain on phi_o", "N/rad", low=-1e12,

@@ -107,6 +107,7 @@ class Run:
 
     @property
     def name(self) -> str:
+        """The scene's name (its file's stem, or the name its dict or SSP archive gives)."""
         return self.scene.name
 
     def __repr__(self) -> str:
@@ -123,6 +124,9 @@ class Run:
 
     @functools.cached_property
     def facts(self) -> ReportFacts:
+        """What the run's figures draw besides the summary: its linearised loop's roots, the
+        bending band (:class:`~orchestration.studies.summary.ReportFacts`), computed on first
+        use."""
         return report_facts(self.scene)
 
     @property

@@ -3,13 +3,13 @@
 The beam is clamped in its floating frame at the hinge (``s = 0``) and free at the tip. Its
 transverse deflection is ``w(s) = N(s) eta`` with ``N`` the first ``n`` mass-normalised cantilever
 modes of an Euler-Bernoulli finite-element model (consistent mass). From these modes come the
-invariants of MODEL.md section 3::
+invariants of docs/model.md section 3::
 
     I0 = m + rhoA L     I1 = int rhoA s ds       I2 = int rhoA s^2 ds
     I3 = int rhoA N ds  I4 = int rhoA N^T N ds   I5 = int rhoA s N ds
 
 with ``I4 = identity`` (mass normalisation), the modal stiffness ``K = diag(omega_j^2)``, the
-damping ``D`` of the law ``p.damping`` (MODEL.md section 7: ``"modal"``, ``D = diag(2 zeta
+damping ``D`` of the law ``p.damping`` (docs/model.md section 7: ``"modal"``, ``D = diag(2 zeta
 omega_j)``; ``"kelvin-voigt"``, ``D = beta K = diag(2 zeta omega_j^2 / omega_1)`` with ``beta =
 2 zeta / omega_1``, the material stiffness's alone: the geometric stiffness ``Kg`` is not
 damped), the tip deflection ``N(L)`` and the tip slope ``N'(L)``. All integrals of the

@@ -1,5 +1,5 @@
-"""Equations of motion of the cart with a flexible beam (MODEL.md section 4), their exact Jacobian
-and their linearisation.
+"""Equations of motion of the cart with a flexible beam (docs/model.md section 4), their exact
+Jacobian and their linearisation.
 
 Generalised coordinates ``q = [x, phi, eta_1..eta_n]``; the state is ``[q, qd]`` (length
 ``2*(n+2)``), the input is the force on the cart ``F_c``. With ``c = cos(phi)``, ``s = sin(phi)``::

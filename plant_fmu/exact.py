@@ -218,7 +218,7 @@ class FrameModalDamping:
     frame gives each of its cantilever modes.
 
     The frame is the floating frame's: its origin the root ``r_0 = (x, 0)``, its axes
-    ``b1 = r'_0 / |r'_0|`` along the root tangent and ``b2 = (-b1_y, b1_x)`` (MODEL.md's
+    ``b1 = r'_0 / |r'_0|`` along the root tangent and ``b2 = (-b1_y, b1_x)`` (docs/model.md's
     ``b2 = (-cos phi, -sin phi)``). The beam's deformation in it, ``d``, is the root slope's
     stretch ``|r'_0| - 1`` and, at every other node, ``u = b1.(r_i - r_0) - s_i``,
     ``w = b2.(r_i - r_0)``, ``u' = b1.r'_i - 1``, ``w' = b2.r'_i``; a rigid motion of the beam

@@ -1,7 +1,7 @@
 """The plant's parameter record: Table 1 of Tang & Ren, validated in one place.
 
-The defaults are the paper's dimensionless sample (MODEL.md section 1). The paper gives EA and EI
-but not the cross-section; with ``E = 2.1e11`` the area is ``A = EA/E = 2e-3`` and the beam's mass
+The defaults are the paper's dimensionless sample (docs/model.md section 1). The paper gives EA and
+EI but not the cross-section; with ``E = 2.1e11`` the area is ``A = EA/E = 2e-3`` and the beam's mass
 per unit length is ``rhoA = rho*A = 15.6``.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from fmu_common.checks import (boolean, check_fields, choice, integer, real,
 __all__ = ["PlantParams", "MAX_ELEMENTS", "POSITIVE_MIN", "DAMPING_LAWS",
            "damping_text"]
 
-#: The beam's damping laws (MODEL.md section 7), ``plant.damping``:
+#: The beam's damping laws (docs/model.md section 7), ``plant.damping``:
 #:
 #: * ``"modal"``: the same ratio ``zeta`` in every cantilever mode, ``D = diag(2 zeta omega_j)``
 #:   (the paper's "zeta = 0.1 %" read as this law; the default);

@@ -1,7 +1,7 @@
 /*
  * fp_filter.h - the compiled kernel of the controller: PD on the tip sensors, then a unit-DC-gain
  * low-pass filter of order 0, 1 or 2, discretised exactly over a step (controller_fmu/pd_lowpass.py
- * is the readable specification; MODEL.md section 5):
+ * is the readable specification; docs/model.md section 5):
  *
  *     e   = kx x_o + kp phi_o + kd omega_o
  *     F_c = -sat(H(s) e),  H = 1, wc / (s + wc) or wc^2 / (s^2 + 2 zf wc s + wc^2)

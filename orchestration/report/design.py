@@ -34,6 +34,8 @@ class DesignReport:
     record: dict = field(default_factory=dict)     # design.json, once saved
 
     def to_json(self) -> dict:
+        """What ``flexpend design --json`` prints: the chosen filter under its scene keys, its
+        worst case, the best filter of each order, the loop without a filter and the given one."""
         return self.result.to_json()
 
     def figures(self) -> dict:

@@ -150,7 +150,7 @@ def max_real_part(p: PlantParams, c: ControllerParams, gain: float = 1.0) -> flo
 def first_bending_frequency(p: PlantParams) -> float | None:
     """The plant's first open-loop oscillation (rad/s): its first bending mode with the hinge
     free (152.5 rad/s for the paper's beam; the cantilever's is 26.3 rad/s). The loop's root
-    near it is the one the PD destabilises (MODEL.md); None for the rigid model."""
+    near it is the one the PD destabilises (docs/model.md); None for the rigid model."""
     if p.n_modes == 0:
         return None
     lam = np.linalg.eigvals(_plant_state_space(p)[0])
@@ -366,6 +366,9 @@ class Analysis:
         return sorted(rows, key=lambda r: r[2])
 
     def to_json(self) -> dict:
+        """What ``flexpend analyze --json`` prints: the loop, the plant's and the controller's
+        parameters, the cantilever frequencies, the open- and closed-loop eigenvalues as
+        ``[real, imag]``, the modes, ``max_real_part``, ``stable`` and the margins."""
         out = {"loop": self.loop} if self.loop else {}
         if self.plant is not None:
             out["plant"] = dataclasses.asdict(self.plant)

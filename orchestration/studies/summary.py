@@ -5,8 +5,8 @@ the run's measured model-form error bound.
 slow, rigid-pendulum one on ``phi_o`` (0.5 to 60 rad/s) and the bending one on ``eta_1``: the
 largest oscillation within 30 % of the plant's first bending mode with the hinge free (its first
 open-loop oscillation, 152.5 rad/s for the paper's beam; the loop's mode near it is the one the
-PD destabilises, MODEL.md), so that a filter's own mode (near 95 rad/s with the designed filter)
-is not taken for it. Both are fitted only over the part of the run where the linearisation at the upright
+PD destabilises, docs/model.md), so that a filter's own mode (near 95 rad/s with the designed
+filter) is not taken for it. Both are fitted only over the part of the run where the linearisation at the upright
 rest state holds: the longest stretch with ``|phi| <= LINEAR_PHI`` (the frame's rotation; ``sin``
 and ``cos`` within 0.7 % and 2 % of their linear values) and the tip deflection within
 ``FIT_DEFLECTION`` (5 % of L: the fitted modes are the loop's linearised at rest). A fit is

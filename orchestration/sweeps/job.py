@@ -30,6 +30,8 @@ class Sweep:
 
     @property
     def rows(self) -> list:
+        """One dict per run, as the table's rows: the values, the verdict, the fits, the error
+        and the wall time, or the message of a failed run."""
         return self.result.rows
 
     def __repr__(self) -> str:

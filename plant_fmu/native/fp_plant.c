@@ -1094,8 +1094,8 @@ int fp_output_derivatives(const fp_plant *p, const double *x, double u, double d
     }
     /* the energy: the power balance dE/dt = F_c xd - etad.D.etad (+ the power of the skew part of
      * Kg, c (etad.Kg.eta - eta.Kg.etad) / 2, zero for a symmetric Kg): exact, since the equations
-     * are Lagrange's for the kinetic and potential energies fp_energy sums (MODEL.md, section 4;
-     * tests/plant/test_lagrange.py) with the Rayleigh damping and the force on the cart. */
+     * are Lagrange's for the kinetic and potential energies fp_energy sums (docs/model.md,
+     * section 4; tests/plant/test_lagrange.py) with the Rayleigh damping and the force on the cart. */
     P = u * qd[0] - diss;
     dP = du * qd[0] + u * a[0] - ddiss;
     if (p->preload) {

@@ -1,7 +1,7 @@
 /*
  * fp_plant.h - the compiled kernel of the flexible inverted pendulum (the plant).
  *
- * The same equations as plant_fmu/dynamics.py (the readable numpy specification; MODEL.md
+ * The same equations as plant_fmu/dynamics.py (the readable numpy specification; docs/model.md
  * section 4): a cart of position x with an elastic beam hinged on it, floating frame of reference,
  * n cantilever modes. Generalised coordinates q = [x, phi, eta_1..eta_n]; the state is
  * x = [q, qd] (2 (n + 2) doubles); the input is the force on the cart F_c.
