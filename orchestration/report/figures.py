@@ -346,8 +346,8 @@ def time_histories(result, scene, reference=None, summary=None, *, facts,
         if stopped and stopped.get("time") is not None:
             for ax in axes:
                 ax.vline(stopped["time"], color="C3", lw=0.8)
-            axes[0].text(stopped["time"], 0.97, "stopped ", coords="xaxis", color="C3", size=8,
-                         va="top", ha="right")
+            axes[0].note(f"stopped at t = {stopped['time']:.4g} s (the red line)", color="C3",
+                         size=8)
     for col, ax in ax_of.items():
         if legend[col]:
             ax.legend(loc="upper left" if col == "tip_deflection" else "upper right", size=7)

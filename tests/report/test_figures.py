@@ -226,7 +226,7 @@ def test_a_stopped_runs_figure_marks_the_stop_inside(native):
     assert "STOPPED at t = 0.402 s: the beam tilted past plant.phi_limit" in \
         fig._suptitle.get_text()
     assert_labels_fit(fig)
-    assert any(t.get_text().strip() == "stopped" for t in texts(fig))
+    assert any(t.get_text().startswith("stopped at t = 0.402 s") for t in texts(fig))  # a note
     shapes = run.plot_shapes()                      # eight times over what ran, not one
     assert sum(ax.get_visible() for ax in shapes.axes) == 8
 

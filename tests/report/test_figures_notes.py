@@ -81,3 +81,21 @@ def test_two_notes_stand_side_by_side_above_the_frame(renderer):
         for box in (a, b):
             for ax in mpl.axes:
                 assert not box.overlaps(ax.get_window_extent(r))
+
+
+def test_a_stopped_runs_label_is_a_note_off_the_data(fmus):
+    """A run the plant stops (kp = 50 cannot hold the rigid pendulum: it falls past
+    plant.phi_limit) says where in a note above the first panel, off every panel's data area;
+    the time is the summary's."""
+    run = simulate("rigid_pd", {"controller.kp": 50, "stop_time": 3})
+    stopped = run.summary["stopped"]
+    assert stopped and stopped["time"] < 3
+    fig = run.plot("raster")
+    fig.image()
+    panels = [p for p in fig.panels_made if not p.hidden]
+    texts = [n[0] for p in panels for n in p.notes]
+    assert texts == [f"stopped at t = {stopped['time']:.4g} s (the red line)"]
+    for p in panels:
+        for box in p.note_boxes:
+            for other in panels:
+                assert not _overlap(box, other.px), (box, other.px)
