@@ -135,11 +135,14 @@ def _output_dir(text: str):
     import tempfile
     from pathlib import Path
 
-    from .files import OutputError, folder_lock
+    from .files import FILE_SUFFIXES, OutputError, folder_lock
 
     out = Path(text)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {text}: exists and is not a folder")
+    if out.suffix.lower() in FILE_SUFFIXES:
+        raise UsageError(f"--out {text}: names a {out.suffix} file; allowed: a folder, where the "
+                         "files are written (it is made if missing)")
     try:
         out.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out):

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
-from ..files import write_json
+from ..files import check_folder, write_json
 from ..report.progress import check_progress, note, sink_for
 from ..scene.keys import ConfigError, toml_value
 from .engine import fmus_for, pending, run_sweep, sweep_stats
@@ -89,7 +88,7 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
                           overrides=_overrides(overrides), reference=reference)
     except ConfigError as exc:
         raise _in_python(exc) from None
-    out_dir = Path(out)
+    out_dir = check_folder(out)
     todo = pending(plan, out_dir, retry_failed)
     done = len({p.key for p in plan.points}) - todo
     say = note if progress is True else (lambda text: None)

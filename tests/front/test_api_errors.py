@@ -181,6 +181,30 @@ def test_save_refuses_a_path_that_is_not_one():
         _run().save(3)
 
 
+def test_sweep_refuses_an_out_that_names_a_file(tmp_path):
+    """sweep(out=...) is a folder as Run.save's is: refused before any run, nothing made."""
+    target = tmp_path / "table.csv"
+    with pytest.raises(ValueError) as info:
+        fp.sweep("rigid_pd", values={"controller.kp": [400, 500]}, serial=True, out=target)
+    assert str(target) in str(info.value) and "folder" in str(info.value)
+    assert not target.exists()
+
+
+@pytest.mark.parametrize("command", [["run", "rigid_pd"], ["design"],
+                                     ["sweep", "rigid_pd", "--serial", "--values",
+                                      "controller.kp=400,500"]])
+def test_the_commands_refuse_an_out_that_names_a_file(tmp_path, capsys, command):
+    """The command line says the same in one line, exit 2 (usage), before anything runs or is
+    made (a traceback before: run.save's ValueError reached the top)."""
+    from orchestration.cli import main
+
+    target = tmp_path / "figure.png"
+    assert main([*command, "--out", str(target)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"flexpend: error: --out {target}: names a .png file")
+    assert len(err.splitlines()) == 1 and not target.exists()
+
+
 # ------------------------------------------------------------------ short reprs
 def _short(obj, *fragments):
     text = repr(obj)
