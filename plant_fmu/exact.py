@@ -1,6 +1,6 @@
 """The top rung of the fidelity ladder: a geometrically exact planar beam hinged on the cart (the
 numpy specification of ``plant.fidelity = "exact"``, which the C kernel's ``fp_exact_*`` and the
-native plant FMUs run; README "The exact rung").
+native plant FMUs run; docs/exact.md and docs/guide/fidelity.md).
 
 Element: the ANCF cable element (Gerstmayr & Shabana, "Analysis of thin beams and cables using the
 absolute nodal co-ordinate formulation", Nonlinear Dyn. 45, 2006). Each node carries its position

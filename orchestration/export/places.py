@@ -2,8 +2,8 @@
 
 In a source checkout (``pyproject.toml`` beside the packages) they go into its ``build/``
 folder: ``build/fmus/`` (pythonfmu FMUs), ``build/fmus/native/fmi2/`` and ``fmi3/`` (native FMUs)
-and ``build/loader/`` (the pythonfmu FMUs' compiled loader), as the README says. An installed
-flexpend (a wheel in site-packages) writes nothing beside its packages: it builds into
+and ``build/loader/`` (the pythonfmu FMUs' compiled loader), as docs/guide/build.md says. An
+installed flexpend (a wheel in site-packages) writes nothing beside its packages: it builds into
 ``$FLEXPEND_HOME`` when set, else into the user's cache folder
 (``$XDG_CACHE_HOME/flexpend/<version>``, by default ``~/.cache/flexpend/<version>``), whatever
 the current folder. ``FLEXPEND_HOME`` also redirects a checkout's builds.

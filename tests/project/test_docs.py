@@ -23,7 +23,11 @@ RESULT_CLASSES = ("Run", "Scene", "Analysis", "DesignReport", "Sweep", "KeySpec"
 
 @pytest.fixture(scope="module")
 def site(tmp_path_factory):
-    """The manual built with ``mkdocs build --strict`` into a temporary folder; its output."""
+    """The manual built with ``mkdocs build --strict`` into a temporary folder; its output.
+    Skipped only when the manual's tools are not installed (they are in the ``test`` and ``docs``
+    extras, so CI has them)."""
+    for tool in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers.python"):
+        pytest.importorskip(tool, reason=f"{tool} is not installed: pip install -e '.[docs]'")
     out = tmp_path_factory.mktemp("site")
     env = {**os.environ, "PYTHONPATH": str(ROOT), "NO_MKDOCS_2_WARNING": "1"}
     proc = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "-f",
@@ -132,3 +136,57 @@ def test_no_page_a_user_reads_cites_the_missing_model_md():
     cited = [str(p.relative_to(ROOT)) for p in user_facing
              if re.search(r"(?<![\w/])MODEL\.md", p.read_text(errors="replace"))]
     assert not cited, f"files citing MODEL.md (the manual's page is docs/model.md): {cited}"
+
+
+#: The packages whose docstrings, comments and messages a user reads.
+PRODUCT = ("orchestration", "plant_fmu", "controller_fmu", "fmu_common")
+
+
+def product_sources():
+    for package in PRODUCT:
+        yield from sorted((ROOT / package).rglob("*.py"))
+        yield from sorted((ROOT / package).rglob("*.[ch]"))
+
+
+def test_every_section_of_the_model_the_code_cites_exists():
+    """The docstrings cite the model by number ("docs/model.md section 4", "sections 6 and 7"):
+    each number is a heading ``## N. ...`` of ``docs/model.md``, so renumbering the page breaks
+    this test, not the citations."""
+    headings = set(re.findall(r"^## (\d+)\. \S", (DOCS / "model.md").read_text(), re.M))
+    assert headings == {str(n) for n in range(1, len(headings) + 1)}, sorted(headings)
+    cited = {}
+    for path in [*product_sources(), *DOCS.rglob("*.md")]:
+        text = re.sub(r"\s+", " ", path.read_text(errors="replace"))
+        for numbers in re.findall(r"model\.md\)?'?s? sections? (\d+(?:(?:, | and )\d+)*)", text):
+            for n in re.findall(r"\d+", numbers):
+                cited.setdefault(n, []).append(str(path.relative_to(ROOT)))
+    assert cited, "no citation found: the pattern no longer matches how the code cites the model"
+    missing = {n: where for n, where in cited.items() if n not in headings}
+    assert not missing, f"cited sections that docs/model.md does not have: {missing}"
+
+
+def test_the_model_page_renders_its_formulas(site):
+    """``docs/model.md`` writes its equations in TeX (``$...$``, ``$$...$$``): arithmatex wraps
+    every one for MathJax, whose script the page loads; no dollar sign is left in the text."""
+    out, proc = site
+    assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
+    page = (out / "model" / "index.html").read_text()
+    assert re.search(r'<script src="[^"]*mathjax[^"]*"', page, re.I), "MathJax is not loaded"
+    math = re.findall(r'class="arithmatex"', page)
+    source = (DOCS / "model.md").read_text()
+    prose = re.sub(r"^```.*?^```", "", source, flags=re.M | re.S)
+    expected = len(re.findall(r"\$\$.*?\$\$", prose, re.S))
+    expected += len(re.findall(r"(?<!\$)\$(?!\$)[^$\n]+?(?<!\$)\$(?!\$)", re.sub(
+        r"\$\$.*?\$\$", "", prose, flags=re.S)))
+    assert expected > 50 and len(math) == expected, (len(math), expected)
+    body = re.sub(r'<(span|div) class="arithmatex">.*?</\1>', "", page, flags=re.S)
+    body = re.sub(r"<script.*?</script>", "", body, flags=re.S)
+    assert "$" not in body, body[body.index("$") - 200: body.index("$") + 200]
+
+
+def test_the_code_cites_the_manual_not_the_readme():
+    """The README is a front page: the code's docstrings, comments and messages point to the
+    manual's pages (``docs/...``), where the README's former sections now live."""
+    cited = [str(p.relative_to(ROOT)) for p in product_sources()
+             if re.search(r"\bREADME\b", p.read_text(errors="replace"))]
+    assert not cited, f"files citing the README (cite a page of docs/ instead): {cited}"
