@@ -74,6 +74,13 @@ def native_dirs(native) -> dict:
     yield from _unpacked(native)
 
 
+@pytest.fixture(scope="session")
+def native3() -> dict:
+    """The native FMI 3.0 pair, ``{"FlexiblePendulum": path, "PDLowPass": path}``, built if
+    stale."""
+    return _built(flavour="native", fmi_version=3)
+
+
 def fmi_status(fn, *args) -> int:
     """0, or the status of the ``FMICallException`` that the fmpy call ``fn(*args)`` raised."""
     from fmpy.fmi1 import FMICallException
@@ -313,6 +320,15 @@ def opened_by(make):
             inst.close()
         except Exception:  # noqa: BLE001 - an instance in error may refuse terminate
             pass
+
+
+@pytest.fixture
+def open_native(native_dirs):
+    """Factory: ``open_native("FlexiblePendulum", **start)`` -> an initialised
+    :class:`FmuInstance` of the native FMI 2.0 FMU (``initialize=False`` stops before
+    initialisation); closed after the test."""
+    yield from opened_by(lambda name, initialize=True, **start:
+                         FmuInstance(native_dirs[name], start, name, initialize))
 
 
 @pytest.fixture

@@ -33,18 +33,24 @@ from __future__ import annotations
 
 from .layout import SUPERSCRIPT, Grid
 
-__all__ = ["RENDERERS", "check_renderer", "FIGURES", "check_figures", "canvas", "Grid", "SUPERSCRIPT"]
+__all__ = ["RENDERERS", "check_renderer", "FIGURES", "check_figures", "canvas", "Grid",
+           "SUPERSCRIPT"]
 
 #: The renderers of :func:`canvas`.
 RENDERERS = ("raster", "matplotlib")
 
 
+def _one_of(name: str, value, allowed: tuple) -> str:
+    """``value`` if it is one of ``allowed``, else a ValueError naming ``name`` and them."""
+    if value not in allowed:
+        raise ValueError(f"{name} = {value!r} is not allowed; allowed: "
+                         + ", ".join(repr(a) for a in allowed))
+    return value
+
+
 def check_renderer(renderer) -> str:
     """``renderer`` if it is one of :data:`RENDERERS`, else a ValueError naming it."""
-    if renderer not in RENDERERS:
-        raise ValueError(f"renderer = {renderer!r} is not allowed; allowed: "
-                         + ", ".join(repr(r) for r in RENDERERS))
-    return renderer
+    return _one_of("renderer", renderer, RENDERERS)
 
 
 #: What ``flexpend run --figures`` (``Run.save(figures=)``) writes: the PNGs, or none (nothing
@@ -54,10 +60,7 @@ FIGURES = ("png", "none")
 
 def check_figures(figures) -> str:
     """``figures`` if it is one of :data:`FIGURES`, else a ValueError naming it."""
-    if figures not in FIGURES:
-        raise ValueError(f"figures = {figures!r} is not allowed; allowed: "
-                         + ", ".join(repr(f) for f in FIGURES))
-    return figures
+    return _one_of("figures", figures, FIGURES)
 
 
 def canvas(width: float, height: float, renderer: str = "matplotlib"):

@@ -17,20 +17,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import FmuInstance, opened_by
-
-
-@pytest.fixture(scope="session")
-def native3() -> dict:
-    from orchestration.export import build_fmus
-    return {n: str(p) for n, p in build_fmus(flavour="native", fmi_version=3).items()}
-
-
-@pytest.fixture
-def open_native(native_dirs):
-    yield from opened_by(lambda name, initialize=True, **start:
-                         FmuInstance(native_dirs[name], start, name, initialize))
-
 
 # ---------------------------------------------------------------------- failure paths
 def test_bad_parameter_is_an_error_at_exit_initialization(open_native):

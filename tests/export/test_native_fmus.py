@@ -19,22 +19,8 @@ import zipfile
 import numpy as np
 import pytest
 
-from conftest import FmuInstance, opened_by
-
 linux_gcc = pytest.mark.skipif(not sys.platform.startswith("linux") or not shutil.which("gcc"),
                                reason="needs Linux and gcc")
-
-
-@pytest.fixture(scope="session")
-def native3() -> dict:
-    from orchestration.export import build_fmus
-    return {n: str(p) for n, p in build_fmus(flavour="native", fmi_version=3).items()}
-
-
-@pytest.fixture
-def open_native(native_dirs):
-    yield from opened_by(lambda name, initialize=True, **start:
-                         FmuInstance(native_dirs[name], start, name, initialize))
 
 
 def pair(paths):

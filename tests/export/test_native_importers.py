@@ -21,12 +21,6 @@ linux_gcc = pytest.mark.skipif(not sys.platform.startswith("linux") or not shuti
                                reason="needs Linux and gcc")
 
 
-@pytest.fixture(scope="session")
-def native3() -> dict:
-    from orchestration.export import build_fmus
-    return {n: str(p) for n, p in build_fmus(flavour="native", fmi_version=3).items()}
-
-
 def pair(paths):
     return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
 

@@ -22,12 +22,6 @@ PLANT, CTRL = "FlexiblePendulum", "PDLowPass"
 
 
 @pytest.fixture(scope="session")
-def native3() -> dict:
-    from orchestration.export import build_fmus
-    return {n: str(p) for n, p in build_fmus(flavour="native", fmi_version=3).items()}
-
-
-@pytest.fixture(scope="session")
 def paths(native, native3) -> dict:
     return {2: native, 3: native3}
 
