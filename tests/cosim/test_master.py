@@ -150,7 +150,7 @@ def test_rollback_restores_state_exactly(paths):
     ("flexible_pd_lowpass", True, None),
 ])
 def test_paper_scenes_verdicts_and_rates_at_small_amplitude(paths, scene, verdict, band):
-    """Verdicts of MODEL.md; fitted rates within 10 % of the linear analysis at phi0 = 0.05."""
+    """Verdicts of docs/model.md; fitted rates within 10 % of the linear analysis at phi0 = 0.05."""
     sc = load_scene(scene, ["initial.phi=0.05", "master.step=1e-3", "output_interval=0.002",
                             "master.extrapolation=1", "stop_time=4"])
     r = run_scene(sc, paths, progress=False)

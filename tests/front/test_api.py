@@ -116,7 +116,7 @@ def test_bad_input_raises_a_value_or_type_error_naming_it(call, kind, fragment):
 
 
 def test_analyze_gives_the_linear_loop_of_the_scene():
-    """MODEL.md: n >= 2 + PD alone: +1.64 +- 151.3j, unstable."""
+    """docs/model.md: n >= 2 + PD alone: +1.64 +- 151.3j, unstable."""
     a = fp.analyze(overrides={"plant.n_modes": 3, "controller.filter_order": 0})
     assert isinstance(a, fp.Analysis) and not a.stable
     bending = max((z for z in a.eigenvalues if 140 < z.imag < 160), key=lambda z: z.real)

@@ -73,7 +73,7 @@ def _check_against_linear(scene, mode, rel):
 def test_fitted_modes_of_the_paper_scenes_are_the_linear_loops(paper_runs):
     rigid, flex, filt = (paper_runs[n] for n in PAPER_SCENES)
     _check_against_linear(rigid.scene, rigid.summary["slow"], 0.05)
-    # MODEL.md: n >= 2 + PD, bending +1.64 +- 151.3j; fitted from pi/6 over its small window
+    # docs/model.md: n >= 2 + PD, bending +1.64 +- 151.3j; fitted from pi/6 over its small window
     _check_against_linear(flex.scene, flex.summary["bending"], 0.10)
     assert flex.summary["bending"]["rate"] == pytest.approx(1.64, rel=0.10)
     assert flex.summary["bending"]["frequency"] == pytest.approx(151.3, rel=0.05)
@@ -102,7 +102,7 @@ def test_small_start_fits_the_linear_growth_closely(paths):
 
 @pytest.mark.slow
 def test_the_summary_compares_a_fit_with_the_linear_root_of_its_own_law(paths):
-    """Under the Kelvin-Voigt law flexible_pd's bending grows at about +1.21/s (MODEL.md section
+    """Under the Kelvin-Voigt law flexible_pd's bending grows at about +1.21/s (docs/model.md section
     7): the fitted rate is that law's linear root (to 1 %), which the summary prints beside it
     and names, and far from the modal law's +1.64."""
     scene = load_scene("flexible_pd", ["initial.phi=0.05", "stop_time=3",

@@ -1,4 +1,4 @@
-"""Every row of MODEL.md section 6's acceptance table, computed by the project.
+"""Every row of docs/model.md section 6's acceptance table, computed by the project.
 
 The table's numbers come from two independent linear models outside this project; eigenvalues
 are checked to 1 %.
@@ -89,7 +89,7 @@ def test_second_order_filter_is_stable(n):
 
 
 def test_second_order_filter_needs_structural_damping():
-    """MODEL.md: with no structural damping the filtered loop's 2nd bending mode is unstable."""
+    """docs/model.md: with no structural damping the filtered loop's 2nd bending mode is unstable."""
     Acl = closed_loop_matrix(PlantParams(n_modes=4, zeta=0.0), SECOND)
     eigs = np.linalg.eigvals(Acl)
     z = min(_upper(eigs), key=lambda e: abs(e.imag - 426.4))
@@ -102,12 +102,12 @@ def _bending(a):
 
 @pytest.mark.parametrize("n", [4, 6, 8])
 def test_flexible_pd_bending_growth_under_both_damping_laws(n):
-    """MODEL.md sections 6 and 7: ``flexible_pd`` (PD only) has its bending root growing at
+    """docs/model.md sections 6 and 7: ``flexible_pd`` (PD only) has its bending root growing at
     +1.64/s under the modal law (checked to 1 %, as the table) and at about +1.20/s under the
     Kelvin-Voigt law, which damps the higher cantilever modes more (``about``: checked to 2 %;
     the model gives 1.213 .. 1.216). The second check of the Kelvin-Voigt figure is the
     geometrically exact beam's own linearisation (:meth:`plant_fmu.exact.ExactPlant.state_space`,
-    its material damping in the continuum, with the self-weight's stiffness; MODEL.md: "a refined
+    its material damping in the continuum, with the self-weight's stiffness; docs/model.md: "a refined
     exact beam agrees"): the floating frame with the preload agrees with it to 1 %."""
     from plant_fmu.exact import ExactPlant
     from controller_fmu.pd_lowpass import PDLowPassModel

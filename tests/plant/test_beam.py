@@ -14,7 +14,7 @@ def test_first_four_frequencies_match_analytic_at_default_mesh():
     fe = beam_model(P).frequencies[:4]
     exact = analytic_frequencies(P, 4)
     np.testing.assert_allclose(fe, exact, rtol=1e-3)
-    # and the acceptance values of MODEL.md section 6
+    # and the acceptance values of docs/model.md section 6
     np.testing.assert_allclose(fe, [26.33, 165.02, 462.07, 905.47], rtol=1e-3)
 
 
@@ -42,7 +42,7 @@ def test_rigid_invariants_closed_form():
     assert b.I0 == pytest.approx(P.m + rA * L, rel=1e-15)
     assert b.I1 == pytest.approx(rA * L**2 / 2, rel=1e-15)
     assert b.I2 == pytest.approx(rA * L**3 / 3, rel=1e-15)
-    assert rA == pytest.approx(15.6, rel=1e-12)  # MODEL.md: rho * EA / E
+    assert rA == pytest.approx(15.6, rel=1e-12)  # docs/model.md: rho * EA / E
 
 
 def test_I4_is_identity_for_mass_normalised_modes():
@@ -199,7 +199,7 @@ def _damped_cantilever(p: PlantParams, beta: float):
 
 @pytest.mark.parametrize("preload", [False, True])
 def test_kelvin_voigt_damps_mode_j_by_zeta_omega_j_over_omega_1(preload):
-    """MODEL.md section 7: the material damping ``beta EI w''''_t``, ``beta = 2 zeta / omega_1``,
+    """docs/model.md section 7: the material damping ``beta EI w''''_t``, ``beta = 2 zeta / omega_1``,
     gives mode ``j`` the ratio ``zeta omega_j / omega_1``: the eigenvalues of the finite-element
     cantilever with ``C = beta K`` against the undamped ones, and the model's ``D`` (its ratios
     ``D_jj / (2 omega_j)``) the same; the modal law gives every mode ``zeta``. The self-weight's

@@ -15,7 +15,7 @@ from plant_fmu.dynamics import plant_model
 from plant_fmu.exact import BeamSystem, CableMesh, ExactPlant, FrameModalDamping, GeneralizedAlpha
 from plant_fmu.params import PlantParams
 
-EA, EI, RHOA = 4.2e8, 8.75e2, 15.6          # the paper's beam (MODEL.md section 1), L = 1
+EA, EI, RHOA = 4.2e8, 8.75e2, 15.6          # the paper's beam (docs/model.md section 1), L = 1
 
 
 # ------------------------------------------------------------------------ the elastica
@@ -187,7 +187,7 @@ def test_modal_law_is_objective_and_dissipates():
 
 def test_modal_law_linear_loop_is_the_floating_frames():
     """flexible_pd's linear loop (PD only) on the exact beam under each law: the growing bending
-    root is MODEL.md's +1.64 +- 151.3j (modal, every mode at zeta, as the floating frame) or
+    root is docs/model.md's +1.64 +- 151.3j (modal, every mode at zeta, as the floating frame) or
     about +1.2 (Kelvin-Voigt), within 2 % in rate and 1 % in frequency (the exact beam carries
     its self-weight's stiffness: 150.2 rad/s)."""
     from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
@@ -218,7 +218,7 @@ def test_linearisation_is_the_floating_frames_with_preload():
     pre = np.abs(_poles(plant_model(p.replace(n_modes=16, gravity_preload=True)).state_space()[0], 4))
     default = np.abs(_poles(plant_model(p.replace(n_modes=16)).state_space()[0], 4))
     np.testing.assert_allclose(exact, pre, rtol=2e-6)
-    assert 7.06 < exact[0] < 7.07                          # MODEL.md: the unstable pendulum root
+    assert 7.06 < exact[0] < 7.07                          # docs/model.md: the unstable pendulum root
     assert np.max(np.abs(exact / default - 1)) > 5e-3   # the default rung lacks the preload
 
 

@@ -73,7 +73,7 @@ def test_rigid_pendulum_has_zero_modal_outputs(open_fmu):
 
 
 def test_modal_and_frame_outputs_are_the_state(open_fmu):
-    """phi and eta_1..eta_8 are the state's entries; the tip angle follows from them (MODEL.md:
+    """phi and eta_1..eta_8 are the state's entries; the tip angle follows from them (docs/model.md:
     phi_o = phi + atan(N'(L) eta))."""
     plant = open_fmu("FlexiblePendulum", n_modes=3, phi0=0.1)
     for k in range(40):

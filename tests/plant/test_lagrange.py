@@ -1,6 +1,6 @@
 """The equations of motion derived symbolically (sympy) by Lagrange, against the numeric rhs.
 
-The derivation starts from the kinematics of MODEL.md section 2, not from its energies:
+The derivation starts from the kinematics of docs/model.md section 2, not from its energies:
 ``r(s) = (x, 0) + s b1 + w(s) b2`` with ``b1 = (-sin phi, cos phi)``, ``b2 = (-cos phi, -sin phi)``
 and ``w = sum N_j(s) eta_j``. The kinetic energy ``1/2 m xd^2 + 1/2 int rhoA |rd|^2 ds`` and the
 gravity potential ``g int rhoA y ds`` are expanded as polynomials in ``s`` and the shape values
