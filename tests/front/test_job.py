@@ -102,8 +102,8 @@ def test_small_start_fits_the_linear_growth_closely(paths):
 
 @pytest.mark.slow
 def test_the_summary_compares_a_fit_with_the_linear_root_of_its_own_law(paths):
-    """Under the Kelvin-Voigt law flexible_pd's bending grows at about +1.21/s (docs/model.md section
-    7): the fitted rate is that law's linear root (to 1 %), which the summary prints beside it
+    """Under the Kelvin-Voigt law flexible_pd's bending grows at about +1.21/s (docs/model.md,
+    section 7): the fitted rate is that law's linear root (to 1 %), which the summary prints beside it
     and names, and far from the modal law's +1.64."""
     scene = load_scene("flexible_pd", ["initial.phi=0.05", "stop_time=3",
                                        "plant.damping=kelvin-voigt"])

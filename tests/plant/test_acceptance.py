@@ -89,7 +89,8 @@ def test_second_order_filter_is_stable(n):
 
 
 def test_second_order_filter_needs_structural_damping():
-    """docs/model.md: with no structural damping the filtered loop's 2nd bending mode is unstable."""
+    """docs/model.md: with no structural damping the filtered loop's 2nd bending mode is
+    unstable."""
     Acl = closed_loop_matrix(PlantParams(n_modes=4, zeta=0.0), SECOND)
     eigs = np.linalg.eigvals(Acl)
     z = min(_upper(eigs), key=lambda e: abs(e.imag - 426.4))
@@ -107,8 +108,8 @@ def test_flexible_pd_bending_growth_under_both_damping_laws(n):
     Kelvin-Voigt law, which damps the higher cantilever modes more (``about``: checked to 2 %;
     the model gives 1.213 .. 1.216). The second check of the Kelvin-Voigt figure is the
     geometrically exact beam's own linearisation (:meth:`plant_fmu.exact.ExactPlant.state_space`,
-    its material damping in the continuum, with the self-weight's stiffness; docs/model.md: "a refined
-    exact beam agrees"): the floating frame with the preload agrees with it to 1 %."""
+    its material damping in the continuum, with the self-weight's stiffness;
+    docs/model.md: "a refined exact beam agrees"): the floating frame with the preload agrees with it to 1 %."""
     from plant_fmu.exact import ExactPlant
     from controller_fmu.pd_lowpass import PDLowPassModel
     from orchestration.studies.analysis import assemble_closed_loop

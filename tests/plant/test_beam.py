@@ -199,8 +199,8 @@ def _damped_cantilever(p: PlantParams, beta: float):
 
 @pytest.mark.parametrize("preload", [False, True])
 def test_kelvin_voigt_damps_mode_j_by_zeta_omega_j_over_omega_1(preload):
-    """docs/model.md section 7: the material damping ``beta EI w''''_t``, ``beta = 2 zeta / omega_1``,
-    gives mode ``j`` the ratio ``zeta omega_j / omega_1``: the eigenvalues of the finite-element
+    """docs/model.md section 7: the material damping ``beta EI w''''_t``,
+    ``beta = 2 zeta / omega_1``, gives mode ``j`` the ratio ``zeta omega_j / omega_1``: the eigenvalues of the finite-element
     cantilever with ``C = beta K`` against the undamped ones, and the model's ``D`` (its ratios
     ``D_jj / (2 omega_j)``) the same; the modal law gives every mode ``zeta``. The self-weight's
     geometric stiffness is not damped: the preload leaves ``D`` as it is."""

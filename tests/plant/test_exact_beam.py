@@ -218,7 +218,7 @@ def test_linearisation_is_the_floating_frames_with_preload():
     pre = np.abs(_poles(plant_model(p.replace(n_modes=16, gravity_preload=True)).state_space()[0], 4))
     default = np.abs(_poles(plant_model(p.replace(n_modes=16)).state_space()[0], 4))
     np.testing.assert_allclose(exact, pre, rtol=2e-6)
-    assert 7.06 < exact[0] < 7.07                          # docs/model.md: the unstable pendulum root
+    assert 7.06 < exact[0] < 7.07             # docs/model.md: the unstable pendulum root
     assert np.max(np.abs(exact / default - 1)) > 5e-3   # the default rung lacks the preload
 
 
