@@ -109,7 +109,8 @@ def test_flexible_pd_bending_growth_under_both_damping_laws(n):
     the model gives 1.213 .. 1.216). The second check of the Kelvin-Voigt figure is the
     geometrically exact beam's own linearisation (:meth:`plant_fmu.exact.ExactPlant.state_space`,
     its material damping in the continuum, with the self-weight's stiffness;
-    docs/model.md: "a refined exact beam agrees"): the floating frame with the preload agrees with it to 1 %."""
+    docs/model.md: "a refined exact beam agrees"): the floating frame with the preload agrees
+    with it to 1 %."""
     from plant_fmu.exact import ExactPlant
     from controller_fmu.pd_lowpass import PDLowPassModel
     from orchestration.studies.analysis import assemble_closed_loop
