@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 
-from fmu_common.variables import (ModelInfo, Variable, independent, parameter, real_input,
-                                  real_local, real_output)
+from fmu_common.variables import (ModelInfo, Offers, Variable, independent, parameter,
+                                  real_input, real_local, real_output)
 
 from .pd_lowpass import ControllerParams
 
-__all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER"]
+__all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER", "OFFERS"]
 
 #: Model Exchange (the native FMUs only): the filter state xc' = Af xc + Bf e (pd_lowpass.py),
 #: xc_1 the filter's output, xc_2 its rate (order 2); states beyond the filter order stay 0 with
@@ -23,6 +23,8 @@ __all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORD
 STATES = ("xc_1", "xc_2")
 #: The highest order of the exact output derivatives of the native FMUs.
 MAX_OUTPUT_DERIVATIVE_ORDER = 2
+#: What the native PDLowPass offers at every parameter value (fmu_common.variables.Offers).
+OFFERS = Offers(output_derivative_order=MAX_OUTPUT_DERIVATIVE_ORDER)
 
 #: The sensors the controller reads: name -> (description, unit, unit of the 1st and 2nd time
 #: derivative).

@@ -9,9 +9,9 @@ Standard library only: this module ships in the FMUs.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-__all__ = ["Variable", "ModelInfo", "CAUSALITIES", "TYPES", "parameter", "real_input",
+__all__ = ["Variable", "ModelInfo", "Offers", "CAUSALITIES", "TYPES", "parameter", "real_input",
            "real_output", "real_local", "independent", "native_variables", "python_variables",
            "python_entries", "independent_variable", "states", "derivatives", "event_indicators",
            "by_name", "value_references", "parameter_defaults", "start_values"]
@@ -93,6 +93,18 @@ class ModelInfo:
     step_size: float
 
 
+@dataclass(frozen=True)
+class Offers:
+    """What a native FMU offers, declared in its ``modelDescription.xml`` and honoured at every
+    parameter value it accepts (docs/fmus.md, "One FMU per rung family"): the Model Exchange
+    interface (besides co-simulation, which every FMU has), directional derivatives, and exact
+    output derivatives up to ``output_derivative_order`` (0: none)."""
+
+    model_exchange: bool = True
+    directional_derivatives: bool = True
+    output_derivative_order: int = 2
+
+
 def parameter(name, default, description, unit=None, scene_key=None) -> Variable:
     """A fixed parameter typed by its default."""
     return Variable(name, "parameter", TYPES[type(default)], description, unit, default,
@@ -166,12 +178,19 @@ def event_indicators(table) -> list:
     return [v.name for v in table if v.event_indicator]
 
 
-def native_variables(table) -> list:
+def native_variables(table, model_exchange: bool = True) -> list:
     """``[(value reference, Variable)]`` of a native FMU: the table without the input-derivative
     variables (``derivative_of``) and ``time`` (which the FMI 3.0 description adds on its own,
-    :func:`independent_variable`), each variable at its value reference in the whole table."""
-    return [(vr, v) for vr, v in enumerate(table)
-            if v.derivative_of is None and v.causality != "independent"]
+    :func:`independent_variable`), each variable at its value reference in the whole table.
+    ``model_exchange`` False (an FMU that offers co-simulation alone): without the Model-Exchange
+    locals either, and with no variable marked a state (the value references of the others
+    stay)."""
+    out = [(vr, v) for vr, v in enumerate(table)
+           if v.derivative_of is None and v.causality != "independent"]
+    if not model_exchange:
+        out = [(vr, replace(v, state=False, state_depends_on=())) for vr, v in out
+               if not v.me_only]
+    return out
 
 
 def by_name(table) -> dict:

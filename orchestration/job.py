@@ -37,7 +37,7 @@ from plant_fmu.beam import beam_model
 from .cosim.master import Master
 from .cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
-from .export import flavour_fmus
+from .export import flavour_fmus, plant_role
 from .files import check_folder, write_csv, write_json
 from .report import figures
 from .report.files import save_figure
@@ -454,8 +454,9 @@ def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snap
         make = unit if pool is None else \
             (lambda path, role, values, unzipdir: pool.acquire(unit, path, role, values, unzipdir))
         try:
-            slaves["plant"] = make(fmus["plant"], "plant", plant_start_values(scene),
-                                   unzipdir=dirs.get("plant"))
+            role = plant_role(fmus, scene.plant.fidelity)       # the rung's plant FMU
+            slaves["plant"] = make(fmus[role], "plant", plant_start_values(scene),
+                                   unzipdir=dirs.get(role))
             slaves["controller"] = make(fmus["controller"], "controller",
                                         controller_start_values(scene),
                                         unzipdir=dirs.get("controller"))

@@ -20,14 +20,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 
-from fmu_common.variables import (ModelInfo, Variable, independent, parameter, real_input,
-                                  real_local, real_output)
+from fmu_common.variables import (ModelInfo, Offers, Variable, independent, parameter,
+                                  real_input, real_local, real_output)
 
 from .params import PlantParams
 
 __all__ = ["VARIABLES", "MODEL", "FMU_SETTINGS", "FIDELITIES", "OUTPUTS", "N_ETA_OUTPUTS",
-           "INITIAL_STATE", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER"]
+           "INITIAL_STATE", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER", "PlantFmu", "PLANT_FMUS",
+           "plant_fmu_name"]
 
 FIDELITIES = ("nonlinear", "linear", "exact", "stiffened")
 
@@ -64,9 +66,10 @@ _DAMPING = ("damping law: modal (the ratio zeta in every cantilever mode, D = 2 
             "kelvin-voigt (material damping of the bending stiffness, beta = 2 zeta / omega_1: "
             "the ratio zeta omega_j / omega_1 in mode j)")
 _SETTINGS = {
-    "fidelity": ("nonlinear or linear (linearised at the upright rest state); exact: the "
-                 "geometrically exact beam on n_elements elements (native FMUs, co-simulation); "
-                 "stiffened: nonlinear with the motion-dependent geometric stiffness",
+    "fidelity": ("nonlinear or linear (linearised at the upright rest state); stiffened: "
+                 "nonlinear with the motion-dependent geometric stiffness; exact: the "
+                 "geometrically exact beam on n_elements elements (the native "
+                 "FlexiblePendulumExact FMU alone)",
                  None),
     "integrator": ("integration method: dopri5, euler, exponential, genalpha, radau, rk4, "
                    "symplectic_euler", None),
@@ -209,8 +212,76 @@ VARIABLES = (tuple(_with_states(v) for v in VARIABLES) + _me_variables()
              + (independent("time", "simulation time", "s"),
                 parameter("damping", _DEFAULTS["damping"], _DAMPING, None, "plant.damping")))
 
+_CART = "Cart with an elastic beam hinged on it (Tang & Ren 2009, corrected)"
+_INPUT = "input: the force on the cart"
 MODEL = ModelInfo(
     name="FlexiblePendulum",
-    description=("Cart with an elastic beam hinged on it (Tang & Ren 2009, corrected): floating "
-                 "frame of reference with n_modes cantilever modes; input: the force on the cart"),
+    description=f"{_CART}: floating frame of reference with n_modes cantilever modes; {_INPUT}",
     version="0.2.0", start_time=0.0, stop_time=10.0, step_size=1e-3)
+
+
+# ---- One native FMU per rung family --------------------------------------------------------
+@dataclass(frozen=True)
+class PlantFmu:
+    """One native plant FMU: the rungs (``fidelity`` values) it runs, and what it offers at every
+    one of them (its modelDescription's flags). Its table is :data:`VARIABLES` with its own
+    ``fidelity`` (start: its first rung; the description names its rungs), so that every value
+    reference is the same in every family; an FMU without Model Exchange declares no
+    Model-Exchange local (:func:`fmu_common.variables.native_variables`)."""
+
+    name: str
+    fidelities: tuple
+    offers: Offers
+    summary: str
+
+    @property
+    def variables(self) -> tuple:
+        rungs = "; ".join(f"{f} ({_RUNG_MEANING[f]})" for f in self.fidelities)
+        others = ", ".join(f"{f.name} ({', '.join(f.fidelities)})" for f in PLANT_FMUS.values()
+                           if f.name != self.name)
+        fidelity = dataclasses.replace(
+            _FIDELITY, start=self.fidelities[0],
+            description=f"the rung this FMU runs: {rungs}; the other rungs are other FMUs: "
+                        f"{others}")
+        return tuple(fidelity if v.name == "fidelity" else v for v in VARIABLES)
+
+    @property
+    def model(self) -> ModelInfo:
+        return dataclasses.replace(MODEL, name=self.name, description=self.summary)
+
+
+_FIDELITY = next(v for v in VARIABLES if v.name == "fidelity")
+_RUNG_MEANING = {"nonlinear": "n_modes cantilever modes in the floating frame",
+                 "linear": "linearised at the upright rest state",
+                 "stiffened": "nonlinear with the motion-dependent geometric stiffness",
+                 "exact": "the geometrically exact beam on n_elements elements"}
+
+#: The native plant FMUs, one per rung family: each declares only what it gives at each of its
+#: rungs (docs/fmus.md, "One FMU per rung family"). The stiffened rung's kernel has no exact
+#: Jacobian, so its FMU declares no derivatives; the exact beam steps implicitly inside its own
+#: co-simulation step (Radau IIA), so its FMU offers co-simulation alone. The pythonfmu plant
+#: (co-simulation, no derivatives) keeps the name FlexiblePendulum and runs the first three rungs.
+PLANT_FMUS = {f.name: f for f in (
+    PlantFmu("FlexiblePendulum", ("nonlinear", "linear"),
+             Offers(output_derivative_order=MAX_OUTPUT_DERIVATIVE_ORDER),
+             f"{MODEL.description} (the rungs nonlinear and linear)"),
+    PlantFmu("FlexiblePendulumStiffened", ("stiffened",),
+             Offers(directional_derivatives=False, output_derivative_order=0),
+             f"{_CART}: floating frame of reference with n_modes cantilever modes and the "
+             f"motion-dependent geometric stiffness (the stiffened rung); {_INPUT}; no "
+             f"directional or output derivatives"),
+    PlantFmu("FlexiblePendulumExact", ("exact",),
+             Offers(model_exchange=False, directional_derivatives=False,
+                    output_derivative_order=0),
+             f"{_CART}: the geometrically exact beam on n_elements elements (the exact rung); "
+             f"{_INPUT}; co-simulation only"),
+)}
+assert sorted(f for p in PLANT_FMUS.values() for f in p.fidelities) == sorted(FIDELITIES)
+
+
+def plant_fmu_name(fidelity: str) -> str:
+    """The native plant FMU that runs rung ``fidelity`` (a key of :data:`PLANT_FMUS`)."""
+    for fmu in PLANT_FMUS.values():
+        if fidelity in fmu.fidelities:
+            return fmu.name
+    raise ValueError(f"fidelity = {fidelity!r}; allowed: {', '.join(FIDELITIES)}")

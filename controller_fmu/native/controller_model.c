@@ -456,7 +456,9 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
 
 size_t fpm_model_nx(void) { return JAC_NX; }
 
-int fpm_model_max_output_derivative_order(void) { return 2; }
+int fpm_model_max_output_derivative_order(void) { return FPM_OUTPUT_DERIVATIVE_ORDER; }
+int fpm_model_offers_me(void) { return FPM_OFFERS_ME; }
+int fpm_model_offers_jacobian(void) { return FPM_OFFERS_JACOBIAN; }
 
 /* The sensors' values and first and second derivatives now (sensors() layout: x_o, phi_o,
  * omega_o, then their rates, then their second derivatives): after a doStep, the polynomial that

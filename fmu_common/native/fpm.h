@@ -264,8 +264,14 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
 int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
                                 double *value);
 /* The highest order fpm_model_output_derivative gives exactly (the modelDescription's
- * maxOutputDerivativeOrder). */
+ * maxOutputDerivativeOrder; 0: none). */
 int fpm_model_max_output_derivative_order(void);
+/* What the FMU offers besides co-simulation, as its modelDescription declares it (generated
+ * into fpm_vars.h from fmu_common.variables.Offers): 1 if it offers Model Exchange, 1 if it
+ * provides directional derivatives. The core refuses what is not offered before the model's
+ * code is reached; what is offered, the model gives at every parameter value it accepts. */
+int fpm_model_offers_me(void);
+int fpm_model_offers_jacobian(void);
 
 /* ---- Model Exchange: what each model implements (issue 24) ---------------------------------
  * The states, derivatives, nominals and event indicators of Model Exchange, by index (the

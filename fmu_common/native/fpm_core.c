@@ -122,7 +122,13 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
                 fn, interface);
         return NULL;
     }
-    if (fpm_model_nx() != count_states()) {    /* a build whose model and table disagree */
+    if (interface == FPM_MODEL_EXCHANGE && !fpm_model_offers_me()) {
+        fpm_log(&tmp.lg, FPM_ERROR, "%s: %s offers co-simulation only (its modelDescription "
+                "declares no ModelExchange)", fn, fpm_model_name);
+        return NULL;
+    }
+    if (fpm_model_offers_me() && fpm_model_nx() != count_states()) {  /* a broken build: the
+                                                                         model and table disagree */
         fpm_log(&tmp.lg, FPM_ERROR, "%s: %s declares %lu continuous states but its model has "
                 "%lu (a broken build)", fn, fpm_model_name, (unsigned long)count_states(),
                 (unsigned long)fpm_model_nx());
@@ -814,6 +820,12 @@ int fpm_directional_derivative(fpm_instance *c, const char *fn, int mask,
     size_t ny = (size_t)count_vars(FPM_OUTPUT);
     int want_ab = 0, want_cd = 0, rc;
     GUARD(c, fn, mask);
+    if (!fpm_model_offers_jacobian()) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: %s provides no directional derivatives (its "
+                "modelDescription says providesDirectionalDerivative = false)", fn,
+                fpm_model_name);
+        return FPM_ERROR;
+    }
     if ((n_unknowns > 0 && (unknowns == NULL || sensitivity == NULL)) ||
         (n_knowns > 0 && (knowns == NULL || seed == NULL)))
         return fpm_refuse(c, FPM_ERROR, fn, "an array is NULL but its length is not 0");
@@ -888,6 +900,11 @@ int fpm_output_derivatives(fpm_instance *c, const char *fn, int mask, const unsi
         if (k < 0 || fpm_vars[k].causality != FPM_OUTPUT || fpm_vars[k].type != FPM_REAL) {
             fpm_log(&c->lg, FPM_ERROR, "%s: value reference %u (%s) is not a Real output", fn,
                     (unsigned)vr[i], k < 0 ? "no variable" : fpm_vars[k].name);
+            return FPM_ERROR;
+        }
+        if (max == 0) {
+            fpm_log(&c->lg, FPM_ERROR, "%s: %s gives no output derivatives "
+                    "(maxOutputDerivativeOrder = 0)", fn, fpm_model_name);
             return FPM_ERROR;
         }
         if (order[i] < 1 || order[i] > max) {

@@ -1,12 +1,16 @@
 """How the FMUs and systems are made and checked.
 
     build_fmus(flavour="native" | "python", fmi_version=2) -> {"FlexiblePendulum": path, ...}
+    flavour_fmus("native") -> {"plant": path, "controller": path, "FlexiblePendulumExact": path, ...}
+    pair_for(fmus, fidelity) -> {"plant": the plant FMU of that rung, "controller": path}
 
 :mod:`.python_fmus` builds the pythonfmu FMUs (FMI 2.0; only when their sources changed) into
 ``build/fmus/``; :mod:`.native_fmus` the native ones (C, FMI 2.0 and 3.0, linux64 and win64) into
 ``build/fmus/native/fmi2/`` and ``build/fmus/native/fmi3/``;
-:func:`flavour_fmus` gives the FMU pair of a flavour by name (``python``, ``native``), for a run
-(the native FMUs need only the host's binaries) or an archive (every platform);
+:func:`flavour_fmus` gives the FMUs of a flavour by name (``python``, ``native``), for a run
+(the native FMUs need only the host's binaries) or an archive (every platform): the pair, and for
+the native flavour the plant of every rung family (one native plant FMU per family,
+:data:`plant_fmu.interface.PLANT_FMUS`; :func:`pair_for` picks a rung's);
 :mod:`.ssp` writes a scene as an SSP 1.0 archive and reads one back (``flexpend export``,
 ``flexpend run FILE.ssp``);
 :mod:`.check` regresses an FMU against reference results in the FMI cross-check layout and writes
@@ -17,6 +21,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from plant_fmu.interface import PLANT_FMUS, plant_fmu_name
+
 from ..scene.keys import FMU_FLAVOURS
 from . import places
 from .check import write_references
@@ -24,7 +30,8 @@ from .native_fmus import NativeBuildError, build_native_fmus
 from .python_fmus import SPECS, BuildError, is_stale
 from .python_fmus import build_fmus as build_python
 
-__all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "flavour_fmus", "main"]
+__all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "flavour_fmus", "plant_role",
+           "pair_for", "main"]
 
 
 def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = "python",
@@ -53,13 +60,33 @@ def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = 
 
 
 def fmu_pair(paths: dict) -> dict:
-    """``{"plant": ..., "controller": ...}`` from :func:`build_fmus`' result (the master's names)."""
-    return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"]}
+    """The master's names from :func:`build_fmus`' result: ``{"plant": ..., "controller": ...}``,
+    and the native plant of each other rung family built (``FlexiblePendulumStiffened``,
+    ``FlexiblePendulumExact``) under its own name (:func:`pair_for` picks a rung's plant)."""
+    return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"],
+            **{n: p for n, p in paths.items() if n in PLANT_FMUS and n != "FlexiblePendulum"}}
+
+
+def plant_role(fmus: dict, fidelity: str) -> str:
+    """The key of ``fmus`` whose plant runs rung ``fidelity`` (resolved): the native plant FMU of
+    that rung's family when ``fmus`` holds it (:func:`fmu_pair`), else ``"plant"`` (the pythonfmu
+    plant runs each of its rungs; a pair of one's own is used as it is, and its plant refuses a
+    rung it does not run, naming the FMU that does)."""
+    name = plant_fmu_name(fidelity)
+    return name if name in fmus else "plant"
+
+
+def pair_for(fmus: dict, fidelity: str) -> dict:
+    """``{"plant": path, "controller": path}``: the pair of ``fmus`` a run on rung ``fidelity``
+    uses (:func:`plant_role`)."""
+    return {"plant": fmus[plant_role(fmus, fidelity)], "controller": fmus["controller"]}
 
 
 def flavour_fmus(flavour: str, *, portable: bool = False, progress=None) -> dict:
-    """``{"plant": path, "controller": path}``: the FMI 2.0 FMUs a scene of ``master.fmus =
-    flavour`` runs on, built if missing or stale. A run needs the native FMUs' binaries for this
+    """The FMUs a scene of ``master.fmus = flavour`` runs on, built if missing or stale:
+    ``{"plant": path, "controller": path}`` (FMI 2.0), and for the native flavour the plant of
+    every other rung family under its FMU's name (:func:`fmu_pair`; a run's companion and its
+    climb of the fidelity ladder change rung). A run needs the native FMUs' binaries for this
     machine alone: they are all that is built for it (an FMU that has them is up to date);
     ``portable`` (an archive to hand on): those of every platform this machine builds.
     ``progress``: as :func:`build_fmus`'."""

@@ -1,6 +1,7 @@
 """``modelDescription.xml`` from the one table of variables of each model.
 
-    TABLES["FlexiblePendulum"] -> (ModelInfo, variables)
+    TABLES["FlexiblePendulum"] -> (ModelInfo, variables)          (the pythonfmu FMUs)
+    NATIVE["FlexiblePendulumExact"] -> (ModelInfo, variables, Offers)   (the native FMUs)
     fmi2_model_description(name, guid, ...) -> bytes      (pythonfmu and native FMUs)
     fmi3_model_description(name, token, ...) -> bytes     (native FMUs)
 
@@ -24,8 +25,8 @@ from fmu_common.variables import (derivatives, event_indicators, independent_var
                                   native_variables, python_entries, states)
 from plant_fmu import interface as plant_interface
 
-__all__ = ["TABLES", "UNITS", "FMI3_TYPES", "fmi2_model_description", "fmi3_model_description",
-           "xml_value", "generation_date", "NO_LIMIT"]
+__all__ = ["TABLES", "NATIVE", "UNITS", "FMI3_TYPES", "fmi2_model_description",
+           "fmi3_model_description", "xml_value", "generation_date", "NO_LIMIT"]
 
 #: "No limit" (an infinite start value: force_limit, phi_limit, energy_limit) as the native FMUs'
 #: descriptions write it: the largest double, 1.7976931348623157e+308. Every checker reads it
@@ -34,10 +35,18 @@ __all__ = ["TABLES", "UNITS", "FMI3_TYPES", "fmi2_model_description", "fmi3_mode
 #: means: no finite value exceeds it. Setting ``inf`` stays allowed.
 NO_LIMIT = repr(sys.float_info.max)
 
-#: model name -> (ModelInfo, table of variables)
+#: model name -> (ModelInfo, table of variables): the pythonfmu FMUs
 TABLES = {
     "FlexiblePendulum": (plant_interface.MODEL, plant_interface.VARIABLES),
     "PDLowPass": (controller_interface.MODEL, controller_interface.VARIABLES),
+}
+#: model name -> (ModelInfo, table of variables, what it offers): the native FMUs, the plant one
+#: per rung family (plant_fmu.interface.PLANT_FMUS)
+NATIVE = {
+    **{name: (fmu.model, fmu.variables, fmu.offers)
+       for name, fmu in plant_interface.PLANT_FMUS.items()},
+    "PDLowPass": (controller_interface.MODEL, controller_interface.VARIABLES,
+                  controller_interface.OFFERS),
 }
 
 #: unit -> its SI base-unit exponents (FMI's BaseUnit); None: not a product of integer powers
@@ -86,12 +95,12 @@ def _units(table) -> list[str]:
     return used
 
 
-def _entries(table, native: bool) -> list:
+def _entries(table, native: bool, model_exchange: bool = True) -> list:
     """``[(value reference, Variable)]`` written: a pythonfmu FMU's (co-simulation only) or a
-    native FMU's (without the input-derivative variables), each variable at its value
-    reference."""
+    native FMU's (without the input-derivative variables; without the Model-Exchange locals when
+    it offers co-simulation alone), each variable at its value reference."""
     if native:
-        return native_variables(table)
+        return native_variables(table, model_exchange)
     return python_entries(table)
 
 
@@ -144,7 +153,7 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
     derivatives and event indicators)."""
     if table is None:
         model, table = TABLES[name]
-    entries = _entries(table, native)
+    entries = _entries(table, native, model_exchange is not None)
     _, ders, indicators, _ = _me_structure(entries) if native else ({}, [], [], [])
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": model.name, "guid": guid,
@@ -210,8 +219,8 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
     and value references as its FMI 2.0 description, FMI 3.0 types (Float64, Int32), dependencies
     by value reference, and the independent variable ``time`` at its reference in the table."""
     if table is None:
-        model, table = TABLES[name]
-    entries = _entries(table, True)
+        model, table, _ = NATIVE[name]
+    entries = _entries(table, True, model_exchange is not None)
     _, ders, indicators, _ = _me_structure(entries)
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "3.0", "modelName": model.name, "instantiationToken": token,

@@ -9,7 +9,7 @@ from pathlib import Path
 from ..files import output_error
 from ..scene.ssp import write_ssp
 from ..studies.fidelity import select_model
-from . import flavour_fmus
+from . import flavour_fmus, pair_for
 
 __all__ = ["ExportResult", "export_scene"]
 
@@ -43,6 +43,7 @@ def export_scene(scene, flavour: str = "native", out=None, progress=None) -> Exp
                                                              "model"), monolithic=True)
     path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
     try:
+        fmus = pair_for(fmus, scene.plant.fidelity)     # the chosen rung's plant FMU
         write_ssp(scene, fmus, path, model=model)       # complete or absent
     except OSError as exc:                              # a full disk: an OutputError naming it
         raise output_error(path, exc) from None

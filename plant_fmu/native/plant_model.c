@@ -373,6 +373,12 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
                    " (at most n_elements, and at most the modes the native FMU carries)"))
         return 0;
     n = (int)r[VR_n_modes];
+    for (i = 0; i < FPM_N_RUNGS && strcmp(fid, fpm_rungs[i]) != 0; i++) {}
+    if (i == FPM_N_RUNGS) {                    /* one FMU per rung family (fpm_vars.h) */
+        fpm_log(lg, FPM_ERROR, "bad parameter: fidelity = '%s' is not a rung of %s; the native "
+                "plant FMUs and their rungs: %s", fid, fpm_model_name, FPM_RUNG_FMUS);
+        return 0;
+    }
     m->exact = strcmp(fid, "exact") == 0;   /* the exact rung (xb_prepare): checked and */
     if (m->exact) fid = "nonlinear";        /* prepared as the nonlinear rung, then its own */
     stiffened = strcmp(fid, "stiffened") == 0;  /* the nonlinear rung with the preload and */
@@ -1248,7 +1254,9 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
 
 size_t fpm_model_nx(void) { return JAC_NX; }
 
-int fpm_model_max_output_derivative_order(void) { return 2; }
+int fpm_model_max_output_derivative_order(void) { return FPM_OUTPUT_DERIVATIVE_ORDER; }
+int fpm_model_offers_me(void) { return FPM_OFFERS_ME; }
+int fpm_model_offers_jacobian(void) { return FPM_OFFERS_JACOBIAN; }
 
 /* The force and its rate at the model's current time: after a doStep, the input polynomial that
  * step used (the stepper's: F_c and its derivatives at the step's start, or the held step average

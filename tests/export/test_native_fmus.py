@@ -101,19 +101,19 @@ def test_variables_are_the_tables_less_the_derivative_inputs(native, native3):
     from fmpy import read_model_description
 
     from fmu_common.variables import independent_variable, native_variables
-    from orchestration.export.model_description import TABLES, xml_value
+    from orchestration.export.model_description import NATIVE, xml_value
     for name, path in native.items():
-        _, table = TABLES[name]
+        _, table, offers = NATIVE[name]
         md2 = read_model_description(path)
         md3 = read_model_description(native3[name])
-        expected = [(vr, v.name) for vr, v in native_variables(table)]
+        expected = [(vr, v.name) for vr, v in native_variables(table, offers.model_exchange)]
         assert [(v.valueReference, v.name) for v in md2.modelVariables] == expected
         assert [(v.valueReference, v.name) for v in md3.modelVariables
                 if v.name != "time"] == expected
         assert [v.valueReference for v in md3.modelVariables if v.name == "time"] == \
             [independent_variable(table)[0]]
         assert md2.coSimulation.canInterpolateInputs
-        for v, (_, t) in zip(md2.modelVariables, native_variables(table)):
+        for v, (_, t) in zip(md2.modelVariables, native_variables(table, offers.model_exchange)):
             assert v.unit == (t.unit if t.type == "Real" else None)
             if t.start is not None:
                 assert str(v.start).lower() == xml_value(t.start, native=True).lower() or \
