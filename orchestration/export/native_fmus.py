@@ -245,8 +245,10 @@ def _inputs(name: str) -> list[Path]:
     files = [SRC / f for f in ("fpm.h", *CORE_SOURCES, "fmi2.c", "fmi3.c")] + [model_source(name)]
     for k in MODELS[name][1]:
         files += kernels.source_files(k)
-    files += [ROOT / "plant_fmu" / f for f in ("interface.py", "beam.py", "params.py")]
+    files += [ROOT / "plant_fmu" / f for f in ("interface.py", "beam.py", "params.py",
+                                                 "nominals.py")]
     files += [ROOT / "controller_fmu" / "interface.py", ROOT / "controller_fmu" / "pd_lowpass.py",
+              ROOT / "controller_fmu" / "nominals.py",
               Path(__file__).resolve(), Path(kernels.__file__).resolve(),
               ROOT / "orchestration" / "export" / "model_description.py"]
     return files
