@@ -56,8 +56,8 @@ VARIABLES: tuple[Variable, ...] = (
     *(parameter(n, _DEFAULTS[n], d, u, f"controller.{n}") for n, (d, u) in _PARAMS.items()),
     # Model Exchange: the filter state and its derivatives (no event indicators: the saturation
     # acts on the output alone, which stays continuous in time; see docs/fmus.md)
-    real_local("xc_1", "filter state 1: the filtered error signal (state; nominal: "
-                       "force_limit, or |kp| x 1 rad when unlimited)", "N", state=True),
+    real_local("xc_1", "filter state 1: the filtered error signal (state; nominal: the "
+                       "smaller of |kp| x 1 rad and force_limit)", "N", state=True),
     real_local("xc_2", "filter state 2: the rate of xc_1 (order 2; state; nominal: cutoff "
                        "times the nominal of xc_1)", "N/s", state=True),
     real_local("der(xc_1)", "time derivative of xc_1", "N/s", der_of="xc_1",

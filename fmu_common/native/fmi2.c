@@ -29,7 +29,7 @@ static void emit(fpm_instance *c, int status, const char *category, const char *
 {
     const fmi2CallbackFunctions *cb = (const fmi2CallbackFunctions *)c->host;
     if (cb->logger == NULL) return;
-    if (status == FPM_OK && !c->logging_on) return;
+    if (!fpm_log_wanted(c, status)) return;            /* its category is disabled */
     cb->logger(cb->componentEnvironment, c->name, (fmi2Status)status, category, message);
 }
 

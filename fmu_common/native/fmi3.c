@@ -38,7 +38,7 @@ static void emit(fpm_instance *c, int status, const char *category, const char *
 {
     const host3 *h = (const host3 *)c->host;
     if (h->log == NULL) return;
-    if (status == FPM_OK && !c->logging_on) return;
+    if (!fpm_log_wanted(c, status)) return;            /* its category is disabled */
     h->log(h->env, (fmi3Status)status, category, message);
 }
 
@@ -60,10 +60,12 @@ static fmi3Instance instantiate(const char *fn, fmi3String name, fmi3String toke
     h.env = env;
     h.log = log;
     h.event_mode_used = eventModeUsed ? 1 : 0;
-    return fpm_instantiate(fn, name, token, interface,
-                           interface == FPM_MODEL_EXCHANGE ? S_FMI3_ME
-                           : eventModeUsed ? S_FMI3 : (S_FMI3 & ~FPM_EVENT), &h, sizeof h, emit,
-                           loggingOn ? 1 : 0);
+    fpm_instance *c = fpm_instantiate(fn, name, token, interface,
+                                      interface == FPM_MODEL_EXCHANGE ? S_FMI3_ME
+                                      : eventModeUsed ? S_FMI3 : (S_FMI3 & ~FPM_EVENT), &h,
+                                      sizeof h, emit, loggingOn ? 1 : 0);
+    if (c != NULL) c->time_vr = fpm_time_vr;   /* FMI 3.0 declares `time` (fpm_get, fpm_set) */
+    return c;
 }
 
 fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
@@ -229,7 +231,10 @@ static fmi3Status no_such(fmi3Instance inst, const char *fn, const char *type,
     }
     for (i = 0; i < nvr; i++) {
         int k = fpm_lookup(vr[i]);
-        if (k < 0)
+        if (k < 0 && (long)vr[i] == C->time_vr)
+            fpm_log(&C->lg, FPM_ERROR, "%s: variable time (value reference %u) is of type "
+                    "Float64, not %s", fn, (unsigned)vr[i], type);
+        else if (k < 0)
             fpm_log(&C->lg, FPM_ERROR, "%s: %s has no variable with value reference %u", fn,
                     fpm_model_name, (unsigned)vr[i]);
         else

@@ -135,6 +135,14 @@ typedef struct fpm_logger {
     void *env;
 } fpm_logger;
 
+/* The log categories (native_fmus.LOG_CATEGORIES), indexed by the status whose messages they
+ * are: a message of status s has category fpm_log_categories[s] (FPM_OK: "logAll", the debug
+ * messages; "logAll" enabled also lets every other category's messages through). */
+#define FPM_N_CATEGORIES 5
+extern const char *const fpm_log_categories[FPM_N_CATEGORIES];
+/* The index of category `name` in fpm_log_categories, or -1 (not one of them; NULL). */
+int fpm_log_category(const char *name);
+
 /* Format and send a message with a status (a printf format; '%' is never sent on). */
 void fpm_log(const fpm_logger *lg, int status, const char *fmt, ...)
 #if defined(__GNUC__)
@@ -146,6 +154,9 @@ void fpm_log(const fpm_logger *lg, int status, const char *fmt, ...)
 extern const fpm_var fpm_vars[FPM_MAX_VARS];   /* name NULL: no variable of that reference */
 extern const char fpm_model_name[];
 extern const char fpm_token[];                 /* GUID / instantiation token */
+extern const long fpm_time_vr;                 /* FMI 3.0's independent variable `time` (not in
+                                                  fpm_vars: FMI 2.0 does not declare it), -1 if
+                                                  the table has none */
 
 /* ---- The guard (fpm_guard.c): no model needed --------------------------------------------- */
 /* The name of a mode ("Instantiated", "InitializationMode", ...). */
@@ -314,7 +325,13 @@ struct fpm_instance {
     fpm_host_emit host_emit;
     void *host;                /* the adapter's copy of the host's callbacks (host_size bytes) */
     char name[128];
-    int logging_on;
+    int log_mask;              /* bit s: category fpm_log_categories[s] is enabled (bit 0: logAll,
+                                  the debug messages; fpm_log_wanted) */
+    long time_vr;              /* the value reference of `time` (FMI 3.0: fpm_time_vr, which
+                                  GetFloat64 reads as the instance's time), -1: none (FMI 2.0) */
+    char event_said[FPM_MSG_MAX]; /* the last warning of an event update (each event's message
+                                     once: fpm_me_update_discrete) */
+    int event_repeat;          /* the current event update repeated event_said */
     int interface;             /* FPM_COSIMULATION or FPM_MODEL_EXCHANGE */
     int modes;                 /* the modes this instance can reach */
     int mode;
@@ -339,6 +356,8 @@ void fpm_free_instance(fpm_instance *c);
  * adapter's function name and `mask` the modes it is allowed in. */
 int fpm_set_debug_logging(fpm_instance *c, const char *fn, int mask, int on, size_t n,
                           const char *const categories[]);
+/* 1 if a message of `status` goes to the host (its category, or logAll, is enabled). */
+int fpm_log_wanted(const fpm_instance *c, int status);
 int fpm_enter_init(fpm_instance *c, const char *fn, int mask, double start, int stop_defined,
                    double stop, int enter);
 int fpm_exit_init(fpm_instance *c, const char *fn, int mask, int next_mode);

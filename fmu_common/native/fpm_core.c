@@ -18,6 +18,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#define FPM_LOG_STATUS 30   /* the mask of the status categories (Warning .. Fatal) */
 #define MAGIC "FPMS"
 #define FORMAT 3u     /* 3: the models save whether a step was taken (issue 24) */
 #define HEADER 24u
@@ -115,7 +116,8 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
     tmp.host_emit = emit;
     tmp.lg.emit = core_emit;
     tmp.lg.env = &tmp;
-    tmp.logging_on = logging_on;
+    tmp.log_mask = FPM_LOG_STATUS | (logging_on ? 1 : 0);
+    tmp.time_vr = -1;
     strncpy(tmp.name, name ? name : "?", sizeof tmp.name - 1);
     if (interface != FPM_COSIMULATION && interface != FPM_MODEL_EXCHANGE) {
         fpm_log(&tmp.lg, FPM_ERROR, "%s: unknown FMU type %d (co-simulation or model exchange)",
@@ -178,13 +180,52 @@ void fpm_free_instance(fpm_instance *c)
     free(c);
 }
 
+/* Log categories. A message's category is its status's (fpm_log_categories); the host enables
+ * and disables categories, and a message goes out when its category or logAll is enabled:
+ *   instantiation     the status categories (Warning, Discard, Error, Fatal) enabled: a non-OK
+ *                     status comes with its reason whatever loggingOn says; logAll (the debug
+ *                     messages) as loggingOn says;
+ *   on, none named    every category enabled;
+ *   off, none named   logAll disabled (no debug messages); the status categories stay, as at
+ *                     instantiation: the reason of a refusal is silenced only on request, by name;
+ *   on, named         only the named categories enabled (FMI 2.0 section 2.1.5: "only debug
+ *                     messages according to the categories argument shall be output");
+ *   off, named        the named categories disabled, the others unchanged.
+ * An unknown category (or a NULL name) is refused with Error, and nothing changes. */
+int fpm_log_wanted(const fpm_instance *c, int status)
+{
+    if (status < FPM_OK || status > FPM_FATAL) return 1;
+    return (c->log_mask & 1) || (c->log_mask & (1 << status));
+}
+
 int fpm_set_debug_logging(fpm_instance *c, const char *fn, int mask, int on, size_t n,
                           const char *const categories[])
 {
+    size_t i;
+    int named = 0;
     GUARD(c, fn, mask);
     if (n > 0 && categories == NULL)
         return fpm_refuse(c, FPM_ERROR, fn, "categories is NULL but nCategories > 0");
-    c->logging_on = on ? 1 : 0;
+    for (i = 0; i < n; i++) {
+        int k = fpm_log_category(categories[i]);
+        if (k < 0) {
+            char allowed[128] = "";
+            int j;
+            for (j = 0; j < FPM_N_CATEGORIES; j++) {
+                if (j) strcat(allowed, ", ");
+                strcat(allowed, fpm_log_categories[j]);
+            }
+            fpm_log(&c->lg, FPM_ERROR, "%s: unknown log category %s%s%s (categories[%lu]); "
+                    "allowed: %s; the logging is unchanged", fn, categories[i] ? "'" : "",
+                    categories[i] ? categories[i] : "NULL", categories[i] ? "'" : "",
+                    (unsigned long)i, allowed);
+            return FPM_ERROR;
+        }
+        named |= 1 << k;
+    }
+    if (n == 0) c->log_mask = on ? FPM_LOG_STATUS | 1 : c->log_mask & ~1;
+    else if (on) c->log_mask = named;
+    else c->log_mask &= ~named;
     return FPM_OK;
 }
 
@@ -201,6 +242,7 @@ int fpm_enter_init(fpm_instance *c, const char *fn, int mask, double start, int 
     v = *fpm_model_values(c->m);          /* keep the values set so far, restart the time */
     fpm_model_reset(c->m, start);
     *fpm_model_values(c->m) = v;
+    c->event_said[0] = '\0';
     if (enter) c->mode = FPM_INIT;
     return FPM_OK;
 }
@@ -261,12 +303,55 @@ int fpm_reset(fpm_instance *c, const char *fn, int mask)
     fpm_model_reset(c->m, 0.0);
     c->mode = FPM_INSTANTIATED;
     c->discarded = 0;
+    c->event_said[0] = '\0';                  /* a new run says its events anew */
     return FPM_OK;
 }
 
 double fpm_time(const fpm_instance *c) { return fpm_model_time(c->m); }
 
 /* ------------------------------------------------------------------ variables */
+/* FMI 3.0's independent variable `time` (c->time_vr; FMI 2.0 declares none). It is no entry of
+ * the table (FMI 2.0 leaves it out with the same value references): a get or set that names it
+ * takes one of these ways, every other call the table's. Its value is the instance's time
+ * (fpm_time): startTime after fmi3EnterInitializationMode, the time a doStep reached
+ * (co-simulation), the time last set by fmi3SetTime (Model Exchange). */
+static int names_time(const fpm_instance *c, const unsigned vr[], size_t n)
+{
+    size_t i;
+    if (c->time_vr < 0 || vr == NULL) return 0;
+    for (i = 0; i < n; i++)
+        if ((long)vr[i] == c->time_vr) return 1;
+    return 0;
+}
+
+static int get_with_time(fpm_instance *c, const char *fn, int mask, const unsigned vr[],
+                         size_t n, void *values, int type, int layout,
+                         const char *const type_names[4])
+{
+    size_t i;
+    int worst = FPM_OK;
+    if (type != FPM_REAL) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: variable time (value reference %ld) is of type %s, not "
+                "%s", fn, c->time_vr, type_names[FPM_REAL], type_names[type]);
+        return FPM_ERROR;
+    }
+    if (values == NULL) {
+        fpm_log(&c->lg, FPM_ERROR, "%s: the value array is NULL but %lu values are asked for",
+                fn, (unsigned long)n);
+        return FPM_ERROR;
+    }
+    for (i = 0; i < n; i++) {
+        int rc = FPM_OK;
+        if ((long)vr[i] == c->time_vr)
+            ((double *)values)[i] = fpm_time(c);
+        else
+            rc = fpm_get(c, fn, mask, &vr[i], 1, (double *)values + i, type, layout, type_names);
+        if (rc > FPM_WARNING) return rc;
+        if (rc > worst) worst = rc;
+    }
+    return worst;
+}
+
 int fpm_get(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size_t n,
             void *values, int type, int layout, const char *const type_names[4])
 {
@@ -274,6 +359,8 @@ int fpm_get(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size
     size_t i;
     int worst = FPM_OK;
     GUARD(c, fn, mask);
+    if (names_time(c, vr, n))
+        return get_with_time(c, fn, mask, vr, n, values, type, layout, type_names);
     if (!ACCESS(c, fn, vr, n, values, type, 0, type_names)) return FPM_ERROR;
     v = fpm_model_values(c->m);
     for (i = 0; i < n; i++) {
@@ -301,6 +388,13 @@ int fpm_set(fpm_instance *c, const char *fn, int mask, const unsigned vr[], size
     fpm_values *v;
     size_t i;
     GUARD(c, fn, mask);
+    if (names_time(c, vr, n)) {              /* FMI 3.0, section 2.4.7.4: not to be set */
+        fpm_log(&c->lg, FPM_ERROR, "%s: time (value reference %ld) is the independent variable: "
+                "it cannot be set (it is startTime of EnterInitializationMode, then the time "
+                "SetTime sets in Model Exchange, the time doStep reaches in co-simulation); "
+                "nothing was set", fn, c->time_vr);
+        return FPM_ERROR;
+    }
     if (!ACCESS(c, fn, vr, n, values, type, 1, type_names)) return FPM_ERROR;
     if (layout == FPM_C_STRING)               /* every string checked before any is set */
         for (i = 0; i < n; i++) {
@@ -771,21 +865,54 @@ int fpm_me_get_event_indicators(fpm_instance *c, const char *fn, int mask, doubl
     return fpm_model_event_indicators(c->m, &c->lg, z);
 }
 
+/* The model's event update, each event's message once. An importer may ask about the same
+ * event more than once: completedIntegratorStep, then (it asks to terminate, but the importer
+ * handles the state event it located anyway) event mode and NewDiscreteStates /
+ * UpdateDiscreteStates at the same time and state; and the event iteration itself repeats the
+ * update. The model's warning names the event (the time and the value that reached its bound,
+ * to 17 digits): the same warning again is the same event, answered as before (terminate) but
+ * with status OK and no second message. A different time or state is another event, said
+ * anew. */
+static void event_emit(void *env, int status, const char *category, const char *message)
+{
+    fpm_instance *c = (fpm_instance *)env;
+    if (status == FPM_WARNING) {
+        if (strcmp(message, c->event_said) == 0) {
+            c->event_repeat = 1;
+            return;
+        }
+        strncpy(c->event_said, message, FPM_MSG_MAX - 1);
+        c->event_said[FPM_MSG_MAX - 1] = '\0';
+    }
+    c->host_emit(c, status, category, message);
+}
+
+static int event_update(fpm_instance *c, int *terminate)
+{
+    fpm_logger lg;
+    int rc;
+    lg.emit = event_emit;
+    lg.env = c;
+    *terminate = 0;
+    c->event_repeat = 0;
+    rc = fpm_model_event_update(c->m, &lg, terminate);
+    if (rc == FPM_WARNING && c->event_repeat) rc = FPM_OK;          /* said before */
+    return rc;
+}
+
 int fpm_me_update_discrete(fpm_instance *c, const char *fn, int mask, int *terminate)
 {
     INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
     GUARD(c, fn, mask);
-    *terminate = 0;
-    return fpm_model_event_update(c->m, &c->lg, terminate);
+    return event_update(c, terminate);
 }
 
 int fpm_me_completed_step(fpm_instance *c, const char *fn, int mask, int *terminate)
 {
     INTERFACE(c, fn, FPM_MODEL_EXCHANGE);
     GUARD(c, fn, mask);
-    *terminate = 0;
     /* an importer that does not locate events is told here that a bound was crossed */
-    return fpm_model_event_update(c->m, &c->lg, terminate);
+    return event_update(c, terminate);
 }
 
 /* ------------------------------------------------------------------ directional derivatives */

@@ -8,10 +8,21 @@
 #include <stdio.h>
 #include <string.h>
 
+const char *const fpm_log_categories[FPM_N_CATEGORIES] = {
+    "logAll", "logStatusWarning", "logStatusDiscard", "logStatusError", "logStatusFatal"};
+
+int fpm_log_category(const char *name)
+{
+    int k;
+    if (name == NULL) return -1;
+    for (k = 0; k < FPM_N_CATEGORIES; k++)
+        if (strcmp(name, fpm_log_categories[k]) == 0) return k;
+    return -1;
+}
+
 void fpm_log(const fpm_logger *lg, int status, const char *fmt, ...)
 {
     char msg[FPM_MSG_MAX];
-    const char *cat;
     size_t i;
     va_list ap;
     if (lg == NULL || lg->emit == NULL) return;
@@ -25,14 +36,8 @@ void fpm_log(const fpm_logger *lg, int status, const char *fmt, ...)
         if (ch == '%') msg[i] = '#';
         else if (ch < 0x20 || ch > 0x7e) msg[i] = '?';
     }
-    switch (status) {
-    case FPM_OK: cat = "logAll"; break;
-    case FPM_WARNING: cat = "logStatusWarning"; break;
-    case FPM_DISCARD: cat = "logStatusDiscard"; break;
-    case FPM_ERROR: cat = "logStatusError"; break;
-    default: cat = "logStatusFatal"; break;
-    }
-    lg->emit(lg->env, status, cat, msg);
+    if (status < FPM_OK || status > FPM_FATAL) status = FPM_FATAL;
+    lg->emit(lg->env, status, fpm_log_categories[status], msg);
 }
 
 const char *fpm_mode_name(int mode)

@@ -22,11 +22,11 @@ import xml.etree.ElementTree as ET
 
 from controller_fmu import interface as controller_interface
 from fmu_common.variables import (derivatives, event_indicators, independent_variable,
-                                  native_variables, python_entries, states)
+                                  native_variables, parameter_defaults, python_entries, states)
 from plant_fmu import interface as plant_interface
 
 __all__ = ["TABLES", "NATIVE", "UNITS", "FMI3_TYPES", "fmi2_model_description",
-           "fmi3_model_description", "xml_value", "generation_date", "NO_LIMIT"]
+           "fmi3_model_description", "xml_value", "generation_date", "NO_LIMIT", "state_nominals"]
 
 #: "No limit" (an infinite start value: force_limit, phi_limit, energy_limit) as the native FMUs'
 #: descriptions write it: the largest double, 1.7976931348623157e+308. Every checker reads it
@@ -112,6 +112,33 @@ def _me_structure(entries):
             event_indicators(table), states(table))
 
 
+def state_nominals(table) -> dict:
+    """``{state: nominal}`` a native FMU's description declares (the ``nominal`` attribute of
+    each continuous state): what ``fmi*GetNominalsOfContinuousStates`` returns after
+    initialisation at the table's start values, from the model's Python twin of its C formulas
+    (:func:`plant_fmu.nominals.state_nominals`, :func:`controller_fmu.nominals.state_nominals`;
+    tests/export/test_native_nominals.py compares them with the binaries). The run-time call
+    follows the parameters set, as the standard allows (the attribute is the value at the start
+    values). {} for a table without states.
+
+    The derivatives get no ``nominal``: the importers we know (fmpy's CVode, FMI4j, fmi-sim,
+    libcosim, flexpend's model-exchange master) weight the integration error by the states'
+    nominals only, and the scale of an acceleration is not a constant of the model (at an event
+    it is many times the typical one), so a declared value would tell a solver that scales its
+    residuals by it less than the states' nominals already do."""
+    names = states(table)
+    if not names:
+        return {}
+    from controller_fmu import nominals as controller_nominals
+    from plant_fmu import nominals as plant_nominals
+    for interface, module in ((plant_interface, plant_nominals),
+                              (controller_interface, controller_nominals)):
+        if tuple(names) == tuple(interface.STATES):
+            found = module.state_nominals(parameter_defaults(table))
+            return {n: found[n] for n in names}
+    raise ValueError(f"no nominals are known for the continuous states {names}")
+
+
 def _dependencies(v, native):
     """The variables an output or derivative depends on: its inputs, and in a native FMU (Model
     Exchange) its states."""
@@ -167,6 +194,7 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
     _header(root, model, UNITS, log_categories, _units([v for _, v in entries]))
     mv = ET.SubElement(root, "ModelVariables")
     index = {v.name: i + 1 for i, (_, v) in enumerate(entries)}
+    nominals = state_nominals([v for _, v in entries]) if native else {}
     for i, (vr, v) in enumerate(entries):
         attrs = {"name": v.name, "valueReference": str(vr), "description": v.description,
                  "causality": v.causality, "variability": v.variability}
@@ -176,6 +204,8 @@ def fmi2_model_description(name: str, guid: str, *, generation_tool: str,
         typ = {}
         if v.type == "Real" and v.unit:
             typ["unit"] = v.unit
+        if v.name in nominals:
+            typ["nominal"] = repr(nominals[v.name])
         if v.der_of is not None:
             typ["derivative"] = str(index[v.der_of])
         if v.start is not None:
@@ -234,6 +264,7 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
             sorted({"s", *_units([v for _, v in entries])}))     # "s": the unit of time
     mv = ET.SubElement(root, "ModelVariables")
     vrs = {v.name: vr for vr, v in entries}
+    nominals = state_nominals([v for _, v in entries])
     time_vr, time = independent_variable(table)
     ET.SubElement(mv, "Float64", {"name": time.name, "valueReference": str(time_vr),
                                   "causality": "independent", "variability": "continuous",
@@ -245,6 +276,8 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
             attrs["initial"] = v.initial
         if v.type == "Real" and v.unit:
             attrs["unit"] = v.unit
+        if v.name in nominals:
+            attrs["nominal"] = repr(nominals[v.name])
         if v.der_of is not None:
             attrs["derivative"] = str(vrs[v.der_of])
         if v.start is not None and v.type != "String":
