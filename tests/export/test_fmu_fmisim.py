@@ -15,9 +15,9 @@ fmi-sim's input CSV.
   ``fmi2SetTime``/``fmi3SetTime``, the inputs, ``completedIntegratorStep``, and an event iteration
   when an event indicator changed sign, counted from 0 before the first step). :func:`euler_me`
   makes the same calls through fmpy's Model-Exchange API, so the comparison is again to
-  round-off, and again to the bit. The steps are short (``h`` = 2^-14 s over 2^-5 s): Euler is unstable on the
-  undamped beam modes at any step (``|1 + h lambda| > 1``), and the run must stay far from the
-  FMU's divergence bounds.
+  round-off, and again to the bit. The steps are short (``h`` = 2^-14 s over 2^-5 s): Euler is
+  unstable on the lightly damped beam modes at any step this size (``|1 + h lambda| > 1``), and
+  the run must stay far from the FMU's divergence bounds.
 * Every rung gives another trajectory (fmi-sim ignores the status of a start value it sets: a
   refused rung would run the default one).
 * fmi-sim 0.7.0 reads the modelDescription with fmi-schema 0.8.0, which refuses ``unit`` on an
@@ -29,8 +29,9 @@ fmi-sim is installed once per machine (``cargo install --locked``, the versions 
 ``Cargo.lock``) into ``$XDG_CACHE_HOME/flexpend/tests/fmi-sim-0.7.0/`` (by default under
 ``~/.cache``), outside the checkout; a second session reuses it. Concurrent sessions (the workers
 of ``-n 2``, two checkouts) take turns on a file lock, and the finished installation is renamed
-into place, so nobody sees half of it. The cold build takes about 5 minutes on 2 cores (arrow, the
-CSV and table crates fmi-sim uses). Skipped without cargo, when cargo's rustc is older than 1.88
+into place, so nobody sees half of it. The cold build (arrow, the CSV and table crates fmi-sim
+uses, bindgen) runs the release profile without optimisation (:data:`UNOPTIMISED`): about 3
+CPU-minutes instead of 9 (4.6 minutes of wall time on the 2-core test machine beside other work). Skipped without cargo, when cargo's rustc is older than 1.88
 (the crate is edition 2024, and its lock file pins ``zip`` 8.6 and ``time`` 0.3.47, which need
 1.88: Debian 12's ``cargo`` package has rustc 1.63; its ``cargo-web`` package, rustc 1.96 in
 bookworm-security, builds it, and ``.ci/run`` installs that), when crates.io cannot be reached
@@ -110,8 +111,16 @@ def cache_dir() -> Path:
     return Path(base) / "flexpend" / "tests" / f"fmi-sim-{FMI_SIM}"
 
 
+#: cargo install's release profile without optimisation: a third of the CPU time of the cold
+#: build (3.1 to 3.4 instead of 9.2 CPU-minutes here), and the simulator's own work is small
+#: beside the FMU's (the test's runs take as long as with the optimised build)
+UNOPTIMISED = {"CARGO_PROFILE_RELEASE_OPT_LEVEL": "0", "CARGO_PROFILE_RELEASE_LTO": "false",
+               "CARGO_PROFILE_RELEASE_CODEGEN_UNITS": "256", "CARGO_PROFILE_RELEASE_DEBUG": "false"}
+
+
 def _cargo_install(root: Path, *flags) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PATH": f"{Path(CARGO).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    env = {**os.environ, **UNOPTIMISED,
+           "PATH": f"{Path(CARGO).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
     env.pop("CARGO_TARGET_DIR", None)         # cargo install's own temporary target folder
     return subprocess.run([CARGO, "install", "fmi-sim", "--version", FMI_SIM, "--locked",
                            "--root", str(root), *flags], capture_output=True, text=True,
@@ -140,6 +149,7 @@ def install_fmi_sim() -> Path:
         if exe.is_file():
             return exe
         staging = Path(tempfile.mkdtemp(prefix=f".fmi-sim-{FMI_SIM}-", dir=final.parent))
+        staging.chmod(0o755)                       # mkdtemp's 0700: the installed folder's mode
         try:
             built = _cargo_install(staging, "--offline")
             if built.returncode != 0:
@@ -153,6 +163,7 @@ def install_fmi_sim() -> Path:
                                 f"{built.stderr[-500:]}")
             assert built.returncode == 0, built.stderr[-3000:]
             assert (staging / "bin" / "fmi-sim").is_file()
+            shutil.rmtree(final, ignore_errors=True)   # an incomplete one (no executable)
             staging.rename(final)                  # atomic: the folder appears complete
         finally:
             shutil.rmtree(staging, ignore_errors=True)
