@@ -64,8 +64,9 @@ def test_no_value_reference_of_an_existing_variable_changes(name):
     cs = {"modelIdentifier": name}
     docs = {"python": fmi2_model_description(name, "{g}", generation_tool="t", co_simulation=cs),
             "native2": fmi2_model_description(name, "{g}", generation_tool="t", co_simulation=cs,
-                                              native=True),
-            "native3": fmi3_model_description(name, "{g}", generation_tool="t", co_simulation=cs)}
+                                              native=True, model_exchange=cs),
+            "native3": fmi3_model_description(name, "{g}", generation_tool="t", co_simulation=cs,
+                                              model_exchange=cs)}
     seen = set()
     for flavour, xml in docs.items():
         vrs = {v.get("name"): int(v.get("valueReference"))
@@ -158,3 +159,26 @@ def test_generation_date_is_schema_utc_and_file_is_readable(fmus, name):
     assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", date)
     mode = stat.S_IMODE(os.stat(fmus[name]).st_mode)
     assert mode & 0o044 == 0o044          # readable by group and others (was 0600)
+
+
+@pytest.mark.parametrize("name", ["FlexiblePendulumStiffened", "FlexiblePendulumExact"])
+def test_each_plant_family_keeps_the_plants_value_references(name):
+    """One FMU per rung family (docs/fmus.md): each native plant FMU declares the variables of
+    FlexiblePendulum it offers at FlexiblePendulum's frozen references (FMI 3.0's time at 71),
+    and the Model-Exchange locals exactly when it offers Model Exchange."""
+    import xml.etree.ElementTree as ET
+
+    from orchestration.export.native_fmus import _model_description
+
+    frozen = FROZEN["FlexiblePendulum"]
+    me_only = {v.name for v in TABLES["FlexiblePendulum"][1] if v.me_only}
+    for version in (2, 3):
+        root = ET.fromstring(_model_description(name, version, "{g}"))
+        vrs = {v.get("name"): int(v.get("valueReference")) for v in root.find("ModelVariables")}
+        assert {n: vr for n, vr in vrs.items() if n in frozen} == \
+            {n: vr for n, vr in frozen.items() if n in vrs}
+        me = root.find("ModelExchange") is not None
+        assert (me_only <= set(vrs)) if me else not (me_only & set(vrs)), (version, me)
+        inputs = {"dF_c", "d2F_c"}               # the pythonfmu flavour's input derivatives
+        assert set(frozen) - set(vrs) <= (set() if me else me_only) | {"time"} | inputs
+        assert version == 2 or vrs["time"] == 71

@@ -16,6 +16,7 @@ from orchestration.scene.keys import ConfigError
 from orchestration.scene.schema import load_scene
 from orchestration.studies.reference import exact_first_mode_tip
 from plant_fmu.exact import ExactPlant, RadauIIA, StageForce
+from plant_fmu.interface import PLANT_FMUS, plant_fmu_name
 from plant_fmu.kernel import ExactKernel
 from plant_fmu.params import PlantParams
 
@@ -43,15 +44,14 @@ class Cs(NativeFmu):
 
 
 @pytest.fixture(scope="module")
-def plant_dirs(native):
-    """The native plant of both FMI versions, unpacked: version -> folder."""
+def plant_dirs(native, native3):
+    """The native plant FMUs of both FMI versions, unpacked: (version, FMU name) -> folder."""
     import shutil
 
     from fmpy import extract
 
-    from orchestration.export import build_fmus
-    dirs = {2: extract(native["FlexiblePendulum"]),
-            3: extract(build_fmus(flavour="native", fmi_version=3)["FlexiblePendulum"])}
+    dirs = {(v, name): extract(built[name]) for v, built in ((2, native), (3, native3))
+            for name in PLANT_FMUS}
     yield dirs
     for d in dirs.values():
         shutil.rmtree(d, ignore_errors=True)
@@ -59,7 +59,12 @@ def plant_dirs(native):
 
 @pytest.fixture
 def open_plant(plant_dirs):
-    yield from opened_by(lambda version=2, **start: Cs(plant_dirs[version], version, **start))
+    """Factory: ``open_plant(version, **start)``: an instance of the native plant FMU that runs
+    the rung ``start["fidelity"]`` (one FMU per rung family, plant_fmu.interface.PLANT_FMUS)."""
+    def make(version=2, **start):
+        name = plant_fmu_name(start.get("fidelity", "nonlinear"))
+        return Cs(plant_dirs[version, name], version, **start)
+    yield from opened_by(make)
 
 
 def forcing(k):
@@ -218,8 +223,8 @@ def test_a_restored_state_continues_bit_for_bit(open_plant):
 
 def test_a_restored_stiffened_state_continues_bit_for_bit_in_any_instance(open_plant):
     """The stiffened rung adds no state: its mass points are made from the parameters. A state
-    saved mid-run and restored, in its own instance or serialised into one opened at the
-    default rung on another mesh, continues as the stiffened run to the last bit, and not as
+    saved mid-run and restored, in its own instance or serialised into another instance of its
+    FMU (FlexiblePendulumStiffened) opened on another mesh, continues as the stiffened run to the last bit, and not as
     the nonlinear rung with the preload (the same stiffness without the mass points)."""
     start = {"fidelity": "stiffened", "n_elements": 6, "n_modes": 3, "phi0": 0.3}
     inst = open_plant(2, **start)
@@ -229,7 +234,7 @@ def test_a_restored_stiffened_state_continues_bit_for_bit_in_any_instance(open_p
     first = drive(inst, 100, k0=50)
     inst.fmu.setFMUstate(mem)
     assert np.array_equal(drive(inst, 100, k0=50), first)
-    other = open_plant(2, n_elements=9, n_modes=2)
+    other = open_plant(2, fidelity="stiffened", n_elements=9, n_modes=2)
     state = other.fmu.deSerializeFMUstate(data)
     other.fmu.setFMUstate(state)
     assert np.array_equal(drive(other, 100, k0=50), first)
@@ -296,20 +301,44 @@ def test_a_zero_tip_slope_is_refused(open_plant):
 
 # ---------------------------------------------------------------------- what it refuses
 def test_model_exchange_is_refused_with_a_message(plant_dirs):
+    """FlexiblePendulumExact declares no Model Exchange (docs/fmus.md, one FMU per rung family):
+    an instantiation for it is refused (NULL) with a log line saying so."""
+    from fmpy import read_model_description
+    from fmpy.fmi2 import (FMU2Model, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFunctions,
+                           fmi2CallbackFreeMemoryTYPE, fmi2CallbackLoggerTYPE, calloc, free)
+    from fmpy.fmi3 import FMU3Model
+
     for version in (2, 3):
-        inst = Cs(plant_dirs[version], version, model_exchange=True, **XB, n_elements=NE)
-        assert inst.status == 3
-        assert "does not offer Model Exchange" in inst.messages(3)
-        inst.fmu.freeInstance()
+        folder = plant_dirs[version, "FlexiblePendulumExact"]
+        md = read_model_description(folder)
+        assert md.modelExchange is None
+        said = []
+        kw = dict(guid=md.guid, unzipDirectory=folder, instanceName="i",
+                  modelIdentifier=md.coSimulation.modelIdentifier)
+        if version == 2:
+            cb = fmi2CallbackFunctions()
+            cb.logger = fmi2CallbackLoggerTYPE(
+                lambda env, name, status, category, message: said.append(message.decode()))
+            cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+            cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+            with pytest.raises(Exception):
+                FMU2Model(**kw).instantiate(callbacks=cb, loggingOn=True)
+        else:
+            with pytest.raises(Exception):
+                FMU3Model(**kw).instantiate(
+                    loggingOn=True,
+                    logMessage=lambda env, status, category, message:
+                        said.append(message.decode()))
+        assert any("FlexiblePendulumExact offers co-simulation only" in m for m in said), said
 
 
 def test_directional_and_output_derivatives_are_refused_with_a_message(open_plant):
     inst = open_plant(2, **XB, n_elements=NE, phi0=0.3)
     drive(inst, 2)
     rc = inst.call(inst.fmu.getDirectionalDerivative, inst.vr("phi_o"), inst.vr("F_c"), [1.0])
-    assert rc == 3 and "does not offer directional derivatives" in inst.messages(3)
+    assert rc == 3 and "provides no directional derivatives" in inst.messages(3)
     rc = inst.call(inst.fmu.getRealOutputDerivatives, inst.vr("phi_o"), [1])
-    assert rc == 3 and "does not offer output derivatives" in inst.messages(3)
+    assert rc == 3 and "gives no output derivatives" in inst.messages(3)
     drive(inst, 2, k0=2)                                  # and it steps on
 
 
