@@ -27,12 +27,12 @@ def pair(paths):
 
 # ---------------------------------------------------------------------- importers
 def _master(paths, *, algorithm="jacobi", extrapolation=0, step=1e-3, stop=2.0, start=None,
-            input_derivatives=False):
+            input_derivatives=False, plant="FlexiblePendulum"):
     from orchestration.cosim.master import Master
     from orchestration.cosim.slave import Slave
     from orchestration.scene.wiring import parse_connection
     from orchestration.scene.records import DEFAULT_CONNECTIONS
-    slaves = {"plant": Slave(paths["FlexiblePendulum"], "plant", start or {"phi0": 0.3}),
+    slaves = {"plant": Slave(paths[plant], "plant", start or {"phi0": 0.3}),
               "controller": Slave(paths["PDLowPass"], "controller")}
     rec = {"x_o": ("plant", "x_o"), "phi_o": ("plant", "phi_o"),
            "omega_o": ("plant", "omega_o"), "F_c": ("controller", "F_c")}
@@ -208,6 +208,7 @@ from libcosimpy.CosimObserver import CosimObserver
 from libcosimpy.CosimSlave import CosimLocalSlave
 
 plant_fmu, ctrl_fmu, out, steps, step_ns = sys.argv[1:6]
+extra = dict(a.split("=") for a in sys.argv[6:])     # more start values of the plant
 log_output_level(CosimLogLevel.WARNING)
 ex = CosimExecution.from_step_size(step_size=int(step_ns))
 plant = ex.add_local_slave(CosimLocalSlave(fmu_path=plant_fmu, instance_name="plant"))
@@ -218,6 +219,9 @@ for name in ("x_o", "phi_o", "omega_o"):
     ex.connect_real_variables(plant, pv[name], ctrl, cv[name])
 ex.connect_real_variables(ctrl, cv["F_c"], plant, pv["F_c"])
 assert ex.real_initial_value(plant, pv["phi0"], 0.3)
+for name, value in extra.items():
+    assert (ex.integer_initial_value(plant, pv[name], int(value)) if name == "n_elements"
+            else ex.string_initial_value(plant, pv[name], value))
 obs = CosimObserver.create_last_value()
 ex.add_observer(obs)
 rows = []
@@ -232,7 +236,10 @@ np.save(out, np.array(rows))
 @pytest.mark.slow
 def test_libcosim_runs_the_native_pair_like_the_fmpy_master(native, tmp_path):
     """libcosim (Jacobi, its fixed-step algorithm) against the fmpy master's Jacobi run with held
-    inputs, to 1e-12; in an isolated interpreter (python -I) as a user's tool would run it."""
+    inputs, to 1e-12; in an isolated interpreter (python -I) as a user's tool would run it. Not
+    bit for bit: libcosim's clock counts nanoseconds (its step is the difference of two points
+    ``ns / 1e9``, an ulp off 1e-3 at some steps), the master's ``k h``; on libcosim's clock the
+    loop agrees to the bit (:func:`test_libcosim_runs_every_plant_family`)."""
     import libcosimpy  # noqa: F401  (a declared test dependency)
     out = tmp_path / "libcosim.npy"
     proc = subprocess.run([sys.executable, "-I", "-c", LIBCOSIM_RUN, native["FlexiblePendulum"],
@@ -243,3 +250,53 @@ def test_libcosim_runs_the_native_pair_like_the_fmpy_master(native, tmp_path):
     ref = _master(native, stop=1.0)
     for j, c in enumerate(("x_o", "phi_o", "omega_o", "F_c")):
         assert np.max(np.abs(rows[:, j] - ref[c][1:])) <= 1e-12, c
+
+
+def _jacobi_on_libcosims_clock(native, plant, start, steps, step_ns):
+    """The Jacobi loop libcosim runs (outputs of step k feed the inputs of step k + 1), driven
+    through fmpy with libcosim's time arithmetic: integer nanoseconds, the communication point
+    ``ns / 1e9`` and the step the difference of two such points (which differs from 1e-3 by an
+    ulp at some steps: the controller's step then rounds differently)."""
+    from fmpy import extract
+
+    from conftest import NativeFmu
+    sensors = ["x_o", "phi_o", "omega_o"]
+    p = NativeFmu(extract(native[plant]), 2, cs=True, phi0=0.3, **start)
+    c = NativeFmu(extract(native["PDLowPass"]), 2, cs=True)
+    rows = []
+    try:
+        p.initialize(event=False)
+        c.initialize(event=False)
+        for k in range(steps):
+            t, t_next = (k * step_ns) / 1e9, ((k + 1) * step_ns) / 1e9
+            c.set(**dict(zip(sensors, p.get(*sensors))))
+            p.set(F_c=c.get("F_c")[0])
+            assert p.step(t, t_next - t) == 0 and c.step(t, t_next - t) == 0
+            rows.append(p.get(*sensors) + c.get("F_c"))
+    finally:
+        p.close()
+        c.close()
+    return np.array(rows)
+
+
+@pytest.mark.parametrize("plant, start", [
+    ("FlexiblePendulum", {}),
+    ("FlexiblePendulumStiffened", {"fidelity": "stiffened"}),
+    ("FlexiblePendulumExact", {"fidelity": "exact", "n_elements": 4}),
+])
+def test_libcosim_runs_every_plant_family(native, tmp_path, plant, start):
+    """Issue 37, F2: libcosim reads every variable an FMU declares after each step, and aborted on
+    the single plant FMU's exact rung (its Model-Exchange locals refused). Each rung family's own
+    FMU declares only what it gives: libcosim runs it with the controller, bit for bit like the
+    same Jacobi loop driven through fmpy on libcosim's clock."""
+    import libcosimpy  # noqa: F401  (a declared test dependency)
+    out = tmp_path / "libcosim.npy"
+    steps, step_ns = 200, 1_000_000
+    args = [f"{k}={v}" for k, v in start.items()]
+    proc = subprocess.run([sys.executable, "-I", "-c", LIBCOSIM_RUN, native[plant],
+                           native["PDLowPass"], str(out), str(steps), str(step_ns), *args],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = np.load(out)
+    assert np.array_equal(rows, _jacobi_on_libcosims_clock(native, plant, start, steps, step_ns))
+    assert np.ptp(rows[:, 1]) > 1e-3
