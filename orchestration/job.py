@@ -37,7 +37,7 @@ from plant_fmu.beam import beam_model
 from .cosim.master import Master
 from .cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
-from .export import flavour_fmus, plant_role
+from .export import flavour_fmus, plant_role, with_families
 from .files import check_folder, write_csv, write_json
 from .report import figures
 from .report.files import save_figure
@@ -197,8 +197,9 @@ def _read_summaries(path: Path) -> dict:
 def check_wiring(scene: Scene, fmus: dict) -> None:
     """Every connection of ``scene`` names variables the FMUs (``{"plant": path, "controller":
     path}``) have; a ConfigError names the first that does not."""
+    roles = {r for c in scene.connections for r in (c.src, c.dst)}
     variables = {role: [v.name for v in describe(path).modelVariables]
-                 for role, path in fmus.items()}
+                 for role, path in fmus.items() if role in roles}
     for c in scene.connections:
         for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
             if var not in variables[fmu]:
@@ -255,6 +256,7 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress=Tru
     beyond it). ``check_step = False`` skips that check: the run then shows what the limit
     predicts (the tests that observe the growth beyond it)."""
     sink = sink_for(progress, scene.name)
+    fmus = with_families(fmus)              # the other rungs' native FMUs beside its plant
     try:
         return _run_scene(scene, fmus, sink, reference=reference,
                           connections_out=connections_out, stop=stop,

@@ -31,7 +31,7 @@ from .python_fmus import SPECS, BuildError, is_stale
 from .python_fmus import build_fmus as build_python
 
 __all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "flavour_fmus", "plant_role",
-           "pair_for", "main"]
+           "pair_for", "with_families", "main"]
 
 
 def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = "python",
@@ -65,6 +65,23 @@ def fmu_pair(paths: dict) -> dict:
     ``FlexiblePendulumExact``) under its own name (:func:`pair_for` picks a rung's plant)."""
     return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"],
             **{n: p for n, p in paths.items() if n in PLANT_FMUS and n != "FlexiblePendulum"}}
+
+
+def with_families(fmus: dict) -> dict:
+    """``fmus`` with the native plant FMU of each other rung family found beside its plant: a
+    pair whose plant is a native ``FlexiblePendulum.fmu`` in a folder that also holds
+    ``FlexiblePendulumStiffened.fmu`` and ``FlexiblePendulumExact.fmu`` (what ``flexpend build``
+    writes) runs every rung, the companion's included, on its family's FMU (:func:`plant_role`).
+    Anything else is returned as it is."""
+    plant = fmus.get("plant")
+    if plant is None or Path(plant).name != "FlexiblePendulum.fmu":
+        return fmus
+    out = dict(fmus)
+    for name in PLANT_FMUS:
+        sibling = Path(plant).with_name(f"{name}.fmu")
+        if name not in out and name != "FlexiblePendulum" and sibling.is_file():
+            out[name] = str(sibling) if isinstance(plant, str) else sibling
+    return out
 
 
 def plant_role(fmus: dict, fidelity: str) -> str:
