@@ -9,7 +9,7 @@ from pathlib import Path
 from ..files import output_error
 from ..scene.ssp import write_ssp
 from ..studies.fidelity import select_model
-from . import flavour_fmus, pair_for
+from . import flavour_fmus, pair_for, plant_role
 
 __all__ = ["ExportResult", "export_scene"]
 
@@ -20,6 +20,19 @@ class ExportResult:
     scene: object                 # the scene written (its model chosen)
     model: dict | None = None     # the report of the choice, where "auto" chose the model
     fmus: dict = field(default_factory=dict)
+
+
+def _archived(scene, fmus: dict) -> dict:
+    """The FMUs the archive of ``scene`` carries: the pair of its rung (:func:`pair_for`), and
+    the companion run's plant FMU where it is another (the stiffened rung's, for a run on a
+    floating-frame rung that states its error figure), which flexpend's run of the archive
+    takes from it."""
+    out = pair_for(fmus, scene.plant.fidelity)
+    if scene.plant.fidelity in ("nonlinear", "linear") and scene.fidelity.companion:
+        role = plant_role(fmus, "stiffened")
+        if role != "plant":
+            out[role] = fmus[role]
+    return out
 
 
 def export_scene(scene, flavour: str = "native", out=None, progress=None) -> ExportResult:
@@ -43,7 +56,7 @@ def export_scene(scene, flavour: str = "native", out=None, progress=None) -> Exp
                                                              "model"), monolithic=True)
     path = Path(out) if out is not None else Path("out") / f"{scene.name}.ssp"
     try:
-        fmus = pair_for(fmus, scene.plant.fidelity)     # the chosen rung's plant FMU
+        fmus = _archived(scene, fmus)
         write_ssp(scene, fmus, path, model=model)       # complete or absent
     except OSError as exc:                              # a full disk: an OutputError naming it
         raise output_error(path, exc) from None

@@ -6,7 +6,8 @@
     validate_ssd(xml)                                 -> schema problems (SSP 1.0, fmpy's copy)
     fmpy_parameter_set(path)                          the bindings as fmpy.ssp.simulate_ssp takes them
 
-The archive is ``SystemStructure.ssd`` plus both FMUs under ``resources/``. The SSD holds:
+The archive is ``SystemStructure.ssd`` plus both FMUs under ``resources/`` (and the companion
+run's plant FMU, which no component names: :func:`write_ssp`). The SSD holds:
 
 * one ``Component`` per FMU (``plant``, ``controller``), with every input and output as a
   connector and every parameter the scene sets as a ``parameter`` connector;
@@ -270,13 +271,19 @@ def _tool() -> str:
 def write_ssp(scene, fmus: dict, path, model: dict | None = None) -> Path:
     """Write the archive of ``scene`` (its model chosen) with ``fmus`` (``{"plant": path,
     "controller": path}``) to ``path``, atomically; the SSD is validated against the SSP 1.0
-    schema first (a ``ValueError`` lists the problems)."""
+    schema first (a ``ValueError`` lists the problems). Another entry of ``fmus``, named by a
+    native plant FMU of another rung family (``FlexiblePendulumStiffened``: the companion run's
+    plant), rides along under ``resources/`` with no component naming it: an SSP importer
+    ignores it, and flexpend's run of the archive runs that rung on it (:func:`read_ssp`)."""
     from lxml import etree
 
     path = Path(path)
     sources = {c: f"resources/{Path(fmus[c]).name}" for c in ("plant", "controller")}
     if sources["plant"] == sources["controller"]:
         raise ValueError("the plant and the controller FMU have the same file name")
+    riders = {f"resources/{name}.fmu": fmus[name] for name in plant_interface.PLANT_FMUS
+              if name in fmus}
+    riders = {m: f for m, f in riders.items() if m not in sources.values()}
     root = ssd_of(scene, fmus, sources, model)
     problems = validate_ssd(root)
     if problems:
@@ -291,9 +298,10 @@ def write_ssp(scene, fmus: dict, path, model: dict | None = None) -> Path:
             # fixed time stamps: the same scene and FMUs give the same bytes
             zf.writestr(zipfile.ZipInfo(SSD_NAME, (1980, 1, 1, 0, 0, 0)), xml,
                         compress_type=zipfile.ZIP_DEFLATED)
-            for comp in ("plant", "controller"):
-                zf.writestr(zipfile.ZipInfo(sources[comp], (1980, 1, 1, 0, 0, 0)),
-                            Path(fmus[comp]).read_bytes(), compress_type=zipfile.ZIP_STORED)
+            for member, fmu in [*((sources[c], fmus[c]) for c in ("plant", "controller")),
+                                *riders.items()]:
+                zf.writestr(zipfile.ZipInfo(member, (1980, 1, 1, 0, 0, 0)),
+                            Path(fmu).read_bytes(), compress_type=zipfile.ZIP_STORED)
         os.replace(part, path)
     finally:
         if os.path.exists(part):
@@ -523,6 +531,13 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
     except ConfigError as exc:
         raise exc.prefixed(f"{label}: ", cls=SspError) from None
     fmus = {role[n]: p for n, (p, _) in info.items()}
+    sources = {Path(p).name.partition("_")[2] for p in fmus.values()}
+    for rung_fmu in plant_interface.PLANT_FMUS:     # another family's plant riding along
+        member = f"resources/{rung_fmu}.fmu"
+        if member in names and f"{rung_fmu}.fmu" not in sources:
+            dest = archive.copy_member(zf, member, Path(tmpdir) / f"{rung_fmu}.fmu", label)
+            archive.check_fmu_archive(dest, f"{label}: {member}")
+            fmus[rung_fmu] = str(dest)
     components = {role[n]: n for n in info}
     return SspSystem(path, scene, fmus, components, tmpdir)
 

@@ -271,13 +271,34 @@ def test_export_native_ships_the_native_fmus(tmp_path):
     assert code == 0, err
     with zipfile.ZipFile(tmp_path / "x.ssp") as zf:
         fmus = [n for n in zf.namelist() if n.endswith(".fmu")]
-        assert len(fmus) == 2
+        # the pair, and the companion run's plant riding along (no component names it)
+        assert sorted(fmus) == sorted(f"resources/{n}.fmu" for n in
+                                      ("FlexiblePendulum", "PDLowPass",
+                                       "FlexiblePendulumStiffened"))
+        assert "FlexiblePendulumStiffened" not in zf.read("SystemStructure.ssd").decode()
         for n in fmus:
             (tmp_path / n.replace("/", "_")).write_bytes(zf.read(n))
     for n in fmus:
         md = read_model_description(str(tmp_path / n.replace("/", "_")))
         assert md.coSimulation.canInterpolateInputs          # the native FMI 2.0 FMUs
         assert not any(v.name.startswith("d2") for v in md.modelVariables)
+
+
+def test_an_exact_scene_ships_and_runs_the_exact_rungs_fmu(tmp_path):
+    """One native plant FMU per rung family: the archive of an exact-rung scene carries
+    FlexiblePendulumExact (and no companion: the exact rung states its numerical error), and
+    flexpend runs the archive on it."""
+    import zipfile
+    code, out, err = flexpend("export", "rigid_pd", "--set", "plant.fidelity=exact",
+                              "--out", str(tmp_path / "x.ssp"))
+    assert code == 0, err
+    with zipfile.ZipFile(tmp_path / "x.ssp") as zf:
+        assert sorted(n for n in zf.namelist() if n.endswith(".fmu")) == \
+            ["resources/FlexiblePendulumExact.fmu", "resources/PDLowPass.fmu"]
+    code, out, err = flexpend("run", str(tmp_path / "x.ssp"), "--set", "stop_time=0.05",
+                              "--out", str(tmp_path / "o"), "-q")
+    assert code == 0, err
+    assert "numerical error" in out
 
 
 def test_export_bad_input_one_line(tmp_path):
