@@ -1,0 +1,380 @@
+"""The sampled-data closed loop: the PD + low-pass controller as it runs on hardware
+(``docs/design/MODEL.md`` section 8), on the plant linearised at the upright rest state.
+
+The controller samples the sensors ``y = [x_o, phi_o, omega_o]`` at ``t_k = k T``, computes its
+force ``F_k`` and applies it after the computation delay ``tau`` (``0 <= tau <= T``), holding it
+until the next change (zero-order hold). Over ``[kT, kT + tau)`` the plant is driven by the
+previous force ``F_{k-1}``, over ``[kT + tau, (k+1)T)`` by ``F_k``; with
+``Phi(h) = exp(A h)`` and ``Gamma(h) = int_0^h exp(A s) ds B`` (both from one exponential of the
+augmented matrix ``[[A, B], [0, 0]] h``) the plant's exact discretisation is::
+
+    x_{k+1} = Phi(T) x_k + Phi(T - tau) Gamma(tau) F_{k-1} + Gamma(T - tau) F_k
+
+so the previous force is one more state of the loop. It is left out when ``tau = 0`` (nothing
+depends on it then; it would only add an eigenvalue 0). With ``tau = T`` the new force first acts
+one period later: one step of delay, ``z^-1``.
+
+The controller computes ``e_k = kx x_o + kp phi_o + kd omega_o`` and ``F_k = -H_d(z) e_k``, the
+filter ``H`` (``controller_fmu/pd_lowpass.py``) made a difference equation by
+:data:`DISCRETIZATIONS`:
+
+* ``"tustin"`` (the default): the bilinear map with prewarping at the cutoff. It keeps the
+  filter's cutoff (and, for the second-order filter, its resonant peak) at the frequency the
+  continuous design put it, and adds no lag of its own (its error is of second order in ``T``),
+  so the sampled controller is the continuous design plus the unavoidable half period of the
+  hold. The prewarp needs the cutoff below the Nyquist frequency, ``cutoff * T < pi``.
+* ``"zoh"``: the filter's zero-order-hold equivalent (a strictly proper difference equation). It
+  adds half a sample of lag on top of the hold's: a slower controller, hence a smaller stable
+  sample period.
+
+With order 0 (no filter) both are the same controller.
+
+With ``kx = 0`` the cart's position and velocity are neither fed back nor felt by the other
+states: they would add a double eigenvalue ``z = 1`` (the cart drifts), which the verdict leaves
+aside as the continuous analysis does (:mod:`~orchestration.studies.analysis`); they are removed
+structurally before discretising, not by a tolerance.
+
+The verdict: stable iff every pole is inside the unit circle, the margin ``1 - max |z|``. The
+poles are also given as s-plane equivalents ``log(z) / T`` (principal branch: a pole above the
+Nyquist frequency is aliased), which tend to the continuous loop's as ``T -> 0``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+
+from controller_fmu.pd_lowpass import ControllerParams
+from controller_fmu.spec import model_for as controller_model
+from plant_fmu.params import PlantParams
+
+from .analysis import _plant_state_space, linearisation
+
+__all__ = ["DISCRETIZATIONS", "DEFAULT_DISCRETIZATION", "T_RANGE", "XTOL", "GRID_POINTS",
+           "SampledPoles", "StableIntervals", "plant_discretisation", "filter_discretisation",
+           "sampled_loop", "sampled_poles", "stable_intervals", "critical_periods",
+           "stability_region_figure"]
+
+#: how the filter becomes a difference equation (see the module's docstring)
+DISCRETIZATIONS = ("tustin", "zoh")
+#: Tustin with prewarping: the cutoff and the peak stay where the continuous design put them
+DEFAULT_DISCRETIZATION = "tustin"
+#: the sample periods :func:`stable_intervals` scans by default (s)
+T_RANGE = (1e-4, 0.05)
+#: the relative precision of every boundary of :func:`stable_intervals`
+XTOL = 1e-9
+#: points of the logarithmic grid that :func:`stable_intervals` scans before bisecting
+GRID_POINTS = 400
+
+
+def _params(loop) -> tuple[PlantParams, ControllerParams]:
+    """``(plant, controller)`` of ``loop``: a pair of parameter records, or a scene (name, path,
+    dict of keys or Scene), whose plant is its rung's linearisation
+    (:func:`~orchestration.studies.analysis.linearisation`)."""
+    if isinstance(loop, tuple) and len(loop) == 2 and isinstance(loop[0], PlantParams) \
+            and isinstance(loop[1], ControllerParams):
+        return loop
+    from ..scene.schema import load_scene
+    scene = load_scene(loop)
+    return linearisation(scene).params, scene.controller
+
+
+def _check(T, tau, discretization) -> tuple[float, float]:
+    """``(T, tau)`` as floats, or ValueError naming the bad argument."""
+    try:
+        T = float(T)
+    except (TypeError, ValueError):
+        raise ValueError(f"sample period T must be a number (s), got {T!r}") from None
+    if not (math.isfinite(T) and T > 0):
+        raise ValueError(f"sample period T must be finite and > 0 (s), got {T!r}")
+    try:
+        tau = float(tau)
+    except (TypeError, ValueError):
+        raise ValueError(f"delay tau must be a number (s), got {tau!r}") from None
+    if not (0.0 <= tau <= T):
+        raise ValueError(f"delay tau must be in [0, T] = [0, {T!r}] s, got {tau!r}")
+    if discretization not in DISCRETIZATIONS:
+        raise ValueError(f"discretization must be one of {', '.join(DISCRETIZATIONS)}, got "
+                         f"{discretization!r}")
+    return T, tau
+
+
+def _reduced_plant(p: PlantParams, c: ControllerParams):
+    """The plant's ``(A, B, C)`` without the cart's position and velocity when ``kx = 0`` and no
+    other state depends on them (as ``analysis.loop_transfer`` does)."""
+    A, B, C, _ = _plant_state_space(p)
+    if c.kx == 0.0:
+        nq = p.n_modes + 2
+        drift = [0, nq]
+        keep = [i for i in range(A.shape[0]) if i not in drift]
+        if not np.any(A[np.ix_(keep, drift)]) and not np.any(C[1:, drift]):
+            A, B, C = A[np.ix_(keep, keep)], B[keep], C[:, keep]
+    return A, B, C
+
+
+def _hold(A, B, h: float):
+    """``(Phi(h), Gamma(h))``: the plant over ``h`` with its input held, from the exponential of
+    ``[[A, B], [0, 0]] h``."""
+    import scipy.linalg
+
+    n, m = B.shape
+    aug = np.zeros((n + m, n + m))
+    aug[:n, :n] = A * h
+    aug[:n, n:] = B * h
+    E = scipy.linalg.expm(aug)
+    return E[:n, :n], E[:n, n:]
+
+
+def plant_discretisation(A, B, T: float, tau: float = 0.0):
+    """``(Phi, Gamma_prev, Gamma_new)``: the plant ``x' = A x + B u`` over one period ``T`` whose
+    input is ``F_{k-1}`` over ``[0, tau)`` and ``F_k`` over ``[tau, T)``:
+    ``x_{k+1} = Phi x_k + Gamma_prev F_{k-1} + Gamma_new F_k``. With ``tau = 0`` ``(Phi,
+    Gamma_new)`` is the zero-order-hold discretisation and ``Gamma_prev`` is 0."""
+    A, B = np.asarray(A, dtype=float), np.asarray(B, dtype=float)
+    Phi_tau, Gam_tau = _hold(A, B, tau)
+    Phi_rest, Gam_rest = _hold(A, B, T - tau)
+    return Phi_rest @ Phi_tau, Phi_rest @ Gam_tau, Gam_rest
+
+
+@lru_cache(maxsize=1024)
+def filter_discretisation(c: ControllerParams, T: float,
+                          discretization: str = DEFAULT_DISCRETIZATION):
+    """``(Ad, Bd, Cd, Dd)``: the filter ``H`` (unit DC gain, input ``e``, output the filtered
+    error) as a difference equation over ``T``, by python-control's ``c2d``: ``"tustin"``
+    prewarped at the cutoff, or ``"zoh"``. Order 0 is ``H = 1`` (no state)."""
+    m = controller_model(c)
+    if c.filter_order == 0:
+        return m.Af, m.Bf, m.Cf, m.Df
+    if discretization == "tustin" and not c.cutoff * T < math.pi:
+        raise ValueError(f"sample period T = {T!r} s: the Tustin filter prewarped at the cutoff "
+                         f"{c.cutoff!r} rad/s needs the cutoff below the Nyquist frequency, "
+                         f"T < pi / cutoff = {math.pi / c.cutoff:.6g} s (discretization 'zoh' "
+                         f"has no such limit)")
+    import control          # here: python-control (with scipy.signal) costs 0.7 s to import
+
+    H = control.ss(m.Af, m.Bf, m.Cf, m.Df)
+    if discretization == "tustin":
+        Hd = control.c2d(H, T, "tustin", prewarp_frequency=c.cutoff)
+    else:
+        Hd = control.c2d(H, T, "zoh")
+    out = tuple(np.array(M, dtype=float) for M in (Hd.A, Hd.B, Hd.C, Hd.D))
+    for M in out:
+        M.setflags(write=False)
+    return out
+
+
+def sampled_loop(loop, T: float, tau: float = 0.0,
+                 discretization: str = DEFAULT_DISCRETIZATION) -> np.ndarray:
+    """The closed loop's z-plane matrix ``M``, ``s_{k+1} = M s_k`` over one sample period.
+
+    ``loop``: a scene (name, path, dict or Scene) or a pair ``(PlantParams, ControllerParams)``.
+    The state is the plant's (without the cart's drift states when ``kx = 0``), then the
+    filter's, then (when ``tau > 0``) the force applied before the delay runs out, ``F_{k-1}``.
+    ValueError for ``T <= 0``, ``tau`` outside ``[0, T]``, an unknown ``discretization``."""
+    T, tau = _check(T, tau, discretization)
+    p, c = _params(loop)
+    return _loop_matrix(p, c, T, tau, discretization)
+
+
+def _loop_matrix(p, c, T, tau, discretization) -> np.ndarray:
+    A, B, C = _reduced_plant(p, c)
+    Phi, G_prev, G_new = plant_discretisation(A, B, T, tau)
+    Ad, Bd, Cd, Dd = filter_discretisation(c, T, discretization)
+    gains = controller_model(c).gains                  # e = gains @ y
+    ge = gains @ C                                     # e_k = ge x_k
+    Kx, Kf = -Dd @ ge, -Cd                             # F_k = Kx x_k + Kf xf_k
+    n, nf = A.shape[0], Ad.shape[0]
+    prev = tau > 0.0
+    N = n + nf + (1 if prev else 0)
+    M = np.zeros((N, N))
+    M[:n, :n] = Phi + G_new @ Kx
+    M[:n, n:n + nf] = G_new @ Kf
+    M[n:n + nf, :n] = Bd @ ge
+    M[n:n + nf, n:n + nf] = Ad
+    if prev:
+        M[:n, N - 1:] = G_prev
+        M[N - 1:, :n] = Kx
+        M[N - 1:, n:n + nf] = Kf
+    return M
+
+
+@dataclass(frozen=True)
+class SampledPoles:
+    """The poles of the sampled loop (:func:`sampled_poles`): ``z`` in the z-plane (largest
+    modulus first), ``s = log(z) / T`` their s-plane equivalents (principal branch; ``-inf`` for
+    ``z = 0``), the verdict and the margin ``1 - max |z|``."""
+
+    T: float
+    tau: float
+    discretization: str
+    z: np.ndarray
+    s: np.ndarray = field(repr=False)
+
+    @property
+    def spectral_radius(self) -> float:
+        return float(np.abs(self.z).max()) if len(self.z) else 0.0
+
+    @property
+    def margin(self) -> float:
+        """``1 - max |z|``: positive when the loop is stable."""
+        return 1.0 - self.spectral_radius
+
+    @property
+    def stable(self) -> bool:
+        return self.spectral_radius < 1.0
+
+
+def sampled_poles(loop, T: float, tau: float = 0.0,
+                  discretization: str = DEFAULT_DISCRETIZATION) -> SampledPoles:
+    """:class:`SampledPoles` of :func:`sampled_loop` (same arguments)."""
+    M = sampled_loop(loop, T, tau, discretization)
+    z = np.linalg.eigvals(M)
+    z = z[np.lexsort((z.imag, -np.abs(z)))]
+    with np.errstate(divide="ignore"):
+        s = np.log(z.astype(complex)) / float(T)
+    return SampledPoles(float(T), float(tau), discretization, z, s)
+
+
+def _radius(p, c, T, tau, discretization) -> float:
+    return float(np.abs(np.linalg.eigvals(_loop_matrix(p, c, T, tau, discretization))).max())
+
+
+@dataclass(frozen=True)
+class StableIntervals:
+    """The sample periods at which the sampled loop is stable (:func:`stable_intervals`).
+
+    ``intervals``: the stable ``(T_low, T_high)`` inside ``scanned`` (an end of the scanned range
+    is not a boundary); ``critical``: the upper end of the interval holding the smallest period
+    scanned, the largest sample period up to which the loop stays stable (None when it is
+    unstable there, ``scanned[1]`` when stable throughout). ``scanned`` is ``T_range``, its upper
+    end lowered below ``pi / cutoff`` for the prewarped Tustin filter."""
+
+    intervals: list
+    critical: float | None
+    scanned: tuple
+    tau_fraction: float | None
+    tau: float | None
+    discretization: str
+
+
+def stable_intervals(loop, T_range=T_RANGE, tau_fraction: float | None = None,
+                     tau: float | None = None, discretization: str = DEFAULT_DISCRETIZATION,
+                     xtol: float = XTOL, n_grid: int = GRID_POINTS) -> StableIntervals:
+    """The intervals of ``T`` in ``T_range`` where the sampled loop is stable at the delay
+    ``tau_fraction * T`` or, given ``tau`` (s), at that fixed delay (then only ``T >= tau``).
+    Neither given: no delay.
+
+    The spectral radius on a logarithmic grid of ``n_grid`` points, every change of the verdict
+    bisected to the relative tolerance ``xtol``. A stable or unstable window narrower than the
+    grid's spacing can be missed."""
+    if tau_fraction is not None and tau is not None:
+        raise ValueError("give tau_fraction or tau, not both")
+    if tau_fraction is not None and not 0.0 <= float(tau_fraction) <= 1.0:
+        raise ValueError(f"tau_fraction must be in [0, 1], got {tau_fraction!r}")
+    if tau is not None and not (math.isfinite(float(tau)) and float(tau) >= 0.0):
+        raise ValueError(f"delay tau must be finite and >= 0 (s), got {tau!r}")
+    lo, hi = (float(v) for v in T_range)
+    if not (0.0 < lo < hi and math.isfinite(hi)):
+        raise ValueError(f"T_range must be (T_min, T_max) with 0 < T_min < T_max, got "
+                         f"{tuple(T_range)!r}")
+    _check(hi, 0.0, discretization)
+    p, c = _params(loop)
+    if discretization == "tustin" and c.filter_order > 0:
+        hi = min(hi, math.pi / c.cutoff * (1.0 - 1e-6))
+    if tau is not None:
+        lo = max(lo, float(tau))
+    if not lo < hi:
+        raise ValueError(f"T_range {tuple(T_range)!r} holds no sample period that the delay "
+                         f"and the filter allow")
+
+    def delay(T):
+        if tau is not None:
+            return float(tau)
+        return min(T, T * float(tau_fraction or 0.0))
+
+    def stable(T):
+        return _radius(p, c, T, delay(T), discretization) < 1.0
+
+    Ts = np.geomspace(lo, hi, n_grid)
+    flags = [stable(T) for T in Ts]
+    edges = []
+    for i in range(len(Ts) - 1):
+        if flags[i] != flags[i + 1]:
+            a, b = Ts[i], Ts[i + 1]
+            while b - a > xtol * a:
+                mid = 0.5 * (a + b)
+                if stable(mid) == flags[i]:
+                    a = mid
+                else:
+                    b = mid
+            edges.append(0.5 * (a + b))
+    bounds = [lo, *edges, hi]
+    intervals, on = [], flags[0]
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        if on:
+            intervals.append((float(a), float(b)))
+        on = not on
+    critical = intervals[0][1] if flags[0] else None
+    return StableIntervals(intervals, critical, (lo, hi),
+                           None if tau is not None else float(tau_fraction or 0.0),
+                           None if tau is None else float(tau), discretization)
+
+
+def critical_periods(loop, discretization: str = DEFAULT_DISCRETIZATION,
+                     T_range=T_RANGE) -> dict:
+    """The largest stable sample period (:attr:`StableIntervals.critical`) with no delay and with
+    a full period's delay: ``{"tau=0": T0, "tau=T": T1}``."""
+    return {"tau=0": stable_intervals(loop, T_range, 0.0, discretization=discretization).critical,
+            "tau=T": stable_intervals(loop, T_range, 1.0, discretization=discretization).critical}
+
+
+def stability_region_figure(path, scenes=None, T_range=T_RANGE,
+                            discretization: str = DEFAULT_DISCRETIZATION,
+                            n_T: int = 120, n_fraction: int = 21):
+    """A PNG at ``path``: the stability region of each scene's sampled loop in the plane of the
+    sample period ``T`` (log scale) and the delay ``tau / T``, its boundary the contour
+    ``max |z| = 1`` of a grid of ``n_T`` by ``n_fraction`` points; each scene's largest stable
+    ``T`` at ``tau = 0`` and ``tau = T`` (:func:`critical_periods`) marked. ``scenes``: the
+    paper's three by default. Returns ``{scene: critical_periods}``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..scene.schema import PAPER_SCENES, load_scene
+
+    scenes = list(PAPER_SCENES if scenes is None else scenes)
+    fig, ax = plt.subplots(figsize=(7.5, 4.5))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fractions = np.linspace(0.0, 1.0, n_fraction)
+    out = {}
+    for i, name in enumerate(scenes):
+        p, c = _params(load_scene(name) if isinstance(name, str) else name)
+        label = name if isinstance(name, str) else f"scene {i + 1}"
+        hi = T_range[1]
+        if discretization == "tustin" and c.filter_order > 0:
+            hi = min(hi, math.pi / c.cutoff * (1.0 - 1e-6))
+        Ts = np.geomspace(T_range[0], hi, n_T)
+        rho = np.array([[_radius(p, c, T, f * T, discretization) for T in Ts]
+                        for f in fractions])
+        colour = colours[i % len(colours)]
+        ax.contourf(Ts, fractions, (rho < 1.0).astype(float), levels=[0.5, 1.5],
+                    colors=[colour], alpha=0.15)
+        ax.contour(Ts, fractions, rho, levels=[1.0], colors=[colour], linewidths=1.5)
+        crit = critical_periods((p, c), discretization, (T_range[0], hi))
+        out[label] = crit
+        for frac, key, marker in ((0.0, "tau=0", "o"), (1.0, "tau=T", "s")):
+            if crit[key] is not None:
+                ax.plot([crit[key]], [frac], marker, color=colour, markersize=7,
+                        label=f"{label}, {key}: T = {1e3 * crit[key]:.3g} ms")
+    ax.set_xscale("log")
+    ax.set_xlabel("sample period T (s)")
+    ax.set_ylabel("delay tau / T")
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_title(f"Sampled PD + filter ({discretization}): stable where shaded")
+    ax.legend(fontsize=7, loc="center left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return out
