@@ -52,8 +52,9 @@ from plant_fmu.params import PlantParams
 
 from .analysis import _plant_state_space, linearisation
 
-__all__ = ["DISCRETIZATIONS", "DEFAULT_DISCRETIZATION", "T_RANGE", "XTOL", "GRID_POINTS",
-           "SampledPoles", "StableIntervals", "plant_discretisation", "filter_discretisation",
+__all__ = ["DISCRETIZATIONS", "DEFAULT_DISCRETIZATION", "MIN_PERIOD", "T_RANGE",
+           "FIGURE_T_RANGE", "XTOL", "GRID_POINTS", "SampledPoles", "StableIntervals",
+           "plant_discretisation", "filter_discretisation",
            "sampled_loop", "sampled_poles", "stable_intervals", "critical_periods",
            "stability_region_figure"]
 
@@ -61,8 +62,12 @@ __all__ = ["DISCRETIZATIONS", "DEFAULT_DISCRETIZATION", "T_RANGE", "XTOL", "GRID
 DISCRETIZATIONS = ("tustin", "zoh")
 #: Tustin with prewarping: the cutoff and the peak stay where the continuous design put them
 DEFAULT_DISCRETIZATION = "tustin"
+#: the smallest sample period scanned (s): far below every scene's boundary
+MIN_PERIOD = 1e-4
 #: the sample periods :func:`stable_intervals` scans by default (s)
-T_RANGE = (1e-4, 0.05)
+T_RANGE = (MIN_PERIOD, 0.05)
+#: the sample periods :func:`stability_region_figure` shows (s): where the boundaries lie
+FIGURE_T_RANGE = (1e-3, 0.05)
 #: the relative precision of every boundary of :func:`stable_intervals`
 XTOL = 1e-9
 #: points of the logarithmic grid that :func:`stable_intervals` scans before bisecting
@@ -330,26 +335,29 @@ def critical_periods(loop, discretization: str = DEFAULT_DISCRETIZATION,
             "tau=T": stable_intervals(loop, T_range, 1.0, discretization=discretization).critical}
 
 
-def stability_region_figure(path, scenes=None, T_range=T_RANGE,
+def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
                             discretization: str = DEFAULT_DISCRETIZATION,
-                            n_T: int = 120, n_fraction: int = 21):
-    """A PNG at ``path``: the stability region of each scene's sampled loop in the plane of the
-    sample period ``T`` (log scale) and the delay ``tau / T``, its boundary the contour
-    ``max |z| = 1`` of a grid of ``n_T`` by ``n_fraction`` points; each scene's largest stable
-    ``T`` at ``tau = 0`` and ``tau = T`` (:func:`critical_periods`) marked. ``scenes``: the
-    paper's three by default. Returns ``{scene: critical_periods}``."""
+                            n_T: int = 100, n_fraction: int = 21):
+    """A PNG at ``path``: one panel per scene, the stability region of its sampled loop in the
+    plane of the sample period ``T`` (log scale) and the delay ``tau / T``, shaded where ``max
+    |z| < 1`` on a grid of ``n_T`` by ``n_fraction`` points, its boundary the contour ``max |z| =
+    1`` (up to ``pi / cutoff`` for the Tustin filter, dashed); the scene's largest stable ``T``
+    at ``tau = 0`` and ``tau = T`` (:func:`critical_periods`, bisected, not read off the grid)
+    marked. ``scenes``: the paper's
+    three by default. Returns ``{scene: critical_periods}``."""
     import matplotlib
+    import matplotlib.ticker
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from ..scene.schema import PAPER_SCENES, load_scene
 
     scenes = list(PAPER_SCENES if scenes is None else scenes)
-    fig, ax = plt.subplots(figsize=(7.5, 4.5))
-    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    fig, axes = plt.subplots(1, len(scenes), figsize=(4.0 * len(scenes), 3.8), sharey=True,
+                             squeeze=False)
     fractions = np.linspace(0.0, 1.0, n_fraction)
     out = {}
-    for i, name in enumerate(scenes):
+    for i, (name, ax) in enumerate(zip(scenes, axes[0])):
         p, c = _params(load_scene(name) if isinstance(name, str) else name)
         label = name if isinstance(name, str) else f"scene {i + 1}"
         hi = T_range[1]
@@ -358,22 +366,36 @@ def stability_region_figure(path, scenes=None, T_range=T_RANGE,
         Ts = np.geomspace(T_range[0], hi, n_T)
         rho = np.array([[_radius(p, c, T, f * T, discretization) for T in Ts]
                         for f in fractions])
-        colour = colours[i % len(colours)]
-        ax.contourf(Ts, fractions, (rho < 1.0).astype(float), levels=[0.5, 1.5],
-                    colors=[colour], alpha=0.15)
-        ax.contour(Ts, fractions, rho, levels=[1.0], colors=[colour], linewidths=1.5)
-        crit = critical_periods((p, c), discretization, (T_range[0], hi))
+        ax.contourf(Ts, fractions, rho, levels=[0.0, 1.0], colors=["tab:green"], alpha=0.25)
+        ax.contour(Ts, fractions, rho, levels=[1.0], colors=["tab:green"], linewidths=1.2)
+        if hi < T_range[1]:
+            ax.axvline(hi, color="0.5", linestyle="--", linewidth=1)
+            ax.text(hi, 0.97, " pi / cutoff ", rotation=90, ha="right", va="top", fontsize=7,
+                    color="0.4")
+        crit = critical_periods((p, c), discretization, (MIN_PERIOD, hi))
         out[label] = crit
         for frac, key, marker in ((0.0, "tau=0", "o"), (1.0, "tau=T", "s")):
             if crit[key] is not None:
-                ax.plot([crit[key]], [frac], marker, color=colour, markersize=7,
-                        label=f"{label}, {key}: T = {1e3 * crit[key]:.3g} ms")
-    ax.set_xscale("log")
-    ax.set_xlabel("sample period T (s)")
-    ax.set_ylabel("delay tau / T")
-    ax.set_ylim(-0.03, 1.03)
-    ax.set_title(f"Sampled PD + filter ({discretization}): stable where shaded")
-    ax.legend(fontsize=7, loc="center left")
+                ax.plot([crit[key]], [frac], marker, color="k", markersize=6, clip_on=False,
+                        label=f"{key}: T = {1e3 * crit[key]:.3g} ms")
+        if crit["tau=0"] is None:
+            ax.text(0.03, 0.5, "unstable as T -> 0\n(the continuous loop is)",
+                    transform=ax.transAxes, fontsize=8)
+        else:
+            ax.legend(fontsize=7, loc="center left", title="largest stable T",
+                      title_fontsize=7)
+        ax.set_xscale("log")
+        ax.set_xlim(T_range[0], T_range[1])
+        ticks = [t for t in (1e-4, 2e-4, 5e-4, 1e-3, 2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 0.1)
+                 if T_range[0] <= t <= T_range[1]]
+        ax.set_xticks(ticks, [f"{1e3 * t:g}" for t in ticks])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set_xlabel("sample period T (ms)")
+        ax.set_title(label, fontsize=9)
+    axes[0][0].set_ylabel("delay tau / T")
+    axes[0][0].set_ylim(0.0, 1.0)
+    fig.suptitle(f"Sampled PD + filter ({discretization} filter): stable where shaded",
+                 fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)

@@ -10,7 +10,6 @@ import scipy.linalg
 import scipy.signal
 from scipy.optimize import linear_sum_assignment
 
-from controller_fmu.pd_lowpass import ControllerParams
 from controller_fmu.spec import model_for
 from orchestration.studies.analysis import _drift_free, closed_loop_matrix, linearisation
 from orchestration.studies.sampled import (
@@ -225,3 +224,15 @@ def test_bad_scan_arguments_raise_value_errors():
         stable_intervals("rigid_pd", T_range=(0.01, 0.001))
     with pytest.raises(ValueError, match="not both"):
         stable_intervals("rigid_pd", tau_fraction=0.5, tau=1e-3)
+
+
+def test_stability_region_figure_marks_each_scene_s_critical_periods(tmp_path):
+    from orchestration.studies.sampled import critical_periods, stability_region_figure
+
+    path = tmp_path / "region.png"
+    out = stability_region_figure(path, scenes=["rigid_pd"], n_T=12, n_fraction=3)
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    expected = critical_periods("rigid_pd")
+    assert out == {"rigid_pd": pytest.approx(expected, rel=1e-12)}
+    # a full period's delay costs stable sample period
+    assert expected["tau=T"] < expected["tau=0"]
