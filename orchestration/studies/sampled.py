@@ -77,7 +77,8 @@ GRID_POINTS = 400
 def _params(loop) -> tuple[PlantParams, ControllerParams]:
     """``(plant, controller)`` of ``loop``: a pair of parameter records, or a scene (name, path,
     dict of keys or Scene), whose plant is its rung's linearisation
-    (:func:`~orchestration.studies.analysis.linearisation`)."""
+    (:func:`~orchestration.studies.analysis.linearisation`; for the exact rung the floating
+    frame's preloaded loop that stands in for it)."""
     if isinstance(loop, tuple) and len(loop) == 2 and isinstance(loop[0], PlantParams) \
             and isinstance(loop[1], ControllerParams):
         return loop

@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-import scipy.linalg
 import scipy.signal
 from scipy.optimize import linear_sum_assignment
 
@@ -236,3 +235,15 @@ def test_stability_region_figure_marks_each_scene_s_critical_periods(tmp_path):
     assert out == {"rigid_pd": pytest.approx(expected, rel=1e-12)}
     # a full period's delay costs stable sample period
     assert expected["tau=T"] < expected["tau=0"]
+
+
+def test_a_fixed_delay_scan_s_boundary_is_where_the_verdict_changes():
+    """``tau`` in seconds: the scan starts at ``T = tau``, and just inside and outside its
+    boundary the poles (computed afresh) give the two verdicts."""
+    tau = 3e-3
+    r = stable_intervals("flexible_pd_lowpass", tau=tau)
+    assert r.scanned[0] == tau and r.tau == tau and r.tau_fraction is None
+    assert r.critical is not None and r.critical > tau
+    p, c = _loop("flexible_pd_lowpass")
+    assert sampled_poles((p, c), r.critical * (1 - 1e-6), tau).stable
+    assert not sampled_poles((p, c), r.critical * (1 + 1e-6), tau).stable
