@@ -18,7 +18,7 @@ run's plant FMU, which no component names: :func:`write_ssp`). The SSD holds:
 * a ``DefaultExperiment`` (start 0, the scene's stop time) with two annotations: libcosim's
   ``osp:FixedStepAlgorithm`` (``com.opensimulationplatform``, the step libcosim takes), and ours,
   ``org.flexpend.scene``: every scene key the standard has no place for (``output_interval``,
-  ``master.*``), as TOML values, and where ``"auto"`` chose the model, which model and why.
+  ``master.*``, ``fidelity.*``), as TOML values, and where ``"auto"`` chose the model, which model and why.
 
 SSP 1.0 has no step size of its own (``SimulationInformation`` is not in the 1.0 schema), hence the
 annotations. The prefixes ``ssd``, ``ssc``, ``ssv``, ``osp`` are the ones libcosim's parser
@@ -73,7 +73,10 @@ FMU_TYPE = "application/x-fmu-sharedlibrary"
 #: other way round.
 PLANT_SIGNALS = (("F_c",), ("x_o", "phi_o", "omega_o"))
 #: Scene keys the SSD carries in its own elements (the rest goes into our annotation).
-_CARRIED = ("plant.", "controller.", "initial.", "fidelity.")
+#: the keys the SSD carries in its own places (the FMUs' parameter bindings, the experiment);
+#: every other key goes into the scene annotation (the fidelity.* keys included: a run of the
+#: archive needs them, fidelity.max_modes against plant.n_elements and fidelity.companion)
+_CARRIED = ("plant.", "controller.", "initial.")
 _CARRIED_KEYS = ("connections", "stop_time", "description")
 
 

@@ -301,6 +301,28 @@ def test_an_exact_scene_ships_and_runs_the_exact_rungs_fmu(tmp_path):
     assert "numerical error" in out
 
 
+def test_the_fidelity_keys_round_trip(tmp_path):
+    """The fidelity.* keys are no FMU parameter: the scene annotation carries them, so that the
+    archive of a scene on a short mesh (fidelity.max_modes <= plant.n_elements) reads back, and
+    a run of it keeps fidelity.companion and the tolerance."""
+    keys = {"plant.n_elements": 4, "plant.n_modes": 2, "fidelity.max_modes": 4,
+            "fidelity.companion": False, "fidelity.tolerance": 0.02,
+            "fidelity.outputs": ["phi_o", "F_c"]}
+    code, out, err = flexpend("export", "flexible_pd_lowpass",
+                              *(a for k, v in keys.items() for a in
+                                ("--set", f"{k}={v!r}".replace("'", '"') if isinstance(v, list)
+                                 else f"{k}={str(v).lower() if isinstance(v, bool) else v}")),
+                              "--out", str(tmp_path / "x.ssp"))
+    assert code == 0, err
+    from orchestration.scene.ssp import read_ssp
+    system = read_ssp(tmp_path / "x.ssp")
+    try:
+        for k, v in keys.items():
+            assert system.scene.get(k) == v, k
+    finally:
+        system.close()
+
+
 def test_export_bad_input_one_line(tmp_path):
     for args, fragment in ((["no_such_scene"], "no scene 'no_such_scene'"),
                            (["rigid_pd", "--out", str(tmp_path / "x.zip")], "must end in .ssp"),
