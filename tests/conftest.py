@@ -33,6 +33,33 @@ import controller_fmu.pd_lowpass  # noqa: E402,F401
 import plant_fmu.dynamics  # noqa: E402,F401
 
 
+_FMPY_PROXY_KEEP: list = []
+
+
+@pytest.fixture(autouse=True)
+def _fmpy_logger_proxy_put_back():
+    """fmpy 0.3.32's native logger proxy keeps, in a global, the last logger that
+    ``simulate_fmu(..., logger=f)`` handed it, and fmpy's default callbacks of every later FMI 2.0
+    instance call that proxy: once ``f``'s ctypes callback is freed, the next message of any
+    FMU 2.0 opened with fmpy's defaults jumps into freed memory (a segfault in whichever test of
+    the same worker comes next). After each test the proxy is pointed back at a callback of
+    fmpy's own printLogMessage that lives as long as the process. A fresh struct each time:
+    addLoggerProxy puts itself into the struct it is given, so a struct handed to it twice would
+    make the proxy call itself."""
+    yield
+    if "fmpy.logging" not in sys.modules:
+        return
+    from fmpy.fmi1 import printLogMessage
+    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+    from fmpy.logging import addLoggerProxy
+    if not _FMPY_PROXY_KEEP:
+        _FMPY_PROXY_KEEP.append(fmi2CallbackLoggerTYPE(printLogMessage))
+    cb = fmi2CallbackFunctions()
+    cb.logger = _FMPY_PROXY_KEEP[0]
+    _FMPY_PROXY_KEEP.append(cb)
+    addLoggerProxy(ctypes.byref(cb))
+
+
 def _built(**kw) -> dict:
     from orchestration.export import build_fmus
 

@@ -402,33 +402,13 @@ def _scipy_plant(start, sig, t_out, fidelity="nonlinear"):
             "phi_o": np.array([model.tip_angle(r)[0] for r in X])}
 
 
-_FMPY_DEFAULT_LOGGER = []
-
-
 @pytest.fixture
 def fmpy_logger():
-    """A logger for fmpy's simulate_fmu, and fmpy 0.3.32's logger proxy put back afterwards:
-    its native proxy keeps the last callback passed with ``logger=`` in a global, which every
-    later FMI 2.0 instance with the default logger then calls after it was freed (a crash at the
-    next message of any FMU). The proxy is pointed at a callback of fmpy's own printLogMessage
-    that lives as long as the process."""
-    from ctypes import byref
-
-    from fmpy.fmi1 import printLogMessage
-    from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-    from fmpy.logging import addLoggerProxy
+    """A logger for fmpy's simulate_fmu: the messages, decoded (fmpy's logger proxy is put back
+    after each test by the autouse fixture in tests/conftest.py)."""
     logs = []
     yield logs, lambda *a: logs.append(a[-1].decode() if isinstance(a[-1], bytes)
                                        else str(a[-1]))
-    # addLoggerProxy stores the struct's logger in its global and puts itself in the struct:
-    # a struct handed to it twice would make the proxy call itself (a stack overflow at the
-    # next message). So a fresh struct each time, around one permanent printLogMessage.
-    if not _FMPY_DEFAULT_LOGGER:
-        _FMPY_DEFAULT_LOGGER.append(fmi2CallbackLoggerTYPE(printLogMessage))
-    cb = fmi2CallbackFunctions()
-    cb.logger = _FMPY_DEFAULT_LOGGER[0]
-    _FMPY_DEFAULT_LOGGER.append(cb)
-    addLoggerProxy(byref(cb))
 
 
 CASES = {
