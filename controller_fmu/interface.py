@@ -13,7 +13,7 @@ import dataclasses
 from fmu_common.variables import (ModelInfo, Offers, Variable, independent, parameter,
                                   real_input, real_local, real_output)
 
-from .pd_lowpass import ControllerParams
+from .pd_lowpass import SAMPLED_FIELDS, ControllerParams
 
 __all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER", "OFFERS"]
 
@@ -36,14 +36,17 @@ SENSORS = {
 
 #: the parameters: name -> (description, unit), from the record's fields (fmu_common.checks.Param)
 _PARAMS = {f.name: (f.metadata["param"].meaning, f.metadata["param"].unit)
-           for f in dataclasses.fields(ControllerParams)}
+           for f in dataclasses.fields(ControllerParams) if f.name not in SAMPLED_FIELDS}
+_SAMPLED = {f.name: (f.metadata["param"].meaning, f.metadata["param"].unit)
+            for f in dataclasses.fields(ControllerParams) if f.name in SAMPLED_FIELDS}
 _DEFAULTS = {f.name: f.default for f in dataclasses.fields(ControllerParams)}
 _DER_INITIAL = (*SENSORS, "kp", "kd", "kx", "filter_order", "cutoff", "filter_damping")
 
 #: The table, in value-reference order: the sensors, their first and second time derivatives
 #: (FMI's input derivatives as variables), the force, the parameters, the native FMUs'
-#: Model-Exchange locals, FMI 3.0's ``time``. A new variable goes at the end, so that no
-#: existing value reference changes (:mod:`fmu_common.variables`).
+#: Model-Exchange locals, FMI 3.0's ``time``, then the sampled controller's parameters. A new
+#: variable goes at the end, so that no existing value reference changes
+#: (:mod:`fmu_common.variables`).
 VARIABLES: tuple[Variable, ...] = (
     *(real_input(n, d, u) for n, (d, u, _, _) in SENSORS.items()),
     *(real_input(f"d{n}", f"time derivative of {n} at the start of the step (polynomial input; "
@@ -67,6 +70,7 @@ VARIABLES: tuple[Variable, ...] = (
                depends_on=tuple(SENSORS), state_depends_on=STATES,
                initial_depends_on=_DER_INITIAL),
     independent("time", "simulation time", "s"),
+    *(parameter(n, _DEFAULTS[n], d, u, f"controller.{n}") for n, (d, u) in _SAMPLED.items()),
 )
 # F_c = -sat(xc_1) in Model Exchange (filter order 0: -sat(e), the inputs)
 VARIABLES = tuple(dataclasses.replace(v, state_depends_on=("xc_1",)) if v.name == "F_c" else v

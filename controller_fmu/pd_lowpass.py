@@ -10,18 +10,29 @@ with the input ``e`` held (zero-order hold), by the matrix exponential of the au
 from __future__ import annotations
 
 import functools
+import math
 import sys
 from dataclasses import dataclass
 
 import numpy as np
 
-from fmu_common.checks import check_fields, integer, real, replace_checked
+from fmu_common.checks import check_fields, choice, integer, real, replace_checked
 
-__all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES", "NO_LIMIT"]
+__all__ = ["ControllerParams", "PDLowPassModel", "INPUT_NAMES", "NO_LIMIT", "DISCRETIZATIONS",
+           "SAMPLED_FIELDS"]
 
 #: "No limit" for the saturation: the largest double (1.7976931348623157e+308). No finite force
 #: exceeds it, so it means what infinity means; ``inf`` is accepted too.
 NO_LIMIT = sys.float_info.max
+
+#: How the sampled controller's filter becomes a difference equation (docs/sampled.md):
+#: ``tustin``, the bilinear map prewarped at the cutoff (the default: it keeps the cutoff and the
+#: second-order filter's peak where the continuous design put them, and adds no lag of its own),
+#: or ``zoh``, the filter's zero-order-hold equivalent (half a sample more lag).
+DISCRETIZATIONS = ("tustin", "zoh")
+#: The fields of the sampled controller (0: the continuous controller), after the others: in the
+#: FMUs' variable table they come after every older variable, so no value reference moves.
+SAMPLED_FIELDS = ("sample_period", "delay", "discretization")
 
 #: Controller inputs, in the order of the columns of ``B`` and ``D``.
 INPUT_NAMES = ("x_o", "phi_o", "omega_o")
@@ -51,9 +62,32 @@ class ControllerParams:
                                  high=100.0)
     force_limit: float = real(NO_LIMIT, "saturation |F_c| <= force_limit (inf, or the largest "
                               "double: none)", "N", low=0.0, allow_inf=True)
+    sample_period: float = real(0.0, "sample period T of the digital controller (0: the "
+                                "continuous controller)", "s", low=0.0, low_open=False, high=1e3,
+                                note="with the tustin filter, cutoff * sample_period < pi")
+    delay: float = real(0.0, "computation delay: the force computed at a sample acts this much "
+                        "later", "s", low=0.0, low_open=False, high=1e3,
+                        note="at most controller.sample_period")
+    discretization: str = choice("tustin", "how the sampled filter becomes a difference "
+                                 "equation: tustin (prewarped at the cutoff) or zoh",
+                                 DISCRETIZATIONS)
 
     def __post_init__(self):
         check_fields(self)
+        if self.delay > self.sample_period:
+            raise ValueError(f"delay = {self.delay!r} is out of range; allowed: at most "
+                             f"controller.sample_period ({self.sample_period!r} s)")
+        if (self.sampled and self.discretization == "tustin" and self.filter_order > 0
+                and not self.cutoff * self.sample_period < math.pi):
+            raise ValueError(f"sample_period = {self.sample_period!r} is out of range for the "
+                             f"tustin filter prewarped at controller.cutoff = {self.cutoff!r} "
+                             f"rad/s; allowed: below pi / cutoff = {math.pi / self.cutoff:.6g} s "
+                             f"(or controller.discretization = zoh)")
+
+    @property
+    def sampled(self) -> bool:
+        """Whether the controller is digital (``sample_period > 0``)."""
+        return self.sample_period > 0.0
 
     @property
     def saturates(self) -> bool:

@@ -65,6 +65,31 @@ static int check(const fpm_logger *lg, const char *name, double v, double low, i
     return ok;
 }
 
+/* The sampled controller's parameters (controller_fmu/pd_lowpass.py): delay <= sample_period,
+ * a known discretization; the continuous PDLowPass runs sample_period = 0 only. */
+static int sampled_parameters(const fpm_model *m, const fpm_logger *lg)
+{
+    const double *r = m->v.real;
+    const char *disc = m->v.string[VR_discretization];
+    if (!(r[VR_delay] <= r[VR_sample_period])) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: delay = %.17g is out of range; allowed: "
+                "[0, sample_period] = [0, %.17g] s", r[VR_delay], r[VR_sample_period]);
+        return 0;
+    }
+    if (strcmp(disc, "tustin") != 0 && strcmp(disc, "zoh") != 0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: discretization = '%s' is not allowed; allowed: "
+                "tustin, zoh", disc);
+        return 0;
+    }
+    if (r[VR_sample_period] != 0.0) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: sample_period = %.17g: %s is the continuous "
+                "controller (sample_period = 0); the sampled controller is not built yet",
+                r[VR_sample_period], fpm_model_name);
+        return 0;
+    }
+    return 1;
+}
+
 static int prepare(fpm_model *m, const fpm_logger *lg)
 {
     const double *r = m->v.real;
@@ -79,8 +104,11 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     }
     if (!check(lg, "cutoff", r[VR_cutoff], 0.0, 1, 1e9, 0) ||
         !check(lg, "filter_damping", r[VR_filter_damping], 0.0, 1, 100.0, 0) ||
-        !check(lg, "force_limit", r[VR_force_limit], 0.0, 1, INFINITY, 1))
+        !check(lg, "force_limit", r[VR_force_limit], 0.0, 1, INFINITY, 1) ||
+        !check(lg, "sample_period", r[VR_sample_period], 0.0, 0, 1e3, 0) ||
+        !check(lg, "delay", r[VR_delay], 0.0, 0, 1e3, 0))
         return 0;
+    if (!sampled_parameters(m, lg)) return 0;
     m->f.order = (int)r[VR_filter_order];
     m->f.kp = r[VR_kp];
     m->f.kd = r[VR_kd];

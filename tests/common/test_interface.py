@@ -118,7 +118,7 @@ def test_base_units_are_what_the_unit_name_says(unit):
 def test_every_physical_variable_has_a_unit():
     dimensionless = {"zeta", "damping", "n_modes", "n_elements", "gravity_preload", "fidelity",
                      "integrator",
-                     "rtol", "atol", "filter_order", "filter_damping",
+                     "rtol", "atol", "filter_order", "filter_damping", "discretization",
                      "phi_limit_indicator", "energy_limit_indicator"}
     for name, (_, table) in TABLES.items():
         for v in table:

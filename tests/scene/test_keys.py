@@ -96,6 +96,10 @@ PARTNERS = {
     "master.max_step": lambda v: {"min_step": min(v, 1e-6)} if v > 0 else {},
     "stop_time": lambda v: {"output_interval": v} if 0 < v <= 1e6 else {},
     "output_interval": lambda v: {"stop_time": v} if 0 < v <= 1e6 else {},
+    # the tustin filter also needs cutoff * sample_period < pi (the listing's note); the delay
+    # is at most the sample period (its note)
+    "controller.sample_period": lambda v: {"discretization": "zoh"},
+    "controller.delay": lambda v: {"sample_period": 1e3, "discretization": "zoh"},
 }
 
 
