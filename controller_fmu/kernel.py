@@ -110,6 +110,22 @@ class FilterKernel:
         g = (_D * 6)(*G.ravel())
         return ctypes.byref(ad), ctypes.byref(g), (ad, g)
 
+    def sampled(self, T: float, discretization: str):
+        """``(Ad, Bd, Cd, Dd)`` of the sampled filter over ``T`` (``fpf_sampled``; shapes as
+        :func:`controller_fmu.sampled.filter_difference_equation`)."""
+        n = self.order
+        Ad, Bd, Cd, Dd = np.zeros((n, n)), np.zeros((n, 1)), np.zeros((1, n)), np.zeros((1, 1))
+        ptr = [ctypes.c_void_p(a.ctypes.data) if a.size else None for a in (Ad, Bd, Cd)]
+        rc = self._lib.fpf_sampled(self._f, _D(T), int(discretization == "tustin"), *ptr,
+                                   ctypes.c_void_p(Dd.ctypes.data))
+        if rc == FPF_BADARG:
+            raise ValueError(f"sampled: T = {T!r} must be positive and finite (and below "
+                             f"pi / cutoff for tustin)")
+        if rc != FPF_OK:
+            raise ArithmeticError(f"sampled: the difference equation over T = {T!r} is not "
+                                  f"finite")
+        return Ad, Bd, Cd, Dd
+
     # ------------------------------------------------------------------ continuous time
     def rhs(self, xc, e: float) -> np.ndarray:
         """``xc' = Af xc + Bf e`` (``fpf_rhs``; empty for order 0)."""

@@ -296,6 +296,79 @@ int fpf_discretize(const fpf_filter *f, double h, int poly, double *Ad, double *
     return FPF_OK;
 }
 
+int fpf_sampled(const fpf_filter *f, double T, int tustin, double *Ad, double *Bd, double *Cd,
+                double *Dd)
+{
+    const int n = f == NULL ? 0 : f->order;
+    double A[4] = {0.0, 0.0, 0.0, 0.0}, B[2] = {0.0, 0.0};
+    double wc, c, M[4], det, Mi[4], P[4];
+    int i, j, k, rc;
+    if (fpf_check(f) != FPF_OK || !(T > 0.0) || !isfinite(T)) return FPF_BADARG;
+    if (Dd == NULL) return FPF_BADARG;
+    if (n == 0) {
+        *Dd = 1.0;
+        return FPF_OK;
+    }
+    if (Ad == NULL || Bd == NULL || Cd == NULL) return FPF_BADARG;
+    wc = f->cutoff;
+    if (!tustin) {                            /* Cf = [1, 0], Df = 0 */
+        double G[2];
+        rc = fpf_discretize(f, T, 0, Ad, G);
+        if (rc != FPF_OK) return rc;
+        for (i = 0; i < n; i++) {
+            Bd[i] = G[i];
+            Cd[i] = i == 0 ? 1.0 : 0.0;
+        }
+        *Dd = 0.0;
+        return FPF_OK;
+    }
+    if (!(wc * T < 3.141592653589793)) return FPF_BADARG;
+    c = wc / tan(0.5 * wc * T);
+    if (!(c > 0.0) || !isfinite(c)) return FPF_NONFINITE;
+    if (n == 1) {                             /* the controllable canonical form (fp_filter.h) */
+        A[0] = -wc;
+        B[0] = wc;
+    } else {
+        A[1] = 1.0;
+        A[2] = -(wc * wc);
+        A[3] = -2.0 * f->damping * wc;
+        B[1] = wc * wc;
+    }
+    /* M = I - A / c and its inverse (n <= 2, by the adjugate) */
+    for (i = 0; i < n; i++)
+        for (j = 0; j < n; j++) M[i * n + j] = (i == j ? 1.0 : 0.0) - A[i * 2 + j] / c;
+    if (n == 1) {
+        if (M[0] == 0.0) return FPF_NONFINITE;
+        Mi[0] = 1.0 / M[0];
+    } else {
+        det = M[0] * M[3] - M[1] * M[2];
+        if (det == 0.0 || !isfinite(det)) return FPF_NONFINITE;
+        Mi[0] = M[3] / det;
+        Mi[1] = -M[1] / det;
+        Mi[2] = -M[2] / det;
+        Mi[3] = M[0] / det;
+    }
+    for (i = 0; i < n; i++)                   /* P = I + A / c */
+        for (j = 0; j < n; j++) P[i * n + j] = (i == j ? 1.0 : 0.0) + A[i * 2 + j] / c;
+    for (i = 0; i < n; i++) {
+        double b = 0.0;
+        for (j = 0; j < n; j++) {
+            double a = 0.0;
+            for (k = 0; k < n; k++) a += Mi[i * n + k] * P[k * n + j];
+            Ad[i * n + j] = a;
+            b += Mi[i * n + j] * B[j] * (2.0 / c);
+        }
+        Bd[i] = b;
+        Cd[i] = Mi[0 * n + i];                /* Cf M^-1 with Cf = [1, 0]: M^-1's first row */
+    }
+    *Dd = 0.5 * Bd[0];                        /* Df + Cf Bd / 2 */
+    for (i = 0; i < n * n; i++)
+        if (!isfinite(Ad[i])) return FPF_NONFINITE;
+    for (i = 0; i < n; i++)
+        if (!isfinite(Bd[i]) || !isfinite(Cd[i])) return FPF_NONFINITE;
+    return isfinite(*Dd) ? FPF_OK : FPF_NONFINITE;
+}
+
 void fpf_error(const fpf_filter *f, const double *y, double *e)
 {
     int k;

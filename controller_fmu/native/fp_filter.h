@@ -34,7 +34,7 @@ extern "C" {
 #endif
 #endif
 
-#define FPF_ABI 2
+#define FPF_ABI 3
 
 #define FPF_OK 0
 #define FPF_BADARG 1      /* an argument is out of range (nothing was done) */
@@ -82,6 +82,18 @@ FPF_API void fpf_error(const fpf_filter *f, const double *y, double *e);
  * xc and *F unchanged. */
 FPF_API int fpf_step(const fpf_filter *f, const double *Ad, const double *G, const double *e,
                      double *xc, double *F);
+
+/* ---- The sampled controller's filter (controller_fmu/sampled.py, the specification) ----------
+ * The filter as a difference equation over the sample period T > 0: xf[k+1] = Ad xf[k] + Bd e[k],
+ * v[k] = Cd xf[k] + Dd e[k] (the filtered error; the force is -sat(v)). tustin = 1: the bilinear
+ * map prewarped at the cutoff, s = c (z - 1) / (z + 1), c = cutoff / tan(cutoff T / 2), in the
+ * state space of the generalised bilinear transform (M = I - Af / c, Ad = M^-1 (I + Af / c),
+ * Bd = M^-1 Bf 2 / c, Cd = Cf M^-1, Dd = Df + Cf Bd / 2); it needs cutoff T < pi. tustin = 0: the
+ * zero-order-hold equivalent (Ad = exp(Af T), Bd = int_0^T exp(Af s) ds Bf, Cd = Cf, Dd = Df).
+ * Ad: order x order, Bd: order, Cd: order, *Dd (order 0: Dd = 1 and nothing else). FPF_OK,
+ * FPF_BADARG (bad parameters, T, or cutoff T >= pi with tustin) or FPF_NONFINITE. */
+FPF_API int fpf_sampled(const fpf_filter *f, double T, int tustin, double *Ad, double *Bd,
+                        double *Cd, double *Dd);
 
 /* ---- The continuous-time filter, its linearisation and output derivatives (issue 24) --------
  * The state xc (order doubles) follows xc' = Af xc + Bf e with e = kx x_o + kp phi_o + kd omega_o
