@@ -9,13 +9,15 @@ values.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 from fmu_common.variables import (ModelInfo, Offers, Variable, independent, parameter,
                                   real_input, real_local, real_output)
 
 from .pd_lowpass import SAMPLED_FIELDS, ControllerParams
 
-__all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER", "OFFERS"]
+__all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORDER", "OFFERS",
+           "ControllerFmu", "CONTROLLER_FMUS", "controller_fmu_name", "SAMPLED_START"]
 
 #: Model Exchange (the native FMUs only): the filter state xc' = Af xc + Bf e (pd_lowpass.py),
 #: xc_1 the filter's output, xc_2 its rate (order 2); states beyond the filter order stay 0 with
@@ -82,3 +84,53 @@ MODEL = ModelInfo(
                  "a unit-DC-gain low-pass filter of order 0, 1 or 2, discretised exactly over "
                  "each communication step"),
     version="0.2.0", start_time=0.0, stop_time=10.0, step_size=1e-3)
+
+
+# ---- One native controller FMU per law's family (as the plant's rung families) ---------------
+#: The sample period the sampled FMU starts with (s): a positive one, as its clock needs.
+SAMPLED_START = 1e-3
+
+
+@dataclass(frozen=True)
+class ControllerFmu:
+    """One native controller FMU: the continuous controller (``sample_period = 0``; Model
+    Exchange, directional and output derivatives) or the sampled one (``sample_period > 0``;
+    co-simulation on the ticks' grid, nothing else: its force is piecewise constant). Each
+    refuses the other's sample periods, naming the FMU that runs them; both keep every value
+    reference of :data:`VARIABLES`."""
+
+    name: str
+    sampled: bool
+    offers: Offers
+    summary: str
+
+    @property
+    def variables(self) -> tuple:
+        if not self.sampled:
+            return VARIABLES
+        return tuple(dataclasses.replace(
+            v, start=SAMPLED_START,
+            description=f"{v.description}; this FMU runs sample_period > 0, PDLowPass runs 0")
+            if v.name == "sample_period" else v for v in VARIABLES)
+
+    @property
+    def model(self) -> ModelInfo:
+        return dataclasses.replace(MODEL, name=self.name, description=self.summary)
+
+
+CONTROLLER_FMUS = {f.name: f for f in (
+    ControllerFmu("PDLowPass", False, OFFERS, MODEL.description),
+    ControllerFmu("PDLowPassSampled", True,
+                  Offers(model_exchange=False, directional_derivatives=False,
+                         output_derivative_order=0, interpolates_inputs=False),
+                  "The PD + low-pass controller as it runs on hardware: it samples the tip "
+                  "angle and rate every sample_period, computes the force by the filter's "
+                  "difference equation (tustin or zoh) and holds it from delay after the "
+                  "sample on; co-simulation on a grid that lands on every sample and every "
+                  "sample + delay"),
+)}
+
+
+def controller_fmu_name(params) -> str:
+    """The native controller FMU that runs the ControllerParams ``params``."""
+    return "PDLowPassSampled" if params.sample_period > 0 else "PDLowPass"

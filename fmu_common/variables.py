@@ -97,12 +97,15 @@ class ModelInfo:
 class Offers:
     """What a native FMU offers, declared in its ``modelDescription.xml`` and honoured at every
     parameter value it accepts (docs/fmus.md, "One FMU per rung family"): the Model Exchange
-    interface (besides co-simulation, which every FMU has), directional derivatives, and exact
-    output derivatives up to ``output_derivative_order`` (0: none)."""
+    interface (besides co-simulation, which every FMU has), directional derivatives, exact
+    output derivatives up to ``output_derivative_order`` (0: none), and input derivatives."""
 
     model_exchange: bool = True
     directional_derivatives: bool = True
     output_derivative_order: int = 2
+    #: FMI 2.0 co-simulation's canInterpolateInputs: the FMU follows input derivatives over a
+    #: step (the sampled controller samples values at its ticks: it does not)
+    interpolates_inputs: bool = True
 
 
 def parameter(name, default, description, unit=None, scene_key=None) -> Variable:

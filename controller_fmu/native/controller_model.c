@@ -40,6 +40,13 @@ struct fpm_model {
     double step_h;              /* and its length */
     disc cache[2];
     int next;
+    /* the sampled controller (FPM_SAMPLED; controller_fmu/sampled.py): the filter's difference
+     * equation over T (xc holds its state), the next tick's index, the force waiting for its
+     * delay (pending; it acts from t0 + (k - 1) T + tau on); F is the force held */
+    double T, tau, sAd[4], sBd[2], sCd[2], sDd;
+    double k;                   /* an integer, as a double (saved exactly) */
+    int pending;
+    double pend_F;
 };
 
 size_t fpm_model_size(void) { return sizeof(fpm_model); }
@@ -81,12 +88,21 @@ static int sampled_parameters(const fpm_model *m, const fpm_logger *lg)
                 "tustin, zoh", disc);
         return 0;
     }
+#if FPM_SAMPLED
+    if (!(r[VR_sample_period] > 0.0)) {
+        fpm_log(lg, FPM_ERROR, "bad parameter: sample_period = %.17g: %s is the sampled "
+                "controller (sample_period > 0); the continuous one (sample_period = 0) is the "
+                "FMU PDLowPass", r[VR_sample_period], fpm_model_name);
+        return 0;
+    }
+#else
     if (r[VR_sample_period] != 0.0) {
         fpm_log(lg, FPM_ERROR, "bad parameter: sample_period = %.17g: %s is the continuous "
-                "controller (sample_period = 0); the sampled controller is not built yet",
+                "controller (sample_period = 0); the sampled one is the FMU PDLowPassSampled",
                 r[VR_sample_period], fpm_model_name);
         return 0;
     }
+#endif
     return 1;
 }
 
@@ -127,6 +143,29 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     m->step_h = 0.0;
     m->cache[0].h = m->cache[1].h = -1.0;
     m->t = m->t0;
+    m->T = r[VR_sample_period];
+    m->tau = r[VR_delay];
+    m->k = 0.0;
+    m->pending = 0;
+    m->pend_F = 0.0;
+#if FPM_SAMPLED
+    {
+        const int tustin = strcmp(m->v.string[VR_discretization], "tustin") == 0;
+        const int rc = fpf_sampled(&m->f, m->T, tustin, m->sAd, m->sBd, m->sCd, &m->sDd);
+        if (rc == FPF_BADARG && tustin) {
+            fpm_log(lg, FPM_ERROR, "bad parameter: sample_period = %.17g is out of range for "
+                    "the tustin filter prewarped at cutoff = %.17g rad/s; allowed: below pi / "
+                    "cutoff = %.6g s (or discretization = 'zoh')", m->T, m->f.cutoff,
+                    3.141592653589793 / m->f.cutoff);
+            return 0;
+        }
+        if (rc != FPF_OK) {
+            fpm_log(lg, FPM_ERROR, "bad parameter: the filter's difference equation over "
+                    "sample_period = %.17g is not finite", m->T);
+            return 0;
+        }
+    }
+#endif
     return 1;
 }
 
@@ -154,13 +193,53 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
     fpm_put_i32(w, m->stepped);
     for (k = 0; k < 9; k++) fpm_put_f64(w, m->step_y[k]);
     fpm_put_f64(w, m->step_h);
+    fpm_put_f64(w, m->k);                     /* the sampled controller's (0 in PDLowPass) */
+    fpm_put_i32(w, m->pending);
+    fpm_put_f64(w, m->pend_F);
+}
+
+/* The sampled controller's instants (controller_fmu/sampled.py): two instants within
+ * TICK_TOLERANCE of the sample period are one. */
+#define TICK_TOLERANCE 1e-9
+
+#if FPM_SAMPLED
+static double tick_at(const fpm_model *m, double k) { return m->t0 + k * m->T; }
+#endif
+
+/* What a restored state of the sampled controller must hold (PDLowPass: nothing of it): k an
+ * integer >= 0 with the time reached between the last tick taken and the next,
+ * t0 + (k - 1) T <= t <= t0 + k T; a pending force only with a delay, before it acts, and
+ * within the limit; none pending: 0. */
+static int sampled_state_holds(const fpm_model *m, fpm_reader *r, double t, double k,
+                               int pending, double pend_F)
+{
+#if FPM_SAMPLED
+    const double tol = TICK_TOLERANCE * m->T;
+    if (!(k >= 0.0 && k == floor(k) && k < 9.0e15))
+        return fpm_reject(r, "the next tick's index %g is not an integer >= 0", k);
+    if (!(t <= tick_at(m, k) + tol && (k == 0.0 || t >= tick_at(m, k - 1.0) - tol)))
+        return fpm_reject(r, "t = %.17g is not between the last tick taken and the next "
+                          "(tick %g at %.17g)", t, k, tick_at(m, k));
+    if (pending && (m->tau == 0.0 || k == 0.0 || !(t < tick_at(m, k - 1.0) + m->tau - tol)))
+        return fpm_reject(r, "a force is pending where none can be (delay %g, t = %.17g)",
+                          m->tau, t);
+    if (!(fabs(pend_F) <= m->f.force_limit) || (!pending && pend_F != 0.0))
+        return fpm_reject(r, "the pending force %g is not one the controller computes", pend_F);
+    return 1;
+#else
+    (void)m;
+    (void)t;
+    if (k != 0.0 || pending || pend_F != 0.0)
+        return fpm_reject(r, "a state of the sampled controller (PDLowPassSampled)");
+    return 1;
+#endif
 }
 
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
 {
     fpm_logger lg;
-    double t0, t, xc[2], F, step_y[9], step_h;
-    int k, init, stepped;
+    double t0, t, xc[2], F, step_y[9], step_h, tick, pend_F;
+    int k, init, stepped, pending;
     lg = fpm_reader_logger(r);
     fpm_get_finite(r, "t0", &t0);
     fpm_get_finite(r, "t", &t);
@@ -178,6 +257,9 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     fpm_get_int_in(r, "stepped", 0, 1, &stepped);
     for (k = 0; k < 9; k++) fpm_get_finite(r, "the inputs of the last step", &step_y[k]);
     fpm_get_finite(r, "the last step's length", &step_h);
+    fpm_get_finite(r, "the next tick's index", &tick);
+    fpm_get_int_in(r, "the pending flag", 0, 1, &pending);
+    fpm_get_finite(r, "the pending force", &pend_F);
     if (r->why[0] != '\0') return 0;
     if (!(step_h >= 0.0) || (!stepped && step_h != 0.0))
         return fpm_reject(r, "the last step's length %g is not that of a step", step_h);
@@ -190,7 +272,8 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     m->t0 = t0;
     m->t = t0;
     if (!init) {                              /* as reset left it (F_c: a feedthrough read) */
-        if (t != t0 || xc[0] != 0.0 || xc[1] != 0.0 || stepped)
+        if (t != t0 || xc[0] != 0.0 || xc[1] != 0.0 || stepped || tick != 0.0 || pending
+            || pend_F != 0.0)
             return fpm_reject(r, "the filter of a model not initialised has moved");
         m->F = F;
         return 1;
@@ -205,11 +288,15 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
         return fpm_reject(r, "xc[0] = %g but there is no filter", xc[0]);
     if (!(fabs(F) <= m->f.force_limit))
         return fpm_reject(r, "F_c = %g exceeds force_limit = %g", F, m->f.force_limit);
+    if (!sampled_state_holds(m, r, t, tick, pending, pend_F)) return 0;
     m->t = t;
     m->xc[0] = xc[0];
     m->xc[1] = xc[1];
     m->F = F;
     m->stepped = stepped;
+    m->k = tick;
+    m->pending = pending;
+    m->pend_F = pend_F;
     memcpy(m->step_y, step_y, sizeof step_y);
     m->step_h = step_h;
     return 1;
@@ -240,15 +327,106 @@ static void name_bad(const double *y, char *buf, size_t n)
                                      PRE[k / 3], SENSOR_NAMES[k % 3], y[k]);
 }
 
+#if FPM_SAMPLED
+/* The force of the tick at hand for the error signal e, and the filter state after it:
+ * u = sat(-(Cd xf + Dd e)), xf <- Ad xf + Bd e. 1 if both are finite. */
+static int sampled_force(const fpm_model *m, double e, double *u, double *xf)
+{
+    const int n = m->f.order;
+    double v = m->sDd * e, x0 = 0.0, x1 = 0.0;
+    int i;
+    for (i = 0; i < n; i++) v += m->sCd[i] * m->xc[i];
+    if (n == 1) {
+        x0 = m->sAd[0] * m->xc[0] + m->sBd[0] * e;
+    } else if (n == 2) {
+        x0 = m->sAd[0] * m->xc[0] + m->sAd[1] * m->xc[1] + m->sBd[0] * e;
+        x1 = m->sAd[2] * m->xc[0] + m->sAd[3] * m->xc[1] + m->sBd[1] * e;
+    }
+    if (!(isfinite(v) && isfinite(x0) && isfinite(x1))) return 0;
+    *u = -v;
+    if (*u < -m->f.force_limit) *u = -m->f.force_limit;
+    if (*u > m->f.force_limit) *u = m->f.force_limit;
+    xf[0] = x0;
+    xf[1] = x1;
+    return 1;
+}
+
+/* A communication step of the sampled controller (controller_fmu/sampled.py, step): the tick
+ * at t (if any) samples the sensors set now; a force whose delay runs out at t + h takes over;
+ * a step across a tick or a tick + delay is refused (fmi2Discard), the state unchanged. */
+static int sampled_step(fpm_model *m, const fpm_logger *lg, double t, double h)
+{
+    const double tol = TICK_TOLERANCE * m->T, tick = tick_at(m, m->k);
+    double k = m->k, xf[2] = {m->xc[0], m->xc[1]}, held = m->F, pend_F = m->pend_F;
+    double end = t + h, next;
+    int pending = m->pending;
+    if (t > tick + tol) {
+        fpm_log(lg, FPM_ERROR, "the tick at t = %.17g was missed (the step starts at %.17g)",
+                tick, t);
+        return FPM_ERROR;
+    }
+    if (fabs(t - tick) <= tol) {
+        double y[9], e[3], u;
+        char bad[256];
+        if (!sensors(m, y)) {
+            name_bad(y, bad, sizeof bad);
+            fpm_log(lg, FPM_DISCARD, "non-finite input at the tick t = %.17g: %s; step "
+                    "rejected, state unchanged", t, bad);
+            return FPM_DISCARD;
+        }
+        fpf_error(&m->f, y, e);
+        if (!sampled_force(m, e[0], &u, xf)) {
+            fpm_log(lg, FPM_DISCARD, "the sample at t = %.17g overflows the filter (error "
+                    "signal %.17g); step rejected, state unchanged", t, e[0]);
+            return FPM_DISCARD;
+        }
+        k += 1.0;
+        if (m->tau == 0.0) {
+            held = u;
+        } else {
+            pending = 1;
+            pend_F = u;
+        }
+    }
+    next = tick_at(m, k);
+    if (pending && tick_at(m, k - 1.0) + m->tau < next) next = tick_at(m, k - 1.0) + m->tau;
+    if (end > next + tol) {
+        fpm_log(lg, FPM_DISCARD, "the step from t = %.17g over h = %.17g crosses the "
+                "controller's instant t = %.17g (a sample every sample_period = %.17g s, the "
+                "force delay = %.17g s after it): land a communication point on it; step "
+                "refused, state unchanged", t, h, next, m->T, m->tau);
+        return FPM_DISCARD;
+    }
+    if (pending && fabs(end - (tick_at(m, k - 1.0) + m->tau)) <= tol) {
+        held = pend_F;
+        pending = 0;
+        pend_F = 0.0;
+    }
+    m->k = k;
+    m->xc[0] = xf[0];
+    m->xc[1] = xf[1];
+    m->F = held;
+    m->pending = pending;
+    m->pend_F = pend_F;
+    m->t = end;
+    m->stepped = 1;
+    m->step_h = h;
+    return FPM_OK;
+}
+#endif
+
 int fpm_model_step(fpm_model *m, const fpm_logger *lg, double t, double h)
 {
     double y[9], e[3], F;
     disc *d;
     char bad[256];
     if (!m->initialized) {
-        fpm_log(lg, FPM_ERROR, "PDLowPass cannot step: it was not initialised");
+        fpm_log(lg, FPM_ERROR, "%s cannot step: it was not initialised", fpm_model_name);
         return FPM_ERROR;
     }
+#if FPM_SAMPLED
+    return sampled_step(m, lg, t, h);
+#endif
     if (!sensors(m, y)) {
         name_bad(y, bad, sizeof bad);
         fpm_log(lg, FPM_DISCARD, "non-finite input at t = %.17g: %s; step rejected, state "
@@ -427,6 +605,24 @@ int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
         fpm_log(lg, FPM_ERROR, "F_c cannot be computed: a parameter is bad (above)");
         return FPM_ERROR;
     }
+#if FPM_SAMPLED
+    if (m->tau == 0.0 && fabs(m->t - tick_at(m, m->k)) <= TICK_TOLERANCE * m->T) {
+        double u, xf[2];                      /* the tick at hand: a feedthrough of the inputs */
+        if (sensors(m, y)) {
+            fpf_error(&m->f, y, e);
+            if (sampled_force(m, e[0], &u, xf)) {
+                *value = u;
+                return FPM_OK;
+            }
+        }
+        fpm_log(lg, FPM_WARNING, "F_c is not finite for the inputs given at the tick t = %.17g; "
+                "F_c holds its last value %.17g", m->t, m->F);
+        *value = m->F;
+        return FPM_WARNING;
+    }
+    *value = m->F;
+    return FPM_OK;
+#endif
     if (m->f.order == 0) {                    /* direct feedthrough of the current inputs */
         if (sensors(m, y)) {
             fpf_error(&m->f, y, e);
@@ -462,6 +658,14 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
                                    double value)
 {
     int k;
+#if FPM_SAMPLED
+    (void)m;
+    (void)value;
+    fpm_log(lg, FPM_ERROR, "fmi2SetRealInputDerivatives: %s samples its inputs at its ticks and "
+            "takes no input derivatives (canInterpolateInputs = false; value reference %u, "
+            "order %d)", fpm_model_name, vr, order);
+    return FPM_ERROR;
+#endif
     for (k = 0; k < 3; k++)
         if (vr == SENSOR_VRS[k] && (order == 1 || order == 2)) {
             m->d[order - 1][k] = value;

@@ -45,8 +45,8 @@ TABLES = {
 NATIVE = {
     **{name: (fmu.model, fmu.variables, fmu.offers)
        for name, fmu in plant_interface.PLANT_FMUS.items()},
-    "PDLowPass": (controller_interface.MODEL, controller_interface.VARIABLES,
-                  controller_interface.OFFERS),
+    **{name: (fmu.model, fmu.variables, fmu.offers)
+       for name, fmu in controller_interface.CONTROLLER_FMUS.items()},
 }
 
 #: unit -> its SI base-unit exponents (FMI's BaseUnit); None: not a product of integer powers

@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controller_fmu.interface import CONTROLLER_FMUS
 from fmu_common import kernels
 from fmu_common.variables import (derivatives, event_indicators, native_variables,
                                   python_entries, states, value_references)
@@ -93,7 +94,7 @@ GENERATION_TOOL = "flexpend native FMU (C)"
 MODELS = {
     **{name: ("plant_model.c", ("flexpend_plant", "flexpend_filter"))
        for name in PLANT_FMUS},
-    "PDLowPass": ("controller_model.c", ("flexpend_filter",)),
+    **{name: ("controller_model.c", ("flexpend_filter",)) for name in CONTROLLER_FMUS},
 }
 
 
@@ -196,6 +197,8 @@ def generate_header(name: str, token: str, table=None, mode_tables: bool = True)
         lines += [f"#define FPM_OFFERS_ME {int(offers.model_exchange)}",
                   f"#define FPM_OFFERS_JACOBIAN {int(offers.directional_derivatives)}",
                   f"#define FPM_OUTPUT_DERIVATIVE_ORDER {offers.output_derivative_order}"]
+    if offers is not None and name in CONTROLLER_FMUS:
+        lines += [f"#define FPM_SAMPLED {int(CONTROLLER_FMUS[name].sampled)}"]
     if offers is not None and name in PLANT_FMUS:
         rungs = PLANT_FMUS[name].fidelities
         lines += ["/* the rungs (fidelity values) this FMU runs, and every FMU's */",
@@ -508,7 +511,8 @@ def _model_description(name: str, fmi_version: int, token: str) -> bytes:
     if fmi_version == 2:
         me = {**me, "completedIntegratorStepNotNeeded": "true",
               "canNotUseMemoryManagementFunctions": "false"}
-        cs = {**common, "canInterpolateInputs": "true", "maxOutputDerivativeOrder": order,
+        cs = {**common, "canInterpolateInputs": "true" if offers.interpolates_inputs else "false",
+              "maxOutputDerivativeOrder": order,
               "canRunAsynchronuously": "false", "canNotUseMemoryManagementFunctions": "false"}
         return fmi2_model_description(name, token, generation_tool=tool, co_simulation=cs,
                                       log_categories=LOG_CATEGORIES, native=True,
