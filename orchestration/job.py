@@ -37,7 +37,7 @@ from plant_fmu.beam import beam_model
 from .cosim.master import Master
 from .cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
 from .cosim.slave import CoSimulationError, RunInterrupted, Slave, describe
-from .export import flavour_fmus, plant_role, with_families
+from .export import controller_role, flavour_fmus, plant_role, with_families
 from .files import check_folder, write_csv, write_json
 from .report import figures
 from .report.files import save_figure
@@ -459,9 +459,10 @@ def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snap
             role = plant_role(fmus, scene.plant.fidelity)       # the rung's plant FMU
             slaves["plant"] = make(fmus[role], "plant", plant_start_values(scene),
                                    unzipdir=dirs.get(role))
-            slaves["controller"] = make(fmus["controller"], "controller",
+            crole = controller_role(fmus, scene.controller)    # continuous or sampled
+            slaves["controller"] = make(fmus[crole], "controller",
                                         controller_start_values(scene),
-                                        unzipdir=dirs.get("controller"))
+                                        unzipdir=dirs.get(crole))
             master = (ModelExchangeMaster if me else Master)(slaves, scene.connections, RECORD,
                                                              scene.run_master)
         except ValueError as exc:       # a variable the FMUs do not have, no ME interface

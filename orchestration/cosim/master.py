@@ -215,8 +215,22 @@ class Master:
                 self.slaves[n].set_inputs(self._held_inputs(n, hist, t0, t1), ta)
             for n in self.coupling.order:
                 self.slaves[n].do_step(ta, h)
+            sampled = [n for n in self.coupling.order if self.slaves[n].sampled]
             for n in self.coupling.order:
-                new[n] = self._outputs_after_step(n, hist, t1)
+                if n not in sampled:
+                    new[n] = self._outputs_after_step(n, hist, t1)
+            if sampled:
+                # a sampled controller's force at a tick is a feedthrough of the sensors there:
+                # read it with its inputs at the others' outputs at t1 (held: exact)
+                for n in new:
+                    hist[n].push(t1, new[n])
+                try:
+                    for n in sampled:
+                        new[n] = self._outputs_after_step(n, hist, t1)
+                finally:
+                    for n in list(new):
+                        if n not in sampled:
+                            hist[n].pop()
         else:
             pushed, replaced = [], []
             for n in self.coupling.order:

@@ -63,6 +63,9 @@ class Slave:
                  unzipdir=None):
         self.name = name
         self.path = str(path)
+        #: a sampled controller (a start value sample_period > 0): the master reads its output
+        #: after setting its inputs to the sources' outputs at the same instant (Master)
+        self.sampled = float((start_values or {}).get("sample_period", 0.0) or 0.0) > 0.0
         self.md = describe(self.path)
         self.variables = {v.name: v for v in self.md.modelVariables}
         self.messages: list[str] = []

@@ -21,6 +21,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from controller_fmu.interface import CONTROLLER_FMUS, controller_fmu_name
 from plant_fmu.interface import PLANT_FMUS, plant_fmu_name
 
 from ..scene.keys import FMU_FLAVOURS
@@ -31,7 +32,7 @@ from .python_fmus import SPECS, BuildError, is_stale
 from .python_fmus import build_fmus as build_python
 
 __all__ = ["build_fmus", "BuildError", "FMU_FLAVOURS", "fmu_pair", "flavour_fmus", "plant_role",
-           "pair_for", "with_families", "main"]
+           "controller_role", "pair_for", "with_families", "main"]
 
 
 def build_fmus(out_dir=None, names=None, force: bool = False, *, flavour: str = "python",
@@ -64,7 +65,8 @@ def fmu_pair(paths: dict) -> dict:
     and the native plant of each other rung family built (``FlexiblePendulumStiffened``,
     ``FlexiblePendulumExact``) under its own name (:func:`pair_for` picks a rung's plant)."""
     return {"plant": paths["FlexiblePendulum"], "controller": paths["PDLowPass"],
-            **{n: p for n, p in paths.items() if n in PLANT_FMUS and n != "FlexiblePendulum"}}
+            **{n: p for n, p in paths.items() if n in PLANT_FMUS and n != "FlexiblePendulum"},
+            **{n: p for n, p in paths.items() if n in CONTROLLER_FMUS and n != "PDLowPass"}}
 
 
 def with_families(fmus: dict) -> dict:
@@ -81,7 +83,21 @@ def with_families(fmus: dict) -> dict:
         sibling = Path(plant).with_name(f"{name}.fmu")
         if name not in out and name != "FlexiblePendulum" and sibling.is_file():
             out[name] = str(sibling) if isinstance(plant, str) else sibling
+    controller = fmus.get("controller")
+    if controller is not None and Path(controller).name == "PDLowPass.fmu":
+        for name in CONTROLLER_FMUS:
+            sibling = Path(controller).with_name(f"{name}.fmu")
+            if name not in out and name != "PDLowPass" and sibling.is_file():
+                out[name] = str(sibling) if isinstance(controller, str) else sibling
     return out
+
+
+def controller_role(fmus: dict, params) -> str:
+    """The key of ``fmus`` whose controller runs the ControllerParams ``params``: the native
+    ``PDLowPassSampled`` for a sampled controller when ``fmus`` holds it, else
+    ``"controller"`` (an FMU that does not run it refuses it, naming the one that does)."""
+    name = controller_fmu_name(params)
+    return name if name in fmus and name != "PDLowPass" else "controller"
 
 
 def plant_role(fmus: dict, fidelity: str) -> str:
@@ -93,10 +109,12 @@ def plant_role(fmus: dict, fidelity: str) -> str:
     return name if name in fmus else "plant"
 
 
-def pair_for(fmus: dict, fidelity: str) -> dict:
+def pair_for(fmus: dict, fidelity: str, controller=None) -> dict:
     """``{"plant": path, "controller": path}``: the pair of ``fmus`` a run on rung ``fidelity``
-    uses (:func:`plant_role`)."""
-    return {"plant": fmus[plant_role(fmus, fidelity)], "controller": fmus["controller"]}
+    with the ControllerParams ``controller`` (None: the continuous one) uses
+    (:func:`plant_role`, :func:`controller_role`)."""
+    role = "controller" if controller is None else controller_role(fmus, controller)
+    return {"plant": fmus[plant_role(fmus, fidelity)], "controller": fmus[role]}
 
 
 def flavour_fmus(flavour: str, *, portable: bool = False, progress=None) -> dict:

@@ -27,7 +27,7 @@ def _archived(scene, fmus: dict) -> dict:
     the companion run's plant FMU where it is another (the stiffened rung's, for a run on a
     floating-frame rung that states its error figure), which flexpend's run of the archive
     takes from it."""
-    out = pair_for(fmus, scene.plant.fidelity)
+    out = pair_for(fmus, scene.plant.fidelity, scene.controller)
     if scene.plant.fidelity in ("nonlinear", "linear") and scene.fidelity.companion:
         role = plant_role(fmus, "stiffened")
         if role != "plant":

@@ -385,6 +385,7 @@ class Scene:
                               f"allowed: integers 1..{self.plant.beam.n_elements}")
         self._check_initial_state()
         self._check_exact()
+        self._check_sampled()
         self._check_stiffened()
         m, out = self.run_master, self.output
         key = "plant.exact_step" if self.plant.fidelity == "exact" else "master.step"
@@ -415,9 +416,15 @@ class Scene:
         result (docs/exact.md). Sampled at the integrator's own step, the beam as integrated
         has nothing above the sampling's Nyquist frequency: L-stable Radau damps what the step
         does not resolve."""
+        m = self.master
+        if self.controller.sampled:
+            # the sampled controller's coupling is exact on the ticks' grid (docs/sampled.md):
+            # Jacobi, every input held, the controller's force read after its sensors are set
+            m = replace(m, algorithm="jacobi", extrapolation=0, input_derivatives=False,
+                        output_derivatives=False, compiled=False)
         if self.plant.fidelity != "exact":
-            return self.master
-        return replace(self.master, step=self.plant.exact_step)
+            return m
+        return replace(m, step=self.plant.exact_step)
 
     def _check_exact(self):
         """``plant.fidelity = "exact"`` runs in the native FMUs' co-simulation interface only, at
@@ -437,6 +444,37 @@ class Scene:
                if m.output_derivatives else None)
         if why:
             raise ConfigError(f"plant.fidelity = 'exact' cannot be used with {why}")
+
+    def _check_sampled(self):
+        """A sampled controller (``controller.sample_period > 0``) runs on the native FMUs'
+        co-simulation at a fixed communication step that lands on every tick and every tick +
+        delay: ``master.step`` (``plant.exact_step`` at the exact rung) divides
+        ``controller.sample_period`` and ``controller.delay``. Its coupling is then exact, and
+        the master's own choices of coupling (``master.algorithm``, ``extrapolation``, input and
+        output derivatives, the compiled loop) do not apply (:attr:`run_master`)."""
+        c = self.controller
+        if not c.sampled:
+            return
+        m = self.master
+        why = ("master.fmus = 'python': the pythonfmu controller is continuous; the sampled one "
+               "is the native PDLowPassSampled" if m.fmus != "native" else
+               "master.adaptive = true: the communication points must land on the ticks"
+               if m.adaptive else
+               "master.interface = 'model-exchange': the sampled controller is a co-simulation "
+               "FMU" if m.interface == "model-exchange" else None)
+        if why:
+            raise ConfigError(f"controller.sample_period = {c.sample_period:g} cannot be used "
+                              f"with {why}")
+        h = self.plant.exact_step if self.plant.fidelity == "exact" else m.step
+        key = "plant.exact_step" if self.plant.fidelity == "exact" else "master.step"
+        for name, value in (("sample_period", c.sample_period), ("delay", c.delay)):
+            n = round(value / h)
+            if abs(n * h - value) > 1e-9 * max(value, h):
+                raise ConfigError(f"{key} = {h:g} s does not divide controller.{name} = "
+                                  f"{value:g} s; allowed: a communication step that lands on "
+                                  f"every sample and every sample + delay, such as "
+                                  f"{math.gcd(round(c.sample_period * 1e9), round(c.delay * 1e9)) / 1e9:g} s "
+                                  f"or a divisor of it")
 
     def _check_stiffened(self):
         """``plant.fidelity = "stiffened"`` gives no directional or output derivatives (its

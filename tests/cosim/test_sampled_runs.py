@@ -1,0 +1,40 @@
+"""The sampled controller in the loop (issue 38): runs just inside and just outside each
+boundary of the sample period that the sampled loop's analysis predicts
+(orchestration/studies/sampled.py: the plant discretised exactly with the hold and the delay),
+on the native pair, the master landing on every tick and tick + delay. The run's fitted growth
+rate of the slow oscillation is the predicted pole's, and the verdict changes where predicted."""
+from __future__ import annotations
+
+import pytest
+
+from orchestration.export import fmu_pair
+from orchestration.job import run_scene
+from orchestration.scene.schema import load_scene
+from orchestration.studies.sampled import critical_periods, sampled_poles
+
+SHORT = {"initial.phi": 0.01, "fidelity.companion": "false"}
+
+
+@pytest.fixture(scope="module")
+def fmus(native):
+    return fmu_pair(native)
+
+
+def _run(fmus, scene, T, tau):
+    h = T / 12                                 # lands on every tick and tick + delay
+    sets = {**SHORT, "controller.sample_period": T, "controller.delay": tau, "master.step": h,
+            "output_interval": T, "stop_time": round(4.0 / T) * T}
+    return run_scene(load_scene(scene, [f"{k}={v}" for k, v in sets.items()]), fmus,
+                     progress=False)
+
+
+@pytest.mark.parametrize("fraction", [0.0, 1.0])
+def test_the_rigid_loop_is_stable_just_below_the_critical_period_and_not_above(fmus, fraction):
+    Tc = critical_periods("rigid_pd")["tau=0" if fraction == 0.0 else "tau=T"]
+    for T, stable in ((0.93 * Tc, True), (1.07 * Tc, False)):
+        run = _run(fmus, "rigid_pd", T, fraction * T)
+        slow = run.summary["slow"]
+        s = sampled_poles("rigid_pd", T, fraction * T).s
+        want = max(v.real for v in s if abs(v.imag) > 1.0)     # the slow oscillation
+        assert (slow["rate"] < 0) == stable and run.summary["stable"] == stable
+        assert slow["rate"] == pytest.approx(want, abs=2e-3 + 0.02 * abs(want))
