@@ -246,6 +246,8 @@ def start_values(md, fidelity) -> dict:
     start = {"phi0": PHI0} if "phi0" in names else {}
     if fidelity is not None and "fidelity" in names:
         start["fidelity"] = fidelity
+    if md.modelName == "PDLowPassSampled":          # its ticks and delay on the CS grid
+        start.update(sample_period=4 * CS_STEP, delay=2 * CS_STEP)
     return start
 
 

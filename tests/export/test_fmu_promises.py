@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 from fmpy import extract, read_model_description
 
+from controller_fmu.interface import CONTROLLER_FMUS
 from plant_fmu.interface import FIDELITIES, PLANT_FMUS
 
 VERSIONS = (2, 3)
@@ -53,11 +54,18 @@ CONTROLLER_VARIANTS = [{"phi_o": 0.1, "omega_o": -0.2, "x_o": 0.05, "filter_orde
     [{"phi_o": 0.3, "omega_o": 2.0, "x_o": 0.5, "kx": 20.0, "force_limit": 10.0}]
 
 
+#: the sampled controller on the checks' grid (its ticks every H, the force after 0 or H)
+SAMPLED_VARIANTS = [{**v, "sample_period": H, "delay": delay, "discretization": disc}
+                    for v in CONTROLLER_VARIANTS for delay in (0.0, H)
+                    for disc in ("tustin", "zoh") if delay == 0.0 or disc == "zoh"]
+
+
 def _cases():
-    names = [*PLANT_FMUS, "PDLowPass"]
+    names = [*PLANT_FMUS, *CONTROLLER_FMUS]
     for version in VERSIONS:
         for name in names:
             variants = (_plant_variants(PLANT_FMUS[name].fidelities) if name in PLANT_FMUS
+                        else SAMPLED_VARIANTS if CONTROLLER_FMUS[name].sampled
                         else CONTROLLER_VARIANTS)
             for i, start in enumerate(variants):
                 yield pytest.param(version, name, start, id=f"fmi{version}-{name}-{i}")
@@ -77,7 +85,7 @@ def unpacked(native, native3):
 
 def test_every_native_fmu_is_walked(native, native3):
     """The walk covers every native FMU the build makes, and every rung one of them."""
-    assert set(native) == set(native3) == {*PLANT_FMUS, "PDLowPass"}
+    assert set(native) == set(native3) == {*PLANT_FMUS, *CONTROLLER_FMUS}
     assert sorted(f for fmu in PLANT_FMUS.values() for f in fmu.fidelities) == sorted(FIDELITIES)
 
 

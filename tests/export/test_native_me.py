@@ -55,7 +55,10 @@ def test_the_pythonfmu_tables_keep_every_variable_and_reference():
     assert [v.name for v in py[:4]] == ["F_c", "dF_c", "d2F_c", "x_o"]
     assert py[:40] == list(PV[:40]) and all(v.me_only for v in PV[40:71])
     assert PV[71].name == "time" and not any(v.me_only for v in py)
-    assert python_variables(CV) == list(CV[:17]) and all(v.me_only for v in CV[17:21])
+    assert python_variables(CV) == list(CV[:17]) + list(CV[22:]) and \
+        all(v.me_only for v in CV[17:21])
+    assert CV[21].name == "time" and \
+        [v.name for v in CV[22:]] == ["sample_period", "delay", "discretization"]
     assert states(PV) == list(STATES) and len(STATES) == 20
     assert derivatives(PV) == [f"der({s})" for s in STATES]
     assert event_indicators(PV) == ["phi_limit_indicator", "energy_limit_indicator"]
