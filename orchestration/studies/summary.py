@@ -83,9 +83,18 @@ _SIGNALS = {"slow": ("phi_o", SLOW_BAND), "bending": ("eta_1", BENDING_BAND)}
 
 def linear_modes(scene) -> np.ndarray:
     """Closed-loop eigenvalues (upper half-plane, oscillatory) of the scene's linearised loop
-    (:func:`~orchestration.studies.analysis.linearisation`: its rung's, with its damping law)."""
-
-    lam = closed_loop_eigenvalues(linearisation(scene).params, scene.controller)
+    (:func:`~orchestration.studies.analysis.linearisation`: its rung's, with its damping law);
+    with a sampled controller, the s-plane equivalents ``log(z) / T`` of the sampled loop's
+    poles (:func:`~orchestration.studies.sampled.sampled_poles`: the hold, the delay and the
+    filter's difference equation)."""
+    c = scene.controller
+    if c.sampled:
+        from .sampled import sampled_poles
+        lam = sampled_poles((linearisation(scene).params, c), c.sample_period, c.delay,
+                            c.discretization).s
+        lam = lam[np.isfinite(lam)]
+    else:
+        lam = closed_loop_eigenvalues(linearisation(scene).params, c)
     return lam[lam.imag > 1e-9]
 
 
