@@ -30,6 +30,7 @@ from pythonfmu import DefaultExperiment
 from controller_fmu import kernel
 from controller_fmu.interface import MODEL, SENSORS, VARIABLES
 from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+from controller_fmu.sampled import SampledController
 from fmu_common.slave import Fmi2Status, SlaveBase, StateError, check_finite
 
 __all__ = ["PDLowPass"]
@@ -54,8 +55,10 @@ class PDLowPass(SlaveBase):
         # pythonfmu logs its message (the instance's own logger does not exist yet).
         kernel.library()
         self._register_table(VARIABLES, lambda n: self._force)
-        self._t = 0.0
+        self._t = self._t0 = 0.0
         self._model: PDLowPassModel | None = None
+        #: the sampled controller (sample_period > 0; controller_fmu/sampled.py), else None
+        self._sampled: SampledController | None = None
         self._kern: kernel.FilterKernel | None = None   # holds the filter state (output first)
         self._order = 0
         self._F = 0.0                 # F_c after the last step (orders 1, 2) or last finite F_c
@@ -66,7 +69,7 @@ class PDLowPass(SlaveBase):
 
     # ------------------------------------------------------------------ set-up
     def setup_experiment(self, start_time, stop_time=None, tolerance=None):
-        self._t = float(start_time)
+        self._t = self._t0 = float(start_time)
 
     def _parameters_changed(self):
         self._model = None
@@ -89,9 +92,18 @@ class PDLowPass(SlaveBase):
         self._disc = {}
         self._gains = (params.kx, params.kp, params.kd)
         self._F = 0.0
-        if self._order == 0:
+        self._sampled = self._sampled_controller(params, self._kern)
+        if self._order == 0 or self._sampled is not None:
             self._force()
         return True
+
+    def _sampled_controller(self, params, kern):
+        """The sampled controller of ``params`` on the C kernel's difference equation (None for
+        the continuous one)."""
+        if not params.sampled:
+            return None
+        return SampledController(params, self._t0,
+                                 kern.sampled(params.sample_period, params.discretization))
 
     def exit_initialization_mode(self):
         self._prepare()
@@ -130,6 +142,8 @@ class PDLowPass(SlaveBase):
         why = self._check_time(current_time, self._t)
         if why:
             return self._refuse(why)
+        if self._sampled is not None:
+            return self._sampled_step(current_time, step_size)
         if not self._finite_inputs():
             return self._refuse(f"non-finite input at t = {current_time!r}: {self._bad_inputs()}; "
                                 f"step rejected, state unchanged", Fmi2Status.discard)
@@ -141,6 +155,23 @@ class PDLowPass(SlaveBase):
             return self._refuse(f"filter step rejected at t = {current_time!r}: {why}; "
                                 f"state unchanged", Fmi2Status.discard)
         self._t = current_time + step_size
+        return True
+
+    def _sampled_step(self, t: float, h: float):
+        """A step of the sampled controller: the tick at ``t`` (if any) samples the sensors, a
+        step across a tick or a tick + delay is refused (docs/fmus.md); the input derivatives
+        are not used (it samples values)."""
+        c = self._sampled
+        y = self._inputs()
+        if c._at(t, c.tick()) and not math.isfinite(sum(y)):
+            return self._refuse(f"non-finite input at the tick t = {t!r}: {self._bad_inputs()}; "
+                                f"step rejected, state unchanged", Fmi2Status.discard)
+        try:
+            self._F = c.step(t, h, y)
+        except ValueError as exc:
+            return self._refuse(f"PDLowPass: {exc}; step refused, state unchanged",
+                                Fmi2Status.discard)
+        self._t = t + h
         return True
 
     def _advance(self, h: float) -> str | None:
@@ -163,6 +194,14 @@ class PDLowPass(SlaveBase):
     def _force(self) -> float:
         if self._model is None and (self._error is not None or not self._prepare()):
             return self._F
+        if self._sampled is not None:           # at a tick with no delay: a feedthrough
+            y = self._inputs()
+            F = self._sampled.output(y) if math.isfinite(sum(y)) else math.nan
+            if math.isfinite(F):
+                return F
+            self.log(f"F_c is not finite for the inputs {self._bad_inputs() or y}; F_c holds "
+                     f"its last value {self._sampled.held!r}", Fmi2Status.warning)
+            return self._sampled.held
         if self._order == 0:                    # direct feedthrough from the current inputs
             F = self._model.output((), self._inputs()) if self._finite_inputs() else math.nan
             if math.isfinite(F):
@@ -174,14 +213,15 @@ class PDLowPass(SlaveBase):
 
     # ------------------------------------------------------------------ FMU state
     _STATE_KEYS = ("format", "version", "model", "t", "x", "F", "error", "initialized", "params",
-                   "inputs")
+                   "inputs", "sampled")
 
     def _get_fmu_state(self):
         x = [0.0, 0.0] if self._kern is None else [float(v) for v in self._kern.x]
         return {**self._state_header(), "t": self._t, "x": x, "F": self._F,
                 "error": self._error, "initialized": self._initialized,
                 "params": self._params_snapshot(),
-                "inputs": [getattr(self, n) for n in self.INPUTS]}
+                "inputs": [getattr(self, n) for n in self.INPUTS],
+                "sampled": None if self._sampled is None else self._sampled.state()}
 
     @classmethod
     def _check_state(cls, state):
@@ -206,16 +246,32 @@ class PDLowPass(SlaveBase):
             raise StateError("error must be null or a message")
         try:
             p = ControllerParams(**params)
-            return PDLowPassModel(p), kernel.FilterKernel(p)
+            model, kern = PDLowPassModel(p), kernel.FilterKernel(p)
         except (TypeError, ValueError) as exc:
             if state["error"] is None and state["initialized"]:
                 raise StateError(f"bad parameter: {exc}") from None
-            return None, None
+            return None, None, None
+        sampled = None
+        if p.sampled and state["initialized"]:
+            sampled = SampledController(p, 0.0, kern.sampled(p.sample_period, p.discretization))
+            if not isinstance(state["sampled"], dict):
+                raise StateError("sampled must hold the sampled controller's state")
+            try:
+                t0 = state["sampled"].get("t0", 0.0)
+                sampled.t0 = float(t0)
+                sampled.restore(state["sampled"])
+            except (TypeError, ValueError) as exc:
+                raise StateError(f"sampled: {exc}") from None
+            if sampled.t != float(state["t"]):
+                raise StateError("sampled: its time is not the instance's")
+        elif state["sampled"] is not None:
+            raise StateError("sampled must be null for a continuous controller")
+        return model, kern, sampled
 
     def _set_fmu_state(self, state):
         try:
             self._check_header(state)
-            model, kern = self._restored(state)
+            model, kern, sampled = self._restored(state)
         except Exception as exc:  # noqa: BLE001 - an exception would be fmi2Fatal
             self._restore_failed(exc)
             return
@@ -235,6 +291,7 @@ class PDLowPass(SlaveBase):
         if self._kern is not None:
             self._kern.x[0], self._kern.x[1] = (float(v) for v in state["x"])
         self._F = float(state["F"])
+        self._sampled = sampled
         self._error = state["error"]
         self._terminated = False
         for n, v in zip(self.INPUTS, state["inputs"], strict=True):

@@ -84,12 +84,17 @@ class SampledController:
 
     params: ControllerParams
     t0: float = 0.0
+    #: ``(Ad, Bd, Cd, Dd)`` when given (the C kernel's ``fpf_sampled``, as the pythonfmu FMU
+    #: takes them), else :func:`filter_difference_equation`'s
+    coefficients: tuple | None = None
 
     def __post_init__(self):
         p = self.params
         if not p.sampled:
             raise ValueError("SampledController needs controller.sample_period > 0")
-        self.Ad, self.Bd, self.Cd, self.Dd = filter_difference_equation(p)
+        self.Ad, self.Bd, self.Cd, self.Dd = (filter_difference_equation(p)
+                                              if self.coefficients is None
+                                              else self.coefficients)
         self.T, self.tau = p.sample_period, p.delay
         self.gains = np.array([p.kx, p.kp, p.kd])
         self.tol = TICK_TOLERANCE * self.T
@@ -171,3 +176,43 @@ class SampledController:
         self.k, self.xf, self.pending, self.held = k, np.asarray(xf, dtype=float), pending, held
         self.t = end
         return held
+
+    # ------------------------------------------------------------------ FMU state
+    def state(self) -> dict:
+        """The state as plain values (an FMU state's entry)."""
+        return {"t0": self.t0, "k": self.k, "xf": [float(v) for v in self.xf],
+                "held": self.held,
+                "pending": None if self.pending is None else [float(self.pending[0]),
+                                                              float(self.pending[1])],
+                "t": self.t}
+
+    def restore(self, state: dict) -> None:
+        """Take back :meth:`state`'s values, after checking what a state of this controller
+        holds (ValueError naming what is wrong; nothing changed then): ``k`` an integer >= 0
+        with ``t`` between the last tick taken and the next, a pending force only with a delay
+        and before it acts, forces within the limit."""
+        try:
+            k, xf, held, pending, t = (state[n] for n in ("k", "xf", "held", "pending", "t"))
+        except (KeyError, TypeError):
+            raise ValueError("the sampled controller's state needs k, xf, held, pending, t") \
+                from None
+        if isinstance(k, bool) or not isinstance(k, int) or k < 0:
+            raise ValueError(f"k = {k!r} is not an integer >= 0")
+        xf = np.asarray(xf, dtype=float)
+        lim = self.params.force_limit
+        if xf.shape != self.xf.shape or not np.all(np.isfinite(xf)):
+            raise ValueError(f"xf must be {self.xf.size} finite numbers")
+        if not (isinstance(t, (int, float)) and math.isfinite(t)):
+            raise ValueError(f"t = {t!r} is not a finite time")
+        if not (t <= self.tick(k) + self.tol and (k == 0 or t >= self.tick(k - 1) - self.tol)):
+            raise ValueError(f"t = {t!r} is not between the last tick taken and the next")
+        if not (isinstance(held, (int, float)) and abs(held) <= lim):
+            raise ValueError(f"the held force {held!r} is not one the controller computes")
+        if pending is not None:
+            if self.tau == 0.0 or k == 0 or len(pending) != 2 or \
+                    not abs(float(pending[0])) <= lim or \
+                    float(pending[1]) != self.tick(k - 1) + self.tau or \
+                    not t < float(pending[1]) - self.tol:
+                raise ValueError("a force is pending where none can be")
+            pending = (float(pending[0]), float(pending[1]))
+        self.k, self.xf, self.held, self.pending, self.t = k, xf, float(held), pending, float(t)

@@ -446,8 +446,8 @@ class Scene:
             raise ConfigError(f"plant.fidelity = 'exact' cannot be used with {why}")
 
     def _check_sampled(self):
-        """A sampled controller (``controller.sample_period > 0``) runs on the native FMUs'
-        co-simulation at a fixed communication step that lands on every tick and every tick +
+        """A sampled controller (``controller.sample_period > 0``) runs in co-simulation (the
+        native PDLowPassSampled, or the pythonfmu PDLowPass) at a fixed communication step that lands on every tick and every tick +
         delay: ``master.step`` (``plant.exact_step`` at the exact rung) divides
         ``controller.sample_period`` and ``controller.delay``. Its coupling is then exact, and
         the master's own choices of coupling (``master.algorithm``, ``extrapolation``, input and
@@ -456,9 +456,7 @@ class Scene:
         if not c.sampled:
             return
         m = self.master
-        why = ("master.fmus = 'python': the pythonfmu controller is continuous; the sampled one "
-               "is the native PDLowPassSampled" if m.fmus != "native" else
-               "master.adaptive = true: the communication points must land on the ticks"
+        why = ("master.adaptive = true: the communication points must land on the ticks"
                if m.adaptive else
                "master.interface = 'model-exchange': the sampled controller is a co-simulation "
                "FMU" if m.interface == "model-exchange" else None)

@@ -16,7 +16,8 @@ SHORT = {"initial.phi": 0.01, "fidelity.companion": "false"}
 
 
 @pytest.fixture(scope="module")
-def fmus(native):
+def pair(native):
+    """The native pair with the other families (PDLowPassSampled among them)."""
     return fmu_pair(native)
 
 
@@ -29,12 +30,25 @@ def _run(fmus, scene, T, tau):
 
 
 @pytest.mark.parametrize("fraction", [0.0, 1.0])
-def test_the_rigid_loop_is_stable_just_below_the_critical_period_and_not_above(fmus, fraction):
+def test_the_rigid_loop_is_stable_just_below_the_critical_period_and_not_above(pair, fraction):
     Tc = critical_periods("rigid_pd")["tau=0" if fraction == 0.0 else "tau=T"]
     for T, stable in ((0.93 * Tc, True), (1.07 * Tc, False)):
-        run = _run(fmus, "rigid_pd", T, fraction * T)
+        run = _run(pair, "rigid_pd", T, fraction * T)
         slow = run.summary["slow"]
         s = sampled_poles("rigid_pd", T, fraction * T).s
         want = max(v.real for v in s if abs(v.imag) > 1.0)     # the slow oscillation
         assert (slow["rate"] < 0) == stable and run.summary["stable"] == stable
         assert slow["rate"] == pytest.approx(want, abs=2e-3 + 0.02 * abs(want))
+
+
+def test_the_pythonfmu_controller_runs_the_native_ones_loop_to_round_off(pair, fmus):
+    """The two flavours of the sampled controller (the native PDLowPassSampled, the pythonfmu
+    PDLowPass on the same C kernel's difference equation), each with the native plant: the same
+    run to round-off (their sums are ordered differently)."""
+    T, tau = 0.006, 0.003
+    python = {"plant": pair["plant"], "controller": fmus["PDLowPass"]}
+    a, b = (_run(f, "rigid_pd", T, tau).result for f in (pair, python))
+    assert len(a) == len(b) > 100
+    for name in ("phi_o", "omega_o", "x", "F_c"):
+        scale = max(1e-300, float(abs(a[name]).max()))
+        assert float(abs(a[name] - b[name]).max()) <= 1e-12 * scale, name
