@@ -48,7 +48,7 @@ class _Slave(ctypes.Structure):
     _fields_ = [("c", _P), ("set_real", _P), ("get_real", _P), ("do_step", _P), ("set_der", _P),
                 ("get_state", _P), ("set_state", _P), ("free_state", _P),
                 ("n_in", ctypes.c_int), ("n_der", ctypes.c_int), ("n_out", ctypes.c_int),
-                ("n_rec", ctypes.c_int), ("feedthrough", ctypes.c_int), ("pad_", ctypes.c_int),
+                ("n_rec", ctypes.c_int), ("feedthrough", ctypes.c_int), ("sampled", ctypes.c_int),
                 ("in_vr", _P), ("in_src", _P), ("in_idx", _P), ("der_vr", _P),
                 ("der_order", _P), ("out_vr", _P), ("rec_vr", _P),
                 ("in_val", _P), ("der_val", _P), ("new_val", _P), ("rec_val", _P),
@@ -176,6 +176,7 @@ class CompiledRun:
             c.n_in, c.n_der = len(ins), n_der
             c.n_out, c.n_rec = len(cp.outputs[n]), len(cp.recorded[n])
             c.feedthrough = int(bool(s.feedthrough))
+            c.sampled = int(bool(s.sampled))
             c.in_vr = buf([s.vr(x.dst_var) for x in ins], ctypes.c_uint)
             c.in_src = buf([index[x.src] for x in ins])
             c.in_idx = buf([cp.out_index[x.src][x.src_var] for x in ins])

@@ -421,7 +421,7 @@ class Scene:
             # the sampled controller's coupling is exact on the ticks' grid (docs/sampled.md):
             # Jacobi, every input held, the controller's force read after its sensors are set
             m = replace(m, algorithm="jacobi", extrapolation=0, input_derivatives=False,
-                        output_derivatives=False, compiled=False)
+                        output_derivatives=False)
         if self.plant.fidelity != "exact":
             return m
         return replace(m, step=self.plant.exact_step)
@@ -451,7 +451,8 @@ class Scene:
         delay: ``master.step`` (``plant.exact_step`` at the exact rung) divides
         ``controller.sample_period`` and ``controller.delay``. Its coupling is then exact, and
         the master's own choices of coupling (``master.algorithm``, ``extrapolation``, input and
-        output derivatives, the compiled loop) do not apply (:attr:`run_master`)."""
+        output derivatives) do not apply (:attr:`run_master`); both loops, Python and compiled,
+        run it."""
         c = self.controller
         if not c.sampled:
             return

@@ -5,6 +5,7 @@ on the native pair, the master landing on every tick and tick + delay. The run's
 rate of the slow oscillation is the predicted pole's, and the verdict changes where predicted."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from orchestration.export import fmu_pair
@@ -52,3 +53,21 @@ def test_the_pythonfmu_controller_runs_the_native_ones_loop_to_round_off(pair, f
     for name in ("phi_o", "omega_o", "x", "F_c"):
         scale = max(1e-300, float(abs(a[name]).max()))
         assert float(abs(a[name] - b[name]).max()) <= 1e-12 * scale, name
+
+
+@pytest.mark.parametrize("tau", [0.0, 0.004])
+def test_the_compiled_loop_runs_the_sampled_loop_bit_for_bit_as_the_python_loop(pair, tau):
+    T = 0.008
+    runs = {}
+    for compiled in ("true", "false"):
+        sets = {**SHORT, "controller.sample_period": T, "controller.delay": tau,
+                "master.step": 0.001, "output_interval": 0.01, "stop_time": 1.0,
+                "master.compiled": compiled}
+        runs[compiled] = run_scene(load_scene("flexible_pd_lowpass",
+                                              [f"{k}={v}" for k, v in sets.items()]),
+                                   pair, progress=False)
+    assert runs["true"].stats.loop == "compiled" and runs["false"].stats.loop == "python"
+    a, b = runs["true"].result, runs["false"].result
+    assert len(a) == len(b) == 101
+    for name in a.dtype.names:
+        assert np.array_equal(a[name], b[name]), name

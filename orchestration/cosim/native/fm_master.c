@@ -190,9 +190,25 @@ static int macro_step(fm_master *m, long long k)
             if ((rc = set_held(m, m->order[i], k, ta)) != FM_DONE) return rc;
         for (i = 0; i < m->n_slaves; i++)
             if ((rc = do_step(m, m->order[i], ta)) != FM_DONE) return rc;
-        for (i = 0; i < m->n_slaves; i++)
+        int any = 0;
+        for (i = 0; i < m->n_slaves; i++) {
+            if (m->slaves[m->order[i]].sampled) {
+                any = 1;
+                continue;
+            }
             if ((rc = outputs_after_step(m, m->order[i], k, tb)) != FM_DONE) return rc;
-        return FM_DONE;
+        }
+        if (!any) return FM_DONE;
+        /* a sampled controller's force at a tick is a feedthrough of the sensors there: its
+         * inputs at the others' new outputs (pushed for the while, as _macro_step does) */
+        for (i = 0; i < m->n_slaves; i++)
+            if (!m->slaves[i].sampled) push_provisional(&m->slaves[i], m->slaves[i].new_val);
+        rc = FM_DONE;
+        for (i = 0; i < m->n_slaves && rc == FM_DONE; i++)
+            if (m->slaves[m->order[i]].sampled) rc = outputs_after_step(m, m->order[i], k, tb);
+        for (i = 0; i < m->n_slaves; i++)
+            if (!m->slaves[i].sampled) unpush(&m->slaves[i]);
+        return rc;
     }
     /* Gauss-Seidel: later slaves interpolate the earlier ones' outputs between ta and tb. A
      * slave whose newest sample is already at tb (the predicted one of the first step) has it

@@ -40,7 +40,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FM_ABI 2
+#define FM_ABI 3
 
 /* Results of fm_run(). */
 #define FM_DONE 0       /* the steps up to k_end are taken */
@@ -90,7 +90,8 @@ typedef struct fm_slave {
     int n_out;                        /* in: real outputs feeding connections */
     int n_rec;                        /* in: real outputs only recorded */
     int feedthrough;                  /* in: outputs may depend directly on inputs */
-    int pad_;
+    int sampled;                      /* in: a sampled controller (Master: its outputs are read
+                                       * with its inputs at the others' new outputs) */
     const unsigned int *in_vr;        /* in: (n_in) */
     const int *in_src;                /* in: (n_in) source slave of each input */
     const int *in_idx;                /* in: (n_in) index among the source's outputs */
