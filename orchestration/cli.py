@@ -367,7 +367,7 @@ def cmd_export(args) -> int:
     sc = r.scene
     print(f"wrote {r.path}: plant {Path(r.fmus['plant']).name}, controller "
           f"{Path(r.fmus['controller']).name} ({args.fmus} FMUs), {len(sc.connections)} "
-          f"connections, stop time {sc.output.stop_time:g} s, master {sc.master.algorithm} "
+          f"connections, stop time {sc.output.stop_time:g} s, master {sc.run_master.algorithm} "
           f"at {sc.run_master.step:g} s")
     if r.model is not None:
         print(f"  model: {r.model['n_modes']} modes, {r.model['fidelity']} ({r.model['reason']})")
