@@ -349,6 +349,30 @@ def _connections(value) -> tuple:
     return tuple(out)
 
 
+
+#: A sampled scene's communication step (:func:`tick_step`) may be at most this many times
+#: smaller than the scene's own.
+MAX_TICK_REFINEMENT = 1000
+
+
+def tick_step(h: float, *instants: float) -> float:
+    """The largest communication step up to ``h`` that divides every positive value of
+    ``instants`` (a sampled controller's period and delay, the output interval): ``h`` itself
+    when it does (to 1e-9), else ``g / ceil(g / h)`` with ``g`` their greatest common divisor
+    (as fractions of at most 10^12 in the denominator)."""
+    from fractions import Fraction
+
+    values = [v for v in instants if v > 0]
+    if all(abs(v / h - round(v / h)) <= 1e-9 * (v / h) for v in values):
+        return h
+    fr = [Fraction(v).limit_denominator(10 ** 12) for v in values]
+    g = fr[0]
+    for f in fr[1:]:
+        g = Fraction(math.gcd(g.numerator * f.denominator, f.numerator * g.denominator),
+                     g.denominator * f.denominator)
+    return float(g / math.ceil(g / Fraction(h)))
+
+
 @dataclass(frozen=True)
 class Scene:
     """A validated scene: its name, description, wiring and records (see the module)."""
@@ -417,14 +441,19 @@ class Scene:
         has nothing above the sampling's Nyquist frequency: L-stable Radau damps what the step
         does not resolve."""
         m = self.master
-        if self.controller.sampled:
+        if self.plant.fidelity == "exact":
+            m = replace(m, step=self.plant.exact_step)
+        c = self.controller
+        if c.sampled:
             # the sampled controller's coupling is exact on the ticks' grid (docs/sampled.md):
-            # Jacobi, every input held, the controller's force read after its sensors are set
+            # Jacobi, every input held, the controller's force read after its sensors are set,
+            # at the largest step up to the scene's that lands on every tick, tick + delay and
+            # output point
             m = replace(m, algorithm="jacobi", extrapolation=0, input_derivatives=False,
-                        output_derivatives=False)
-        if self.plant.fidelity != "exact":
-            return m
-        return replace(m, step=self.plant.exact_step)
+                        output_derivatives=False,
+                        step=tick_step(m.step, c.sample_period, c.delay,
+                                       self.output.output_interval))
+        return m
 
     def _check_exact(self):
         """``plant.fidelity = "exact"`` runs in the native FMUs' co-simulation interface only, at
@@ -452,7 +481,9 @@ class Scene:
         ``controller.sample_period`` and ``controller.delay``. Its coupling is then exact, and
         the master's own choices of coupling (``master.algorithm``, ``extrapolation``, input and
         output derivatives) do not apply (:attr:`run_master`); both loops, Python and compiled,
-        run it."""
+        run it. The step is the largest up to ``master.step`` that lands on every tick, tick +
+        delay and output point (:func:`tick_step`); one over :data:`MAX_TICK_REFINEMENT` times
+        smaller is refused."""
         c = self.controller
         if not c.sampled:
             return
@@ -466,14 +497,14 @@ class Scene:
                               f"with {why}")
         h = self.plant.exact_step if self.plant.fidelity == "exact" else m.step
         key = "plant.exact_step" if self.plant.fidelity == "exact" else "master.step"
-        for name, value in (("sample_period", c.sample_period), ("delay", c.delay)):
-            n = round(value / h)
-            if abs(n * h - value) > 1e-9 * max(value, h):
-                raise ConfigError(f"{key} = {h:g} s does not divide controller.{name} = "
-                                  f"{value:g} s; allowed: a communication step that lands on "
-                                  f"every sample and every sample + delay, such as "
-                                  f"{math.gcd(round(c.sample_period * 1e9), round(c.delay * 1e9)) / 1e9:g} s "
-                                  f"or a divisor of it")
+        lands = tick_step(h, c.sample_period, c.delay, self.output.output_interval)
+        if lands < h / MAX_TICK_REFINEMENT:
+            raise ConfigError(f"{key} = {h:g} s: the communication step that lands on every "
+                              f"tick (controller.sample_period = {c.sample_period:g} s), tick + "
+                              f"controller.delay ({c.delay:g} s) and output point "
+                              f"(output_interval = {self.output.output_interval:g} s) is "
+                              f"{lands:.3g} s, over {MAX_TICK_REFINEMENT} times smaller; allowed: "
+                              f"values on a common grid near {key}")
 
     def _check_stiffened(self):
         """``plant.fidelity = "stiffened"`` gives no directional or output derivatives (its

@@ -71,3 +71,25 @@ def test_the_compiled_loop_runs_the_sampled_loop_bit_for_bit_as_the_python_loop(
     assert len(a) == len(b) == 101
     for name in a.dtype.names:
         assert np.array_equal(a[name], b[name]), name
+
+
+def test_the_master_lands_on_every_tick_delay_and_output_point():
+    """The step a sampled scene runs: the scene's when it lands on every instant, else the
+    largest below it that does (a divisor of the instants' greatest common divisor)."""
+    from orchestration.scene.records import tick_step
+    assert tick_step(5e-4, 6e-3, 3e-3, 1e-2) == 5e-4
+    h = tick_step(2e-3, 5e-3, 0.0, 1e-2)                 # gcd 5 ms: 3 steps of 5/3 ms
+    assert h == pytest.approx(5e-3 / 3, rel=1e-15)
+    h = tick_step(1e-3, 7e-3, 2e-3, 1e-2)                # gcd 1 ms
+    assert h == pytest.approx(1e-3, rel=1e-15)
+    scene = load_scene("rigid_pd", ["controller.sample_period=0.005", "master.step=0.002"])
+    assert scene.run_master.step == pytest.approx(5e-3 / 3) and \
+        scene.run_master.algorithm == "jacobi"
+
+
+def test_instants_on_no_common_grid_are_one_line():
+    from orchestration.scene.keys import ConfigError
+    with pytest.raises(ConfigError) as info:
+        load_scene("rigid_pd", ["controller.sample_period=0.0061234567",
+                                "controller.delay=0.001"])
+    assert "\n" not in str(info.value) and "common grid" in str(info.value)
