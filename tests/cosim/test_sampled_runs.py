@@ -5,6 +5,8 @@ on the native pair, the master landing on every tick and tick + delay. The run's
 rate of the slow oscillation is the predicted pole's, and the verdict changes where predicted."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -93,3 +95,22 @@ def test_instants_on_no_common_grid_are_one_line():
         load_scene("rigid_pd", ["controller.sample_period=0.0061234567",
                                 "controller.delay=0.001"])
     assert "\n" not in str(info.value) and "common grid" in str(info.value)
+
+
+def test_as_the_sample_period_shrinks_the_runs_converge_to_the_continuous_loop_at_order_one(pair):
+    """Without delay the sampled loop tends to the continuous one as T -> 0; the zero-order hold
+    delays the force by T / 2 on average (and the prewarped Tustin filter differs from the
+    continuous one only at O(T^2)), so the runs' difference from the continuous controller's run
+    falls as T: halving T halves it (observed order 1)."""
+    base = ["stop_time=1.0", "output_interval=0.008", "fidelity.companion=false",
+            "initial.phi=0.05"]
+    ref = run_scene(load_scene("flexible_pd_lowpass", base + ["master.step=0.0001"]), pair,
+                    progress=False).result
+    errors = []
+    for T in (0.004, 0.002, 0.001):
+        r = run_scene(load_scene("flexible_pd_lowpass",
+                                 base + [f"controller.sample_period={T}", "master.step=0.0005"]),
+                      pair, progress=False).result
+        errors.append(float(np.abs(r["phi_o"] - ref["phi_o"]).max()))
+    orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
+    assert all(0.9 <= q <= 1.15 for q in orders), (errors, orders)
