@@ -172,6 +172,10 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
         out += [f"    {part}" for part in m["reason"].split("; ")]
     out.append(f"  slow (rigid) oscillation: {mode_text(s.get('slow'))}")
     out.append(f"  bending oscillation:      {mode_text(s.get('bending'))}")
+    if s.get("other"):                  # a sampled loop's aliased or higher mode that grows
+        out.append(f"  other oscillation:        {mode_text(s['other'])}")
+    elif (s.get("verdict_modes") or {}).get("other"):
+        out.append(f"  other oscillation:        {s['verdict_modes']['other']}")
     if s.get("linear_loop"):
         out.append(f"  linear: {s['linear_loop']}")
     if s.get("error_figure"):

@@ -318,11 +318,12 @@ def assess(run, scene, companion=None, companion_why: str | None = None,
              if s.get("stable") is False]
     growing = [who for who, _ in grows]
     if growing:
-        rate = max((s.get(k) or {}).get("rate") or -math.inf for _, s in grows
-                   for k in ("slow", "bending") if (s.get(k) or {}).get("reliable"))
+        rate = max(((s.get(k) or {}).get("rate") or -math.inf for _, s in grows
+                    for k in ("slow", "bending", "other") if (s.get(k) or {}).get("reliable")),
+                   default=-math.inf)
+        fitted = f" (a fitted oscillation at {rate:+.3g} 1/s)" if math.isfinite(rate) else ""
         return _untrusted(out, "grows", f"{' and '.join(growing)} grow{'s' * (len(growing) == 1)}"
-                          f" (a fitted oscillation at {rate:+.3g} 1/s), and the models' differences "
-                          "grow with it")
+                          f"{fitted}, and the models' differences grow with it")
     g = m["growth"]
     if not own:
         rate = growth_rate(res["time"], d, g["windows"])

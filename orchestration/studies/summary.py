@@ -387,6 +387,62 @@ def verdict(modes: dict, res: np.ndarray, stopped: dict | None, rigid: bool,
     return out
 
 
+def _other_oscillations(v: dict, res: np.ndarray, scene, modes: dict) -> dict:
+    """The verdict ``v`` of a sampled scene (stable or undetermined on the slow and bending
+    oscillations), checked against every other oscillation its sampled loop says grows (an
+    aliased or higher mode, which the hold and delay can destabilise and neither band holds):
+    each is fitted in ``phi_o`` within 30 % of its frequency; one that the run shows growing
+    makes the run unstable (the fit under ``"other"``); one the run cannot show (above the
+    output's Nyquist frequency, or no reliable fit) makes a stable verdict undetermined."""
+    L = scene.plant.params.L
+    w = linear_window(res, L)
+    t, y = res["time"][w], res["phi_o"][w]
+    first = None
+    if scene.plant.params.n_modes:
+        first = first_bending_frequency(linearisation(scene).params)
+    covered = [(SLOW_BAND[0], SLOW_BAND[1])] + ([(0.7 * first, 1.3 * first)] if first else [])
+    lam = linear_modes(scene)
+    others = [m for m in lam if m.real > 0
+              and not any(lo <= m.imag <= hi for lo, hi in covered)]
+    if not others:
+        return v
+    nyquist = math.pi / float(t[1] - t[0]) if len(t) > 1 else 0.0
+    unseen = []
+    for m in sorted(others, key=lambda m: -m.real):
+        where = f"{m.imag:.4g} rad/s (the linearised loop: rate {m.real:+.3g} 1/s)"
+        f = None
+        if len(t) >= 8 and 1.3 * m.imag < nyquist:
+            try:
+                with np.errstate(all="ignore"):
+                    f = fit_mode(t, y, (0.7 * m.imag, 1.3 * m.imag), near=m.imag)
+            except (ValueError, np.linalg.LinAlgError):
+                f = None
+        if f is not None and f.residual <= FIT_RESIDUAL and f.rate_uncertainty is not None \
+                and f.rate > f.rate_uncertainty:
+            text = (f"an oscillation at {f.frequency:.4g} rad/s grows: rate {f.rate:+.3g} +- "
+                    f"{f.rate_uncertainty:.2g} 1/s (the linearised loop: {m.real:+.3g} at "
+                    f"{m.imag:.4g} rad/s)")
+            modes_note = dict(v["modes"], other=text)
+            return {**v, "verdict": "unstable", "reason": text, "decide_by": None,
+                    "modes": modes_note,
+                    "other": {"signal": "phi_o", "rate": f.rate, "frequency": f.frequency,
+                              "reliable": True, "note": None,
+                              "window": [float(t[0]), float(t[-1])],
+                              "fit": {"rate": f.rate, "frequency": f.frequency,
+                                      "residual": f.residual, "window": list(f.window),
+                                      "order": f.order, "rate_uncertainty": f.rate_uncertainty,
+                                      "frequency_uncertainty": f.frequency_uncertainty},
+                              "linear": {"rate": float(m.real), "frequency": float(m.imag)}}}
+        unseen.append(where if f is None or 1.3 * m.imag < nyquist else where)
+    if v["verdict"] == "stable":
+        text = (f"the slow and bending oscillations decay, but the linearised loop grows at "
+                f"{unseen[0]}, which the run does not show decaying (a finer output_interval or "
+                f"a longer run would decide)")
+        return {**v, "verdict": "undetermined", "reason": text,
+                "modes": dict(v["modes"], other=text)}
+    return v
+
+
 def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
     """Verdict, fitted modes beside the linear ones, validity, largest force and cart travel.
 
@@ -399,6 +455,11 @@ def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
     out.update(modes)
     rigid = scene is not None and scene.plant.params.n_modes == 0
     v = verdict(modes, res, stopped, rigid, scene.plant.params.L if scene is not None else None)
+    if scene is not None and scene.controller.sampled and len(res) > 8 and \
+            v["verdict"] in ("stable", "undetermined"):
+        v = _other_oscillations(v, res, scene, modes)
+    if v.get("other") is not None:
+        out["other"] = v.pop("other")
     out.update(verdict=v["verdict"], verdict_reason=v["reason"], decide_by=v["decide_by"],
                verdict_modes=v["modes"],
                stable={"stable": True, "unstable": False}.get(v["verdict"]))

@@ -13,7 +13,7 @@ import pytest
 from orchestration.export import fmu_pair
 from orchestration.job import run_scene
 from orchestration.scene.schema import load_scene
-from orchestration.studies.sampled import critical_periods, sampled_poles
+from orchestration.studies.sampled import sampled_poles, stable_intervals
 
 SHORT = {"initial.phi": 0.01, "fidelity.companion": "false"}
 
@@ -27,21 +27,54 @@ def pair(native):
 def _run(fmus, scene, T, tau):
     h = T / 12                                 # lands on every tick and tick + delay
     sets = {**SHORT, "controller.sample_period": T, "controller.delay": tau, "master.step": h,
-            "output_interval": T, "stop_time": round(4.0 / T) * T}
+            "output_interval": T, "stop_time": round(10.0 / T) * T}
     return run_scene(load_scene(scene, [f"{k}={v}" for k, v in sets.items()]), fmus,
                      progress=False)
 
 
-@pytest.mark.parametrize("fraction", [0.0, 1.0])
-def test_the_rigid_loop_is_stable_just_below_the_critical_period_and_not_above(pair, fraction):
-    Tc = critical_periods("rigid_pd")["tau=0" if fraction == 0.0 else "tau=T"]
-    for T, stable in ((0.93 * Tc, True), (1.07 * Tc, False)):
-        run = _run(pair, "rigid_pd", T, fraction * T)
-        slow = run.summary["slow"]
-        s = sampled_poles("rigid_pd", T, fraction * T).s
-        want = max(v.real for v in s if abs(v.imag) > 1.0)     # the slow oscillation
-        assert (slow["rate"] < 0) == stable and run.summary["stable"] == stable
-        assert slow["rate"] == pytest.approx(want, abs=2e-3 + 0.02 * abs(want))
+def _edges(scene, fraction):
+    """The boundaries of the stable intervals of the sample period at ``tau = fraction T``
+    (the scanned range's ends are not boundaries; a window narrower than 10 % is left out), each
+    with the verdict just below it and the relative distance to probe either side: 5 %, or less
+    where another boundary is nearer (0.4 of the gap)."""
+    si = stable_intervals(scene, tau_fraction=fraction)
+    wide = [(lo, hi) for lo, hi in si.intervals if hi - lo >= 0.1 * lo]
+    every = sorted(b for iv in si.intervals for b in iv
+                   if si.scanned[0] < b < si.scanned[1])
+    out = []
+    for lo, hi in wide:
+        for edge, below in ((lo, False), (hi, True)):
+            if not si.scanned[0] < edge < si.scanned[1]:
+                continue
+            gap = min([abs(b - edge) / edge for b in every if b != edge] + [0.125])
+            out.append((edge, below, 0.4 * gap))
+    return out
+
+
+BOUNDARIES = [(scene, fraction, *edge)
+              for scene in ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
+              for fraction in (0.0, 1.0)
+              for edge in _edges(scene, fraction)]
+
+
+@pytest.mark.parametrize("scene,fraction,edge,below,delta", BOUNDARIES,
+                         ids=[f"{s}-tau{f:g}T-{1e3 * e:.4g}ms" for s, f, e, _, _ in BOUNDARIES])
+def test_runs_just_inside_and_outside_each_predicted_boundary(pair, scene, fraction, edge,
+                                                              below, delta):
+    """Either side of each boundary the run's verdict is the predicted one, and the growth rate
+    of the mode that crosses, fitted in the run's phi_o (matrix pencil, within 30 % of its
+    frequency), is its predicted pole's (the s-plane equivalent log(z) / T)."""
+    from orchestration.studies.fit import fit_mode
+    for T, stable in (((1 - delta) * edge, below), ((1 + delta) * edge, not below)):
+        run = _run(pair, scene, T, fraction * T)
+        s = sampled_poles(scene, T, fraction * T).s
+        s = s[np.isfinite(s) & (s.imag > 1.0)]
+        crossing = s[np.argmax(s.real)]
+        assert run.summary["stable"] == stable, (T, run.summary["verdict_reason"])
+        f = fit_mode(run.result["time"], run.result["phi_o"],
+                     (0.7 * crossing.imag, 1.3 * crossing.imag), near=crossing.imag)
+        assert f.frequency == pytest.approx(crossing.imag, rel=0.01)
+        assert f.rate == pytest.approx(crossing.real, abs=2e-3 + 0.02 * abs(crossing.real))
 
 
 def test_the_pythonfmu_controller_runs_the_native_ones_loop_to_round_off(pair, fmus):
