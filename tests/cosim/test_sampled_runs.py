@@ -1,8 +1,15 @@
-"""The sampled controller in the loop (issue 38): runs just inside and just outside each
-boundary of the sample period that the sampled loop's analysis predicts
-(orchestration/studies/sampled.py: the plant discretised exactly with the hold and the delay),
-on the native pair, the master landing on every tick and tick + delay. The run's fitted growth
-rate of the slow oscillation is the predicted pole's, and the verdict changes where predicted."""
+"""The sampled controller in the loop (issue 38), on the native pair, the master landing on
+every tick and tick + delay:
+
+* runs either side of every boundary of the sample period that the sampled loop's analysis
+  predicts (orchestration/studies/sampled.py: the plant discretised exactly with the hold and
+  the delay), for the three paper scenes with no delay and a full period's: the run's verdict is
+  the predicted one and the crossing mode's fitted growth rate is its predicted pole's;
+* as the sample period shrinks, the runs converge to the continuous controller's at order one;
+* the pythonfmu controller and the native one give the same runs to round-off, the compiled
+  loop the Python loop's bit for bit;
+* the master's step lands on every instant (or the scene is refused in one line).
+"""
 from __future__ import annotations
 
 import math
