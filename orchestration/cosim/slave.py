@@ -44,6 +44,11 @@ class RunInterrupted(Exception):
 
 
 
+def _samples(start_values) -> bool:
+    """Whether start values set a sampled controller (``sample_period > 0``)."""
+    return float((start_values or {}).get("sample_period", 0.0) or 0.0) > 0.0
+
+
 def describe(path):
     """The FMU's model description (fmpy's ``read_model_description``), read once per file and
     content: every caller in a process (the wiring check, the slaves) shares it."""
@@ -65,7 +70,7 @@ class Slave:
         self.path = str(path)
         #: a sampled controller (a start value sample_period > 0): the master reads its output
         #: after setting its inputs to the sources' outputs at the same instant (Master)
-        self.sampled = float((start_values or {}).get("sample_period", 0.0) or 0.0) > 0.0
+        self.sampled = _samples(start_values)
         self.md = describe(self.path)
         self.variables = {v.name: v for v in self.md.modelVariables}
         self.messages: list[str] = []
@@ -239,6 +244,7 @@ class Slave:
         self._call("reset", self.fmu.reset)
         self.messages.clear()
         self._start_values = dict(start_values or {})
+        self.sampled = _samples(self._start_values)
 
     def bind(self, inputs, outputs, record=(), derivative_orders: int = 0,
              output_derivative_orders: int = 0):
