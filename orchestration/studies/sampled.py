@@ -231,6 +231,18 @@ class SampledPoles:
     def stable(self) -> bool:
         return self.spectral_radius < 1.0
 
+    def to_json(self) -> dict:
+        """``T``, ``tau``, ``discretization``, the poles ``z`` and ``s`` as ``[real, imag]`` (the
+        same order; ``s`` of ``z = 0`` is ``[-inf, 0]``), ``spectral_radius``, ``margin`` and
+        ``stable``."""
+        def pairs(v):
+            return [[float(x.real), float(x.imag) if math.isfinite(x.real) else 0.0] for x in v]
+
+        return {"T": self.T, "tau": self.tau, "discretization": self.discretization,
+                "z": pairs(self.z), "s": pairs(self.s),
+                "spectral_radius": self.spectral_radius, "margin": self.margin,
+                "stable": self.stable}
+
 
 def sampled_poles(loop, T: float, tau: float = 0.0,
                   discretization: str = DEFAULT_DISCRETIZATION) -> SampledPoles:
@@ -344,8 +356,9 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     |z| < 1`` on a grid of ``n_T`` by ``n_fraction`` points, its boundary the contour ``max |z| =
     1`` (up to ``pi / cutoff`` for the Tustin filter, dashed); the scene's largest stable ``T``
     at ``tau = 0`` and ``tau = T`` (:func:`critical_periods`, bisected, not read off the grid)
-    marked. ``scenes``: the paper's
-    three by default. Returns ``{scene: critical_periods}``."""
+    marked. ``scenes``: names, paths or Scenes (a Scene's panel is titled by its name), the
+    paper's three by default. The file is complete or absent
+    (:func:`~orchestration.report.files.save_figure`). Returns ``{scene: critical_periods}``."""
     import matplotlib
     import matplotlib.ticker
     matplotlib.use("Agg")
@@ -360,7 +373,7 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     out = {}
     for i, (name, ax) in enumerate(zip(scenes, axes[0])):
         p, c = _params(load_scene(name) if isinstance(name, str) else name)
-        label = name if isinstance(name, str) else f"scene {i + 1}"
+        label = name if isinstance(name, str) else getattr(name, "name", None) or f"scene {i + 1}"
         hi = T_range[1]
         if discretization == "tustin" and c.filter_order > 0:
             hi = min(hi, math.pi / c.cutoff * (1.0 - 1e-6))
@@ -398,6 +411,9 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     fig.suptitle(f"Sampled PD + filter ({discretization} filter): stable where shaded",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    from ..report.files import save_figure
+    try:
+        save_figure(fig, path, dpi=120)          # complete or absent
+    finally:
+        plt.close(fig)
     return out
