@@ -9,8 +9,8 @@ import math
 
 from plant_fmu.params import damping_text
 
-__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "sampled_lines", "mode_text", "validity_text",
-           "figure_text",
+__all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
+           "figure_text", "sampled_lines",
            "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
            "stability_lines"]
 
