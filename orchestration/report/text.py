@@ -317,6 +317,10 @@ def design_lines(d) -> list[str]:
            f"{r.check_levels} levels ({wc_.n_plants} plants)",
            f"criterion: the smallest closed-loop "
            f"{'decay rate' if crit == 'decay' else 'damping ratio'} over the set, maximised",
+           *([f"  of the sampled loop (T = {num(c.sample_period * 1e3)} ms, delay tau = "
+              f"{num(c.delay * 1e3)} ms, {c.discretization} filter): its roots are the s-plane "
+              "equivalents log(z) / T of its poles (decay rate -log(max |z|) / T)"]
+             if c.sampled else []),
            "",
            f"chosen filter: {filter_text(ch.filter_order, ch.cutoff, ch.filter_damping)}",
            "  " + " ".join(f"--set {k}={v:g}" for k, v in r.filter_keys().items()),
