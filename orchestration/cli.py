@@ -238,7 +238,8 @@ def _region_path(text: str):
 def _sampled_region(args, path) -> dict:
     """Write the stability region of the sampled controller in the plane (T, tau / T)
     (:func:`~orchestration.studies.sampled.stability_region_figure`) for the paper's three
-    scenes and, when it is not one of them unchanged, the scene given; its discretization.
+    scenes and, when its plant or controller differs from theirs (but for the sample period and
+    the delay, which the figure spans), the scene given; the scene's discretization.
     ``{"file", "discretization", "critical_periods": {scene: {"tau=0": T, "tau=T": T}}}``."""
     import dataclasses
 
@@ -247,7 +248,12 @@ def _sampled_region(args, path) -> dict:
 
     sc = load_scene(args.scene, args.set)
     panels = list(PAPER_SCENES)
-    if args.set or sc.name not in PAPER_SCENES:
+
+    def loop(s):            # what the region depends on: the plant, the controller but T, tau
+        return s.plant, s.controller.replace(sample_period=0.0, delay=0.0,
+                                             discretization="tustin")
+
+    if sc.name not in PAPER_SCENES or loop(sc) != loop(load_scene(sc.name)):
         label = f"{sc.name} (--set)" if args.set else sc.name
         panels.append(dataclasses.replace(sc, name=label) if label != sc.name else sc)
     crit = stability_region_figure(path, scenes=panels,
@@ -338,7 +344,9 @@ def sampled_stability_lines(s: dict) -> list[str]:
             f"{num(lo * 1e3)} to {num(hi * 1e3)} ms): {iv}" + (" ms" if s["intervals"] else ""),
             f"    largest stable T: {_ms(s['critical'])} at tau = {num(s['tau'] * 1e3)} ms; "
             f"{_ms(crit['tau=0'])} with no delay; {_ms(crit['tau=T'])} with a full period's "
-            "delay (tau = T)"]
+            "delay (tau = T)",
+            "    (the couplings' steps above are the continuous controller's; the sampled one's "
+            "coupling is exact on the ticks)"]
 
 
 def sampled_region_lines(g: dict) -> list[str]:

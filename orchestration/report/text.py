@@ -84,8 +84,11 @@ def sampled_lines(sp, drift: bool = False) -> list[str]:
         out.append(f"{zt:>30}  {abs(z):9.6f}  {st:>30}  {num(zeta, '13.4f'):>13}")
     verdict = "STABLE" if sp.stable else "UNSTABLE"
     note = " (cart drift poles at z = 1 left aside)" if drift else ""
+    rate = -math.log(sp.spectral_radius) / sp.T if sp.spectral_radius > 0 else math.inf
     out += ["", f"spectral radius max |z|{note}: {sp.spectral_radius:.6f}, margin 1 - max |z| = "
-                f"{sp.margin:+.6f}  ->  {verdict} (stable iff max |z| < 1)"]
+                f"{sp.margin:+.6f}  ->  {verdict} (stable iff max |z| < 1)",
+            f"slowest decay rate -log(max |z|) / T = {num(rate, '+.4f')} 1/s (the continuous "
+            "loop's: minus its max real part above)"]
     return out
 
 
