@@ -78,9 +78,19 @@ def analyze(scene=None, overrides=None) -> Analysis:
     verdict and the margins (:class:`~orchestration.studies.analysis.Analysis`).
 
     ``scene``: as :func:`load_scene` takes it (default: the default scene); ``overrides``: a
-    dict of scene keys (``{"plant.n_modes": 3, "controller.filter_order": 0}``)."""
+    dict of scene keys (``{"plant.n_modes": 3, "controller.filter_order": 0}``). A sampled
+    controller (``controller.sample_period > 0``) adds its discrete-time loop at its sample
+    period, delay and discretization, ``Analysis.sampled``
+    (:class:`~orchestration.studies.sampled.SampledPoles`: the z-plane poles, their s-plane
+    equivalents, the spectral radius, the margin ``1 - max |z|``, the verdict); the other
+    fields stay the continuous controller's."""
     sc, lin = _resolved(scene, overrides, "analyze")
-    return _analyze(lin.params, sc.controller, loop=lin.text())
+    a = _analyze(lin.params, sc.controller, loop=lin.text())
+    c = sc.controller
+    if c.sampled:
+        from .studies.sampled import sampled_poles
+        a.sampled = sampled_poles((lin.params, c), c.sample_period, c.delay, c.discretization)
+    return a
 
 
 def stability(scene=None, overrides=None, *, max_step: float | None = None,

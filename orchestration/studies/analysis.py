@@ -394,12 +394,9 @@ class Analysis:
 
 def analyze(p: PlantParams, c: ControllerParams, loop: str | None = None) -> Analysis:
     """Eigenvalues, stability verdict, damping ratios and margins of the linearised closed loop
-    (``loop``: which loop it is, :meth:`Linearisation.text`); with a sampled controller
-    (``c.sample_period > 0``) also its discrete-time loop (:attr:`Analysis.sampled`)."""
-    sampled = None
-    if c.sampled:
-        from .sampled import sampled_poles
-        sampled = sampled_poles((p, c), c.sample_period, c.delay, c.discretization)
+    (``loop``: which loop it is, :meth:`Linearisation.text`), of the continuous controller
+    (:func:`orchestration.api.analyze` adds a sampled one's discrete-time loop,
+    :attr:`Analysis.sampled`)."""
     A = plant_model(p).state_space()[0]
     Acl = closed_loop_matrix(p, c)
     eig = np.linalg.eigvals(Acl)
@@ -416,5 +413,4 @@ def analyze(p: PlantParams, c: ControllerParams, loop: str | None = None) -> Ana
         plant=p,
         controller=c,
         loop=loop,
-        sampled=sampled,
     )

@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -358,7 +359,7 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     at ``tau = 0`` and ``tau = T`` (:func:`critical_periods`, bisected, not read off the grid)
     marked. ``scenes``: names, paths or Scenes (a Scene's panel is titled by its name), the
     paper's three by default. The file is complete or absent
-    (:func:`~orchestration.report.files.save_figure`). Returns ``{scene: critical_periods}``."""
+    (:class:`~orchestration.files.atomic_path`). Returns ``{scene: critical_periods}``."""
     import matplotlib
     import matplotlib.ticker
     matplotlib.use("Agg")
@@ -411,9 +412,10 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     fig.suptitle(f"Sampled PD + filter ({discretization} filter): stable where shaded",
                  fontsize=10)
     fig.tight_layout()
-    from ..report.files import save_figure
+    from ..files import atomic_path
     try:
-        save_figure(fig, path, dpi=120)          # complete or absent
+        with atomic_path(path) as tmp:           # complete or absent
+            fig.savefig(tmp, dpi=120, format=Path(path).suffix.lstrip(".") or "png")
     finally:
         plt.close(fig)
     return out
