@@ -5,6 +5,7 @@ results, errors that subclass ``ValueError`` or ``TypeError`` and name the bad k
     simulate(scene, overrides=None, *, fmus=None, reference=False, progress=False) -> Run
     analyze(scene=None, overrides=None) -> Analysis
     stability(scene=None, overrides=None, *, max_step=None, progress=False) -> dict
+    sampled_stability(loop, T_max=None) -> dict
     design(scene=None, overrides=None, *, design=None, workers=None, scheduler=None,
            progress=False) -> DesignReport
     sweep(scene, *, grid=..., values=..., sample=..., samples=None, ..., progress=False) -> Sweep
@@ -77,9 +78,19 @@ def analyze(scene=None, overrides=None) -> Analysis:
     verdict and the margins (:class:`~orchestration.studies.analysis.Analysis`).
 
     ``scene``: as :func:`load_scene` takes it (default: the default scene); ``overrides``: a
-    dict of scene keys (``{"plant.n_modes": 3, "controller.filter_order": 0}``)."""
+    dict of scene keys (``{"plant.n_modes": 3, "controller.filter_order": 0}``). A sampled
+    controller (``controller.sample_period > 0``) adds its discrete-time loop at its sample
+    period, delay and discretization, ``Analysis.sampled``
+    (:class:`~orchestration.studies.sampled.SampledPoles`: the z-plane poles, their s-plane
+    equivalents, the spectral radius, the margin ``1 - max |z|``, the verdict); the other
+    fields stay the continuous controller's."""
     sc, lin = _resolved(scene, overrides, "analyze")
-    return _analyze(lin.params, sc.controller, loop=lin.text())
+    a = _analyze(lin.params, sc.controller, loop=lin.text())
+    c = sc.controller
+    if c.sampled:
+        from .studies.sampled import sampled_poles
+        a.sampled = sampled_poles((lin.params, c), c.sample_period, c.delay, c.discretization)
+    return a
 
 
 def stability(scene=None, overrides=None, *, max_step: float | None = None,
@@ -95,7 +106,11 @@ def stability(scene=None, overrides=None, *, max_step: float | None = None,
     ``progress``: as the module's docstring says (the fraction of the scan's grid of steps).
     A ConfigError for a scene whose co-simulation has no transition matrix (adaptive,
     Model Exchange, an adaptive plant method); a ValueError naming ``max_step`` for a step
-    outside 1 ms .. 10 s."""
+    outside 1 ms .. 10 s.
+
+    A sampled controller (``controller.sample_period > 0``) adds ``"sampled"``
+    (:func:`sampled_stability`): the stable intervals of its sample period at the scene's delay
+    and the largest stable sample period with no delay and with a full period's delay."""
     from .studies.stability import assumptions, stability_report
 
     check_progress(progress)
@@ -103,6 +118,9 @@ def stability(scene=None, overrides=None, *, max_step: float | None = None,
     sink = sink_for(progress, f"{sc.name}: stability")
     try:
         report = stability_report(sc, max_step=max_step, progress=sink)
+        if sc.controller.sampled:
+            report["sampled"] = sampled_stability((lin.params, sc.controller),
+                                                  T_max=report["max_step"])
         if sink is not None:
             sink.finish()
     except ValueError as exc:
@@ -113,6 +131,33 @@ def stability(scene=None, overrides=None, *, max_step: float | None = None,
         if sink is not None:
             sink.close()        # a bar's line ended, had the work stopped before its end
     return {**report, "name": sc.name, "loop": lin.text(), "assumes": assumptions(sc)}
+
+
+def sampled_stability(loop, T_max: float | None = None) -> dict:
+    """The sampled controller's stability in its sample period (``flexpend stability`` of a
+    sampled scene): ``loop`` is a scene or a pair ``(PlantParams, ControllerParams)`` whose
+    controller has ``sample_period > 0``; its delay ``tau`` and discretization are kept.
+    ``{"T", "tau", "discretization", "scanned": [T_min, T_max], "intervals": [[T_low, T_high],
+    ...] (stable at the delay tau, T >= tau), "critical": the largest T up to which it stays
+    stable at tau (None: unstable at the smallest), "stable": the verdict at T, "margin":
+    1 - max |z| at T, "critical_periods": {"tau=0": ..., "tau=T": ...}}`` (seconds;
+    :func:`~orchestration.studies.sampled.stable_intervals`,
+    :func:`~orchestration.studies.sampled.critical_periods`; the sample periods from 0.1 ms to
+    ``T_max``, default 0.05 s, the Tustin filter's below ``pi / cutoff``)."""
+    from .studies.sampled import (MIN_PERIOD, T_RANGE, _params, critical_periods,
+                                  sampled_poles, stable_intervals)
+
+    p, c = _params(loop)
+    if not c.sampled:
+        raise ValueError("sampled_stability needs a sampled controller "
+                         "(controller.sample_period > 0)")
+    T_range = (MIN_PERIOD, T_RANGE[1] if T_max is None else float(T_max))
+    at = stable_intervals((p, c), T_range, tau=c.delay, discretization=c.discretization)
+    now = sampled_poles((p, c), c.sample_period, c.delay, c.discretization)
+    return {"T": c.sample_period, "tau": c.delay, "discretization": c.discretization,
+            "scanned": list(at.scanned), "intervals": [list(i) for i in at.intervals],
+            "critical": at.critical, "stable": now.stable, "margin": now.margin,
+            "critical_periods": critical_periods((p, c), c.discretization, T_range)}
 
 
 def design(scene=None, overrides=None, *, design: dict | None = None, workers: int | None = None,

@@ -6,7 +6,9 @@ modules (:mod:`orchestration.api`, :mod:`orchestration.job`, :mod:`orchestration
                  [--renderer raster|matplotlib] [--figures png|none]
     flexpend analyze [--set key=value ...] [--json]     linear loop analysis
     flexpend stability SCENE [--set key=value ...] [--max-step S] [--json]
-                                                        where the communication step is stable
+                             [--sampled-region FILE.png]
+                                                        where the communication step (and a
+                                                        sampled controller's period) is stable
     flexpend design [--set key=value ...] [--json] [--out DIR] [--workers N | --scheduler ADDR]
                                                         robust low-pass filter design
     flexpend sweep SCENE [--grid ...] [--values ...] [--sample ... --samples N] [--workers N]
@@ -204,15 +206,60 @@ def cmd_stability(args) -> int:
         bar(fraction)
         INTERRUPTS.check()          # a safe point: between two stacks of matrices
 
+    region = _region_path(args.sampled_region) if args.sampled_region else None
     try:
         r = stability(args.scene, args.set, max_step=args.max_step, progress=progress)
     finally:
         bar.close()
+    if region is not None:
+        r["sampled_region"] = _sampled_region(args, region)
+    keys = ("min_step", "max_step", "scene", "couplings", "loop", "sampled", "sampled_region")
     if args.json:
-        print(_json({k: r[k] for k in ("min_step", "max_step", "scene", "couplings", "loop")}))
+        print(_json({k: r[k] for k in keys if k in r}))
     else:
         _print(stability_lines(r))
     return 0
+
+
+def _region_path(text: str):
+    """``--sampled-region``'s file: a .png (or .pdf, .svg) in a folder that exists."""
+    from pathlib import Path
+
+    path = Path(text)
+    if path.suffix.lower() not in (".png", ".pdf", ".svg"):
+        raise UsageError(f"--sampled-region {text}: allowed: a .png, .pdf or .svg file")
+    if path.is_dir():
+        raise UsageError(f"--sampled-region {text}: is a folder; allowed: a file")
+    if not path.parent.is_dir():
+        raise UsageError(f"--sampled-region {text}: the folder {path.parent} does not exist")
+    return path
+
+
+def _sampled_region(args, path) -> dict:
+    """Write the stability region of the sampled controller in the plane (T, tau / T)
+    (:func:`~orchestration.studies.sampled.stability_region_figure`) for the paper's three
+    scenes and, when its plant or controller differs from theirs (but for the sample period and
+    the delay, which the figure spans), the scene given; the scene's discretization.
+    ``{"file", "discretization", "critical_periods": {scene: {"tau=0": T, "tau=T": T}}}``."""
+    import dataclasses
+
+    from .scene.schema import PAPER_SCENES, load_scene
+    from .studies.sampled import stability_region_figure
+
+    sc = load_scene(args.scene, args.set)
+    panels = list(PAPER_SCENES)
+
+    def loop(s):            # what the region depends on: the plant, the controller but T, tau
+        return s.plant, s.controller.replace(sample_period=0.0, delay=0.0,
+                                             discretization="tustin")
+
+    if sc.name not in PAPER_SCENES or loop(sc) != loop(load_scene(sc.name)):
+        label = f"{sc.name} (--set)" if args.set else sc.name
+        panels.append(dataclasses.replace(sc, name=label) if label != sc.name else sc)
+    crit = stability_region_figure(path, scenes=panels,
+                                   discretization=sc.controller.discretization)
+    return {"file": str(path), "discretization": sc.controller.discretization,
+            "critical_periods": crit}
 
 
 def _ms_intervals(intervals, stable: bool, rho: bool = False) -> str:
@@ -268,7 +315,52 @@ def stability_lines(r: dict) -> list[str]:
     best = max(rows, key=key)
     lines.append(f"  stable at every step up to the largest first crossing: {coupling_text(best)} "
                  f"({first(best).removeprefix('stable at every step up to ').split(' (')[0]})")
+    if r.get("sampled"):
+        lines += sampled_stability_lines(r["sampled"])
+    if r.get("sampled_region"):
+        lines += sampled_region_lines(r["sampled_region"])
     return lines
+
+
+def _ms(T) -> str:
+    from .report.text import num
+    return "none (unstable at the smallest)" if T is None else f"{num(T * 1e3)} ms"
+
+
+def sampled_stability_lines(s: dict) -> list[str]:
+    """The sampled controller's part of ``flexpend stability``
+    (:func:`orchestration.api.sampled_stability`)."""
+    from .report.text import num
+
+    lo, hi = s["scanned"]
+    iv = ", ".join(f"{num(a * 1e3)}-{num(b * 1e3)}" for a, b in s["intervals"]) or "none"
+    crit = s["critical_periods"]
+    return [f"  the sampled controller (T = {num(s['T'] * 1e3)} ms, delay tau = "
+            f"{num(s['tau'] * 1e3)} ms, {s['discretization']} filter): max |z| < 1 of the "
+            "discrete-time loop",
+            f"    at T = {num(s['T'] * 1e3)} ms: {'stable' if s['stable'] else 'UNSTABLE'} "
+            f"(margin 1 - max |z| = {s['margin']:+.6f})",
+            f"    stable sample periods at tau = {num(s['tau'] * 1e3)} ms (scanned "
+            f"{num(lo * 1e3)} to {num(hi * 1e3)} ms): {iv}" + (" ms" if s["intervals"] else ""),
+            f"    largest stable T: {_ms(s['critical'])} at tau = {num(s['tau'] * 1e3)} ms; "
+            f"{_ms(crit['tau=0'])} with no delay; {_ms(crit['tau=T'])} with a full period's "
+            "delay (tau = T)",
+            "    (the couplings' steps above are the continuous controller's; the sampled one's "
+            "coupling is exact on the ticks)"]
+
+
+def sampled_region_lines(g: dict) -> list[str]:
+    """``--sampled-region``: the file written and each panel's largest stable sample period."""
+    rows = g["critical_periods"]
+    w = max(len(k) for k in rows)
+    out = [f"  wrote {g['file']}: the sampled controller's stability region in (T, tau / T) "
+           f"({g['discretization']} filter); the largest stable T:",
+           f"    {'scene':<{w}}  {'tau = 0':>12}  {'tau = T':>12}"]
+    for name, crit in rows.items():
+        a, b = (_ms(crit[k]).replace("none (unstable at the smallest)", "unstable")
+                for k in ("tau=0", "tau=T"))
+        out.append(f"    {name:<{w}}  {a:>12}  {b:>12}")
+    return out
 
 
 def cmd_design(args) -> int:
@@ -669,6 +761,11 @@ def build_parser() -> argparse.ArgumentParser:
     pt.add_argument("--max-step", type=float, default=0.05, metavar="SECONDS",
                     help="the largest communication step scanned (default 0.05 s; 0.001 to 10)")
     pt.add_argument("--json", action="store_true", help="print the result as JSON")
+    pt.add_argument("--sampled-region", default=None, metavar="FILE.png",
+                    help="also write the stability region of the sampled controller in the "
+                         "plane (sample period T, delay tau / T) for the paper's three scenes "
+                         "(and SCENE when it is not one of them unchanged), and print their "
+                         "largest stable T with tau = 0 and tau = T (docs/sampled.md)")
     _add_quiet(pt)
     pt.set_defaults(func=cmd_stability)
 

@@ -10,7 +10,7 @@ import math
 from plant_fmu.params import damping_text
 
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
-           "figure_text",
+           "figure_text", "sampled_lines",
            "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
            "stability_lines"]
 
@@ -50,6 +50,45 @@ def analysis_lines(plant, controller, a) -> list[str]:
     note = " (cart drift roots at 0 left aside)" if c.kx == 0 else ""
     out += ["", f"max real part{note}: {a.max_real_part:+.4f}  ->  {verdict}"]
     out += margin_lines(a.margins)
+    if getattr(a, "sampled", None) is not None:
+        out += [""] + sampled_lines(a.sampled, c.kx == 0)
+    return out
+
+
+def sampled_lines(sp, drift: bool = False) -> list[str]:
+    """The sampled controller's discrete-time loop (``flexpend analyze`` of a scene with
+    ``controller.sample_period > 0``; :class:`~orchestration.studies.sampled.SampledPoles`): T,
+    tau and the discretization, each pole ``z`` (one of a conjugate pair) beside its s-plane
+    equivalent ``log(z) / T``, the spectral radius, the margin ``1 - max |z|`` and the verdict."""
+    how = {"tustin": "tustin filter (prewarped at the cutoff)",
+           "zoh": "zoh filter (its zero-order-hold equivalent)"}[sp.discretization]
+    out = [f"sampled controller: T = {num(sp.T * 1e3)} ms, delay tau = {num(sp.tau * 1e3)} ms, "
+           f"{how}",
+           "  the plant's exact zero-order-hold discretisation; the lines above are the "
+           "continuous controller's (T -> 0)",
+           "",
+           f"{'closed-loop pole z':>30}  {'|z|':>9}  {'s = log(z) / T (1/s)':>30}  "
+           f"{'damping ratio':>13}"]
+    for z, s in zip(sp.z, sp.s):
+        if z.imag < 0:
+            continue
+        pm = "+-" if z.imag > 0 else "  "
+        zt = f"{z.real:+.6f} {pm} {abs(z.imag):.6f}j" if z.imag > 0 else f"{z.real:+.6f}"
+        if not math.isfinite(s.real):
+            st, zeta = "-inf (z = 0)", float("nan")
+        else:
+            st = (f"{s.real:+.4f} {pm} {abs(s.imag):.4f}j" if z.imag > 0 else
+                  f"{s.real:+.4f} + {s.imag:.4f}j" if s.imag != 0 else f"{s.real:+.4f}")
+            wn = abs(s)
+            zeta = -s.real / wn if wn > 0 else float("nan")
+        out.append(f"{zt:>30}  {abs(z):9.6f}  {st:>30}  {num(zeta, '13.4f'):>13}")
+    verdict = "STABLE" if sp.stable else "UNSTABLE"
+    note = " (cart drift poles at z = 1 left aside)" if drift else ""
+    rate = -math.log(sp.spectral_radius) / sp.T if sp.spectral_radius > 0 else math.inf
+    out += ["", f"spectral radius max |z|{note}: {sp.spectral_radius:.6f}, margin 1 - max |z| = "
+                f"{sp.margin:+.6f}  ->  {verdict} (stable iff max |z| < 1)",
+            f"slowest decay rate -log(max |z|) / T = {num(rate, '+.4f')} 1/s (the continuous "
+            "loop's: minus its max real part above)"]
     return out
 
 
@@ -285,6 +324,10 @@ def design_lines(d) -> list[str]:
            f"{r.check_levels} levels ({wc_.n_plants} plants)",
            f"criterion: the smallest closed-loop "
            f"{'decay rate' if crit == 'decay' else 'damping ratio'} over the set, maximised",
+           *([f"  of the sampled loop (T = {num(c.sample_period * 1e3)} ms, delay tau = "
+              f"{num(c.delay * 1e3)} ms, {c.discretization} filter): its roots are the s-plane "
+              "equivalents log(z) / T of its poles (decay rate -log(max |z|) / T)"]
+             if c.sampled else []),
            "",
            f"chosen filter: {filter_text(ch.filter_order, ch.cutoff, ch.filter_damping)}",
            "  " + " ".join(f"--set {k}={v:g}" for k, v in r.filter_keys().items()),

@@ -343,6 +343,11 @@ class Analysis:
     plant: PlantParams | None = None
     controller: ControllerParams | None = None
     loop: str | None = None            # which loop, a scene's (Linearisation.text)
+    #: a sampled controller's (``controller.sample_period > 0``) discrete-time loop at its
+    #: sample period, delay and discretization
+    #: (:class:`~orchestration.studies.sampled.SampledPoles`); None for a continuous one. The
+    #: fields above are then the continuous controller's (``T -> 0``), for comparison.
+    sampled: object | None = None
 
     def __repr__(self) -> str:
         """One line: the verdict, the largest real part, the number of roots, the loop."""
@@ -368,7 +373,9 @@ class Analysis:
     def to_json(self) -> dict:
         """What ``flexpend analyze --json`` prints: the loop, the plant's and the controller's
         parameters, the cantilever frequencies, the open- and closed-loop eigenvalues as
-        ``[real, imag]``, the modes, ``max_real_part``, ``stable`` and the margins."""
+        ``[real, imag]``, the modes, ``max_real_part``, ``stable`` and the margins; for a sampled
+        controller also ``"sampled"`` (:meth:`~orchestration.studies.sampled.SampledPoles.to_json`:
+        the z-plane poles, their s-plane equivalents, the spectral radius, margin and verdict)."""
         out = {"loop": self.loop} if self.loop else {}
         if self.plant is not None:
             out["plant"] = dataclasses.asdict(self.plant)
@@ -382,12 +389,14 @@ class Analysis:
             "max_real_part": self.max_real_part,
             "stable": self.stable,
             "margins": self.margins,
-        }
+        } | ({"sampled": self.sampled.to_json()} if self.sampled is not None else {})
 
 
 def analyze(p: PlantParams, c: ControllerParams, loop: str | None = None) -> Analysis:
     """Eigenvalues, stability verdict, damping ratios and margins of the linearised closed loop
-    (``loop``: which loop it is, :meth:`Linearisation.text`)."""
+    (``loop``: which loop it is, :meth:`Linearisation.text`), of the continuous controller
+    (:func:`orchestration.api.analyze` adds a sampled one's discrete-time loop,
+    :attr:`Analysis.sampled`)."""
     A = plant_model(p).state_space()[0]
     Acl = closed_loop_matrix(p, c)
     eig = np.linalg.eigvals(Acl)

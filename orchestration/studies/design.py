@@ -15,6 +15,16 @@ by Nelder-Mead, rounds it (three significant digits of the cutoff, two decimals 
 and reports its worst case on a finer grid (``check_levels``), which the search did not see.
 All closed loops of one size are built and solved as one stack (``numpy.linalg.eigvals`` on a
 3-d array), so one candidate over the 189 plants of the default set costs a few milliseconds.
+
+A sampled controller (``controller.sample_period > 0``, docs/sampled.md) is designed for its
+sample period, delay and discretization: a candidate's closed loops are the sampled ones
+(:mod:`orchestration.studies.sampled`: the plant's exact zero-order hold with the delay, the
+filter's difference equation, :func:`controller_fmu.sampled.filter_difference_equation`), and
+their roots are the s-plane equivalents ``log(z) / T`` of the z-plane poles. The criteria are the
+same: the worst-case decay rate ``-max Re(log z) / T = -log(max |z|) / T`` ranks the candidates
+as the spectral radius does (at a fixed ``T``), with the unit circle as the stability boundary.
+With the Tustin filter the cutoffs searched stop below the Nyquist limit of its prewarping,
+:data:`NYQUIST_FRACTION` ``* pi / T``.
 """
 from __future__ import annotations
 
@@ -34,9 +44,13 @@ from plant_fmu.params import PlantParams
 from ..scene.keys import ConfigError
 from .analysis import _drift_free, assemble_closed_loop, frequency_response
 
-__all__ = ["DESIGN_DEFAULTS", "CRITERIA", "UncertaintySet", "RobustLoop", "WorstCase",
+__all__ = ["DESIGN_DEFAULTS", "CRITERIA", "NYQUIST_FRACTION", "UncertaintySet", "RobustLoop", "WorstCase",
            "DesignResult", "design_settings", "design_filter", "root_locus", "FILTER_KEYS",
            "worst_cases", "DesignCurves", "design_curves"]
+
+#: A sampled Tustin filter's cutoffs are searched up to this fraction of ``pi / T`` (the rounding
+#: of the chosen cutoff to three digits then stays below the limit).
+NYQUIST_FRACTION = 0.99
 
 #: Scores of a candidate filter: the worst-case decay rate or the worst-case damping ratio.
 CRITERIA = ("decay", "damping")
@@ -196,19 +210,62 @@ class RobustLoop:
             A, B, C = (np.stack([s[i] for s in ss]) for i in range(3))
             self.groups.append((ps, A, B, C))
         self.n_plants = sum(len(g[0]) for g in self.groups)
+        self._held = {}             # the plants' zero-order holds, per (group, T, tau, kx)
 
     def eigenvalues(self, c: ControllerParams):
         """``(plants, roots)`` per group; ``roots[k]`` are the closed-loop roots with
-        ``plants[k]``, the cart's drift roots left aside when the cart is not fed back."""
+        ``plants[k]``, the cart's drift roots left aside when the cart is not fed back. A sampled
+        controller's roots are the s-plane equivalents ``log(z) / T`` of its sampled loop's
+        poles (``-inf`` for ``z = 0``)."""
+        if c.sampled:
+            for g, (ps, *_) in enumerate(self.groups):
+                yield ps, self._sampled_roots(g, c)
+            return
         ctrl = controller_model(c).state_space()
         for ps, A, B, C in self.groups:
             yield ps, np.linalg.eigvals(_drift_free(assemble_closed_loop(A, B, C, ctrl), ps[0]))
+
+    def _sampled_roots(self, g: int, c: ControllerParams) -> np.ndarray:
+        """The sampled loops of group ``g`` with ``c`` as one stack (the assembly of
+        :func:`orchestration.studies.sampled.sampled_loop`); the plants' holds computed once."""
+        from controller_fmu.sampled import filter_difference_equation
+
+        from .sampled import _reduced_plant, plant_discretisation
+
+        T, tau = c.sample_period, c.delay
+        key = (g, T, tau, c.kx == 0.0)
+        if key not in self._held:
+            rows = []
+            for p in self.groups[g][0]:
+                A, B, C = _reduced_plant(p, c)
+                rows.append((*plant_discretisation(A, B, T, tau), C))
+            self._held[key] = tuple(np.stack([r[i] for r in rows]) for i in range(4))
+        Phi, G_prev, G_new, C = self._held[key]
+        Ad, Bd, Cd, Dd = filter_difference_equation(c)
+        ge = np.array([[c.kx, c.kp, c.kd]]) @ C               # (k, 1, n): e_k = ge x_k
+        Kx, Kf = -Dd @ ge, -Cd                                # F_k = Kx x_k + Kf xf_k
+        k, n, nf = Phi.shape[0], Phi.shape[1], Ad.shape[0]
+        prev = tau > 0.0
+        N = n + nf + (1 if prev else 0)
+        M = np.zeros((k, N, N))
+        M[:, :n, :n] = Phi + G_new @ Kx
+        M[:, :n, n:n + nf] = G_new @ Kf
+        M[:, n:n + nf, :n] = Bd @ ge
+        M[:, n:n + nf, n:n + nf] = Ad
+        if prev:
+            M[:, :n, N - 1:] = G_prev
+            M[:, N - 1:, :n] = Kx
+            M[:, N - 1:, n:n + nf] = Kf
+        z = np.linalg.eigvals(M).astype(complex)
+        with np.errstate(divide="ignore"):
+            return np.log(z) / T
 
     def worst(self, c: ControllerParams) -> WorstCase:
         best = {"decay": (math.inf, None, None), "damping": (math.inf, None, None)}
         for ps, lam in self.eigenvalues(c):
             decay = -lam.real                                   # (k, m)
-            mag = np.abs(lam)
+            finite = np.isfinite(lam.real)                      # a sampled pole z = 0: -inf
+            mag = np.where(finite, np.abs(lam), 0.0)
             zeta = np.where(mag > 0, -lam.real / np.where(mag > 0, mag, 1.0), 1.0)
             for key, vals in (("decay", decay), ("damping", zeta)):
                 k, j = np.unravel_index(np.argmin(vals), vals.shape)
@@ -300,8 +357,11 @@ class DesignResult:
         def ctrl(c):
             return {"controller.filter_order": c.filter_order, "controller.cutoff": c.cutoff,
                     "controller.filter_damping": c.filter_damping}
+        c = self.chosen
         return {
             "criterion": self.criterion,
+            **({"sampled": {"T": c.sample_period, "tau": c.delay,
+                            "discretization": c.discretization}} if c.sampled else {}),
             "filter": self.filter_keys(),
             "worst_case": self.worst.to_json(),
             "uncertainty": {**self.uncertainty.describe(),
@@ -324,7 +384,7 @@ def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
     grid is evaluated. ``executor`` (:mod:`orchestration.sweeps.executor`) runs the check grid's closed
     loops as tasks (:func:`worst_cases`: the same numbers as without it).
     """
-    s = settings
+    s = settings = _sampled_settings(base, settings)
     crit = s["design.criterion"]
     uset = UncertaintySet.from_settings(nominal, s)
     search = RobustLoop(uset.plants(s["design.levels"]))
@@ -382,6 +442,23 @@ def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
                         s["design.levels"], s["design.check_levels"])
 
 
+def _sampled_settings(base: ControllerParams, settings: dict) -> dict:
+    """``settings`` with ``design.cutoff_max`` lowered to :data:`NYQUIST_FRACTION` ``* pi / T``
+    for a sampled Tustin filter (the prewarping's limit); a ConfigError when no cutoff of the
+    range is left."""
+    if not (base.sampled and base.discretization == "tustin"):
+        return settings
+    top = NYQUIST_FRACTION * math.pi / base.sample_period
+    if settings["design.cutoff_min"] >= top:
+        raise ConfigError(f"design.cutoff_min = {settings['design.cutoff_min']:g} rad/s: the "
+                          f"tustin filter at controller.sample_period = {base.sample_period:g} s "
+                          f"needs a cutoff below pi / T = {math.pi / base.sample_period:.6g} "
+                          "rad/s; lower design.cutoff_min or the sample period")
+    if settings["design.cutoff_max"] <= top:
+        return settings
+    return {**settings, "design.cutoff_max": top}
+
+
 def _simplex(x0):
     """Initial Nelder-Mead simplex: 10 % in cutoff, 0.05 in damping."""
     steps = [0.1, 0.05][:len(x0)]
@@ -423,6 +500,7 @@ def design_curves(result: DesignResult, p: PlantParams, c: ControllerParams,
     if (c.filter_order, c.cutoff, c.filter_damping) != \
             (ch.filter_order, ch.cutoff, ch.filter_damping) and c.filter_order:
         loops["given"] = frequency_response(p, c, w)
+    settings = _sampled_settings(c, settings)
     cutoffs, roots = root_locus(p, ch, np.union1d(
         np.geomspace(settings["design.cutoff_min"], settings["design.cutoff_max"], 300),
         [ch.cutoff]))

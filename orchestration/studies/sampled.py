@@ -43,6 +43,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 
@@ -231,6 +232,18 @@ class SampledPoles:
     def stable(self) -> bool:
         return self.spectral_radius < 1.0
 
+    def to_json(self) -> dict:
+        """``T``, ``tau``, ``discretization``, the poles ``z`` and ``s`` as ``[real, imag]`` (the
+        same order; ``s`` of ``z = 0`` is ``[-inf, 0]``), ``spectral_radius``, ``margin`` and
+        ``stable``."""
+        def pairs(v):
+            return [[float(x.real), float(x.imag) if math.isfinite(x.real) else 0.0] for x in v]
+
+        return {"T": self.T, "tau": self.tau, "discretization": self.discretization,
+                "z": pairs(self.z), "s": pairs(self.s),
+                "spectral_radius": self.spectral_radius, "margin": self.margin,
+                "stable": self.stable}
+
 
 def sampled_poles(loop, T: float, tau: float = 0.0,
                   discretization: str = DEFAULT_DISCRETIZATION) -> SampledPoles:
@@ -344,8 +357,9 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     |z| < 1`` on a grid of ``n_T`` by ``n_fraction`` points, its boundary the contour ``max |z| =
     1`` (up to ``pi / cutoff`` for the Tustin filter, dashed); the scene's largest stable ``T``
     at ``tau = 0`` and ``tau = T`` (:func:`critical_periods`, bisected, not read off the grid)
-    marked. ``scenes``: the paper's
-    three by default. Returns ``{scene: critical_periods}``."""
+    marked. ``scenes``: names, paths or Scenes (a Scene's panel is titled by its name), the
+    paper's three by default. The file is complete or absent
+    (:class:`~orchestration.files.atomic_path`). Returns ``{scene: critical_periods}``."""
     import matplotlib
     import matplotlib.ticker
     matplotlib.use("Agg")
@@ -360,7 +374,7 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     out = {}
     for i, (name, ax) in enumerate(zip(scenes, axes[0])):
         p, c = _params(load_scene(name) if isinstance(name, str) else name)
-        label = name if isinstance(name, str) else f"scene {i + 1}"
+        label = name if isinstance(name, str) else getattr(name, "name", None) or f"scene {i + 1}"
         hi = T_range[1]
         if discretization == "tustin" and c.filter_order > 0:
             hi = min(hi, math.pi / c.cutoff * (1.0 - 1e-6))
@@ -398,6 +412,10 @@ def stability_region_figure(path, scenes=None, T_range=FIGURE_T_RANGE,
     fig.suptitle(f"Sampled PD + filter ({discretization} filter): stable where shaded",
                  fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    from ..files import atomic_path
+    try:
+        with atomic_path(path) as tmp:           # complete or absent
+            fig.savefig(tmp, dpi=120, format=Path(path).suffix.lstrip(".") or "png")
+    finally:
+        plt.close(fig)
     return out
