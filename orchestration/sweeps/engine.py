@@ -118,8 +118,17 @@ def summary_row(summary: dict) -> dict:
 
 def linear_decay_rate(scene: Scene) -> float:
     """The linearised loop's smallest decay rate ``-max Re(lambda)`` over all its roots, the
-    cart's drift roots left aside: ``flexpend design``'s criterion, for this one plant."""
-    return -max_real_part(linearisation(scene).params, scene.controller)
+    cart's drift roots left aside: ``flexpend design``'s criterion, for this one plant; with a
+    sampled controller, the sampled loop's ``-log(max |z|) / T``."""
+    c = scene.controller
+    if c.sampled:
+        import math
+
+        from ..studies.sampled import sampled_poles
+        rho = sampled_poles((linearisation(scene).params, c), c.sample_period, c.delay,
+                            c.discretization).spectral_radius
+        return -math.log(rho) / c.sample_period if rho > 0 else math.inf
+    return -max_real_part(linearisation(scene).params, c)
 
 
 def _one_line(exc: BaseException, limit: int = 500) -> str:
