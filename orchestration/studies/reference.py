@@ -1,7 +1,11 @@
 """The monolithic reference: plant and controller as one ODE, solved by scipy at tight tolerance.
 
 It is the continuous-time closed loop that the co-simulation approaches as its communication step
-shrinks, and the yardstick of the co-simulation's error. Its results have the columns of the
+shrinks, and the yardstick of the co-simulation's error. With a sampled controller
+(``controller.sample_period > 0``) it is the hybrid loop: the plant solved between the
+controller's instants with the force held, the controller's difference equation at its ticks
+(:mod:`controller_fmu.sampled`), which the co-simulation meets up to the plant FMU's own
+integration error (its coupling is exact on the instants' grid). Its results have the columns of the
 master's results (:data:`COLUMNS`), on the same output grid.
 
 At ``plant.fidelity = "exact"`` the plant is the geometrically exact beam, whose stiff axial modes
@@ -84,6 +88,8 @@ def simulate_reference(scene, rtol: float = 1e-12, atol: float = 1e-12, method: 
     if scene.resolved and scene.plant.fidelity == "exact":
         return exact_reference(scene, progress)
     loop = ClosedLoop(scene)
+    if scene.controller.sampled:
+        return _sampled_reference(scene, loop, rtol, atol, method, progress)
     t_end, dt = scene.output.stop_time, scene.output.output_interval
     n_out = int(round(t_end / dt))
     t_eval = np.arange(n_out + 1) * dt
@@ -165,3 +171,64 @@ def exact_first_mode_tip(p) -> float:
     from plant_fmu.beam import unit_beam
 
     return float(unit_beam(p.n_elements, 1).tip_deflection[0] * (1.0 / math.sqrt(p.rhoA * p.L)))
+
+
+def _sampled_reference(scene, loop: ClosedLoop, rtol, atol, method, progress):
+    """The closed loop with the sampled controller (controller_fmu/sampled.py, the
+    specification): the plant solved by scipy between the controller's instants (every tick and
+    tick + delay) with the force held, the controller taking its samples at the ticks. A row at
+    an instant holds the force that acts from it on (what the master records there)."""
+    import scipy.integrate
+
+    from controller_fmu.sampled import SampledController
+
+    c = scene.controller
+    ctrl = SampledController(c)
+    plant, n = loop.plant, loop.np
+    t_end, dt = scene.output.stop_time, scene.output.output_interval
+    n_out = int(round(t_end / dt))
+    t_out = np.arange(n_out + 1) * dt
+    t_out[-1] = min(t_out[-1], t_end)
+    out = np.zeros(t_out.size, dtype=[(col, "f8") for col in COLUMNS])
+    xp = np.array(loop.x0[:n], dtype=float)
+    t, i = 0.0, 0
+
+    def row(t, x, F):
+        o = plant.outputs(t, x)
+        eta = o["eta"]
+        return (t, o["x_o"], o["x_dot"], o["phi_o"], o["omega_o"], F, o["tip_deflection"],
+                float(eta[0]) if eta.size else 0.0, o["energy"])
+
+    while True:
+        y = loop.sensors(np.concatenate([xp, np.zeros(loop.x0.size - n)]))
+        F = ctrl.output(y)                         # the force from t on
+        while i < t_out.size and t_out[i] <= t + ctrl.tol:
+            out[i] = row(t_out[i], xp, F)          # (t_out[i] == t here: the grids share it)
+            i += 1
+        if t >= t_end - ctrl.tol or i >= t_out.size:
+            break
+        if ctrl._at(t, ctrl.tick()):               # a tick: the next instant after its sample
+            nxt = ctrl.tick(ctrl.k + 1)
+            if ctrl.tau > 0.0:
+                nxt = min(nxt, t + ctrl.tau)
+        else:
+            nxt = ctrl.next_event()
+        nxt = min(nxt, t_end)
+        # the output points inside (t, nxt), then nxt itself
+        inside = t_out[(t_out > t + ctrl.tol) & (t_out < nxt - ctrl.tol)]
+        sol = scipy.integrate.solve_ivp(lambda s, x: plant.rhs(s, x, F), (t, nxt), xp,
+                                        method=method, rtol=rtol, atol=atol,
+                                        t_eval=np.append(inside, nxt))
+        if not sol.success:
+            raise RuntimeError(f"reference solution failed: {sol.message}")
+        for k, ts in enumerate(inside):
+            out[i] = row(ts, sol.y[:, k], F)
+            i += 1
+        ctrl.step(t, nxt - t, y)
+        xp = sol.y[:, -1]
+        t = nxt
+        if progress is not None and t_end > 0:
+            progress(min(t / t_end, 1.0))
+    if progress is not None:
+        progress(1.0)
+    return out[:i]

@@ -154,3 +154,26 @@ def test_as_the_sample_period_shrinks_the_runs_converge_to_the_continuous_loop_a
         errors.append(float(np.abs(r["phi_o"] - ref["phi_o"]).max()))
     orders = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
     assert all(0.9 <= q <= 1.15 for q in orders), (errors, orders)
+
+
+def test_the_coupling_is_exact_the_run_meets_the_hybrid_reference_at_the_plants_order(pair):
+    """The monolithic reference of a sampled scene (orchestration.studies.reference: the plant
+    solved by DOP853 at 1e-12 between the controller's instants, the specification's controller
+    at the ticks) against the co-simulation: the difference is the plant FMU's own RK4 error
+    alone (no coupling error: the force is piecewise constant on the grid), so it falls at
+    order four as plant.step halves, and the sampled reference is far from the continuous
+    controller's."""
+    from orchestration.studies.reference import simulate_reference
+    base = ["controller.sample_period=0.005", "controller.delay=0.005", "stop_time=2",
+            "fidelity.companion=false", "output_interval=0.01"]
+    ref = simulate_reference(load_scene("flexible_pd_lowpass", base))
+    errors = []
+    for ps in (1.25e-4, 6.25e-5):
+        run = run_scene(load_scene("flexible_pd_lowpass", base + [f"plant.step={ps}"]), pair,
+                        progress=False).result
+        assert len(run) == len(ref)
+        errors.append(float(np.abs(run["phi_o"] - ref["phi_o"]).max()))
+    assert 3.5 <= math.log2(errors[0] / errors[1]) <= 5.5, errors
+    cont = simulate_reference(load_scene("flexible_pd_lowpass",
+                                         ["stop_time=2", "output_interval=0.01"]))
+    assert float(np.abs(cont["phi_o"] - ref["phi_o"]).max()) > 1e4 * errors[1]
