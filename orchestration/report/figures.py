@@ -100,6 +100,9 @@ def controller_text(c) -> str:
             }[c.filter_order]
     if c.saturates:
         out += f", |Fc| ≤ {c.force_limit:g} N"
+    if c.sampled:
+        out += (f"; sampled every {1e3 * c.sample_period:g} ms ({c.discretization}), "
+                f"delay {1e3 * c.delay:g} ms")
     return out
 
 

@@ -488,6 +488,20 @@ class ReportFacts:
 
 
 def report_facts(scene) -> ReportFacts:
-    """:class:`ReportFacts` of a scene: its linearised loop's roots, once."""
+    """:class:`ReportFacts` of a scene: its linearised loop's roots, once (a sampled scene's:
+    the s-plane equivalents of its sampled loop's poles)."""
     lin = linearisation(scene)
-    return ReportFacts(loop_roots(lin.params, scene.controller), own=lin.own)
+    roots = loop_roots(lin.params, scene.controller)
+    c = scene.controller
+    if c.sampled:                       # the sampled loop's poles, as s-plane equivalents
+        from .sampled import sampled_poles
+        lam = sampled_poles((lin.params, c), c.sample_period, c.delay, c.discretization).s
+        lam = lam[np.isfinite(lam)]
+        lam = lam[np.argsort(np.abs(lam.imag), kind="stable")]
+        up, wb = lam[lam.imag > 1e-9], roots.bending_frequency
+        bending = (complex(up[np.argmin(np.abs(up.imag - wb))])
+                   if wb is not None and len(up) else None)
+        below = [z for z in up if wb is None or z.imag < 0.5 * wb]
+        roots = LoopRoots(lam, bending, complex(min(below, key=lambda z: z.imag))
+                          if below else None, wb)
+    return ReportFacts(roots, own=lin.own)
