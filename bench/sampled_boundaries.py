@@ -24,25 +24,9 @@ from orchestration.export import build_fmus, fmu_pair  # noqa: E402
 from orchestration.job import run_scene  # noqa: E402
 from orchestration.scene.schema import load_scene  # noqa: E402
 from orchestration.studies.fit import fit_mode  # noqa: E402
-from orchestration.studies.sampled import sampled_poles, stable_intervals  # noqa: E402
+from orchestration.studies.sampled import boundaries, sampled_poles  # noqa: E402
 
 SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
-
-
-def edges(scene, fraction):
-    """``(edge, stable below it, relative probe distance)`` of every boundary of the stable
-    intervals (a window narrower than 10 % is left out)."""
-    si = stable_intervals(scene, tau_fraction=fraction)
-    every = sorted(b for iv in si.intervals for b in iv if si.scanned[0] < b < si.scanned[1])
-    out = []
-    for lo, hi in si.intervals:
-        if hi - lo < 0.1 * lo:
-            continue
-        for edge, below in ((lo, False), (hi, True)):
-            if si.scanned[0] < edge < si.scanned[1]:
-                gap = min([abs(b - edge) / edge for b in every if b != edge] + [0.125])
-                out.append((edge, below, 0.4 * gap))
-    return out
 
 
 def main() -> int:
@@ -51,7 +35,7 @@ def main() -> int:
           f"{'mode':>10}{'predicted':>11}{'run':>10}")
     for scene in SCENES:
         for fraction in (0.0, 1.0):
-            for edge, below, delta in edges(scene, fraction):
+            for edge, below, delta in boundaries(scene, fraction):
                 for T in ((1 - delta) * edge, (1 + delta) * edge):
                     tau = fraction * T
                     sets = {"initial.phi": 0.01, "fidelity.companion": "false",

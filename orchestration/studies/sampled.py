@@ -56,7 +56,7 @@ from .analysis import _plant_state_space, linearisation
 __all__ = ["DISCRETIZATIONS", "DEFAULT_DISCRETIZATION", "MIN_PERIOD", "T_RANGE",
            "FIGURE_T_RANGE", "XTOL", "GRID_POINTS", "SampledPoles", "StableIntervals",
            "plant_discretisation", "filter_discretisation",
-           "sampled_loop", "sampled_poles", "stable_intervals", "critical_periods",
+           "sampled_loop", "sampled_poles", "stable_intervals", "boundaries", "critical_periods",
            "stability_region_figure"]
 
 #: how the filter becomes a difference equation (see the module's docstring)
@@ -339,6 +339,29 @@ def stable_intervals(loop, T_range=T_RANGE, tau_fraction: float | None = None,
     return StableIntervals(intervals, critical, (lo, hi),
                            None if tau is not None else float(tau_fraction or 0.0),
                            None if tau is None else float(tau), discretization)
+
+
+def boundaries(loop, tau_fraction: float = 0.0, discretization: str = DEFAULT_DISCRETIZATION,
+               min_width: float = 0.1, max_probe: float = 0.05) -> list:
+    """``[(T, stable_below, probe)]``: each boundary ``T`` of the stable intervals of the sample
+    period at the delay ``tau_fraction * T`` (:func:`stable_intervals`; the scanned range's
+    ends are not boundaries, and a stable window narrower than ``min_width`` of its lower end is
+    left out), whether the loop is stable just below it, and how far (relative) a run may probe
+    either side and stay between it and its neighbours: ``max_probe``, or 0.4 of the gap to the
+    nearest other boundary."""
+    si = stable_intervals(loop, tau_fraction=tau_fraction, discretization=discretization)
+    lo_s, hi_s = si.scanned
+    every = sorted(b for iv in si.intervals for b in iv if lo_s < b < hi_s)
+    out = []
+    for lo, hi in si.intervals:
+        if hi - lo < min_width * lo:
+            continue
+        for edge, below in ((lo, False), (hi, True)):
+            if lo_s < edge < hi_s:
+                gap = min([abs(b - edge) / edge for b in every if b != edge]
+                          + [max_probe / 0.4])
+                out.append((edge, below, 0.4 * gap))
+    return out
 
 
 def critical_periods(loop, discretization: str = DEFAULT_DISCRETIZATION,

@@ -20,7 +20,7 @@ import pytest
 from orchestration.export import fmu_pair
 from orchestration.job import run_scene
 from orchestration.scene.schema import load_scene
-from orchestration.studies.sampled import sampled_poles, stable_intervals
+from orchestration.studies.sampled import boundaries, sampled_poles
 
 SHORT = {"initial.phi": 0.01, "fidelity.companion": "false"}
 
@@ -39,29 +39,10 @@ def _run(fmus, scene, T, tau):
                      progress=False)
 
 
-def _edges(scene, fraction):
-    """The boundaries of the stable intervals of the sample period at ``tau = fraction T``
-    (the scanned range's ends are not boundaries; a window narrower than 10 % is left out), each
-    with the verdict just below it and the relative distance to probe either side: 5 %, or less
-    where another boundary is nearer (0.4 of the gap)."""
-    si = stable_intervals(scene, tau_fraction=fraction)
-    wide = [(lo, hi) for lo, hi in si.intervals if hi - lo >= 0.1 * lo]
-    every = sorted(b for iv in si.intervals for b in iv
-                   if si.scanned[0] < b < si.scanned[1])
-    out = []
-    for lo, hi in wide:
-        for edge, below in ((lo, False), (hi, True)):
-            if not si.scanned[0] < edge < si.scanned[1]:
-                continue
-            gap = min([abs(b - edge) / edge for b in every if b != edge] + [0.125])
-            out.append((edge, below, 0.4 * gap))
-    return out
-
-
 BOUNDARIES = [(scene, fraction, *edge)
               for scene in ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
               for fraction in (0.0, 1.0)
-              for edge in _edges(scene, fraction)]
+              for edge in boundaries(scene, fraction)]
 
 
 @pytest.mark.parametrize("scene,fraction,edge,below,delta", BOUNDARIES,
