@@ -359,13 +359,16 @@ def tick_step(h: float, *instants: float) -> float:
     """The largest communication step up to ``h`` that divides every positive value of
     ``instants`` (a sampled controller's period and delay, the output interval): ``h`` itself
     when it does (to 1e-9), else ``g / ceil(g / h)`` with ``g`` their greatest common divisor
-    (as fractions of at most 10^12 in the denominator)."""
+    (as fractions of at most 10^12 in the denominator; 0 when a value is no such fraction to
+    1e-9)."""
     from fractions import Fraction
 
     values = [v for v in instants if v > 0]
     if all(abs(v / h - round(v / h)) <= 1e-9 * (v / h) for v in values):
         return h
     fr = [Fraction(v).limit_denominator(10 ** 12) for v in values]
+    if any(not abs(float(f) - v) <= 1e-9 * v for f, v in zip(fr, values)):
+        return 0.0                    # no such fraction (1e-320 s): no common step at all
     g = fr[0]
     for f in fr[1:]:
         g = Fraction(math.gcd(g.numerator * f.denominator, f.numerator * g.denominator),

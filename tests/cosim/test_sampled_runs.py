@@ -110,11 +110,14 @@ def test_the_master_lands_on_every_tick_delay_and_output_point():
         scene.run_master.algorithm == "jacobi"
 
 
-def test_instants_on_no_common_grid_are_one_line():
+@pytest.mark.parametrize("sets", [["controller.sample_period=0.0061234567",
+                                   "controller.delay=0.001"],
+                                  ["controller.sample_period=1e-320"],
+                                  ["controller.sample_period=1e-6"]])
+def test_instants_on_no_common_grid_are_one_line(sets):
     from orchestration.scene.keys import ConfigError
     with pytest.raises(ConfigError) as info:
-        load_scene("rigid_pd", ["controller.sample_period=0.0061234567",
-                                "controller.delay=0.001"])
+        load_scene("rigid_pd", sets)
     assert "\n" not in str(info.value) and "common grid" in str(info.value)
 
 
