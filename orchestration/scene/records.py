@@ -502,12 +502,10 @@ class Scene:
         key = "plant.exact_step" if self.plant.fidelity == "exact" else "master.step"
         lands = tick_step(h, c.sample_period, c.delay, self.output.output_interval)
         if lands < h / MAX_TICK_REFINEMENT:
-            raise ConfigError(f"{key} = {h:g} s: the communication step that lands on every "
-                              f"tick (controller.sample_period = {c.sample_period:g} s), tick + "
-                              f"controller.delay ({c.delay:g} s) and output point "
-                              f"(output_interval = {self.output.output_interval:g} s) is "
-                              f"{lands:.3g} s, over {MAX_TICK_REFINEMENT} times smaller; allowed: "
-                              f"values on a common grid near {key}")
+            raise ConfigError(f"controller.sample_period = {c.sample_period:g} s, delay "
+                              f"{c.delay:g} s: the step landing on every tick, tick + delay and "
+                              f"output point is {lands:.3g} s, under {key} / "
+                              f"{MAX_TICK_REFINEMENT}; allowed: values on a common grid")
 
     def _check_stiffened(self):
         """``plant.fidelity = "stiffened"`` gives no directional or output derivatives (its
