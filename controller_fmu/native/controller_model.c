@@ -898,7 +898,7 @@ int fpm_model_clock_timing(fpm_model *m, const fpm_logger *lg, const char *fn, i
 }
 
 int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
-                        int active)
+                        int active, int apply)
 {
     const double tol = TICK_TOLERANCE * m->T;
     if (!active) {
@@ -926,7 +926,7 @@ int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int 
             return FPM_ERROR;
         }
     }
-    m->active[clock] = 1;
+    if (apply) m->active[clock] = 1;
     return FPM_OK;
 }
 

@@ -381,9 +381,10 @@ fmi3Status fmi3SetClock(fmi3Instance inst, const fmi3ValueReference vr[], size_t
     if (C->interface != FPM_COSIMULATION)
         return (fmi3Status)fpm_refuse(C, FPM_ERROR, "fmi3SetClock", "the clocks run in "
                                       "co-simulation with event mode");
-    for (i = 0; i < nvr; i++) {
-        int rc = fpm_model_set_clock(C->m, &C->lg, "fmi3SetClock", fpm_model_clock_of(vr[i]),
-                                     values[i] ? 1 : 0);
+    for (i = 0; i < 2 * nvr; i++) {           /* every clock checked, then every one set */
+        int rc = fpm_model_set_clock(C->m, &C->lg, "fmi3SetClock",
+                                     fpm_model_clock_of(vr[i % nvr]), values[i % nvr] ? 1 : 0,
+                                     i >= nvr);
         if (rc > FPM_WARNING) return (fmi3Status)rc;
     }
     return fmi3OK;

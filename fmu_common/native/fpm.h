@@ -335,9 +335,10 @@ void fpm_model_use_clocks(fpm_model *m, int on);
 int fpm_model_clock_timing(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
                            double *interval, double *shift);
 /* fmi3SetClock of one clock in event mode: FPM_OK, or FPM_ERROR with a message (not its
- * instant, a deactivation the clock refuses). */
+ * instant, a deactivation the clock refuses). apply = 0: the checks only (a call setting
+ * several clocks checks them all before it changes any). */
 int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
-                        int active);
+                        int active, int apply);
 /* 1 if the clock is active. */
 int fpm_model_get_clock(const fpm_model *m, int clock);
 /* The end of a super-dense instant (fmi3UpdateDiscreteStates; fmi3EnterStepMode with a clock

@@ -230,9 +230,9 @@ int fpm_model_clock_timing(fpm_model *m, const fpm_logger *lg, const char *fn, i
     return FPM_ERROR;
 }
 int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
-                        int active)
+                        int active, int apply)
 {
-    (void)m; (void)clock; (void)active;
+    (void)m; (void)clock; (void)active; (void)apply;
     fpm_log(lg, FPM_ERROR, "%s: this FMU has no clocks", fn);
     return FPM_ERROR;
 }

@@ -211,6 +211,9 @@ def test_the_clocks_refuse_what_the_standard_forbids(sampled3):
         f.setClock([clocks[1]], [True])                   # the force ticks at 0.004, not 0
     with pytest.raises(FMICallException):
         f.setFloat64([vr["phi_o"]], [0.3])                # sample_clock not active
+    with pytest.raises(FMICallException):
+        f.setClock(clocks, [True, True])                  # one call: neither is activated
+    assert f.getClock(clocks) == [False, False]
     f.setClock([clocks[0]], [True])
     f.setFloat64([vr["phi_o"]], [0.3])
     f.updateDiscreteStates()
