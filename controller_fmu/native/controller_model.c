@@ -47,6 +47,10 @@ struct fpm_model {
     double k;                   /* an integer, as a double (saved exactly) */
     int pending;
     double pend_F;
+    /* its FMI 3.0 clocks (FPM_N_CLOCKS; fpm.h): the instance uses them (event mode), and which
+     * are active in the current super-dense instant (neither is part of an FMU state) */
+    int clocked;
+    int active[2];
 };
 
 size_t fpm_model_size(void) { return sizeof(fpm_model); }
@@ -351,6 +355,30 @@ static int sampled_force(const fpm_model *m, double e, double *u, double *xf)
     return 1;
 }
 
+/* The sample of the tick at hand (the time reached, t): the sensors set now give the force u
+ * and the filter state after the tick, xf; FPM_OK, or `status` with a message naming `what`
+ * (the state unchanged) for a non-finite input or a filter that overflows. The one arithmetic
+ * of both paths: a tick taken inside doStep, a tick of sample_clock. */
+static int take_sample(const fpm_model *m, const fpm_logger *lg, int status, double t,
+                       const char *what, double *u, double *xf)
+{
+    double y[9], e[3];
+    char bad[256];
+    if (!sensors(m, y)) {
+        name_bad(y, bad, sizeof bad);
+        fpm_log(lg, status, "non-finite input at the tick t = %.17g: %s; %s, state unchanged",
+                t, bad, what);
+        return status;
+    }
+    fpf_error(&m->f, y, e);
+    if (!sampled_force(m, e[0], u, xf)) {
+        fpm_log(lg, status, "the sample at t = %.17g overflows the filter (error signal "
+                "%.17g); %s, state unchanged", t, e[0], what);
+        return status;
+    }
+    return FPM_OK;
+}
+
 /* A communication step of the sampled controller (controller_fmu/sampled.py, step): the tick
  * at t (if any) samples the sensors set now; a force whose delay runs out at t + h takes over;
  * a step across a tick or a tick + delay is refused (fmi2Discard), the state unchanged. */
@@ -365,21 +393,24 @@ static int sampled_step(fpm_model *m, const fpm_logger *lg, double t, double h)
                 tick, t);
         return FPM_ERROR;
     }
-    if (fabs(t - tick) <= tol) {
-        double y[9], e[3], u;
-        char bad[256];
-        if (!sensors(m, y)) {
-            name_bad(y, bad, sizeof bad);
-            fpm_log(lg, FPM_DISCARD, "non-finite input at the tick t = %.17g: %s; step "
-                    "rejected, state unchanged", t, bad);
+    if (m->clocked) {                         /* the clocks take the instants (event mode) */
+        const double due = tick_at(m, k - 1.0) + m->tau;
+        if (fabs(t - tick) <= tol) {
+            fpm_log(lg, FPM_DISCARD, "the step from t = %.17g starts at a tick not taken: "
+                    "activate sample_clock there (fmi3SetClock in event mode, then "
+                    "fmi3UpdateDiscreteStates); step refused, state unchanged", t);
             return FPM_DISCARD;
         }
-        fpf_error(&m->f, y, e);
-        if (!sampled_force(m, e[0], &u, xf)) {
-            fpm_log(lg, FPM_DISCARD, "the sample at t = %.17g overflows the filter (error "
-                    "signal %.17g); step rejected, state unchanged", t, e[0]);
+        if (pending && fabs(t - due) <= tol) {
+            fpm_log(lg, FPM_DISCARD, "the step from t = %.17g starts where the force of the "
+                    "last sample takes over: activate force_clock there (fmi3SetClock in event "
+                    "mode, then fmi3UpdateDiscreteStates); step refused, state unchanged", t);
             return FPM_DISCARD;
         }
+    } else if (fabs(t - tick) <= tol) {
+        double u;
+        int rc = take_sample(m, lg, FPM_DISCARD, t, "step rejected", &u, xf);
+        if (rc != FPM_OK) return rc;
         k += 1.0;
         if (m->tau == 0.0) {
             held = u;
@@ -397,7 +428,7 @@ static int sampled_step(fpm_model *m, const fpm_logger *lg, double t, double h)
                 "refused, state unchanged", t, h, next, m->T, m->tau);
         return FPM_DISCARD;
     }
-    if (pending && fabs(end - (tick_at(m, k - 1.0) + m->tau)) <= tol) {
+    if (!m->clocked && pending && fabs(end - (tick_at(m, k - 1.0) + m->tau)) <= tol) {
         held = pend_F;
         pending = 0;
         pend_F = 0.0;
@@ -606,6 +637,17 @@ int fpm_model_get_output(fpm_model *m, const fpm_logger *lg, unsigned vr, double
         return FPM_ERROR;
     }
 #if FPM_SAMPLED
+    if (m->clocked && m->initialized) {       /* event mode: the force of the active clocks */
+        const double due = tick_at(m, m->k - 1.0) + m->tau;
+        if (m->active[1] && m->pending && fabs(m->t - due) <= TICK_TOLERANCE * m->T) {
+            *value = m->pend_F;
+            return FPM_OK;
+        }
+        if (!(m->tau == 0.0 && m->active[0])) {
+            *value = m->F;
+            return FPM_OK;
+        }
+    }
     if (m->tau == 0.0 && fabs(m->t - tick_at(m, m->k)) <= TICK_TOLERANCE * m->T) {
         double u, xf[2];                      /* the tick at hand: a feedthrough of the inputs */
         if (sensors(m, y)) {
@@ -808,3 +850,138 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
 }
 /* ================================================================== end of Jacobians and output
  * derivatives */
+
+/* ================================================================== clocks (issue 38; fpm.h)
+ * PDLowPassSampled's FMI 3.0 clocks, run in co-simulation with event mode (docs/fmus.md):
+ * sample_clock (0) ticks at t0 + k T and samples the inputs set in that event mode, with the
+ * arithmetic of a tick taken inside doStep (take_sample); force_clock (1) ticks at
+ * t0 + tau + k T, where the force of the sample tau before takes over (F_c). With no delay the
+ * two coincide and the force takes over at the sample; with delay = sample_period the force due
+ * at a tick takes over before the tick's sample, whichever clock the importer activates first.
+ * An instance without event mode (eventModeUsed = false) takes both inside doStep, as before. */
+#if FPM_N_CLOCKS > 0
+#if !FPM_SAMPLED || FPM_N_CLOCKS != 2
+#error "the controller's clocks are the sampled controller's two"
+#endif
+static const unsigned CLOCK_VRS[2] = {VR_sample_clock, VR_force_clock};
+static const char *const CLOCK_NAMES[2] = {"sample_clock", "force_clock"};
+
+int fpm_model_n_clocks(void) { return FPM_N_CLOCKS; }
+
+int fpm_model_clock_of(unsigned vr)
+{
+    int i;
+    for (i = 0; i < FPM_N_CLOCKS; i++)
+        if (vr == CLOCK_VRS[i]) return i;
+    return -1;
+}
+
+void fpm_model_use_clocks(fpm_model *m, int on)
+{
+    if (!on) m->active[0] = m->active[1] = 0;
+    m->clocked = on ? 1 : 0;
+}
+
+int fpm_model_clock_timing(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                           double *interval, double *shift)
+{
+    const double T = m->v.real[VR_sample_period], tau = m->v.real[VR_delay];
+    if (!(T > 0.0 && T <= 1e3 && tau >= 0.0 && tau <= T)) {
+        fpm_log(lg, FPM_ERROR, "%s: %s has no interval: sample_period = %.17g, delay = %.17g "
+                "(allowed: 0 < sample_period <= 1000 s, 0 <= delay <= sample_period)", fn,
+                CLOCK_NAMES[clock], T, tau);
+        return FPM_ERROR;
+    }
+    *interval = T;
+    *shift = clock == 1 ? tau : 0.0;
+    return FPM_OK;
+}
+
+int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                        int active, int apply)
+{
+    const double tol = TICK_TOLERANCE * m->T;
+    if (!active) {
+        if (m->active[clock])
+            fpm_log(lg, FPM_ERROR, "%s: %s cannot be deactivated (canBeDeactivated = false)",
+                    fn, CLOCK_NAMES[clock]);
+        return m->active[clock] ? FPM_ERROR : FPM_OK;
+    }
+    if (!m->initialized) {
+        fpm_log(lg, FPM_ERROR, "%s: %s was not initialised", fn, fpm_model_name);
+        return FPM_ERROR;
+    }
+    if (clock == 0 && !(fabs(m->t - tick_at(m, m->k)) <= tol)) {
+        fpm_log(lg, FPM_ERROR, "%s: sample_clock ticks at t = %.17g next (every sample_period "
+                "= %.17g s from the start %.17g, each tick once), not at t = %.17g", fn,
+                tick_at(m, m->k), m->T, m->t0, m->t);
+        return FPM_ERROR;
+    }
+    if (clock == 1) {
+        const double j = floor((m->t - m->t0 - m->tau) / m->T + 0.5);
+        if (!(j >= 0.0 && fabs(m->t - (tick_at(m, j) + m->tau)) <= tol)) {
+            fpm_log(lg, FPM_ERROR, "%s: force_clock ticks at t0 + delay + k sample_period "
+                    "(t0 = %.17g, delay = %.17g s, sample_period = %.17g s), not at t = %.17g",
+                    fn, m->t0, m->tau, m->T, m->t);
+            return FPM_ERROR;
+        }
+    }
+    if (apply) m->active[clock] = 1;
+    return FPM_OK;
+}
+
+int fpm_model_get_clock(const fpm_model *m, int clock) { return m->active[clock]; }
+
+int fpm_model_clock_update(fpm_model *m, const fpm_logger *lg)
+{
+    const double tol = TICK_TOLERANCE * m->T;
+    double held = m->F, pend_F = m->pend_F, k = m->k, xf[2] = {m->xc[0], m->xc[1]};
+    int pending = m->pending;
+    if (!m->active[0] && !m->active[1]) return FPM_OK;
+    /* the force due now takes over at force_clock, or at the latest before this tick's sample
+     * (delay = sample_period: both at one instant) */
+    if (pending && fabs(m->t - (tick_at(m, k - 1.0) + m->tau)) <= tol) {
+        held = pend_F;
+        pending = 0;
+        pend_F = 0.0;
+    }
+    if (m->active[0]) {
+        double u;
+        int rc = take_sample(m, lg, FPM_ERROR, m->t, "the sample is not taken", &u, xf);
+        if (rc != FPM_OK) return rc;
+        k += 1.0;
+        if (m->tau == 0.0) {                  /* no delay: the force takes over at its sample */
+            held = u;
+        } else {
+            pending = 1;
+            pend_F = u;
+        }
+    }
+    m->k = k;
+    m->xc[0] = xf[0];
+    m->xc[1] = xf[1];
+    m->F = held;
+    m->pending = pending;
+    m->pend_F = pend_F;
+    m->active[0] = m->active[1] = 0;
+    return FPM_OK;
+}
+
+int fpm_model_clocked_set(fpm_model *m, const fpm_logger *lg, const char *fn, int mode,
+                          const unsigned vr[], size_t n)
+{
+    size_t i;
+    int j;
+    if (!m->clocked || vr == NULL || (mode & (FPM_INSTANTIATED | FPM_INIT)) || m->active[0])
+        return FPM_OK;
+    for (i = 0; i < n; i++)
+        for (j = 0; j < 3; j++)
+            if (vr[i] == SENSOR_VRS[j]) {
+                fpm_log(lg, FPM_ERROR, "%s: %s is clocked by sample_clock: set it in event mode "
+                        "while sample_clock is active (its next tick: t = %.17g); nothing was "
+                        "set", fn, SENSOR_NAMES[j], tick_at(m, m->k));
+                return FPM_ERROR;
+            }
+    return FPM_OK;
+}
+#endif

@@ -11,6 +11,12 @@
  * it without refitting, and a callback per Runge-Kutta stage would cost a host call every few
  * hundred nanoseconds of work. Inputs are held over each doStep (zero-order hold); a master that
  * wants the higher-order coupling uses the FMI 2.0 FMUs (docs/fmus.md).
+ *
+ * Clocks (issue 38). A model with clocks (fpm.h, "Clocks": the sampled controller) runs them in
+ * co-simulation with event mode: an instance created with eventModeUsed = true takes its clocked
+ * partitions at fmi3SetClock + fmi3UpdateDiscreteStates, one created with eventModeUsed = false
+ * inside doStep, as before (docs/fmus.md, PDLowPassSampled). Every other FMU refuses every clock
+ * call with a message, as it did.
  */
 #include <stdlib.h>
 
@@ -33,6 +39,16 @@ typedef struct host3 {
     fmi3LogMessageCallback log;
     int event_mode_used;
 } host3;
+
+/* Tell the model whether this instance uses its clocks (fpm_model_use_clocks): before every call
+ * that depends on it (a reset or a restored state does not keep it). */
+static void sync(fmi3Instance inst)
+{
+    const fpm_instance *c = (const fpm_instance *)inst;
+    if (c == NULL || c->m == NULL) return;
+    fpm_model_use_clocks(c->m, c->interface == FPM_COSIMULATION &&
+                                   ((const host3 *)c->host)->event_mode_used);
+}
 
 static void emit(fpm_instance *c, int status, const char *category, const char *message)
 {
@@ -145,6 +161,13 @@ fmi3Status fmi3EnterEventMode(fmi3Instance inst)
 
 fmi3Status fmi3EnterStepMode(fmi3Instance inst)
 {
+    /* a clock still active ends its super-dense instant here (its partition runs) */
+    if (inst != NULL && C->interface == FPM_COSIMULATION && C->mode == FPM_EVENT) {
+        int rc;
+        sync(inst);
+        rc = fpm_model_clock_update(C->m, &C->lg);
+        if (rc > FPM_WARNING) return (fmi3Status)rc;
+    }
     return (fmi3Status)fpm_set_mode_of(C, "fmi3EnterStepMode", FPM_COSIMULATION, FPM_EVENT,
                                        FPM_STEP);
 }
@@ -159,8 +182,15 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance inst, fmi3Boolean *discreteStat
     if (inst != NULL && C->interface == FPM_MODEL_EXCHANGE)
         rc = fpm_me_update_discrete(C, "fmi3UpdateDiscreteStates", FPM_ME_MASK_NEW_DISCRETE,
                                     &terminate);
-    else
+    else {
         rc = fpm_set_mode(C, "fmi3UpdateDiscreteStates", FPM_EVENT, FPM_EVENT);
+        if (rc <= FPM_WARNING) {              /* the active clocks' partitions, then none active */
+            int rc2;
+            sync(inst);
+            rc2 = fpm_model_clock_update(C->m, &C->lg);
+            if (rc2 > rc) rc = rc2;
+        }
+    }
     if (rc > FPM_WARNING) return (fmi3Status)rc;
     if (discreteStatesNeedUpdate) *discreteStatesNeedUpdate = fmi3False;
     if (terminateSimulation) *terminateSimulation = terminate ? fmi3True : fmi3False;
@@ -207,11 +237,32 @@ static int counts(fmi3Instance inst, const char *fn, size_t nvr, size_t nvalues)
         return (fmi3Status)fpm_set(C, "fmi3" #Fn, M_SET, vr, nvr, values, type, layout,      \
                                    TYPES);                                                   \
     }
-GET(GetFloat64, fmi3Float64, FPM_REAL, FPM_C_DOUBLE)
+fmi3Status fmi3GetFloat64(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
+                          fmi3Float64 values[], size_t nValues)
+{
+    if (!counts(inst, "fmi3GetFloat64", nvr, nValues)) return fmi3Error;
+    sync(inst);
+    return (fmi3Status)fpm_get(C, "fmi3GetFloat64", M_ANY, vr, nvr, values, FPM_REAL,
+                               FPM_C_DOUBLE, TYPES);
+}
+
+/* A clocked input is set at its clock's activation (fpm_model_clocked_set). */
+fmi3Status fmi3SetFloat64(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
+                          const fmi3Float64 values[], size_t nValues)
+{
+    if (!counts(inst, "fmi3SetFloat64", nvr, nValues)) return fmi3Error;
+    if (inst != NULL && (C->mode & M_SET)) {
+        int rc;
+        sync(inst);
+        rc = fpm_model_clocked_set(C->m, &C->lg, "fmi3SetFloat64", C->mode, vr, nvr);
+        if (rc > FPM_WARNING) return (fmi3Status)rc;
+    }
+    return (fmi3Status)fpm_set(C, "fmi3SetFloat64", M_SET, vr, nvr, values, FPM_REAL,
+                               FPM_C_DOUBLE, TYPES);
+}
 GET(GetInt32, fmi3Int32, FPM_INTEGER, FPM_C_INT)
 GET(GetBoolean, fmi3Boolean, FPM_BOOLEAN, FPM_C_BOOL)
 GET(GetString, fmi3String, FPM_STRING, FPM_C_STRING)
-SET(SetFloat64, fmi3Float64, FPM_REAL, FPM_C_DOUBLE)
 SET(SetInt32, fmi3Int32, FPM_INTEGER, FPM_C_INT)
 SET(SetBoolean, fmi3Boolean, FPM_BOOLEAN, FPM_C_BOOL)
 SET(SetString, fmi3String, FPM_STRING, FPM_C_STRING)
@@ -286,16 +337,57 @@ fmi3Status fmi3SetBinary(fmi3Instance inst, const fmi3ValueReference vr[], size_
     return no_such(inst, "fmi3SetBinary", "Binary", vr, nvr, values);
 }
 
+/* A clock call's checks: an instance, the mode, the arrays, and every value reference a clock
+ * (the first that is not one is refused by no_such, which names its type). 1, or 0 logged. */
+static int clock_call(fmi3Instance inst, const char *fn, int mask, const fmi3ValueReference vr[],
+                      size_t nvr, const void *values)
+{
+    size_t i;
+    if (inst == NULL) return 0;
+    if (!fpm_allowed(&C->lg, fn, C->mode, mask)) return 0;
+    if (nvr > 0 && (vr == NULL || values == NULL)) {
+        fpm_log(&C->lg, FPM_ERROR, "%s: an array is NULL but %lu clocks are named", fn,
+                (unsigned long)nvr);
+        return 0;
+    }
+    for (i = 0; i < nvr; i++)
+        if (fpm_model_clock_of(vr[i]) < 0) {
+            no_such(inst, fn, "Clock", &vr[i], 1, values);
+            return 0;
+        }
+    sync(inst);
+    return 1;
+}
+
+/* In event mode: clocks tick (co-simulation with eventModeUsed = true). */
 fmi3Status fmi3GetClock(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                         fmi3Clock values[])
 {
-    return no_such(inst, "fmi3GetClock", "Clock", vr, nvr, values);
+    size_t i;
+    if (fpm_model_n_clocks() == 0) return no_such(inst, "fmi3GetClock", "Clock", vr, nvr, values);
+    if (!clock_call(inst, "fmi3GetClock", FPM_EVENT, vr, nvr, values)) return fmi3Error;
+    for (i = 0; i < nvr; i++)
+        values[i] = fpm_model_get_clock(C->m, fpm_model_clock_of(vr[i])) ? fmi3ClockActive
+                                                                          : fmi3ClockInactive;
+    return fmi3OK;
 }
 
 fmi3Status fmi3SetClock(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                         const fmi3Clock values[])
 {
-    return no_such(inst, "fmi3SetClock", "Clock", vr, nvr, values);
+    size_t i;
+    if (fpm_model_n_clocks() == 0) return no_such(inst, "fmi3SetClock", "Clock", vr, nvr, values);
+    if (!clock_call(inst, "fmi3SetClock", FPM_EVENT, vr, nvr, values)) return fmi3Error;
+    if (C->interface != FPM_COSIMULATION)
+        return (fmi3Status)fpm_refuse(C, FPM_ERROR, "fmi3SetClock", "the clocks run in "
+                                      "co-simulation with event mode");
+    for (i = 0; i < 2 * nvr; i++) {           /* every clock checked, then every one set */
+        int rc = fpm_model_set_clock(C->m, &C->lg, "fmi3SetClock",
+                                     fpm_model_clock_of(vr[i % nvr]), values[i % nvr] ? 1 : 0,
+                                     i >= nvr);
+        if (rc > FPM_WARNING) return (fmi3Status)rc;
+    }
+    return fmi3OK;
 }
 
 fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance inst, fmi3ValueReference vr,
@@ -356,6 +448,8 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance inst, const fmi3Byte data[], siz
 #define NOT_PROVIDED(fn, why) return (fmi3Status)fpm_refuse(C, FPM_ERROR, fn, why)
 
 #define NO_CLOCKS "this FMU has no clocks"
+#define CLOCK_NO_FRACTION "the clocks declare supportsFraction = false: use the Decimal variant"
+#define CLOCK_NOT_SET "the clocks' intervals and shifts follow from the parameters (intervalVariability = fixed, no intervalDecimal): the importer reads them (fmi3GetIntervalDecimal, fmi3GetShiftDecimal)"
 
 fmi3Status fmi3GetDirectionalDerivative(fmi3Instance inst, const fmi3ValueReference unknowns[],
                                         size_t nUnknowns, const fmi3ValueReference knowns[],
@@ -394,11 +488,51 @@ fmi3Status fmi3ExitConfigurationMode(fmi3Instance inst)
     NOT_PROVIDED("fmi3ExitConfigurationMode", "this FMU has no structural parameters");
 }
 
+/* The clocks are periodic with intervalVariability = "fixed" and no intervalDecimal: their
+ * interval and shift follow from fixed parameters, and the importer reads them in
+ * initialization mode (fmi3IntervalChanged: the value the parameters give), or later in event
+ * mode (fmi3IntervalUnchanged: fixed from initialisation on). supportsFraction = false. */
+#define M_TIMING (FPM_INIT | FPM_EVENT)
+
+/* What the clocks do not offer: the clocks' description (a FMU without clocks: NO_CLOCKS). */
+static fmi3Status clock_refuse(fmi3Instance inst, const char *fn, const char *why)
+{
+    return (fmi3Status)fpm_refuse(C, FPM_ERROR, fn, fpm_model_n_clocks() == 0 ? NO_CLOCKS : why);
+}
+
 fmi3Status fmi3GetIntervalDecimal(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                                   fmi3Float64 intervals[], fmi3IntervalQualifier qualifiers[])
 {
-    (void)vr; (void)nvr; (void)intervals; (void)qualifiers;
-    NOT_PROVIDED("fmi3GetIntervalDecimal", NO_CLOCKS);
+    size_t i;
+    if (fpm_model_n_clocks() == 0) return clock_refuse(inst, "fmi3GetIntervalDecimal", NO_CLOCKS);
+    if (!clock_call(inst, "fmi3GetIntervalDecimal", M_TIMING, vr, nvr, intervals))
+        return fmi3Error;
+    if (nvr > 0 && qualifiers == NULL)
+        return (fmi3Status)fpm_refuse(C, FPM_ERROR, "fmi3GetIntervalDecimal",
+                                      "the qualifier array is NULL");
+    for (i = 0; i < nvr; i++) {
+        double shift;
+        int rc = fpm_model_clock_timing(C->m, &C->lg, "fmi3GetIntervalDecimal",
+                                        fpm_model_clock_of(vr[i]), &intervals[i], &shift);
+        if (rc > FPM_WARNING) return (fmi3Status)rc;
+        qualifiers[i] = C->mode == FPM_INIT ? fmi3IntervalChanged : fmi3IntervalUnchanged;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetShiftDecimal(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
+                               fmi3Float64 shifts[])
+{
+    size_t i;
+    if (fpm_model_n_clocks() == 0) return clock_refuse(inst, "fmi3GetShiftDecimal", NO_CLOCKS);
+    if (!clock_call(inst, "fmi3GetShiftDecimal", M_TIMING, vr, nvr, shifts)) return fmi3Error;
+    for (i = 0; i < nvr; i++) {
+        double interval;
+        int rc = fpm_model_clock_timing(C->m, &C->lg, "fmi3GetShiftDecimal",
+                                        fpm_model_clock_of(vr[i]), &interval, &shifts[i]);
+        if (rc > FPM_WARNING) return (fmi3Status)rc;
+    }
+    return fmi3OK;
 }
 
 fmi3Status fmi3GetIntervalFraction(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
@@ -406,49 +540,42 @@ fmi3Status fmi3GetIntervalFraction(fmi3Instance inst, const fmi3ValueReference v
                                    fmi3IntervalQualifier qualifiers[])
 {
     (void)vr; (void)nvr; (void)counters; (void)resolutions; (void)qualifiers;
-    NOT_PROVIDED("fmi3GetIntervalFraction", NO_CLOCKS);
-}
-
-fmi3Status fmi3GetShiftDecimal(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
-                               fmi3Float64 shifts[])
-{
-    (void)vr; (void)nvr; (void)shifts;
-    NOT_PROVIDED("fmi3GetShiftDecimal", NO_CLOCKS);
+    return clock_refuse(inst, "fmi3GetIntervalFraction", CLOCK_NO_FRACTION);
 }
 
 fmi3Status fmi3GetShiftFraction(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                                 fmi3UInt64 counters[], fmi3UInt64 resolutions[])
 {
     (void)vr; (void)nvr; (void)counters; (void)resolutions;
-    NOT_PROVIDED("fmi3GetShiftFraction", NO_CLOCKS);
+    return clock_refuse(inst, "fmi3GetShiftFraction", CLOCK_NO_FRACTION);
 }
 
 fmi3Status fmi3SetIntervalDecimal(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                                   const fmi3Float64 intervals[])
 {
     (void)vr; (void)nvr; (void)intervals;
-    NOT_PROVIDED("fmi3SetIntervalDecimal", NO_CLOCKS);
+    return clock_refuse(inst, "fmi3SetIntervalDecimal", CLOCK_NOT_SET);
 }
 
 fmi3Status fmi3SetIntervalFraction(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                                    const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
 {
     (void)vr; (void)nvr; (void)counters; (void)resolutions;
-    NOT_PROVIDED("fmi3SetIntervalFraction", NO_CLOCKS);
+    return clock_refuse(inst, "fmi3SetIntervalFraction", CLOCK_NOT_SET);
 }
 
 fmi3Status fmi3SetShiftDecimal(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                                const fmi3Float64 shifts[])
 {
     (void)vr; (void)nvr; (void)shifts;
-    NOT_PROVIDED("fmi3SetShiftDecimal", NO_CLOCKS);
+    return clock_refuse(inst, "fmi3SetShiftDecimal", CLOCK_NOT_SET);
 }
 
 fmi3Status fmi3SetShiftFraction(fmi3Instance inst, const fmi3ValueReference vr[], size_t nvr,
                                 const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
 {
     (void)vr; (void)nvr; (void)counters; (void)resolutions;
-    NOT_PROVIDED("fmi3SetShiftFraction", NO_CLOCKS);
+    return clock_refuse(inst, "fmi3SetShiftFraction", CLOCK_NOT_SET);
 }
 
 fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance inst)
@@ -564,6 +691,7 @@ fmi3Status fmi3DoStep(fmi3Instance inst, fmi3Float64 currentCommunicationPoint,
     if (eventHandlingNeeded) *eventHandlingNeeded = fmi3False;
     if (terminateSimulation) *terminateSimulation = fmi3False;
     if (earlyReturn) *earlyReturn = fmi3False;
+    sync(inst);
     rc = fpm_do_step(C, "fmi3DoStep", FPM_STEP, currentCommunicationPoint,
                      communicationStepSize);
     if (lastSuccessfulTime && inst != NULL) *lastSuccessfulTime = fpm_time(C);

@@ -314,6 +314,43 @@ int fpm_model_event_update(fpm_model *m, const fpm_logger *lg, int *terminate);
 /* The value of a Model-Exchange local vr (a state, a derivative, an event indicator). */
 int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double *value);
 
+/* ---- Clocks (FMI 3.0 co-simulation with event mode; issue 38) ------------------------------
+ * A model with clocks (the sampled controller: FPM_N_CLOCKS > 0 in its fpm_vars.h) implements
+ * these; the generated fpm_vars.h of every other model defines them as a model without clocks
+ * (fpm_model_clock_of is -1 for every value reference, so fmi3.c refuses every clock call).
+ * clock: 0 .. FPM_N_CLOCKS - 1. The clocks' value references are not in the table (fpm_vars):
+ * they are declared by the FMI 3.0 description only, after every value reference of the table.
+ * An instance uses its clocks when its importer uses event mode (fmi3InstantiateCoSimulation's
+ * eventModeUsed); fmi3.c tells the model before every call that depends on it
+ * (fpm_model_use_clocks), so that a reset or a restored FMU state (neither of which holds it)
+ * cannot lose it. A restored state has no clock active. */
+/* The number of clocks (FPM_N_CLOCKS), and the clock of value reference vr, or -1. */
+int fpm_model_n_clocks(void);
+int fpm_model_clock_of(unsigned vr);
+/* on = 1: the instance uses event mode: the model's clocked partitions run at the activations
+ * of their clocks (fmi3SetClock, fmi3UpdateDiscreteStates), not inside doStep. */
+void fpm_model_use_clocks(fpm_model *m, int on);
+/* A periodic clock's interval and its shift from the start time (from the parameters as they
+ * are set now): FPM_OK, or FPM_ERROR with a message (a parameter that gives none). */
+int fpm_model_clock_timing(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                           double *interval, double *shift);
+/* fmi3SetClock of one clock in event mode: FPM_OK, or FPM_ERROR with a message (not its
+ * instant, a deactivation the clock refuses). apply = 0: the checks only (a call setting
+ * several clocks checks them all before it changes any). */
+int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                        int active, int apply);
+/* 1 if the clock is active. */
+int fpm_model_get_clock(const fpm_model *m, int clock);
+/* The end of a super-dense instant (fmi3UpdateDiscreteStates; fmi3EnterStepMode with a clock
+ * still active): the active clocks' partitions run, then every clock is deactivated. FPM_OK, or
+ * FPM_ERROR with a message and nothing changed. */
+int fpm_model_clock_update(fpm_model *m, const fpm_logger *lg);
+/* Before a set of vr[0 .. n-1] in mode `mode`: FPM_OK, or FPM_ERROR with a message when one of
+ * them is a clocked variable whose clock is not active (a clocked input is set at its clock's
+ * activation, or before initialisation ends). */
+int fpm_model_clocked_set(fpm_model *m, const fpm_logger *lg, const char *fn, int mode,
+                          const unsigned vr[], size_t n);
+
 /* ---- The core (fpm_core.c) ---------------------------------------------------------------- */
 typedef struct fpm_instance fpm_instance;
 /* Sends one message to the host (the adapter's logger). */

@@ -19,6 +19,7 @@ import datetime
 import math
 import sys
 import xml.etree.ElementTree as ET
+from dataclasses import dataclass
 
 from controller_fmu import interface as controller_interface
 from fmu_common.variables import (derivatives, event_indicators, independent_variable,
@@ -26,7 +27,8 @@ from fmu_common.variables import (derivatives, event_indicators, independent_var
 from plant_fmu import interface as plant_interface
 
 __all__ = ["TABLES", "NATIVE", "UNITS", "FMI3_TYPES", "fmi2_model_description",
-           "fmi3_model_description", "xml_value", "generation_date", "NO_LIMIT", "state_nominals"]
+           "fmi3_model_description", "xml_value", "generation_date", "NO_LIMIT", "state_nominals",
+           "Clock", "CLOCKS", "CLOCK_VR_BASE"]
 
 #: "No limit" (an infinite start value: force_limit, phi_limit, energy_limit) as the native FMUs'
 #: descriptions write it: the largest double, 1.7976931348623157e+308. Every checker reads it
@@ -47,6 +49,44 @@ NATIVE = {
        for name, fmu in plant_interface.PLANT_FMUS.items()},
     **{name: (fmu.model, fmu.variables, fmu.offers)
        for name, fmu in controller_interface.CONTROLLER_FMUS.items()},
+}
+
+#: The first value reference of the FMI 3.0 clocks: after every value reference of every table
+#: (a table may grow by appending, fmu_common.variables, without moving a clock).
+CLOCK_VR_BASE = 1000
+
+
+@dataclass(frozen=True)
+class Clock:
+    """An FMI 3.0 clock of a native FMU, declared by its FMI 3.0 description only (FMI 2.0 has no
+    clocks; the table of variables has no type for them). A time-based periodic input clock with
+    ``intervalVariability = "fixed"`` and no ``intervalDecimal``: its interval is the parameter
+    ``interval`` and its shift from the start time the parameter ``shift`` (None: 0), which the
+    importer reads with ``fmi3GetIntervalDecimal`` and ``fmi3GetShiftDecimal`` in
+    initialization mode (FMI 3.0, section 2.2.9, fixed periodic clocks). ``clocked``: the
+    variables it clocks (their ``clocks`` attribute; they become ``discrete``); ``drives``: the
+    outputs that depend on its activation besides its own (``ModelStructure``)."""
+
+    name: str
+    value_reference: int
+    description: str
+    interval: str
+    shift: str | None
+    clocked: tuple
+    drives: tuple = ()
+
+
+#: model name -> its clocks, in value-reference order (docs/fmus.md, "The sampled controller:
+#: PDLowPassSampled"): the samples at t0 + k T and the force at t0 + tau + k T
+CLOCKS = {
+    "PDLowPassSampled": (
+        Clock("sample_clock", CLOCK_VR_BASE,
+              "the samples of the sensors: ticks at t0 + k sample_period", "sample_period", None,
+              ("phi_o", "omega_o", "x_o"), drives=("F_c",)),
+        Clock("force_clock", CLOCK_VR_BASE + 1,
+              "the force of each sample takes over: ticks at t0 + delay + k sample_period",
+              "sample_period", "delay", ("F_c",)),
+    ),
 }
 
 #: unit -> its SI base-unit exponents (FMI's BaseUnit); None: not a product of integer powers
@@ -244,13 +284,25 @@ FMI3_TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean", "Stri
 
 def fmi3_model_description(name: str, token: str, *, generation_tool: str,
                            co_simulation: dict, log_categories: dict | None = None,
-                           table=None, model=None, model_exchange: dict | None = None) -> bytes:
+                           table=None, model=None, model_exchange: dict | None = None,
+                           clocks=None) -> bytes:
     """The FMI 3.0 ``modelDescription.xml`` of the native FMU of model ``name``: the same variables
     and value references as its FMI 2.0 description, FMI 3.0 types (Float64, Int32), dependencies
-    by value reference, and the independent variable ``time`` at its reference in the table."""
+    by value reference, and the independent variable ``time`` at its reference in the table.
+    ``clocks``: its :class:`Clock` s (None: ``CLOCKS[name]``, if any), declared after every other
+    variable; the variables they clock get the ``clocks`` attribute and ``discrete``
+    variability."""
     if table is None:
         model, table, _ = NATIVE[name]
+    if clocks is None:
+        clocks = CLOCKS.get(name, ())
     entries = _entries(table, True, model_exchange is not None)
+    if clocks and not min(c.value_reference for c in clocks) > max(vr for vr, _ in entries):
+        raise ValueError(f"the clocks of {name} must come after every value reference")
+    clocked_by = {}
+    for c in clocks:
+        for n in c.clocked:
+            clocked_by.setdefault(n, []).append(c.value_reference)
     _, ders, indicators, _ = _me_structure(entries)
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "3.0", "modelName": model.name, "instantiationToken": token,
@@ -274,6 +326,9 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
                  "causality": v.causality, "variability": v.variability}
         if v.initial:
             attrs["initial"] = v.initial
+        if v.name in clocked_by:                  # a clocked variable is discrete (2.4.7.4)
+            attrs["variability"] = "discrete"
+            attrs["clocks"] = " ".join(map(str, clocked_by[v.name]))
         if v.type == "Real" and v.unit:
             attrs["unit"] = v.unit
         if v.name in nominals:
@@ -285,20 +340,33 @@ def fmi3_model_description(name: str, token: str, *, generation_tool: str,
         node = ET.SubElement(mv, FMI3_TYPES[v.type], attrs)
         if v.start is not None and v.type == "String":
             ET.SubElement(node, "Start", value=str(v.start))
+    for c in clocks:
+        ET.SubElement(mv, "Clock", {"name": c.name, "valueReference": str(c.value_reference),
+                                    "description": c.description, "causality": "input",
+                                    "variability": "discrete", "intervalVariability": "fixed"})
+        vrs[c.name] = c.value_reference
     structure = ET.SubElement(root, "ModelStructure")
 
     def deps(names):
         return " ".join(str(vrs[n]) for n in sorted(set(names), key=vrs.get))
 
+    # a clocked output depends on its clocks, and on those whose activation drives it (the
+    # standard's ModelStructure lists every dependency, a clocked variable's on its clocks too)
+    clock_deps = {}
+    for c in clocks:
+        for n in (*c.clocked, *c.drives):
+            clock_deps.setdefault(n, []).append(c.name)
     byname = {v.name: v for _, v in entries}
     outputs = [v for _, v in entries if v.causality == "output"]
     for v in outputs:
         ET.SubElement(structure, "Output", valueReference=str(vrs[v.name]),
-                      dependencies=deps(_dependencies(v, True)))
+                      dependencies=deps((*_dependencies(v, True), *clock_deps.get(v.name, ()))))
     for d in ders:
         ET.SubElement(structure, "ContinuousStateDerivative", valueReference=str(vrs[d]),
                       dependencies=deps(_dependencies(byname[d], True)))
-    for v in _initial_unknowns(entries, True):
+    # a clocked output is initialised at its clock's first activation: no initial unknown (the
+    # standard makes it optional; fmpy validate requires its absence)
+    for v in (u for u in _initial_unknowns(entries, True) if u.name not in clocked_by):
         ET.SubElement(structure, "InitialUnknown", valueReference=str(vrs[v.name]),
                       dependencies=deps(v.initial_depends_on))
     for z in indicators:

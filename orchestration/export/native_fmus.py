@@ -65,7 +65,8 @@ from plant_fmu.interface import N_ETA_OUTPUTS, PLANT_FMUS, VARIABLES
 
 from ..notes import note
 from . import places
-from .model_description import NATIVE, fmi2_model_description, fmi3_model_description
+from .model_description import (CLOCKS, NATIVE, fmi2_model_description,
+                                fmi3_model_description)
 
 __all__ = ["MODELS", "NE_MAX", "N_MODES_MAX", "MAX_SUBSTEPS", "PLATFORMS",
            "build_native_fmus", "build_native_fmu", "generate_header", "fmi_include_dir",
@@ -199,6 +200,8 @@ def generate_header(name: str, token: str, table=None, mode_tables: bool = True)
                   f"#define FPM_OUTPUT_DERIVATIVE_ORDER {offers.output_derivative_order}"]
     if offers is not None and name in CONTROLLER_FMUS:
         lines += [f"#define FPM_SAMPLED {int(CONTROLLER_FMUS[name].sampled)}"]
+    if offers is not None:
+        lines += _clock_lines(name)
     if offers is not None and name in PLANT_FMUS:
         rungs = PLANT_FMUS[name].fidelities
         lines += ["/* the rungs (fidelity values) this FMU runs, and every FMU's */",
@@ -210,6 +213,46 @@ def generate_header(name: str, token: str, table=None, mode_tables: bool = True)
         if mode_tables:
             lines += _mode_tables()
     return "\n".join(lines) + "\n"
+
+
+#: fpm.h's clock hooks as a model without clocks defines them (fpm_vars.h of every native FMU
+#: without clocks: its model's source need not know of clocks)
+_NO_CLOCK_HOOKS = """\
+#include "fpm.h"
+int fpm_model_n_clocks(void) { return 0; }
+int fpm_model_clock_of(unsigned vr) { (void)vr; return -1; }
+void fpm_model_use_clocks(fpm_model *m, int on) { (void)m; (void)on; }
+int fpm_model_clock_timing(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                           double *interval, double *shift)
+{
+    (void)m; (void)clock; (void)interval; (void)shift;
+    fpm_log(lg, FPM_ERROR, "%s: this FMU has no clocks", fn);
+    return FPM_ERROR;
+}
+int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                        int active, int apply)
+{
+    (void)m; (void)clock; (void)active; (void)apply;
+    fpm_log(lg, FPM_ERROR, "%s: this FMU has no clocks", fn);
+    return FPM_ERROR;
+}
+int fpm_model_get_clock(const fpm_model *m, int clock) { (void)m; (void)clock; return 0; }
+int fpm_model_clock_update(fpm_model *m, const fpm_logger *lg) { (void)m; (void)lg; return 0; }
+int fpm_model_clocked_set(fpm_model *m, const fpm_logger *lg, const char *fn, int mode,
+                          const unsigned vr[], size_t n)
+{
+    (void)m; (void)lg; (void)fn; (void)mode; (void)vr; (void)n;
+    return 0;
+}"""
+
+
+def _clock_lines(name: str) -> list[str]:
+    """``fpm_vars.h``'s clocks (``model_description.CLOCKS``): their count and value-reference
+    macros (``VR_<clock>``), or fpm.h's clock hooks of a model without clocks."""
+    clocks = CLOCKS.get(name, ())
+    lines = [f"#define FPM_N_CLOCKS {len(clocks)}"]
+    lines += [f"#define VR_{c.name} {c.value_reference}u" for c in clocks]
+    return lines if clocks else [*lines, _NO_CLOCK_HOOKS]
 
 
 def _time_vr(table) -> int:
@@ -520,7 +563,9 @@ def _model_description(name: str, fmi_version: int, token: str) -> bytes:
                                       table=table, model=model)
     me = {**me, "needsCompletedIntegratorStep": "false",
           "providesEvaluateDiscreteStates": "false"}
-    cs = {**common, "maxOutputDerivativeOrder": order, "hasEventMode": "false",
+    # an FMU with clocks runs them in event mode (docs/fmus.md, PDLowPassSampled)
+    cs = {**common, "maxOutputDerivativeOrder": order,
+          "hasEventMode": "true" if CLOCKS.get(name) else "false",
           "providesIntermediateUpdate": "false", "mightReturnEarlyFromDoStep": "false",
           "canReturnEarlyAfterIntermediateUpdate": "false"}
     return fmi3_model_description(name, token, generation_tool=tool, co_simulation=cs,

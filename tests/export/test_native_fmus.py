@@ -101,7 +101,7 @@ def test_variables_are_the_tables_less_the_derivative_inputs(native, native3):
     from fmpy import read_model_description
 
     from fmu_common.variables import independent_variable, native_variables
-    from orchestration.export.model_description import NATIVE, xml_value
+    from orchestration.export.model_description import CLOCKS, NATIVE, xml_value
     for name, path in native.items():
         _, table, offers = NATIVE[name]
         md2 = read_model_description(path)
@@ -109,7 +109,10 @@ def test_variables_are_the_tables_less_the_derivative_inputs(native, native3):
         expected = [(vr, v.name) for vr, v in native_variables(table, offers.model_exchange)]
         assert [(v.valueReference, v.name) for v in md2.modelVariables] == expected
         assert [(v.valueReference, v.name) for v in md3.modelVariables
-                if v.name != "time"] == expected
+                if v.name != "time" and v.type != "Clock"] == expected
+        # FMI 3.0 only: the clocks, after every value reference (model_description.CLOCKS)
+        assert [(v.valueReference, v.name) for v in md3.modelVariables if v.type == "Clock"] \
+            == [(c.value_reference, c.name) for c in CLOCKS.get(name, ())]
         assert [v.valueReference for v in md3.modelVariables if v.name == "time"] == \
             [independent_variable(table)[0]]
         assert bool(md2.coSimulation.canInterpolateInputs) == offers.interpolates_inputs
