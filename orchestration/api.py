@@ -88,8 +88,13 @@ def analyze(scene=None, overrides=None) -> Analysis:
     a = _analyze(lin.params, sc.controller, loop=lin.text())
     c = sc.controller
     if c.sampled:
-        from .studies.sampled import sampled_poles
-        a.sampled = sampled_poles((lin.params, c), c.sample_period, c.delay, c.discretization)
+        import dataclasses
+
+        from .studies.sampled import sampled_margins, sampled_poles
+        loop = (lin.params, c)
+        a.sampled = dataclasses.replace(
+            sampled_poles(loop, c.sample_period, c.delay, c.discretization),
+            margins=sampled_margins(loop, c.sample_period, c.delay, c.discretization))
     return a
 
 

@@ -10,7 +10,7 @@ import math
 from plant_fmu.params import damping_text
 
 __all__ = ["num", "filter_text", "analysis_lines", "margin_lines", "mode_text", "validity_text",
-           "figure_text", "sampled_lines",
+           "figure_text", "sampled_lines", "sampled_margin_lines",
            "run_lines", "design_lines", "verdict_lines", "sweep_lines", "coupling_text",
            "stability_lines"]
 
@@ -89,6 +89,30 @@ def sampled_lines(sp, drift: bool = False) -> list[str]:
                 f"{sp.margin:+.6f}  ->  {verdict} (stable iff max |z| < 1)",
             f"slowest decay rate -log(max |z|) / T = {num(rate, '+.4f')} 1/s (the continuous "
             "loop's: minus its max real part above)"]
+    m = getattr(sp, "margins", None)
+    if m is not None:
+        out += sampled_margin_lines(m)
+    return out
+
+
+def sampled_margin_lines(m: dict) -> list[str]:
+    """The sampled loop's margins (:func:`orchestration.studies.sampled.sampled_margins`)."""
+    if not m["nominal_stable"]:
+        return [f"margins of the sampled loop: {m['note']}"]
+    lo, hi = m["gain_margin_lower"], m["gain_margin_upper"]
+    gain = ("stable for loop-gain factors "
+            + (f"from x{num(lo)} ({num(m['gain_margin_lower_db'], '+.3g')} dB) " if lo > 0
+               else "above 0 ")
+            + (f"to x{num(hi)} ({num(m['gain_margin_upper_db'], '+.3g')} dB)"
+               if math.isfinite(hi) else "without an upper bound (up to x1000)"))
+    out = [f"margins of the sampled loop (a pole on the unit circle): {gain}"]
+    if m["phase_margin_deg"] is not None and math.isfinite(m["phase_margin_deg"]):
+        delay = (f"; delay margin {num(m['delay_margin_s'] * 1e3)} ms"
+                 if m["delay_margin_s"] is not None else "")
+        out.append(f"  phase margin {num(m['phase_margin_deg'])} deg {m['phase_margin_sense']} "
+                   f"(a pole at {num(m['phase_margin_freq'])} rad/s){delay}")
+    elif m["note"]:
+        out.append(f"  {m['note']}")
     return out
 
 

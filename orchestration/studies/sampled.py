@@ -56,7 +56,8 @@ from .analysis import _plant_state_space, linearisation
 __all__ = ["DISCRETIZATIONS", "DEFAULT_DISCRETIZATION", "MIN_PERIOD", "T_RANGE",
            "FIGURE_T_RANGE", "XTOL", "GRID_POINTS", "SampledPoles", "StableIntervals",
            "plant_discretisation", "filter_discretisation",
-           "sampled_loop", "sampled_poles", "stable_intervals", "boundaries", "critical_periods",
+           "sampled_loop", "sampled_poles", "sampled_margins", "stable_intervals", "boundaries",
+           "critical_periods",
            "stability_region_figure"]
 
 #: how the filter becomes a difference equation (see the module's docstring)
@@ -185,17 +186,28 @@ def sampled_loop(loop, T: float, tau: float = 0.0,
     return _loop_matrix(p, c, T, tau, discretization)
 
 
-def _loop_matrix(p, c, T, tau, discretization) -> np.ndarray:
+def _loop_matrix(p, c, T, tau, discretization, gain=1.0) -> np.ndarray:
+    """The loop matrix; ``gain`` multiplies the controller's output (the loop gain; complex:
+    ``k e^{-j theta}``, a gain and a phase change, for the margins)."""
+    return _assemble(_loop_parts(p, c, T, tau, discretization), gain)
+
+
+def _loop_parts(p, c, T, tau, discretization):
+    """What :func:`_loop_matrix` is assembled from: the plant's discretisation over the period,
+    the filter's difference equation, the error signal's row and whether there is a delay."""
     A, B, C = _reduced_plant(p, c)
     Phi, G_prev, G_new = plant_discretisation(A, B, T, tau)
     Ad, Bd, Cd, Dd = filter_discretisation(c, T, discretization)
-    gains = controller_model(c).gains                  # e = gains @ y
-    ge = gains @ C                                     # e_k = ge x_k
-    Kx, Kf = -Dd @ ge, -Cd                             # F_k = Kx x_k + Kf xf_k
-    n, nf = A.shape[0], Ad.shape[0]
-    prev = tau > 0.0
+    ge = controller_model(c).gains @ C                 # e_k = ge x_k
+    return Phi, G_prev, G_new, Ad, Bd, Cd, Dd, ge, tau > 0.0
+
+
+def _assemble(parts, gain=1.0) -> np.ndarray:
+    Phi, G_prev, G_new, Ad, Bd, Cd, Dd, ge, prev = parts
+    Kx, Kf = -gain * (Dd @ ge), -gain * Cd             # F_k = Kx x_k + Kf xf_k
+    n, nf = Phi.shape[0], Ad.shape[0]
     N = n + nf + (1 if prev else 0)
-    M = np.zeros((N, N))
+    M = np.zeros((N, N), dtype=complex if np.iscomplexobj(gain) else float)
     M[:n, :n] = Phi + G_new @ Kx
     M[:n, n:n + nf] = G_new @ Kf
     M[n:n + nf, :n] = Bd @ ge
@@ -211,13 +223,16 @@ def _loop_matrix(p, c, T, tau, discretization) -> np.ndarray:
 class SampledPoles:
     """The poles of the sampled loop (:func:`sampled_poles`): ``z`` in the z-plane (largest
     modulus first), ``s = log(z) / T`` their s-plane equivalents (principal branch; ``-inf`` for
-    ``z = 0``), the verdict and the margin ``1 - max |z|``."""
+    ``z = 0``), the verdict and the margin ``1 - max |z|``; ``margins``: the loop's gain, phase
+    and delay margins (:func:`sampled_margins`) where asked for."""
 
     T: float
     tau: float
     discretization: str
     z: np.ndarray
     s: np.ndarray = field(repr=False)
+    #: :func:`sampled_margins` of the same loop, where asked for (``flexpend analyze``)
+    margins: dict | None = field(default=None, repr=False)
 
     @property
     def spectral_radius(self) -> float:
@@ -234,15 +249,15 @@ class SampledPoles:
 
     def to_json(self) -> dict:
         """``T``, ``tau``, ``discretization``, the poles ``z`` and ``s`` as ``[real, imag]`` (the
-        same order; ``s`` of ``z = 0`` is ``[-inf, 0]``), ``spectral_radius``, ``margin`` and
-        ``stable``."""
+        same order; ``s`` of ``z = 0`` is ``[-inf, 0]``), ``spectral_radius``, ``margin``,
+        ``stable`` and ``margins`` (:func:`sampled_margins`, or None)."""
         def pairs(v):
             return [[float(x.real), float(x.imag) if math.isfinite(x.real) else 0.0] for x in v]
 
         return {"T": self.T, "tau": self.tau, "discretization": self.discretization,
                 "z": pairs(self.z), "s": pairs(self.s),
                 "spectral_radius": self.spectral_radius, "margin": self.margin,
-                "stable": self.stable}
+                "stable": self.stable, "margins": self.margins}
 
 
 def sampled_poles(loop, T: float, tau: float = 0.0,
@@ -256,8 +271,97 @@ def sampled_poles(loop, T: float, tau: float = 0.0,
     return SampledPoles(float(T), float(tau), discretization, z, s)
 
 
-def _radius(p, c, T, tau, discretization) -> float:
-    return float(np.abs(np.linalg.eigvals(_loop_matrix(p, c, T, tau, discretization))).max())
+def _radius(p, c, T, tau, discretization, gain=1.0) -> float:
+    return float(np.abs(np.linalg.eigvals(_loop_matrix(p, c, T, tau, discretization,
+                                                       gain))).max())
+
+
+def _first_crossing(radius, xs, xtol=1e-9):
+    """The first ``x`` of the sequence ``xs`` (from the nominal outwards) where ``radius(x)``
+    reaches 1, bisected between grid points; None when it never does."""
+    prev = xs[0]
+    for x in xs[1:]:
+        if radius(x) >= 1.0:
+            a, b = prev, x
+            while abs(b - a) > xtol * max(abs(a), abs(b), 1.0):
+                mid = 0.5 * (a + b)
+                if radius(mid) >= 1.0:
+                    b = mid
+                else:
+                    a = mid
+            return 0.5 * (a + b)
+        prev = x
+    return None
+
+
+def sampled_margins(loop, T: float, tau: float = 0.0,
+                    discretization: str = DEFAULT_DISCRETIZATION) -> dict:
+    """Gain, phase and delay margins of the sampled loop, on its exact discrete-time model: the
+    smallest changes of the controller's output that put a closed-loop pole on the unit circle.
+
+    * gain: the loop-gain factors ``k`` around 1 for which the loop stays stable,
+      ``(gain_margin_lower, gain_margin_upper)`` (0 and inf when no factor below or above 1
+      destabilises it, up to 1e3 and down to 1e-3), in dB too;
+    * phase: the smallest phase change ``theta`` of the loop gain (``e^{-j theta}``: a lag for
+      ``theta > 0``, a lead below 0) that puts a pole on the unit circle, ``phase_margin_deg``
+      with its sense and the frequency ``angle(z) / T`` of that pole; the delay margin, the lag
+      over that frequency (s), as the continuous loop's (:func:`~orchestration.studies.analysis.
+      margins`).
+
+    Found on the closed-loop eigenvalues (the spectral radius of :func:`sampled_loop` with the
+    controller's output multiplied by ``k`` or ``e^{-j theta}``, scanned and bisected), not on
+    transfer-function polynomials (which overflow with several bending modes); the tests compare
+    a small loop's with python-control's ``stability_margins`` of its discrete ``L(z)``. An
+    unstable loop gets none (``note`` says why)."""
+    T, tau = _check(T, tau, discretization)
+    p, c = _params(loop)
+    out = {"T": T, "tau": tau, "discretization": discretization, "nominal_stable": None,
+           "gain_margin_lower": None, "gain_margin_lower_db": None,
+           "gain_margin_upper": None, "gain_margin_upper_db": None,
+           "phase_margin_deg": None, "phase_margin_sense": None, "phase_margin_freq": None,
+           "delay_margin_s": None, "note": None}
+    parts = _loop_parts(p, c, T, tau, discretization)
+
+    def radius(gain):
+        return float(np.abs(np.linalg.eigvals(_assemble(parts, gain))).max())
+
+    rho = radius(1.0)
+    out["nominal_stable"] = rho < 1.0
+    if not rho < 1.0:
+        out["note"] = ("no margins: the sampled loop is unstable (a margin measures how far a "
+                       "stable loop is from instability)")
+        return out
+
+    def by_gain(k):
+        return radius(k)
+
+    up = _first_crossing(by_gain, np.geomspace(1.0, 1e3, 241))
+    lo = _first_crossing(by_gain, np.geomspace(1.0, 1e-3, 241))
+    out.update(gain_margin_upper=math.inf if up is None else up,
+               gain_margin_upper_db=math.inf if up is None else 20 * math.log10(up),
+               gain_margin_lower=0.0 if lo is None else lo,
+               gain_margin_lower_db=-math.inf if lo is None else 20 * math.log10(lo))
+
+    def by_phase(theta_deg):
+        return radius(np.exp(-1j * math.radians(theta_deg)))
+
+    best = None
+    for sense, grid in (("lag", np.linspace(0.0, 180.0, 361)),
+                        ("lead", np.linspace(0.0, -180.0, 361))):
+        th = _first_crossing(by_phase, grid)
+        if th is not None and (best is None or abs(th) < abs(best[0])):
+            best = (th, sense)
+    if best is None:
+        out.update(phase_margin_deg=math.inf, delay_margin_s=math.inf,
+                   note="no phase change of the loop gain destabilises the loop")
+        return out
+    th, sense = best
+    z = np.linalg.eigvals(_assemble(parts, np.exp(-1j * math.radians(th))))
+    z1 = z[np.argmin(np.abs(np.abs(z) - 1.0))]
+    w = abs(float(np.angle(z1))) / T
+    out.update(phase_margin_deg=abs(th), phase_margin_sense=sense, phase_margin_freq=w,
+               delay_margin_s=math.radians(abs(th)) / w if sense == "lag" and w > 0 else None)
+    return out
 
 
 @dataclass(frozen=True)
