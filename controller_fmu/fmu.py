@@ -163,7 +163,7 @@ class PDLowPass(SlaveBase):
         are not used (it samples values)."""
         c = self._sampled
         y = self._inputs()
-        if c._at(t, c.tick()) and not math.isfinite(sum(y)):
+        if c.at_tick(t) and not math.isfinite(sum(y)):
             return self._refuse(f"non-finite input at the tick t = {t!r}: {self._bad_inputs()}; "
                                 f"step rejected, state unchanged", Fmi2Status.discard)
         try:

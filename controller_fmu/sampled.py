@@ -109,13 +109,30 @@ class SampledController:
         """``t_k = t0 + k T`` (the next tick by default)."""
         return self.t0 + (self.k if k is None else k) * self.T
 
+    def _next(self, k: int, pending) -> float:
+        """The first of the tick ``k`` and the ``pending`` force's instant (None: none)."""
+        nxt = self.tick(k)
+        if pending is not None:
+            nxt = min(nxt, pending[1])
+        return nxt
+
     def next_event(self) -> float:
         """The next instant a communication point must land on: the pending force's ``t_k + tau``
         or the next tick, whichever comes first."""
-        nxt = self.tick()
-        if self.pending is not None:
-            nxt = min(nxt, self.pending[1])
-        return nxt
+        return self._next(self.k, self.pending)
+
+    def next_instant(self, t: float) -> float:
+        """The farthest a step from ``t`` (the time reached) may go: the next instant after the
+        tick at ``t`` is taken, when one is due there (the next tick, or the new force's
+        ``t + tau``), else :meth:`next_event`."""
+        if not self.at_tick(t):
+            return self.next_event()
+        return self._next(self.k + 1, (None, self.tick() + self.tau) if self.tau > 0.0
+                          else self.pending)
+
+    def at_tick(self, t: float) -> bool:
+        """Whether ``t`` is the next tick (not taken yet)."""
+        return self._at(t, self.tick())
 
     def _at(self, t: float, instant: float) -> bool:
         return abs(t - instant) <= self.tol
@@ -137,7 +154,7 @@ class SampledController:
         """``F_c`` now, with the sensors ``y = [x_o, phi_o, omega_o]`` set now: at a tick not yet
         taken and with no delay, the new force (a feedthrough of ``y``); otherwise the force
         held."""
-        if self.tau == 0.0 and self._at(self.t, self.tick()):
+        if self.tau == 0.0 and self.at_tick(self.t):
             return self._force(self.error_signal(y))
         return self.held
 
@@ -150,7 +167,7 @@ class SampledController:
         if not self._at(t, self.t) and t != self.t:
             raise ValueError(f"the step starts at t = {t!r}, not where the last ended "
                              f"({self.t!r})")
-        tick = self._at(t, self.tick())
+        tick = self.at_tick(t)
         if t > self.tick() + self.tol:
             raise ValueError(f"the tick at t = {self.tick()!r} was missed (now t = {t!r})")
         k, xf, pending, held = self.k, self.xf, self.pending, self.held
@@ -164,9 +181,7 @@ class SampledController:
             else:
                 pending = (u, self.tick() + self.tau)
         end = t + h
-        nxt = self.t0 + k * self.T
-        if pending is not None:
-            nxt = min(nxt, pending[1])
+        nxt = self._next(k, pending)
         if end > nxt + self.tol:
             raise ValueError(f"the step from t = {t!r} over h = {h!r} crosses the controller's "
                              f"instant t = {nxt!r} (a tick every {self.T!r} s, the force "

@@ -90,11 +90,10 @@ def analyze(scene=None, overrides=None) -> Analysis:
     if c.sampled:
         import dataclasses
 
-        from .studies.sampled import sampled_margins, sampled_poles
-        loop = (lin.params, c)
+        from .studies.sampled import controller_poles, sampled_margins
         a.sampled = dataclasses.replace(
-            sampled_poles(loop, c.sample_period, c.delay, c.discretization),
-            margins=sampled_margins(loop, c.sample_period, c.delay, c.discretization))
+            controller_poles(lin.params, c),
+            margins=sampled_margins((lin.params, c), c.sample_period, c.delay, c.discretization))
     return a
 
 
@@ -149,8 +148,8 @@ def sampled_stability(loop, T_max: float | None = None) -> dict:
     :func:`~orchestration.studies.sampled.stable_intervals`,
     :func:`~orchestration.studies.sampled.critical_periods`; the sample periods from 0.1 ms to
     ``T_max``, default 0.05 s, the Tustin filter's below ``pi / cutoff``)."""
-    from .studies.sampled import (MIN_PERIOD, T_RANGE, _params, critical_periods,
-                                  sampled_poles, stable_intervals)
+    from .studies.sampled import (MIN_PERIOD, T_RANGE, _params, controller_poles,
+                                  critical_periods, stable_intervals)
 
     p, c = _params(loop)
     if not c.sampled:
@@ -158,7 +157,7 @@ def sampled_stability(loop, T_max: float | None = None) -> dict:
                          "(controller.sample_period > 0)")
     T_range = (MIN_PERIOD, T_RANGE[1] if T_max is None else float(T_max))
     at = stable_intervals((p, c), T_range, tau=c.delay, discretization=c.discretization)
-    now = sampled_poles((p, c), c.sample_period, c.delay, c.discretization)
+    now = controller_poles(p, c)
     return {"T": c.sample_period, "tau": c.delay, "discretization": c.discretization,
             "scanned": list(at.scanned), "intervals": [list(i) for i in at.intervals],
             "critical": at.critical, "stable": now.stable, "margin": now.margin,

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     import control
 
 __all__ = ["closed_loop_matrix", "assemble_closed_loop", "loop_transfer", "frequency_response",
-           "analyze", "Analysis", "margins", "max_real_part", "first_bending_frequency",
+           "analyze", "Analysis", "margins", "roots_of", "max_real_part", "first_bending_frequency",
            "closed_loop_eigenvalues",
            "LoopRoots", "loop_roots", "Linearisation", "linearisation"]
 
@@ -186,9 +186,16 @@ class LoopRoots:
 def loop_roots(p: PlantParams, c: ControllerParams) -> LoopRoots:
     """:class:`LoopRoots` of the linearised closed loop of ``p`` and ``c``."""
     lam = np.linalg.eigvals(_drift_free(closed_loop_matrix(p, c), p))
+    return roots_of(lam, first_bending_frequency(p))
+
+
+def roots_of(lam, wb: float | None) -> LoopRoots:
+    """:class:`LoopRoots` of the closed-loop roots ``lam`` (s-plane) of a plant whose first
+    bending frequency is ``wb`` (None: rigid): sorted by frequency, the bending and slow ones
+    picked out."""
+    lam = np.asarray(lam)
     lam = lam[np.argsort(np.abs(lam.imag), kind="stable")]
     up = lam[lam.imag > 1e-9]
-    wb = first_bending_frequency(p)
     bending = complex(up[np.argmin(np.abs(up.imag - wb))]) if wb is not None and len(up) else None
     below = [z for z in up if wb is None or z.imag < 0.5 * wb]
     slow = complex(min(below, key=lambda z: z.imag)) if below else None

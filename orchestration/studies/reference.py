@@ -207,13 +207,7 @@ def _sampled_reference(scene, loop: ClosedLoop, rtol, atol, method, progress):
             i += 1
         if t >= t_end - ctrl.tol or i >= t_out.size:
             break
-        if ctrl._at(t, ctrl.tick()):               # a tick: the next instant after its sample
-            nxt = ctrl.tick(ctrl.k + 1)
-            if ctrl.tau > 0.0:
-                nxt = min(nxt, t + ctrl.tau)
-        else:
-            nxt = ctrl.next_event()
-        nxt = min(nxt, t_end)
+        nxt = min(ctrl.next_instant(t), t_end)
         # the output points inside (t, nxt), then nxt itself
         inside = t_out[(t_out > t + ctrl.tol) & (t_out < nxt - ctrl.tol)]
         sol = scipy.integrate.solve_ivp(lambda s, x: plant.rhs(s, x, F), (t, nxt), xp,

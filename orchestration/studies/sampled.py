@@ -56,7 +56,7 @@ from .analysis import _plant_state_space, linearisation
 __all__ = ["DISCRETIZATIONS", "DEFAULT_DISCRETIZATION", "MIN_PERIOD", "T_RANGE",
            "FIGURE_T_RANGE", "XTOL", "GRID_POINTS", "SampledPoles", "StableIntervals",
            "plant_discretisation", "filter_discretisation",
-           "sampled_loop", "sampled_poles", "sampled_margins", "stable_intervals", "boundaries",
+           "sampled_loop", "sampled_poles", "controller_poles", "sampled_margins", "stable_intervals", "boundaries",
            "critical_periods",
            "stability_region_figure"]
 
@@ -269,6 +269,12 @@ def sampled_poles(loop, T: float, tau: float = 0.0,
     with np.errstate(divide="ignore"):
         s = np.log(z.astype(complex)) / float(T)
     return SampledPoles(float(T), float(tau), discretization, z, s)
+
+
+def controller_poles(p: PlantParams, c: ControllerParams) -> SampledPoles:
+    """:func:`sampled_poles` of the plant ``p`` under the sampled controller ``c``, at its own
+    sample period, delay and discretization."""
+    return sampled_poles((p, c), c.sample_period, c.delay, c.discretization)
 
 
 def _radius(p, c, T, tau, discretization, gain=1.0) -> float:

@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .analysis import (LoopRoots, closed_loop_eigenvalues, first_bending_frequency, linearisation,
-                       loop_roots)
+                       loop_roots, roots_of)
 from .error_figure import UNTRUSTED
 from .fit import fit_mode
 from .validity import assess
@@ -89,9 +89,8 @@ def linear_modes(scene) -> np.ndarray:
     filter's difference equation)."""
     c = scene.controller
     if c.sampled:
-        from .sampled import sampled_poles
-        lam = sampled_poles((linearisation(scene).params, c), c.sample_period, c.delay,
-                            c.discretization).s
+        from .sampled import controller_poles
+        lam = controller_poles(linearisation(scene).params, c).s
         lam = lam[np.isfinite(lam)]
     else:
         lam = closed_loop_eigenvalues(linearisation(scene).params, c)
@@ -491,17 +490,11 @@ def report_facts(scene) -> ReportFacts:
     """:class:`ReportFacts` of a scene: its linearised loop's roots, once (a sampled scene's:
     the s-plane equivalents of its sampled loop's poles)."""
     lin = linearisation(scene)
-    roots = loop_roots(lin.params, scene.controller)
     c = scene.controller
     if c.sampled:                       # the sampled loop's poles, as s-plane equivalents
-        from .sampled import sampled_poles
-        lam = sampled_poles((lin.params, c), c.sample_period, c.delay, c.discretization).s
-        lam = lam[np.isfinite(lam)]
-        lam = lam[np.argsort(np.abs(lam.imag), kind="stable")]
-        up, wb = lam[lam.imag > 1e-9], roots.bending_frequency
-        bending = (complex(up[np.argmin(np.abs(up.imag - wb))])
-                   if wb is not None and len(up) else None)
-        below = [z for z in up if wb is None or z.imag < 0.5 * wb]
-        roots = LoopRoots(lam, bending, complex(min(below, key=lambda z: z.imag))
-                          if below else None, wb)
+        from .sampled import controller_poles
+        lam = controller_poles(lin.params, c).s
+        roots = roots_of(lam[np.isfinite(lam)], first_bending_frequency(lin.params))
+    else:
+        roots = loop_roots(lin.params, c)
     return ReportFacts(roots, own=lin.own)

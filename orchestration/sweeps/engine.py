@@ -124,9 +124,8 @@ def linear_decay_rate(scene: Scene) -> float:
     if c.sampled:
         import math
 
-        from ..studies.sampled import sampled_poles
-        rho = sampled_poles((linearisation(scene).params, c), c.sample_period, c.delay,
-                            c.discretization).spectral_radius
+        from ..studies.sampled import controller_poles
+        rho = controller_poles(linearisation(scene).params, c).spectral_radius
         return -math.log(rho) / c.sample_period if rho > 0 else math.inf
     return -max_real_part(linearisation(scene).params, c)
 
