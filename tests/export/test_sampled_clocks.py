@@ -83,7 +83,7 @@ def _spec_forces(p, events, samples):
     """SampledController driven on the events' grid, the sensors set at each tick: the force at
     each force tick (no delay: the feedthrough at the tick)."""
     spec = SampledController(p)
-    forces, k, t = [], 0, 0.0
+    forces, k = [], 0
     for j, (te, s, fo) in enumerate(events):
         y = samples[k] if s else np.zeros(3)
         if fo:
@@ -92,6 +92,19 @@ def _spec_forces(p, events, samples):
         if j + 1 < len(events):
             spec.step(te, events[j + 1][0] - te, y)
     return np.array(forces)
+
+
+def _event(f, vr, clocks, ins, s, fo, samples, k, t, out):
+    """One event of the clocked run, in event mode at ``t``: the clocks that tick (``s``: the
+    sample's, ``fo``: the force's) activated, the ``k``-th sample set, ``F_c`` read into
+    ``out``, the discrete states updated; ``(k after it, updateDiscreteStates' result)``."""
+    f.setClock([c for c, on in zip(clocks, (s, fo)) if on], [True] * (s + fo))
+    if s:
+        f.setFloat64(ins, list(samples[k]))
+        k += 1
+    if fo:
+        out.append((t, f.getFloat64([vr["F_c"]])[0]))
+    return k, f.updateDiscreteStates()
 
 
 def _clocked_run(path, start, samples):
@@ -110,13 +123,7 @@ def _clocked_run(path, start, samples):
             t = te
             f.enterEventMode()
             in_event = True
-        f.setClock([c for c, on in zip(clocks, (s, fo)) if on], [True] * (s + fo))
-        if s:
-            f.setFloat64(ins, list(samples[k]))
-            k += 1
-        if fo:
-            out.append((t, f.getFloat64([vr["F_c"]])[0]))
-        need, terminate, *_ = f.updateDiscreteStates()
+        k, (need, terminate, *_) = _event(f, vr, clocks, ins, s, fo, samples, k, t, out)
         assert not need and not terminate
         assert f.getClock(clocks) == [False, False]       # deactivated by the update
     f.enterStepMode()
@@ -311,13 +318,7 @@ def test_an_fmu_state_restored_in_step_mode_replays_the_clocked_run(sampled3):
                 t = te
                 f.enterEventMode()
                 in_event = True
-            f.setClock([c for c, on in zip(clocks, (s, fo)) if on], [True] * (s + fo))
-            if s:
-                f.setFloat64(ins, list(samples[k]))
-                k += 1
-            if fo:
-                out.append((t, f.getFloat64([vr["F_c"]])[0]))
-            f.updateDiscreteStates()
+            k, _ = _event(f, vr, clocks, ins, s, fo, samples, k, t, out)
         f.enterStepMode()
         in_event = False
         runs.append(out)
