@@ -117,9 +117,17 @@ def _decimate(x, q: int):
 
 def _pencil(x, max_order: int, residual: float, order: int | None = None):
     """Matrix pencil of ``x`` (real: orders 2, 4, ...; complex: 1, 2, ...): the lowest order
-    whose exponentials reproduce ``x`` to a quarter of ``residual`` (else the highest, or
-    ``order``); ``(log z, amplitudes, order, relative RMS residual, the exponentials, the
-    residual's norm, the same six of the next order or None)``."""
+    whose exponentials reproduce ``x`` to a quarter of ``residual`` (else the one that
+    reproduces it best, or ``order``); ``(log z, amplitudes, order, relative RMS residual, the
+    exponentials, the residual's norm, the same six of the next order or None)``.
+
+    Looking for the best order (``residual = 0``), an order whose residual cannot beat the best
+    one found is not fitted: the Hankel matrix of ``m`` exponentials has rank ``m``, so by
+    Eckart-Young its distance from ``x``'s Hankel matrix is at least the norm of ``x``'s
+    singular values beyond the ``m``-th, and each sample stands in at most
+    ``min(L + 1, N - L)`` of its entries: the residual's norm at order ``m`` is at least
+    ``sqrt(sum_{i > m} sigma_i^2 / min(L + 1, N - L))``. The orders are tried from the highest
+    (usually the best) down; the result is the one the full scan gives."""
     N = x.size
     top = order or max_order
     L = max(top + 1, int(PENCIL * N))
@@ -133,31 +141,82 @@ def _pencil(x, max_order: int, residual: float, order: int | None = None):
     rank = int(np.sum(lam > lam[0] * RANK_TOL ** 2))
     k = np.arange(N)[:, None]
     scale = float(np.sqrt(np.mean(np.abs(x) ** 2)))
-    step = 1 if np.iscomplexobj(x) else 2
-    fits = []
-    for o in ([order] if order else range(step, max_order + 1, step)):
-        m = min(o, rank)
-        if fits and m == fits[-1][2]:
-            break
+    xc = x.astype(complex)
+
+    def fit(m):
         V = E[:, :m]                   # spans the rows of the Hankel matrix
-        z = np.linalg.eigvals(np.linalg.pinv(V[:-1]) @ V[1:])
+        z = np.linalg.eigvals(_shift_operator(V))
         logz = np.log(z[np.abs(z) > 0])
         # each exponential scaled to a largest magnitude of 1 over the window: a growing pole
         # would otherwise dwarf the others and wreck the least squares
         Z = np.exp(k * logz[None, :] - np.maximum(0.0, (N - 1) * logz.real)[None, :])
-        amp = np.linalg.lstsq(Z, x.astype(complex), rcond=None)[0]
+        amp = np.linalg.lstsq(Z, xc, rcond=None)[0]
         err = float(np.linalg.norm(Z @ amp - x))
-        fits.append((logz, amp, m, err / (scale * math.sqrt(N)), Z, err))
-        if len(fits) >= 2 and fits[-2][3] <= 0.25 * residual:
+        return logz, amp, m, err / (scale * math.sqrt(N)), Z, err
+
+    step = 1 if np.iscomplexobj(x) else 2
+    ms = []                            # the orders of the scan, each model size once
+    for o in ([order] if order else range(step, max_order + 1, step)):
+        m = min(o, rank)
+        if ms and m == ms[-1]:
+            break
+        ms.append(m)
+    fits = {}
+    if residual <= 0 and len(ms) > 1:
+        # the best order, without fitting those that cannot be it (see above)
+        floors = _residual_floors(lam, N)
+        fits[ms[-1]] = fit(ms[-1])
+        best = fits[ms[-1]][5]
+        for m in reversed(ms[:-1]):
+            if floors[m] > best:
+                continue
+            fits[m] = fit(m)
+            best = min(best, fits[m][5])
+        if best > 0:
+            i = min((j for j, m in enumerate(ms) if m in fits), key=lambda j: fits[ms[j]][3])
+            if i + 1 < len(ms) and ms[i + 1] not in fits:
+                fits[ms[i + 1]] = fit(ms[i + 1])
+            return fits[ms[i]] + (fits[ms[i + 1]] if i + 1 < len(ms) else None,)
+    seq = []                           # the scan in order, stopping as ``residual`` says
+    for m in ms:
+        seq.append(fits[m] if m in fits else fit(m))
+        if len(seq) >= 2 and seq[-2][3] <= 0.25 * residual:
             break                      # the one after the first good enough, for its spread
-    good = [i for i, f in enumerate(fits) if f[3] <= 0.25 * residual]
-    i = good[0] if good else min(range(len(fits)), key=lambda j: fits[j][3])
-    return fits[i] + (fits[i + 1] if i + 1 < len(fits) else None,)
+    good = [i for i, f in enumerate(seq) if f[3] <= 0.25 * residual]
+    i = good[0] if good else min(range(len(seq)), key=lambda j: seq[j][3])
+    return seq[i] + (seq[i + 1] if i + 1 < len(seq) else None,)
 
 
-def _pick(fit, dt, centre, lo, hi, gain, target=None):
+def _residual_floors(lam, N: int):
+    """``floors[m]``: a lower bound of the residual's norm of any ``m`` exponentials fitted to
+    the ``N`` samples whose Hankel matrix (``L + 1`` columns) has the Gram eigenvalues ``lam``
+    (largest first): ``sqrt(sum_{i >= m} lam_i / min(L + 1, N - L))`` (see :func:`_pencil`),
+    each eigenvalue first lowered by what rounding can have added to it (Weyl: at most the
+    norm of the Gram product's error, ``(L + 1) (N - L) eps lam_0``)."""
+    L = lam.size - 1
+    slack = (L + 1) * (N - L) * np.finfo(float).eps * max(float(lam[0]), 0.0)
+    tails = np.cumsum(np.maximum(lam[::-1] - slack, 0.0))[::-1]       # tails[m] = sum lam[m:]
+    return np.sqrt(np.append(tails, 0.0) / min(L + 1, N - L))
+
+
+def _shift_operator(V):
+    """``pinv(V[:-1]) @ V[1:]`` for ``V`` with orthonormal columns: ``V[:-1]^H V[:-1] = I - r^H r``
+    (``r`` the last row), whose inverse is ``I + r^H r / (1 - |r|^2)`` (Sherman-Morrison), so
+    ``pinv(V[:-1]) = (I + r^H r / (1 - |r|^2)) V[:-1]^H``: the same matrix to round-off at a
+    tenth of the cost of the SVD behind ``pinv``; ``pinv`` itself where ``V[:-1]`` is nearly
+    rank-deficient."""
+    r = V[-1:]
+    c = 1.0 - float(np.vdot(r, r).real)
+    if c < 1e-6:
+        return np.linalg.pinv(V[:-1]) @ V[1:]
+    A = V[:-1].conj().T @ V[1:]
+    return A + r.conj().T @ (r @ A) / c
+
+
+def _pick(fit, dt, centre, lo, hi, gain, target=None, spread=True):
     """The oscillation in ``[lo, hi)`` with the largest contribution (or the one nearest the
-    frequency ``target``), that contribution, and its spread (complex: rate, frequency).
+    frequency ``target``), that contribution, and its spread (complex: rate, frequency; with
+    ``spread=False`` only the drift's part of it, for a fit whose pole alone is wanted).
 
     A mode whose frequency moves with an amplitude, ``w0 + c A(t)^2`` with ``A ~ exp(d t / 2)``
     (a pendulum's own amplitude; the slow motion's, for the bending frequency), is a chain of
@@ -183,9 +242,11 @@ def _pick(fit, dt, centre, lo, hi, gain, target=None):
     near = [i for i in inside if abs(s[i].imag - s[i0].imag) < 2 * math.pi / span]
     # what the residual can move the pole by, at most (to first order): the residual all along
     # the pole's derivative, ``k a z^k``, once what the fit's exponentials absorb is removed
-    dz = amp[i0] * np.arange(Z.shape[0]) * Z[:, i0]
-    Q = np.linalg.qr(Z)[0]
-    bound = err / max(np.linalg.norm(dz - Q @ (Q.conj().T @ dz)), 1e-300) / dt
+    bound = 0.0
+    if spread:
+        dz = amp[i0] * np.arange(Z.shape[0]) * Z[:, i0]
+        Q = np.linalg.qr(Z)[0]
+        bound = err / max(np.linalg.norm(dz - Q @ (Q.conj().T @ dz)), 1e-300) / dt
     if len(near) == 1 or sum(contrib[i] for i in near if i != i0) < 0.5 * contrib[i0]:
         return s[i0], float(contrib[i0]), complex(bound, bound)
     # the drifting oscillation: the poles' sum (one-sided, the analytic signal of the cluster);
@@ -275,12 +336,12 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.0,
         return None
     s, size, spread = pick
     others = [] if whole[6] is None else [_pick(whole[6], q * dt, centre, lo, hi, gain,
-                                               target=s.imag)]
+                                               target=s.imag, spread=False)]
     halves = []
     for part in (x[:x.size // 2], x[x.size // 2:]):
         try:
             h = _pick(_pencil(part, max_order, residual, order=whole[2]), q * dt, centre, lo, hi,
-                      gain, target=s.imag)
+                      gain, target=s.imag, spread=False)
         except (ValueError, np.linalg.LinAlgError):
             h = None
         if h is None:
