@@ -525,18 +525,18 @@ def _scheduler_error(exc):
 
 
 def _executor_args(args):
-    """``(workers, scheduler)`` of ``--workers``/``--scheduler``; a LocalCluster of ``--workers``
-    processes is checked against the process's limits first
-    (:func:`~orchestration.sweeps.executor.cluster_limits`)."""
+    """``(workers, scheduler)`` of ``--workers``/``--scheduler``; ``--workers`` processes are
+    checked against the process's limits first
+    (:func:`~orchestration.sweeps.executor.process_limits`)."""
     if args.workers is not None and args.workers < 1:
         raise UsageError(f"--workers {args.workers} is not allowed; allowed: an integer >= 1")
     if args.workers is not None and args.scheduler:
-        raise UsageError("--workers starts a LocalCluster, --scheduler uses an existing one: "
-                         "give one of them")
+        raise UsageError("--workers starts processes here, --scheduler uses an existing dask "
+                         "cluster: give one of them")
     if args.workers is not None:
-        from .sweeps.executor import cluster_limits
+        from .sweeps.executor import process_limits
 
-        problem = cluster_limits(args.workers)
+        problem = process_limits(args.workers)
         if problem:
             raise UsageError(f"{problem}; raise the limit, give fewer --workers or run --serial")
     return args.workers, args.scheduler
@@ -616,7 +616,8 @@ def cmd_sweep(args) -> int:
     from .sweeps.job import sweep
 
     if args.serial and (args.workers is not None or args.scheduler):
-        raise UsageError("--serial runs here, without dask: it takes no --workers or --scheduler")
+        raise UsageError("--serial runs here, one run after the other: it takes no --workers or "
+                         "--scheduler")
     if args.batch < 1:
         raise UsageError(f"--batch {args.batch} is not allowed; allowed: an integer >= 1")
     workers, scheduler = _executor_args(args)
@@ -780,8 +781,8 @@ def build_parser() -> argparse.ArgumentParser:
     pd.add_argument("--out", default="out", help="output folder (default: out)")
     pd.add_argument("--json", action="store_true", help="print the result as JSON")
     pd.add_argument("--workers", type=int, default=None, metavar="N",
-                    help="check the chosen filter's worst case on a dask LocalCluster of N "
-                         "processes (default: here; worth it for a fine design.check_levels)")
+                    help="check the chosen filter's worst case on N worker processes here "
+                         "(default: in this process; worth it for a fine design.check_levels)")
     pd.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="check it on the dask cluster of this scheduler (it must answer "
                          "dask's handshake within 5 s)")
@@ -820,12 +821,12 @@ def build_parser() -> argparse.ArgumentParser:
     pb.set_defaults(func=cmd_build)
 
     pw = sub.add_parser("sweep", help="many runs of a scene over a grid or a random sample, "
-                                      "on dask.distributed",
+                                      "on this machine's cores or a dask cluster",
                         description="Co-simulate a scene over a grid of keys and/or random "
-                                    "samples: serially here, or on a dask LocalCluster where "
-                                    "it wins by the runs' number and expected length against "
-                                    "the cluster's start-up (about 5 s), or on --scheduler; "
-                                    "write "
+                                    "samples: serially here, or on worker processes here (one "
+                                    "per core) where they win by the runs' number and expected "
+                                    "length against their start-up (about 1 s), or on the dask "
+                                    "cluster of --scheduler; write "
                                     "<out>/sweep.parquet (or .csv), sweep.png, sweep.json, and "
                                     "runs.jsonl (rerunning into the same --out skips the runs "
                                     "already finished).")
@@ -848,19 +849,19 @@ def build_parser() -> argparse.ArgumentParser:
     pw.add_argument("--reference", action="store_true",
                     help="also solve each run's monolithic reference and report the error")
     pw.add_argument("--workers", type=int, default=None, metavar="N",
-                    help="worker processes of a LocalCluster (default: one per core, only "
-                         "where it ends before the serial runs: 5 s + ceil(runs / cores) * "
-                         "(t + 0.02 s) < runs * t, t the expected run length from stop_time "
-                         "/ master.step; see docs/sweeps.md)")
+                    help="worker processes here (default: one per core, only where they end "
+                         "before the serial runs: 1 s + ceil(runs / cores) * (t + 0.001 s) < "
+                         "runs * t, t the expected run length from stop_time / master.step; "
+                         "see docs/sweeps.md)")
     pw.add_argument("--scheduler", default=None, metavar="ADDRESS",
                     help="use the dask cluster of this scheduler, e.g. tcp://host:8786 (it must "
                          "answer dask's handshake within 5 s; without workers, one must join "
                          "within 30 s)")
     pw.add_argument("--serial", action="store_true",
-                    help="run here, one run after the other (the default where a LocalCluster "
-                         "would not win)")
+                    help="run here, one run after the other (the default where worker "
+                         "processes would not win)")
     pw.add_argument("--batch", type=int, default=1, metavar="N",
-                    help="runs per dask task (batch short runs; default 1)")
+                    help="runs per task sent to a worker (batch short runs; default 1)")
     pw.add_argument("--retry-failed", action="store_true",
                     help="rerun the runs that failed in an earlier sweep into the same --out")
     pw.add_argument("--out", default="out/sweep", help="output folder (default: out/sweep)")

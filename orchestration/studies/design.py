@@ -33,7 +33,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.optimize
 
 from controller_fmu.pd_lowpass import ControllerParams
 from controller_fmu.spec import model_for as controller_model
@@ -384,6 +383,8 @@ def design_filter(nominal: PlantParams, base: ControllerParams, settings: dict,
     grid is evaluated. ``executor`` (:mod:`orchestration.sweeps.executor`) runs the check grid's closed
     loops as tasks (:func:`worst_cases`: the same numbers as without it).
     """
+    import scipy.optimize           # here: importing it costs every sweep 0.3 s
+
     s = settings = _sampled_settings(base, settings)
     crit = s["design.criterion"]
     uset = UncertaintySet.from_settings(nominal, s)

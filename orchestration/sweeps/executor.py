@@ -45,11 +45,10 @@ import threading
 import time
 from pathlib import Path
 
-from distributed.diagnostics.plugin import WorkerPlugin
-
-__all__ = ["Executor", "DaskExecutor", "TaskLost", "SchedulerError", "open_executor",
-           "probe_scheduler", "worker_file", "default_workers", "cluster_workers", "file_name",
-           "scratch_dir", "PROBE_TIMEOUT", "WORKER_WAIT", "CLUSTER_START", "TASK_OVERHEAD"]
+__all__ = ["Executor", "ProcessExecutor", "DaskExecutor", "TaskLost", "SchedulerError",
+           "open_executor", "probe_scheduler", "worker_file", "default_workers", "cluster_workers", "file_name",
+           "scratch_dir", "PROBE_TIMEOUT", "WORKER_WAIT", "CLUSTER_START", "TASK_OVERHEAD",
+           "PROCESS_START", "PROCESS_OVERHEAD", "local_workers", "process_limits"]
 
 #: Seconds within which a scheduler given by address must answer dask's handshake.
 PROBE_TIMEOUT = 5.0
@@ -111,26 +110,46 @@ CLUSTER_START = 5.0
 #: What a task costs on dask beyond its own work: scheduling it, sending its row back, the
 #: journal (s; 21 ms measured per run, docs/sweeps.md).
 TASK_OVERHEAD = 0.02
+#: Seconds a :class:`ProcessExecutor` takes before its first result: a fork server that imports
+#: the runs' modules once, then its worker processes (about 0.7 s measured on 2 cores,
+#: docs/sweeps.md).
+PROCESS_START = 1.0
+#: What a task costs on a :class:`ProcessExecutor` beyond its own work: sending the task and its
+#: row through a pipe, the journal (s; about 1 ms measured per run, docs/sweeps.md).
+PROCESS_OVERHEAD = 0.001
+#: Tasks sent ahead to each worker process of a :class:`ProcessExecutor` (what a crash or a
+#: Ctrl-C leaves in flight).
+PROCESS_AHEAD = 2
 
 
-def cluster_workers(tasks: int, task_seconds: float, cores: int | None = None) -> int:
-    """How many LocalCluster workers to start for ``tasks`` independent tasks of about
-    ``task_seconds`` each, on ``cores`` cores (default :func:`default_workers`); 0 where a
-    cluster cannot win, and the tasks should run serially here.
+def cluster_workers(tasks: int, task_seconds: float, cores: int | None = None, *,
+                    start: float = CLUSTER_START, overhead: float = TASK_OVERHEAD) -> int:
+    """How many workers to start for ``tasks`` independent tasks of about ``task_seconds`` each,
+    on ``cores`` cores (default :func:`default_workers`); 0 where they cannot win, and the
+    tasks should run serially here. ``start`` and ``overhead``: what the executor costs before
+    its first result and per task (by default a dask LocalCluster's; :func:`local_workers`
+    gives the rule of a :class:`ProcessExecutor`).
 
-    With ``W = min(cores, tasks)`` workers the cluster wins when it ends before the serial
-    runs::
+    With ``W = min(cores, tasks)`` workers they win when they end before the serial runs::
 
-        CLUSTER_START + ceil(tasks / W) * (task_seconds + TASK_OVERHEAD)  <  tasks * task_seconds
+        start + ceil(tasks / W) * (task_seconds + overhead)  <  tasks * task_seconds
 
-    e.g. on 2 cores, 4 runs of 0.6 s: 6.2 s against 2.4 s, serial (measured: 8.2 s against
-    2.5 s); 64 runs of 0.69 s: 28 s against 44 s, 2 workers."""
+    e.g. a LocalCluster on 2 cores, 4 runs of 0.6 s: 6.2 s against 2.4 s, serial (measured:
+    8.2 s against 2.5 s); 64 runs of 0.69 s: 28 s against 44 s, 2 workers."""
     cores = default_workers() if cores is None else cores
     workers = min(cores, tasks)
     if workers < 2:
         return 0
-    cluster = CLUSTER_START + math.ceil(tasks / workers) * (task_seconds + TASK_OVERHEAD)
-    return workers if cluster < tasks * task_seconds else 0
+    parallel = start + math.ceil(tasks / workers) * (task_seconds + overhead)
+    return workers if parallel < tasks * task_seconds else 0
+
+
+def local_workers(tasks: int, task_seconds: float, cores: int | None = None) -> int:
+    """:func:`cluster_workers` for a :class:`ProcessExecutor` (:data:`PROCESS_START`,
+    :data:`PROCESS_OVERHEAD`): the worker processes a sweep starts on this machine by
+    default, 0 to run serially."""
+    return cluster_workers(tasks, task_seconds, cores, start=PROCESS_START,
+                           overhead=PROCESS_OVERHEAD)
 
 
 def _run_batch(fn, items):
@@ -181,6 +200,192 @@ class Executor:
         self.close()
 
 
+
+
+def _process_setup(paths, client: int):
+    """A :class:`ProcessExecutor` worker starts: Ctrl-C is its client's to handle (it shares the
+    terminal), ``paths`` go first on ``sys.path``, and a watchdog ends the worker when the
+    client process ``client`` is gone (killed, or crashed: nothing else would end it, and it
+    would keep the client's output pipes open)."""
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:                  # not the main thread: leave it
+        pass
+    for p in reversed(paths):
+        if p not in sys.path:
+            sys.path.insert(0, p)
+    threading.Thread(target=_watch, args=(client,), daemon=True,
+                     name="flexpend-client-watch").start()
+
+
+#: Seconds between two looks of a worker's watchdog at its client.
+WATCH_EVERY = 0.5
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (a zombie, dead but not yet reaped, does not)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return True                     # no /proc: kill(0) is all we know
+
+
+def _watch(client: int):
+    while _alive(client):
+        time.sleep(WATCH_EVERY)
+    os._exit(1)
+
+
+def _ready():
+    return os.getpid()
+
+
+class ProcessExecutor(Executor):
+    """Tasks on ``workers`` processes of this machine (default: one per core), each keeping what
+    its tasks leave it (the FMUs extracted and instantiated once, :func:`~orchestration.sweeps.
+    engine.run_task`): the local executor, with no scheduler between the tasks and the client.
+
+    The processes are forked from a fork server that has imported the sweep's modules
+    (``forkserver``; ``spawn`` where there is none), never from this process, whatever threads
+    or FMUs it holds. They ignore Ctrl-C: the client handles it, keeps what finished and ends
+    them. A task that raises in ``fn`` raises in :meth:`map`; a worker process that dies (a crash
+    inside an FMU) breaks the pool: the tasks that were in flight are run again one at a time,
+    each in a process of its own, so that only the one that kills its process comes back as
+    :class:`TaskLost`, and the pool starts again for the rest.
+
+    ``paths``: folders put first on every worker's ``sys.path`` (for task functions defined in
+    scripts, e.g. ``bench/``)."""
+
+    kind = "processes"
+    #: the modules the fork server imports once for every worker
+    PRELOAD = ("orchestration.sweeps.engine",)
+
+    def __init__(self, workers: int | None = None, *, paths=()):
+        if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                    or workers < 1):
+            raise ValueError(f"workers = {workers!r} is not allowed; allowed: an integer >= 1")
+        self.workers = workers or default_workers()
+        problem = process_limits(self.workers)
+        if problem:
+            raise ValueError(f"{problem}; raise the limit, or run serially")
+        self.paths = [str(p) for p in paths]
+        self._pool = None
+        self._pool = self._start(self.workers)
+
+    def _context(self):
+        import multiprocessing
+
+        if "forkserver" in multiprocessing.get_all_start_methods():
+            ctx = multiprocessing.get_context("forkserver")
+            ctx.set_forkserver_preload(list(self.PRELOAD))
+            return ctx
+        return multiprocessing.get_context("spawn")
+
+    def _start(self, workers: int):
+        """A pool of ``workers`` processes, started (Ctrl-C held back meanwhile: no process is
+        left half-started)."""
+        from concurrent.futures import ProcessPoolExecutor
+
+        with _sigint_blocked():
+            pool = ProcessPoolExecutor(workers, mp_context=self._context(),
+                                       initializer=_process_setup,
+                                       initargs=(self.paths, os.getpid()))
+            try:
+                for f in [pool.submit(_ready) for _ in range(workers)]:
+                    f.result()
+            except BaseException as exc:
+                self._end(pool)
+                from concurrent.futures.process import BrokenProcessPool
+                if isinstance(exc, BrokenProcessPool):
+                    raise RuntimeError(
+                        "the worker processes did not start (each imports the main module "
+                        "again: a script that starts them must run its code under "
+                        "`if __name__ == \"__main__\":`)") from None
+                raise
+        return pool
+
+    @staticmethod
+    def _end(pool):
+        """Stop ``pool`` now: what is queued is dropped, its processes are ended."""
+        procs = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for proc in procs:
+            with contextlib.suppress(Exception):
+                proc.terminate()
+        for proc in procs:
+            with contextlib.suppress(Exception):
+                proc.join(5)
+
+    def describe(self) -> str:
+        return f"{self.workers} worker process{'es' if self.workers != 1 else ''} on this machine"
+
+    def map(self, fn, items, batch: int = 1):
+        from concurrent.futures import FIRST_COMPLETED, wait
+        from concurrent.futures.process import BrokenProcessPool
+
+        items = list(items)
+        batch = max(1, int(batch))
+        chunks = [list(range(i, min(i + batch, len(items)))) for i in range(0, len(items), batch)]
+        queue = list(range(len(chunks)))[::-1]           # popped from the end: in order
+        flight: dict = {}
+        if self._pool is None:                  # ended by an interrupted map
+            self._pool = self._start(self.workers)
+        try:
+            while queue or flight:
+                while queue and len(flight) < PROCESS_AHEAD * self.workers:
+                    c = queue.pop()
+                    flight[self._pool.submit(_run_batch, fn, [items[i] for i in chunks[c]])] = c
+                done, _ = wait(flight, return_when=FIRST_COMPLETED)
+                broken = []
+                for fut in done:
+                    c = flight.pop(fut)
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool:
+                        broken.append(c)
+                        continue
+                    yield from zip(chunks[c], result)
+                if broken:
+                    # every task in flight went down with the pool: each is run again alone
+                    suspects = sorted(broken + list(flight.values()))
+                    flight.clear()
+                    self._end(self._pool)
+                    self._pool = None
+                    for c in suspects:
+                        yield from zip(chunks[c], self._alone(fn, [items[i] for i in chunks[c]]))
+                    self._pool = self._start(self.workers)
+        finally:                                 # interrupted or abandoned: end what is in flight
+            if flight and self._pool is not None:
+                self._end(self._pool)
+                self._pool = None
+
+    def _alone(self, fn, chunk):
+        """``fn`` on ``chunk`` in a process of its own: the results, or a :class:`TaskLost` per
+        item when that process dies too."""
+        from concurrent.futures.process import BrokenProcessPool
+
+        pool = self._start(1)
+        try:
+            return pool.submit(_run_batch, fn, chunk).result()
+        except BrokenProcessPool:
+            return [TaskLost("its worker process died (a crash inside an FMU?); the others' "
+                             "runs went on")] * len(chunk)
+        finally:
+            self._end(pool)
+
+    def close(self):
+        pool, self._pool = getattr(self, "_pool", None), None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
 #: name -> path of the files the worker plugin wrote into this worker process's folder
 _WORKER_FILES: dict[str, str] = {}
 
@@ -194,6 +399,8 @@ def worker_file(name: str, default):
 def scratch_dir() -> str | None:
     """The local folder of the dask worker this runs on (dask removes it with the worker), or
     None outside a worker."""
+    if "distributed" not in sys.modules:       # not imported: this is no dask worker
+        return None
     try:
         from distributed import get_worker
         return get_worker().local_directory
@@ -291,6 +498,35 @@ def cluster_limits(workers: int) -> str | None:
     return None
 
 
+#: What a :class:`ProcessExecutor` of W worker processes needs: open files in the client (the
+#: pipes to its workers and to the fork server), and address space in each process (numpy,
+#: fmpy and the FMUs of a run).
+PROCESS_FILES_BASE, PROCESS_FILES_PER_WORKER = 24, 4
+PROCESS_ADDRESS_SPACE = 1 << 30
+
+
+def process_limits(workers: int) -> str | None:
+    """:func:`cluster_limits` for a :class:`ProcessExecutor` of ``workers`` processes: the soft
+    limit of open files raised where the hard one allows, else, or where the address space
+    (``ulimit -v``) is too small for a worker, the problem in words (None when it fits)."""
+    import resource
+
+    need = PROCESS_FILES_BASE + PROCESS_FILES_PER_WORKER * workers
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft != resource.RLIM_INFINITY and soft < need:
+        if hard == resource.RLIM_INFINITY or hard >= need:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+        else:
+            return (f"too few file handles for {workers} worker processes: they need about "
+                    f"{need}, this process may open {hard} (ulimit -n)")
+    space = resource.getrlimit(resource.RLIMIT_AS)[0]
+    if space != resource.RLIM_INFINITY and space < PROCESS_ADDRESS_SPACE:
+        return (f"too little memory for worker processes: each needs about "
+                f"{PROCESS_ADDRESS_SPACE >> 20} MiB of address space, this process may use "
+                f"{space >> 20} MiB (ulimit -v)")
+    return None
+
+
 def probe_scheduler(address: str, timeout: float | None = None) -> None:
     """Check that a dask scheduler answers at ``address`` within ``timeout`` seconds (default
     :data:`PROBE_TIMEOUT`): connect, send dask's handshake and read the peer's, at most
@@ -342,39 +578,6 @@ def _dashboard_works(link: str, timeout: float = 2.0) -> bool:
         return False
 
 
-class _Setup(WorkerPlugin):
-    """Worker plugin: put ``paths`` first on ``sys.path``, write ``files`` (name -> bytes) into
-    the worker's local folder, and (a LocalCluster's workers) ignore Ctrl-C."""
-
-    name = "flexpend-setup"
-
-    def __init__(self, paths, files, ignore_sigint=False):
-        self.paths, self.files = list(paths), dict(files)
-        self.ignore_sigint = ignore_sigint
-
-    def setup(self, worker):
-        if self.ignore_sigint:
-            # a LocalCluster's workers share the client's terminal: Ctrl-C is the client's to
-            # handle (it keeps what finished and closes the cluster), not theirs to die of
-            import signal
-            try:
-                signal.signal(signal.SIGINT, signal.SIG_IGN)
-            except ValueError:              # not the main thread: leave it
-                pass
-        for p in reversed(self.paths):
-            if p not in sys.path:
-                sys.path.insert(0, p)
-        folder = Path(worker.local_directory) / "flexpend-files"
-        folder.mkdir(parents=True, exist_ok=True)
-        for name, data in self.files.items():
-            target = folder / name
-            if not target.is_file():
-                part = target.with_suffix(target.suffix + ".part")
-                part.write_bytes(data)
-                os.replace(part, target)
-            _WORKER_FILES[name] = str(target)
-
-
 class DaskExecutor(Executor):
     """Tasks on dask.distributed: a new ``LocalCluster`` of ``workers`` processes (one thread
     each), or the cluster of the scheduler at ``scheduler``.
@@ -402,7 +605,7 @@ class DaskExecutor(Executor):
             # the workers' folders in one of ours, removed by close(); a Ctrl-C while the
             # cluster starts waits until it has started (and then stops the sweep): the
             # processes it starts inherit the blocked SIGINT, a terminal's Ctrl-C cannot kill
-            # them half-started (they ignore Ctrl-C anyway, see _Setup); on this machine only
+            # them half-started (they ignore Ctrl-C anyway, see dask_setup.Setup); on this machine only
             # (the scheduler's HTTP server too: a free port on 127.0.0.1). Its processes log
             # only what is critical: a worker whose heartbeat meets the scheduler closing (a
             # Ctrl-C, or any close under load) logs an ERROR with a traceback, and what does go
@@ -428,8 +631,10 @@ class DaskExecutor(Executor):
             if scheduler:
                 self._wait_for_workers(notify)
             blobs = {file_name(f): Path(f).read_bytes() for f in files}
-            self.client.register_plugin(_Setup([str(p) for p in paths], blobs,
-                                               ignore_sigint=self.cluster is not None))
+            from .dask_setup import Setup
+
+            self.client.register_plugin(Setup([str(p) for p in paths], blobs,
+                                              ignore_sigint=self.cluster is not None))
             info = self.client.scheduler_info()
         except BaseException:
             self.close()
@@ -502,17 +707,21 @@ class DaskExecutor(Executor):
 
 
 def open_executor(workers: int | None = None, scheduler: str | None = None, *, paths=(),
-                  files=(), notify=None) -> Executor:
-    """The serial executor when neither ``workers`` nor ``scheduler`` is given, else a
-    :class:`DaskExecutor` (a ``ValueError`` names a bad argument; a :class:`SchedulerError`, a
+                  files=(), notify=None, dask: bool = False) -> Executor:
+    """The serial executor when neither ``workers`` nor ``scheduler`` is given; a
+    :class:`ProcessExecutor` of ``workers`` processes on this machine; a :class:`DaskExecutor`
+    on the cluster of ``scheduler``, or with ``dask=True`` on a new LocalCluster of ``workers``
+    processes (a ``ValueError`` names a bad argument; a :class:`SchedulerError`, a
     ``ValueError`` too, a scheduler that does not answer as one or has no workers). ``notify``
     (default: print to stderr) gets the line saying that the executor waits for workers."""
     if workers is not None and scheduler:
-        raise ValueError("give a number of workers (a LocalCluster) or a scheduler address, "
+        raise ValueError("give a number of workers (processes here) or a scheduler address, "
                          "not both")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise ValueError(f"workers = {workers!r} is not allowed; allowed: an integer >= 1")
-    if workers is None and not scheduler:
+    if scheduler or dask:
+        return DaskExecutor(workers, scheduler, paths=paths, files=files, notify=notify)
+    if workers is None:
         return Executor()
-    return DaskExecutor(workers, scheduler, paths=paths, files=files, notify=notify)
+    return ProcessExecutor(workers, paths=paths)

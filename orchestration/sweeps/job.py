@@ -1,5 +1,5 @@
 """A sweep from start to end (``flexpend sweep`` and :func:`orchestration.sweeps`): the plan, the
-executor (serial, a LocalCluster or a scheduler), the runs, the statistics and ``sweep.json``."""
+executor (serial, worker processes here, or a dask scheduler), the runs, the statistics and ``sweep.json``."""
 from __future__ import annotations
 
 import re
@@ -9,8 +9,8 @@ from ..files import check_folder, write_json
 from ..report.progress import check_progress, note, sink_for
 from ..scene.keys import ConfigError, toml_value
 from .engine import fmus_for, pending, run_sweep, sweep_stats
-from .executor import (CLUSTER_START, Executor, cluster_limits, cluster_workers, default_workers,
-                       open_executor)
+from .executor import (PROCESS_START, Executor, default_workers, local_workers, open_executor,
+                       process_limits)
 from .plan import design_worst_case, expected_run_seconds, plan_sweep
 
 __all__ = ["Sweep", "sweep"]
@@ -59,11 +59,14 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     ``grid``, ``values``, ``sample``: the ``--grid``, ``--values``, ``--sample`` items (strings),
     or dicts: ``grid={"controller.kp": (300, 700, 5)}`` (a fourth item ``"log"`` for a geometric
     grid), ``values={"plant.n_modes": [2, 3, 4]}``, ``sample={"plant.EI": "uniform:800:950"}``
-    (or ``sample="design"``). ``workers``: a LocalCluster of that many processes; ``scheduler``:
-    the address of a dask scheduler; ``serial``: here, one run after the other. Given none of
-    them, a LocalCluster of one process per core where it wins against the serial runs, by the
-    rule of :func:`~orchestration.sweeps.executor.cluster_workers` on the runs' expected length
-    (:func:`~orchestration.sweeps.plan.expected_run_seconds`), else serial. ``stop``: asked before the first run and after each
+    (or ``sample="design"``). ``workers``: that many worker processes on this machine
+    (:class:`~orchestration.sweeps.executor.ProcessExecutor`); ``scheduler``: the address of a
+    dask scheduler (its cluster's workers run the runs); ``serial``: here, one run after the
+    other. Given none of them, one worker process per core where they win against the serial
+    runs, by the rule of :func:`~orchestration.sweeps.executor.local_workers` on the runs'
+    expected length (:func:`~orchestration.sweeps.plan.expected_run_seconds`), else serial. A
+    script that starts worker processes runs its code under ``if __name__ == "__main__":``
+    (each process imports the main module again). ``stop``: asked before the first run and after each
     (Ctrl-C): when it returns True the sweep ends with KeyboardInterrupt (the finished runs are
     in the journal, and the same call continues the sweep). ``progress``: ``False`` (the
     default: silent), ``True`` (the runs finished, failed and left on stderr, and a line on
@@ -73,13 +76,14 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     (:class:`~orchestration.scene.keys.ConfigError`, a ``ValueError``)."""
     check_progress(progress)
     if serial and (workers is not None or scheduler):
-        raise ConfigError("serial runs here, without dask: it takes no workers or scheduler")
+        raise ConfigError("serial runs here, one run after the other: it takes no workers or "
+                          "scheduler")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise ConfigError(f"workers = {workers!r} is not allowed; allowed: an integer >= 1")
     if workers is not None and scheduler:
-        raise ConfigError("workers starts a LocalCluster, scheduler uses an existing one: give "
-                          "one of them")
+        raise ConfigError("workers starts processes here, scheduler uses an existing dask "
+                          "cluster: give one of them")
     if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
         raise ConfigError(f"batch = {batch!r} is not allowed; allowed: an integer >= 1")
     try:
@@ -98,17 +102,17 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     if not (serial or scheduler or workers is not None or todo == 0):
         seconds = sum(expected_run_seconds(p.scene, plan.reference) for p in plan.points) \
             / len(plan.points)
-        workers = cluster_workers(todo, seconds) or None
-        problem = workers and cluster_limits(workers)
+        workers = local_workers(todo, seconds) or None
+        problem = workers and process_limits(workers)
         if problem:
             workers = None
             say(f"running here, one run after the other: {problem}")
         serial = workers is None
         if serial and not problem:
-            say(f"running here, one run after the other: a LocalCluster would not win "
+            say(f"running here, one run after the other: worker processes would not win "
                 f"for {todo} run{'s' if todo != 1 else ''} of about {seconds:.2g} s on "
-                f"{default_workers()} core{'s' if default_workers() != 1 else ''} (it "
-                f"takes about {CLUSTER_START:g} s to start; --workers N starts one anyway)")
+                f"{default_workers()} core{'s' if default_workers() != 1 else ''} (they "
+                f"take about {PROCESS_START:g} s to start; --workers N starts them anyway)")
     if serial or todo == 0:
         executor = Executor()
     else:

@@ -104,34 +104,45 @@ def _limited(limits: dict, *args, timeout=300):
     return proc.returncode, proc.stdout, proc.stderr
 
 
-def test_too_few_file_handles_for_a_local_cluster_is_one_line(tmp_path):
-    """ulimit -n 32 with --workers 2: the LocalCluster's nannies failed to start (dask's logged
-    tracebacks, then RuntimeError: Nanny failed to start). Failed before."""
+def test_too_few_file_handles_for_worker_processes_is_one_line(tmp_path):
+    """ulimit -n 20 with --workers 2: one line and exit 2, before any run (a LocalCluster's
+    nannies failed to start at 32: dask's logged tracebacks, then RuntimeError: Nanny failed
+    to start; worker processes run there, the next test)."""
+    import resource
+
+    code, out, err = _limited({resource.RLIMIT_NOFILE: 20}, "sweep", "rigid_pd", "--values",
+                              "controller.kp=500,600", "--set", "stop_time=0.5", "--workers", "2",
+                              "--out", tmp_path / "sweep")
+    assert code == 2, (out, err)
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("flexpend: error: too few file handles for 2 worker processes: they "
+                          "need about 32, this process may open 20 (ulimit -n)")
+    assert not (tmp_path / "sweep" / "runs.jsonl").exists()
+
+
+def test_worker_processes_run_with_32_file_handles(tmp_path):
     import resource
 
     code, out, err = _limited({resource.RLIMIT_NOFILE: 32}, "sweep", "rigid_pd", "--values",
                               "controller.kp=500,600", "--set", "stop_time=0.5", "--workers", "2",
                               "--out", tmp_path / "sweep")
-    assert code == 2, (out, err)
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    assert err.startswith("flexpend: error: too few file handles for a LocalCluster of 2 "
-                          "workers: it needs about 96, this process may open 32 (ulimit -n)")
-    assert not (tmp_path / "sweep" / "runs.jsonl").exists()
+    assert code == 0, (out, err)
+    assert "on 2 worker processes on this machine" in out, out
 
 
-def test_too_little_address_space_for_a_local_cluster_is_one_line(tmp_path):
-    """ulimit -v 1 GiB with --workers 2 crashed the client (a segmentation fault). Failed
-    before."""
+def test_too_little_address_space_for_worker_processes_is_one_line(tmp_path):
+    """ulimit -v 512 MiB with --workers 2: the workers' OpenBLAS failed to allocate (and a
+    LocalCluster's client crashed at 1 GiB, a segmentation fault). Failed before."""
     import resource
 
-    code, out, err = _limited({resource.RLIMIT_AS: 1 << 30}, "sweep", "rigid_pd", "--values",
+    code, out, err = _limited({resource.RLIMIT_AS: 512 << 20}, "sweep", "rigid_pd", "--values",
                               "controller.kp=500,600", "--set", "stop_time=0.5", "--workers", "2",
                               "--out", tmp_path / "sweep")
     assert code == 2, (out, err)
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    assert err.startswith("flexpend: error: too little memory for a LocalCluster: each of its "
-                          "processes needs about 2048 MiB of address space, this process may use "
-                          "1024 MiB (ulimit -v)")
+    assert err.startswith("flexpend: error: too little memory for worker processes: each needs "
+                          "about 1024 MiB of address space, this process may use 512 MiB "
+                          "(ulimit -v)")
 
 
 @pytest.mark.parametrize("mib", [100, 128, 160])
@@ -216,19 +227,19 @@ def test_a_process_out_of_memory_is_one_line(failure, monkeypatch, capsys):
     assert capsys.readouterr().err == f"flexpend: error: out of memory{limit}\n"
 
 
-def test_a_cluster_the_default_rule_picks_is_checked_too(fmus, monkeypatch, capsys, tmp_path):
-    """With no executor option, where the rule would start a LocalCluster that does not fit the
-    process's limits (here: an address space below what dask's processes need), the sweep runs
-    here, saying why (before, only --workers was checked: the client crashed at 1 GiB)."""
+def test_workers_the_default_rule_picks_are_checked_too(fmus, monkeypatch, capsys, tmp_path):
+    """With no executor option, where the rule would start worker processes that do not fit the
+    process's limits (here: an address space below what they need), the sweep runs here, saying
+    why (before, only --workers was checked: a LocalCluster's client crashed at 1 GiB)."""
     import resource
 
     from orchestration.cli import main
     from orchestration.sweeps import executor, job
 
-    monkeypatch.setattr(job, "cluster_workers", lambda runs, seconds: 2)
+    monkeypatch.setattr(job, "local_workers", lambda runs, seconds: 2)
     soft, hard = resource.getrlimit(resource.RLIMIT_AS)
     space = 1 << 50 if hard == resource.RLIM_INFINITY else hard
-    monkeypatch.setattr(executor, "CLUSTER_ADDRESS_SPACE", space + 1)
+    monkeypatch.setattr(executor, "PROCESS_ADDRESS_SPACE", space + 1)
     resource.setrlimit(resource.RLIMIT_AS, (space, hard))
     try:
         code = main(["sweep", "rigid_pd", "--values", "controller.kp=500,600", "--set",
@@ -237,9 +248,9 @@ def test_a_cluster_the_default_rule_picks_is_checked_too(fmus, monkeypatch, caps
         resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
     err = capsys.readouterr().err
     assert code == 0, err
-    assert ("running here, one run after the other: too little memory for a LocalCluster: each "
-            f"of its processes needs about {(space + 1) >> 20} MiB of address space") in err, err
-    assert "LocalCluster, 2 worker" not in err
+    assert ("running here, one run after the other: too little memory for worker processes: "
+            f"each needs about {(space + 1) >> 20} MiB of address space") in err, err
+    assert "2 worker processes" not in err
 
 
 def test_the_soft_limit_of_open_files_is_raised_for_a_cluster():

@@ -382,6 +382,6 @@ def test_small_sweep_runs_serially_by_default_and_says_why(fmus, tmp_path, capsy
             "--set", "stop_time=1", "--out", str(tmp_path)]
     assert main(args) == 0
     out, err = capsys.readouterr()
-    assert "running here, one run after the other: a LocalCluster would not win for 2 runs" \
-        in err
+    assert "running here, one run after the other: worker processes would not win for 2 " \
+        "runs" in err
     assert "on serial (this process)" in out

@@ -1,4 +1,5 @@
-"""flexpend sweep: the same table on dask as serially, seeded samples, failed and lost runs,
+"""flexpend sweep: the same table on worker processes and on dask as serially, seeded samples,
+failed and lost runs,
 resuming, and one-line errors for bad specs (orchestration/sweeps/, orchestration/sweeps/executor.py).
 
 The runs are short (3 s of the filtered scene from 0.05 rad, where the summary's fits are
@@ -11,7 +12,7 @@ import scipy.stats
 
 from orchestration.cli import main
 from orchestration.studies.design import UncertaintySet, worst_cases
-from orchestration.sweeps.executor import DaskExecutor, Executor, TaskLost
+from orchestration.sweeps.executor import DaskExecutor, Executor, ProcessExecutor, TaskLost
 from orchestration.job import run_scene
 from orchestration.scene.schema import load_scene
 from orchestration.sweeps.engine import Journal, read_table, run_sweep, sweep_stats, write_table
@@ -34,6 +35,13 @@ def cluster(paths):
         yield ex
 
 
+@pytest.fixture(scope="module")
+def processes():
+    """Two worker processes on this machine (the local executor)."""
+    with ProcessExecutor(2) as ex:
+        yield ex
+
+
 class Counting(Executor):
     """The serial executor, counting the tasks it runs."""
 
@@ -51,7 +59,8 @@ def untimed(rows):
 
 
 @pytest.mark.slow
-def test_grid_on_two_workers_equals_serial_and_a_direct_run(paths, cluster, tmp_path):
+def test_grid_on_two_workers_equals_serial_and_a_direct_run(paths, cluster, processes,
+                                                            tmp_path):
     plan = plan_sweep("flexible_pd_lowpass", grids=["controller.kp=500:700:2"],
                       values=["master.extrapolation=0,1"], overrides=SHORT)
     assert [p.params for p in plan.points] == [
@@ -61,6 +70,12 @@ def test_grid_on_two_workers_equals_serial_and_a_direct_run(paths, cluster, tmp_
     dask = run_sweep(plan, paths, tmp_path / "dask", cluster, progress=False)
     assert serial.table.suffix == ".parquet"
     assert untimed(read_table(serial.table)) == untimed(read_table(dask.table))
+    # the local executor, at any number of workers and any batch, value for value
+    local = run_sweep(plan, paths, tmp_path / "local", processes, progress=False)
+    assert untimed(read_table(local.table)) == untimed(read_table(serial.table))
+    with ProcessExecutor(1) as one:
+        alone = run_sweep(plan, paths, tmp_path / "alone", one, batch=3, progress=False)
+    assert untimed(read_table(alone.table)) == untimed(read_table(serial.table))
     assert all(r["status"] == "ok" for r in dask.rows)
     # a row holds what the run's own summary says (run_scene called directly here, with BLAS
     # on one thread as every task has it: two threads change the fits' 13th digit)
@@ -81,13 +96,13 @@ def test_grid_on_two_workers_equals_serial_and_a_direct_run(paths, cluster, tmp_
     assert (tmp_path / "dask" / "sweep.png").stat().st_size > 10_000      # the heat map
 
 
-def test_design_check_grid_on_dask_equals_serial(cluster):
+def test_design_check_grid_on_dask_and_processes_equals_serial(cluster, processes):
     from controller_fmu.pd_lowpass import ControllerParams
     plants = UncertaintySet(PlantParams()).plants(3)
     ctrls = [ControllerParams(filter_order=2, cutoff=97.3, filter_damping=0.1),
              ControllerParams(filter_order=1, cutoff=115.0), ControllerParams(filter_order=0)]
     serial = worst_cases(plants, ctrls)
-    for ex in (Executor(), cluster):
+    for ex in (Executor(), cluster, processes):
         for a, b in zip(serial, worst_cases(plants, ctrls, ex, chunks=5)):
             assert (a.decay, a.decay_plant, a.decay_root) == (b.decay, b.decay_plant, b.decay_root)
             assert (a.damping, a.damping_plant, a.n_plants) == (b.damping, b.damping_plant,
