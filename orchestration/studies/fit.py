@@ -133,6 +133,38 @@ def _pencil(x, max_order: int, residual: float, order: int | None = None):
     L = max(top + 1, int(PENCIL * N))
     if N - L < top:
         raise ValueError(f"{N} samples are too few for order {top}")
+    # the fit of x scaled by a power of two to a largest magnitude in [0.5, 1): exact, and the
+    # squares of a tiny signal (a decayed one, 1e-160) do not underflow to zero
+    peak = float(np.max(np.abs(x)))
+    shift = math.frexp(peak)[1] if 0 < peak < math.inf else 0
+    if shift:
+        x = _ldexp(x, -shift)
+    out = _pencil_scaled(x, max_order, residual, order, N, L)
+    if shift:
+        out = _unscaled(out[:6], shift) + (None if out[6] is None else
+                                           _unscaled(out[6][:6], shift),)
+    return out
+
+
+def _ldexp(x, e: int):
+    """``x * 2**e``, real or complex, exactly (no power of two is formed: it could overflow)."""
+    if not np.iscomplexobj(x):
+        return np.ldexp(x, e)
+    out = np.empty_like(x)
+    out.real, out.imag = np.ldexp(x.real, e), np.ldexp(x.imag, e)
+    return out
+
+
+def _unscaled(fit, shift: int):
+    """A fit of ``x / 2**shift`` as the fit of ``x``: its amplitudes and residual times
+    ``2**shift`` (the poles, the order and the relative residual are those of ``x``)."""
+    logz, amp, m, rel, Z, err = fit
+    return logz, _ldexp(amp, shift), m, rel, Z, math.ldexp(err, shift)
+
+
+def _pencil_scaled(x, max_order, residual, order, N, L):
+    """:func:`_pencil` on ``x`` whose largest magnitude is about 1."""
+    top = order or max_order
     Y = np.lib.stride_tricks.sliding_window_view(x, L + 1)
     # the row space of the Hankel matrix from its Gram matrix (a tenth of the cost of the SVD;
     # exact for the few largest singular values, which are all a fit of at most max_order uses)
@@ -299,6 +331,11 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.0,
     y = np.asarray(y, dtype=float)
     if y.size < 8:
         return None
+    # y scaled by a power of two to a largest magnitude about 1 (exact): the differences and
+    # the filter of a decayed signal (1e-300) would otherwise lose digits to underflow
+    peak = float(np.max(np.abs(y)))
+    shift = math.frexp(peak)[1] if 0 < peak < math.inf else 0
+    y = np.ldexp(y, -shift)
     dt = float(t[1] - t[0])
     fs = 2 * math.pi / dt                    # rad/s
     lo, hi = band
@@ -352,5 +389,5 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.0,
         moved = halves + [o[0] for o in others if o is not None]
         du = max([abs(h.real - s.real) for h in moved] + [spread.real])
         df = max([abs(h.imag - s.imag) for h in moved] + [spread.imag])
-    return ModeFit(float(s.real), float(s.imag), float(2.0 * size), whole[2], whole[3],
+    return ModeFit(float(s.real), float(s.imag), math.ldexp(2.0 * size, shift), whole[2], whole[3],
                    (float(t[0]), float(t[-1])), du, df)

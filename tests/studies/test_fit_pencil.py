@@ -1,6 +1,8 @@
 """The matrix pencil's shortcuts against the plain computations they replace: the shift operator
 by Sherman-Morrison against ``pinv``, and the scan for the best order, which skips the orders
 whose residual cannot win, against the full scan (every order fitted)."""
+import math
+
 import numpy as np
 import pytest
 
@@ -74,3 +76,23 @@ def test_the_floor_is_below_every_orders_residual(i):
     for m in range(step, 13, step):
         err = F._pencil(x, 12, 0.0, order=m)[5]
         assert err >= floors[m], (m, err, floors[m])
+
+
+@pytest.mark.parametrize("scale", [1e-160, 2.0 ** -1000, 1e-300, 1e150])
+def test_a_tiny_or_huge_signal_fits_as_the_signal_itself(scale):
+    """A fit does not depend on the signal's size: a decayed run's angle of 1e-160 (whose
+    squares underflow to zero: the fit divided by zero before) fits as the same signal of size
+    1. Powers of two scale exactly; others to rounding."""
+    t = np.arange(0, 6, 1e-3)
+    y = signal(t)
+    for band, near in (((0.5, 60.0), None), ((60.0, math.pi / 1e-3), 152.5)):
+        one = F.fit_mode(t, y, band, near=near)
+        big = F.fit_mode(t, scale * y, band, near=near)
+        assert big is not None
+        if math.frexp(scale)[0] == 0.5:
+            assert (big.rate, big.frequency, big.rate_uncertainty) == \
+                (one.rate, one.frequency, one.rate_uncertainty)
+            assert big.amplitude == scale * one.amplitude
+        else:
+            assert big.rate == pytest.approx(one.rate, rel=1e-6)
+            assert big.frequency == pytest.approx(one.frequency, rel=1e-9)
