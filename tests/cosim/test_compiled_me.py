@@ -1,0 +1,128 @@
+"""The model-exchange master's compiled integration loop (``orchestration/cosim/native/fm_me.c``)
+against its specification, the Python loop on scipy's Radau: the same steps, the same rows to
+a small multiple of the tolerances, the same events and stops, and the keys that choose it."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from orchestration.cosim import compiled_me
+from orchestration.cosim.model_exchange import ModelExchangeMaster, ModelExchangeUnit
+from orchestration.cosim.slave import RunInterrupted
+from orchestration.job import RECORD, controller_start_values, plant_start_values, run_scene
+from orchestration.scene.schema import PAPER_SCENES, load_scene
+from orchestration.studies.reference import simulate_reference
+
+
+@pytest.fixture(scope="module")
+def pair(native) -> dict:
+    from orchestration.export import fmu_pair
+    return fmu_pair(native)
+
+
+def _both(name, pair, items=()):
+    """The scene ``name`` run by the Python loop and the compiled one."""
+    runs = {}
+    for compiled in ("false", "true"):
+        scene = load_scene(name, ["master.interface=model-exchange",
+                                  f"master.compiled={compiled}", *items])
+        runs[compiled] = run_scene(scene, pair, progress=False)
+    return runs["false"], runs["true"], scene
+
+
+def _assert_rows_agree(py, c, settings, factor=10.0):
+    """Every recorded column within ``factor`` times the solver's tolerance (rtol of the
+    column's size, plus atol) of the Python loop's."""
+    assert len(py) == len(c)
+    np.testing.assert_array_equal(py["time"], c["time"])
+    for col in py.dtype.names[1:]:
+        bound = factor * (settings.rtol * np.max(np.abs(py[col])) + settings.atol)
+        diff = float(np.max(np.abs(py[col] - c[col])))
+        assert diff <= bound, (col, diff, bound)
+
+
+@pytest.mark.parametrize("name", PAPER_SCENES)
+def test_the_compiled_loop_takes_the_python_loops_steps_and_gives_its_rows(pair, name):
+    """The paper scenes (3 s): the same rows within 10 times the tolerances, nearly the same
+    steps (the same method and step control, rounded differently), and both loops named."""
+    py, c, scene = _both(name, pair, ["stop_time=3"])
+    assert py.stats.loop == "model-exchange (radau)"
+    assert c.stats.loop == "model-exchange (radau, compiled)"
+    _assert_rows_agree(py.result, c.result, scene.master)
+    assert abs(c.stats.steps - py.stats.steps) <= 0.02 * py.stats.steps + 2, \
+        (c.stats.steps, py.stats.steps)
+    assert c.stats.max_step_used <= scene.master.max_step * (1 + 1e-12)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", PAPER_SCENES)
+def test_the_compiled_loop_meets_the_monolithic_reference(pair, name):
+    """At rtol 1e-9 both loops agree with the monolithic reference (DOP853 at 1e-12 on the
+    numpy model) within 1e-6 rad of phi_o, and with each other within 10 rtol."""
+    py, c, scene = _both(name, pair, ["master.rtol=1e-9", "master.atol=1e-11"])
+    ref = simulate_reference(scene)
+    for run in (py, c):
+        assert run.summary.get("stopped") is None
+        assert float(np.max(np.abs(run.result["phi_o"] - ref["phi_o"]))) < 1e-6
+    _assert_rows_agree(py.result, c.result, scene.master)
+
+
+def test_a_fall_stops_at_the_same_event_with_the_plants_message(pair):
+    """Without the P term the pendulum falls: the event indicator on phi_limit is located by
+    both loops at the same time (to the event's resolution), event mode hears the plant ask
+    to terminate, and the rows up to it agree."""
+    py, c, scene = _both("flexible_pd_lowpass", pair, ["controller.kp=0", "stop_time=1"])
+    sp, sc = py.summary["stopped"], c.summary["stopped"]
+    assert abs(sp["time"] - sc["time"]) < 1e-8
+    assert sc["reason"] == sp["reason"]
+    assert "reached phi_limit" in sc["fmu_message"]
+    _assert_rows_agree(py.result, c.result, scene.master)
+
+
+def _units(scene, pair):
+    return {"plant": ModelExchangeUnit(pair["plant"], "plant", plant_start_values(scene)),
+            "controller": ModelExchangeUnit(pair["controller"], "controller",
+                                            controller_start_values(scene))}
+
+
+def test_a_stop_request_interrupts_the_compiled_loop_with_its_rows(pair):
+    scene = load_scene("flexible_pd_lowpass", ["master.interface=model-exchange"])
+    master = ModelExchangeMaster(_units(scene, pair), scene.connections, RECORD, scene.master)
+    try:
+        assert master.loop == "compiled"
+        with pytest.raises(RunInterrupted) as info:
+            master.run(0.0, 10.0, scene.output.output_interval, stop=lambda: True)
+        exc = info.value
+        assert 0.0 < exc.time < 10.0
+        assert exc.stats.steps == compiled_me.CHUNK_STEPS
+        assert len(exc.result) >= 1 and exc.result["time"][-1] <= exc.time
+    finally:
+        master.close()
+
+
+def test_the_key_compiled_chooses_the_loop_and_says_why_not(pair):
+    scene = load_scene("rigid_pd", ["master.interface=model-exchange", "master.solver=bdf",
+                                    "master.compiled=true"])
+    units = _units(scene, pair)
+    try:
+        with pytest.raises(ValueError, match="master.solver = 'bdf'.*Radau"):
+            ModelExchangeMaster(units, scene.connections, RECORD, scene.master)
+        auto = load_scene("rigid_pd", ["master.interface=model-exchange", "master.solver=bdf"])
+        master = ModelExchangeMaster(units, auto.connections, RECORD, auto.master)
+        assert master.loop == "python" and "bdf" in master.compiled_unavailable
+    finally:
+        for u in units.values():
+            u.close()
+
+
+def test_fmi3_fmus_keep_the_python_loop(native3):
+    from orchestration.export import fmu_pair
+    scene = load_scene("rigid_pd", ["master.interface=model-exchange"])
+    units = _units(scene, fmu_pair(native3))
+    try:
+        master = ModelExchangeMaster(units, scene.connections, RECORD, scene.master)
+        assert master.loop == "python"
+        assert "FMI 3.0" in master.compiled_unavailable
+    finally:
+        for u in units.values():
+            u.close()
