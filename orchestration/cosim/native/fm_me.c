@@ -4,7 +4,6 @@
  * The integrator follows scipy.integrate.Radau (scipy 1.17, radau.py) line by line: the names
  * below are its names (solve_collocation_system, predict_factor, _step_impl).
  */
-#include <complex.h>
 #include <math.h>
 #include <string.h>
 
@@ -21,8 +20,6 @@ FME_API const char *fme_source_digest(void) { return FP_SOURCE_DIGEST; }
 FME_API size_t fme_sizeof_unit(void) { return sizeof(fme_unit); }
 
 FME_API size_t fme_sizeof_master(void) { return sizeof(fme_master); }
-
-typedef double complex cplx;
 
 /* ---------------------------------------------------------------- Radau IIA constants */
 #define S6 2.449489742783178098197284074705891391965947480656670128432692567
@@ -45,15 +42,11 @@ static const double P_[3][3] = {
 #define MAX_FACTOR 10.0
 #define EPS 2.220446049250313e-16
 
-/* MU_REAL = 3 + 3^(2/3) - 3^(1/3); MU_COMPLEX = 3 + (3^(1/3) - 3^(2/3)) / 2
- * - i (3^(5/6) + 3^(7/6)) / 2 (computed once per call: pow is exact enough and cheap). */
-static double mu_real(void) { return 3.0 + pow(3.0, 2.0 / 3.0) - pow(3.0, 1.0 / 3.0); }
-
-static cplx mu_complex(void)
-{
-    return (3.0 + 0.5 * (pow(3.0, 1.0 / 3.0) - pow(3.0, 2.0 / 3.0)))
-           - 0.5 * I * (pow(3.0, 5.0 / 6.0) + pow(3.0, 7.0 / 6.0));
-}
+/* The eigenvalues of the Radau IIA matrix's inverse: MU_REAL = 3 + 3^(2/3) - 3^(1/3), and
+ * MU_COMPLEX = 3 + (3^(1/3) - 3^(2/3)) / 2 - i (3^(5/6) + 3^(7/6)) / 2 (scipy's values). */
+#define MU_REAL 3.637834252744496
+#define MU_COMPLEX_RE 2.6810828736277523
+#define MU_COMPLEX_IM (-3.050430199247411)
 
 /* ---------------------------------------------------------------- the work arrays */
 /* Pointers into m->work and m->iwork (laid out by layout()). */
@@ -61,11 +54,13 @@ typedef struct ws {
     double *y, *f, *y_old, *y_new, *f_new, *scale, *err, *ze, *tmp, *dense, *z_event;
     double *Q, *Z, *Z0, *W, *F, *dW;          /* 3 x nx each, row-major */
     double *J, *LUr;                          /* nx x nx */
-    cplx *LUc, *fc;                           /* nx x nx; nx */
+    double *LUc_re, *LUc_im, *fc_re, *fc_im;  /* the complex matrix (nx x nx), right side (nx) */
+    double *inv_re, *inv_im;                  /* (nx) inverses of its LU's diagonal */
     double *yall, *zind, *znew, *zbuf;        /* ny; nz; nz; nz */
     double *A, *B, *Cm, *D, *M, *R, *sens;    /* Jacobian blocks; sens: the largest unit's */
     int *piv_r, *piv_c, *piv_m, *sx, *sy, *su;
     int *unk, *kn;                            /* value references of one unit's partials */
+    int *pat_r, *pat_c;                       /* the real and complex LUs' patterns */
 } ws;
 
 static int max_unknowns(const fme_master *m)
@@ -86,22 +81,21 @@ static void layout(const fme_master *m, double *dbase, int *ibase, ws *w, size_t
     size_t n = (size_t)m->nx, ny = (size_t)m->ny, nu = (size_t)m->nu, nz = (size_t)m->nz;
     size_t d = 0, i = 0, mu = (size_t)max_unknowns(m);
 #define TAKE(field, count) do { if (w) w->field = dbase + d; d += (count); } while (0)
-#define TAKEC(field, count) do { if (w) w->field = (cplx *)(void *)(dbase + d); \
-                                  d += 2 * (count); } while (0)
 #define TAKEI(field, count) do { if (w) w->field = ibase + i; i += (count); } while (0)
     TAKE(y, n); TAKE(f, n); TAKE(y_old, n); TAKE(y_new, n); TAKE(f_new, n); TAKE(scale, n);
     TAKE(err, n); TAKE(ze, n); TAKE(tmp, n); TAKE(dense, n); TAKE(z_event, n);
     TAKE(Q, 3 * n); TAKE(Z, 3 * n); TAKE(Z0, 3 * n); TAKE(W, 3 * n); TAKE(F, 3 * n);
     TAKE(dW, 3 * n); TAKE(J, n * n); TAKE(LUr, n * n);
-    TAKEC(LUc, n * n); TAKEC(fc, n);
+    TAKE(LUc_re, n * n); TAKE(LUc_im, n * n); TAKE(fc_re, n); TAKE(fc_im, n);
+    TAKE(inv_re, n); TAKE(inv_im, n);
     TAKE(yall, ny + 1); TAKE(zind, nz + 1); TAKE(znew, nz + 1); TAKE(zbuf, nz + 1);
     TAKE(A, n * n); TAKE(B, n * nu + 1); TAKE(Cm, ny * n + 1); TAKE(D, ny * nu + 1);
     TAKE(M, nu * nu + 1); TAKE(R, nu * n + 1); TAKE(sens, mu);
     TAKEI(piv_r, n); TAKEI(piv_c, n); TAKEI(piv_m, nu + 1);
     TAKEI(sx, (size_t)m->n_units); TAKEI(sy, (size_t)m->n_units); TAKEI(su, (size_t)m->n_units);
     TAKEI(unk, mu); TAKEI(kn, mu);
+    TAKEI(pat_r, 2 * (n * n + n + 1)); TAKEI(pat_c, 2 * (n * n + n + 1));
 #undef TAKE
-#undef TAKEC
 #undef TAKEI
     if (nd) *nd = d;
     if (ni) *ni = i;
@@ -229,7 +223,9 @@ static int lu_real(double *a, int *piv, int n)
             }
         if (a[k * n + k] == 0.0) { sing = 1; continue; }
         for (int i = k + 1; i < n; i++) {
-            double l = a[i * n + k] / a[k * n + k];
+            double l;
+            if (a[i * n + k] == 0.0) continue;   /* a zero multiplier changes nothing */
+            l = a[i * n + k] / a[k * n + k];
             a[i * n + k] = l;
             for (int j = k + 1; j < n; j++)
                 a[i * n + j] -= l * a[k * n + j];
@@ -250,38 +246,129 @@ static void solve_real(const double *a, const int *piv, int n, double *b)
     }
 }
 
-static double cabs1(cplx z) { return fabs(creal(z)) + fabs(cimag(z)); }
+/* 1 / (re + i im) by Smith's algorithm. */
+static void reciprocal(double re, double im, double *out_re, double *out_im)
+{
+    if (fabs(re) >= fabs(im)) {
+        double r = im / re, d = re + im * r;
+        *out_re = 1.0 / d;
+        *out_im = -r / d;
+    } else {
+        double r = re / im, d = re * r + im;
+        *out_re = r / d;
+        *out_im = -1.0 / d;
+    }
+}
 
-static void lu_complex(cplx *a, int *piv, int n)
+/* Complex LU with partial pivoting (LAPACK's pivot: the largest |re| + |im|) in place, real and
+ * imaginary parts in separate row-major arrays; the inverses of the diagonal in inv. */
+static void lu_complex(double *ar, double *ai, double *inv_r, double *inv_i, int *piv, int n)
 {
     for (int k = 0; k < n; k++) {
         int p = k;
-        for (int i = k + 1; i < n; i++)
-            if (cabs1(a[i * n + k]) > cabs1(a[p * n + k])) p = i;
+        double best = fabs(ar[k * n + k]) + fabs(ai[k * n + k]);
+        for (int i = k + 1; i < n; i++) {
+            double v = fabs(ar[i * n + k]) + fabs(ai[i * n + k]);
+            if (v > best) { best = v; p = i; }
+        }
         piv[k] = p;
         if (p != k)
             for (int j = 0; j < n; j++) {
-                cplx s = a[k * n + j]; a[k * n + j] = a[p * n + j]; a[p * n + j] = s;
+                double s = ar[k * n + j]; ar[k * n + j] = ar[p * n + j]; ar[p * n + j] = s;
+                s = ai[k * n + j]; ai[k * n + j] = ai[p * n + j]; ai[p * n + j] = s;
             }
-        if (a[k * n + k] == 0.0) continue;
+        if (best == 0.0) { inv_r[k] = inv_i[k] = INFINITY; continue; }
+        reciprocal(ar[k * n + k], ai[k * n + k], &inv_r[k], &inv_i[k]);
         for (int i = k + 1; i < n; i++) {
-            cplx l = a[i * n + k] / a[k * n + k];
-            a[i * n + k] = l;
-            for (int j = k + 1; j < n; j++)
-                a[i * n + j] -= l * a[k * n + j];
+            double lr, li, *rr, *ri;
+            const double *kr, *ki;
+            if (ar[i * n + k] == 0.0 && ai[i * n + k] == 0.0) continue;
+            lr = ar[i * n + k] * inv_r[k] - ai[i * n + k] * inv_i[k];
+            li = ar[i * n + k] * inv_i[k] + ai[i * n + k] * inv_r[k];
+            rr = ar + i * n; ri = ai + i * n;
+            kr = ar + k * n; ki = ai + k * n;
+            ar[i * n + k] = lr;
+            ai[i * n + k] = li;
+            for (int j = k + 1; j < n; j++) {
+                rr[j] -= lr * kr[j] - li * ki[j];
+                ri[j] -= lr * ki[j] + li * kr[j];
+            }
         }
     }
 }
 
-static void solve_complex(const cplx *a, const int *piv, int n, cplx *b)
+/* The nonzeros of an LU factorisation (n x n, row-major; imaginary parts ai or NULL), column by
+ * column, for the solves: pat = [L's column starts (n + 1), L's rows (below the diagonal);
+ * U's column starts (n + 1), U's rows (above it)], 2 (n n + n + 1) ints. The factors of the
+ * Radau systems are sparse (a state no other state drives has a diagonal row), and the
+ * solves skip exact zeros only: their results are those of the dense loops summed in
+ * column order. */
+static void lu_pattern(const double *ar, const double *ai, int n, int *pat)
 {
+    int *lp = pat, *li = pat + n + 1, *up = pat + n * n + n + 1, *ui = up + n + 1;
+    int nl = 0, nu = 0;
+    for (int j = 0; j < n; j++) {
+        lp[j] = nl;
+        up[j] = nu;
+        for (int i = 0; i < n; i++) {
+            int nz = ar[i * n + j] != 0.0 || (ai && ai[i * n + j] != 0.0);
+            if (!nz || i == j) continue;
+            if (i > j) li[nl++] = i;
+            else ui[nu++] = i;
+        }
+    }
+    lp[n] = nl;
+    up[n] = nu;
+}
+
+/* Solve with the real LU in place: the row interchanges, then L and U column by column. */
+static void solve_real_sparse(const double *a, const int *piv, const int *pat, int n, double *b)
+{
+    const int *lp = pat, *li = pat + n + 1, *up = pat + n * n + n + 1, *ui = up + n + 1;
     for (int k = 0; k < n; k++)
-        if (piv[k] != k) { cplx s = b[k]; b[k] = b[piv[k]]; b[piv[k]] = s; }
-    for (int i = 1; i < n; i++)
-        for (int j = 0; j < i; j++) b[i] -= a[i * n + j] * b[j];
-    for (int i = n - 1; i >= 0; i--) {
-        for (int j = i + 1; j < n; j++) b[i] -= a[i * n + j] * b[j];
-        b[i] /= a[i * n + i];
+        if (piv[k] != k) { double s = b[k]; b[k] = b[piv[k]]; b[piv[k]] = s; }
+    for (int j = 0; j < n; j++) {
+        double bj = b[j];
+        if (bj != 0.0)
+            for (int q = lp[j]; q < lp[j + 1]; q++) b[li[q]] -= a[li[q] * n + j] * bj;
+    }
+    for (int j = n - 1; j >= 0; j--) {
+        double bj = b[j] /= a[j * n + j];
+        if (bj != 0.0)
+            for (int q = up[j]; q < up[j + 1]; q++) b[ui[q]] -= a[ui[q] * n + j] * bj;
+    }
+}
+
+static void solve_complex_sparse(const double *ar, const double *ai, const double *inv_r,
+                                 const double *inv_i, const int *piv, const int *pat, int n,
+                                 double *br, double *bi)
+{
+    const int *lp = pat, *li = pat + n + 1, *up = pat + n * n + n + 1, *ui = up + n + 1;
+    for (int k = 0; k < n; k++)
+        if (piv[k] != k) {
+            double s = br[k]; br[k] = br[piv[k]]; br[piv[k]] = s;
+            s = bi[k]; bi[k] = bi[piv[k]]; bi[piv[k]] = s;
+        }
+    for (int j = 0; j < n; j++) {
+        double xr = br[j], xi = bi[j];
+        if (xr == 0.0 && xi == 0.0) continue;
+        for (int q = lp[j]; q < lp[j + 1]; q++) {
+            int i = li[q];
+            br[i] -= ar[i * n + j] * xr - ai[i * n + j] * xi;
+            bi[i] -= ar[i * n + j] * xi + ai[i * n + j] * xr;
+        }
+    }
+    for (int j = n - 1; j >= 0; j--) {
+        double xr = br[j] * inv_r[j] - bi[j] * inv_i[j];
+        double xi = br[j] * inv_i[j] + bi[j] * inv_r[j];
+        br[j] = xr;
+        bi[j] = xi;
+        if (xr == 0.0 && xi == 0.0) continue;
+        for (int q = up[j]; q < up[j + 1]; q++) {
+            int i = ui[q];
+            br[i] -= ar[i * n + j] * xr - ai[i * n + j] * xi;
+            bi[i] -= ar[i * n + j] * xi + ai[i * n + j] * xr;
+        }
     }
 }
 
@@ -408,15 +495,17 @@ static int init_solver(fme_master *m, ws *w, double t, const double *z)
 static void factor_lu(fme_master *m, ws *w, double h)
 {
     int n = m->nx;
-    double mr = mu_real() / h;
-    cplx mc = mu_complex() / h;
+    double mr = MU_REAL / h, mcr = MU_COMPLEX_RE / h, mci = MU_COMPLEX_IM / h;
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++) {
             w->LUr[i * n + j] = (i == j ? mr : 0.0) - w->J[i * n + j];
-            w->LUc[i * n + j] = (i == j ? mc : 0.0) - w->J[i * n + j];
+            w->LUc_re[i * n + j] = (i == j ? mcr : 0.0) - w->J[i * n + j];
+            w->LUc_im[i * n + j] = i == j ? mci : 0.0;
         }
     lu_real(w->LUr, w->piv_r, n);
-    lu_complex(w->LUc, w->piv_c, n);
+    lu_complex(w->LUc_re, w->LUc_im, w->inv_re, w->inv_im, w->piv_c, n);
+    lu_pattern(w->LUr, NULL, n, w->pat_r);
+    lu_pattern(w->LUc_re, w->LUc_im, n, w->pat_c);
     m->lu_valid = 1;
 }
 
@@ -425,8 +514,7 @@ static int collocation(fme_master *m, ws *w, double t, double h, int *converged,
                        double *rate)
 {
     int n = m->nx, rc, k;
-    double mr = mu_real() / h, dw_old = -1.0;
-    cplx mc = mu_complex() / h;
+    double mr = MU_REAL / h, mcr = MU_COMPLEX_RE / h, mci = MU_COMPLEX_IM / h, dw_old = -1.0;
     *converged = 0;
     *rate = -1.0;                         /* None */
     for (int i = 0; i < n; i++)
@@ -446,16 +534,19 @@ static int collocation(fme_master *m, ws *w, double t, double h, int *converged,
         for (int i = 0; i < n; i++) {
             double f0 = w->F[i], f1 = w->F[n + i], f2 = w->F[2 * n + i];
             w->err[i] = f0 * TI_[0][0] + f1 * TI_[0][1] + f2 * TI_[0][2] - mr * w->W[i];
-            w->fc[i] = (f0 * TI_[1][0] + f1 * TI_[1][1] + f2 * TI_[1][2])
-                       + I * (f0 * TI_[2][0] + f1 * TI_[2][1] + f2 * TI_[2][2])
-                       - mc * (w->W[n + i] + I * w->W[2 * n + i]);
+            double wr = w->W[n + i], wi = w->W[2 * n + i];
+            w->fc_re[i] = f0 * TI_[1][0] + f1 * TI_[1][1] + f2 * TI_[1][2]
+                          - (mcr * wr - mci * wi);
+            w->fc_im[i] = f0 * TI_[2][0] + f1 * TI_[2][1] + f2 * TI_[2][2]
+                          - (mcr * wi + mci * wr);
         }
-        solve_real(w->LUr, w->piv_r, n, w->err);
-        solve_complex(w->LUc, w->piv_c, n, w->fc);
+        solve_real_sparse(w->LUr, w->piv_r, w->pat_r, n, w->err);
+        solve_complex_sparse(w->LUc_re, w->LUc_im, w->inv_re, w->inv_im, w->piv_c, w->pat_c,
+                             n, w->fc_re, w->fc_im);
         for (int i = 0; i < n; i++) {
             w->dW[i] = w->err[i];
-            w->dW[n + i] = creal(w->fc[i]);
-            w->dW[2 * n + i] = cimag(w->fc[i]);
+            w->dW[n + i] = w->fc_re[i];
+            w->dW[2 * n + i] = w->fc_im[i];
         }
         {
             double sum = 0.0;
@@ -553,7 +644,7 @@ static int step(fme_master *m, ws *w)
             w->ze[i] = (w->Z[i] * E_[0] + w->Z[n + i] * E_[1] + w->Z[2 * n + i] * E_[2]) / h;
             w->err[i] = w->f[i] + w->ze[i];
         }
-        solve_real(w->LUr, w->piv_r, n, w->err);
+        solve_real_sparse(w->LUr, w->piv_r, w->pat_r, n, w->err);
         for (int i = 0; i < n; i++)
             w->scale[i] = m->atol[i] + fmax(fabs(w->y[i]), fabs(w->y_new[i])) * m->rtol;
         error_norm = rms(w->err, w->scale, n);
@@ -562,7 +653,7 @@ static int step(fme_master *m, ws *w)
             for (int i = 0; i < n; i++) w->tmp[i] = w->y[i] + w->err[i];
             if ((rc = rhs(m, w, t, w->tmp, w->f_new)) != FME_DONE) return rc;
             for (int i = 0; i < n; i++) w->err[i] = w->f_new[i] + w->ze[i];
-            solve_real(w->LUr, w->piv_r, n, w->err);
+            solve_real_sparse(w->LUr, w->piv_r, w->pat_r, n, w->err);
             error_norm = rms(w->err, w->scale, n);
         }
         if (error_norm > 1) {
