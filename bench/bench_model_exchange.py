@@ -76,7 +76,7 @@ SCENE_FAMILIES = {
 PAPER_SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
 PAPER_FAMILIES = {
     "co-simulation (default coupling)": ([], "master.step",
-                                         ([4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5],
+                                         ([2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5, 3.125e-5],
                                           [2e-3, 5e-4, 1.25e-4])),
     "model-exchange master (Radau, compiled)": (["master.interface=model-exchange"],
                                                 "master.rtol",

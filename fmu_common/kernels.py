@@ -66,7 +66,7 @@ KERNELS = {
                         "fm_source_digest", 3),
     # the model-exchange master's integration loop (orchestration/cosim/compiled_me.py)
     "flexpend_me": ("orchestration/cosim", ("fm_me.c",), ("fm_me.h",), "fme_abi",
-                    "fme_source_digest", 1),
+                    "fme_source_digest", 2),
 }
 
 

@@ -81,7 +81,8 @@ class _Master(ctypes.Structure):
                 *[(f, _D) for f in ("t_old", "h_abs", "h_abs_old", "error_norm_old",
                                     "newton_tol")],
                 *[(f, _I) for f in ("has_h_old", "has_err_old", "current_jac", "lu_valid",
-                                    "has_sol", "laid_out")]]
+                                    "has_sol", "laid_out")],
+                ("pt_t", _D), ("pt_valid", _I), ("pad4_", _I)]
 
 
 _lib = None

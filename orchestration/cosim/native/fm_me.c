@@ -61,6 +61,7 @@ typedef struct ws {
     int *piv_r, *piv_c, *piv_m, *sx, *sy, *su;
     int *unk, *kn;                            /* value references of one unit's partials */
     int *pat_r, *pat_c;                       /* the real and complex LUs' patterns */
+    double *pt_z;                             /* (nx) the states the FMUs were last set to */
 } ws;
 
 static int max_unknowns(const fme_master *m)
@@ -89,7 +90,7 @@ static void layout(const fme_master *m, double *dbase, int *ibase, ws *w, size_t
     TAKE(LUc_re, n * n); TAKE(LUc_im, n * n); TAKE(fc_re, n); TAKE(fc_im, n);
     TAKE(inv_re, n); TAKE(inv_im, n);
     TAKE(yall, ny + 1); TAKE(zind, nz + 1); TAKE(znew, nz + 1); TAKE(zbuf, nz + 1);
-    TAKE(A, n * n); TAKE(B, n * nu + 1); TAKE(Cm, ny * n + 1); TAKE(D, ny * nu + 1);
+    TAKE(pt_z, n); TAKE(A, n * n); TAKE(B, n * nu + 1); TAKE(Cm, ny * n + 1); TAKE(D, ny * nu + 1);
     TAKE(M, nu * nu + 1); TAKE(R, nu * n + 1); TAKE(sens, mu);
     TAKEI(piv_r, n); TAKEI(piv_c, n); TAKEI(piv_m, nu + 1);
     TAKEI(sx, (size_t)m->n_units); TAKEI(sy, (size_t)m->n_units); TAKEI(su, (size_t)m->n_units);
@@ -141,10 +142,15 @@ static int fail(fme_master *m, int unit, int call, int status, double t)
 #define CHECK(unit, call, expr) do { int s_ = (expr); \
     if (s_ > 1) return fail(m, (unit), (call), s_, t); } while (0)
 
-/* Time and states of every unit, then the connected outputs and inputs (_set_point). */
+/* Time and states of every unit, then the connected outputs and inputs (_set_point). The
+ * FMUs are not set again to the point they were last set to (nothing else sets them between
+ * two calls of this loop: fme_run, fme_start and fme_restart forget the point). */
 static int set_point(fme_master *m, ws *w, double t, const double *z)
 {
     double *y = w->yall;
+    if (m->pt_valid && t == m->pt_t && memcmp(z, w->pt_z, sizeof(double) * (size_t)m->nx) == 0)
+        return FME_DONE;
+    m->pt_valid = 0;
     for (int k = 0; k < m->n_units; k++) {
         fme_unit *u = &m->units[k];
         CHECK(k, FME_CALL_SET_TIME, u->set_time(u->c, t));
@@ -174,6 +180,9 @@ static int set_point(fme_master *m, ws *w, double t, const double *z)
             CHECK(k, FME_CALL_SET_REAL, u->set_real(u->c, u->late_vr, (size_t)u->n_late, v));
         }
     }
+    memcpy(w->pt_z, z, sizeof(double) * (size_t)m->nx);
+    m->pt_t = t;
+    m->pt_valid = 1;
     return FME_DONE;
 }
 
@@ -792,6 +801,7 @@ FME_API int fme_start(fme_master *m, double t, const double *z)
     ws w;
     int rc;
     if (bad(m)) return FME_BADARG;
+    m->pt_valid = 0;                      /* the caller may have called the FMUs */
     m->laid_out = 0;
     get_ws(m, &w);
     m->y = w.y;
@@ -807,6 +817,7 @@ FME_API int fme_restart(fme_master *m, double t, const double *z)
     ws w;
     int rc;
     if (bad(m) || !m->laid_out) return FME_BADARG;
+    m->pt_valid = 0;                      /* the caller may have called the FMUs */
     get_ws(m, &w);
     if ((rc = init_solver(m, &w, t, z)) != FME_DONE) return rc;
     return indicators(m, &w, t, z, w.zind);
@@ -817,6 +828,7 @@ FME_API int fme_run(fme_master *m, long long max_steps)
     ws w;
     int rc;
     if (bad(m) || !m->laid_out) return FME_BADARG;
+    m->pt_valid = 0;                      /* the caller may have called the FMUs */
     get_ws(m, &w);
     for (long long s = 0; m->rows <= m->n_out; s++) {
         double t, t_old, t_end, t_event = 0.0;

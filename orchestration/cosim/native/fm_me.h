@@ -49,7 +49,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FME_ABI 1
+#define FME_ABI 2
 
 /* Results of fme_run(), fme_start() and fme_restart(). */
 #define FME_DONE 0         /* every output row is stored */
@@ -147,6 +147,8 @@ typedef struct fme_master {
     /* the integrator's state (work: set by fme_start and fme_restart) */
     double t_old, h_abs, h_abs_old, error_norm_old, newton_tol;
     int has_h_old, has_err_old, current_jac, lu_valid, has_sol, laid_out;
+    double pt_t;                      /* work: the time the FMUs were last set to */
+    int pt_valid, pad4_;              /* work: 1 if they are at (pt_t, the states kept) */
 } fme_master;
 
 FME_API int fme_abi(void);
