@@ -126,3 +126,49 @@ def test_fmi3_fmus_keep_the_python_loop(native3):
     finally:
         for u in units.values():
             u.close()
+
+
+def _fail_nth_call(unit, fname, argtypes, nth, status, keep):
+    """Make the unit's ``fname`` return ``status`` at its ``nth`` call from now, for both loops
+    (the Python loop's bound calls are bound again)."""
+    import ctypes
+
+    real = unit.fmu._functions[fname]
+    count = [0]
+
+    def call(*args):
+        count[0] += 1
+        return status if count[0] == nth else real(*args)
+    cb = ctypes.CFUNCTYPE(ctypes.c_int, *argtypes)(call)
+    keep.append(cb)
+    unit.fmu._functions[fname] = cb
+    unit._bind_hot()
+
+
+@pytest.mark.parametrize("status, word", [(2, "discard"), (3, "error")])
+def test_a_failed_call_ends_the_run_naming_the_fmu_the_call_and_the_status(pair, status, word):
+    """fmi2GetDerivatives of the plant failing mid-run ends both loops with the same kind of
+    CoSimulationError (FMU, call, status), the rows reached so far kept."""
+    import ctypes
+
+    from orchestration.cosim.slave import CoSimulationError
+
+    argtypes = (ctypes.c_void_p, ctypes.POINTER(ctypes.c_double), ctypes.c_size_t)
+    errors = {}
+    for compiled in (False, True):
+        scene = load_scene("flexible_pd_lowpass", ["master.interface=model-exchange",
+                                                   f"master.compiled={str(compiled).lower()}"])
+        units, keep = _units(scene, pair), []
+        master = ModelExchangeMaster(units, scene.connections, RECORD, scene.master)
+        _fail_nth_call(units["plant"], "fmi2GetDerivatives", argtypes, 2000, status, keep)
+        try:
+            with pytest.raises(CoSimulationError) as info:
+                master.run(0.0, 10.0, scene.output.output_interval)
+        finally:
+            master.close()
+        exc = errors[compiled] = info.value
+        assert str(exc).startswith("plant: getDerivatives at t = ")
+        assert f"returned {word}" in str(exc)
+        assert exc.status == status and 0.0 < exc.time < 10.0
+        assert 1 < len(exc.result) and exc.result["time"][-1] <= exc.time + 1e-12
+    assert errors[True].time == pytest.approx(errors[False].time, rel=0.05)
