@@ -172,3 +172,58 @@ def test_a_failed_call_ends_the_run_naming_the_fmu_the_call_and_the_status(pair,
         assert exc.status == status and 0.0 < exc.time < 10.0
         assert 1 < len(exc.result) and exc.result["time"][-1] <= exc.time + 1e-12
     assert errors[True].time == pytest.approx(errors[False].time, rel=0.05)
+
+
+def _completed_says(unit, nth, flag, keep):
+    """Make the unit's fmi2CompletedIntegratorStep set ``flag`` (2: enter event mode, 3:
+    terminate) at its ``nth`` call from now, for both loops."""
+    import ctypes
+
+    real = unit.fmu._functions["fmi2CompletedIntegratorStep"]
+    count = [0]
+    pint = ctypes.POINTER(ctypes.c_int)
+
+    def call(c, no_prior, enter, terminate):
+        status = real(c, no_prior, enter, terminate)
+        count[0] += 1
+        if count[0] == nth:
+            (enter if flag == 2 else terminate)[0] = 1
+        return status
+    cb = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_int, pint, pint)(call)
+    keep.append(cb)
+    unit.fmu._functions["fmi2CompletedIntegratorStep"] = cb
+    unit.fmu.fmi2CompletedIntegratorStep = cb
+
+
+def _run_completed_says(pair, compiled, flag):
+    from orchestration.cosim.slave import CoSimulationError
+
+    scene = load_scene("flexible_pd_lowpass", ["master.interface=model-exchange", "stop_time=1",
+                                               f"master.compiled={str(compiled).lower()}"])
+    units, keep = _units(scene, pair), []
+    master = ModelExchangeMaster(units, scene.connections, RECORD, scene.master)
+    if flag:
+        _completed_says(units["controller"], 300, flag, keep)
+    try:
+        return master.run(0.0, 1.0, scene.output.output_interval)
+    except CoSimulationError as exc:
+        return exc, exc.stats
+    finally:
+        master.close()
+
+
+def test_completed_integrator_step_asking_for_event_mode_or_to_terminate(pair):
+    """A unit's fmi2CompletedIntegratorStep asking for event mode: both loops run event mode
+    (this product changes nothing there) and go on to the rows of a clean run; asking to
+    terminate: both stop with the FMU named, at the same time, after the same steps."""
+    clean = _run_completed_says(pair, False, 0)[0]
+    scene = load_scene("flexible_pd_lowpass", ["master.interface=model-exchange"])
+    for compiled in (False, True):
+        rows, stats = _run_completed_says(pair, compiled, 2)
+        _assert_rows_agree(clean, rows, scene.master)
+    stopped = [_run_completed_says(pair, compiled, 3)[0] for compiled in (False, True)]
+    for exc in stopped:
+        assert str(exc).startswith("controller: completedIntegratorStep asked to terminate at t")
+        assert exc.status == 3 and len(exc.result) > 1
+    assert stopped[1].time == pytest.approx(stopped[0].time, rel=1e-3)
+    assert stopped[1].stats.steps == stopped[0].stats.steps == 300
