@@ -22,6 +22,13 @@
   or drifts): the bench applies it in the right-hand side too, as ``tests/export/test_native_me.py``
   does.
 
+* **The compiled model-exchange master on the three paper scenes** (issue 39; ``--paper``
+  runs only this part): ``rigid_pd``, ``flexible_pd`` and ``flexible_pd_lowpass`` (10 s), the
+  model-exchange master's compiled loop (``orchestration/cosim/native/fm_me.c``) over
+  ``master.rtol`` against the co-simulation's compiled default over the communication step,
+  side by side, the error of ``phi_o`` against the monolithic reference; per error target the
+  fastest point of each and their ratio (the issue's goal: at most 3).
+
 Times are medians of ``--runs`` runs after a warm-up, the compared settings alternated point by
 point so that the machine's load falls on both sides of each ratio. Results:
 ``bench/results/model_exchange.json`` and ``.png`` (error against time).
@@ -57,28 +64,48 @@ SCENE_FAMILIES = {
                                                 "master.step",
                                                 ([4e-3, 2e-3, 1e-3, 5e-4, 2.5e-4],
                                                  [2e-3, 1e-3, 5e-4])),
-    "model-exchange master (Radau)": (["master.interface=model-exchange"], "master.rtol",
-                                      ([1e-5, 1e-6, 1e-7, 1e-8, 1e-9], [1e-6, 1e-8])),
+    "model-exchange master (Radau, compiled)": (["master.interface=model-exchange"],
+                                                "master.rtol",
+                                                ([1e-5, 1e-6, 1e-7, 1e-8, 1e-9], [1e-6, 1e-8])),
+    "model-exchange master (Radau, scipy)": (["master.interface=model-exchange",
+                                              "master.compiled=false"], "master.rtol",
+                                             ([1e-5, 1e-6, 1e-7, 1e-8, 1e-9], [1e-6, 1e-8])),
 }
+#: issue 39: the compiled model-exchange master against the compiled co-simulation default on
+#: the paper scenes (family -> (overrides, sweep key, values (full, quick)))
+PAPER_SCENES = ("rigid_pd", "flexible_pd", "flexible_pd_lowpass")
+PAPER_FAMILIES = {
+    "co-simulation (default coupling)": ([], "master.step",
+                                         ([2e-3, 1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5, 3.125e-5],
+                                          [2e-3, 5e-4, 1.25e-4])),
+    "model-exchange master (Radau, compiled)": (["master.interface=model-exchange"],
+                                                "master.rtol",
+                                                ([1e-3, 3e-4, 1e-4, 3e-5, 1e-5, 1e-6, 1e-7],
+                                                 [1e-4, 1e-5, 1e-6])),
+}
+PAPER_TARGETS = (1e-5, 1e-6, 1e-7)
 CVODE_RTOLS = ([1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10], [1e-5, 1e-7, 1e-9])
 CS_PLANT_STEPS = ([1e-3, 5e-4, 2.5e-4, 1.25e-4, 6.25e-5], [5e-4, 2.5e-4, 1.25e-4])
 
 
-def _overrides(ov, key, value):
+def _overrides(ov, key, value, interval=2e-3):
+    """The scene's overrides for ``key = value`` (``interval``: the scene's output interval,
+    widened to a longer communication step)."""
     out = list(ov) + [f"{key}={value!r}"]
-    if key == "master.step" and value > 2e-3:
+    if key == "master.step" and value > interval:
         out.append(f"output_interval={value!r}")
     if key == "master.rtol":
         out.append(f"master.atol={value * 1e-2!r}")
     return out
 
 
-def scene_points(fmus, runs, quick):
+def scene_points(fmus, runs, quick, name=SCENE, families=SCENE_FAMILIES):
     refs = {}
     points = []
-    for fam, (ov, key, values) in SCENE_FAMILIES.items():
+    interval = load_scene(name).output.output_interval
+    for fam, (ov, key, values) in families.items():
         for value in values[quick]:
-            scene = load_scene(SCENE, _overrides(ov, key, value))
+            scene = load_scene(name, _overrides(ov, key, value, interval))
             grid = scene.output.output_interval
             if grid not in refs:
                 refs[grid] = reference(scene)
@@ -89,11 +116,24 @@ def scene_points(fmus, runs, quick):
                 return stats.wall_time, result
             med, times, result = median_time(fn, runs)
             err = phi_error(result, refs[grid])
-            points.append(dict(family=fam, key=key, value=value, error=err, median_s=med,
-                               times=times))
+            points.append(dict(scene=name, family=fam, key=key, value=value, error=err,
+                               median_s=med, times=times))
             print(f"  {fam:42s} {key} = {value:<8g} error {err:9.3g} rad  {med * 1e3:9.2f} ms",
                   flush=True)
     return points
+
+
+def paper_points(fmus, runs, quick):
+    """Issue 39: per paper scene, the compiled model-exchange master against the compiled
+    co-simulation default; ``(points, {scene: rows at equal error})``."""
+    points, rows = [], {}
+    for name in PAPER_SCENES:
+        print(f"{name}: error of phi_o against the monolithic reference, median of {runs}")
+        pts = scene_points(fmus, runs, quick, name, PAPER_FAMILIES)
+        rows[name] = at_equal_error(pts, PAPER_TARGETS)
+        print_equal_error(rows[name], "co-simulation (default coupling)")
+        points += pts
+    return points, rows
 
 
 # ---------------------------------------------------------------------- the plant alone
@@ -259,9 +299,18 @@ def main(argv=None):
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--json", type=Path, default=RESULTS / "model_exchange.json")
+    ap.add_argument("--paper", action="store_true",
+                    help="only the compiled model-exchange master on the paper scenes")
     args = ap.parse_args(argv)
     quick = int(args.quick)
     fmus = fmu_pair(build_fmus(flavour="native"))
+    paper, _rows = paper_points(fmus, args.runs, quick)
+    if args.paper:
+        path = args.json.with_name(args.json.stem + "_paper.json")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"paper": paper}, indent=1))
+        print(f"wrote {path}")
+        return
     print(f"{SCENE}: error of phi_o against the monolithic reference, median of {args.runs}")
     sp = scene_points(fmus, args.runs, quick)
     rows = at_equal_error(sp, TARGETS)
@@ -272,7 +321,7 @@ def main(argv=None):
     print_equal_error(prow, "CoSimulation (plant RK4)")
     args.json.parent.mkdir(parents=True, exist_ok=True)
     tmp = args.json.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"scene": sp, "plant": pp}, indent=1))
+    tmp.write_text(json.dumps({"scene": sp, "plant": pp, "paper": paper}, indent=1))
     tmp.replace(args.json)
     png = args.json.with_suffix(".png")
     plot(sp, pp, png)

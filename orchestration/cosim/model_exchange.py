@@ -22,6 +22,13 @@ polynomial), the outputs there computed by the FMUs from the interpolated states
 The same results as the co-simulation master: a structured array on the output grid and a
 :class:`~orchestration.cosim.master.RunStats` (``steps``: the solver's steps, ``loop``:
 ``"model-exchange (radau)"``). The solver's largest step is ``master.max_step``.
+
+``master.compiled``: ``"auto"`` (default) runs the integration loop in C
+(:mod:`orchestration.cosim.compiled_me`: scipy's Radau ported step for step, the FMUs called
+from C) when every FMU can take it (FMI 2.0 FMUs that need no execution tool: the native FMUs)
+and ``master.solver = "radau"``, and scipy's solver otherwise; ``False`` always scipy's;
+``True`` the C loop or a ValueError saying why not. The loop run below stays the specification
+the compiled one is tested against (``loop``: ``"model-exchange (radau, compiled)"``).
 """
 from __future__ import annotations
 
@@ -30,6 +37,7 @@ import time as _time
 import numpy as np
 
 from ..scene.records import SOLVERS, MasterSettings
+from . import compiled_me
 from .coupling import checked_connections, output_table
 from .master import RunStats
 from .slave import CoSimulationError, RunInterrupted, Slave
@@ -243,6 +251,9 @@ class ModelExchangeMaster:
                 raise ValueError(f"{name}: {u.path} gives no directional derivatives; the "
                                  "model-exchange master needs them for its Jacobian")
         self.record = dict(record)
+        #: why the compiled loop cannot run (None: it can), and the loop :meth:`run` uses:
+        #: "compiled" or "python"
+        self.compiled_unavailable, self.loop = compiled_me.choose(units, self.settings)
         names = list(units)
         self.inputs = {n: [c for c in self.connections if c.dst == n] for n in names}
         self.in_vrs = {n: [units[n].vr(c.dst_var) for c in self.inputs[n]] for n in names}
@@ -369,7 +380,9 @@ class ModelExchangeMaster:
         """Run from ``t0`` to ``stop_time`` with outputs every ``output_interval``; a structured
         array (time first) and :class:`RunStats`, as :meth:`Master.run`."""
         wall = _time.perf_counter()
-        stats = RunStats(loop=f"model-exchange ({self.settings.solver})")
+        compiled = self.loop == "compiled"
+        stats = RunStats(loop=f"model-exchange ({self.settings.solver}"
+                              f"{', compiled' if compiled else ''})")
         out = output_table(self.record, t0, stop_time, output_interval)
         n_out = len(out) - 1
         rows = 0
@@ -383,6 +396,16 @@ class ModelExchangeMaster:
                 else np.zeros(0)
             self._store(out, 0, t0, z)
             rows = 1
+            if compiled:
+                run = compiled_me.CompiledME(self, out, t0, stop_time, output_interval,
+                                             self.settings.atol * np.abs(nominal))
+                try:
+                    run.start(t0, z)
+                    run.run(stats, progress, stop)
+                finally:
+                    rows, t = run.rows_written, run.t
+                stats.wall_time = _time.perf_counter() - wall
+                return out, stats
             z_ind = self._indicators(t0, z)
             solver = solver_class(self.settings.solver)(
                 self.rhs, t0, z, stop_time, rtol=self.settings.rtol,

@@ -1,11 +1,13 @@
-"""The master's compiled loop (orchestration/cosim/native/fm_master.c) under AddressSanitizer and
-UndefinedBehaviorSanitizer: the library is rebuilt with the project's flags plus
-``-fsanitize=address,undefined`` and the whole of ``tests/cosim/test_compiled.py`` (every
-coupling, traced FMI calls, every injected failure, divergence, stop, a million steps) runs against
-it in a child Python that preloads the sanitizers' runtimes. Any report aborts the child
-(``-fno-sanitize-recover=all``, ``halt_on_error``): the test then fails with the report. Independent
-value: the bit-identity to the Python loop that those tests assert, now with every memory access of
-the C loop checked. Skipped without gcc's sanitizer runtimes (Linux only).
+"""The master's compiled loops under AddressSanitizer and UndefinedBehaviorSanitizer: the
+co-simulation's (orchestration/cosim/native/fm_master.c) and the model-exchange master's
+(fm_me.c). Each library is rebuilt with the project's flags plus
+``-fsanitize=address,undefined`` and the whole of its tests (``tests/cosim/test_compiled.py``:
+every coupling, traced FMI calls, every injected failure, divergence, stop, a million steps;
+``tests/cosim/test_compiled_me.py``: the paper scenes, events, failures, stops) runs against it in
+a child Python that preloads the sanitizers' runtimes. Any report aborts the child
+(``-fno-sanitize-recover=all``, ``halt_on_error``): the test then fails with the report.
+Independent value: the agreement with the Python loop that those tests assert, now with every
+memory access of the C loop checked. Skipped without gcc's sanitizer runtimes (Linux only).
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ from pathlib import Path
 import pytest
 
 from orchestration.cosim import compiled as compiled_master
+from orchestration.cosim import compiled_me
 from fmu_common import kernels
 
 HERE = Path(__file__).parents[1]
@@ -38,12 +41,13 @@ pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not sys.platform.startswith("linux") or not all(RUNTIMES),
                                  reason="needs Linux and gcc's libasan and libubsan")]
 
-#: a pytest plugin for the child: the compiled loop loads the sanitized library
+#: a pytest plugin for the child: the compiled loop (the binding ``module``) loads the sanitized
+#: library
 PLUGIN = '''
 from pathlib import Path
 from types import SimpleNamespace
 
-from orchestration.cosim import compiled as compiled_master
+from orchestration.cosim import {module} as compiled_master
 from fmu_common import kernels
 
 _NATIVE = Path({native!r})
@@ -60,25 +64,29 @@ def pytest_sessionfinish(session, exitstatus):
 '''
 
 
-def test_the_compiled_loop_tests_pass_under_the_sanitizers(tmp_path):
+@pytest.mark.parametrize("binding, tests", [(compiled_master, "test_compiled.py"),
+                                            (compiled_me, "test_compiled_me.py")],
+                         ids=["co-simulation", "model-exchange"])
+def test_the_compiled_loop_tests_pass_under_the_sanitizers(tmp_path, binding, tests):
     native = tmp_path / "root" / "orchestration" / "native"
     native.mkdir(parents=True)
-    for f in kernels.source_files(compiled_master.KERNEL):
+    for f in kernels.source_files(binding.KERNEL):
         shutil.copy(f, native / f.name)
-    out = kernels.library_path(compiled_master.KERNEL, None, native)
+    out = kernels.library_path(binding.KERNEL, None, native)
     out.parent.mkdir(parents=True)
-    cmd = kernels.compile_command(compiled_master.KERNEL, kernels.host_platform(), out,
-                                       native, "gcc")
+    cmd = kernels.compile_command(binding.KERNEL, kernels.host_platform(), out, native, "gcc")
     cmd[1:1] = SANITIZE
     subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=native)
-    (tmp_path / "sanitized_master.py").write_text(PLUGIN.format(native=str(native)))
+    module = binding.__name__.rsplit(".", 1)[1]
+    (tmp_path / "sanitized_master.py").write_text(PLUGIN.format(native=str(native),
+                                                                module=module))
     env = dict(os.environ, LD_PRELOAD=":".join(RUNTIMES),
                ASAN_OPTIONS="detect_leaks=0:halt_on_error=1:abort_on_error=0",
                UBSAN_OPTIONS="halt_on_error=1:print_stacktrace=1",
                PYTHONPATH=os.pathsep.join([str(tmp_path), str(HERE.parent)]))
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "sanitized_master",
                            "-p", "no:cacheprovider", "-s",
-                           str(Path(__file__).parent / "test_compiled.py")],
+                           str(Path(__file__).parent / tests)],
                           env=env, capture_output=True, text=True, timeout=1200, cwd=tmp_path)
     text = proc.stdout + proc.stderr
     assert proc.returncode == 0, text[-4000:]

@@ -134,7 +134,7 @@ def test_the_model_exchange_master_meets_the_monolithic_reference(native, name):
     assert len(run.result) == len(ref)
     err = float(np.max(np.abs(run.result["phi_o"] - ref["phi_o"])))
     assert err < 1e-6, err
-    assert run.stats.loop == "model-exchange (radau)"
+    assert run.stats.loop == "model-exchange (radau, compiled)"
 
 
 def test_a_model_exchange_run_that_falls_stops_at_phi_limit_like_a_cosimulation(native):
