@@ -64,6 +64,9 @@ KERNELS = {
     # the master's compiled fixed-step loop (orchestration/cosim/compiled.py), for the host
     "flexpend_master": ("orchestration/cosim", ("fm_master.c",), ("fm_master.h",), "fm_abi",
                         "fm_source_digest", 3),
+    # the master's compiled adaptive loop (orchestration/cosim/compiled_adaptive.py)
+    "flexpend_adaptive": ("orchestration/cosim", ("fm_adaptive.c",), ("fm_adaptive.h",),
+                          "fa_abi", "fa_source_digest", 1),
 }
 
 
