@@ -112,18 +112,17 @@ class Master:
                                  "'extrapolation'")
         self._in_buf = {n: np.zeros(len(coupling.inputs[n]) * (1 + coupling.n_der[n]))
                         for n in slaves}
-        #: the compiled loop of this run: the fixed-step one, or the adaptive one
-        backend = compiled_adaptive if self.adaptive else compiled_master
-        #: why the compiled loop cannot run these FMUs (None: it can)
-        self.compiled_unavailable = (compiled_adaptive.unavailable(coupling, slaves)
-                                     if self.adaptive else
-                                     compiled_master.unavailable(coupling, slaves, False))
         #: the strongly coupled step (master.algorithm = "implicit"), None otherwise
         self.implicit = None
         if settings.algorithm == "implicit":
             from .implicit import InterfaceIteration
             self.implicit = InterfaceIteration(self)
-            self.compiled_unavailable = "master.algorithm = 'implicit' runs in Python"
+        # the compiled loop of this run: the adaptive and implicit ones, or the fixed-step one
+        other = self.adaptive or self.implicit is not None
+        backend = compiled_adaptive if other else compiled_master
+        #: why the compiled loop cannot run these FMUs (None: it can)
+        self.compiled_unavailable = (compiled_adaptive.unavailable(coupling, slaves) if other
+                                     else compiled_master.unavailable(coupling, slaves, False))
         if compiled and not self.compiled_unavailable:
             try:
                 backend.load()               # before any run
@@ -399,8 +398,10 @@ class Master:
                 total = n_out * m
                 if self.loop == "compiled":
                     stats.loop = "compiled"
-                    run = compiled_master.CompiledRun(self.coupling, self.slaves, hist, t0, m,
-                                                      total, out)
+                    run = (compiled_adaptive.ImplicitRun(self, self.implicit, cur, t0, m, total,
+                                                         out) if self.implicit is not None else
+                           compiled_master.CompiledRun(self.coupling, self.slaves, hist, t0, m,
+                                                       total, out))
                     try:
                         run.run(stats, progress, stop)
                     finally:

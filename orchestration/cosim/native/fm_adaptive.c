@@ -58,6 +58,15 @@ static int fail(fa_master *m, int slave, int call, int status, int timed, double
     return FA_FAILED;
 }
 
+/* The history's clock (Master._time): a sample stamped `a` is at secs(a) seconds; one unit of
+ * it is `unit` seconds. Seconds with an adaptive step, step counters from t0 at a fixed one. */
+static double unit_of(const fa_master *m) { return m->counters ? m->h : 1.0; }
+
+static double secs(const fa_master *m, double a)
+{
+    return m->counters ? m->t0 + a * m->h : a;
+}
+
 /* ---------------------------------------------------------------------- arithmetic */
 FA_API double fa_round9(double x)
 {
@@ -180,6 +189,25 @@ static void nodes_about(const fa_slave *s, int nodes, double t, double scale, do
     for (q = 0; q < nodes; q++) tau[q] = fa_round9((s->t[s->count - nodes + q] - t) / scale);
 }
 
+/* The weights of kind `kind` (KIND_AVERAGE, 0, 1, 2; derivatives unscaled) on the newest `nodes`
+ * samples of `s` about `t` in units of `scale`: on the step counters' grid the Python master's
+ * own (coupling.weight_table, the nodes integers), else solved here. */
+static int weights_about(const fa_master *m, const fa_slave *s, int nodes, double t,
+                         double scale, int kind, double *w)
+{
+    double tau[3];
+    if (m->counters) {
+        int e = (int)(s->t[s->count - 1] - t), q;
+        const double *row;
+        if (e < -1 || e > 1) return 0;
+        row = m->weights + (((e + 1) * 3 + (nodes - 1)) * 4 + kind + 1) * 3;
+        for (q = 0; q < nodes; q++) w[q] = row[q];
+        return 1;
+    }
+    nodes_about(s, nodes, t, scale, tau);
+    return fa_weights(tau, nodes, kind, w);
+}
+
 /* _combination, one output: weights `w` on the newest `nodes` samples, summed left to right. */
 static double combine(const fa_slave *s, const double *w, int nodes, int idx)
 {
@@ -196,22 +224,23 @@ static double combine(const fa_slave *s, const double *w, int nodes, int idx)
  * [t, t + scale] (the step averages, or the values and derivatives at t), or the values at t. */
 static int fill(const fa_master *m, fa_slave *d, double t, double scale, int held)
 {
-    double w[3][3], tau[3], pw[2] = {0.0, 0.0};
+    double w[3][3], pw[2] = {0.0, 0.0};
     int i, r, j, last = -1, nodes = 0;
     int rows = held && d->n_der ? d->n_der : 0;
     if (rows) {
-        pw[0] = py_pow(scale, 1.0);
-        if (rows > 1) pw[1] = py_pow(scale, 2.0);
+        pw[0] = py_pow(scale * unit_of(m), 1.0);
+        if (rows > 1) pw[1] = py_pow(scale * unit_of(m), 2.0);
     }
     for (i = 0; i < d->n_in; i++) {
         const fa_slave *s = &m->slaves[d->in_src[i]];
         if (d->in_src[i] != last) {       /* the weights of this source (computed once) */
             last = d->in_src[i];
             nodes = nodes_of(m, s);
-            nodes_about(s, nodes, t, scale, tau);
-            if (!fa_weights(tau, nodes, held && !d->n_der ? KIND_AVERAGE : 0, w[0])) return 0;
+            if (!weights_about(m, s, nodes, t, scale, held && !d->n_der ? KIND_AVERAGE : 0,
+                               w[0]))
+                return 0;
             for (r = 0; r < rows; r++) {
-                if (!fa_weights(tau, nodes, r + 1, w[r + 1])) return 0;
+                if (!weights_about(m, s, nodes, t, scale, r + 1, w[r + 1])) return 0;
                 for (j = 0; j < nodes; j++) w[r + 1][j] = w[r + 1][j] / pw[r];
             }
         }
@@ -222,13 +251,15 @@ static int fill(const fa_master *m, fa_slave *d, double t, double scale, int hel
     return 1;
 }
 
-/* The value at t1 of output `idx` of `s` predicted by its polynomial (scale master.step). */
+/* The scale of _point_inputs and the predictions: master.step on the history's clock. */
+static double point_scale(const fa_master *m) { return m->h / unit_of(m); }
+
+/* The value at t1 of output `idx` of `s` predicted by its polynomial. */
 static double predicted(const fa_master *m, const fa_slave *s, double t1, int idx)
 {
-    double w[3], tau[3];
+    double w[3] = {0.0, 0.0, 0.0};
     int nodes = nodes_of(m, s);
-    nodes_about(s, nodes, t1, m->h, tau);
-    fa_weights(tau, nodes, 0, w);
+    weights_about(m, s, nodes, t1, point_scale(m), 0, w);
     return combine(s, w, nodes, idx);
 }
 
@@ -240,12 +271,12 @@ static int set_held(fa_master *m, int n, double t0, double t1)
     if (!fill(m, d, t0, t1 - t0, 1)) return FA_BADARG;
     if (d->n_in) {
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
-        if (st > 1) return fail(m, n, FA_CALL_SET_REAL, st, 1, t0);
+        if (st > 1) return fail(m, n, FA_CALL_SET_REAL, st, 1, secs(m, t0));
     }
     if (d->n_der && d->n_in) {
         st = d->set_der(d->c, d->der_vr, (size_t)(d->n_in * d->n_der), d->der_order,
                         d->der_val);
-        if (st > 1) return fail(m, n, FA_CALL_SET_DER, st, 1, t0);
+        if (st > 1) return fail(m, n, FA_CALL_SET_DER, st, 1, secs(m, t0));
     }
     return FA_DONE;
 }
@@ -253,8 +284,9 @@ static int set_held(fa_master *m, int n, double t0, double t1)
 static int do_step(fa_master *m, int n, double t0, double t1)
 {
     fa_slave *d = &m->slaves[n];
-    int st = d->do_step(d->c, t0, t1 - t0, 1);
-    if (st > 1) return fail(m, n, FA_CALL_DO_STEP, st, 1, t0);
+    double ta = secs(m, t0);
+    int st = d->do_step(d->c, ta, (t1 - t0) * unit_of(m), 1);
+    if (st > 1) return fail(m, n, FA_CALL_DO_STEP, st, 1, ta);
     return FA_DONE;
 }
 
@@ -264,13 +296,13 @@ static int outputs_after_step(fa_master *m, int n, double t1)
     fa_slave *d = &m->slaves[n];
     int st;
     if (d->feedthrough && d->n_in) {
-        if (!fill(m, d, t1, m->h, 0)) return FA_BADARG;
+        if (!fill(m, d, t1, point_scale(m), 0)) return FA_BADARG;
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
-        if (st > 1) return fail(m, n, FA_CALL_SET_REAL, st, 1, t1);
+        if (st > 1) return fail(m, n, FA_CALL_SET_REAL, st, 1, secs(m, t1));
     }
     if (d->n_out) {
         st = d->get_real(d->c, d->out_vr, (size_t)d->n_out, d->new_val);
-        if (st > 1) return fail(m, n, FA_CALL_GET_REAL, st, 1, t1);
+        if (st > 1) return fail(m, n, FA_CALL_GET_REAL, st, 1, secs(m, t1));
     }
     return FA_DONE;
 }
@@ -581,6 +613,332 @@ FA_API int fa_run(fa_master *m, long long j_end)
         }
         m->t = t_target;
         if ((rc = store(m, m->j, t_target)) != FA_DONE) return rc;
+    }
+    return FA_DONE;
+}
+
+/* ====================================================================== the implicit step */
+/* implicit.py InterfaceIteration, on the step counters' grid. The sources (the slaves whose
+ * outputs are exchanged, in coupling order) are the slaves with n_out > 0; u stacks their
+ * outputs. */
+
+/* _evaluate: the outputs at k + 1 of the slaves `src` feeds (src < 0: all), in coupling order,
+ * stepped from their states at k with the interface `u` as the sources' samples at k + 1; into
+ * their new_val. The histories are as before, however it ends. */
+static int evaluate(fa_master *m, long long k, const double *u, int src)
+{
+    double a0 = (double)k, a1 = (double)(k + 1);
+    int i, q, off = 0, rc = FA_DONE;
+    for (q = 0; q < m->n_slaves; q++) {
+        fa_slave *s = &m->slaves[m->order[q]];
+        if (!s->n_out) continue;
+        restore(s);
+        push(s, a1, u + off);
+        off += s->n_out;
+    }
+    for (i = 0; i < m->n_slaves && rc == FA_DONE; i++) {
+        int n = m->order[i], st;
+        fa_slave *s = &m->slaves[n];
+        if (src >= 0 && !m->consumer[src * m->n_slaves + n]) continue;
+        st = s->set_state(s->c, s->rb_state);
+        if (st > 1) {
+            rc = fail(m, n, FA_CALL_SET_STATE, st, 0, 0.0);
+            break;
+        }
+        if ((rc = set_held(m, n, a0, a1)) != FA_DONE) break;
+        rc = do_step(m, n, a0, a1);
+    }
+    for (i = 0; i < m->n_slaves && rc == FA_DONE; i++) {
+        int n = m->order[i];
+        if (src >= 0 && !m->consumer[src * m->n_slaves + n]) continue;
+        rc = outputs_after_step(m, n, a1);
+    }
+    for (q = 0; q < m->n_slaves; q++)
+        if (m->slaves[q].n_out) restore(&m->slaves[q]);
+    return rc;
+}
+
+/* _stack: the sources' new outputs, in coupling order. */
+static void stack(const fa_master *m, double *g)
+{
+    int q, off = 0;
+    for (q = 0; q < m->n_slaves; q++) {
+        const fa_slave *s = &m->slaves[m->order[q]];
+        if (!s->n_out) continue;
+        memcpy(g + off, s->new_val, (size_t)s->n_out * sizeof(double));
+        off += s->n_out;
+    }
+}
+
+/* _residual: max |g - u| / (tol max(1, |g|)), NaN propagating as numpy's max. */
+static double residual(const fa_master *m, const double *g, const double *u)
+{
+    double err = 0.0;
+    int i;
+    if (!m->size) return 0.0;
+    for (i = 0; i < m->size; i++) {
+        double v = fabs(g[i] - u[i]) / (m->itol * np_maximum(1.0, fabs(g[i])));
+        err = i == 0 ? v : np_maximum(err, v);
+    }
+    return err;
+}
+
+/* _jacobian: dG/du by forward differences of the step (only the consumers of the perturbed
+ * source step again), into m->jac (column-major: jac[j * size + i] = dG_i/du_j). */
+static int jacobian(fa_master *m, long long k)
+{
+    int q, j, i, off = 0, rc;
+    for (q = 0; q < m->n_slaves; q++) {
+        int src = m->order[q], n_cons = 0, p, pos;
+        const fa_slave *s = &m->slaves[src];
+        if (!s->n_out) continue;
+        for (p = 0; p < m->n_slaves; p++) n_cons += m->consumer[src * m->n_slaves + p];
+        for (j = off; j < off + s->n_out; j++) {
+            double d = 1e-6 * py_max(1.0, fabs(m->u[j]));
+            memcpy(m->up, m->u, (size_t)m->size * sizeof(double));
+            m->up[j] += d;
+            if ((rc = evaluate(m, k, m->up, src)) != FA_DONE) return rc;
+            m->jacobian_steps += n_cons;
+            memcpy(m->col, m->g, (size_t)m->size * sizeof(double));
+            for (p = 0, pos = 0; p < m->n_slaves; p++) {
+                const fa_slave *c = &m->slaves[m->order[p]];
+                if (!c->n_out) continue;
+                if (m->consumer[src * m->n_slaves + m->order[p]])
+                    memcpy(m->col + pos, c->new_val, (size_t)c->n_out * sizeof(double));
+                pos += c->n_out;
+            }
+            for (i = 0; i < m->size; i++) m->jac[j * m->size + i] = (m->col[i] - m->g[i]) / d;
+        }
+        off += s->n_out;
+    }
+    return FA_DONE;
+}
+
+/* Newton's update: x = (J - I)^-1 r by Gaussian elimination with partial pivoting; 0 if
+ * singular. */
+static int newton_solve(fa_master *m)
+{
+    int n = m->size, i, j, k;
+    double *a = m->a, *x = m->x;
+    for (j = 0; j < n; j++)
+        for (i = 0; i < n; i++) a[i * n + j] = m->jac[j * n + i] - (i == j ? 1.0 : 0.0);
+    memcpy(x, m->r, (size_t)n * sizeof(double));
+    for (k = 0; k < n; k++) {
+        int p = k;
+        for (i = k + 1; i < n; i++)
+            if (fabs(a[i * n + k]) > fabs(a[p * n + k])) p = i;
+        if (a[p * n + k] == 0.0) return 0;
+        if (p != k) {
+            double tmp;
+            for (j = 0; j < n; j++) {
+                tmp = a[k * n + j];
+                a[k * n + j] = a[p * n + j];
+                a[p * n + j] = tmp;
+            }
+            tmp = x[k];
+            x[k] = x[p];
+            x[p] = tmp;
+        }
+        for (i = k + 1; i < n; i++) {
+            double f = a[i * n + k] / a[k * n + k];
+            for (j = k + 1; j < n; j++) a[i * n + j] = a[i * n + j] - f * a[k * n + j];
+            x[i] = x[i] - f * x[k];
+        }
+    }
+    for (i = n - 1; i >= 0; i--) {
+        double acc = x[i];
+        for (j = i + 1; j < n; j++) acc = acc - a[i * n + j] * x[j];
+        if (!(fabs(a[i * n + i]) > 0.0)) return 0;
+        x[i] = acc / a[i * n + i];
+    }
+    return 1;
+}
+
+/* _iqn: u = g + W alpha, alpha = argmin |V alpha + r| (rows scaled by 1 / max(1, |g|)), the
+ * minimum-norm solution with singular values below 1e-12 times the largest cut (numpy's lstsq
+ * with rcond = 1e-12), by a one-sided Jacobi SVD of the scaled V's transpose. */
+static void iqn(fa_master *m, int ncols)
+{
+    int n = m->size, i, j, p, q, sweep;
+    double *M = m->svd_m, *Vr = m->svd_v, *sv = m->a, smax = 0.0;   /* sv: singular values */
+    if (!ncols) {
+        for (i = 0; i < n; i++) m->u[i] = m->u[i] + 0.5 * m->r[i];
+        return;
+    }
+    /* M's column i (length ncols) is row i of the scaled V */
+    for (i = 0; i < n; i++) {
+        double sc = 1.0 / np_maximum(1.0, fabs(m->g[i]));
+        m->x[i] = -m->r[i] * sc;
+        for (j = 0; j < ncols; j++) M[i * ncols + j] = m->cv[j * n + i] * sc;
+        for (j = 0; j < n; j++) Vr[i * n + j] = i == j ? 1.0 : 0.0;
+    }
+    for (sweep = 0; sweep < 60; sweep++) {
+        int rotated = 0;
+        for (p = 0; p < n - 1; p++)
+            for (q = p + 1; q < n; q++) {
+                double al = 0.0, be = 0.0, ga = 0.0, zeta, t, c, s;
+                for (j = 0; j < ncols; j++) {
+                    al += M[p * ncols + j] * M[p * ncols + j];
+                    be += M[q * ncols + j] * M[q * ncols + j];
+                    ga += M[p * ncols + j] * M[q * ncols + j];
+                }
+                if (ga == 0.0 || fabs(ga) <= 1e-15 * sqrt(al * be)) continue;
+                rotated = 1;
+                zeta = (be - al) / (2.0 * ga);
+                t = (zeta >= 0.0 ? 1.0 : -1.0) / (fabs(zeta) + sqrt(1.0 + zeta * zeta));
+                c = 1.0 / sqrt(1.0 + t * t);
+                s = c * t;
+                for (j = 0; j < ncols; j++) {
+                    double mp = M[p * ncols + j], mq = M[q * ncols + j];
+                    M[p * ncols + j] = c * mp - s * mq;
+                    M[q * ncols + j] = s * mp + c * mq;
+                }
+                for (j = 0; j < n; j++) {
+                    double vp = Vr[j * n + p], vq = Vr[j * n + q];
+                    Vr[j * n + p] = c * vp - s * vq;
+                    Vr[j * n + q] = s * vp + c * vq;
+                }
+            }
+        if (!rotated) break;
+    }
+    /* scaled V^T = U S Vr^T, so V = Vr S U^T and alpha = U S^+ Vr^T b */
+    for (i = 0; i < n; i++) {
+        double nrm = 0.0;
+        for (j = 0; j < ncols; j++) nrm += M[i * ncols + j] * M[i * ncols + j];
+        sv[i] = sqrt(nrm);
+        if (sv[i] > smax) smax = sv[i];
+    }
+    for (j = 0; j < ncols; j++) m->alpha[j] = 0.0;
+    for (i = 0; i < n; i++) {
+        double proj = 0.0;
+        if (!(sv[i] > 1e-12 * smax)) continue;
+        for (j = 0; j < n; j++) proj += Vr[j * n + i] * m->x[j];
+        proj = proj / (sv[i] * sv[i]);             /* (Vr_i . b) / s_i, over s_i for U_i */
+        for (j = 0; j < ncols; j++) m->alpha[j] += M[i * ncols + j] * proj;
+    }
+    for (i = 0; i < n; i++) {
+        double acc = m->g[i];
+        for (j = 0; j < ncols; j++) acc = acc + m->cw[j * n + i] * m->alpha[j];
+        m->u[i] = acc;
+    }
+}
+
+/* InterfaceIteration.step from k to k + 1: the converged outputs in every slave's new_val. */
+static int implicit_step(fa_master *m, long long k)
+{
+    int i, it, rc = FA_DONE, got = 0, fresh = 0, reused = 0, nv = 0, has_prev = 0, off;
+    double err = 0.0, err_prev = INFINITY;
+    int n = m->size;
+    for (i = 0; i < m->n_slaves; i++) snapshot(&m->slaves[i]);
+    for (i = 0; i < m->n_slaves; i++) {
+        fa_slave *s = &m->slaves[i];
+        int st;
+        s->rb_state = NULL;
+        st = s->get_state(s->c, &s->rb_state);
+        if (st > 1) {
+            rc = fail(m, i, FA_CALL_GET_STATE, st, 0, 0.0);
+            break;
+        }
+        got++;
+    }
+    for (i = 0; i < m->n_reuse; i++) reused += m->reuse_cols[i];
+    /* the first guess: the sources' polynomials at k + 1 */
+    for (i = 0, off = 0; i < m->n_slaves && rc == FA_DONE; i++) {
+        const fa_slave *s = &m->slaves[m->order[i]];
+        int o;
+        for (o = 0; o < s->n_out; o++) m->u[off + o] = predicted(m, s, (double)(k + 1), o);
+        off += s->n_out;
+    }
+    for (it = 1; it <= m->max_it && rc == FA_DONE; it++) {
+        if ((rc = evaluate(m, k, m->u, -1)) != FA_DONE) break;
+        stack(m, m->g);
+        for (i = 0; i < n; i++) m->r[i] = m->g[i] - m->u[i];
+        err = residual(m, m->g, m->u);
+        if (err <= 1.0) {
+            m->iterations += it;
+            if (it > m->max_iterations) m->max_iterations = it;
+            if (!m->newton && nv) {          /* this step's columns join the reused ones */
+                if (m->n_reuse == FA_REUSED_STEPS) {
+                    int drop = m->reuse_cols[0];
+                    memmove(m->cv, m->cv + drop * n,
+                            (size_t)((reused + nv - drop) * n) * sizeof(double));
+                    memmove(m->cw, m->cw + drop * n,
+                            (size_t)((reused + nv - drop) * n) * sizeof(double));
+                    memmove(m->reuse_cols, m->reuse_cols + 1,
+                            (FA_REUSED_STEPS - 1) * sizeof(int));
+                    m->n_reuse--;
+                }
+                m->reuse_cols[m->n_reuse++] = nv;
+            }
+            break;
+        }
+        if (it == m->max_it || !isfinite(err)) {
+            m->iterations += it;
+            if (it > m->max_iterations) m->max_iterations = it;
+            m->fail_kind = isfinite(err) ? FA_NOT_CONVERGED : FA_NOT_FINITE;
+            m->fail_residual = err;
+            m->fail_iterations = it;
+            rc = FA_DIVERGED;
+            break;
+        }
+        if (m->newton) {
+            if (!m->have_jac || (err > 0.1 * err_prev && !fresh)) {
+                if ((rc = jacobian(m, k)) != FA_DONE) break;
+                m->have_jac = 1;
+                fresh = 1;
+            }
+            if (!newton_solve(m)) {
+                m->fail_kind = FA_SINGULAR;
+                m->fail_residual = err;
+                m->fail_iterations = it;
+                rc = FA_DIVERGED;
+                break;
+            }
+            for (i = 0; i < n; i++) m->u[i] = m->u[i] - m->x[i];
+        } else {
+            double *pr = m->col, *pg = m->up;   /* the previous iteration's r and g */
+            if (has_prev) {
+                double *v = m->cv + (reused + nv) * n, *w = m->cw + (reused + nv) * n;
+                for (i = 0; i < n; i++) {
+                    v[i] = m->r[i] - pr[i];
+                    w[i] = m->g[i] - pg[i];
+                }
+                nv++;
+            }
+            memcpy(pr, m->r, (size_t)n * sizeof(double));
+            memcpy(pg, m->g, (size_t)n * sizeof(double));
+            has_prev = 1;
+            iqn(m, reused + nv);
+        }
+        err_prev = err;
+    }
+    for (i = 0; i < got; i++) {
+        fa_slave *s = &m->slaves[i];
+        int st = s->free_state(s->c, &s->rb_state);
+        if (st > 1) rc = fail(m, i, FA_CALL_FREE_STATE, st, 0, 0.0);
+    }
+    if (rc == FA_DIVERGED) m->fail_time = secs(m, (double)k);
+    return rc;
+}
+
+FA_API int fa_run_implicit(fa_master *m, long long k_end)
+{
+    int i, rc;
+    if (!check(m) || !m->counters || !m->weights || m->m_out < 1 || m->k < 0 ||
+        m->size < 0 || m->max_it < 1 || (m->size && (!m->u || !m->jac || !m->cv)))
+        return FA_BADARG;
+    if (k_end > m->total) k_end = m->total;
+    while (m->k < k_end) {
+        long long k = m->k;
+        if ((rc = implicit_step(m, k)) != FA_DONE) return rc;
+        for (i = 0; i < m->n_slaves; i++)
+            push(&m->slaves[i], (double)(k + 1), m->slaves[i].new_val);
+        m->k = k + 1;
+        m->t = secs(m, (double)(k + 1));
+        if ((k + 1) % m->m_out == 0 &&
+            (rc = store(m, (k + 1) / m->m_out, m->t)) != FA_DONE)
+            return rc;
+        if (m->go_on && !m->go_on()) return FA_STOPPED;
     }
     return FA_DONE;
 }

@@ -1,7 +1,8 @@
 /*
- * fm_adaptive.h - the compiled adaptive loop of the co-simulation master
- * (orchestration/cosim/master.py's Master._run_adaptive), for FMI 2.0 co-simulation FMUs that need
- * no execution tool (the native FMUs). Bound in orchestration/cosim/compiled_adaptive.py.
+ * fm_adaptive.h - the compiled adaptive and implicit loops of the co-simulation master
+ * (orchestration/cosim/master.py's Master._run_adaptive; orchestration/cosim/implicit.py's
+ * InterfaceIteration stepped by Master._run_fixed), for FMI 2.0 co-simulation FMUs that need no
+ * execution tool (the native FMUs). Bound in orchestration/cosim/compiled_adaptive.py.
  *
  * Contract
  * --------
@@ -16,6 +17,10 @@
  *   (OpenBLAS, whose kernels' order and fused multiply-adds depend on the CPU) and this loop with
  *   its own Gaussian elimination with partial pivoting: the weights agree to a few units in the
  *   last place, not bit for bit (tests/cosim/test_compiled_adaptive.py holds the runs together).
+ *   The implicit loop steps on the step counters' grid with the Python master's own weights
+ *   (coupling.weight_table); its linear algebra differs: Newton's (J - I) x = r by Gaussian
+ *   elimination with partial pivoting (numpy: LAPACK), IQN-ILS's least squares by a one-sided
+ *   Jacobi SVD with numpy's cut-off (numpy: LAPACK's gelsd).
  * - Every FMI status above fmi2Warning ends the run with FA_FAILED naming the slave, the call, its
  *   status and its time, except fmi2Discard during a step with the extrapolation estimator,
  *   which rolls the step back and retries it at half the step (FA_DISCARDED when that happens at
@@ -48,6 +53,15 @@ extern "C" {
 #define FA_BADARG 3     /* the struct is inconsistent (nothing was done) */
 #define FA_DISCARDED 4  /* an FMU discarded the step at fail_time even at min_step */
 #define FA_FULL 5       /* the rejected_times buffer is full: drain it (n_rej = 0), call again */
+#define FA_DIVERGED 6   /* implicit: the interface did not converge: see fail_kind */
+
+/* Why an implicit step failed (fail_kind with FA_DIVERGED). */
+#define FA_NOT_CONVERGED 1  /* max_iterations evaluations; fail_residual the last residual */
+#define FA_NOT_FINITE 2     /* an output is not finite after fail_iterations evaluations */
+#define FA_SINGULAR 3       /* Newton: J - I is singular; fail_residual the residual */
+
+/* IQN-ILS: the steps whose difference columns are reused (implicit.py REUSED_STEPS). */
+#define FA_REUSED_STEPS 8
 
 /* The FMI calls, as reported in fail_call (the numbers of fm_master.h). */
 #define FA_CALL_SET_REAL 1
@@ -150,6 +164,34 @@ typedef struct fa_master {
     long long steps, rejected, forced;  /* out: accepted, rejected, forced steps */
     double min_used, max_used;        /* out: the smallest and largest accepted steps */
     long long rows;                   /* in/out: rows stored */
+    /* the step counters' grid (fixed step; the implicit loop) */
+    int counters;                     /* in: 1: samples stamped k, at t0 + k h (0: seconds) */
+    int newton;                       /* in: implicit: 1 Newton, 0 IQN-ILS */
+    const double *weights;            /* in: coupling.weight_table() [3][3][4][3] */
+    long long total;                  /* in: implicit: steps of the run */
+    long long m_out;                  /* in: implicit: steps per output interval */
+    long long k;                      /* in/out: implicit: steps taken */
+    int max_it;                       /* in: master.max_iterations */
+    int size;                         /* in: the interface's unknowns (the exchanged outputs) */
+    double itol;                      /* in: master.implicit_tolerance */
+    const int *consumer;              /* in: (n_slaves n_slaves) [src][dst] 1 if dst reads src */
+    double *u, *g, *r, *up, *col, *x; /* work: (size) each */
+    double *jac;                      /* in/out: (size size) Newton's dG/du, kept across steps */
+    double *a;                        /* work: (size size) */
+    int have_jac;                     /* in/out: jac holds a Jacobian */
+    int n_reuse;                      /* in/out: IQN-ILS: past steps whose columns are kept */
+    int reuse_cols[FA_REUSED_STEPS];  /* in/out: their column counts, oldest first */
+    int max_cols;                     /* in: (FA_REUSED_STEPS + 1) max_it */
+    double *cv, *cw;                  /* in/out: (max_cols size) columns V, W: reused, then the
+                                       * step's */
+    double *svd_m, *svd_v, *alpha;    /* work: (size max_cols), (size size), (max_cols) */
+    long long iterations;             /* out: implicit: iterations summed over the steps */
+    int max_iterations;               /* out: the most in one step */
+    int fail_kind;                    /* out: FA_DIVERGED: FA_NOT_CONVERGED... */
+    long long jacobian_steps;         /* out: FMU steps spent on difference Jacobians */
+    double fail_residual;             /* out: FA_DIVERGED: the residual (times itol) */
+    int fail_iterations;              /* out: FA_DIVERGED: the evaluations made */
+    int pad_;
     int fail_slave;                   /* out: on FA_FAILED */
     int fail_call;                    /* out: FA_CALL_* */
     int fail_status;                  /* out: the fmi2Status */
@@ -169,6 +211,9 @@ FA_API double fa_round9(double x);
 FA_API int fa_weights(const double *tau, int n, int kind, double *w);
 /* Step until output point j_end (at most n_out) is reached. */
 FA_API int fa_run(fa_master *m, long long j_end);
+/* Implicit: take steps m->k .. k_end - 1 (at most m->total), storing a row every m_out steps
+ * and asking go_on after every step. */
+FA_API int fa_run_implicit(fa_master *m, long long k_end);
 
 #ifdef __cplusplus
 }
