@@ -10,7 +10,7 @@ as input derivatives, ``master.compiled = auto``: the C loop) runs at the steps 
 estimators (``master.max_step`` = :data:`MAX_STEP`, its output grid), and the implicit master
 (``master.algorithm = implicit``, Newton and IQN-ILS) at :data:`IMPLICIT_STEPS`. Error: the
 largest ``|phi_o - phi_o,ref|`` against the monolithic reference (bench/common.py), measured once
-per configuration. Cost: the process CPU time of the master's run (initialisation and stepping,
+per configuration (a run that stops early, an implicit step that does not converge, has none). Cost: the process CPU time of the master's run (initialisation and stepping,
 FMU loading excluded), the median of ``--runs`` repetitions after one warm-up, every
 configuration run in turn within each repetition (interleaved: load on the machine falls on all
 alike). The ratio: a configuration's cost over the default's cost at the same error, read
@@ -28,6 +28,7 @@ import numpy as np
 from common import CoSim, load_scene, product_fmus  # noqa: F401 - sets up the path first
 
 from orchestration import simulate
+from orchestration.cosim.slave import CoSimulationError
 from orchestration.scene.schema import PAPER_SCENES
 
 FIXED_STEPS = (5e-4, 1e-3, 2e-3, 4e-3, 8e-3)
@@ -65,7 +66,9 @@ def main(argv=None):
         errors, loops, tried, sims = [], [], [], []
         for _, _, keys in configs:
             run = simulate(name, keys, reference=True)
-            errors.append(float(np.max(np.abs(run.result["phi_o"] - run.reference["phi_o"]))))
+            # a run that stopped early (an implicit step that does not converge) has no error
+            errors.append(float(np.max(np.abs(run.result["phi_o"] - run.reference["phi_o"])))
+                          if run.completed else math.nan)
             loops.append(run.stats.loop)
             tried.append(run.stats.steps + run.stats.rejected)
             sets = [f"{k}={str(v).lower() if isinstance(v, bool) else v}" for k, v in keys.items()]
@@ -73,7 +76,10 @@ def main(argv=None):
         times = [[] for _ in configs]
         for rep in range(a.runs + 1):                       # the first: the warm-up
             for i, sim in enumerate(sims):
-                sim.run()
+                try:
+                    sim.run()
+                except CoSimulationError as exc:            # timed up to where it stopped
+                    sim.stopped = exc.time
                 if rep:
                     times[i].append(sim.cpu)
         cost = [statistics.median(t) for t in times]
@@ -83,7 +89,9 @@ def main(argv=None):
         for i, (family, label, _) in enumerate(configs):
             e = errors[i]
             ratio = ""
-            if family != "default" and le[0] <= math.log(e) <= le[-1]:
+            if not math.isfinite(e):
+                ratio = f"stopped at t = {sims[i].stopped:g} s"
+            elif family != "default" and le[0] <= math.log(e) <= le[-1]:
                 ratio = f"{cost[i] / math.exp(np.interp(math.log(e), le, lc)):6.2f}x"
             print(f"  {family:24s} {label:18s} {loops[i]:9s} error {e:9.3g} rad  "
                   f"{tried[i]:6d} steps  cpu {cost[i] * 1e3:9.2f} ms  {ratio}", flush=True)

@@ -31,6 +31,10 @@ The update (``master.implicit_jacobian``):
   first update is a relaxed fixed-point step ``u + INITIAL_RELAXATION r``.
 
 The first guess of a step is the sources' polynomials extrapolated to ``t_k+1``.
+
+This module is the specification: with FMUs the compiled loop takes, ``master.compiled``
+(``auto``) runs the same iteration in C (:class:`orchestration.cosim.compiled_adaptive.
+ImplicitRun`), which reports its counts into this class.
 """
 from __future__ import annotations
 
