@@ -10,8 +10,9 @@ as input derivatives, ``master.compiled = auto``: the C loop) runs at the steps 
 estimators (``master.max_step`` = :data:`MAX_STEP`, its output grid), and the implicit master
 (``master.algorithm = implicit``, Newton and IQN-ILS) at :data:`IMPLICIT_STEPS`. Error: the
 largest ``|phi_o - phi_o,ref|`` against the monolithic reference (bench/common.py), measured once
-per configuration (a run that stops early, an implicit step that does not converge, has none). Cost: the process CPU time of the master's run (initialisation and stepping,
-FMU loading excluded), the median of ``--runs`` repetitions after one warm-up, every
+per configuration (a run that stops early, an implicit step that does not converge, has none).
+Cost: the process CPU time of the master's run (initialisation and stepping, FMU loading
+excluded), the median of ``--runs`` repetitions after one warm-up, every
 configuration run in turn within each repetition (interleaved: load on the machine falls on all
 alike). The ratio: a configuration's cost over the default's cost at the same error, read
 log-log on the default's error-cost front (a blank where the error is outside the front). Each

@@ -282,7 +282,8 @@ def test_an_implicit_step_that_does_not_converge_ends_both_loops_the_same_way(pa
     assert_same_rows(py[0].result, c[0].result)
 
 
-@pytest.mark.parametrize("fail", [("plant", "fmi2DoStep", 9, 3), ("controller", "fmi2SetReal", 7, 2),
+@pytest.mark.parametrize("fail", [("plant", "fmi2DoStep", 9, 3),
+                                  ("controller", "fmi2SetReal", 7, 2),
                                   ("plant", "fmi2SetFMUstate", 4, 3),
                                   ("controller", "fmi2GetFMUstate", 3, 3)],
                          ids=lambda f: f"{f[0]}-{f[1]}-{f[2]}-{f[3]}")
