@@ -192,7 +192,12 @@ class CoSim:
                 slaves["controller"].feedthrough = True
             master = (ModelExchangeMaster if me else Master)(slaves, self._connections,
                                                              self._record, self.scene.master)
-            return master.run(0.0, out.stop_time, out.output_interval, progress=progress)
+            cpu = time.process_time()
+            try:
+                return master.run(0.0, out.stop_time, out.output_interval, progress=progress)
+            finally:
+                #: the process CPU time of the last run's master (initialisation and stepping)
+                self.cpu = time.process_time() - cpu
         finally:
             for s in slaves.values():
                 s.close()

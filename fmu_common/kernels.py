@@ -67,6 +67,9 @@ KERNELS = {
     # the model-exchange master's integration loop (orchestration/cosim/compiled_me.py)
     "flexpend_me": ("orchestration/cosim", ("fm_me.c",), ("fm_me.h",), "fme_abi",
                     "fme_source_digest", 2),
+    # the master's compiled adaptive loop (orchestration/cosim/compiled_adaptive.py)
+    "flexpend_adaptive": ("orchestration/cosim", ("fm_adaptive.c",), ("fm_adaptive.h",),
+                          "fa_abi", "fa_source_digest", 1),
 }
 
 

@@ -31,6 +31,10 @@ The update (``master.implicit_jacobian``):
   first update is a relaxed fixed-point step ``u + INITIAL_RELAXATION r``.
 
 The first guess of a step is the sources' polynomials extrapolated to ``t_k+1``.
+
+This module is the specification: with FMUs the compiled loop takes, ``master.compiled``
+(``auto``) runs the same iteration in C (:class:`orchestration.cosim.compiled_adaptive.
+ImplicitRun`), which reports its counts into this class.
 """
 from __future__ import annotations
 
@@ -142,8 +146,10 @@ class InterfaceIteration:
         m = self.m
         order = m.coupling.order
         snaps = {n: hist[n].snapshot() for n in m.slaves}
-        states = {n: s.get_state() for n, s in m.slaves.items()}
+        states = {}
         try:
+            for n, s in m.slaves.items():     # the states taken are freed however it ends
+                states[n] = s.get_state()
             u = self._stack({n: m._combination(hist[n], t1, m.h / m._unit, (0,))[0]
                              for n in self.sources})
             V, W = [], []
@@ -169,9 +175,7 @@ class InterfaceIteration:
                     try:
                         u = u - np.linalg.solve(self.J - np.eye(self.size), r)
                     except np.linalg.LinAlgError:
-                        raise self._failed(t0, t1, "the interface Jacobian is singular "
-                                           f"(residual {err:.3g} times "
-                                           f"master.implicit_tolerance = {self.tol:g})") from None
+                        raise self.singular(t0, t1, err) from None
                 else:
                     if prev is not None:
                         V.append(r - prev[0])
@@ -180,13 +184,23 @@ class InterfaceIteration:
                     u = self._iqn(u, g, r, V, W)
                 err_prev = err
             self._count(it)
-            raise self._failed(t0, t1, f"in master.max_iterations = {self.cap} iterations "
-                               f"(residual {err:.3g} times master.implicit_tolerance = "
-                               f"{self.tol:g})" if math.isfinite(err) else
-                               f"after {it} iterations: an output is not finite")
+            raise self.not_converged(t0, t1, err, it)
         finally:
-            for n, s in m.slaves.items():
-                s.free_state(states[n])
+            for n, state in states.items():
+                m.slaves[n].free_state(state)
+
+    def not_converged(self, t0, t1, err: float, it: int) -> CoSimulationError:
+        """The error of a step from ``t0`` to ``t1`` whose residual after ``it`` iterations is
+        ``err`` (not finite: an output is not finite)."""
+        return self._failed(t0, t1, f"in master.max_iterations = {self.cap} iterations "
+                            f"(residual {err:.3g} times master.implicit_tolerance = "
+                            f"{self.tol:g})" if math.isfinite(err) else
+                            f"after {it} iterations: an output is not finite")
+
+    def singular(self, t0, t1, err: float) -> CoSimulationError:
+        """The error of a Newton step whose ``J - I`` is singular (residual ``err``)."""
+        return self._failed(t0, t1, "the interface Jacobian is singular (residual "
+                            f"{err:.3g} times master.implicit_tolerance = {self.tol:g})")
 
     def _failed(self, t0, t1, why: str) -> CoSimulationError:
         """The error that stops a run whose step from ``t0`` to ``t1`` did not converge."""

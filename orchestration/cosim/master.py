@@ -43,6 +43,7 @@ from fmu_common.kernels import KernelError
 
 from ..scene.records import MasterSettings
 from . import compiled as compiled_master
+from . import compiled_adaptive
 from .coupling import Coupling, _History, _weight_rows, output_table, taylor_rows
 from .slave import CoSimulationError, RunInterrupted
 
@@ -77,9 +78,12 @@ class Master:
     ``changes`` to its fields applied (``Master(..., step=1e-3)``).
 
     ``settings.compiled``: ``"auto"`` (default) runs a fixed-step run in C
-    (:mod:`orchestration.cosim.compiled`) when every FMU can take it (FMI 2.0 FMUs that need no
-    execution tool: the native FMUs) and in Python otherwise; ``False`` always in Python;
-    ``True`` in C or a ValueError saying why not. Both loops give bit-identical results;
+    (:mod:`orchestration.cosim.compiled`), and an adaptive one in C
+    (:mod:`orchestration.cosim.compiled_adaptive`), when every FMU can take it (FMI 2.0 FMUs that
+    need no execution tool: the native FMUs) and in Python otherwise; ``False`` always in Python;
+    ``True`` in C or a ValueError saying why not. The fixed-step loops give bit-identical
+    results, the adaptive ones agree to a few units in the last place (their extrapolation
+    weights solve a Vandermonde system, numpy's by LAPACK);
     :attr:`loop` says which one runs.
     """
 
@@ -108,17 +112,20 @@ class Master:
                                  "'extrapolation'")
         self._in_buf = {n: np.zeros(len(coupling.inputs[n]) * (1 + coupling.n_der[n]))
                         for n in slaves}
-        #: why the compiled loop cannot run these FMUs (None: it can)
-        self.compiled_unavailable = compiled_master.unavailable(coupling, slaves, self.adaptive)
         #: the strongly coupled step (master.algorithm = "implicit"), None otherwise
         self.implicit = None
         if settings.algorithm == "implicit":
             from .implicit import InterfaceIteration
             self.implicit = InterfaceIteration(self)
-            self.compiled_unavailable = "master.algorithm = 'implicit' runs in Python"
+        # the compiled loop of this run: the adaptive and implicit ones, or the fixed-step one
+        other = self.adaptive or self.implicit is not None
+        backend = compiled_adaptive if other else compiled_master
+        #: why the compiled loop cannot run these FMUs (None: it can)
+        self.compiled_unavailable = (compiled_adaptive.unavailable(coupling, slaves) if other
+                                     else compiled_master.unavailable(coupling, slaves, False))
         if compiled and not self.compiled_unavailable:
             try:
-                compiled_master.load()       # before any run
+                backend.load()               # before any run
             except KernelError as exc:       # missing or stale library of a broken install
                 self.compiled_unavailable = f"the compiled loop's library does not load: {exc}"
                 if compiled == "auto":
@@ -372,7 +379,15 @@ class Master:
             for n in self.slaves:
                 hist[n].push(t0 if self.adaptive else 0, cur[n])
             self._store(out, 0, t0, cur)
-            if self.adaptive:
+            if self.adaptive and self.loop == "compiled":
+                stats.loop = "compiled"
+                run = compiled_adaptive.AdaptiveRun(self, cur, t0, output_interval, n_out, out)
+                try:
+                    run.run(stats, progress, stop)
+                finally:
+                    self._rows = max(self._rows, run.rows_written)
+                    self._t_reached = run.t_reached
+            elif self.adaptive:
                 self._run_adaptive(t0, output_interval, n_out, out, hist, cur, stats, progress,
                                    stop)
             else:
@@ -383,8 +398,10 @@ class Master:
                 total = n_out * m
                 if self.loop == "compiled":
                     stats.loop = "compiled"
-                    run = compiled_master.CompiledRun(self.coupling, self.slaves, hist, t0, m,
-                                                      total, out)
+                    run = (compiled_adaptive.ImplicitRun(self, self.implicit, cur, t0, m, total,
+                                                         out) if self.implicit is not None else
+                           compiled_master.CompiledRun(self.coupling, self.slaves, hist, t0, m,
+                                                       total, out))
                     try:
                         run.run(stats, progress, stop)
                     finally:

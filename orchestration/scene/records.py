@@ -175,8 +175,8 @@ class MasterSettings:
                                       "take input derivatives")
     fmus: str = choice("native", "the FMUs run: native (C) or python (pythonfmu)", FMU_FLAVOURS)
     compiled: object = field(default="auto", metadata={"param": Param(
-        "other", "the loop in C (fixed-step co-simulation, model exchange on radau): auto "
-        "(where the FMUs allow it), true, false",
+        "other", "the master's loop in C (fixed-step, adaptive, implicit co-simulation; model "
+        "exchange on radau): auto (where the FMUs allow it), true, false",
         note="auto, true or false")})
     output_derivatives: bool = boolean(False, "extrapolate outputs by the FMUs' output "
                                        "derivatives", note="native FMUs, master.input_derivatives")

@@ -83,8 +83,11 @@ def test_a_failed_fmu_step_ends_the_run_with_its_message(paths, estimator, monke
         return step(self, hist, t0, t1)
 
     monkeypatch.setattr(Master, "_step", failing)
+    # the Python loop, whose _step is replaced (the compiled loop's failures:
+    # tests/cosim/test_compiled_adaptive.py)
     scene = load_scene("flexible_pd_lowpass", ["stop_time=1.0", "master.adaptive=true",
-                                               f"master.error_estimator={estimator}"])
+                                               f"master.error_estimator={estimator}",
+                                               "master.compiled=false"])
     run = run_scene(scene, paths, progress=False)
     assert "the FMU failed here" in run.summary["stopped"]["fmu_message"]
     assert 0 < len(run.result) < 501

@@ -386,16 +386,15 @@ def test_progress_is_reported_up_to_the_end(pair, unzipped):
     assert fractions and fractions[-1] == 1.0 and fractions == sorted(fractions)
 
 
-def test_pythonfmu_adaptive_and_fmi3_run_in_python(pair, fmus):
-    """The compiled loop takes FMI 2.0 FMUs that need no execution tool, at a fixed step: a
-    pythonfmu FMU (it runs Python), the adaptive master and FMI 3.0 FMUs keep the Python loop,
-    and ``compiled = True`` says why."""
+def test_pythonfmu_and_fmi3_run_in_python(pair, fmus):
+    """The compiled loop takes FMI 2.0 FMUs that need no execution tool: a pythonfmu FMU (it
+    runs Python) and FMI 3.0 FMUs keep the Python loop, and ``compiled = True`` says why (the
+    adaptive master's compiled loop: tests/cosim/test_compiled_adaptive.py)."""
     from orchestration.export import build_fmus, fmu_pair
 
     python = fmu_pair(fmus)
     fmi3 = {k: str(v) for k, v in fmu_pair(build_fmus(flavour="native", fmi_version=3)).items()}
     cases = [(python, [], "needs an execution tool"),
-             (pair, ["master.adaptive=true"], "adaptive"),
              (fmi3, ["master.input_derivatives=false"], "FMI 3.0")]
     for paths, sets, why in cases:
         scene = load_scene("flexible_pd_lowpass", ["stop_time=0.02", *sets])
