@@ -144,6 +144,39 @@ def unstable(method: str, A, nq: int, h, lam=None):
     return np.max(_rk_excess(method, lam, h), axis=-1) > TOLERANCE
 
 
+#: Levels of the bisection evaluated at once by :func:`_bisect`.
+_BISECT_LEVELS = 6
+
+
+def _bisect(bad, lo: float, hi: float, levels: int = _BISECT_LEVELS):
+    """The bisection of ``[lo, hi]`` (``bad(lo)`` false, ``bad(hi)`` true) down to
+    ``hi - lo <= 4 eps hi``: ``(lo, hi)``, the very pair the plain loop (``mid = (lo + hi) / 2``,
+    then ``hi = mid`` where ``bad(mid)``, else ``lo = mid``) ends with, at a sixth of the
+    calls (``levels = 6``). ``bad`` takes an array of steps: the midpoints of the next ``levels`` levels of the
+    bisection's tree are judged in one call (each computed as the loop computes
+    it), and the walk down the tree takes the loop's path through them."""
+    eps = np.finfo(float).eps
+    while hi - lo > 4 * eps * hi:
+        # the tree in heap order: node i halves the interval of its parent; its children are
+        # 2 i + 1 (the lower half) and 2 i + 2 (the upper)
+        spans, mids = [(lo, hi)], []
+        for i in range(2 ** levels - 1):
+            a, b = spans[i]
+            m = 0.5 * (a + b)
+            mids.append(m)
+            spans += [(a, m), (m, b)]
+        verdict = bad(np.array(mids))
+        i = 0
+        for _ in range(levels):
+            if not hi - lo > 4 * eps * hi:
+                break
+            if verdict[i]:
+                hi, i = mids[i], 2 * i + 1
+            else:
+                lo, i = mids[i], 2 * i + 2
+    return lo, hi
+
+
 @functools.lru_cache(maxsize=256)
 def step_limit(method: str, p: PlantParams):
     """``(h, lambda)``: the largest stable substep of ``method`` on the plant ``p`` linearised at
@@ -164,13 +197,11 @@ def step_limit(method: str, p: PlantParams):
         return None
     if bad[0] == 0:
         return 0.0, fastest
-    lo, hi = float(hs[bad[0] - 1]), float(hs[bad[0]])
-    while hi - lo > 4 * np.finfo(float).eps * hi:
-        mid = 0.5 * (lo + hi)
-        if unstable(method, A, nq, mid, lam):
-            hi = mid
-        else:
-            lo = mid
+    # a Runge-Kutta step's verdict is a few array operations, whatever the number of steps
+    # judged at once; symplectic Euler's an eigenvalue problem per step
+    lo, hi = _bisect(lambda h: unstable(method, A, nq, h, lam),
+                     float(hs[bad[0] - 1]), float(hs[bad[0]]),
+                     1 if method == "symplectic_euler" else _BISECT_LEVELS)
     if method == "symplectic_euler":
         return lo, fastest
     return lo, complex(lam[np.argmax(_rk_excess(method, lam, hi))])

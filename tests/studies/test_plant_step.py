@@ -248,3 +248,37 @@ def test_the_stiffened_rung_is_judged_on_its_preloaded_linearisation():
     assert stiff.limit == pytest.approx(_rk4_bisection(p.replace(gravity_preload=True)),
                                         rel=1e-6)
     assert stiff.limit > step_limit("rk4", p)[0]
+
+
+def _plain_bisection(bad, lo, hi):
+    while hi - lo > 4 * np.finfo(float).eps * hi:
+        mid = 0.5 * (lo + hi)
+        if bad(mid):
+            hi = mid
+        else:
+            lo = mid
+    return lo, hi
+
+
+@pytest.mark.parametrize("levels", [1, 3, 6])
+def test_the_tree_bisection_ends_where_the_plain_loop_ends(levels):
+    """plant_step._bisect judges several levels of midpoints at once; it must take the plain
+    loop's path exactly, on a monotone predicate and on one that is not (a stability boundary
+    with islands), wherever the boundary lies."""
+    from orchestration.studies.plant_step import _bisect
+
+    rng = np.random.default_rng(levels)
+    for _ in range(30):
+        edge = float(rng.uniform(0.1, 0.9))
+        islands = rng.uniform(0.0, 1.0, 6)
+
+        def monotone(h):
+            return np.asarray(h) >= edge
+
+        def ragged(h):
+            h = np.asarray(h)
+            return (h >= edge) ^ (np.abs(h[..., None] - islands).min(axis=-1) < 0.01)
+
+        for bad in (monotone, ragged):
+            lo, hi = (0.0, 1.0) if not bad(0.0) and bad(1.0) else (0.0, 2.0)
+            assert _bisect(bad, lo, hi, levels) == _plain_bisection(bad, lo, hi)
