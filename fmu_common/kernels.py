@@ -63,7 +63,7 @@ KERNELS = {
                         "fpf_source_digest", 3),
     # the master's compiled fixed-step loop (orchestration/cosim/compiled.py), for the host
     "flexpend_master": ("orchestration/cosim", ("fm_master.c",), ("fm_master.h",), "fm_abi",
-                        "fm_source_digest", 3),
+                        "fm_source_digest", 4),
 }
 
 
