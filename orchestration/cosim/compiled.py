@@ -70,7 +70,8 @@ class _Master(ctypes.Structure):
                 ("out", _P), ("go_on", _P), ("k", ctypes.c_longlong), ("rows", ctypes.c_longlong),
                 ("fail_slave", ctypes.c_int), ("fail_call", ctypes.c_int),
                 ("fail_status", ctypes.c_int), ("fail_timed", ctypes.c_int),
-                ("fail_time", ctypes.c_double)]
+                ("fail_time", ctypes.c_double), ("dweights", ctypes.c_double * 54),
+                ("taylor", ctypes.c_double * 36)]
 
 
 _GO_ON = ctypes.CFUNCTYPE(ctypes.c_int)

@@ -99,15 +99,15 @@ static double combine(const fm_slave *s, const double *w, int nodes, int idx)
     return acc;
 }
 
-/* taylor_rows, one row: the weights on [y, y', ..., y^(q)] of the Taylor polynomial at a sample
+/* taylor_rows, one row: the weights on [y, y', y''] of the Taylor polynomial at a sample
  * evaluated from `delta` seconds after it: its average over [delta, delta + scale] (K_AVERAGE)
  * or its value or derivative there (K_VALUE, K_D1, K_D2), with Python's float ** int (libm's
  * pow; the exponents are volatile so that pow(x, 2) stays pow) and its factorials. */
-static void taylor_row(double delta, double scale, int q, int kind, double w[3])
+static void taylor_row(double delta, double scale, int kind, double w[3])
 {
     static const double fact[4] = {1.0, 1.0, 2.0, 6.0};
     int j;
-    for (j = 0; j <= q; j++) {
+    for (j = 0; j <= 2; j++) {
         volatile double e1 = (double)(j + 1), e0;
         if (kind == K_AVERAGE) {
             w[j] = (pow(delta + scale, e1) - pow(delta, e1)) / (fact[j + 1] * scale);
@@ -137,17 +137,8 @@ static double combine_taylor(const fm_slave *s, const double *w, int idx)
  * from kt, integers however long the run. */
 static int fill(const fm_master *m, fm_slave *d, long long kt, int held)
 {
-    double wd[2][3];
-    double pw[2] = {0.0, 0.0};
     int i, r;
     int rows = held && d->n_der ? d->n_der : 0;
-    if (rows) {
-        /* numpy: w / h ** kd, Python's ** being libm's pow (the exponent is volatile so
-         * that the compiler does not turn pow(x, 2) into x * x) */
-        volatile double one = 1.0, two = 2.0;
-        pw[0] = pow(m->h, one);
-        if (rows > 1) pw[1] = pow(m->h, two);
-    }
     for (i = 0; i < d->n_in; i++) {
         const fm_slave *s = &m->slaves[d->in_src[i]];
         int idx = d->in_idx[i];
@@ -156,16 +147,11 @@ static int fill(const fm_master *m, fm_slave *d, long long kt, int held)
         int e = (int)(s->newest - kt);
         const double *w;
         if (e < -1 || e > 1 || nodes < 1) return 0;
-        if (s->n_oder) {
-            /* the Taylor polynomial at the newest sample, from (kt - newest) h seconds after
-             * it, over a step of h (master.py: scale * unit, 1 * h) */
-            double tw[3], delta = (double)(-e) * m->h;
-            taylor_row(delta, m->h, s->n_oder, held && !d->n_der ? K_AVERAGE : K_VALUE, tw);
-            d->in_val[i] = combine_taylor(s, tw, idx);
-            for (r = 0; r < rows; r++) {
-                taylor_row(delta, m->h, s->n_oder, K_D1 + r, tw);
-                d->der_val[r * d->n_in + i] = combine_taylor(s, tw, idx);
-            }
+        if (s->n_oder) {             /* the Taylor polynomial at the newest sample */
+            const double (*tw)[3] = m->taylor[e + 1];
+            d->in_val[i] = combine_taylor(s, tw[held && !d->n_der ? K_AVERAGE : K_VALUE], idx);
+            for (r = 0; r < rows; r++)
+                d->der_val[r * d->n_in + i] = combine_taylor(s, tw[K_D1 + r], idx);
             continue;
         }
         if (!held || d->n_der) {
@@ -174,12 +160,9 @@ static int fill(const fm_master *m, fm_slave *d, long long kt, int held)
             w = weight_row(m, e, nodes, K_AVERAGE);
         }
         d->in_val[i] = combine(s, w, nodes, idx);
-        for (r = 0; r < rows; r++) {
-            const double *wu = weight_row(m, e, nodes, K_D1 + r);
-            int j;
-            for (j = 0; j < nodes; j++) wd[r][j] = wu[j] / pw[r];
-            d->der_val[r * d->n_in + i] = combine(s, wd[r], nodes, idx);
-        }
+        for (r = 0; r < rows; r++)
+            d->der_val[r * d->n_in + i] = combine(s, m->dweights[nodes - 1][e + 1][r], nodes,
+                                                  idx);
     }
     return 1;
 }
@@ -353,6 +336,30 @@ static int store(fm_master *m, long long row, double t)
     return FM_DONE;
 }
 
+/* The weights that depend on h alone, once per fm_run: the derivative rows divided by h ** kd
+ * (numpy: w / h ** kd, Python's ** being libm's pow; the exponents are volatile so that the
+ * compiler does not turn pow(x, 2) into x * x), and the Taylor rows from (kt - newest) h = -e h
+ * seconds after the newest sample, over a step of h (master.py: scale * unit = 1 * h); a row's
+ * first q + 1 weights are those of order q. */
+static void prepare(fm_master *m)
+{
+    volatile double one = 1.0, two = 2.0;
+    double pw[2];
+    int e, nodes, r, j, kind;
+    pw[0] = pow(m->h, one);
+    pw[1] = pow(m->h, two);
+    for (nodes = 1; nodes <= 3; nodes++)
+        for (e = -1; e <= 1; e++)
+            for (r = 0; r < 2; r++) {
+                const double *wu = weight_row(m, e, nodes, K_D1 + r);
+                for (j = 0; j < 3; j++)
+                    m->dweights[nodes - 1][e + 1][r][j] = j < nodes ? wu[j] / pw[r] : 0.0;
+            }
+    for (e = -1; e <= 1; e++)
+        for (kind = K_AVERAGE; kind <= K_D2; kind++)
+            taylor_row((double)(-e) * m->h, m->h, kind, m->taylor[e + 1][kind]);
+}
+
 static int check(const fm_master *m)
 {
     int i, j;
@@ -389,6 +396,7 @@ FM_API int fm_run(fm_master *m, long long k_end)
 {
     int i, rc;
     if (!check(m)) return FM_BADARG;
+    prepare(m);
     if (k_end > m->total) k_end = m->total;
     while (m->k < k_end) {
         long long k = m->k;

@@ -149,6 +149,11 @@ typedef struct fm_master {
     int fail_status;                  /* out: the fmi2Status */
     int fail_timed;                   /* out: 1 if fail_time applies (0: the state calls) */
     double fail_time;                 /* out */
+    double dweights[3][3][2][3];      /* work: the derivative rows of weights (nodes, newest
+                                       * node -1, 0, 1; 1st, 2nd), divided by h, h^2 */
+    double taylor[3][4][3];           /* work: the Taylor rows from (newest node) h seconds
+                                       * before the sample, per kind (average, value, 1st,
+                                       * 2nd derivative), on [y, y', y''] */
 } fm_master;
 
 FM_API int fm_abi(void);
