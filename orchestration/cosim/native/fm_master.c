@@ -137,32 +137,37 @@ static double combine_taylor(const fm_slave *s, const double *w, int idx)
  * from kt, integers however long the run. */
 static int fill(const fm_master *m, fm_slave *d, long long kt, int held)
 {
-    int i, r;
+    const fm_slave *s = NULL;
+    const double *w = NULL, *wd[2] = {NULL, NULL};
+    int i, r, src = -1, nodes = 0;
     int rows = held && d->n_der ? d->n_der : 0;
     for (i = 0; i < d->n_in; i++) {
-        const fm_slave *s = &m->slaves[d->in_src[i]];
         int idx = d->in_idx[i];
-        int vis = visible(s);
-        int nodes = m->p + 1 < vis ? m->p + 1 : vis;
-        int e = (int)(s->newest - kt);
-        const double *w;
-        if (e < -1 || e > 1 || nodes < 1) return 0;
-        if (s->n_oder) {             /* the Taylor polynomial at the newest sample */
-            const double (*tw)[3] = m->taylor[e + 1];
-            d->in_val[i] = combine_taylor(s, tw[held && !d->n_der ? K_AVERAGE : K_VALUE], idx);
+        if (d->in_src[i] != src) {   /* a source's rows, once for a run of its inputs */
+            int vis, e;
+            src = d->in_src[i];
+            s = &m->slaves[src];
+            vis = visible(s);
+            nodes = m->p + 1 < vis ? m->p + 1 : vis;
+            e = (int)(s->newest - kt);
+            if (e < -1 || e > 1 || nodes < 1) return 0;
+            if (s->n_oder) {         /* the Taylor polynomial at the newest sample */
+                w = m->taylor[e + 1][held && !d->n_der ? K_AVERAGE : K_VALUE];
+                for (r = 0; r < rows; r++) wd[r] = m->taylor[e + 1][K_D1 + r];
+            } else {
+                w = weight_row(m, e, nodes, held && !d->n_der ? K_AVERAGE : K_VALUE);
+                for (r = 0; r < rows; r++) wd[r] = m->dweights[nodes - 1][e + 1][r];
+            }
+        }
+        if (s->n_oder) {
+            d->in_val[i] = combine_taylor(s, w, idx);
             for (r = 0; r < rows; r++)
-                d->der_val[r * d->n_in + i] = combine_taylor(s, tw[K_D1 + r], idx);
-            continue;
-        }
-        if (!held || d->n_der) {
-            w = weight_row(m, e, nodes, K_VALUE);
+                d->der_val[r * d->n_in + i] = combine_taylor(s, wd[r], idx);
         } else {
-            w = weight_row(m, e, nodes, K_AVERAGE);
+            d->in_val[i] = combine(s, w, nodes, idx);
+            for (r = 0; r < rows; r++)
+                d->der_val[r * d->n_in + i] = combine(s, wd[r], nodes, idx);
         }
-        d->in_val[i] = combine(s, w, nodes, idx);
-        for (r = 0; r < rows; r++)
-            d->der_val[r * d->n_in + i] = combine(s, m->dweights[nodes - 1][e + 1][r], nodes,
-                                                  idx);
     }
     return 1;
 }
