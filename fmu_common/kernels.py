@@ -63,7 +63,7 @@ KERNELS = {
                         "fpf_source_digest", 3),
     # the master's compiled fixed-step loop (orchestration/cosim/compiled.py), for the host
     "flexpend_master": ("orchestration/cosim", ("fm_master.c",), ("fm_master.h",), "fm_abi",
-                        "fm_source_digest", 3),
+                        "fm_source_digest", 4),
     # the model-exchange master's integration loop (orchestration/cosim/compiled_me.py)
     "flexpend_me": ("orchestration/cosim", ("fm_me.c",), ("fm_me.h",), "fme_abi",
                     "fme_source_digest", 2),

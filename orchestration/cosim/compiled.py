@@ -34,23 +34,26 @@ KERNEL = "flexpend_master"
 # results of fm_run and the calls of fail_call (fm_master.h)
 _DONE, _FAILED, _STOPPED, _BADARG = range(4)
 _CALLS = {1: "setReal", 2: "setRealInputDerivatives", 3: "doStep", 4: "getReal",
-          5: "getFMUstate", 6: "setFMUstate", 7: "freeFMUstate"}
+          5: "getFMUstate", 6: "setFMUstate", 7: "freeFMUstate", 8: "getRealOutputDerivatives"}
 #: wall time between two returns to Python (progress, signal handlers)
 CHUNK_SECONDS = 0.02
 #: the FMI 2.0 functions the loop calls (fm_slave's function pointers, in order)
 _FUNCTIONS = ("fmi2SetReal", "fmi2GetReal", "fmi2DoStep", "fmi2SetRealInputDerivatives",
-              "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate")
+              "fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate",
+              "fmi2GetRealOutputDerivatives")
 
 _P = ctypes.c_void_p
 
 
 class _Slave(ctypes.Structure):
     _fields_ = [("c", _P), ("set_real", _P), ("get_real", _P), ("do_step", _P), ("set_der", _P),
-                ("get_state", _P), ("set_state", _P), ("free_state", _P),
+                ("get_state", _P), ("set_state", _P), ("free_state", _P), ("get_der", _P),
                 ("n_in", ctypes.c_int), ("n_der", ctypes.c_int), ("n_out", ctypes.c_int),
-                ("n_rec", ctypes.c_int), ("feedthrough", ctypes.c_int), ("sampled", ctypes.c_int),
+                ("n_rec", ctypes.c_int), ("n_oder", ctypes.c_int), ("feedthrough", ctypes.c_int),
+                ("sampled", ctypes.c_int),
                 ("in_vr", _P), ("in_src", _P), ("in_idx", _P), ("der_vr", _P),
-                ("der_order", _P), ("out_vr", _P), ("rec_vr", _P),
+                ("der_order", _P), ("out_vr", _P), ("rec_vr", _P), ("oder_vr", _P),
+                ("oder_order", _P),
                 ("in_val", _P), ("der_val", _P), ("new_val", _P), ("rec_val", _P),
                 ("saved", _P), ("hist", _P),
                 ("newest", ctypes.c_longlong), ("count", ctypes.c_int), ("mark", ctypes.c_int),
@@ -67,7 +70,8 @@ class _Master(ctypes.Structure):
                 ("out", _P), ("go_on", _P), ("k", ctypes.c_longlong), ("rows", ctypes.c_longlong),
                 ("fail_slave", ctypes.c_int), ("fail_call", ctypes.c_int),
                 ("fail_status", ctypes.c_int), ("fail_timed", ctypes.c_int),
-                ("fail_time", ctypes.c_double)]
+                ("fail_time", ctypes.c_double), ("dweights", ctypes.c_double * 54),
+                ("taylor", ctypes.c_double * 36)]
 
 
 _GO_ON = ctypes.CFUNCTYPE(ctypes.c_int)
@@ -101,7 +105,8 @@ def unavailable(coupling, slaves: dict, adaptive: bool) -> str | None:
     Coupling`) over ``slaves``, or None when it can: a fixed step, and FMI 2.0 FMUs that need no
     execution tool (a pythonfmu FMU runs Python: it keeps the Python loop), called through fmpy's
     raw functions, with the capabilities the coupling uses (FMU states for the corrected first
-    step, input derivatives through ``fmi2SetRealInputDerivatives``)."""
+    step, input derivatives through ``fmi2SetRealInputDerivatives``, output derivatives through
+    ``fmi2GetRealOutputDerivatives``)."""
     if adaptive:
         return "the adaptive communication step runs in Python"
     for name, s in slaves.items():
@@ -113,16 +118,16 @@ def unavailable(coupling, slaves: dict, adaptive: bool) -> str | None:
         fun = s.raw_functions()
         if not fun:
             return f"{name} is not called through fmpy's raw FMI functions (a call logger is set)"
-        if coupling.out_der[name]:
-            return "the extrapolation from output derivatives runs in Python"
         needed = list(_FUNCTIONS[:3])
+        if coupling.out_der[name]:
+            needed.append(_FUNCTIONS[7])
         if coupling.n_der[name]:
             if not coupling.interpolates[name]:
                 return f"{name} takes input derivatives as variables, not through " \
                        "fmi2SetRealInputDerivatives"
             needed.append(_FUNCTIONS[3])
         if coupling.correct_startup:
-            needed += _FUNCTIONS[4:]
+            needed += _FUNCTIONS[4:7]
         missing = [f for f in needed if fun.get(f) is None]
         if missing:
             return f"{name} lacks {', '.join(missing)}"
@@ -170,11 +175,13 @@ class CompiledRun:
             fun = s.raw_functions()
             c.c = s.instance()
             (c.set_real, c.get_real, c.do_step, c.set_der, c.get_state, c.set_state,
-             c.free_state) = [_address(fun.get(f)) for f in _FUNCTIONS]
+             c.free_state, c.get_der) = [_address(fun.get(f)) for f in _FUNCTIONS]
             ins = cp.inputs[n]
             n_der = cp.n_der[n]
             c.n_in, c.n_der = len(ins), n_der
             c.n_out, c.n_rec = len(cp.outputs[n]), len(cp.recorded[n])
+            c.n_oder = q = cp.out_der[n]
+            width = c.n_out * (1 + q)            # a sample: the outputs, then derivatives
             c.feedthrough = int(bool(s.feedthrough))
             c.sampled = int(bool(s.sampled))
             c.in_vr = buf([s.vr(x.dst_var) for x in ins], ctypes.c_uint)
@@ -184,10 +191,12 @@ class CompiledRun:
             c.der_order = buf([k for k in range(1, n_der + 1) for _ in ins])
             c.out_vr = buf([s.vr(v) for v in cp.outputs[n]], ctypes.c_uint)
             c.rec_vr = buf([s.vr(v) for v in cp.recorded[n]], ctypes.c_uint)
+            c.oder_vr = buf([s.vr(v) for v in cp.outputs[n]] * q, ctypes.c_uint)
+            c.oder_order = buf([k for k in range(1, q + 1) for _ in cp.outputs[n]])
             for field, size in (("in_val", c.n_in), ("der_val", c.n_in * n_der),
-                                ("new_val", c.n_out), ("rec_val", c.n_rec), ("saved", c.n_out)):
+                                ("new_val", width), ("rec_val", c.n_rec), ("saved", width)):
                 setattr(c, field, work(size).ctypes.data)
-            h = np.zeros((4, max(1, c.n_out)))
+            h = np.zeros((4, max(1, width)))
             keep.append(h)
             self.hist[n] = h
             c.hist = h.ctypes.data
@@ -196,7 +205,7 @@ class CompiledRun:
             c.count = len(samples)
             c.newest = len(samples) - 1
             for j, u in enumerate(samples):
-                h[j, :c.n_out] = u
+                h[j, :width] = u
         cols = list(cp.record.items())
         col_slave = [index[s] for _, (s, _v) in cols]
         col_rec = [int(v not in cp.out_index[s]) for _, (s, v) in cols]

@@ -32,7 +32,8 @@ import numpy as np
 
 from fmu_common import kernels
 
-from .compiled import _CALLS, _FUNCTIONS, _address, _ints
+from .compiled import _CALLS, _address, _ints
+from .compiled import _FUNCTIONS as _ALL_FUNCTIONS
 from .compiled import unavailable as _fixed_unavailable
 from .coupling import weight_table
 from .implicit import REUSED_STEPS
@@ -121,6 +122,11 @@ def load():
     return _lib
 
 
+#: the FMI 2.0 functions this loop calls (fa_slave's function pointers, in order): the fixed-step
+#: loop's but fmi2GetRealOutputDerivatives
+_FUNCTIONS = _ALL_FUNCTIONS[:7]
+
+
 def unavailable(coupling, slaves: dict) -> str | None:
     """Why the compiled adaptive or implicit loop cannot run ``coupling`` over ``slaves``, or
     None when it can: the FMUs the compiled fixed-step loop takes (:func:`orchestration.cosim.
@@ -131,6 +137,9 @@ def unavailable(coupling, slaves: dict) -> str | None:
         return why
     implicit = coupling.algorithm == "implicit"
     for name, s in slaves.items():
+        if coupling.out_der[name]:
+            return "the extrapolation from output derivatives runs in Python in the adaptive " \
+                   "and implicit masters"
         if s.sampled:
             return f"{name} is a sampled controller (its adaptive or implicit step runs in " \
                    "Python)"

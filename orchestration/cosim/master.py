@@ -455,7 +455,9 @@ class Master:
         h = min(self.h, self.max_step)
         t = t0
         err_prev = 1.0
-        self._peak = {n: np.abs(np.asarray(cur[n], dtype=float)) for n in self.slaves}
+        # the outputs' values (with output derivatives, their derivatives follow them)
+        self._peak = {n: np.abs(np.asarray(cur[n], dtype=float))[:len(self.coupling.outputs[n])]
+                      for n in self.slaves}
         self._work = 0.0
         # the energy residual is never rolled back (ECCO): it only sets the next step
         rollback = self.settings.error_estimator == "extrapolation"

@@ -88,6 +88,25 @@ def test_every_coupling_is_bit_identical(pair, unzipped, algorithm, first, p, de
     assert_same_rows(py.result, c.result)
 
 
+@pytest.mark.parametrize("algorithm,first,p,filter_order",
+                         list(itertools.product(["gauss-seidel", "jacobi"], ["controller", "plant"],
+                                                [1, 2], [2, 0])))
+def test_output_derivative_couplings_are_bit_identical(pair, unzipped, algorithm, first, p,
+                                                       filter_order):
+    """master.output_derivatives: every source extrapolated by the Taylor polynomial at its
+    newest sample (fmi2GetRealOutputDerivatives), no corrected first step; both algorithms,
+    either FMU first, linear and quadratic, with and without a feedthrough controller."""
+    sets = ["stop_time=0.2", "master.output_derivatives=true", f"master.algorithm={algorithm}",
+            f"master.first={first}", f"master.extrapolation={p}",
+            f"controller.filter_order={filter_order}"]
+    py, c = both("flexible_pd_lowpass", sets, pair, unzipped)
+    assert_same_rows(py.result, c.result)
+    plain = run_scene(load_scene("flexible_pd_lowpass", [*sets[:1], *sets[2:]]), pair,
+                      progress=False, unzipdirs=unzipped)
+    # the derivatives change the coupling (a test that cannot pass on the past samples' loop)
+    assert np.max(np.abs(plain.result["phi_o"] - c.result["phi_o"])) > 0
+
+
 # ---------------------------------------------------------------------- the same FMI calls
 _PROTO = {
     "fmi2SetReal": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint), ctypes.c_size_t,
@@ -101,6 +120,9 @@ _PROTO = {
     "fmi2GetFMUstate": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p)),
     "fmi2SetFMUstate": (ctypes.c_void_p, ctypes.c_void_p),
     "fmi2FreeFMUstate": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p)),
+    "fmi2GetRealOutputDerivatives": (ctypes.c_void_p, ctypes.POINTER(ctypes.c_uint),
+                                     ctypes.c_size_t, ctypes.POINTER(ctypes.c_int),
+                                     ctypes.POINTER(ctypes.c_double)),
 }
 
 
@@ -145,7 +167,7 @@ class Tap:
         n = args[2] if len(args) > 2 else 0
         if fname in ("fmi2SetReal", "fmi2GetReal"):
             rec = (list(args[1][:n]), list(args[3][:n]))
-        elif fname == "fmi2SetRealInputDerivatives":
+        elif fname in ("fmi2SetRealInputDerivatives", "fmi2GetRealOutputDerivatives"):
             rec = (list(args[1][:n]), list(args[3][:n]), list(args[4][:n]))
         elif fname == "fmi2DoStep":
             rec = (args[1], args[2], args[3])
@@ -190,6 +212,10 @@ TRACED = {
                                                   "master.extrapolation=0"],
     "feedthrough controller, Jacobi, quadratic": ["controller.filter_order=0",
                                                   "master.algorithm=jacobi"],
+    "output derivatives (Gauss-Seidel, quadratic)": ["master.output_derivatives=true"],
+    "output derivatives, feedthrough, Jacobi, linear": [
+        "master.output_derivatives=true", "controller.filter_order=0", "master.algorithm=jacobi",
+        "master.extrapolation=1"],
 }
 
 
@@ -204,10 +230,13 @@ def test_the_fmi_calls_are_the_same(pair, unzipped, label):
     assert_same_rows(py[0], c[0])
     calls = {f for _, f, *_ in c[2]}
     assert {"fmi2DoStep", "fmi2SetReal", "fmi2GetReal"} <= calls
-    if scene.master.extrapolation >= 1:
-        assert {"fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"} <= calls
     if scene.master.input_derivatives and scene.master.extrapolation >= 1:
         assert "fmi2SetRealInputDerivatives" in calls
+    if scene.master.output_derivatives:
+        assert "fmi2GetRealOutputDerivatives" in calls
+        assert "fmi2GetFMUstate" not in calls            # the Taylor polynomial needs no start-up
+    elif scene.master.extrapolation >= 1:
+        assert {"fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate"} <= calls
 
 
 # ---------------------------------------------------------------------- the same failures
@@ -241,6 +270,26 @@ def test_a_failed_call_raises_the_same_error(pair, unzipped, fail, sets):
     assert c[1].steps == py[1].steps
     assert c[2] == py[2]
     assert [e[:2] for e in c[2] if e[2] == "failed"] == [fail[:2]]
+
+
+@pytest.mark.parametrize("fail", [("plant", "fmi2GetRealOutputDerivatives", 6, 3),
+                                  ("controller", "fmi2GetRealOutputDerivatives", 3, 2)],
+                         ids=lambda f: f"{f[0]}-{f[2]}-{f[3]}")
+def test_a_failed_output_derivative_call_raises_the_same_error(pair, unzipped, fail):
+    """fmi2GetRealOutputDerivatives returning error or discard ends both loops' runs with the
+    same CoSimulationError, rows and calls."""
+    scene = load_scene("flexible_pd_lowpass", ["stop_time=0.06", "output_interval=0.004",
+                                               "master.output_derivatives=true"])
+    py = tapped_run(scene, unzipped, pair, False, fail)
+    c = tapped_run(scene, unzipped, pair, True, fail)
+    assert isinstance(py[0], CoSimulationError) and isinstance(c[0], CoSimulationError), c[0]
+    assert str(c[0]) == str(py[0])
+    assert "getRealOutputDerivatives" in str(c[0])
+    assert (c[0].status, c[0].time) == (py[0].status, py[0].time)
+    assert c[0].status == fail[3]
+    assert_same_rows(py[0].result, c[0].result)
+    assert c[1].steps == py[1].steps
+    assert c[2] == py[2]
 
 
 @pytest.mark.parametrize("compiled", [False, True])

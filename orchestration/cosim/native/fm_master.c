@@ -50,12 +50,15 @@ static int fail(fm_master *m, int slave, int call, int status, int timed, double
 }
 
 /* ---------------------------------------------------------------------- history */
+/* Values per sample: the outputs, then their derivatives (fm_slave). */
+static int width(const fm_slave *s) { return s->n_out * (1 + s->n_oder); }
+
 static int visible(const fm_slave *s) { return s->count < FM_DEPTH ? s->count : FM_DEPTH; }
 
 /* _History.push, as the run loop does it (the oldest sample leaves beyond FM_DEPTH). */
 static void push(fm_slave *s, long long j, const double *u)
 {
-    int n = s->n_out;
+    int n = width(s);
     if (s->count >= FM_DEPTH) {
         memmove(s->hist, s->hist + (s->count - FM_DEPTH + 1) * n,
                 (size_t)((FM_DEPTH - 1) * n) * sizeof(double));
@@ -69,7 +72,7 @@ static void push(fm_slave *s, long long j, const double *u)
 /* _macro_step's provisional push (Gauss-Seidel): into the spare slot, undone by unpush(). */
 static void push_provisional(fm_slave *s, const double *u)
 {
-    int n = s->n_out;
+    int n = width(s);
     if (n) memcpy(s->hist + s->count * n, u, (size_t)n * sizeof(double));
     s->count++;
     s->newest++;
@@ -86,12 +89,45 @@ static void unpush(fm_slave *s)
  * summed left to right (k == 1: one product, as numpy's W * u). */
 static double combine(const fm_slave *s, const double *w, int nodes, int idx)
 {
-    const double *u = s->hist + (s->count - nodes) * s->n_out + idx;
+    int n = width(s);
+    const double *u = s->hist + (s->count - nodes) * n + idx;
     double acc;
     int i;
     if (nodes == 1) return w[0] * u[0];
     acc = w[0] * u[0];
-    for (i = 1; i < nodes; i++) acc = acc + w[i] * u[i * s->n_out];
+    for (i = 1; i < nodes; i++) acc = acc + w[i] * u[i * n];
+    return acc;
+}
+
+/* taylor_rows, one row: the weights on [y, y', y''] of the Taylor polynomial at a sample
+ * evaluated from `delta` seconds after it: its average over [delta, delta + scale] (K_AVERAGE)
+ * or its value or derivative there (K_VALUE, K_D1, K_D2), with Python's float ** int (libm's
+ * pow; the exponents are volatile so that pow(x, 2) stays pow) and its factorials. */
+static void taylor_row(double delta, double scale, int kind, double w[3])
+{
+    static const double fact[4] = {1.0, 1.0, 2.0, 6.0};
+    int j;
+    for (j = 0; j <= 2; j++) {
+        volatile double e1 = (double)(j + 1), e0;
+        if (kind == K_AVERAGE) {
+            w[j] = (pow(delta + scale, e1) - pow(delta, e1)) / (fact[j + 1] * scale);
+        } else if (j >= kind - K_VALUE) {
+            e0 = (double)(j - (kind - K_VALUE));
+            w[j] = pow(delta, e0) / fact[j - (kind - K_VALUE)];
+        } else {
+            w[j] = 0.0;
+        }
+    }
+}
+
+/* _combination of a source with output derivatives: row `w` on its newest sample's output
+ * `idx` and its derivatives, summed left to right. */
+static double combine_taylor(const fm_slave *s, const double *w, int idx)
+{
+    const double *y = s->hist + (s->count - 1) * width(s) + idx;
+    double acc = w[0] * y[0];
+    int j;
+    for (j = 1; j <= s->n_oder; j++) acc = acc + w[j] * y[j * s->n_out];
     return acc;
 }
 
@@ -101,36 +137,36 @@ static double combine(const fm_slave *s, const double *w, int nodes, int idx)
  * from kt, integers however long the run. */
 static int fill(const fm_master *m, fm_slave *d, long long kt, int held)
 {
-    double wd[2][3];
-    double pw[2] = {0.0, 0.0};
-    int i, r;
+    const fm_slave *s = NULL;
+    const double *w = NULL, *wd[2] = {NULL, NULL};
+    int i, r, src = -1, nodes = 0;
     int rows = held && d->n_der ? d->n_der : 0;
-    if (rows) {
-        /* numpy: w / h ** kd, Python's ** being libm's pow (the exponent is volatile so
-         * that the compiler does not turn pow(x, 2) into x * x) */
-        volatile double one = 1.0, two = 2.0;
-        pw[0] = pow(m->h, one);
-        if (rows > 1) pw[1] = pow(m->h, two);
-    }
     for (i = 0; i < d->n_in; i++) {
-        const fm_slave *s = &m->slaves[d->in_src[i]];
         int idx = d->in_idx[i];
-        int vis = visible(s);
-        int nodes = m->p + 1 < vis ? m->p + 1 : vis;
-        int e = (int)(s->newest - kt);
-        const double *w;
-        if (e < -1 || e > 1 || nodes < 1) return 0;
-        if (!held || d->n_der) {
-            w = weight_row(m, e, nodes, K_VALUE);
-        } else {
-            w = weight_row(m, e, nodes, K_AVERAGE);
+        if (d->in_src[i] != src) {   /* a source's rows, once for a run of its inputs */
+            int vis, e;
+            src = d->in_src[i];
+            s = &m->slaves[src];
+            vis = visible(s);
+            nodes = m->p + 1 < vis ? m->p + 1 : vis;
+            e = (int)(s->newest - kt);
+            if (e < -1 || e > 1 || nodes < 1) return 0;
+            if (s->n_oder) {         /* the Taylor polynomial at the newest sample */
+                w = m->taylor[e + 1][held && !d->n_der ? K_AVERAGE : K_VALUE];
+                for (r = 0; r < rows; r++) wd[r] = m->taylor[e + 1][K_D1 + r];
+            } else {
+                w = weight_row(m, e, nodes, held && !d->n_der ? K_AVERAGE : K_VALUE);
+                for (r = 0; r < rows; r++) wd[r] = m->dweights[nodes - 1][e + 1][r];
+            }
         }
-        d->in_val[i] = combine(s, w, nodes, idx);
-        for (r = 0; r < rows; r++) {
-            const double *wu = weight_row(m, e, nodes, K_D1 + r);
-            int j;
-            for (j = 0; j < nodes; j++) wd[r][j] = wu[j] / pw[r];
-            d->der_val[r * d->n_in + i] = combine(s, wd[r], nodes, idx);
+        if (s->n_oder) {
+            d->in_val[i] = combine_taylor(s, w, idx);
+            for (r = 0; r < rows; r++)
+                d->der_val[r * d->n_in + i] = combine_taylor(s, wd[r], idx);
+        } else {
+            d->in_val[i] = combine(s, w, nodes, idx);
+            for (r = 0; r < rows; r++)
+                d->der_val[r * d->n_in + i] = combine(s, wd[r], nodes, idx);
         }
     }
     return 1;
@@ -177,6 +213,11 @@ static int outputs_after_step(fm_master *m, int n, long long k, double tb)
         st = d->get_real(d->c, d->out_vr, (size_t)d->n_out, d->new_val);
         if (st > 1) return fail(m, n, FM_CALL_GET_REAL, st, 1, tb);
     }
+    if (d->n_out && d->n_oder) {
+        st = d->get_der(d->c, d->oder_vr, (size_t)(d->n_out * d->n_oder), d->oder_order,
+                        d->new_val + d->n_out);
+        if (st > 1) return fail(m, n, FM_CALL_GET_DER, st, 1, tb);
+    }
     return FM_DONE;
 }
 
@@ -220,10 +261,10 @@ static int macro_step(fm_master *m, long long k)
         if ((rc = do_step(m, n, ta)) != FM_DONE) return rc;
         if ((rc = outputs_after_step(m, n, k, tb)) != FM_DONE) return rc;
         if (s->count > 0 && s->newest == k + 1) {
-            double *u = s->hist + (s->count - 1) * s->n_out;
+            double *u = s->hist + (s->count - 1) * width(s);
             if (s->n_out) {
-                memcpy(s->saved, u, (size_t)s->n_out * sizeof(double));
-                memcpy(u, s->new_val, (size_t)s->n_out * sizeof(double));
+                memcpy(s->saved, u, (size_t)width(s) * sizeof(double));
+                memcpy(u, s->new_val, (size_t)width(s) * sizeof(double));
             }
             s->mark = 2;                          /* replaced */
         } else {
@@ -236,8 +277,8 @@ static int macro_step(fm_master *m, long long k)
         if (s->mark == 1) {
             unpush(s);
         } else if (s->mark == 2 && s->n_out) {
-            memcpy(s->hist + (s->count - 1) * s->n_out, s->saved,
-                   (size_t)s->n_out * sizeof(double));
+            memcpy(s->hist + (s->count - 1) * width(s), s->saved,
+                   (size_t)width(s) * sizeof(double));
         }
         s->mark = 0;
     }
@@ -294,10 +335,34 @@ static int store(fm_master *m, long long row, double t)
     for (i = 0; i < m->n_cols; i++) {
         const fm_slave *s = &m->slaves[m->col_slave[i]];
         out[1 + i] = m->col_rec[i] ? s->rec_val[m->col_index[i]]
-                                   : s->hist[(s->count - 1) * s->n_out + m->col_index[i]];
+                                   : s->hist[(s->count - 1) * width(s) + m->col_index[i]];
     }
     if (row + 1 > m->rows) m->rows = row + 1;
     return FM_DONE;
+}
+
+/* The weights that depend on h alone, once per fm_run: the derivative rows divided by h ** kd
+ * (numpy: w / h ** kd, Python's ** being libm's pow; the exponents are volatile so that the
+ * compiler does not turn pow(x, 2) into x * x), and the Taylor rows from (kt - newest) h = -e h
+ * seconds after the newest sample, over a step of h (master.py: scale * unit = 1 * h); a row's
+ * first q + 1 weights are those of order q. */
+static void prepare(fm_master *m)
+{
+    volatile double one = 1.0, two = 2.0;
+    double pw[2];
+    int e, nodes, r, j, kind;
+    pw[0] = pow(m->h, one);
+    pw[1] = pow(m->h, two);
+    for (nodes = 1; nodes <= 3; nodes++)
+        for (e = -1; e <= 1; e++)
+            for (r = 0; r < 2; r++) {
+                const double *wu = weight_row(m, e, nodes, K_D1 + r);
+                for (j = 0; j < 3; j++)
+                    m->dweights[nodes - 1][e + 1][r][j] = j < nodes ? wu[j] / pw[r] : 0.0;
+            }
+    for (e = -1; e <= 1; e++)
+        for (kind = K_AVERAGE; kind <= K_D2; kind++)
+            taylor_row((double)(-e) * m->h, m->h, kind, m->taylor[e + 1][kind]);
 }
 
 static int check(const fm_master *m)
@@ -311,10 +376,11 @@ static int check(const fm_master *m)
         const fm_slave *s = &m->slaves[i];
         if (m->order[i] < 0 || m->order[i] >= m->n_slaves) return 0;
         if (!s->set_real || !s->get_real || !s->do_step || s->n_in < 0 || s->n_out < 0 ||
-            s->n_rec < 0 || s->n_der < 0 || s->n_der > 2 || s->count < 1 ||
-            s->count > FM_DEPTH)
+            s->n_rec < 0 || s->n_der < 0 || s->n_der > 2 || s->n_oder < 0 || s->n_oder > 2 ||
+            s->count < 1 || s->count > FM_DEPTH)
             return 0;
         if (s->n_der && !s->set_der) return 0;
+        if (s->n_oder && !s->get_der) return 0;
         if (m->correct_startup && (!s->get_state || !s->set_state || !s->free_state)) return 0;
         for (j = 0; j < s->n_in; j++)
             if (s->in_src[j] < 0 || s->in_src[j] >= m->n_slaves ||
@@ -335,6 +401,7 @@ FM_API int fm_run(fm_master *m, long long k_end)
 {
     int i, rc;
     if (!check(m)) return FM_BADARG;
+    prepare(m);
     if (k_end > m->total) k_end = m->total;
     while (m->k < k_end) {
         long long k = m->k;

@@ -40,7 +40,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FM_ABI 3
+#define FM_ABI 4
 
 /* Results of fm_run(). */
 #define FM_DONE 0       /* the steps up to k_end are taken */
@@ -56,6 +56,7 @@ extern "C" {
 #define FM_CALL_GET_STATE 5      /* fmi2GetFMUstate */
 #define FM_CALL_SET_STATE 6      /* fmi2SetFMUstate */
 #define FM_CALL_FREE_STATE 7     /* fmi2FreeFMUstate */
+#define FM_CALL_GET_DER 8        /* fmi2GetRealOutputDerivatives */
 
 /* History depth of every signal (samples kept; one more slot for the Gauss-Seidel update). */
 #define FM_DEPTH 3
@@ -68,6 +69,8 @@ typedef int (*fm_get_real_fn)(void *c, const unsigned int *vr, size_t n, double 
 typedef int (*fm_do_step_fn)(void *c, double t, double h, int no_set_state_prior);
 typedef int (*fm_set_der_fn)(void *c, const unsigned int *vr, size_t n, const int *order,
                              const double *value);
+typedef int (*fm_get_der_fn)(void *c, const unsigned int *vr, size_t n, const int *order,
+                             double *value);
 typedef int (*fm_get_state_fn)(void *c, void **state);
 typedef int (*fm_set_state_fn)(void *c, void *state);
 typedef int (*fm_free_state_fn)(void *c, void **state);
@@ -75,7 +78,11 @@ typedef int (*fm_free_state_fn)(void *c, void **state);
 typedef int (*fm_go_on_fn)(void);
 
 /* One FMU. "in": set by the caller; "work": buffers of the given sizes; "in/out": the state of
- * its history, set by the caller before the first call and kept up to date. */
+ * its history, set by the caller before the first call and kept up to date. A sample of its
+ * signals is its n_out outputs followed, with n_oder > 0, by their time derivatives of orders
+ * 1..n_oder (fmi2GetRealOutputDerivatives; block per order): n_out (1 + n_oder) values, the
+ * "width" below; the extrapolation of such a source is the Taylor polynomial at its newest
+ * sample (Master._combination). */
 typedef struct fm_slave {
     void *c;                          /* in: the fmi2Component */
     fm_set_real_fn set_real;          /* in */
@@ -85,10 +92,12 @@ typedef struct fm_slave {
     fm_get_state_fn get_state;        /* in: needed when the master corrects the first step */
     fm_set_state_fn set_state;        /* in: same */
     fm_free_state_fn free_state;      /* in: same */
+    fm_get_der_fn get_der;            /* in: needed when n_oder > 0 */
     int n_in;                         /* in: real inputs fed by connections */
     int n_der;                        /* in: input derivative orders passed (0, 1, 2) */
     int n_out;                        /* in: real outputs feeding connections */
     int n_rec;                        /* in: real outputs only recorded */
+    int n_oder;                       /* in: output derivative orders read (0, 1, 2) */
     int feedthrough;                  /* in: outputs may depend directly on inputs */
     int sampled;                      /* in: a sampled controller (Master: its outputs are read
                                        * with its inputs at the others' new outputs) */
@@ -99,12 +108,14 @@ typedef struct fm_slave {
     const int *der_order;             /* in: (n_in n_der) 1..., then 2... */
     const unsigned int *out_vr;       /* in: (n_out) */
     const unsigned int *rec_vr;       /* in: (n_rec) */
+    const unsigned int *oder_vr;      /* in: (n_out n_oder) outputs, repeated per order */
+    const int *oder_order;            /* in: (n_out n_oder) 1..., then 2... */
     double *in_val;                   /* work: (n_in) */
     double *der_val;                  /* work: (n_in n_der) */
-    double *new_val;                  /* work: (n_out) the outputs at the end of the step */
+    double *new_val;                  /* work: (width) the sample at the end of the step */
     double *rec_val;                  /* work: (n_rec) */
-    double *saved;                    /* work: (n_out) */
-    double *hist;                     /* in/out: (FM_SLOTS n_out) samples, oldest first */
+    double *saved;                    /* work: (width) */
+    double *hist;                     /* in/out: (FM_SLOTS width) samples, oldest first */
     long long newest;                 /* in/out: step index of the newest sample */
     int count;                        /* in/out: samples in hist (1..FM_DEPTH) */
     int mark;                         /* work */
@@ -138,6 +149,11 @@ typedef struct fm_master {
     int fail_status;                  /* out: the fmi2Status */
     int fail_timed;                   /* out: 1 if fail_time applies (0: the state calls) */
     double fail_time;                 /* out */
+    double dweights[3][3][2][3];      /* work: the derivative rows of weights (nodes, newest
+                                       * node -1, 0, 1; 1st, 2nd), divided by h, h^2 */
+    double taylor[3][4][3];           /* work: the Taylor rows from (newest node) h seconds
+                                       * before the sample, per kind (average, value, 1st,
+                                       * 2nd derivative), on [y, y', y''] */
 } fm_master;
 
 FM_API int fm_abi(void);
