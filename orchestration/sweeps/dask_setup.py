@@ -8,9 +8,11 @@ from pathlib import Path
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from .executor import _WORKER_FILES
+__all__ = ["Setup", "WORKER_FILES"]
 
-__all__ = ["Setup"]
+#: name -> path of the files the plugin wrote into this worker process's folder
+#: (:func:`orchestration.sweeps.executor.worker_file` reads it)
+WORKER_FILES: dict[str, str] = {}
 
 
 class Setup(WorkerPlugin):
@@ -44,4 +46,4 @@ class Setup(WorkerPlugin):
                 part = target.with_suffix(target.suffix + ".part")
                 part.write_bytes(data)
                 os.replace(part, target)
-            _WORKER_FILES[name] = str(target)
+            WORKER_FILES[name] = str(target)

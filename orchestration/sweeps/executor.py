@@ -279,36 +279,50 @@ class ProcessExecutor(Executor):
         self._pool = None
         self._pool = self._start(self.workers)
 
-    def _context(self):
+    def _contexts(self):
+        """The start methods to try, best first: a fork server that has imported the runs'
+        modules, then ``spawn`` (where there is no fork server, or it cannot start: its socket
+        lives in the temporary folder, and a long ``TMPDIR`` makes its path too long)."""
         import multiprocessing
 
         if "forkserver" in multiprocessing.get_all_start_methods():
             ctx = multiprocessing.get_context("forkserver")
             ctx.set_forkserver_preload(list(self.PRELOAD))
-            return ctx
-        return multiprocessing.get_context("spawn")
+            yield ctx
+        yield multiprocessing.get_context("spawn")
 
     def _start(self, workers: int):
-        """A pool of ``workers`` processes, started (Ctrl-C held back meanwhile: no process is
-        left half-started)."""
+        """A pool of ``workers`` processes, started. Ctrl-C is held back meanwhile (no process
+        is left half-started; the processes started inherit it held back, and a worker ignores
+        it from its first moment), and a Ctrl-C then ends the pool before it is raised."""
         from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures.process import BrokenProcessPool
 
-        with _sigint_blocked():
-            pool = ProcessPoolExecutor(workers, mp_context=self._context(),
-                                       initializer=_process_setup,
-                                       initargs=(self.paths, os.getpid()))
-            try:
-                for f in [pool.submit(_ready) for _ in range(workers)]:
-                    f.result()
-            except BaseException as exc:
+        pool = None
+        try:
+            with _sigint_blocked():
+                for ctx in self._contexts():
+                    pool = ProcessPoolExecutor(workers, mp_context=ctx,
+                                               initializer=_process_setup,
+                                               initargs=(self.paths, os.getpid()))
+                    try:
+                        for f in [pool.submit(_ready) for _ in range(workers)]:
+                            f.result()
+                        break
+                    except OSError:
+                        self._end(pool)
+                        pool = None
+                        if ctx.get_start_method() == "spawn":
+                            raise
+                    except BrokenProcessPool:
+                        raise RuntimeError(
+                            "the worker processes did not start (each imports the main module "
+                            "again: a script that starts them must run its code under "
+                            "`if __name__ == \"__main__\":`)") from None
+        except BaseException:
+            if pool is not None:
                 self._end(pool)
-                from concurrent.futures.process import BrokenProcessPool
-                if isinstance(exc, BrokenProcessPool):
-                    raise RuntimeError(
-                        "the worker processes did not start (each imports the main module "
-                        "again: a script that starts them must run its code under "
-                        "`if __name__ == \"__main__\":`)") from None
-                raise
+            raise
         return pool
 
     @staticmethod
@@ -386,14 +400,12 @@ class ProcessExecutor(Executor):
             pool.shutdown(wait=True, cancel_futures=True)
 
 
-#: name -> path of the files the worker plugin wrote into this worker process's folder
-_WORKER_FILES: dict[str, str] = {}
-
-
 def worker_file(name: str, default):
     """The path of file ``name`` sent to this worker by :class:`DaskExecutor` (``files=``), or
-    ``default`` when the task runs elsewhere (the serial executor: the client's own path)."""
-    return _WORKER_FILES.get(name, default)
+    ``default`` when the task runs elsewhere (serially or on a :class:`ProcessExecutor`: the
+    client's own path)."""
+    plugin = sys.modules.get("orchestration.sweeps.dask_setup")   # imported in dask workers
+    return default if plugin is None else plugin.WORKER_FILES.get(name, default)
 
 
 def scratch_dir() -> str | None:

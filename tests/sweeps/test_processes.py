@@ -126,3 +126,26 @@ def test_the_workers_end_when_their_client_dies(tmp_path):
     while any(executor._alive(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not any(executor._alive(p) for p in pids)
+
+
+def test_a_long_temporary_folder_falls_back_to_spawn(tmp_path):
+    """The fork server's socket lives in TMPDIR: under a long TMPDIR its path is longer than a
+    Unix socket's 108 bytes ("AF_UNIX path too long", a traceback before). The workers then
+    start by spawn, and run the same tasks."""
+    import subprocess
+    import sys
+
+    tmp = tmp_path / ("t" * 120)
+    tmp.mkdir()
+    code = ("from orchestration.sweeps.executor import ProcessExecutor\n"
+            "def sq(i): return i * i\n"
+            "if __name__ == '__main__':\n"
+            "    with ProcessExecutor(2) as ex:\n"
+            "        print(sorted(dict(ex.map(sq, range(5))).items()))\n")
+    script = tmp_path / "client.py"
+    script.write_text(code)
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          timeout=300, env={**__import__("os").environ, "TMPDIR": str(tmp)})
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[(0, 0), (1, 1), (2, 4), (3, 9), (4, 16)]"
+    assert "Traceback" not in proc.stderr
