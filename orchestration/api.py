@@ -170,7 +170,7 @@ def design(scene=None, overrides=None, *, design: dict | None = None, workers: i
     order, cutoff and damping with the largest worst-case decay rate (or damping ratio) over
     the uncertainty set around the scene's plant. ``design``: the ``design.*`` keys
     (``{"design.criterion": "damping"}``); ``workers``/``scheduler``: check the worst case on
-    dask. ``progress``: as the module's docstring says (the candidate filters searched, the
+    that many worker processes here, or on the dask cluster of that scheduler. ``progress``: as the module's docstring says (the candidate filters searched, the
     check, the curves). The result's ``save(folder)`` writes what ``flexpend design``
     writes."""
     check_progress(progress)
