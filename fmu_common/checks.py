@@ -9,6 +9,7 @@ that validation enforces are the ones a listing of the parameters prints (``flex
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 __all__ = ["check_real", "check_int", "check_bool", "check_choice", "replace_checked", "Param",
@@ -48,21 +49,23 @@ def check_real(name: str, value, *, low=None, high=None, low_open=True, high_ope
     """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise TypeError(f"{name} must be a real number, got {shown(value)}")
-    lo = "-inf" if low is None else number_text(low)
-    hi = "inf" if high is None else number_text(high)
-    allowed = f"{'(' if low_open else '['}{lo}, {hi}{')' if high_open else ']'}"
+
+    def allowed():
+        lo = "-inf" if low is None else number_text(low)
+        hi = "inf" if high is None else number_text(high)
+        return f"{'(' if low_open else '['}{lo}, {hi}{')' if high_open else ']'}"
     try:
         value = float(value)
     except OverflowError:         # an integer beyond the largest double
         raise ValueError(f"{name} = an integer of {len(str(abs(value)))} digits is out of range; "
-                         f"allowed: {allowed}") from None
+                         f"allowed: {allowed()}") from None
     ok = not math.isnan(value) and (math.isfinite(value) or (allow_inf and value == math.inf))
     if low is not None:
         ok = ok and (value > low if low_open else value >= low)
     if high is not None:
         ok = ok and (value < high if high_open else value <= high)
     if not ok:
-        raise ValueError(f"{name} = {value!r} is out of range; allowed: {allowed}")
+        raise ValueError(f"{name} = {value!r} is out of range; allowed: {allowed()}")
     return value
 
 
@@ -198,12 +201,19 @@ def param_of(cls, name: str) -> Param | None:
     return None
 
 
+@functools.lru_cache(maxsize=None)
+def _checked_params(cls) -> tuple:
+    """``(name, Param)`` of the fields of ``cls`` that have one, those bounded by another field
+    last (found once per class: a sweep checks 10,000 scenes)."""
+    params = [(f.name, f.metadata["param"]) for f in dataclasses.fields(cls)
+              if "param" in f.metadata]
+    return tuple(sorted(params, key=lambda np_: np_[1].high_field is not None))
+
+
 def check_fields(record, prefix: str = "") -> None:
     """Check every field of ``record`` (a frozen dataclass) that has a :class:`Param`, in
     field order (those bounded by another field after it), and store each in its canonical
     type; the first bad one raises TypeError/ValueError naming ``prefix + name``."""
-    params = [(f.name, f.metadata["param"]) for f in dataclasses.fields(record)
-              if "param" in f.metadata]
-    for name, p in sorted(params, key=lambda np_: np_[1].high_field is not None):
+    for name, p in _checked_params(type(record)):
         high = getattr(record, p.high_field) if p.high_field else None
         object.__setattr__(record, name, p.check(prefix + name, getattr(record, name), high))

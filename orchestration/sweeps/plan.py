@@ -308,13 +308,14 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
     drawn = draw_samples(samplers, n_samples, seed, uncertainty) if samplers else {}
     points = []
     sample_ids = range(n_samples) if samplers else [None]
+    base_config = dict(base.config)
     for combo in itertools.product(*(a.values for a in axes), sample_ids):
         *grid_values, j = combo
         params = dict(zip((a.key for a in axes), grid_values))
         if j is not None:
             params.update({s.key: drawn[s.key][j] for s in samplers})
         try:
-            sc = scene_from_config(base.name, {**base.config, **params})
+            sc = scene_from_config(base.name, {**base_config, **params})
         except ConfigError as exc:
             where = ", ".join(f"{k}={v!r}" for k, v in params.items())
             raise ConfigError(f"run {len(points)} ({where}): {exc}") from None
