@@ -850,7 +850,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="also solve each run's monolithic reference and report the error")
     pw.add_argument("--workers", type=int, default=None, metavar="N",
                     help="worker processes here (default: one per core, only where they end "
-                         "before the serial runs: 1 s + ceil(runs / cores) * (t + 0.001 s) < "
+                         "before the serial runs: 1 s + ceil(runs / cores) * (t + 0.004 s) < "
                          "runs * t, t the expected run length from stop_time / master.step; "
                          "see docs/sweeps.md)")
     pw.add_argument("--scheduler", default=None, metavar="ADDRESS",

@@ -111,12 +111,13 @@ CLUSTER_START = 5.0
 #: journal (s; 21 ms measured per run, docs/sweeps.md).
 TASK_OVERHEAD = 0.02
 #: Seconds a :class:`ProcessExecutor` takes before its first result: a fork server that imports
-#: the runs' modules once, then its worker processes (about 0.7 s measured on 2 cores,
-#: docs/sweeps.md).
+#: the runs' modules once, then its worker processes (a sweep's first run came 0.3 s later than
+#: serially on 2 cores; the rest a margin: docs/sweeps.md).
 PROCESS_START = 1.0
 #: What a task costs on a :class:`ProcessExecutor` beyond its own work: sending the task and its
-#: row through a pipe, the journal (s; about 1 ms measured per run, docs/sweeps.md).
-PROCESS_OVERHEAD = 0.001
+#: row through a pipe, the journal, the client's share of the cores (s; 1000 runs of 24 ms took
+#: 28 ms each on 2 workers beside the client, at load 2: docs/sweeps.md).
+PROCESS_OVERHEAD = 0.004
 #: Tasks sent ahead to each worker process of a :class:`ProcessExecutor` (what a crash or a
 #: Ctrl-C leaves in flight).
 PROCESS_AHEAD = 2
