@@ -57,6 +57,14 @@ static fp_fenv ftz_enter(void) { return 0; }
 static void ftz_leave(fp_fenv old) { (void)old; }
 #endif
 
+/* Whether times x and y may be flushed: neither is itself subnormal (a step of 5e-324 s from
+ * t = 0 is a legal step, which the flushed arithmetic would take as none). */
+static int flushable(double x, double y)
+{
+    return (x == 0.0 || !isfinite(x) || fabs(x) >= 2.2250738585072014e-308) &&
+           (y == 0.0 || !isfinite(y) || fabs(y) >= 2.2250738585072014e-308);
+}
+
 int fp_plant_abi(void) { return FP_PLANT_ABI; }
 
 const char *fp_plant_source_digest(void) { return FP_SOURCE_DIGEST; }
@@ -2569,8 +2577,12 @@ int fp_exact_outputs(const fp_exact *p, const double *s, int want_energy, double
 int fp_fixed_steps(const fp_plant *p, int method, const fp_tableau *tab, const fp_input *u,
                    double t, double h, long n_steps, double *y, double *work, long *done)
 {
-    fp_fenv env = ftz_enter();
-    int rc = fixed_steps_(p, method, tab, u, t, h, n_steps, y, work, done);
+    fp_fenv env;
+    int rc;
+    if (!flushable(t, h))
+        return fixed_steps_(p, method, tab, u, t, h, n_steps, y, work, done);
+    env = ftz_enter();
+    rc = fixed_steps_(p, method, tab, u, t, h, n_steps, y, work, done);
     ftz_leave(env);
     return rc;
 }
@@ -2578,8 +2590,12 @@ int fp_fixed_steps(const fp_plant *p, int method, const fp_tableau *tab, const f
 int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u, double *t,
                      double t_end, double *y, double *f, fp_adaptive *a, double *work)
 {
-    fp_fenv env = ftz_enter();
-    int rc = dopri_advance_(p, tab, u, t, t_end, y, f, a, work);
+    fp_fenv env;
+    int rc;
+    if (!flushable(*t, t_end))
+        return dopri_advance_(p, tab, u, t, t_end, y, f, a, work);
+    env = ftz_enter();
+    rc = dopri_advance_(p, tab, u, t, t_end, y, f, a, work);
     ftz_leave(env);
     return rc;
 }
@@ -2587,8 +2603,12 @@ int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u
 int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, double *s,
                    double *work, long *done, long *iters)
 {
-    fp_fenv env = ftz_enter();
-    int rc = exact_steps_(p, F, n_steps, s, work, done, iters);
+    fp_fenv env;
+    int rc;
+    if (!flushable(p->h, p->h))
+        return exact_steps_(p, F, n_steps, s, work, done, iters);
+    env = ftz_enter();
+    rc = exact_steps_(p, F, n_steps, s, work, done, iters);
     ftz_leave(env);
     return rc;
 }
@@ -2596,8 +2616,12 @@ int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, dou
 int fp_radau_step(const fp_exact *p, const fp_radau_force *F, double *s, double *work,
                   long *iters, double *e_out)
 {
-    fp_fenv env = ftz_enter();
-    int rc = radau_step_(p, F, s, work, iters, e_out);
+    fp_fenv env;
+    int rc;
+    if (!flushable(p->h, p->h))
+        return radau_step_(p, F, s, work, iters, e_out);
+    env = ftz_enter();
+    rc = radau_step_(p, F, s, work, iters, e_out);
     ftz_leave(env);
     return rc;
 }
