@@ -2,7 +2,14 @@
 and renamed into it, so a failed or interrupted write never leaves half a file, nor destroys a
 good file of the same name. A write that fails (a full disk, a read-only folder) raises
 :class:`OutputError`, one line naming the file; :func:`folder_lock` keeps a second run out of an
-output folder in use."""
+output folder in use.
+
+Nothing is written through a link: a symbolic link planted at an output's name (or at the lock's,
+or the journal's) could point at any file the user can write, so :func:`refuse_link` refuses it
+before anything is written, and the files kept open in place (the lock, a sweep's journal) are
+opened by :func:`open_in_place`: never through a symbolic link (``O_NOFOLLOW``), and only as a
+regular file with no other hard link. The output folder itself may be a link: the user named it.
+"""
 from __future__ import annotations
 
 import contextlib
@@ -10,13 +17,15 @@ import errno
 import json
 import math
 import os
+import stat
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
 __all__ = ["OutputError", "output_error", "atomic_path", "folder_lock", "LOCK_FILE", "write_text",
-           "write_json", "write_csv", "json_safe", "check_folder", "FILE_SUFFIXES"]
+           "write_json", "write_csv", "json_safe", "check_folder", "FILE_SUFFIXES", "refuse_link",
+           "open_in_place"]
 
 #: The lock file :func:`folder_lock` holds in an output folder.
 LOCK_FILE = ".flexpend.lock"
@@ -38,17 +47,59 @@ def output_error(path, exc: OSError) -> OutputError:
     return OutputError(exc.errno, f"cannot write {path}: {exc.strerror or exc}")
 
 
+def _link_refused(path) -> OutputError:
+    return OutputError(errno.ELOOP, f"{path}: is a link, and flexpend does not write through "
+                       "links (it could point at any file); remove it or choose another folder")
+
+
+def refuse_link(path) -> None:
+    """An :class:`OutputError` naming ``path`` when it is a symbolic link (nothing is written
+    through one); nothing when it is anything else or absent."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise output_error(path, exc) from None
+    if stat.S_ISLNK(st.st_mode):
+        raise _link_refused(path)
+
+
+def open_in_place(path, flags: int, mode: int = 0o644) -> int:
+    """``os.open(path, flags)`` for a file written in place (a lock, a journal), refusing what
+    could be another file under this name: a symbolic link (``O_NOFOLLOW``), a hard link (a
+    second name of a file elsewhere), anything not a regular file. An :class:`OutputError`
+    naming ``path`` otherwise."""
+    try:
+        fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0),
+                     mode)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP or os.path.islink(path):
+            raise _link_refused(path) from None
+        raise output_error(path, exc) from None
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode) or st.st_nlink > 1:     # 0: just removed by its holder
+        os.close(fd)
+        what = "not a regular file" if not stat.S_ISREG(st.st_mode) else \
+            f"a file with {st.st_nlink} names (a hard link)"
+        raise OutputError(errno.EPERM, f"{path}: is {what}, and flexpend writes only a file of "
+                          "its own there; remove it or choose another folder")
+    return fd
+
+
 class atomic_path:
     """``with atomic_path(path) as tmp:`` write ``tmp``; on success it is synced to the disk and
     replaces ``path`` (so after a crash of the machine ``path`` is the old file or the new one,
     whole), on any exception it is removed and ``path`` is left as it was (an OSError is raised
-    as an :class:`OutputError` naming ``path``)."""
+    as an :class:`OutputError` naming ``path``). A symbolic link at ``path`` is refused first
+    (:func:`refuse_link`): the rename would not follow it, but the user meant its target."""
 
     def __init__(self, path, suffix: str = ""):
         self.path = Path(path)
         self.suffix = suffix or self.path.suffix
 
     def __enter__(self) -> Path:
+        refuse_link(self.path)
         try:
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.",
                                        suffix=f".part{self.suffix}", dir=self.path.parent)
@@ -91,10 +142,7 @@ def folder_lock(folder):
         return
     path = Path(folder) / LOCK_FILE
     while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise output_error(path, exc) from None
+        fd = open_in_place(path, os.O_RDWR | os.O_CREAT)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -104,7 +152,7 @@ def folder_lock(folder):
                               + (f" (process {holder})" if holder.isdigit() else "")
                               + "; wait for it to end or choose another folder") from None
         try:                        # still the file at that name (its holder did not remove it)
-            if os.path.samestat(os.fstat(fd), os.stat(path)):
+            if os.path.samestat(os.fstat(fd), os.lstat(path)):
                 break
         except FileNotFoundError:
             pass

@@ -416,3 +416,12 @@ def hand_stepped(scene, n_rows):
         rows.append((phi_o, omega_o, x_o, z[iF]))
         z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
     return np.array(rows)
+
+
+def one_line_error(err: str, *fragments) -> None:
+    """``err`` (stderr) ends on the one line of an error, which names each of ``fragments``."""
+    lines = err.strip().splitlines()
+    assert lines[-1].startswith("flexpend: error: "), err
+    assert sum(ln.startswith("flexpend") for ln in lines) == 1 and "Traceback" not in err, err
+    for f in fragments:
+        assert f in lines[-1], (f, err)

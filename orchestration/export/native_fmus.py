@@ -63,6 +63,7 @@ from fmu_common.variables import (derivatives, event_indicators, native_variable
 from plant_fmu.beam import _fe_modes_unit, unit_beam
 from plant_fmu.interface import N_ETA_OUTPUTS, PLANT_FMUS, VARIABLES
 
+from ..files import atomic_path
 from ..notes import note
 from . import places
 from .model_description import (CLOCKS, NATIVE, fmi2_model_description,
@@ -517,15 +518,8 @@ def _write_fmu(b: _Build, binaries: dict, tmp: Path) -> None:
         for fname, data in entries.items():
             zf.writestr(fname, data)
     b.target.parent.mkdir(parents=True, exist_ok=True)
-    fd, part = tempfile.mkstemp(prefix=f".{b.name}.", suffix=".part", dir=b.target.parent)
-    os.close(fd)
-    try:
+    with atomic_path(b.target) as part:          # complete or absent, never through a link
         shutil.copyfile(built, part)
-        os.chmod(part, 0o644)
-        os.replace(part, b.target)
-    finally:
-        if os.path.exists(part):
-            os.unlink(part)
 
 
 def build_native_fmu(name: str, fmi_version: int = 2, out_dir: Path | None = None,

@@ -80,14 +80,18 @@ def build_lock():
         return
     folder = home()
     folder.mkdir(parents=True, exist_ok=True)
-    with open(folder / ".build.lock", "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
+    from ..files import open_in_place
+    fd = open_in_place(folder / ".build.lock", os.O_RDWR | os.O_CREAT | os.O_APPEND)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
         _held.depth += 1
         try:
             yield
         finally:
             _held.depth -= 1
-            fcntl.flock(fh, fcntl.LOCK_UN)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
 
 
 class _Depth(threading.local):

@@ -42,6 +42,7 @@ from pathlib import Path
 
 from fmu_common import kernels
 
+from ..files import atomic_path
 from . import loader_build, places
 
 __all__ = ["ROOT", "SPECS", "FmuSpec", "BuildError", "build_fmus", "build_fmu",
@@ -168,11 +169,8 @@ def build_fmu(name: str, out_dir: Path | None = None, force: bool = False,
         if proc.returncode != 0 or not built.is_file():
             raise BuildError(f"building {name} failed:\n{proc.stdout}\n{proc.stderr}")
         # atomic: a concurrent reader sees the old or the new FMU, never half of one
-        fd, part = tempfile.mkstemp(prefix=f".{name}.", suffix=".part", dir=out_dir)
-        os.close(fd)
-        shutil.copyfile(built, part)
-        os.chmod(part, 0o644)      # mkstemp makes 0600; an FMU is meant to be shared
-        os.replace(part, target)
+        with atomic_path(target) as part:
+            shutil.copyfile(built, part)
     if progress is not None:
         progress(1.0, f"{what}: written")
     return target

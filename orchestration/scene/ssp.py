@@ -36,7 +36,6 @@ systems, parameter mappings, transformations, a start time other than 0) is an
 from __future__ import annotations
 
 import math
-import os
 import re
 import shutil
 import tempfile
@@ -48,6 +47,7 @@ from pathlib import Path
 from controller_fmu import interface as controller_interface
 from plant_fmu import interface as plant_interface
 
+from ..files import atomic_path
 from . import archive
 from .keys import ConfigError, parse_value, toml_value
 from .records import OutputSettings
@@ -294,21 +294,14 @@ def write_ssp(scene, fmus: dict, path, model: dict | None = None) -> Path:
                          + "; ".join(problems[:3]))
     xml = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, part = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".part", dir=path.parent)
-    os.close(fd)
-    try:
-        with zipfile.ZipFile(part, "w") as zf:
-            # fixed time stamps: the same scene and FMUs give the same bytes
-            zf.writestr(zipfile.ZipInfo(SSD_NAME, (1980, 1, 1, 0, 0, 0)), xml,
-                        compress_type=zipfile.ZIP_DEFLATED)
-            for member, fmu in [*((sources[c], fmus[c]) for c in ("plant", "controller")),
-                                *riders.items()]:
-                zf.writestr(zipfile.ZipInfo(member, (1980, 1, 1, 0, 0, 0)),
-                            Path(fmu).read_bytes(), compress_type=zipfile.ZIP_STORED)
-        os.replace(part, path)
-    finally:
-        if os.path.exists(part):
-            os.unlink(part)
+    with atomic_path(path) as part, zipfile.ZipFile(part, "w") as zf:     # complete or absent
+        # fixed time stamps: the same scene and FMUs give the same bytes
+        zf.writestr(zipfile.ZipInfo(SSD_NAME, (1980, 1, 1, 0, 0, 0)), xml,
+                    compress_type=zipfile.ZIP_DEFLATED)
+        for member, fmu in [*((sources[c], fmus[c]) for c in ("plant", "controller")),
+                            *riders.items()]:
+            zf.writestr(zipfile.ZipInfo(member, (1980, 1, 1, 0, 0, 0)),
+                        Path(fmu).read_bytes(), compress_type=zipfile.ZIP_STORED)
     return path
 
 

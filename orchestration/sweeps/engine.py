@@ -23,7 +23,7 @@ from ..export import flavour_fmus
 from ..export.native_fmus import GENERATION_TOOL
 from ..job import run_scene
 from ..report.progress import is_quiet, sink_for
-from ..files import atomic_path, output_error
+from ..files import atomic_path, open_in_place, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
 from ..studies.analysis import linearisation, max_real_part
@@ -300,10 +300,7 @@ class Journal:
 
     def __enter__(self):
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        try:
-            self._fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_APPEND, 0o644)
-        except OSError as exc:
-            raise output_error(self.path, exc) from None
+        self._fd = open_in_place(self.path, os.O_RDWR | os.O_CREAT | os.O_APPEND)
         size = os.fstat(self._fd).st_size
         if size and os.pread(self._fd, 1, size - 1) != b"\n":  # a fresh line after a torn one
             self._write(b"\n")

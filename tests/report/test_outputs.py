@@ -12,20 +12,12 @@ from pathlib import Path
 
 import pytest
 
+from conftest import one_line_error
 from orchestration.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 RUN = ["run", "rigid_pd", "--set", "stop_time=1"]
 SWEEP = ["sweep", "rigid_pd", "--values", "controller.kp=300,400", "--serial"]
-
-
-def one_line_error(err: str, *fragments) -> None:
-    """``err`` (stderr) ends on the one line of an error, which names each of ``fragments``."""
-    lines = err.strip().splitlines()
-    assert lines[-1].startswith("flexpend: error: "), err
-    assert sum(ln.startswith("flexpend") for ln in lines) == 1 and "Traceback" not in err, err
-    for f in fragments:
-        assert f in lines[-1], (f, err)
 
 
 def snapshot(folder: Path) -> dict:
@@ -313,3 +305,26 @@ def test_a_failed_check_leaves_no_unpacked_fmu(fmus, tmp_path, private_tmp, monk
     assert main(["check", str(broken), "--reference", str(ROOT / "tests" / "reference")]) == 1
     assert "the FMU failed to simulate" in capsys.readouterr().out
     assert list(private_tmp.iterdir()) == []
+
+
+@pytest.mark.parametrize("finished", [0, 1])
+def test_an_interrupted_sweep_names_only_a_journal_that_holds_runs(finished, tmp_path,
+                                                                   monkeypatch, capsys):
+    """Issue 40, D6: interrupted before any run finished, the message named a runs.jsonl that
+    did not exist; with a finished run it names the journal, which exists and holds it."""
+    import orchestration.sweeps.job as job
+
+    def interrupted(*args, out=None, **kwargs):
+        if finished:
+            (Path(out) / "runs.jsonl").write_text('{"key": "a"}\n')
+        raise KeyboardInterrupt
+
+    out = tmp_path / "out"
+    out.mkdir()
+    monkeypatch.setattr(job, "sweep", interrupted)
+    assert main(["sweep", *SWEEP[1:], "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    named = [w for w in err.split() if "runs.jsonl" in w]
+    assert bool(named) == bool(finished), err
+    for name in named:
+        assert Path(name.rstrip(";,")).read_text().strip(), err
