@@ -644,14 +644,31 @@ def cmd_sweep(args) -> int:
             raise
         raise UsageError(str(exc)) from None          # an unreachable scheduler
     except KeyboardInterrupt:
-        print(f"\ninterrupted: the finished runs are in {args.out}/runs.jsonl; the same "
-              "command continues the sweep", file=sys.stderr)
+        from pathlib import Path
+
+        from .sweeps.engine import JOURNAL
+        journal = Path(args.out) / JOURNAL
+        if _has_rows(journal):
+            print(f"\ninterrupted: the finished runs are in {journal}; the same command "
+                  "continues the sweep", file=sys.stderr)
+        else:                                           # name no file that is not there
+            print("\ninterrupted before any run finished; the same command starts the sweep",
+                  file=sys.stderr)
         return EXIT_INTERRUPTED
     if args.json:
         print(_json(s.record))
     else:
         _print(sweep_lines(s.plan, s.result, s.stats, _Described(s.executor)))
     return 1 if s.stats["lost"] else 0
+
+
+def _has_rows(path) -> bool:
+    """Whether ``path`` is a file holding at least one line (a journal with a finished run)."""
+    try:
+        with open(path, "rb") as fh:
+            return bool(fh.read(1))
+    except OSError:
+        return False
 
 
 class _Described:
