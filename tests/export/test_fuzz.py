@@ -4,7 +4,7 @@ The libFuzzer targets (one per model, both FMI versions, under address and undef
 sanitizers, with the harness's contract checks: a message for every non-OK status, finite
 outputs, exact time after an OK step) first replay the committed corpus, in which every defect
 of issue 23 is a regression input, then fuzz for a bounded time each (FLEXPEND_FUZZ_SECONDS,
-default 25 s per target). Any finding fails the test and names the input; the run's
+default 40 s per target). Any finding fails the test and names the input; the run's
 executions per second and coverage are printed (pytest -s) and kept in the test's report.
 """
 from __future__ import annotations
@@ -56,7 +56,7 @@ def test_every_regression_input_of_the_corpus_runs_clean(targets, model):
 @pytest.mark.parametrize("model", fuzz.MODELS)
 def test_a_bounded_fuzz_run_finds_nothing(targets, model, record_property):
     exe, work = targets[model]
-    seconds = int(os.environ.get("FLEXPEND_FUZZ_SECONDS", "25"))
+    seconds = int(os.environ.get("FLEXPEND_FUZZ_SECONDS", "40"))
     r = fuzz.fuzz(exe, fuzz.CORPUS / model, seconds, work)
     line = (f"{model}: {r.get('number_of_executed_units', 0)} executions in {seconds} s "
             f"({r.get('average_exec_per_sec', 0)} exec/s), cov {r.get('cov', 0)} of "
@@ -65,3 +65,20 @@ def test_a_bounded_fuzz_run_finds_nothing(targets, model, record_property):
     record_property("fuzz", line)
     assert r["ok"], (r["findings"], r["output"])
     assert r.get("number_of_executed_units", 0) > 0 and r.get("cov", 0) > 0
+
+
+@pytest.mark.slow
+def test_the_harness_fails_a_call_over_its_time_limit(tmp_path):
+    """The time check can fail: the controller's target built with a limit below any call's
+    time (CALL_LIMIT_S = -1 s) stops on the first operation of a regression input, naming the
+    limit; the same input runs clean in the target of the real limit (the test above)."""
+    model = "PDLowPass"
+    exe = fuzz.build(model, tmp_path, flags=[*fuzz.FLAGS, "-DCALL_LIMIT_S=-1.0"],
+                     suffix="_no_time")
+    corpus = tmp_path / "one"
+    corpus.mkdir()
+    first = sorted((fuzz.CORPUS / model).glob("regress-fmi2-*"))[0]
+    (corpus / first.name).write_bytes(first.read_bytes())
+    r = fuzz.replay(exe, corpus, tmp_path)
+    assert not r["ok"]
+    assert "of CPU time, over the limit of -1 s" in r["output"], r["output"]

@@ -17,13 +17,17 @@
  *   - every non-OK status comes with at least one log message, with a category and no '%';
  *   - an output read with status OK (or Warning) is finite, and so are the states, derivatives,
  *     nominals (also > 0), event indicators, directional and output derivatives;
- *   - a doStep that returns OK has advanced the FMU's time to exactly t + h.
+ *   - a doStep that returns OK has advanced the FMU's time to exactly t + h;
+ *   - no operation (one FMI call, or the few of a state's get, edit and restore) takes more than
+ *     CALL_LIMIT_S seconds of its thread's CPU time.
  */
+#define _POSIX_C_SOURCE 200809L               /* clock_gettime */
 #include <math.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"
@@ -100,6 +104,40 @@ static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String c
 {
     (void)env;
     check_message((int)status, category, message);
+}
+
+/* No operation may take more CPU time than this (docs/fuzzing.md). A call's work is bounded by
+ * the FMUs' caps (this build's FPM_MAX_SUBSTEPS and FPM_MAX_EXACT_WORK: a few hundredths of a
+ * second of work without the sanitizers): a call over the limit is work that escapes them. The
+ * thread's CPU time, not the wall clock: a busy machine does not change it. */
+#ifndef CALL_LIMIT_S
+#define CALL_LIMIT_S 2.0
+#endif
+
+static double cpu_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+static double op_start;
+static unsigned op_now;
+
+static void op_begin(unsigned op)
+{
+    op_now = op;
+    op_start = cpu_seconds();
+}
+
+static void op_end(int fmi_version)
+{
+    double used = cpu_seconds() - op_start;
+    if (used > CALL_LIMIT_S) {
+        fprintf(stderr, "FMI %d operation %u took %.2f s of CPU time, over the limit of %g s\n",
+                fmi_version, op_now, used, CALL_LIMIT_S);
+        abort();
+    }
 }
 
 /* every non-OK status of an instance's call comes with a message */
@@ -219,6 +257,7 @@ static void run2(input *in)
         a = u8(in);                            /* two flags for the operation */
         b = u8(in);
         if (c == NULL && op != 0) op = 0;
+        op_begin(op);
         logged = 0;
         switch (op) {
         case 0:
@@ -412,6 +451,7 @@ static void run2(input *in)
             c = NULL;
             break;
         }
+        op_end(2);
     }
     if (c != NULL) {
         for (s = 0; s < 2; s++) fmi2FreeFMUstate(c, &slot[s]);
@@ -446,6 +486,7 @@ static void run3(input *in)
         a = u8(in);                            /* two flags for the operation */
         b = u8(in);
         if (c == NULL && op != 0) op = 0;
+        op_begin(op);
         logged = 0;
         switch (op) {
         case 0:
@@ -634,6 +675,7 @@ static void run3(input *in)
             c = NULL;
             break;
         }
+        op_end(3);
     }
     if (c != NULL) {
         for (s = 0; s < 2; s++) fmi3FreeFMUState(c, &slot[s]);
