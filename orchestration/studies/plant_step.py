@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -56,7 +56,8 @@ from plant_fmu.interface import FIDELITIES
 from plant_fmu.params import PlantParams
 
 __all__ = ["TOLERANCE", "MARGIN", "NO_LIMIT", "PlantStepCheck", "rung_params", "drift_free",
-           "stability_function", "unstable", "step_limit", "largest_substep", "check", "checks"]
+           "stability_function", "unstable", "step_limit", "stable_floor", "largest_substep", "check",
+           "checks"]
 
 #: growth per substep a method may add to a mode beyond the exact flow's (1e-9: a millionth
 #: after a million substeps; far above the rounding of ``|R|``, far below any real instability)
@@ -178,6 +179,30 @@ def _bisect(bad, lo: float, hi: float, levels: int = _BISECT_LEVELS):
 
 
 @functools.lru_cache(maxsize=256)
+def _grid(method: str, p: PlantParams):
+    """``(A, nq, lam, fastest, hs, first)``: the search of :func:`step_limit` on its log grid
+    ``hs`` of steps, ``first`` the index of the first unstable one (``None``: none is)."""
+    A, nq = drift_free(p)
+    lam = np.linalg.eigvals(A)
+    fastest = complex(lam[np.argmax(np.abs(lam))])
+    hs = _Z_GRID / abs(fastest)
+    bad = np.flatnonzero(unstable(method, A, nq, hs, lam))
+    return A, nq, lam, fastest, hs, (int(bad[0]) if bad.size else None)
+
+
+def stable_floor(method: str, p: PlantParams) -> float:
+    """A step at or below :func:`step_limit`'s ``h``, from its grid alone (no bisection): the
+    last stable step of the grid before the first unstable one (the bisection starts there and
+    only moves up), ``inf`` when there is no limit, 0 when every step is unstable."""
+    if method in NO_LIMIT:
+        return math.inf
+    if method not in REGISTRY:
+        raise ValueError(f"method = {method!r} is unknown; allowed: {', '.join(REGISTRY)}")
+    *_, hs, first = _grid(method, p)
+    return math.inf if first is None else 0.0 if first == 0 else float(hs[first - 1])
+
+
+@functools.lru_cache(maxsize=256)
 def step_limit(method: str, p: PlantParams):
     """``(h, lambda)``: the largest stable substep of ``method`` on the plant ``p`` linearised at
     the upright rest state (the first ``h`` where :func:`unstable`; every smaller step on the
@@ -188,19 +213,15 @@ def step_limit(method: str, p: PlantParams):
         return None
     if method not in REGISTRY:
         raise ValueError(f"method = {method!r} is unknown; allowed: {', '.join(REGISTRY)}")
-    A, nq = drift_free(p)
-    lam = np.linalg.eigvals(A)
-    fastest = complex(lam[np.argmax(np.abs(lam))])
-    hs = _Z_GRID / abs(fastest)
-    bad = np.flatnonzero(unstable(method, A, nq, hs, lam))
-    if bad.size == 0:
+    A, nq, lam, fastest, hs, first = _grid(method, p)
+    if first is None:
         return None
-    if bad[0] == 0:
+    if first == 0:
         return 0.0, fastest
     # a Runge-Kutta step's verdict is a few array operations, whatever the number of steps
     # judged at once; symplectic Euler's an eigenvalue problem per step
     lo, hi = _bisect(lambda h: unstable(method, A, nq, h, lam),
-                     float(hs[bad[0] - 1]), float(hs[bad[0]]),
+                     float(hs[first - 1]), float(hs[first]),
                      1 if method == "symplectic_euler" else _BISECT_LEVELS)
     if method == "symplectic_euler":
         return lo, fastest
@@ -225,22 +246,40 @@ def _floor(x: float, digits: int = 7) -> float:
 
 @dataclass(frozen=True)
 class PlantStepCheck:
-    """The verdict on one rung: ``method``, ``plant.step``, the largest ``substep``, the largest
-    stable ``limit`` (``None``: none) and the ``mode`` (eigenvalue, 1/s) that sets it, the
-    ``fastest`` mode's ``|lambda|`` (rad/s), the ``rung`` and the FMU flavour (``fmus``)."""
+    """The verdict on one rung: ``method``, ``plant.step``, the largest ``substep``, the
+    ``fastest`` mode's ``|lambda|`` (rad/s), the ``rung``, the FMU flavour (``fmus``), the
+    linearised rung's parameters and :func:`stable_floor`; the largest stable :attr:`limit`
+    (``None``: none) and the :attr:`mode` (eigenvalue, 1/s) that sets it are found (by
+    :func:`step_limit`'s bisection) only when the verdict needs them: a substep well below the
+    floor is ``"ok"`` whatever the limit above it (a sweep's preflight, about a millisecond a run
+    less)."""
 
     method: str
     step: float
     substep: float
-    limit: float | None
-    mode: complex | None
     fastest: float
     rung: str
-    fmus: str = "native"
+    fmus: str
+    params: PlantParams = field(repr=False)
+    floor: float = field(repr=False)
+
+    @functools.cached_property
+    def _found(self):
+        return step_limit(self.method, self.params)
+
+    @property
+    def limit(self) -> float | None:
+        return None if self._found is None else self._found[0]
+
+    @property
+    def mode(self) -> complex | None:
+        return None if self._found is None else self._found[1]
 
     @property
     def verdict(self) -> str:
         """``"beyond"`` the limit, ``"near"`` it (within :data:`MARGIN`), or ``"ok"``."""
+        if self.substep <= (1.0 - MARGIN) * self.floor:     # the limit is at least the floor
+            return "ok"
         if self.limit is None:
             return "ok"
         if self.substep > self.limit:
@@ -299,12 +338,12 @@ def check(scene, fidelity: str | None = None) -> PlantStepCheck | None:
     if p is None:
         return None
     method = scene.plant.integrator
-    found = step_limit(method, p)
-    lam = np.linalg.eigvals(drift_free(p)[0])
+    floor = stable_floor(method, p)
+    lam = (_grid(method, p)[2] if method in REGISTRY and method not in NO_LIMIT else
+           np.linalg.eigvals(drift_free(p)[0]))
     fastest = float(np.max(np.abs(lam))) if lam.size else 0.0
-    limit, mode = (None, None) if found is None else found
-    return PlantStepCheck(method, scene.plant.step, largest_substep(scene), limit, mode,
-                          fastest, fidelity, scene.master.fmus)
+    return PlantStepCheck(method, scene.plant.step, largest_substep(scene), fastest, fidelity,
+                          scene.master.fmus, p, floor)
 
 
 def checks(scene, rungs=None) -> list[PlantStepCheck]:

@@ -282,3 +282,29 @@ def test_the_tree_bisection_ends_where_the_plain_loop_ends(levels):
         for bad in (monotone, ragged):
             lo, hi = (0.0, 1.0) if not bad(0.0) and bad(1.0) else (0.0, 2.0)
             assert _bisect(bad, lo, hi, levels) == _plain_bisection(bad, lo, hi)
+
+
+@pytest.mark.parametrize("method", ["rk4", "euler", "symplectic_euler"])
+def test_the_verdict_from_the_grid_floor_is_the_verdict_from_the_limit(method):
+    """A substep well below the grid's floor is judged ``ok`` without the bisection: the verdict
+    is the one the bisected limit gives, for steps all around the limit (below the floor, between
+    the floor and the limit, within the margin, beyond), on several beams."""
+    from orchestration.studies.plant_step import MARGIN, stable_floor
+
+    for EI, n_modes in ((875.0, 2), (875.0, 4), (300.0, 8)):
+        scene = load_scene("flexible_pd", {"plant.EI": EI, "plant.n_modes": n_modes,
+                                           "plant.integrator": method})
+        p = scene.plant.params
+        limit = step_limit(method, p)[0]
+        floor = stable_floor(method, p)
+        assert 0 < floor <= limit
+        for h in (0.5 * floor, (1 - MARGIN) * floor, 0.99 * floor, 0.95 * limit,
+                  (1 - MARGIN) * limit * 1.001, 0.999 * limit, 1.001 * limit, 2 * limit):
+            c = check(load_scene("flexible_pd", {"plant.EI": EI, "plant.n_modes": n_modes,
+                                                 "plant.integrator": method,
+                                                 "plant.step": h, "master.step": 0.01,
+                                                 "output_interval": 0.01}))
+            expected = ("beyond" if h > limit else "near" if h > (1 - MARGIN) * limit
+                        else "ok")
+            assert c.verdict == expected, (EI, n_modes, h, floor, limit)
+            assert c.limit == limit
