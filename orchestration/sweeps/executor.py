@@ -203,11 +203,17 @@ class Executor:
 
 
 
-def _process_setup(paths, client: int):
+#: A :class:`ProcessExecutor` worker's scratch folder (its client's, shared by its workers).
+_SCRATCH: list = []
+
+
+def _process_setup(paths, client: int, scratch: str | None = None):
     """A :class:`ProcessExecutor` worker starts: Ctrl-C is its client's to handle (it shares the
-    terminal), ``paths`` go first on ``sys.path``, and a watchdog ends the worker when the
-    client process ``client`` is gone (killed, or crashed: nothing else would end it, and it
-    would keep the client's output pipes open)."""
+    terminal), ``paths`` go first on ``sys.path``, what it unpacks goes into ``scratch`` (the
+    client removes it: a worker process runs no ``atexit`` handler), and a watchdog ends the
+    worker when the client process ``client`` is gone (killed, or crashed: nothing else would
+    end it, and it would keep the client's output pipes open), removing ``scratch`` first."""
+    _SCRATCH[:] = [scratch] if scratch else []
     try:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     except ValueError:                  # not the main thread: leave it
@@ -241,6 +247,8 @@ def _alive(pid: int) -> bool:
 def _watch(client: int):
     while _alive(client):
         time.sleep(WATCH_EVERY)
+    for folder in _SCRATCH:             # the client cannot remove it any more
+        shutil.rmtree(folder, ignore_errors=True)
     os._exit(1)
 
 
@@ -278,7 +286,12 @@ class ProcessExecutor(Executor):
             raise ValueError(f"{problem}; raise the limit, or run serially")
         self.paths = [str(p) for p in paths]
         self._pool = None
-        self._pool = self._start(self.workers)
+        self.scratch = tempfile.mkdtemp(prefix="flexpend_workers_")
+        try:
+            self._pool = self._start(self.workers)
+        except BaseException:
+            self._remove_scratch()
+            raise
 
     def _contexts(self):
         """The start methods to try, best first: a fork server that has imported the runs'
@@ -305,7 +318,8 @@ class ProcessExecutor(Executor):
                 for ctx in self._contexts():
                     pool = ProcessPoolExecutor(workers, mp_context=ctx,
                                                initializer=_process_setup,
-                                               initargs=(self.paths, os.getpid()))
+                                               initargs=(self.paths, os.getpid(),
+                                                         self.scratch))
                     try:
                         for f in [pool.submit(_ready) for _ in range(workers)]:
                             f.result()
@@ -397,8 +411,17 @@ class ProcessExecutor(Executor):
 
     def close(self):
         pool, self._pool = getattr(self, "_pool", None), None
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
+        try:
+            if pool is not None:
+                pool.shutdown(wait=True, cancel_futures=True)
+        finally:
+            self._remove_scratch()
+
+    def _remove_scratch(self):
+        """Remove the workers' scratch folder (the FMUs they unpacked), once."""
+        scratch, self.scratch = getattr(self, "scratch", None), None
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
 
 
 def worker_file(name: str, default):
@@ -410,8 +433,10 @@ def worker_file(name: str, default):
 
 
 def scratch_dir() -> str | None:
-    """The local folder of the dask worker this runs on (dask removes it with the worker), or
-    None outside a worker."""
+    """The scratch folder of the :class:`ProcessExecutor` worker this runs on, or the local
+    folder of the dask worker (dask removes it with the worker), or None outside a worker."""
+    if _SCRATCH:
+        return _SCRATCH[0]
     if "distributed" not in sys.modules:       # not imported: this is no dask worker
         return None
     try:

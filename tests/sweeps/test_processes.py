@@ -117,8 +117,10 @@ def test_the_workers_end_when_their_client_dies(tmp_path):
             "    os.kill(os.getpid(), 9)\n")
     script = tmp_path / "client.py"
     script.write_text(code)
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
     proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
-                          timeout=120)
+                          timeout=120, env={**os.environ, "TMPDIR": str(tmp)})
     assert proc.returncode == -9, proc.stderr
     pids = [int(p) for p in proc.stdout.split()]
     assert pids
@@ -126,6 +128,27 @@ def test_the_workers_end_when_their_client_dies(tmp_path):
     while any(executor._alive(p) for p in pids) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not any(executor._alive(p) for p in pids)
+    # and the first to see it gone removed their scratch folder
+    assert not [p.name for p in tmp.iterdir() if p.name.startswith("flexpend_")]
+
+
+def test_a_sweep_on_worker_processes_leaves_no_temporary_folder(tmp_path):
+    """The workers unpack the FMUs into their executor's scratch folder, which the client
+    removes: a worker process runs no atexit handler, and each sweep left its unpacked FMUs
+    (two per worker) in the temporary folder."""
+    import subprocess
+    import sys
+
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    proc = subprocess.run([sys.executable, "-m", "orchestration.cli", "-q", "sweep", "rigid_pd",
+                           "--set", "stop_time=0.2", "--values", "controller.kp=300,400,500",
+                           "--workers", "2", "--out", str(tmp_path / "out")],
+                          capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "TMPDIR": str(tmp)})
+    assert proc.returncode == 0, proc.stderr
+    assert "2 worker processes" in (tmp_path / "out" / "sweep.json").read_text()
+    assert sorted(p.name for p in tmp.iterdir()) == []
 
 
 def test_a_long_temporary_folder_falls_back_to_spawn(tmp_path):
