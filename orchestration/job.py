@@ -195,15 +195,14 @@ def _read_summaries(path: Path) -> dict:
 
 
 def check_wiring(scene: Scene, fmus: dict) -> None:
-    """Every FMU of ``fmus`` (``{"plant": path, "controller": path}``, and the other rungs'
-    FMUs beside them: :func:`~orchestration.export.with_families`) is read and checked before
-    any is loaded (:func:`~orchestration.cosim.slave.describe`: a model identifier that is not a
-    C identifier is an :class:`~orchestration.scene.fmu.FmuError`), and every connection of
-    ``scene`` names variables the FMUs have; a ConfigError names the first problem."""
-    described = {role: describe(path) for role, path in with_families(fmus).items()}
+    """Every connection of ``scene`` names variables the FMUs (``{"plant": path, "controller":
+    path}``) have; a ConfigError names the first that does not. The FMUs are read and checked
+    first (:func:`~orchestration.cosim.slave.describe`: a model identifier that is not a C
+    identifier is an :class:`~orchestration.scene.fmu.FmuError`), before any is loaded; the
+    other rungs' FMUs are checked as they are read, when a run loads them."""
     roles = {r for c in scene.connections for r in (c.src, c.dst)}
-    variables = {role: [v.name for v in described[role].modelVariables]
-                 for role in fmus if role in roles}
+    variables = {role: [v.name for v in describe(path).modelVariables]
+                 for role, path in fmus.items() if role in roles}
     for c in scene.connections:
         for fmu, var in ((c.src, c.src_var), (c.dst, c.dst_var)):
             if var not in variables[fmu]:

@@ -51,6 +51,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fmu_common.checks import check_real
 from fmu_common.kernels import ROOT
 
 from ..files import write_csv, write_text
@@ -81,8 +82,8 @@ class Rule:
     max_outliers: float = 0.1
 
     def __post_init__(self):
-        if not (isinstance(self.tolerance, (int, float)) and 0 < self.tolerance < math.inf):
-            raise ValueError(f"tolerance = {self.tolerance!r}; allowed: a number > 0")
+        # a number > 0, finite and not subnormal (the scene keys' rule: fmu_common.checks)
+        check_real("tolerance", self.tolerance, low=0.0, high=1e6)
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
             raise ValueError(f"window = {self.window!r}; allowed: an integer >= 1 (samples)")
         if not (isinstance(self.max_outliers, (int, float)) and 0 <= self.max_outliers < 1):
