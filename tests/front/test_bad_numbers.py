@@ -98,3 +98,15 @@ def test_the_command_prints_one_line_and_exits_2(tmp_path, key, argv):
     assert "Traceback" not in proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and key in lines[0], proc.stderr
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "rigid_pd", "--set", "plant.step=2.3e-308", "--set", "master.step=100", "--set",
+     "output_interval=100", "--set", "stop_time=100", "--figures", "none", "--out", "OUT"],
+    ["stability", "rigid_pd", "--max-step", "10", "--set", "plant.step=2.3e-308"],
+], ids=["run", "stability"])
+def test_a_normal_plant_step_whose_substeps_overflow_is_one_line(tmp_path, capsys, argv):
+    """A normal but tiny plant.step against a long communication step: the substep count is
+    beyond a double (an OverflowError in the stability preflight before)."""
+    argv = [str(tmp_path / "out") if a == "OUT" else a for a in argv]
+    assert "plant.step = 2.3e-308 s is out of range" in one_line(capsys, ["-q", *argv])
