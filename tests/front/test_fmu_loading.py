@@ -174,6 +174,8 @@ def test_check_of_a_hostile_fmu_is_refused(tmp_path, native, planted):
 def test_the_python_api_refuses_a_hostile_fmu(tmp_path, native, good_ssp, planted):
     import orchestration
     from orchestration.job import run_scene
+    from orchestration.sweeps.engine import run_sweep
+    from orchestration.sweeps.plan import plan_sweep
 
     identifier, mark = planted
     plant = with_identifier(native["FlexiblePendulum"], tmp_path / "p" / "FlexiblePendulum.fmu",
@@ -185,6 +187,10 @@ def test_the_python_api_refuses_a_hostile_fmu(tmp_path, native, good_ssp, plante
     ssp = ssp_with_plant(good_ssp, tmp_path / "evil.ssp", plant.read_bytes())
     with pytest.raises(ValueError, match="modelIdentifier .* is not a C identifier"):
         orchestration.simulate(ssp)
+    plan = plan_sweep("rigid_pd", values=["controller.kp=500,600"], overrides=["stop_time=0.05"])
+    with pytest.raises(ValueError, match="modelIdentifier .* is not a C identifier"):
+        run_sweep(plan, {"plant": str(plant), "controller": native["PDLowPass"]},
+                  tmp_path / "sweep", progress=False, plot=False)
     assert not mark.exists()
 
 
