@@ -61,8 +61,8 @@ def keys_markdown() -> str:
              "what it means. A scene file writes `[plant] n_modes = 4` for `plant.n_modes = 4`. "
              "The allowed values are the rule the scene's records enforce; after the `;`, what "
              "a value needs with other keys. A range open at 0, `(0.0, ...]`, takes normal "
-             "numbers: a subnormal one (below 2.2e-308) is refused as 0 is. `flexpend keys` prints the same list; in Python, "
-             "`orchestration.scene_keys()` returns it.", ""]
+             "numbers: a subnormal one (below 2.2e-308) is refused as 0 is. `flexpend keys` "
+             "prints the same list; in Python, `orchestration.scene_keys()` returns it.", ""]
     for i, (title, _) in enumerate(GROUPS):
         rows = [k for k in specs if _group(k.key) == i]
         lines += [f"## {title}", "", "| Key | Type | Default | Unit | Allowed | Meaning |",

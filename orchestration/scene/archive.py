@@ -14,10 +14,11 @@ The limits (documented in docs/ssp_and_check.md) are far above what a system of 
 FMUs hold 4 members and 0.7 MB; an SSP of ours, 3 members) and far below what exhausts a machine:
 a 2.4 MB zip bomb inflates to 2.4 GB. A member's size is checked as declared in the archive's
 table of contents, then as read (in chunks, never past the declared size), and its compression
-ratio is checked when it is large. A member is unpacked only if its name is a relative path inside
-the archive and it is not a symbolic link (:func:`member_path`; ``flexpend check`` and an SSP's
-FMUs are checked the same way before anything reads them). Every refusal is an :class:`ArchiveError` (a
-:class:`~orchestration.scene.keys.ConfigError`: one line, exit 2 on the command line).
+ratio is checked when it is large. A member is unpacked only if its name is a relative path
+inside the archive and it is not a symbolic link (:func:`member_path`; every FMU, an SSP's and
+``flexpend check``'s included, is checked the same way before anything reads it). Every refusal
+is an :class:`ArchiveError` (a :class:`~orchestration.scene.keys.ConfigError`: one line, exit 2
+on the command line).
 """
 from __future__ import annotations
 

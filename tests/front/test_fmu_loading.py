@@ -8,7 +8,6 @@ API) refuses the FMU in one line with exit 2 (a ValueError in Python), and the f
 An SSP whose embedded FMU has a member outside the archive or a symbolic link member is refused
 the same way (D5), and so is an unpacked FMU whose library is a symbolic link out of it.
 """
-import io
 import os
 import re
 import shutil
