@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import sys
 
 __all__ = ["check_real", "check_int", "check_bool", "check_choice", "replace_checked", "Param",
            "real", "integer", "boolean", "choice", "param_of", "check_fields", "shown",
@@ -46,6 +47,9 @@ def check_real(name: str, value, *, low=None, high=None, low_open=True, high_ope
     """Return ``value`` as a float, or raise naming ``name`` and the allowed range.
 
     ``low_open``/``high_open`` exclude the bounds; ``allow_inf`` admits ``+inf`` (an "off" value).
+    A range open at 0 (``(0.0, ...``: a step, an interval, a tolerance, a length) takes normal
+    numbers only: a subnormal value (positive, below ``sys.float_info.min``, 2.2e-308) is 0 to
+    every use of it (``1 / h`` overflows, ``t + h == t``) and is refused as 0 is.
     """
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise TypeError(f"{name} must be a real number, got {shown(value)}")
@@ -66,6 +70,9 @@ def check_real(name: str, value, *, low=None, high=None, low_open=True, high_ope
         ok = ok and (value < high if high_open else value <= high)
     if not ok:
         raise ValueError(f"{name} = {value!r} is out of range; allowed: {allowed()}")
+    if low == 0 and low_open and value < sys.float_info.min:
+        raise ValueError(f"{name} = {value!r} is out of range: a subnormal number, below the "
+                         f"smallest normal double {sys.float_info.min!r}; allowed: {allowed()}")
     return value
 
 

@@ -196,7 +196,10 @@ def _read_summaries(path: Path) -> dict:
 
 def check_wiring(scene: Scene, fmus: dict) -> None:
     """Every connection of ``scene`` names variables the FMUs (``{"plant": path, "controller":
-    path}``) have; a ConfigError names the first that does not."""
+    path}``) have; a ConfigError names the first that does not. The FMUs are read and checked
+    first (:func:`~orchestration.cosim.slave.describe`: a model identifier that is not a C
+    identifier is an :class:`~orchestration.scene.fmu.FmuError`), before any is loaded; the
+    other rungs' FMUs are checked as they are read, when a run loads them."""
     roles = {r for c in scene.connections for r in (c.src, c.dst)}
     variables = {role: [v.name for v in describe(path).modelVariables]
                  for role, path in fmus.items() if role in roles}
@@ -733,14 +736,14 @@ class _Unpacked:
         """``{role: folder}`` for ``{role: FMU path}``, unpacked when first asked."""
         import tempfile
 
-        from fmpy import extract
+        from .scene.fmu import unpack
 
         if self.folder is None:
             self.folder = tempfile.mkdtemp(prefix="flexpend_fmu_")
         for path in fmus.values():
             if str(path) not in self.dirs:
-                self.dirs[str(path)] = extract(str(path), unzipdir=os.path.join(
-                    self.folder, str(len(self.dirs))))
+                self.dirs[str(path)] = unpack(path, os.path.join(self.folder,
+                                                                 str(len(self.dirs))))
         return {role: self.dirs[str(path)] for role, path in fmus.items()}
 
     def remove(self):

@@ -8,9 +8,10 @@ import functools
 import os
 
 import numpy as np
-from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2Integer, fmi2Real, fmi2True, fmi2ValueReference
+
+from ..scene.fmu import library_path, model_description, unpack
 
 __all__ = ["describe", "CoSimulationError", "RunInterrupted", "Slave"]
 
@@ -51,14 +52,16 @@ def _samples(start_values) -> bool:
 
 def describe(path):
     """The FMU's model description (fmpy's ``read_model_description``), read once per file and
-    content: every caller in a process (the wiring check, the slaves) shares it."""
+    content: every caller in a process (the wiring check, the slaves) shares it. Its archive and
+    model identifiers are checked first (:func:`orchestration.scene.fmu.model_description`: an
+    :class:`~orchestration.scene.fmu.FmuError`)."""
     st = os.stat(path)
     return _describe(os.fspath(path), st.st_mtime_ns, st.st_size)
 
 
 @functools.lru_cache(maxsize=64)
 def _describe(path: str, mtime_ns: int, size: int):
-    return read_model_description(path)
+    return model_description(path, validate=True)
 
 
 class Slave:
@@ -76,7 +79,7 @@ class Slave:
         self.messages: list[str] = []
         self._log_level = log_level
         self._own_unzipdir = unzipdir is None      # extracted here: removed by close()
-        self._unzipdir = unzipdir or extract(self.path)
+        self._unzipdir = unzipdir or unpack(self.path)
         self.fmu = None
         #: FMI 3.0 (fmpy's FMU3Slave) or 2.0 (FMU2Slave)
         self.fmi3 = self.md.fmiVersion.startswith("3")
@@ -85,6 +88,7 @@ class Slave:
                                     and bool(self.md.coSimulation.canInterpolateInputs))
         try:
             interface = self._interface_description()
+            library_path(self._unzipdir, self.md, interface.modelIdentifier, self.path)
             self.fmu = self._fmu_class()(guid=self.md.guid, unzipDirectory=self._unzipdir,
                                          modelIdentifier=interface.modelIdentifier,
                                          instanceName=name)

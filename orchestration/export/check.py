@@ -51,10 +51,12 @@ from pathlib import Path
 
 import numpy as np
 
+from fmu_common.checks import check_real
 from fmu_common.kernels import ROOT
 
 from ..files import write_csv, write_text
-from ..scene import archive
+from ..scene import fmu as fmu_check
+from ..scene.keys import ConfigError
 from . import places
 
 __all__ = ["Rule", "FMPY_RULE", "REFERENCE_RULE", "REFERENCE_DIR", "ReferenceError", "Run",
@@ -80,8 +82,8 @@ class Rule:
     max_outliers: float = 0.1
 
     def __post_init__(self):
-        if not (isinstance(self.tolerance, (int, float)) and 0 < self.tolerance < math.inf):
-            raise ValueError(f"tolerance = {self.tolerance!r}; allowed: a number > 0")
+        # a number > 0, finite and not subnormal (the scene keys' rule: fmu_common.checks)
+        check_real("tolerance", self.tolerance, low=0.0, high=1e6)
         if isinstance(self.window, bool) or not isinstance(self.window, int) or self.window < 1:
             raise ValueError(f"window = {self.window!r}; allowed: an integer >= 1 (samples)")
         if not (isinstance(self.max_outliers, (int, float)) and 0 <= self.max_outliers < 1):
@@ -123,13 +125,7 @@ def _plain_name(name) -> bool:
 def _model_names(fmu: Path) -> list[str]:
     """The names the reference of ``fmu`` may have: its file's, its model identifier, its model
     name; only those that are plain file names (:func:`_plain_name`)."""
-    from fmpy import read_model_description
-
-    _check_archive(fmu)
-    try:
-        md = read_model_description(str(fmu), validate=False)
-    except Exception as exc:  # noqa: BLE001 - any reason the FMU cannot be read
-        raise ReferenceError(f"{fmu}: not a readable FMU: {exc}") from None
+    md = _description(fmu)
     names = []
     for n in (fmu.stem, getattr(md.coSimulation, "modelIdentifier", None), md.modelName):
         if _plain_name(n) and n not in names:
@@ -140,12 +136,16 @@ def _model_names(fmu: Path) -> list[str]:
     return names
 
 
-def _check_archive(fmu: Path) -> None:
-    """The archive limits (:mod:`orchestration.scene.archive`), before anything inflates it."""
+def _description(fmu):
+    """The model description of ``fmu``, read after the checks of
+    :mod:`orchestration.scene.fmu` (the archive's limits and member names, before anything
+    inflates it; the model identifiers); a :class:`ReferenceError` names any problem."""
     try:
-        archive.check_fmu_archive(fmu, str(fmu))
-    except archive.ArchiveError as exc:
+        return fmu_check.model_description(fmu, str(fmu))
+    except ConfigError as exc:
         raise ReferenceError(str(exc)) from None
+    except Exception as exc:  # noqa: BLE001 - any reason the FMU cannot be read
+        raise ReferenceError(f"{fmu}: not a readable FMU: {exc}") from None
 
 
 def find_reference(fmu, ref_dir, must_exist: bool = True) -> dict:
@@ -251,14 +251,15 @@ def simulate_case(fmu, files: dict, start_values=None, outputs=None, timeout=Non
         outputs = list(_read_csv(files["ref"]).dtype.names[1:])
     # the FMU unpacked, and the child's temporary files, in our folder, removed however the run
     # ends (fmpy keeps the folder it unpacked an FMU into when the simulation raises); unpacked
-    # here, within the archive limits
+    # here, within the archive limits, and the libraries the child may load checked to lie in it
     with tempfile.TemporaryDirectory(prefix="flexpend_check_") as tmp:
-        fmu = Path(fmu)
-        if not fmu.is_dir():
-            try:
-                fmu = archive.extract(fmu, Path(tmp) / "fmu", str(fmu))
-            except archive.ArchiveError as exc:
-                raise ReferenceError(str(exc)) from None
+        label, fmu = str(fmu), Path(fmu)
+        try:
+            if not fmu.is_dir():
+                fmu = Path(fmu_check.unpack(fmu, Path(tmp) / "fmu", label))
+            fmu_check.check_unpacked(fmu, label)
+        except ConfigError as exc:
+            raise ReferenceError(str(exc)) from None
         args = {"fmu": str(fmu.resolve()), "opt": opt, "outputs": list(outputs),
                 "input": str(files["in"].resolve()) if files["in"].is_file() else None,
                 "start_values": dict(start_values or {}),
@@ -565,9 +566,7 @@ def check_fmu(fmu, reference, rule: Rule = FMPY_RULE, start_values=None) -> Chec
 def variable_units(fmu) -> dict:
     """``{name: unit}`` of every variable of ``fmu``'s model description: its ``unit``, else its
     declared type's, else ``"1"`` (dimensionless)."""
-    from fmpy import read_model_description
-
-    md = read_model_description(str(fmu), validate=False)
+    md = _description(fmu)
     return {v.name: v.unit or getattr(v.declaredType, "unit", None) or "1"
             for v in md.modelVariables}
 
@@ -586,11 +585,9 @@ def write_reference(fmu, reference, outputs=None) -> dict:
     that varies in the run: the others are left out). A chosen signal that does not vary, or a
     run that does not complete, writes nothing (:class:`ReferenceError`): the files written
     before the run are removed."""
-    from fmpy import read_model_description
-
     fmu = Path(fmu)
     files = find_reference(fmu, reference, must_exist=False)
-    md = read_model_description(str(fmu), validate=False)
+    md = _description(fmu)
     files.update(written=[], excitation=None, signals=[], left_out=[])
     new_dirs = [d for d in (files["dir"], *files["dir"].parents) if not d.exists()]
     try:

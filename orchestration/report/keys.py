@@ -60,8 +60,9 @@ def keys_markdown() -> str:
              "(`overrides={...}`) takes, with its type, default, unit, the values allowed and "
              "what it means. A scene file writes `[plant] n_modes = 4` for `plant.n_modes = 4`. "
              "The allowed values are the rule the scene's records enforce; after the `;`, what "
-             "a value needs with other keys. `flexpend keys` prints the same list; in Python, "
-             "`orchestration.scene_keys()` returns it.", ""]
+             "a value needs with other keys. A range open at 0, `(0.0, ...]`, takes normal "
+             "numbers: a subnormal one (below 2.2e-308) is refused as 0 is. `flexpend keys` "
+             "prints the same list; in Python, `orchestration.scene_keys()` returns it.", ""]
     for i, (title, _) in enumerate(GROUPS):
         rows = [k for k in specs if _group(k.key) == i]
         lines += [f"## {title}", "", "| Key | Type | Default | Unit | Allowed | Meaning |",

@@ -5,20 +5,25 @@ table of contents has been checked, and nothing is inflated beyond what it decla
     read_member(zf, info, label)    -> one member's bytes (at most MAX_TEXT_BYTES)
     copy_member(zf, info, dest)     -> one member written to a file, in chunks
     checked_archive(path, label)    -> (an open ZipFile, its checked members)
-    check_fmu_archive(path, label)  the limits, on an FMU (a zip) before anything reads it
+    member_path(info, label)        -> a member's relative path; its name and kind checked
+    check_fmu_archive(path, label)  the limits and every member's name, on an FMU (a zip)
+                                    before anything reads it
     extract(path, dest, label)      -> dest: the archive unpacked, within the limits
 
 The limits (documented in docs/ssp_and_check.md) are far above what a system of FMUs needs (our
 FMUs hold 4 members and 0.7 MB; an SSP of ours, 3 members) and far below what exhausts a machine:
 a 2.4 MB zip bomb inflates to 2.4 GB. A member's size is checked as declared in the archive's
 table of contents, then as read (in chunks, never past the declared size), and its compression
-ratio is checked when it is large. Every refusal is an :class:`ArchiveError` (a
-:class:`~orchestration.scene.keys.ConfigError`: one line, exit 2 on the command line).
+ratio is checked when it is large. A member is unpacked only if its name is a relative path
+inside the archive and it is not a symbolic link (:func:`member_path`; every FMU, an SSP's and
+``flexpend check``'s included, is checked the same way before anything reads it). Every refusal
+is an :class:`ArchiveError` (a :class:`~orchestration.scene.keys.ConfigError`: one line, exit 2
+on the command line).
 """
 from __future__ import annotations
 
 import errno
-
+import stat
 import zipfile
 import zlib
 from contextlib import contextmanager
@@ -28,7 +33,7 @@ from .keys import ConfigError
 
 __all__ = ["ArchiveError", "MAX_MEMBERS", "MAX_MEMBER_BYTES", "MAX_TOTAL_BYTES", "MAX_RATIO",
            "RATIO_FLOOR", "MAX_TEXT_BYTES", "members", "read_member", "copy_member",
-           "checked_archive", "check_fmu_archive", "extract"]
+           "checked_archive", "member_path", "check_fmu_archive", "extract"]
 
 #: The most members an archive may hold.
 MAX_MEMBERS = 10_000
@@ -133,31 +138,43 @@ def checked_archive(path, label: str | None = None):
 
 
 def check_fmu_archive(path, label: str | None = None) -> None:
-    """The limits checked on the FMU at ``path`` before anything (fmpy's reader, its extract)
-    inflates a member of it; an FMU that is an unpacked folder is not an archive and passes."""
+    """The limits and every member's name and kind (:func:`member_path`) checked on the FMU at
+    ``path`` before anything (fmpy's reader, an extraction) inflates a member of it; an FMU that
+    is an unpacked folder is not an archive and passes (the library it holds is checked when it
+    is loaded: :func:`orchestration.scene.fmu.library_path`)."""
     if Path(path).is_dir():
         return
-    with checked_archive(path, label):
-        pass
+    label = label or Path(path).name
+    with checked_archive(path, label) as (_, infos):
+        for info in infos:
+            member_path(info, label)
 
 
-def _safe_name(name: str, label: str) -> PurePosixPath:
+def member_path(info: zipfile.ZipInfo, label: str) -> PurePosixPath:
+    """The relative path of member ``info`` inside the folder it is unpacked into; an
+    :class:`ArchiveError` when its name leaves that folder (absolute, ``..``, a drive, a
+    backslash) or when it is a symbolic link (its target could point anywhere)."""
+    name = info.filename
     parts = PurePosixPath(name).parts
     if ("\\" in name or ":" in name or "\0" in name or name.startswith("/") or not parts
             or ".." in parts):
         raise ArchiveError(f"{label}: member {name!r} is not a relative path inside the archive")
+    if stat.S_ISLNK(info.external_attr >> 16):
+        raise ArchiveError(f"{label}: member {name!r} is a symbolic link; an archive's members "
+                           "must be files or folders")
     return PurePosixPath(*parts)
 
 
 def extract(path, dest, label: str | None = None) -> Path:
     """The archive at ``path`` unpacked into the folder ``dest`` (created), within the limits;
-    a member named outside ``dest`` (absolute, ``..``, a drive) is refused."""
+    a member named outside ``dest`` (absolute, ``..``, a drive) or that is a symbolic link is
+    refused (:func:`member_path`)."""
     label = label or Path(path).name
     dest = Path(dest)
     dest.mkdir(parents=True, exist_ok=True)
     with checked_archive(path, label) as (zf, infos):
         for info in infos:
-            target = dest / _safe_name(info.filename, label)
+            target = dest / member_path(info, label)
             try:
                 if info.is_dir():
                     target.mkdir(parents=True, exist_ok=True)

@@ -49,6 +49,7 @@ from plant_fmu import interface as plant_interface
 
 from ..files import atomic_path
 from . import archive
+from .fmu import FmuError, model_description
 from .keys import ConfigError, parse_value, toml_value
 from .records import OutputSettings
 from .schema import OverrideError, scene_from_config, start_values
@@ -168,7 +169,6 @@ def _scene_settings(cfg: dict) -> dict:
 def ssd_of(scene, fmus: dict, sources: dict, model: dict | None = None):
     """The SSD (an lxml element) of a scene whose model is chosen; ``fmus``: component -> FMU
     path (read for its variables), ``sources``: component -> path inside the archive."""
-    from fmpy import read_model_description
     from lxml import etree
 
     cfg = scene.config
@@ -188,7 +188,7 @@ def ssd_of(scene, fmus: dict, sources: dict, model: dict | None = None):
     # connector to the source of the input before it
     wired = {comp: {c.dst_var for c in conns if c.dst == comp} for comp in ("plant", "controller")}
     for comp in ("plant", "controller"):
-        md = read_model_description(str(fmus[comp]), validate=False)
+        md = model_description(fmus[comp])
         variables = {v.name: v for v in md.modelVariables}
         el = etree.SubElement(elements, _q("ssd", "Component"), name=comp, type=FMU_TYPE,
                               source=sources[comp])
@@ -375,10 +375,11 @@ def read_ssp(path, overrides=()) -> SspSystem:
 
 @contextmanager
 def _as_ssp_error():
-    """An archive beyond its limits (:mod:`.archive`) as an :class:`SspError`."""
+    """An archive beyond its limits or with an unsafe member (:mod:`.archive`), or an FMU of it
+    that is not loaded (:mod:`.fmu`), as an :class:`SspError`."""
     try:
         yield
-    except archive.ArchiveError as exc:
+    except (archive.ArchiveError, FmuError) as exc:
         raise SspError(str(exc)) from None
 
 
@@ -392,9 +393,6 @@ def _parse_xml(label, member, data):
 
 
 def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides):
-    from fmpy import read_model_description
-
-
     info = {}                      # component name -> (FMU path, {variable: ModelVariable})
     for comp in comps:
         name = comp.get("name")
@@ -409,9 +407,10 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
                            "archive does not contain")
         dest = archive.copy_member(zf, member, Path(tmpdir) / f"{len(info)}_{Path(member).name}",
                                    label)
-        archive.check_fmu_archive(dest, f"{label}: component {name!r}: {source}")
         try:
-            md = read_model_description(str(dest), validate=False)
+            md = model_description(dest, f"{label}: component {name!r}: {source}")
+        except ConfigError:
+            raise
         except Exception as exc:  # noqa: BLE001 - any reason the FMU cannot be read
             raise SspError(f"{label}: component {name!r}: {source} is not a readable FMU: "
                            f"{exc}") from None
@@ -532,7 +531,7 @@ def _read_system(path, label, zf, names, root, system, comps, tmpdir, overrides)
         member = f"resources/{rung_fmu}.fmu"
         if member in names and f"{rung_fmu}.fmu" not in sources:
             dest = archive.copy_member(zf, member, Path(tmpdir) / f"{rung_fmu}.fmu", label)
-            archive.check_fmu_archive(dest, f"{label}: {member}")
+            model_description(dest, f"{label}: {member}")
             fmus[rung_fmu] = str(dest)
     components = {role[n]: n for n in info}
     return SspSystem(path, scene, fmus, components, tmpdir)
@@ -606,7 +605,6 @@ def fmpy_parameter_set(path):
     text with 0.0). So String and Boolean values equal to the FMU's own start value are left out
     (the FMU has them already); any other String or Boolean value raises ``ValueError``: FMPy
     cannot run that archive as written."""
-    from fmpy import read_model_description
     from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
 
     label = Path(path).name
@@ -616,10 +614,10 @@ def fmpy_parameter_set(path):
     out = ParameterSet(name="flexpend")
     with archive.checked_archive(path) as (zf, _), tempfile.TemporaryDirectory() as tmp:
         for comp in ssd.system.elements:
-            fmu = archive.copy_member(zf, comp.source, Path(tmp) / Path(comp.source).name, label)
-            archive.check_fmu_archive(fmu, f"{label}: {comp.source}")
+            embedded = archive.copy_member(zf, comp.source, Path(tmp) / Path(comp.source).name,
+                                           label)
             starts = {v.name: v.start for v in
-                      read_model_description(str(fmu), validate=False).modelVariables}
+                      model_description(embedded, f"{label}: {comp.source}").modelVariables}
             for binding in comp.parameterBindings:
                 for pset in binding.parameterValues:
                     for p in pset.parameters:

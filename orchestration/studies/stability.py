@@ -223,8 +223,13 @@ def substep_matrix(method: str, A, B, nq: int, h: float, rho_inf: float = 0.8) -
 
 def _substeps(H: float, h: float):
     """The substeps the plant's fixed-step stepper takes over one communication step ``H``:
-    ``[(count, size), ...]`` (whole substeps ``h``, then the shortened one off the grid)."""
+    ``[(count, size), ...]`` (whole substeps ``h``, then the shortened one off the grid). A
+    count beyond a double (``plant.step`` of 1e-308 against a step of 100 s) is a ConfigError
+    naming ``plant.step``."""
     n_grid = H / h
+    if not math.isfinite(n_grid):
+        raise ConfigError(f"plant.step = {h!r} s is out of range for a communication step of "
+                          f"{H!r} s: {H!r} / {h!r} substeps is beyond a double")
     n_round = round(n_grid)
     if n_round >= 1 and abs(n_grid - n_round) <= _SNAP + 4 * _EPS * H / h:
         return [(n_round, h)]

@@ -21,7 +21,7 @@ import plant_fmu
 from ..cosim.pool import SlavePool
 from ..export import flavour_fmus
 from ..export.native_fmus import GENERATION_TOOL
-from ..job import run_scene
+from ..job import check_wiring, run_scene
 from ..report.progress import is_quiet, sink_for
 from ..files import atomic_path, open_in_place, output_error
 from ..scene.keys import parse_value
@@ -166,10 +166,10 @@ def _extracted(path: str) -> str:
         import shutil
         import tempfile
 
-        from fmpy import extract
+        from ..scene.fmu import unpack
 
         folder = tempfile.mkdtemp(prefix="flexpend_fmu_", dir=scratch_dir())
-        _EXTRACTED[key] = extract(path, unzipdir=folder)
+        _EXTRACTED[key] = unpack(path, folder)
         atexit.register(shutil.rmtree, folder, ignore_errors=True)
     return _EXTRACTED[key]
 
@@ -542,6 +542,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     todo = list({p.key: p for p in plan.points
                  if results.get(p.key, {}).get("status") not in done_status}.values())
     by_flavour = {None: fmus} if "plant" in fmus else fmus
+    for fmu_pair in by_flavour.values():       # every FMU checked before any run loads one
+        check_wiring(plan.scene, fmu_pair)
     shipped = {fl: {role: (file_name(path), str(path)) for role, path in pair.items()}
                for fl, pair in by_flavour.items()}
 

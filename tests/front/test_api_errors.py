@@ -6,6 +6,7 @@ documented."""
 import difflib
 import math
 import re
+import sys
 
 import numpy as np
 import pytest
@@ -143,6 +144,10 @@ def test_the_range_quoted_for_a_bad_value_is_enforced(key, bad):
     with pytest.raises(ConfigError):
         fp.load_scene({}, {key: math.nextafter(near, outward)})
     inside = math.nextafter(near, -outward)
+    if near == 0 and not closed:           # a range open at 0 takes normal numbers only
+        with pytest.raises(ConfigError, match="subnormal"):
+            fp.load_scene({}, {key: inside})
+        inside = sys.float_info.min
     if key != "master.step":                           # a step must also divide the grid
         fp.load_scene({}, {key: inside})
     if closed and key != "master.step":

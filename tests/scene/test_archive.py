@@ -97,3 +97,32 @@ def test_not_a_zip_is_one_line(tmp_path):
     (tmp_path / "a.fmu").write_bytes(b"hello")
     with pytest.raises(archive.ArchiveError, match=r"^a.fmu: not a zip archive: "):
         archive.check_fmu_archive(tmp_path / "a.fmu")
+
+
+def test_a_symbolic_link_member_is_refused_before_anything_is_unpacked(tmp_path):
+    """A member whose mode is a symbolic link (its data, the target) is refused by the FMU check
+    and by extract: unpacked as a file it would hold a path, not a library; as a link, point
+    anywhere."""
+    import stat
+
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        zf.writestr("modelDescription.xml", b"<x/>")
+        link = zipfile.ZipInfo("binaries/linux64/m.so")
+        link.create_system = 3
+        link.external_attr = (stat.S_IFLNK | 0o777) << 16
+        zf.writestr(link, str(tmp_path / "elsewhere.so"))
+    (tmp_path / "a.fmu").write_bytes(buf.getvalue())
+    message = r"^a.fmu: member 'binaries/linux64/m.so' is a symbolic link"
+    with pytest.raises(archive.ArchiveError, match=message):
+        archive.check_fmu_archive(tmp_path / "a.fmu")
+    with pytest.raises(archive.ArchiveError, match=message):
+        archive.extract(tmp_path / "a.fmu", tmp_path / "out")
+    assert not (tmp_path / "out" / "binaries").exists()
+
+
+@pytest.mark.parametrize("name", ["../evil.txt", "/abs/evil.txt"])
+def test_the_fmu_check_refuses_a_member_outside_the_folder(tmp_path, name):
+    (tmp_path / "a.fmu").write_bytes(zipped({"modelDescription.xml": b"<x/>", name: b"evil"}))
+    with pytest.raises(archive.ArchiveError, match="is not a relative path inside the archive"):
+        archive.check_fmu_archive(tmp_path / "a.fmu")

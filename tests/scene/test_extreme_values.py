@@ -81,9 +81,9 @@ def test_extreme_values_on_the_command_line_are_one_line_exit_2(capsys):
     huge = "1" + "0" * 400
     for args, fragment in (
             (["run", "rigid_pd", "--set", "master.step=1e-320"],
-             "--set: output_interval = 0.01 must be a multiple of master.step = 1e-320"),
+             "--set: master.step = 1e-320 is out of range: a subnormal number"),
             (["run", "rigid_pd", "--set", "output_interval=1e-320"],
-             "stop_time = 10.0 must be a positive multiple of output_interval = 1e-320"),
+             "--set: output_interval = 1e-320 is out of range: a subnormal number"),
             (["run", "rigid_pd", "--set", f"plant.m={huge}"],
              "plant.m = an integer of 401 digits is out of range"),
             (["run", "rigid_pd", "--set", "plant.n_modes=nan"], "plant.n_modes"),

@@ -164,6 +164,10 @@ def test_each_quoted_bound_is_where_validation_draws_the_line(spec):
             continue
         inside = math.nextafter(bound, -outward)
         outside = math.nextafter(bound, outward)
+        if bound == 0 and is_open and outward < 0:
+            # a range open at 0 takes normal numbers (docs/keys.md): a subnormal is 0
+            assert not _accepts(spec.key, inside), (spec.key, inside)
+            inside = sys.float_info.min
         assert _accepts(spec.key, bound) == (not is_open), (spec.key, bound)
         assert _accepts(spec.key, inside), (spec.key, inside)
         assert not _accepts(spec.key, outside), (spec.key, outside)

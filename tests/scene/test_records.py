@@ -39,12 +39,12 @@ def counts(monkeypatch):
         made["parse_connection"] += 1
         return parse(text)
     monkeypatch.setattr(records, "parse_connection", parse_counted)
-    read = slave_module.read_model_description
+    read = slave_module.model_description          # fmpy's reader, behind the FMU's checks
 
-    def read_counted(path):
+    def read_counted(path, *args, **kwargs):
         made["read_model_description"] += 1
-        return read(path)
-    monkeypatch.setattr(slave_module, "read_model_description", read_counted)
+        return read(path, *args, **kwargs)
+    monkeypatch.setattr(slave_module, "model_description", read_counted)
     slave_module._describe.cache_clear()
     return made
 
