@@ -40,7 +40,10 @@ machine that the command cannot work within (too few file handles, ``ulimit -n``
 memory, ``ulimit -v``: one line naming the limit); 3 ``flexpend run``: a scene stopped early (an
 FMU refused to go on; its data up to there is written); 130 interrupted by Ctrl-C, at any moment
 (the data so far is written, the FMUs are terminated and freed, every temporary folder is
-removed).
+removed). ``run``, ``sweep`` and ``export`` stop at their next safe point (a communication step,
+a run, a report of the reference's progress); ``analyze``, ``stability``, ``design``, ``build``
+and ``check`` hold no FMU in this process and stop at once, before writing any output
+(``build`` ends its compilers; ``check`` its FMU's process).
 
 Every output file is written to a temporary name beside it and renamed into place: it is
 complete or absent, and a failed write leaves the earlier file as it was. ``run``, ``design`` and
@@ -98,15 +101,31 @@ class Interrupts:
     process) or inside a library's callback (where it is printed and lost). The commands ask
     :meth:`requested` at safe points (the master after every communication step, the job between
     its phases) and stop; so the data so far is written, the FMUs are terminated and freed, and
-    the exit code is 130, whenever the SIGINT came. A third SIGINT raises at once."""
+    the exit code is 130, whenever the SIGINT came. A third SIGINT raises at once, and so does the
+    first in a command that holds no FMU in this process (:meth:`raising`)."""
 
     def __init__(self):
         self.count = 0
+        self.at_once = 0
 
     def __call__(self, signum, frame):
         self.count += 1
-        if self.count >= 3:
+        if self.count >= 3 or self.at_once:
             raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def raising(self):
+        """Within: the first SIGINT raises KeyboardInterrupt at once, for a command that holds no
+        FMU in this process (analyze, stability, design, build, check: pure computation, or
+        an FMU in a child process, which ``subprocess`` ends with the exception), so that a long
+        computation stops within moments; its outputs are written only after it, each complete
+        or absent, and its temporaries are removed by the clean-ups the exception runs."""
+        self.at_once += 1
+        try:
+            self.check()
+            yield
+        finally:
+            self.at_once -= 1
 
     def requested(self) -> bool:
         return self.count > 0
@@ -749,6 +768,11 @@ def _add_quiet(p) -> None:
 _KEYS_HINT = "(every key: flexpend keys)"
 
 
+#: The commands that hold no FMU in this process: Ctrl-C raises in them at once
+#: (:meth:`Interrupts.raising`); the others (run, sweep, export) stop at their safe points.
+_AT_ONCE = {cmd_analyze, cmd_stability, cmd_design, cmd_build, cmd_check, cmd_scenes, cmd_keys}
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="flexpend", description="Flexible inverted pendulum: analysis and "
                                                   "co-simulation of the FMUs.")
@@ -983,7 +1007,8 @@ def main(argv=None) -> int:
         args.quiet = getattr(args, "quiet", False)
         from .report.progress import quiet
 
-        with quiet(args.quiet):
+        at_once = INTERRUPTS.raising() if args.func in _AT_ONCE else contextlib.nullcontext()
+        with quiet(args.quiet), at_once:
             code = args.func(args)
         if INTERRUPTS.requested() and code != EXIT_INTERRUPTED:  # after the last safe point
             print("flexpend: interrupted", file=sys.stderr)

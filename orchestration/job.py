@@ -353,14 +353,38 @@ def _run_scene(scene: Scene, fmus: dict, sink, *, reference, connections_out, st
             scene, fmus, out, kw, parts.part(1, f"{rung_label(scene)}: numerical error (the run "
                                                 "at twice the step)"))
     if reference and out.summary["stopped"] is None:
-        ref = simulate_reference(scene, progress=steps.part(1, f"{name}: the monolithic "
-                                                               "reference"))
-        out.reference = ref
-        out.summary["max_error_phi_o"] = float(np.max(np.abs(out.result["phi_o"] - ref["phi_o"])))
-        out.summary["max_error_eta_1"] = float(np.max(np.abs(out.result["eta_1"] - ref["eta_1"])))
+        try:
+            ref = simulate_reference(scene, progress=_stoppable(
+                steps.part(1, f"{name}: the monolithic reference"), stop))
+        except _Stopped:                        # the run is whole; its reference is left out
+            out.interrupted = True
+        else:
+            out.reference = ref
+            out.summary["max_error_phi_o"] = float(np.max(np.abs(out.result["phi_o"]
+                                                                 - ref["phi_o"])))
+            out.summary["max_error_eta_1"] = float(np.max(np.abs(out.result["eta_1"]
+                                                                 - ref["eta_1"])))
     if out.summary["stopped"] is None:
         steps.finish(name)
     return out
+
+
+class _Stopped(Exception):
+    """A computation of the job (the reference) stopped by the run's ``stop`` callback."""
+
+
+def _stoppable(progress, stop):
+    """``progress`` that first asks ``stop`` (if any) and raises :class:`_Stopped` when it says
+    so: a long computation told of its progress (the reference: a thousand times over its
+    span) ends within one report of a Ctrl-C."""
+    if stop is None:
+        return progress
+
+    def told(fraction, *args):
+        if stop():
+            raise _Stopped
+        return progress(fraction, *args)
+    return told
 
 
 def _error_figure(run: Run, fmus: dict, kw: dict, companions: list, check_step: bool,
@@ -703,7 +727,9 @@ def run_job(items, out, *, reference: bool = False, connections_out=None, stop=N
                             progress=progress, connections_out=connections_out, stop=stop,
                             unzipdirs=unpacked.of(fmus))
             job.runs.append(run)
-            written = run.save(out, summary=False, renderer=renderer, figures=figures)
+            # interrupted: its data and summary, not its figures (Ctrl-C ends the job at once)
+            written = run.save(out, summary=False, renderer=renderer,
+                               figures="none" if run.interrupted else figures)
             write_json(out / "summary.json", job.summaries)
             job.written += written
             if report is not None:

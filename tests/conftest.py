@@ -14,6 +14,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 import ctypes  # noqa: E402
 import math  # noqa: E402
 import shutil  # noqa: E402
+import subprocess  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -425,3 +426,14 @@ def one_line_error(err: str, *fragments) -> None:
     assert sum(ln.startswith("flexpend") for ln in lines) == 1 and "Traceback" not in err, err
     for f in fragments:
         assert f in lines[-1], (f, err)
+
+
+def flexpend(args, tmpdir: Path, *, driver: str = "", **popen):
+    """``flexpend ARGS`` in a subprocess whose temporary folder is ``tmpdir`` (so that whatever
+    it leaves there is seen); ``driver``: Python run first in the process, before
+    :func:`orchestration.cli.entry` (``cli`` is the module)."""
+    code = ("import sys\nfrom orchestration import cli\n" + driver
+            + "\nsys.argv = ['flexpend', *sys.argv[1:]]\ncli.entry()\n")
+    env = dict(os.environ, TMPDIR=str(tmpdir))
+    return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=Path(__file__).resolve().parents[1], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)

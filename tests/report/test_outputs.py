@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import one_line_error
+from conftest import flexpend, one_line_error
 from orchestration.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -177,17 +177,6 @@ def test_a_full_disk_keeps_the_earlier_ssp_export(fmus, small_disk, capsys):
 
 
 # ---------------------------------------------------------------------- Ctrl-C
-def flexpend(args, tmpdir: Path, *, driver: str = "", **popen):
-    """``flexpend ARGS`` in a subprocess whose temporary folder is ``tmpdir`` (so that whatever
-    it leaves there is seen); ``driver``: Python run first in the process, before
-    :func:`orchestration.cli.entry` (``cli`` is the module)."""
-    code = ("import sys\nfrom orchestration import cli\n" + driver
-            + "\nsys.argv = ['flexpend', *sys.argv[1:]]\ncli.entry()\n")
-    env = dict(os.environ, TMPDIR=str(tmpdir))
-    return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)
-
-
 @pytest.fixture
 def private_tmp(tmp_path):
     d = tmp_path / "tmp"
