@@ -510,6 +510,63 @@ static int check_tableau(const fp_tableau *tab)
            && tab->B != NULL && tab->C != NULL;
 }
 
+/* The explicit Runge-Kutta loop below for a tableau of at most SPARSE_STAGES stages, with its
+ * products h a_ij and h b_i formed once per call and its zero coefficients skipped (RK4 has 3
+ * nonzero a_ij of 6): the same sums as the loop below, bit for bit. Each sum still starts from
+ * 0.0 and adds its terms in the order of j; a skipped term is (h 0) K, a zero of either sign
+ * while K is finite, which leaves a sum begun at +0.0 unchanged (0.0 + -0.0 is +0.0), so it
+ * differs from the loop's only where a K is already infinite or NaN, and then both end the
+ * substep with FP_NONFINITE (every b_i of a tableau that reaches that K is nonzero, or the
+ * stage is unused) with y unchanged. */
+#define SPARSE_STAGES 8
+
+static int sparse_steps(const fp_plant *p, const fp_tableau *tab, const fp_input *u, double t,
+                        double h, long n_steps, double *y, double *work, long *done)
+{
+    const int nx = p->nx, s = tab->stages;
+    const double s0 = t - u->tu;
+    double *ys = work, *K = work + nx;
+    double ha[SPARSE_STAGES * SPARSE_STAGES], hb[SPARSE_STAGES], ch[SPARSE_STAGES];
+    int col[SPARSE_STAGES * SPARSE_STAGES], n_a[SPARSE_STAGES], colb[SPARSE_STAGES], n_b = 0;
+    long k;
+    int i, j, m;
+    for (i = 0; i < s; i++) {
+        n_a[i] = 0;
+        for (j = 0; j < i; j++)
+            if (tab->A[i * s + j] != 0.0) {
+                col[i * SPARSE_STAGES + n_a[i]] = j;
+                ha[i * SPARSE_STAGES + n_a[i]++] = h * tab->A[i * s + j];
+            }
+        if (tab->B[i] != 0.0) {
+            colb[n_b] = i;
+            hb[n_b++] = h * tab->B[i];
+        }
+        ch[i] = tab->C[i] * h;
+    }
+    for (k = 0; k < n_steps; k++) {
+        const double sk = s0 + k * h;
+        for (i = 0; i < s; i++) {
+            const double *a = ha + i * SPARSE_STAGES;
+            const int *c = col + i * SPARSE_STAGES, n = n_a[i];
+            for (m = 0; m < nx; m++) {
+                double acc = 0.0;
+                for (j = 0; j < n; j++) acc += a[j] * K[(size_t)c[j] * nx + m];
+                ys[m] = y[m] + acc;
+            }
+            fp_rhs(p, ys, input_at(u, sk + ch[i]), K + (size_t)i * nx);
+        }
+        for (m = 0; m < nx; m++) {
+            double acc = 0.0;
+            for (j = 0; j < n_b; j++) acc += hb[j] * K[(size_t)colb[j] * nx + m];
+            ys[m] = y[m] + acc;
+        }
+        if (!all_finite(ys, nx)) return FP_NONFINITE;
+        for (m = 0; m < nx; m++) y[m] = ys[m];
+        *done = k + 1;
+    }
+    return FP_OK;
+}
+
 static int fixed_steps_(const fp_plant *p, int method, const fp_tableau *tab, const fp_input *u,
                    double t, double h, long n_steps, double *y, double *work, long *done)
 {
@@ -532,6 +589,7 @@ static int fixed_steps_(const fp_plant *p, int method, const fp_tableau *tab, co
         return FP_OK;
     }
     if (!check_tableau(tab)) return FP_BADARG;
+    if (tab->stages <= SPARSE_STAGES) return sparse_steps(p, tab, u, t, h, n_steps, y, work, done);
     for (k = 0; k < n_steps; k++) {
         const int s = tab->stages;
         for (i = 0; i < s; i++) {
