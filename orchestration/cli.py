@@ -42,7 +42,7 @@ FMU refused to go on; its data up to there is written); 130 interrupted by Ctrl-
 (the data so far is written, the FMUs are terminated and freed, every temporary folder is
 removed). ``run``, ``sweep`` and ``export`` stop at their next safe point (a communication step,
 a run, a report of the reference's progress); ``analyze``, ``stability``, ``design``, ``build``
-and ``check`` hold no FMU in this process and stop at once, before writing any output
+and ``check`` hold no FMU in this process and stop at once, each output complete or absent
 (``build`` ends its compilers; ``check`` its FMU's process).
 
 Every output file is written to a temporary name beside it and renamed into place: it is
