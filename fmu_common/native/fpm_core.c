@@ -751,6 +751,7 @@ int fpm_set_state(fpm_instance *c, const char *fn, int mask, const void *p)
     if ((s = intact(c, fn, p)) == NULL) return FPM_ERROR;
     if (restore_into_spare(c, fn, s->data, s->n, 0, &mode, &discarded) != FPM_OK)
         return FPM_ERROR;
+    fpm_model_keep(c->spare, c->m);
     commit(c, mode, discarded);
     return FPM_OK;
 }

@@ -500,6 +500,19 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     return 1;
 }
 
+/* The exponential method's discretisations depend on the linear plant (A, B) and the step
+ * only. */
+void fpm_model_keep(fpm_model *m, const fpm_model *from)
+{
+    const size_t nx = (size_t)m->nx;
+    if (m->ready && from->ready && m->method == M_EXPONENTIAL && from->method == M_EXPONENTIAL &&
+        from->nx == m->nx && memcmp(m->A, from->A, nx * nx * sizeof m->A[0]) == 0 &&
+        memcmp(m->B, from->B, nx * sizeof m->B[0]) == 0) {
+        memcpy(m->ex, from->ex, sizeof m->ex);
+        m->ex_next = from->ex_next;
+    }
+}
+
 int fpm_model_init(fpm_model *m, const fpm_logger *lg)
 {
     m->initialized = prepare(m, lg);

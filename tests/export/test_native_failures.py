@@ -215,6 +215,44 @@ def test_a_state_passed_back_to_get_fmu_state_is_overwritten_in_place(open_nativ
     inst.fmu.freeFMUstate(fresh)
 
 
+@pytest.mark.parametrize("name, start, other", [
+    ("FlexiblePendulum", {"fidelity": "linear", "integrator": "exponential", "phi0": 0.1},
+     {"fidelity": "linear", "integrator": "exponential", "EI": 3.0}),
+    ("PDLowPass", {"cutoff": 30.0}, {"cutoff": 50.0, "kp": 2.0}),
+])
+def test_a_restore_keeps_the_cached_discretisations_only_for_equal_parameters(
+        open_native, name, start, other):
+    """A restore carries the live model's cached discretisations over (fpm_model_keep) only when
+    what they derive from is bitwise equal: restored into the instance that took the state, into
+    a fresh one (nothing cached) and into one that stepped with other parameters at the same step
+    (a cache that must not be kept), the continuation is bit for bit the same."""
+    inputs = {"FlexiblePendulum": "F_c", "PDLowPass": "phi_o"}
+
+    def run(inst, k0, n):
+        out = []
+        for k in range(k0, k0 + n):
+            inst.set(**{inputs[name]: 0.3 * math.sin(0.05 * k)})
+            assert inst.step(k * 1e-3, 1e-3) == 0
+            out.append(inst.outputs())
+        return out
+
+    a = open_native(name, **start)
+    run(a, 0, 20)
+    state = a.fmu.getFMUstate()
+    data = a.fmu.serializeFMUstate(state)
+    first = run(a, 20, 20)
+    a.fmu.setFMUstate(state)
+    assert run(a, 20, 20) == first
+    fresh = open_native(name)
+    fresh.fmu.setFMUstate(fresh.fmu.deSerializeFMUstate(data))
+    assert run(fresh, 20, 20) == first
+    c = open_native(name, **other)
+    run(c, 0, 20)
+    c.fmu.setFMUstate(c.fmu.deSerializeFMUstate(data))
+    assert run(c, 20, 20) == first
+    a.fmu.freeFMUstate(state)
+
+
 def test_an_in_memory_state_whose_bytes_were_overwritten_is_refused(open_native):
     """An in-memory state carries a checksum of its bytes (the FNV-1a trailer is written only
     when it is serialised): a byte overwritten in memory makes restoring or serialising it an
