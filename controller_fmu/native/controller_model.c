@@ -173,6 +173,20 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     return 1;
 }
 
+/* The filter's discretisations depend on the filter's parameters and the step only. */
+void fpm_model_keep(fpm_model *m, const fpm_model *from)
+{
+    const fpf_filter *a = &m->f, *b = &from->f;
+    if (a->order == b->order && memcmp(&a->kp, &b->kp, sizeof a->kp) == 0 &&
+        memcmp(&a->kd, &b->kd, sizeof a->kd) == 0 && memcmp(&a->kx, &b->kx, sizeof a->kx) == 0 &&
+        memcmp(&a->cutoff, &b->cutoff, sizeof a->cutoff) == 0 &&
+        memcmp(&a->damping, &b->damping, sizeof a->damping) == 0 &&
+        memcmp(&a->force_limit, &b->force_limit, sizeof a->force_limit) == 0) {
+        memcpy(m->cache, from->cache, sizeof m->cache);
+        m->next = from->next;
+    }
+}
+
 int fpm_model_init(fpm_model *m, const fpm_logger *lg)
 {
     m->initialized = prepare(m, lg);

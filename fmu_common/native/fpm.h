@@ -246,6 +246,11 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w);
  * initialisation uses. initialized: 1 the mode needs an initialised model, 0 it needs one that
  * is not, -1 either. 1, or 0 with r->why set. */
 int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized);
+/* After a restore loaded m (fpm_model_load succeeded) and before m replaces the live model
+ * `from`: carry over from `from` the derived data that m would compute bit for bit the same
+ * (a cache, when what it derives from is bitwise equal in both), so that a master that restores
+ * a state every step does not recompute them. Doing nothing is correct. */
+void fpm_model_keep(fpm_model *m, const fpm_model *from);
 
 /* ---- Jacobians and output derivatives: what each model implements (issue 24) ---------------
  * Indices, not value references: the core maps value references to them.

@@ -95,6 +95,15 @@ typedef struct expo {
     double Gam[NXMAX];
 } expo;
 
+/* The work arrays of the stepping kernels and the exponential method, written before they are
+ * read by every use: left out of fpm_model_reset (a restore resets the spare model, and clearing
+ * these was most of its cost). */
+typedef struct scratch {
+    double work[(7 + 2) * NXMAX];   /* the stepping kernels' */
+    double ework[9 * AUG * AUG];    /* fpf_expm's */
+    double aug[AUG * AUG], E[AUG * AUG];
+} scratch;
+
 /* What a step changes (copied before it, restored when it fails). */
 typedef struct stepper {
     double t, t_base;
@@ -130,15 +139,13 @@ struct fpm_model {
     double A[NXMAX * NXMAX], B[NXMAX];
     expo ex[2];
     int ex_next;
-    double work[(7 + 2) * NXMAX];
-    double ework[9 * AUG * AUG];
-    double aug[AUG * AUG], E[AUG * AUG];
     /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
     int exact;
     int xb_kv;                  /* the damping law is Kelvin-Voigt (else modal) */
     fp_exact xb_p, xb_ps;       /* Radau IIA at the step h, and at the substep taken */
     double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
     double xb_work;             /* the element-iterations this doStep has spent (xb_step) */
+    scratch scr;                /* the kernels' work arrays (not reset by fpm_model_reset) */
     xb_arrays xb;               /* its state and scratch (not reset by fpm_model_reset) */
 };
 
@@ -155,8 +162,8 @@ double fpm_model_time(const fpm_model *m) { return m->ready ? m->s.t : m->t0; }
 
 void fpm_model_reset(fpm_model *m, double start_time)
 {
-    const size_t at = offsetof(fpm_model, xb), end = at + sizeof(xb_arrays);
-    memset(m, 0, at);                         /* all but the exact rung's arrays */
+    const size_t at = offsetof(fpm_model, scr), end = offsetof(fpm_model, xb) + sizeof(xb_arrays);
+    memset(m, 0, at);                     /* all but the work arrays and the exact rung's arrays */
     memset((char *)m + end, 0, sizeof *m - end);
     fpm_start_values(&m->v);
     m->t0 = start_time;
@@ -500,6 +507,19 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     return 1;
 }
 
+/* The exponential method's discretisations depend on the linear plant (A, B) and the step
+ * only. */
+void fpm_model_keep(fpm_model *m, const fpm_model *from)
+{
+    const size_t nx = (size_t)m->nx;
+    if (m->ready && from->ready && m->method == M_EXPONENTIAL && from->method == M_EXPONENTIAL &&
+        from->nx == m->nx && memcmp(m->A, from->A, nx * nx * sizeof m->A[0]) == 0 &&
+        memcmp(m->B, from->B, nx * sizeof m->B[0]) == 0) {
+        memcpy(m->ex, from->ex, sizeof m->ex);
+        m->ex_next = from->ex_next;
+    }
+}
+
 int fpm_model_init(fpm_model *m, const fpm_logger *lg)
 {
     m->initialized = prepare(m, lg);
@@ -516,15 +536,15 @@ static expo *discretisation(fpm_model *m, double h)
     if (m->ex[0].h == h) return &m->ex[0];
     if (m->ex[1].h == h) return &m->ex[1];
     e = &m->ex[m->ex_next];
-    memset(m->aug, 0, sizeof m->aug);
+    memset(m->scr.aug, 0, sizeof m->scr.aug);
     for (i = 0; i < nx; i++) {
-        for (j = 0; j < nx; j++) m->aug[i * na + j] = m->A[i * nx + j] * h;
-        m->aug[i * na + nx] = m->B[i] * h;
+        for (j = 0; j < nx; j++) m->scr.aug[i * na + j] = m->A[i * nx + j] * h;
+        m->scr.aug[i * na + nx] = m->B[i] * h;
     }
-    if (fpf_expm(na, m->aug, m->E, m->ework) != FPF_OK) return NULL;
+    if (fpf_expm(na, m->scr.aug, m->scr.E, m->scr.ework) != FPF_OK) return NULL;
     for (i = 0; i < nx; i++) {
-        for (j = 0; j < nx; j++) e->Phi[i * nx + j] = m->E[i * na + j];
-        e->Gam[i] = m->E[i * na + nx];
+        for (j = 0; j < nx; j++) e->Phi[i * nx + j] = m->scr.E[i * na + j];
+        e->Gam[i] = m->scr.E[i * na + nx];
     }
     e->h = h;
     m->ex_next = 1 - m->ex_next;
@@ -576,11 +596,11 @@ static int substeps(fpm_model *m, double h, long n, char *why)
         in.d2u = s->d2u;
         in.tu = s->tu;
         if (m->method == M_SYMPLECTIC)
-            rc = fp_fixed_steps(&m->p, FP_SYMPLECTIC_EULER, NULL, &in, s->t, h, n, s->y, m->work,
-                                &done);
+            rc = fp_fixed_steps(&m->p, FP_SYMPLECTIC_EULER, NULL, &in, s->t, h, n, s->y,
+                                m->scr.work, &done);
         else
             rc = fp_fixed_steps(&m->p, -1, fp_builtin_tableau(m->method == M_RK4 ? FP_RK4 : FP_EULER),
-                                &in, s->t, h, n, s->y, m->work, &done);
+                                &in, s->t, h, n, s->y, m->scr.work, &done);
         if (rc == FP_BADARG) {
             snprintf(why, FPM_MSG_MAX, "bad substep h = %.17g", h);
             return 0;
@@ -701,7 +721,7 @@ static int advance_dopri(fpm_model *m, double t_end, char *why)
     in.d2u = s->d2u;
     in.tu = s->tu;
     rc = fp_dopri_advance(&m->p, fp_builtin_tableau(FP_DOPRI5), &in, &t, t_end, s->y, s->f, &a,
-                          m->work);
+                          m->scr.work);
     s->t = t;
     s->h_abs = a.h_abs;
     if (rc == FP_OK) return 1;

@@ -183,6 +183,102 @@ def test_state_get_set_and_serialisation_are_bit_identical(open_native, integrat
     a.fmu.freeFMUstate(state)
 
 
+@pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
+def test_a_state_passed_back_to_get_fmu_state_is_overwritten_in_place(open_native, name):
+    """fmi2GetFMUstate with an existing state overwrites it (no new allocation): the same
+    pointer, the same bytes as a fresh state of the same instant, the same continuation."""
+    import ctypes
+    from fmpy.fmi2 import fmi2FMUstate
+
+    inst = open_native(name)
+    inputs = {"FlexiblePendulum": "F_c", "PDLowPass": "phi_o"}
+
+    def run(k0, n):
+        out = []
+        for k in range(k0, k0 + n):
+            inst.set(**{inputs[name]: 0.3 * math.sin(0.05 * k)})
+            assert inst.step(k * 1e-3, 1e-3) == 0
+            out.append(inst.outputs())
+        return out
+
+    old = inst.fmu.getFMUstate()                           # taken at t = 0, to be overwritten
+    run(0, 30)
+    reused = fmi2FMUstate(old.value)
+    assert inst.fmu.fmi2GetFMUstate(inst.fmu.component, ctypes.byref(reused)) == 0
+    assert reused.value == old.value
+    fresh = inst.fmu.getFMUstate()
+    assert inst.fmu.serializeFMUstate(reused) == inst.fmu.serializeFMUstate(fresh)
+    first = run(30, 30)
+    inst.fmu.setFMUstate(reused)
+    assert run(30, 30) == first
+    inst.fmu.freeFMUstate(reused)
+    inst.fmu.freeFMUstate(fresh)
+
+
+@pytest.mark.parametrize("name, start, other", [
+    ("FlexiblePendulum", {"fidelity": "linear", "integrator": "exponential", "phi0": 0.1},
+     {"fidelity": "linear", "integrator": "exponential", "EI": 3.0}),
+    ("PDLowPass", {"cutoff": 30.0}, {"cutoff": 50.0, "kp": 2.0}),
+])
+def test_a_restore_keeps_the_cached_discretisations_only_for_equal_parameters(
+        open_native, name, start, other):
+    """A restore carries the live model's cached discretisations over (fpm_model_keep) only when
+    what they derive from is bitwise equal: restored into the instance that took the state, into
+    a fresh one (nothing cached) and into one that stepped with other parameters at the same step
+    (a cache that must not be kept), the continuation is bit for bit the same."""
+    inputs = {"FlexiblePendulum": "F_c", "PDLowPass": "phi_o"}
+
+    def run(inst, k0, n):
+        out = []
+        for k in range(k0, k0 + n):
+            inst.set(**{inputs[name]: 0.3 * math.sin(0.05 * k)})
+            assert inst.step(k * 1e-3, 1e-3) == 0
+            out.append(inst.outputs())
+        return out
+
+    a = open_native(name, **start)
+    run(a, 0, 20)
+    state = a.fmu.getFMUstate()
+    data = a.fmu.serializeFMUstate(state)
+    first = run(a, 20, 20)
+    a.fmu.setFMUstate(state)
+    assert run(a, 20, 20) == first
+    fresh = open_native(name)
+    fresh.fmu.setFMUstate(fresh.fmu.deSerializeFMUstate(data))
+    assert run(fresh, 20, 20) == first
+    c = open_native(name, **other)
+    run(c, 0, 20)
+    c.fmu.setFMUstate(c.fmu.deSerializeFMUstate(data))
+    assert run(c, 20, 20) == first
+    a.fmu.freeFMUstate(state)
+
+
+def test_an_in_memory_state_whose_bytes_were_overwritten_is_refused(open_native):
+    """An in-memory state carries a checksum of its bytes (the FNV-1a trailer is written only
+    when it is serialised): a byte overwritten in memory makes restoring or serialising it an
+    error that says so, and the instance is unchanged."""
+    import ctypes
+    from fmpy.fmi1 import FMICallException
+
+    inst = open_native("FlexiblePendulum", phi0=0.2)
+    state = inst.fmu.getFMUstate()
+    n = len(inst.fmu.serializeFMUstate(state))
+    raw = ctypes.string_at(state.value, 64 + n)
+    at = state.value + raw.index(b"FPMS") + n // 2        # a byte of the payload, in memory
+    before = inst.outputs()
+    original = ctypes.string_at(at, 1)[0]
+    ctypes.memset(at, original ^ 0x40, 1)
+    with pytest.raises(FMICallException):
+        inst.fmu.setFMUstate(state)
+    with pytest.raises(FMICallException):
+        inst.fmu.serializeFMUstate(state)
+    assert "corrupt" in inst.messages(3) and "memory was overwritten" in inst.messages(3)
+    assert inst.outputs() == before
+    ctypes.memset(at, original, 1)                         # restored: accepted again
+    inst.fmu.setFMUstate(state)
+    inst.fmu.freeFMUstate(state)
+
+
 def test_a_state_carries_the_damping_law(open_native):
     """The damping law is a parameter of the state: one saved under the Kelvin-Voigt law and
     restored into an instance opened with the modal law continues as the Kelvin-Voigt run to
