@@ -162,6 +162,8 @@ def build_fmu(name: str, out_dir: Path | None = None, force: bool = False,
                            "digest": digest})
         env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
         env["PYTHONPATH"] = os.pathsep.join([str(stage), str(ROOT)])
+        # pythonfmu's scratch folders inside ours: a packaging ended by Ctrl-C leaves none
+        env["TMPDIR"] = tmp
         if progress is not None:
             progress(0.3, f"{what}: packaging with pythonfmu")
         proc = subprocess.run([sys.executable, "-c", _WORKER_CALL, args], cwd=tmp, env=env,

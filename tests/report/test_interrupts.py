@@ -36,7 +36,7 @@ def _commands(fmus, out: Path) -> dict:
         "run --reference": ["run", "flexible_pd_lowpass", "--reference", "--set",
                             "stop_time=60", "--out", out],
         "check --reference": ["check", fmus["FlexiblePendulum"], "--reference", ref],
-        "build": ["build", "--force", "--fmus", "native", "--out", out],
+        "build": ["build", "--force", "--out", out],           # python, then native
     }
 
 
