@@ -10,7 +10,7 @@ of its code is loaded: no library outside the FMU is ever loaded.
 fmpy loads ``binaries/<platform>/<modelIdentifier>.so`` (``.dll``, ``.dylib``) of the folder the
 FMU is unpacked into, the identifier as the modelDescription.xml says it. The FMI standard (2.0
 and 3.0, Co-Simulation and Model Exchange) makes ``modelIdentifier`` a C identifier (it prefixes
-the FMU's C functions); one that is not, ``../../tmp/x/Evil`` for instance, would have a library
+the FMU's C functions); one that is not, ``../../shared/Evil`` for instance, would have a library
 outside the FMU loaded and its constructor run. So:
 
 * the archive's members are checked before anything inflates one

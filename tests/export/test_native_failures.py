@@ -183,6 +183,21 @@ def test_state_get_set_and_serialisation_are_bit_identical(open_native, integrat
     a.fmu.freeFMUstate(state)
 
 
+#: The input each native FMU is driven by in the state tests below.
+_INPUT = {"FlexiblePendulum": "F_c", "PDLowPass": "phi_o"}
+
+
+def _driven(inst, name, k0: int, n: int) -> list:
+    """Steps ``k0 .. k0 + n - 1`` of 1 ms of ``inst`` (the FMU ``name``) under a sine input:
+    the outputs after each."""
+    out = []
+    for k in range(k0, k0 + n):
+        inst.set(**{_INPUT[name]: 0.3 * math.sin(0.05 * k)})
+        assert inst.step(k * 1e-3, 1e-3) == 0
+        out.append(inst.outputs())
+    return out
+
+
 @pytest.mark.parametrize("name", ["FlexiblePendulum", "PDLowPass"])
 def test_a_state_passed_back_to_get_fmu_state_is_overwritten_in_place(open_native, name):
     """fmi2GetFMUstate with an existing state overwrites it (no new allocation): the same
@@ -191,15 +206,9 @@ def test_a_state_passed_back_to_get_fmu_state_is_overwritten_in_place(open_nativ
     from fmpy.fmi2 import fmi2FMUstate
 
     inst = open_native(name)
-    inputs = {"FlexiblePendulum": "F_c", "PDLowPass": "phi_o"}
 
     def run(k0, n):
-        out = []
-        for k in range(k0, k0 + n):
-            inst.set(**{inputs[name]: 0.3 * math.sin(0.05 * k)})
-            assert inst.step(k * 1e-3, 1e-3) == 0
-            out.append(inst.outputs())
-        return out
+        return _driven(inst, name, k0, n)
 
     old = inst.fmu.getFMUstate()                           # taken at t = 0, to be overwritten
     run(0, 30)
@@ -226,15 +235,8 @@ def test_a_restore_keeps_the_cached_discretisations_only_for_equal_parameters(
     what they derive from is bitwise equal: restored into the instance that took the state, into
     a fresh one (nothing cached) and into one that stepped with other parameters at the same step
     (a cache that must not be kept), the continuation is bit for bit the same."""
-    inputs = {"FlexiblePendulum": "F_c", "PDLowPass": "phi_o"}
-
     def run(inst, k0, n):
-        out = []
-        for k in range(k0, k0 + n):
-            inst.set(**{inputs[name]: 0.3 * math.sin(0.05 * k)})
-            assert inst.step(k * 1e-3, 1e-3) == 0
-            out.append(inst.outputs())
-        return out
+        return _driven(inst, name, k0, n)
 
     a = open_native(name, **start)
     run(a, 0, 20)
