@@ -56,8 +56,8 @@ from plant_fmu.interface import FIDELITIES
 from plant_fmu.params import PlantParams
 
 __all__ = ["TOLERANCE", "MARGIN", "NO_LIMIT", "PlantStepCheck", "rung_params", "drift_free",
-           "stability_function", "unstable", "step_limit", "stable_floor", "largest_substep", "check",
-           "checks"]
+           "stability_function", "unstable", "step_limit", "stable_floor", "largest_substep",
+           "check", "checks"]
 
 #: growth per substep a method may add to a mode beyond the exact flow's (1e-9: a millionth
 #: after a million substeps; far above the rounding of ``|R|``, far below any real instability)
@@ -178,6 +178,16 @@ def _bisect(bad, lo: float, hi: float, levels: int = _BISECT_LEVELS):
     return lo, hi
 
 
+def _limited(method: str) -> bool:
+    """Whether ``method`` has a step limit (False: :data:`NO_LIMIT`); a ValueError names an
+    unknown one."""
+    if method in NO_LIMIT:
+        return False
+    if method not in REGISTRY:
+        raise ValueError(f"method = {method!r} is unknown; allowed: {', '.join(REGISTRY)}")
+    return True
+
+
 @functools.lru_cache(maxsize=256)
 def _grid(method: str, p: PlantParams):
     """``(A, nq, lam, fastest, hs, first)``: the search of :func:`step_limit` on its log grid
@@ -194,10 +204,8 @@ def stable_floor(method: str, p: PlantParams) -> float:
     """A step at or below :func:`step_limit`'s ``h``, from its grid alone (no bisection): the
     last stable step of the grid before the first unstable one (the bisection starts there and
     only moves up), ``inf`` when there is no limit, 0 when every step is unstable."""
-    if method in NO_LIMIT:
+    if not _limited(method):
         return math.inf
-    if method not in REGISTRY:
-        raise ValueError(f"method = {method!r} is unknown; allowed: {', '.join(REGISTRY)}")
     *_, hs, first = _grid(method, p)
     return math.inf if first is None else 0.0 if first == 0 else float(hs[first - 1])
 
@@ -209,10 +217,8 @@ def step_limit(method: str, p: PlantParams):
     search grid is stable) and the eigenvalue that limits it (Runge-Kutta) or the fastest
     (symplectic Euler); ``None`` for a method without a limit (:data:`NO_LIMIT`). ``h = 0``:
     unstable at every step (explicit Euler on an undamped mode)."""
-    if method in NO_LIMIT:
+    if not _limited(method):
         return None
-    if method not in REGISTRY:
-        raise ValueError(f"method = {method!r} is unknown; allowed: {', '.join(REGISTRY)}")
     A, nq, lam, fastest, hs, first = _grid(method, p)
     if first is None:
         return None
@@ -339,8 +345,7 @@ def check(scene, fidelity: str | None = None) -> PlantStepCheck | None:
         return None
     method = scene.plant.integrator
     floor = stable_floor(method, p)
-    lam = (_grid(method, p)[2] if method in REGISTRY and method not in NO_LIMIT else
-           np.linalg.eigvals(drift_free(p)[0]))
+    lam = _grid(method, p)[2] if _limited(method) else np.linalg.eigvals(drift_free(p)[0])
     fastest = float(np.max(np.abs(lam))) if lam.size else 0.0
     return PlantStepCheck(method, scene.plant.step, largest_substep(scene), fastest, fidelity,
                           scene.master.fmus, p, floor)
