@@ -663,12 +663,10 @@ def cmd_sweep(args) -> int:
             raise
         raise UsageError(str(exc)) from None          # an unreachable scheduler
     except KeyboardInterrupt:
-        from pathlib import Path
-
-        from .sweeps.engine import JOURNAL
-        journal = Path(args.out) / JOURNAL
-        if _has_rows(journal):
-            print(f"\ninterrupted: the finished runs are in {journal}; the same command "
+        from .sweeps.engine import Journal
+        journal = Journal(args.out)
+        if _finished_rows(journal):
+            print(f"\ninterrupted: the finished runs are in {journal.path}; the same command "
                   "continues the sweep", file=sys.stderr)
         else:                                           # name no file that is not there
             print("\ninterrupted before any run finished; the same command starts the sweep",
@@ -681,12 +679,11 @@ def cmd_sweep(args) -> int:
     return 1 if s.stats["lost"] else 0
 
 
-def _has_rows(path) -> bool:
-    """Whether ``path`` is a file holding at least one line (a journal with a finished run)."""
+def _finished_rows(journal) -> bool:
+    """Whether the sweep's ``journal`` holds a finished run (a readable, sound row)."""
     try:
-        with open(path, "rb") as fh:
-            return bool(fh.read(1))
-    except OSError:
+        return bool(journal.read())
+    except (OSError, ValueError):       # unreadable: nothing to name
         return False
 
 

@@ -302,10 +302,12 @@ def test_an_interrupted_sweep_names_only_a_journal_that_holds_runs(finished, tmp
     """Issue 40, D6: interrupted before any run finished, the message named a runs.jsonl that
     did not exist; with a finished run it names the journal, which exists and holds it."""
     import orchestration.sweeps.job as job
+    from orchestration.sweeps.engine import Journal
 
     def interrupted(*args, out=None, **kwargs):
-        if finished:
-            (Path(out) / "runs.jsonl").write_text('{"key": "a"}\n')
+        with Journal(out) as journal:           # opened, as a sweep opens it; a row if finished
+            if finished:
+                journal.append({"key": "a", "status": "ok"})
         raise KeyboardInterrupt
 
     out = tmp_path / "out"
