@@ -435,5 +435,6 @@ def flexpend(args, tmpdir: Path, *, driver: str = "", **popen):
     code = ("import sys\nfrom orchestration import cli\n" + driver
             + "\nsys.argv = ['flexpend', *sys.argv[1:]]\ncli.entry()\n")
     env = dict(os.environ, TMPDIR=str(tmpdir))
-    return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=Path(__file__).resolve().parents[1], env=env,
+    return subprocess.Popen([sys.executable, "-c", code, *map(str, args)],
+                            cwd=Path(__file__).resolve().parents[1], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen)

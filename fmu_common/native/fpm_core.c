@@ -700,8 +700,9 @@ static const state *intact(fpm_instance *c, const char *fn, const void *p)
     return s;
 }
 
-/* n (>= HEADER + 8) bytes of a serialised state into *out, with their memory_sum: the state given (FMI: it is overwritten) when it is
- * large enough, else a state of its own size that replaces it. */
+/* n (>= HEADER + 8) bytes of a serialised state into *out, with their memory_sum: the state given
+ * (FMI: it is overwritten) when it is large enough, else a state of its own size that replaces
+ * it. */
 static int store(fpm_instance *c, const char *fn, void **out, const unsigned char *data,
                  size_t n)
 {
