@@ -62,7 +62,7 @@ class _Slave(ctypes.Structure):
     _fields_ = [("c", _P), ("set_real", _P), ("get_real", _P), ("do_step", _P), ("set_der", _P),
                 ("get_state", _P), ("set_state", _P), ("free_state", _P),
                 ("n_in", _I), ("n_der", _I), ("n_out", _I), ("n_rec", _I),
-                ("feedthrough", _I), ("mark", _I),
+                ("feedthrough", _I), ("mark", _I), ("at_start", _I),
                 ("in_vr", _P), ("in_src", _P), ("in_idx", _P), ("der_vr", _P),
                 ("der_order", _P), ("out_vr", _P), ("rec_vr", _P),
                 ("in_val", _P), ("der_val", _P), ("new_val", _P), ("rec_val", _P),

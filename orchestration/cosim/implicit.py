@@ -6,7 +6,8 @@ inputs over the step are the polynomial through its source's samples up to ``t_k
 (``master.extrapolation`` = 1: the line between ``t_k`` and ``t_k+1``; 2: the parabola through
 ``t_k-1 .. t_k+1``; 0: the value at ``t_k+1``, held), passed as input derivatives (or held as the
 step average) exactly as the explicit couplings pass theirs. Every FMU then steps from the
-step's start (its FMU state restored) and gives its outputs at ``t_k+1``: ``G(u)``. The step is
+step's start (its FMU state restored, except in the step's first evaluation, where it is still
+there) and gives its outputs at ``t_k+1``: ``G(u)``. The step is
 converged when ``|G(u) - u| <= implicit_tolerance * max(1, |G(u)|)`` for every output (the
 adaptive master's scaling of its error); the FMUs are then at ``t_k+1`` with the inputs ``u``
 and their outputs ``G(u)`` are the new samples. ``master.max_iterations`` evaluations of ``G``
@@ -79,9 +80,11 @@ class InterfaceIteration:
         self.iterations = self.max_iterations = self.jacobian_steps = 0
 
     # ------------------------------------------------------------------ one evaluation of G
-    def _evaluate(self, hist, snaps, states, t0, t1, u, names):
+    def _evaluate(self, hist, snaps, states, t0, t1, u, names, at_start):
         """The outputs at ``t1`` of ``names`` stepped from their states at ``t0`` with the
-        interface ``u`` as the sources' samples at ``t1``; a dict name -> outputs."""
+        interface ``u`` as the sources' samples at ``t1``; a dict name -> outputs. ``at_start``:
+        the slaves not stepped since their state was taken, which need no restore (the step's
+        first evaluation); a slave leaves it when it steps."""
         m = self.m
         ta, h = m._time(t0), (t1 - t0) * m._unit
         for n in self.sources:
@@ -90,7 +93,10 @@ class InterfaceIteration:
         try:
             for n in names:
                 s = m.slaves[n]
-                s.set_state(states[n])
+                if n in at_start:
+                    at_start.discard(n)
+                else:
+                    s.set_state(states[n])
                 s.set_inputs(m._held_inputs(n, hist, t0, t1), ta)
                 s.do_step(ta, h)
             return {n: m._outputs_after_step(n, hist, t1) for n in names}
@@ -109,7 +115,7 @@ class InterfaceIteration:
                                for n in self.sources]) if self.size else np.zeros(0)
 
     # ------------------------------------------------------------------ updates
-    def _jacobian(self, hist, snaps, states, t0, t1, u, g):
+    def _jacobian(self, hist, snaps, states, t0, t1, u, g, at_start):
         """``dG/du`` by forward differences of the step (only the consumers of the perturbed
         source step again)."""
         J = np.zeros((self.size, self.size))
@@ -119,7 +125,7 @@ class InterfaceIteration:
                 d = _FD_STEP * max(1.0, abs(u[j]))
                 up = u.copy()
                 up[j] += d
-                out = self._evaluate(hist, snaps, states, t0, t1, up, names)
+                out = self._evaluate(hist, snaps, states, t0, t1, up, names, at_start)
                 self.jacobian_steps += len(names)
                 col = g.copy()
                 for n in names:
@@ -150,13 +156,14 @@ class InterfaceIteration:
         try:
             for n, s in m.slaves.items():     # the states taken are freed however it ends
                 states[n] = s.get_state()
+            at_start = set(states)
             u = self._stack({n: m._combination(hist[n], t1, m.h / m._unit, (0,))[0]
                              for n in self.sources})
             V, W = [], []
             prev = None                  # (r, g) of the previous iteration (IQN-ILS)
             err_prev, fresh = math.inf, False
             for it in range(1, self.cap + 1):
-                new = self._evaluate(hist, snaps, states, t0, t1, u, order)
+                new = self._evaluate(hist, snaps, states, t0, t1, u, order, at_start)
                 g = self._stack(new)
                 r = g - u
                 err = self._residual(g, u)
@@ -170,7 +177,7 @@ class InterfaceIteration:
                     break
                 if self.method == "newton":
                     if self.J is None or (err > 0.1 * err_prev and not fresh):
-                        self.J = self._jacobian(hist, snaps, states, t0, t1, u, g)
+                        self.J = self._jacobian(hist, snaps, states, t0, t1, u, g, at_start)
                         fresh = True
                     try:
                         u = u - np.linalg.solve(self.J - np.eye(self.size), r)

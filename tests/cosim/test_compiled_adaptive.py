@@ -342,3 +342,21 @@ def test_output_derivatives_keep_the_adaptive_master_in_python_and_run(pair, est
     assert runs[True].stats.loop == "python" and runs[False].stats.loop == "compiled"
     diff = np.abs(runs[True].result["phi_o"] - runs[False].result["phi_o"]).max()
     assert diff < 1e-3, diff
+
+
+@pytest.mark.parametrize("update", ["newton", "iqn-ils"])
+def test_an_implicit_step_restores_an_fmu_only_after_stepping_it(pair, unzipped, update):
+    """Each step takes every FMU's state once, and restores it before each of that FMU's steps
+    but the first (the FMU is still at the step's start then): per FMU, in both loops,
+    restores = steps - states taken, and the step's first call after taking a state is no
+    restore."""
+    for res in both(implicit("flexible_pd_lowpass", update), pair, unzipped):
+        assert res[1].iterations > res[1].steps
+        for name in ("plant", "controller"):
+            calls = [e[1] for e in res[2] if e[0] == name]
+            count = {f: sum(c == f"fmi2{f}" for c in calls)
+                     for f in ("GetFMUstate", "SetFMUstate", "DoStep")}
+            assert count["GetFMUstate"] == res[1].steps
+            assert count["SetFMUstate"] == count["DoStep"] - count["GetFMUstate"]
+            after = [b for a, b in zip(calls, calls[1:]) if a == "fmi2GetFMUstate"]
+            assert "fmi2SetFMUstate" not in after

@@ -624,7 +624,8 @@ FA_API int fa_run(fa_master *m, long long j_end)
 
 /* _evaluate: the outputs at k + 1 of the slaves `src` feeds (src < 0: all), in coupling order,
  * stepped from their states at k with the interface `u` as the sources' samples at k + 1; into
- * their new_val. The histories are as before, however it ends. */
+ * their new_val. A slave not stepped since its state was taken (at_start) is not restored.
+ * The histories are as before, however it ends. */
 static int evaluate(fa_master *m, long long k, const double *u, int src)
 {
     double a0 = (double)k, a1 = (double)(k + 1);
@@ -640,10 +641,14 @@ static int evaluate(fa_master *m, long long k, const double *u, int src)
         int n = m->order[i], st;
         fa_slave *s = &m->slaves[n];
         if (src >= 0 && !m->consumer[src * m->n_slaves + n]) continue;
-        st = s->set_state(s->c, s->rb_state);
-        if (st > 1) {
-            rc = fail(m, n, FA_CALL_SET_STATE, st, 0, 0.0);
-            break;
+        if (s->at_start) {                  /* not stepped since its state was taken */
+            s->at_start = 0;
+        } else {
+            st = s->set_state(s->c, s->rb_state);
+            if (st > 1) {
+                rc = fail(m, n, FA_CALL_SET_STATE, st, 0, 0.0);
+                break;
+            }
         }
         if ((rc = set_held(m, n, a0, a1)) != FA_DONE) break;
         rc = do_step(m, n, a0, a1);
@@ -839,6 +844,7 @@ static int implicit_step(fa_master *m, long long k)
             rc = fail(m, i, FA_CALL_GET_STATE, st, 0, 0.0);
             break;
         }
+        s->at_start = 1;
         got++;
     }
     for (i = 0; i < m->n_reuse; i++) reused += m->reuse_cols[i];

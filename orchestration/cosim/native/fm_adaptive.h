@@ -44,7 +44,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FA_ABI 1
+#define FA_ABI 2
 
 /* Results of fa_run(). */
 #define FA_DONE 0       /* the output points up to j_end are reached */
@@ -104,6 +104,7 @@ typedef struct fa_slave {
     int n_rec;                        /* in: real outputs only recorded */
     int feedthrough;                  /* in: outputs may depend directly on inputs */
     int mark;                         /* work */
+    int at_start;                     /* work: implicit: not stepped since its state was taken */
     const unsigned int *in_vr;        /* in: (n_in) */
     const int *in_src;                /* in: (n_in) source slave of each input */
     const int *in_idx;                /* in: (n_in) index among the source's outputs */
