@@ -62,7 +62,7 @@ class _Slave(ctypes.Structure):
     _fields_ = [("c", _P), ("set_real", _P), ("get_real", _P), ("do_step", _P), ("set_der", _P),
                 ("get_state", _P), ("set_state", _P), ("free_state", _P),
                 ("n_in", _I), ("n_der", _I), ("n_out", _I), ("n_rec", _I),
-                ("feedthrough", _I), ("mark", _I), ("at_start", _I),
+                ("feedthrough", _I), ("mark", _I), ("at_start", _I), ("unknown", _I),
                 ("in_vr", _P), ("in_src", _P), ("in_idx", _P), ("der_vr", _P),
                 ("der_order", _P), ("out_vr", _P), ("rec_vr", _P),
                 ("in_val", _P), ("der_val", _P), ("new_val", _P), ("rec_val", _P),
@@ -82,7 +82,7 @@ class _Master(ctypes.Structure):
                 ("n_rej", _LL), ("j", _LL), ("t", _D), ("step", _D), ("err_prev", _D),
                 ("work", _D), ("steps", _LL), ("rejected", _LL), ("forced", _LL),
                 ("min_used", _D), ("max_used", _D), ("rows", _LL),
-                ("counters", _I), ("newton", _I), ("weights", _P), ("total", _LL),
+                ("counters", _I), ("newton", _I), ("serial", _I), ("weights", _P), ("total", _LL),
                 ("m_out", _LL), ("k", _LL), ("max_it", _I), ("size", _I), ("itol", _D),
                 ("consumer", _P), ("u", _P), ("g", _P), ("r", _P), ("up", _P), ("col", _P),
                 ("x", _P), ("jac", _P), ("a", _P), ("have_jac", _I), ("n_reuse", _I),
@@ -344,6 +344,9 @@ class ImplicitRun(_Run):
         index = {n: i for i, n in enumerate(names)}
         m.counters, m.correct_startup = 1, 0
         m.newton = int(st.implicit_jacobian == "newton")
+        m.serial = int(iteration.serial)
+        for n, i in index.items():
+            self.slaves[i].unknown = int(n in iteration.slices)
         m.weights = self.weights.ctypes.data
         m.total, m.m_out, m.k = total, m_out, 0
         m.max_it, m.itol, m.size = st.max_iterations, st.implicit_tolerance, iteration.size

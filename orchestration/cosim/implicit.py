@@ -13,6 +13,17 @@ adaptive master's scaling of its error); the FMUs are then at ``t_k+1`` with the
 and their outputs ``G(u)`` are the new samples. ``master.max_iterations`` evaluations of ``G``
 without convergence stop the run with one line naming the time and the residual.
 
+The unknowns (``master.implicit_scheme``):
+
+* ``"parallel"``: every exchanged output; every FMU steps on the assumed values (block Jacobi).
+* ``"serial"``: only the outputs fed back to an FMU at or before their source in the coupling
+  order (``master.first`` first); the FMUs step one after the other, each later one on the
+  earlier ones' new outputs (block Gauss-Seidel; preCICE's serial-implicit coupling). The two
+  solve the same equations; the serial scheme has fewer unknowns, and with the plant first
+  its one unknown is the controller's force, a low-pass filter's output that extrapolates far
+  better than the tip rate with its bending: about 2 iterations per step where the parallel
+  scheme takes 2.3 to 3.2 (the filtered scene at 2 ms).
+
 The update (``master.implicit_jacobian``):
 
 * ``"newton"``: ``u <- u - (J - I)^-1 (G(u) - u)`` with ``J = dG/du``, the sensitivity of the
@@ -20,7 +31,8 @@ The update (``master.implicit_jacobian``):
   co-simulation FMU's directional derivatives (FMI 2.0 ``fmi2GetDirectionalDerivative`` on the
   co-simulation interface) give the outputs' partial derivatives at one instant, not the
   sensitivity of a step, so ``J`` is formed by forward differences of the FMU step through state
-  restore: one extra step of the FMUs fed by a source per exchanged output of that source. ``J``
+  restore: one extra step of the FMUs fed by a source per unknown output of that source (in
+  the serial scheme of every FMU). ``J``
   is kept from step to step and formed again only when an iteration fails to cut the residual
   tenfold (for a linear plant at a fixed step ``G`` is affine with a constant ``J``: it is
   formed once).
@@ -31,7 +43,7 @@ The update (``master.implicit_jacobian``):
   :data:`REUSED_STEPS` steps are reused (preCICE's reused time windows); without any column the
   first update is a relaxed fixed-point step ``u + INITIAL_RELAXATION r``.
 
-The first guess of a step is the sources' polynomials extrapolated to ``t_k+1``.
+The first guess of a step is the unknown sources' polynomials extrapolated to ``t_k+1``.
 
 This module is the specification: with FMUs the compiled loop takes, ``master.compiled``
 (``auto``) runs the same iteration in C (:class:`orchestration.cosim.compiled_adaptive.
@@ -66,15 +78,20 @@ class InterfaceIteration:
         s = master.settings
         self.tol, self.cap, self.method = s.implicit_tolerance, s.max_iterations, \
             s.implicit_jacobian
-        #: the slaves whose outputs are exchanged, and each one's slice of ``u``
+        self.serial = s.implicit_scheme == "serial"
+        #: the slaves whose outputs are exchanged
         self.sources = [n for n in c.order if c.outputs[n]]
-        sizes = [len(c.outputs[n]) for n in self.sources]
-        ends = np.cumsum([0] + sizes)
-        self.slices = {n: slice(int(a), int(b)) for n, a, b in zip(self.sources, ends, ends[1:])}
-        self.size = int(ends[-1])
         #: the slaves fed by each source
         self.consumers = {n: [d for d in c.order if any(x.src == n for x in c.inputs[d])]
                           for n in self.sources}
+        #: the sources whose outputs are unknowns (all, or in the serial scheme those feeding a
+        #: slave at or before them in the coupling order), each one's slice of ``u``
+        self.unknowns = [n for n in self.sources if not self.serial or any(
+            c.order.index(d) <= c.order.index(n) for d in self.consumers[n])]
+        sizes = [len(c.outputs[n]) for n in self.unknowns]
+        ends = np.cumsum([0] + sizes)
+        self.slices = {n: slice(int(a), int(b)) for n, a, b in zip(self.unknowns, ends, ends[1:])}
+        self.size = int(ends[-1])
         self.J = None
         self._V, self._W = [], []        # IQN-ILS: columns per past step (lists of arrays)
         self.iterations = self.max_iterations = self.jacobian_steps = 0
@@ -89,8 +106,10 @@ class InterfaceIteration:
         ta, h = m._time(t0), (t1 - t0) * m._unit
         for n in self.sources:
             hist[n].restore(snaps[n])
-            hist[n].push(t1, u[self.slices[n]])
+            if n in self.slices:
+                hist[n].push(t1, u[self.slices[n]])
         try:
+            out = {}
             for n in names:
                 s = m.slaves[n]
                 if n in at_start:
@@ -99,7 +118,12 @@ class InterfaceIteration:
                     s.set_state(states[n])
                 s.set_inputs(m._held_inputs(n, hist, t0, t1), ta)
                 s.do_step(ta, h)
-            return {n: m._outputs_after_step(n, hist, t1) for n in names}
+                if self.serial:             # the slaves after it step on its new outputs
+                    out[n] = m._outputs_after_step(n, hist, t1)
+                    if n in self.consumers and n not in self.slices:
+                        hist[n].push(t1, out[n][:len(m.coupling.outputs[n])])
+            return out if self.serial else {n: m._outputs_after_step(n, hist, t1)
+                                            for n in names}
         finally:
             for n in self.sources:
                 hist[n].restore(snaps[n])
@@ -112,15 +136,15 @@ class InterfaceIteration:
 
     def _stack(self, new):
         return np.concatenate([new[n][:self.slices[n].stop - self.slices[n].start]
-                               for n in self.sources]) if self.size else np.zeros(0)
+                               for n in self.unknowns]) if self.size else np.zeros(0)
 
     # ------------------------------------------------------------------ updates
     def _jacobian(self, hist, snaps, states, t0, t1, u, g, at_start):
         """``dG/du`` by forward differences of the step (only the consumers of the perturbed
-        source step again)."""
+        source step again; in the serial scheme every slave)."""
         J = np.zeros((self.size, self.size))
-        for src in self.sources:
-            names = self.consumers[src]
+        for src in self.unknowns:
+            names = self.m.coupling.order if self.serial else self.consumers[src]
             for j in range(self.slices[src].start, self.slices[src].stop):
                 d = _FD_STEP * max(1.0, abs(u[j]))
                 up = u.copy()
@@ -158,7 +182,7 @@ class InterfaceIteration:
                 states[n] = s.get_state()
             at_start = set(states)
             u = self._stack({n: m._combination(hist[n], t1, m.h / m._unit, (0,))[0]
-                             for n in self.sources})
+                             for n in self.unknowns})
             V, W = [], []
             prev = None                  # (r, g) of the previous iteration (IQN-ILS)
             err_prev, fresh = math.inf, False

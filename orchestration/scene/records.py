@@ -52,6 +52,10 @@ ALGORITHMS = ("gauss-seidel", "jacobi", "implicit")
 #: ``master.implicit_jacobian``: how the implicit master updates the interface
 #: (:mod:`orchestration.cosim.implicit`): Newton on the step's sensitivity, or IQN-ILS.
 IMPLICIT_JACOBIANS = ("newton", "iqn-ils")
+#: ``master.implicit_scheme``: which outputs the implicit master iterates on: every exchanged one,
+#: all FMUs stepping on the assumed values (parallel), or only those fed back to an FMU earlier in
+#: the coupling order, the FMUs stepping one after the other (serial, ``master.first`` first).
+IMPLICIT_SCHEMES = ("parallel", "serial")
 #: master.error_estimator: the adaptive master's local error estimate (orchestration.cosim.master)
 ESTIMATORS = ("extrapolation", "energy")
 FIRST = ("controller", "plant")
@@ -193,6 +197,9 @@ class MasterSettings:
                                   high=1000)
     implicit_jacobian: str = choice("newton", "the implicit master's update: newton or "
                                     "iqn-ils", IMPLICIT_JACOBIANS)
+    implicit_scheme: str = choice("parallel", "the implicit master's unknowns: every exchanged "
+                                  "output (parallel) or those fed back to an earlier FMU in "
+                                  "master.first's order (serial)", IMPLICIT_SCHEMES)
 
     def __post_init__(self):
         _checked(check_fields, self, "master.")

@@ -246,16 +246,24 @@ def same_counts(a, b):
         (b.steps, b.iterations, b.max_iterations, b.jacobian_steps)
 
 
+#: the implicit master's schemes: every output iterated, or those fed back (either FMU first)
+SCHEMES = {"parallel": [], "serial, plant first": ["master.implicit_scheme=serial",
+                                                   "master.first=plant"],
+           "serial, controller first": ["master.implicit_scheme=serial",
+                                        "master.first=controller"]}
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
 @pytest.mark.parametrize("update", ["newton", "iqn-ils"])
 @pytest.mark.parametrize("name", PAPER_SCENES)
-def test_the_implicit_master_agrees(pair, unzipped, name, update):
+def test_the_implicit_master_agrees(pair, unzipped, name, update, scheme):
     """The implicit master in C: the same steps, iterations and Jacobian steps, the same FMI
     calls, and rows within 1e-6 of each column's size. The weights are the Python master's own
     (the step counters' grid); the linear algebra is not (numpy's LAPACK solve and SVD least
     squares against the C loop's elimination and Jacobi SVD), and the converged interface
     carries its last bits (measured on 0.5 s runs: Newton bit for bit here, IQN-ILS within
     1.3e-8 absolute)."""
-    py, c = both(implicit(name, update), pair, unzipped)
+    py, c = both(implicit(name, update, *SCHEMES[scheme]), pair, unzipped)
     same_counts(py[1], c[1])
     assert c[1].iterations > c[1].steps                 # it did iterate
     if update == "newton":
@@ -344,13 +352,15 @@ def test_output_derivatives_keep_the_adaptive_master_in_python_and_run(pair, est
     assert diff < 1e-3, diff
 
 
+@pytest.mark.parametrize("scheme", SCHEMES)
 @pytest.mark.parametrize("update", ["newton", "iqn-ils"])
-def test_an_implicit_step_restores_an_fmu_only_after_stepping_it(pair, unzipped, update):
+def test_an_implicit_step_restores_an_fmu_only_after_stepping_it(pair, unzipped, update,
+                                                                 scheme):
     """Each step takes every FMU's state once, and restores it before each of that FMU's steps
     but the first (the FMU is still at the step's start then): per FMU, in both loops,
     restores = steps - states taken, and the step's first call after taking a state is no
     restore."""
-    for res in both(implicit("flexible_pd_lowpass", update), pair, unzipped):
+    for res in both(implicit("flexible_pd_lowpass", update, *SCHEMES[scheme]), pair, unzipped):
         assert res[1].iterations > res[1].steps
         for name in ("plant", "controller"):
             calls = [e[1] for e in res[2] if e[0] == name]
@@ -360,3 +370,18 @@ def test_an_implicit_step_restores_an_fmu_only_after_stepping_it(pair, unzipped,
             assert count["SetFMUstate"] == count["DoStep"] - count["GetFMUstate"]
             after = [b for a, b in zip(calls, calls[1:]) if a == "fmi2GetFMUstate"]
             assert "fmi2SetFMUstate" not in after
+
+
+@pytest.mark.parametrize("scheme,fed_back", [("parallel", ["controller", "plant"]),
+                                             ("serial, plant first", ["controller"]),
+                                             ("serial, controller first", ["plant"])])
+def test_the_serial_scheme_iterates_on_the_outputs_fed_back(pair, unzipped, scheme, fed_back):
+    """The unknowns: every exchanged output (parallel), or the outputs of the FMU that feeds the
+    one stepped first (serial): the controller's force when the plant steps first, the plant's
+    outputs when the controller does."""
+    scene = implicit("flexible_pd_lowpass", "newton", "stop_time=0.01", *SCHEMES[scheme])
+    for res in both(scene, pair, unzipped):
+        it = res[3].implicit
+        assert sorted(it.unknowns) == fed_back
+        assert it.size == sum(len(it.m.coupling.outputs[n]) for n in fed_back)
+        assert it.serial == (scheme != "parallel")

@@ -634,6 +634,7 @@ static int evaluate(fa_master *m, long long k, const double *u, int src)
         fa_slave *s = &m->slaves[m->order[q]];
         if (!s->n_out) continue;
         restore(s);
+        if (!s->unknown) continue;
         push(s, a1, u + off);
         off += s->n_out;
     }
@@ -652,8 +653,12 @@ static int evaluate(fa_master *m, long long k, const double *u, int src)
         }
         if ((rc = set_held(m, n, a0, a1)) != FA_DONE) break;
         rc = do_step(m, n, a0, a1);
+        if (m->serial && rc == FA_DONE) {   /* the slaves after it step on its new outputs */
+            rc = outputs_after_step(m, n, a1);
+            if (rc == FA_DONE && s->n_out && !s->unknown) push(s, a1, s->new_val);
+        }
     }
-    for (i = 0; i < m->n_slaves && rc == FA_DONE; i++) {
+    for (i = 0; i < m->n_slaves && rc == FA_DONE && !m->serial; i++) {
         int n = m->order[i];
         if (src >= 0 && !m->consumer[src * m->n_slaves + n]) continue;
         rc = outputs_after_step(m, n, a1);
@@ -663,13 +668,13 @@ static int evaluate(fa_master *m, long long k, const double *u, int src)
     return rc;
 }
 
-/* _stack: the sources' new outputs, in coupling order. */
+/* _stack: the unknown sources' new outputs, in coupling order. */
 static void stack(const fa_master *m, double *g)
 {
     int q, off = 0;
     for (q = 0; q < m->n_slaves; q++) {
         const fa_slave *s = &m->slaves[m->order[q]];
-        if (!s->n_out) continue;
+        if (!s->n_out || !s->unknown) continue;
         memcpy(g + off, s->new_val, (size_t)s->n_out * sizeof(double));
         off += s->n_out;
     }
@@ -689,26 +694,28 @@ static double residual(const fa_master *m, const double *g, const double *u)
 }
 
 /* _jacobian: dG/du by forward differences of the step (only the consumers of the perturbed
- * source step again), into m->jac (column-major: jac[j * size + i] = dG_i/du_j). */
+ * source step again; in the serial scheme every slave), into m->jac (column-major:
+ * jac[j * size + i] = dG_i/du_j). */
 static int jacobian(fa_master *m, long long k)
 {
     int q, j, i, off = 0, rc;
     for (q = 0; q < m->n_slaves; q++) {
         int src = m->order[q], n_cons = 0, p, pos;
         const fa_slave *s = &m->slaves[src];
-        if (!s->n_out) continue;
-        for (p = 0; p < m->n_slaves; p++) n_cons += m->consumer[src * m->n_slaves + p];
+        if (!s->n_out || !s->unknown) continue;
+        for (p = 0; p < m->n_slaves; p++)
+            n_cons += m->serial || m->consumer[src * m->n_slaves + p];
         for (j = off; j < off + s->n_out; j++) {
             double d = 1e-6 * py_max(1.0, fabs(m->u[j]));
             memcpy(m->up, m->u, (size_t)m->size * sizeof(double));
             m->up[j] += d;
-            if ((rc = evaluate(m, k, m->up, src)) != FA_DONE) return rc;
+            if ((rc = evaluate(m, k, m->up, m->serial ? -1 : src)) != FA_DONE) return rc;
             m->jacobian_steps += n_cons;
             memcpy(m->col, m->g, (size_t)m->size * sizeof(double));
             for (p = 0, pos = 0; p < m->n_slaves; p++) {
                 const fa_slave *c = &m->slaves[m->order[p]];
-                if (!c->n_out) continue;
-                if (m->consumer[src * m->n_slaves + m->order[p]])
+                if (!c->n_out || !c->unknown) continue;
+                if (m->serial || m->consumer[src * m->n_slaves + m->order[p]])
                     memcpy(m->col + pos, c->new_val, (size_t)c->n_out * sizeof(double));
                 pos += c->n_out;
             }
@@ -848,10 +855,11 @@ static int implicit_step(fa_master *m, long long k)
         got++;
     }
     for (i = 0; i < m->n_reuse; i++) reused += m->reuse_cols[i];
-    /* the first guess: the sources' polynomials at k + 1 */
+    /* the first guess: the unknown sources' polynomials at k + 1 */
     for (i = 0, off = 0; i < m->n_slaves && rc == FA_DONE; i++) {
         const fa_slave *s = &m->slaves[m->order[i]];
         int o;
+        if (!s->unknown) continue;
         for (o = 0; o < s->n_out; o++) m->u[off + o] = predicted(m, s, (double)(k + 1), o);
         off += s->n_out;
     }

@@ -44,7 +44,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FA_ABI 2
+#define FA_ABI 3
 
 /* Results of fa_run(). */
 #define FA_DONE 0       /* the output points up to j_end are reached */
@@ -105,6 +105,7 @@ typedef struct fa_slave {
     int feedthrough;                  /* in: outputs may depend directly on inputs */
     int mark;                         /* work */
     int at_start;                     /* work: implicit: not stepped since its state was taken */
+    int unknown;                      /* in: implicit: its outputs are unknowns of the interface */
     const unsigned int *in_vr;        /* in: (n_in) */
     const int *in_src;                /* in: (n_in) source slave of each input */
     const int *in_idx;                /* in: (n_in) index among the source's outputs */
@@ -168,6 +169,7 @@ typedef struct fa_master {
     /* the step counters' grid (fixed step; the implicit loop) */
     int counters;                     /* in: 1: samples stamped k, at t0 + k h (0: seconds) */
     int newton;                       /* in: implicit: 1 Newton, 0 IQN-ILS */
+    int serial;                       /* in: implicit: 1 the serial scheme, 0 the parallel */
     const double *weights;            /* in: coupling.weight_table() [3][3][4][3] */
     long long total;                  /* in: implicit: steps of the run */
     long long m_out;                  /* in: implicit: steps per output interval */
