@@ -85,7 +85,7 @@ class _Master(ctypes.Structure):
                 ("counters", _I), ("newton", _I), ("serial", _I), ("weights", _P), ("total", _LL),
                 ("m_out", _LL), ("k", _LL), ("max_it", _I), ("size", _I), ("itol", _D),
                 ("consumer", _P), ("u", _P), ("g", _P), ("r", _P), ("up", _P), ("col", _P),
-                ("x", _P), ("jac", _P), ("a", _P), ("have_jac", _I), ("n_reuse", _I),
+                ("x", _P), ("lu", _P), ("lg", _P), ("jac", _P), ("a", _P), ("have_jac", _I), ("n_reuse", _I),
                 ("reuse_cols", _I * REUSED_STEPS), ("max_cols", _I), ("cv", _P), ("cw", _P),
                 ("svd_m", _P), ("svd_v", _P), ("alpha", _P), ("iterations", _LL),
                 ("max_iterations", _I), ("fail_kind", _I), ("jacobian_steps", _LL),
@@ -357,6 +357,7 @@ class ImplicitRun(_Run):
         n, cols = max(1, iteration.size), (REUSED_STEPS + 1) * st.max_iterations
         self._arrays = arrays = {"consumer": consumer}
         for field, size in (("u", n), ("g", n), ("r", n), ("up", n), ("col", n), ("x", n),
+                            ("lu", n), ("lg", n),
                             ("jac", n * n), ("a", n * n), ("cv", cols * n), ("cw", cols * n),
                             ("svd_m", cols * n), ("svd_v", n * n), ("alpha", cols)):
             arrays[field] = np.zeros(size)

@@ -132,6 +132,26 @@ def test_the_serial_scheme_converges_to_the_same_solution(runs, jacobian):
             runs[jacobian].summary["iterations_per_step_mean"]
 
 
+def test_broydens_update_meets_the_secant_and_changes_nothing_across_it():
+    """Broyden's update of Newton's Jacobian: afterwards ``J du = dg``, and ``J v`` is unchanged
+    for every ``v`` orthogonal to ``du`` (the least change that meets the secant); a zero
+    ``du`` changes nothing."""
+    from orchestration.cosim.implicit import _broyden
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 4):
+        J0 = rng.normal(size=(n, n))
+        du, dg = rng.normal(size=n), rng.normal(size=n)
+        J = J0.copy()
+        _broyden(J, du, dg)
+        np.testing.assert_allclose(J @ du, dg, rtol=1e-12, atol=1e-12)
+        v = rng.normal(size=n)
+        v -= (v @ du) / (du @ du) * du
+        np.testing.assert_allclose(J @ v, J0 @ v, rtol=1e-12, atol=1e-12)
+        J = J0.copy()
+        _broyden(J, np.zeros(n), dg)
+        assert np.array_equal(J, J0)
+
+
 def test_a_step_that_does_not_converge_stops_the_run_with_one_line():
     r = simulate(SCENE, {**IMPLICIT, "master.max_iterations": 2, "stop_time": 0.1})
     stopped = r.summary["stopped"]

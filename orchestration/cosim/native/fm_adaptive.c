@@ -726,6 +726,22 @@ static int jacobian(fa_master *m, long long k)
     return FA_DONE;
 }
 
+/* implicit.py _broyden: jac += (g - g_last - jac du) du^T / (du . du), du = u - u_last, in
+ * place, element by element in the Python loop's order. */
+static void broyden(fa_master *m)
+{
+    int n = m->size, i, j;
+    double dd = 0.0;
+    for (j = 0; j < n; j++) dd = dd + (m->u[j] - m->lu[j]) * (m->u[j] - m->lu[j]);
+    if (!(dd > 0.0)) return;
+    for (i = 0; i < n; i++) {
+        double acc = 0.0, c;
+        for (j = 0; j < n; j++) acc = acc + m->jac[j * n + i] * (m->u[j] - m->lu[j]);
+        c = ((m->g[i] - m->lg[i]) - acc) / dd;
+        for (j = 0; j < n; j++) m->jac[j * n + i] = m->jac[j * n + i] + c * (m->u[j] - m->lu[j]);
+    }
+}
+
 /* Newton's update: x = (J - I)^-1 r by Gaussian elimination with partial pivoting; 0 if
  * singular. */
 static int newton_solve(fa_master *m)
@@ -839,6 +855,7 @@ static void iqn(fa_master *m, int ncols)
 static int implicit_step(fa_master *m, long long k)
 {
     int i, it, rc = FA_DONE, got = 0, fresh = 0, reused = 0, nv = 0, has_prev = 0, off;
+    int has_last = 0;                        /* Newton: lu, lg hold the previous iteration's */
     double err = 0.0, err_prev = INFINITY;
     int n = m->size;
     for (i = 0; i < m->n_slaves; i++) snapshot(&m->slaves[i]);
@@ -896,6 +913,10 @@ static int implicit_step(fa_master *m, long long k)
             break;
         }
         if (m->newton) {
+            if (has_last && m->have_jac) broyden(m);
+            memcpy(m->lu, m->u, (size_t)n * sizeof(double));
+            memcpy(m->lg, m->g, (size_t)n * sizeof(double));
+            has_last = 1;
             if (!m->have_jac || (err > 0.1 * err_prev && !fresh)) {
                 if ((rc = jacobian(m, k)) != FA_DONE) break;
                 m->have_jac = 1;
@@ -939,7 +960,8 @@ FA_API int fa_run_implicit(fa_master *m, long long k_end)
 {
     int i, rc;
     if (!check(m) || !m->counters || !m->weights || m->m_out < 1 || m->k < 0 ||
-        m->size < 0 || m->max_it < 1 || (m->size && (!m->u || !m->jac || !m->cv)))
+        m->size < 0 || m->max_it < 1 ||
+        (m->size && (!m->u || !m->jac || !m->cv || !m->lu || !m->lg)))
         return FA_BADARG;
     if (k_end > m->total) k_end = m->total;
     while (m->k < k_end) {

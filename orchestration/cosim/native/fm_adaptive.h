@@ -44,7 +44,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FA_ABI 3
+#define FA_ABI 4
 
 /* Results of fa_run(). */
 #define FA_DONE 0       /* the output points up to j_end are reached */
@@ -179,6 +179,7 @@ typedef struct fa_master {
     double itol;                      /* in: master.implicit_tolerance */
     const int *consumer;              /* in: (n_slaves n_slaves) [src][dst] 1 if dst reads src */
     double *u, *g, *r, *up, *col, *x; /* work: (size) each */
+    double *lu, *lg;                  /* work: (size) each: Newton's previous u and g */
     double *jac;                      /* in/out: (size size) Newton's dG/du, kept across steps */
     double *a;                        /* work: (size size) */
     int have_jac;                     /* in/out: jac holds a Jacobian */
