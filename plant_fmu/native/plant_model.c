@@ -1175,7 +1175,63 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
         for (i = 0; i < 4 * m->xb_p.nq; i++) fpm_put_f64(w, m->xb.s[i]);
 }
 
-int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
+/* The restore of a co-simulation state into the instance whose live model `live` is initialised
+ * from the same parameters (every parameter of the table bitwise equal, strings equal, the same
+ * t0): prepare() would pass the same checks and compute the same derived quantities bit for
+ * bit, so they are copied instead (an implicit master restores a state several times a step,
+ * and prepare is most of a restore's cost). 1 if they were: m is then as prepare() leaves it,
+ * except the stepper, y_acc, the outputs and what a refusal leaves (failed, error, stepped),
+ * which fpm_model_load's co-simulation path overwrites whole. Not for the exact rung (its
+ * integrator's data change with its steps) nor Model Exchange (whose load leaves prepare's
+ * outputs of the initial state in out). */
+static int prepared_like(fpm_model *m, const fpm_model *live, const fpm_reader *r)
+{
+    int i;
+    if (live == NULL || !live->initialized || !live->ready || live->exact ||
+        r->interface != FPM_COSIMULATION || memcmp(&m->t0, &live->t0, sizeof m->t0) != 0)
+        return 0;
+    for (i = 0; i < FPM_MAX_VARS; i++) {
+        const fpm_var *var = &fpm_vars[i];
+        if (var->name == NULL || var->causality != FPM_PARAMETER) continue;
+        if (var->type == FPM_STRING ? strcmp(m->v.string[i], live->v.string[i]) != 0
+            : memcmp(&m->v.real[i], &live->v.real[i], sizeof m->v.real[i]) != 0)
+            return 0;
+    }
+    /* what prepare() writes (m is fresh from fpm_model_reset, as live was when it was
+     * prepared: the parts of the arrays beyond n are 0 in both) */
+    m->xb_kv = live->xb_kv;
+    m->exact = 0;
+    m->method = live->method;
+    m->n = live->n;
+    m->nq = live->nq;
+    m->nx = live->nx;
+    memcpy(m->K, live->K, sizeof m->K);
+    memcpy(m->D, live->D, sizeof m->D);
+    memcpy(m->I3, live->I3, sizeof m->I3);
+    memcpy(m->I5, live->I5, sizeof m->I5);
+    memcpy(m->tip_defl, live->tip_defl, sizeof m->tip_defl);
+    memcpy(m->tip_slope, live->tip_slope, sizeof m->tip_slope);
+    memcpy(m->Kg, live->Kg, sizeof m->Kg);
+    m->p = live->p;
+    if (m->p.stiffened)                         /* the rows sf_points wrote */
+        memcpy(m->pts, live->pts, sizeof(double) * (size_t)m->p.npts *
+               (size_t)(2 + m->n + m->n * m->n));
+    relink(m);
+    m->h = live->h;
+    m->rtol = live->rtol;
+    m->atol = live->atol;
+    m->phi_limit = live->phi_limit;
+    m->energy_limit = live->energy_limit;
+    if (m->method == M_EXPONENTIAL) {
+        memcpy(m->A, live->A, sizeof m->A);
+        memcpy(m->B, live->B, sizeof m->B);
+        m->ex[0].h = m->ex[1].h = -1.0;         /* empty (fpm_model_keep carries them over) */
+    }
+    m->ready = 1;
+    return 1;
+}
+
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized, const fpm_model *live)
 {
     fpm_logger lg;
     stepper s;
@@ -1193,7 +1249,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     if (!init) return 1;                        /* prepared again when an output is read */
     /* the parameters with the checks of initialisation, and everything derived from them:
      * sizes, method, modal data, the plant, the linear model */
-    if (!prepare(m, &lg)) return 0;
+    if (!prepared_like(m, live, r) && !prepare(m, &lg)) return 0;
     m->initialized = 1;
     s = m->s;
     fpm_get_int_in(r, "failed", 0, 1, &m->failed);
