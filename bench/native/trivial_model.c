@@ -76,9 +76,10 @@ void fpm_model_keep(fpm_model *m, const fpm_model *from)
     (void)from;
 }
 
-int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized, const fpm_model *live)
 {
     (void)initialized;
+    (void)live;                               /* nothing derived to take */
     fpm_get_finite(r, "t", &m->t);
     fpm_get_finite(r, "y", &m->y);
     return r->why[0] == '\0';

@@ -253,11 +253,13 @@ static int sampled_state_holds(const fpm_model *m, fpm_reader *r, double t, doub
 #endif
 }
 
-int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized, const fpm_model *live)
 {
     fpm_logger lg;
     double t0, t, xc[2], F, step_y[9], step_h, tick, pend_F;
     int k, init, stepped, pending;
+    (void)live;                    /* prepare() is cheap here: rebuilt (fpm_model_keep keeps the
+                                      filter's discretisations) */
     lg = fpm_reader_logger(r);
     fpm_get_finite(r, "t0", &t0);
     fpm_get_finite(r, "t", &t);

@@ -244,8 +244,11 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w);
  * the core read. Validate every item (finiteness, the parameters' ranges with the checks of
  * initialisation, sizes against the model) and rebuild every derived field with the code
  * initialisation uses. initialized: 1 the mode needs an initialised model, 0 it needs one that
- * is not, -1 either. 1, or 0 with r->why set. */
-int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized);
+ * is not, -1 either. live: NULL, or the instance's live model (read only): a model may take
+ * from it the derived fields it would rebuild bit for bit the same (when everything they derive
+ * from is bitwise equal in both and live is initialised), instead of rebuilding them; every
+ * item read from r is validated all the same. 1, or 0 with r->why set. */
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized, const fpm_model *live);
 /* After a restore loaded m (fpm_model_load succeeded) and before m replaces the live model
  * `from`: carry over from `from` the derived data that m would compute bit for bit the same
  * (a cache, when what it derives from is bitwise equal in both), so that a master that restores
@@ -380,6 +383,8 @@ struct fpm_instance {
     int discarded;             /* the model refused the last doStep (the master should stop) */
     fpm_model *m;              /* the model */
     fpm_model *spare;          /* where a state is restored before it replaces the model */
+    unsigned long long identity; /* the model's identity in a state's header (name, token and
+                                    format hashed: a constant, computed at instantiation) */
     size_t state_cap;          /* bytes of a serialised state, at most */
     unsigned char *scratch;    /* state_cap bytes: a state is serialised here, then copied into
                                   a state of its own size */

@@ -38,6 +38,8 @@ typedef struct state {
     unsigned char data[1];         /* n bytes (allocated with cap); the last 8: see below */
 } state;
 
+static unsigned long long identity(void);
+
 static void core_emit(void *env, int status, const char *category, const char *message)
 {
     fpm_instance *c = (fpm_instance *)env;
@@ -126,6 +128,7 @@ fpm_instance *fpm_instantiate(const char *fn, const char *name, const char *toke
     tmp.lg.env = &tmp;
     tmp.log_mask = FPM_LOG_STATUS | (logging_on ? 1 : 0);
     tmp.time_vr = -1;
+    tmp.identity = identity();
     strncpy(tmp.name, name ? name : "?", sizeof tmp.name - 1);
     if (interface != FPM_COSIMULATION && interface != FPM_MODEL_EXCHANGE) {
         fpm_log(&tmp.lg, FPM_ERROR, "%s: unknown FMU type %d (co-simulation or model exchange)",
@@ -489,6 +492,8 @@ int fpm_do_step(fpm_instance *c, const char *fn, int mask, double t, double h)
 }
 
 /* ------------------------------------------------------------------ FMU states */
+/* The model's identity in every state's header: a constant of the build, hashed once per
+ * instance (fpm_instance.identity) rather than at every get and set. */
 static unsigned long long identity(void)
 {
     unsigned long long h = 14695981039346656037ULL;
@@ -572,7 +577,7 @@ static size_t serialize(const fpm_instance *c, unsigned char *out, size_t cap)
     out[4] = (unsigned char)FORMAT;
     out[5] = out[6] = out[7] = 0;
     put_u64_at(out + 8, (unsigned long long)payload);
-    put_u64_at(out + 16, identity());
+    put_u64_at(out + 16, c->identity);
     put_u64_at(out + w.n, 0);
     return w.n + 8u;
 }
@@ -603,7 +608,7 @@ static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned ch
                 "%lu bytes", fn, (unsigned long)n, (unsigned long)(get_u64_at(in + 8) + HEADER + 8u));
         return FPM_ERROR;
     }
-    if (get_u64_at(in + 16) != identity()) {
+    if (get_u64_at(in + 16) != c->identity) {
         fpm_log(&c->lg, FPM_ERROR, "%s: the serialised FMU state belongs to another model or "
                 "build (this is %s, token %s)", fn, fpm_model_name, fpm_token);
         return FPM_ERROR;
@@ -652,7 +657,7 @@ static int restore_into_spare(fpm_instance *c, const char *fn, const unsigned ch
     }
     need = (*mode & (FPM_STEP | FPM_EVENT | FPM_CONTINUOUS)) ? 1
            : (*mode & (FPM_INSTANTIATED | FPM_INIT | FPM_ERROR_MODE)) ? 0 : -1;
-    if (r.why[0] == '\0') fpm_model_load(c->spare, &r, need);
+    if (r.why[0] == '\0') fpm_model_load(c->spare, &r, need, c->m);
     if (r.why[0] == '\0' && r.pos != r.n)
         fpm_reject(&r, "%lu bytes are left over", (unsigned long)(r.n - r.pos));
     if (r.why[0] != '\0') {

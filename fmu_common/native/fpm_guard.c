@@ -140,7 +140,9 @@ unsigned long long fpm_hash(const void *data, size_t n, unsigned long long h)
 
 /* ------------------------------------------------------------------ writer and reader */
 /* Items are little-endian: a double as its 64 bits, an int as 32 bits, a string as a 32-bit
- * length and its bytes (no terminating 0). */
+ * length and its bytes (no terminating 0). The bytes of an item are spelled out one by one,
+ * not in a loop: the compiler merges them into one load or store (a restore reads every item of
+ * a state, and an implicit master restores several times a step). */
 static void put_bytes(fpm_writer *w, const unsigned char *b, size_t k)
 {
     if (w->p != NULL && w->n + k <= w->cap) memcpy(w->p + w->n, b, k);
@@ -150,16 +152,24 @@ static void put_bytes(fpm_writer *w, const unsigned char *b, size_t k)
 static void put_u64(fpm_writer *w, unsigned long long v)
 {
     unsigned char b[8];
-    int i;
-    for (i = 0; i < 8; i++) b[i] = (unsigned char)(v >> (8 * i));
+    b[0] = (unsigned char)v;
+    b[1] = (unsigned char)(v >> 8);
+    b[2] = (unsigned char)(v >> 16);
+    b[3] = (unsigned char)(v >> 24);
+    b[4] = (unsigned char)(v >> 32);
+    b[5] = (unsigned char)(v >> 40);
+    b[6] = (unsigned char)(v >> 48);
+    b[7] = (unsigned char)(v >> 56);
     put_bytes(w, b, 8);
 }
 
 static void put_u32(fpm_writer *w, unsigned v)
 {
     unsigned char b[4];
-    int i;
-    for (i = 0; i < 4; i++) b[i] = (unsigned char)(v >> (8 * i));
+    b[0] = (unsigned char)v;
+    b[1] = (unsigned char)(v >> 8);
+    b[2] = (unsigned char)(v >> 16);
+    b[3] = (unsigned char)(v >> 24);
     put_bytes(w, b, 4);
 }
 
@@ -215,11 +225,13 @@ static int take(fpm_reader *r, const char *what, size_t k, const unsigned char *
 int fpm_get_f64(fpm_reader *r, const char *what, double *x)
 {
     const unsigned char *b = NULL;
-    unsigned long long u = 0;
-    int i;
+    unsigned long long u;
     *x = 0.0;
     if (!take(r, what, 8, &b)) return 0;
-    for (i = 0; i < 8; i++) u |= (unsigned long long)b[i] << (8 * i);
+    u = (unsigned long long)b[0] | (unsigned long long)b[1] << 8 |
+        (unsigned long long)b[2] << 16 | (unsigned long long)b[3] << 24 |
+        (unsigned long long)b[4] << 32 | (unsigned long long)b[5] << 40 |
+        (unsigned long long)b[6] << 48 | (unsigned long long)b[7] << 56;
     memcpy(x, &u, sizeof u);
     return 1;
 }
@@ -227,11 +239,10 @@ int fpm_get_f64(fpm_reader *r, const char *what, double *x)
 int fpm_get_i32(fpm_reader *r, const char *what, int *x)
 {
     const unsigned char *b = NULL;
-    unsigned u = 0;
-    int i;
+    unsigned u;
     *x = 0;
     if (!take(r, what, 4, &b)) return 0;
-    for (i = 0; i < 4; i++) u |= (unsigned)b[i] << (8 * i);
+    u = (unsigned)b[0] | (unsigned)b[1] << 8 | (unsigned)b[2] << 16 | (unsigned)b[3] << 24;
     /* two's complement without implementation-defined conversions */
     *x = u <= 0x7fffffffu ? (int)u : -(int)(0xffffffffu - u) - 1;
     return 1;

@@ -104,6 +104,21 @@ typedef struct scratch {
     double aug[AUG * AUG], E[AUG * AUG];
 } scratch;
 
+/* Derived arrays left out of fpm_model_reset (clearing them was most of a restore's memset):
+ * prepare() (and prepared_like, which copies what prepare would write) writes the part of each
+ * that is ever read before any read, and nothing reads the rest:
+ *   pts   the stiffened rung's mass points: sf_points writes the p.npts rows fp_plant reads,
+ *         which reads them only when p.stiffened (set with them);
+ *   A, B  the exponential method's linear plant: prepare writes A[0 .. nx^2) and B[0 .. nx),
+ *         read only by that method (discretisation, fpm_model_keep, prepared_like), nx x nx;
+ *   ex    its cached discretisations: prepare sets both h to -1 (empty; a step h > 0 never
+ *         matches it) before the method's first step, and only that method reads them. */
+typedef struct derived {
+    double pts[SF_PTS_MAX];
+    double A[NXMAX * NXMAX], B[NXMAX];
+    expo ex[2];
+} derived;
+
 /* What a step changes (copied before it, restored when it fails). */
 typedef struct stepper {
     double t, t_base;
@@ -128,16 +143,13 @@ struct fpm_model {
     /* the plant */
     fp_plant p;
     double I3[NMAX], I5[NMAX], K[NMAX], D[NMAX], Kg[NMAX * NMAX], tip_slope[NMAX], tip_defl[NMAX];
-    double pts[SF_PTS_MAX];     /* the stiffened rung's mass points (sf_points) */
     int n, nq, nx, method;
     double h, rtol, atol, phi_limit, energy_limit;
     stepper s;
     double y_acc[NXMAX];        /* the last accepted state (the outputs) */
     double out[FP_OUT_ETA + NMAX];
     int out_fresh, energy_fresh;
-    /* the exponential method */
-    double A[NXMAX * NXMAX], B[NXMAX];
-    expo ex[2];
+    /* the exponential method (its linear model and discretisations: in dv) */
     int ex_next;
     /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
     int exact;
@@ -146,6 +158,7 @@ struct fpm_model {
     double xb_n1;               /* N_1(L): the first cantilever mode's tip deflection (eta_1) */
     double xb_work;             /* the element-iterations this doStep has spent (xb_step) */
     scratch scr;                /* the kernels' work arrays (not reset by fpm_model_reset) */
+    derived dv;                 /* written by prepare() before any read (not reset either) */
     xb_arrays xb;               /* its state and scratch (not reset by fpm_model_reset) */
 };
 
@@ -163,7 +176,8 @@ double fpm_model_time(const fpm_model *m) { return m->ready ? m->s.t : m->t0; }
 void fpm_model_reset(fpm_model *m, double start_time)
 {
     const size_t at = offsetof(fpm_model, scr), end = offsetof(fpm_model, xb) + sizeof(xb_arrays);
-    memset(m, 0, at);                     /* all but the work arrays and the exact rung's arrays */
+    memset(m, 0, at);                     /* all but the work arrays, the derived arrays (dv) and
+                                             the exact rung's arrays */
     memset((char *)m + end, 0, sizeof *m - end);
     fpm_start_values(&m->v);
     m->t0 = start_time;
@@ -178,7 +192,7 @@ static void relink(fpm_model *m)
     m->p.Kg = m->Kg;
     m->p.tip_slope = m->tip_slope;
     m->p.tip_defl = m->tip_defl;
-    m->p.pts = m->pts;
+    m->p.pts = m->dv.pts;
 }
 
 /* ------------------------------------------------------------------ parameter checks */
@@ -452,7 +466,7 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
     m->p.preload = (r[VR_gravity_preload] != 0.0 || stiffened) && n > 0;
     if (stiffened) {                            /* always with the self-weight (dynamics.py) */
         m->p.stiffened = 1;
-        m->p.npts = sf_points(m->pts, ne, n, L, rhoA, w);
+        m->p.npts = sf_points(m->dv.pts, ne, n, L, rhoA, w);
     }
     m->p.I0 = r[VR_m] + rhoA * L;
     m->p.I1 = rhoA * (L * L) / 2;
@@ -486,10 +500,10 @@ static int prepare(fpm_model *m, const fpm_logger *lg)
             x[j] = 1.0;
             fp_rhs(&m->p, x, 0.0, dx);
             x[j] = 0.0;
-            for (i = 0; i < nx; i++) m->A[i * nx + j] = dx[i];
+            for (i = 0; i < nx; i++) m->dv.A[i * nx + j] = dx[i];
         }
-        fp_rhs(&m->p, x, 1.0, m->B);
-        m->ex[0].h = m->ex[1].h = -1.0;
+        fp_rhs(&m->p, x, 1.0, m->dv.B);
+        m->dv.ex[0].h = m->dv.ex[1].h = -1.0;
     }
     if (m->exact && !xb_prepare(m, lg)) return 0;
     memcpy(m->y_acc, m->s.y, sizeof m->y_acc);
@@ -513,9 +527,9 @@ void fpm_model_keep(fpm_model *m, const fpm_model *from)
 {
     const size_t nx = (size_t)m->nx;
     if (m->ready && from->ready && m->method == M_EXPONENTIAL && from->method == M_EXPONENTIAL &&
-        from->nx == m->nx && memcmp(m->A, from->A, nx * nx * sizeof m->A[0]) == 0 &&
-        memcmp(m->B, from->B, nx * sizeof m->B[0]) == 0) {
-        memcpy(m->ex, from->ex, sizeof m->ex);
+        from->nx == m->nx && memcmp(m->dv.A, from->dv.A, nx * nx * sizeof m->dv.A[0]) == 0 &&
+        memcmp(m->dv.B, from->dv.B, nx * sizeof m->dv.B[0]) == 0) {
+        memcpy(m->dv.ex, from->dv.ex, sizeof m->dv.ex);
         m->ex_next = from->ex_next;
     }
 }
@@ -533,13 +547,13 @@ static expo *discretisation(fpm_model *m, double h)
 {
     int nx = m->nx, na = nx + 1, i, j;
     expo *e;
-    if (m->ex[0].h == h) return &m->ex[0];
-    if (m->ex[1].h == h) return &m->ex[1];
-    e = &m->ex[m->ex_next];
+    if (m->dv.ex[0].h == h) return &m->dv.ex[0];
+    if (m->dv.ex[1].h == h) return &m->dv.ex[1];
+    e = &m->dv.ex[m->ex_next];
     memset(m->scr.aug, 0, sizeof m->scr.aug);
     for (i = 0; i < nx; i++) {
-        for (j = 0; j < nx; j++) m->scr.aug[i * na + j] = m->A[i * nx + j] * h;
-        m->scr.aug[i * na + nx] = m->B[i] * h;
+        for (j = 0; j < nx; j++) m->scr.aug[i * na + j] = m->dv.A[i * nx + j] * h;
+        m->scr.aug[i * na + nx] = m->dv.B[i] * h;
     }
     if (fpf_expm(na, m->scr.aug, m->scr.E, m->scr.ework) != FPF_OK) return NULL;
     for (i = 0; i < nx; i++) {
@@ -1175,7 +1189,65 @@ void fpm_model_save(const fpm_model *m, fpm_writer *w)
         for (i = 0; i < 4 * m->xb_p.nq; i++) fpm_put_f64(w, m->xb.s[i]);
 }
 
-int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
+/* The restore of a co-simulation state into the instance whose live model `live` is initialised
+ * from the same parameters (every parameter of the table bitwise equal, strings equal, the same
+ * t0): prepare() would pass the same checks and compute the same derived quantities bit for
+ * bit, so they are copied instead (an implicit master restores a state several times a step,
+ * and prepare is most of a restore's cost). 1 if they were: m is then as prepare() leaves it,
+ * except the stepper, y_acc, the outputs and what a refusal leaves (failed, error, stepped),
+ * which fpm_model_load's co-simulation path overwrites whole. Not for the exact rung (its
+ * integrator's data change with its steps) nor Model Exchange (whose load leaves prepare's
+ * outputs of the initial state in out). */
+static int prepared_like(fpm_model *m, const fpm_model *live, const fpm_reader *r)
+{
+    int i;
+    if (live == NULL || !live->initialized || !live->ready || live->exact ||
+        r->interface != FPM_COSIMULATION || memcmp(&m->t0, &live->t0, sizeof m->t0) != 0)
+        return 0;
+    for (i = 0; i < FPM_MAX_VARS; i++) {
+        const fpm_var *var = &fpm_vars[i];
+        if (var->name == NULL || var->causality != FPM_PARAMETER) continue;
+        if (var->type == FPM_STRING ? strcmp(m->v.string[i], live->v.string[i]) != 0
+            : memcmp(&m->v.real[i], &live->v.real[i], sizeof m->v.real[i]) != 0)
+            return 0;
+    }
+    /* what prepare() writes (m is fresh from fpm_model_reset, as live was when it was
+     * prepared: the parts of the modal arrays beyond n are 0 in both; of dv, the parts that
+     * prepare writes, which are all that is read) */
+    m->xb_kv = live->xb_kv;
+    m->exact = 0;
+    m->method = live->method;
+    m->n = live->n;
+    m->nq = live->nq;
+    m->nx = live->nx;
+    memcpy(m->K, live->K, sizeof m->K);
+    memcpy(m->D, live->D, sizeof m->D);
+    memcpy(m->I3, live->I3, sizeof m->I3);
+    memcpy(m->I5, live->I5, sizeof m->I5);
+    memcpy(m->tip_defl, live->tip_defl, sizeof m->tip_defl);
+    memcpy(m->tip_slope, live->tip_slope, sizeof m->tip_slope);
+    memcpy(m->Kg, live->Kg, sizeof m->Kg);
+    m->p = live->p;
+    if (m->p.stiffened)                         /* the rows sf_points wrote */
+        memcpy(m->dv.pts, live->dv.pts, sizeof(double) * (size_t)m->p.npts *
+               (size_t)(2 + m->n + m->n * m->n));
+    relink(m);
+    m->h = live->h;
+    m->rtol = live->rtol;
+    m->atol = live->atol;
+    m->phi_limit = live->phi_limit;
+    m->energy_limit = live->energy_limit;
+    if (m->method == M_EXPONENTIAL) {
+        const size_t nx = (size_t)m->nx;          /* what prepare writes of A and B */
+        memcpy(m->dv.A, live->dv.A, nx * nx * sizeof m->dv.A[0]);
+        memcpy(m->dv.B, live->dv.B, nx * sizeof m->dv.B[0]);
+        m->dv.ex[0].h = m->dv.ex[1].h = -1.0;   /* empty (fpm_model_keep carries them over) */
+    }
+    m->ready = 1;
+    return 1;
+}
+
+int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized, const fpm_model *live)
 {
     fpm_logger lg;
     stepper s;
@@ -1193,7 +1265,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized)
     if (!init) return 1;                        /* prepared again when an output is read */
     /* the parameters with the checks of initialisation, and everything derived from them:
      * sizes, method, modal data, the plant, the linear model */
-    if (!prepare(m, &lg)) return 0;
+    if (!prepared_like(m, live, r) && !prepare(m, &lg)) return 0;
     m->initialized = 1;
     s = m->s;
     fpm_get_int_in(r, "failed", 0, 1, &m->failed);

@@ -255,6 +255,79 @@ def test_a_restore_keeps_the_cached_discretisations_only_for_equal_parameters(
     a.fmu.freeFMUstate(state)
 
 
+@pytest.mark.parametrize("start, other, differs", [
+    ({"integrator": "rk4"}, {"EI": 3.0}, True),
+    ({"integrator": "dopri5", "phi0": 0.3}, {"integrator": "dopri5", "phi0": 0.2}, True),
+    ({"integrator": "symplectic_euler", "n_modes": 2},
+     {"integrator": "symplectic_euler", "n_modes": 3}, True),
+    ({"fidelity": "linear", "integrator": "exponential"},
+     {"fidelity": "linear", "integrator": "exponential", "step": 5e-4}, True),
+    ({"damping": "kelvin-voigt", "zeta": 0.02}, {"zeta": 0.02}, True),
+    ({"phi0": 0.5}, {"phi0": 0.3, "phi_limit": 0.45}, True),
+    ({"energy_limit": 1e6}, {"energy_limit": 2e6}, False),
+])
+def test_a_restore_takes_the_derived_quantities_over_only_from_equal_parameters(
+        open_native, start, other, differs):
+    """A co-simulation restore takes the live model's derived quantities (modal data, plant,
+    linear model, limits) instead of rebuilding them only when the live model is initialised
+    from bitwise equal parameters. A state restored into an instance running other parameters
+    (rebuilt) continues bit for bit as in the instance that took it and as in a fresh one;
+    restored there again (equal parameters now: taken over), the same; and that instance's own
+    state, restored after it, continues its own run (rebuilt again). A phi_limit taken over
+    from the live model would refuse the state of phi0 = 0.5."""
+    name = "FlexiblePendulum"
+
+    def run(inst, k0, n):
+        return _driven(inst, name, k0, n)
+
+    a = open_native(name, **start)
+    run(a, 0, 20)
+    state = a.fmu.getFMUstate()
+    data = a.fmu.serializeFMUstate(state)
+    first = run(a, 20, 20)
+    for _ in range(2):                                     # the instance that took it
+        a.fmu.setFMUstate(state)
+        assert run(a, 20, 20) == first
+    b = open_native(name, **other)
+    run(b, 0, 20)
+    own_state = b.fmu.getFMUstate()
+    own = run(b, 20, 20)
+    assert (own != first) == differs
+    for _ in range(2):                                     # rebuilt, then taken over
+        b.fmu.setFMUstate(b.fmu.deSerializeFMUstate(data))
+        assert run(b, 20, 20) == first
+    b.fmu.setFMUstate(own_state)
+    assert run(b, 20, 20) == own
+    fresh = open_native(name)
+    fresh.fmu.setFMUstate(fresh.fmu.deSerializeFMUstate(data))
+    assert run(fresh, 20, 20) == first
+    a.fmu.freeFMUstate(state)
+    b.fmu.freeFMUstate(own_state)
+
+
+def test_a_restore_into_a_model_prepared_before_a_parameter_change_rebuilds_it(open_native):
+    """An instance in initialization mode whose outputs were read (its model prepared from the
+    parameters then) and whose parameter was set after, back to the value of the instance that
+    took the state: its parameters are equal, its derived quantities are not, and it is not
+    initialised, so a restore rebuilds them: the continuation is bit for bit the same."""
+    name = "FlexiblePendulum"
+
+    def run(inst, k0, n):
+        return _driven(inst, name, k0, n)
+
+    a = open_native(name, phi0=0.3)
+    ei = a.get("EI")[0]
+    run(a, 0, 20)
+    data = a.fmu.serializeFMUstate(a.fmu.getFMUstate())
+    first = run(a, 20, 20)
+    c = open_native(name, initialize=False, phi0=0.3, EI=3.0 * ei)
+    c.fmu.enterInitializationMode()
+    c.outputs()                                            # prepared from EI = 3 ei
+    c.set(EI=ei)
+    c.fmu.setFMUstate(c.fmu.deSerializeFMUstate(data))
+    assert run(c, 20, 20) == first
+
+
 def test_an_in_memory_state_whose_bytes_were_overwritten_is_refused(open_native):
     """An in-memory state carries a checksum of its bytes (the FNV-1a trailer is written only
     when it is serialised): a byte overwritten in memory makes restoring or serialising it an

@@ -126,7 +126,7 @@ int main(int argc, char **argv)
     r.n = w.n;
     fpm_model_reset(m2, 0.0);
     memcpy(fpm_model_values(m2), fpm_model_values(m), sizeof(fpm_values));
-    if (!fpm_model_load(m2, &r, 1) || r.pos != r.n) {
+    if (!fpm_model_load(m2, &r, 1, NULL) || r.pos != r.n) {
         fprintf(stderr, "restore failed: %s\n", r.why);
         return 5;
     }
