@@ -36,7 +36,7 @@ from orchestration.scene.schema import PAPER_SCENES
 FIXED_STEPS = (5e-4, 1e-3, 2e-3, 4e-3, 8e-3)
 TOLERANCES = (1e-2, 1e-3, 1e-4)
 MAX_STEP = 0.01
-IMPLICIT_STEPS = (4e-3,)
+IMPLICIT_STEPS = (2e-3, 4e-3)
 #: the implicit master's schemes timed: every output iterated, or only the controller's force
 #: (the plant steps first on it: the serial scheme with master.first = "plant")
 IMPLICIT_SCHEMES = {"parallel": {},
