@@ -984,6 +984,19 @@ def _output_failure(exc: OSError) -> str | None:
     return None
 
 
+def _interrupted(exc: BaseException) -> bool:
+    """Whether ``exc`` is a Ctrl-C in disguise: a KeyboardInterrupt raised where a library turned
+    it into another error (a C extension's module initialisation, interrupted, raises
+    ImportError "initialization failed" from it)."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return True
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
 def main(argv=None) -> int:
     """Run one command; its exit code. Ctrl-C is noted (:class:`Interrupts`) while it runs."""
     global INTERRUPTS
@@ -1021,6 +1034,9 @@ def main(argv=None) -> int:
         print("flexpend: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception as exc:          # a full disk, a limit of the machine, however it surfaced
+        if _interrupted(exc):
+            print("flexpend: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
         line = (_output_failure(exc) if isinstance(exc, OSError) else None) or _machine_limit(exc)
         if line is None:
             raise

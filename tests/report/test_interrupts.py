@@ -64,3 +64,30 @@ def test_ctrl_c_ends_every_command_at_once(name, fmus, tmp_path):
             left = [p.name for p in out.rglob("*") if ".part" in p.name
                     or p.name == ".flexpend.lock"]
             assert left == [], left
+
+
+def test_a_ctrl_c_a_library_turned_into_another_error_is_still_a_ctrl_c():
+    """A SIGINT inside a C extension's module initialisation (matplotlib's, imported late by
+    analyze) surfaces as ImportError("initialization failed") raised from the KeyboardInterrupt:
+    the CLI sees the interrupt in the chain (exit 130, one line), and only there."""
+    from orchestration.cli import _interrupted
+
+    def chained():
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as inner:
+            try:
+                raise ImportError("initialization failed") from inner
+            except ImportError as outer:
+                return outer
+
+    assert _interrupted(chained())
+    assert _interrupted(KeyboardInterrupt())
+    assert not _interrupted(ImportError("no module"))
+    try:
+        try:
+            raise ValueError("a")
+        except ValueError:
+            raise OSError("b")
+    except OSError as exc:
+        assert not _interrupted(exc)
