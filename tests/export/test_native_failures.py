@@ -224,6 +224,16 @@ def test_a_state_passed_back_to_get_fmu_state_is_overwritten_in_place(open_nativ
     inst.fmu.freeFMUstate(fresh)
 
 
+def _state_taken(open_native, name, start):
+    """An instance of ``name`` with ``start`` stepped 20 times, its state then taken and
+    serialised, and the 20 steps that follow: ``(instance, state, bytes, those outputs)``."""
+    inst = open_native(name, **start)
+    _driven(inst, name, 0, 20)
+    state = inst.fmu.getFMUstate()
+    data = inst.fmu.serializeFMUstate(state)
+    return inst, state, data, _driven(inst, name, 20, 20)
+
+
 @pytest.mark.parametrize("name, start, other", [
     ("FlexiblePendulum", {"fidelity": "linear", "integrator": "exponential", "phi0": 0.1},
      {"fidelity": "linear", "integrator": "exponential", "EI": 3.0}),
@@ -238,11 +248,7 @@ def test_a_restore_keeps_the_cached_discretisations_only_for_equal_parameters(
     def run(inst, k0, n):
         return _driven(inst, name, k0, n)
 
-    a = open_native(name, **start)
-    run(a, 0, 20)
-    state = a.fmu.getFMUstate()
-    data = a.fmu.serializeFMUstate(state)
-    first = run(a, 20, 20)
+    a, state, data, first = _state_taken(open_native, name, start)
     a.fmu.setFMUstate(state)
     assert run(a, 20, 20) == first
     fresh = open_native(name)
@@ -280,11 +286,7 @@ def test_a_restore_takes_the_derived_quantities_over_only_from_equal_parameters(
     def run(inst, k0, n):
         return _driven(inst, name, k0, n)
 
-    a = open_native(name, **start)
-    run(a, 0, 20)
-    state = a.fmu.getFMUstate()
-    data = a.fmu.serializeFMUstate(state)
-    first = run(a, 20, 20)
+    a, state, data, first = _state_taken(open_native, name, start)
     for _ in range(2):                                     # the instance that took it
         a.fmu.setFMUstate(state)
         assert run(a, 20, 20) == first
