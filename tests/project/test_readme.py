@@ -132,6 +132,9 @@ def _run(kind: str, what: str):
 def test_every_command_runs_as_written(page):
     if shutil.which("flexpend") is None:
         pytest.skip("the flexpend command is not installed (pip install -e .)")
+    # the commands follow the README's main job, whose outputs folder they write into; on a
+    # fresh clone no other test may have made it yet
+    (ROOT / "out").mkdir(exist_ok=True)
     for kind, what, shown in steps(page, shown=True):
         returncode, stdout, stderr = _run(kind, what)
         assert returncode == 0, (page, what, stdout[-2000:], stderr[-3000:])
