@@ -313,11 +313,13 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.0,
     stays a sum of exponentials with the same poles (no transient is added, none is cut), so the
     fitted rates and frequencies are those of ``y``. The window holds about ``PERIODS *
     SAMPLES_PER_PERIOD`` samples whatever the output interval (up to twice as many where the
-    decimation rounds down: 320 to 420 for the slow band, about 100 for the bending band), so the Hankel matrix stays small while its ``PENCIL * N``
-    columns sit where Hua & Sarkar's pencil parameter gives the least variance (``N/3`` to
-    ``N/2``; the fit moves within its uncertainty across that range). The matrix pencil of the lowest order that reproduces the decimated signal to a
-    quarter of ``residual`` (relative RMS) is kept; by default (0) the best of them, the highest
-    order the Hankel matrix's rank allows: the nonlinear corrections and harmonics a mode
+    decimation rounds down: 320 to 420 for the slow band, about 100 for the bending band), so
+    the Hankel matrix stays small while its ``PENCIL * N`` columns sit where Hua & Sarkar's
+    pencil parameter gives the least variance (``N/3`` to ``N/2``; the slow fit moves within its
+    uncertainty across that range, the bending fit's rate in a few runs by several
+    uncertainties: ``bench/fit_pencil.py``). The matrix pencil of the lowest order that
+    reproduces the decimated signal to a quarter of ``residual`` (relative RMS) is kept; by
+    default (0) the best of them, the highest order the Hankel matrix's rank allows: the nonlinear corrections and harmonics a mode
     carries need poles of their own, or they bias its pole (on the paper's rigid scene, order 6
     puts the slow rate 1 % off the linearised loop's, order 12 within 0.01 %). The fit's
     ``residual`` reports how well it reproduces the band; judge the fit by it. The largest oscillation is the pole in the band with the largest RMS

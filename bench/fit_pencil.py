@@ -1,0 +1,165 @@
+"""The summary's mode fits on Monte Carlo runs: what they cost, and how far they move when the
+matrix pencil's parameter moves within the range Hua & Sarkar recommend (``N/3`` to ``N/2``)
+against the uncertainty each fit states.
+
+    python bench/fit_pencil.py [--runs 200] [--pencils 0.25,0.4,0.5] [--reps 3]
+
+Runs ``--runs`` design samples of the 10 s filtered scene (``flexpend sweep flexible_pd_lowpass
+--sample design``, seed 0) through the sweep's per-run function, records the signals each
+``fit_mode`` call of the summary gets (two a run: the slow and the bending oscillation), then
+fits them again, with BLAS on one thread:
+
+* **cost**: the two fits of a run, ms, median over ``--reps`` passes after a warm-up pass, at
+  the product's pencil parameter (``fit.PENCIL``) and at each of ``--pencils``;
+* **moves**: for each band and each of ``--pencils``, the largest move of the rate and of the
+  frequency in units of the product's stated uncertainty (``rate_uncertainty``,
+  ``frequency_uncertainty`` of the fit at ``fit.PENCIL``), and how many fits move by more than
+  one uncertainty.
+
+Prints a table and one JSON object (``--json`` writes it to a file too). The product's fit is
+not changed: the pencil parameter is set on the module for the comparison and restored.
+"""
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import sys  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from sweep_run_profile import design_plan  # noqa: E402
+
+BANDS = ("slow", "bending")
+
+
+def recorded_calls(runs: int) -> list:
+    """``[(args, kwargs), ...]`` of the summary's ``fit_mode`` calls on ``runs`` design
+    samples, in order (slow, bending per run)."""
+    import orchestration.studies.summary as summary
+    import orchestration.sweeps.engine as engine
+    from orchestration.sweeps.executor import file_name
+
+    calls, real = [], summary.fit_mode
+
+    def recording(*a, **k):
+        calls.append((a, k))
+        return real(*a, **k)
+
+    plan = design_plan(runs)
+    fmus = engine.fmus_for(plan)
+    summary.fit_mode = recording
+    try:
+        for i, p in enumerate(plan.points):
+            files = {r: (file_name(x), str(x)) for r, x in fmus[p.scene.master.fmus].items()}
+            row = engine.run_task((p.scene, False, files, engine.model_sources_digest()))
+            if row["status"] not in ("ok", "failed"):
+                raise SystemExit(f"fit_pencil: run {i} ended {row['status']}: "
+                                 f"{row.get('message')}")
+            print(f"\rrun {i + 1}/{runs}", end="", file=sys.stderr, flush=True)
+    finally:
+        summary.fit_mode = real
+        print(file=sys.stderr)
+    return calls
+
+
+def fits_at(calls, pencil: float, reps: int):
+    """The fits of ``calls`` with the pencil parameter ``pencil``, and the median time of the
+    two fits of a run (ms) over ``reps`` passes after a warm-up pass."""
+    from orchestration.studies import fit
+
+    saved = fit.PENCIL
+    fit.PENCIL = pencil
+    try:
+        out = [fit.fit_mode(*a, **k) for a, k in calls]
+        times = []
+        for _ in range(reps):
+            t0 = time.perf_counter()
+            for a, k in calls:
+                fit.fit_mode(*a, **k)
+            times.append(time.perf_counter() - t0)
+    finally:
+        fit.PENCIL = saved
+    return out, statistics.median(times) / (len(calls) / 2) * 1e3
+
+
+def moves(base, other) -> dict:
+    """Per band: the largest move of rate and frequency over the stated uncertainty of
+    ``base``, and the count of fits moving by more than one uncertainty (fits with an
+    uncertainty in both)."""
+    out = {}
+    for b, band in enumerate(BANDS):
+        worst_r = worst_w = 0.0
+        outside = compared = 0
+        for f0, f1 in list(zip(base, other))[b::2]:
+            if f0 is None or f1 is None or not f0.rate_uncertainty or \
+                    not f0.frequency_uncertainty:
+                continue
+            compared += 1
+            r = abs(f1.rate - f0.rate) / f0.rate_uncertainty
+            w = abs(f1.frequency - f0.frequency) / f0.frequency_uncertainty
+            worst_r, worst_w = max(worst_r, r), max(worst_w, w)
+            outside += r > 1 or w > 1
+        out[band] = {"compared": compared, "outside": outside,
+                     "rate_moves_max": worst_r, "frequency_moves_max": worst_w}
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--runs", type=int, default=200)
+    ap.add_argument("--pencils", default="0.25,0.4,0.5",
+                    help="pencil parameters to compare, fractions of N in (0, 1)")
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--json", help="also write the JSON object to this file")
+    args = ap.parse_args(argv)
+    try:
+        pencils = [float(v) for v in args.pencils.split(",")]
+    except ValueError:
+        print(f"fit_pencil: --pencils {args.pencils!r}: not numbers; allowed: e.g. 0.25,0.5",
+              file=sys.stderr)
+        return 2
+    if args.runs < 1 or args.reps < 1 or not all(0 < p < 1 for p in pencils):
+        print("fit_pencil: allowed: --runs >= 1, --reps >= 1, pencils in (0, 1)",
+              file=sys.stderr)
+        return 2
+    from threadpoolctl import threadpool_limits
+
+    from orchestration.studies import fit
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        calls = recorded_calls(args.runs)
+        base, base_ms = fits_at(calls, fit.PENCIL, args.reps)
+        result = {"runs": args.runs, "pencil": fit.PENCIL, "ms_per_run": base_ms,
+                  "compared": {}}
+        print(f"pencil {fit.PENCIL:.3g} (the product's): {base_ms:.2f} ms for a run's two fits")
+        for p in pencils:
+            other, ms = fits_at(calls, p, args.reps)
+            m = moves(base, other)
+            result["compared"][f"{p:g}"] = {"ms_per_run": ms, **m}
+            print(f"pencil {p:.3g}: {ms:.2f} ms; moves in stated uncertainties (largest rate, "
+                  f"frequency; fits outside one):")
+            for band in BANDS:
+                v = m[band]
+                print(f"  {band:8s} {v['rate_moves_max']:6.2f} {v['frequency_moves_max']:6.2f}"
+                      f"   {v['outside']}/{v['compared']}")
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.json:
+        path = Path(args.json)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(text)
+        tmp.replace(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
