@@ -133,14 +133,20 @@ def trivial_native_fmus(folder: Path | None = None) -> dict:
         gen = folder / f"gen_{name}"
         gen.mkdir(parents=True, exist_ok=True)
         token = "{00000000-0000-4000-8000-%012d}" % len(ins)
-        (gen / "fpm_vars.h").write_text(native_fmus.generate_header(name, token))
+        (gen / "fpm_vars.h").write_text(
+            native_fmus.generate_header(name, token, table=table, mode_tables=False))
         lib = folder / f"{name}.so"
+        # --no-undefined, as the product's build (native_fmus.compile_command): a model hook
+        # that trivial_model.c lacks fails here, not when the FMU is loaded
         cmd = [kernels.find_compiler(), *kernels.CFLAGS, f"-I{gen}",
                f"-I{native_fmus.SRC}", f"-I{native_fmus.fmi_include_dir()}", "-fPIC", "-shared",
-               "-o", str(lib), str(native_fmus.SRC / "fmi2.c"),
+               "-Wl,--no-undefined", "-o", str(lib), str(native_fmus.SRC / "fmi2.c"),
                *(str(native_fmus.SRC / f) for f in native_fmus.CORE_SOURCES),
                str(ROOT / "bench" / "native" / "trivial_model.c"), "-lm"]
-        subprocess.run(cmd, check=True, capture_output=True, text=True)
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise RuntimeError(f"building the trivial native FMU {name} failed:\n"
+                               f"{done.stdout}{done.stderr}")
         xml = mdesc.fmi2_model_description(
             name, token, generation_tool="bench", table=table, model=model,
             co_simulation={"modelIdentifier": name, "canGetAndSetFMUstate": "true",

@@ -90,6 +90,10 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized, const fpm_model
 size_t fpm_model_nx(void) { return 0; }
 size_t fpm_model_nz(void) { return 0; }
 int fpm_model_max_output_derivative_order(void) { return 0; }
+/* what it offers besides co-simulation (fpm.h): nothing, so the core refuses a Model-Exchange
+ * instance and directional derivatives before this model's code is reached */
+int fpm_model_offers_me(void) { return 0; }
+int fpm_model_offers_jacobian(void) { return 0; }
 
 static int none(const fpm_logger *lg, const char *what)
 {
@@ -157,4 +161,58 @@ int fpm_model_get_local(fpm_model *m, const fpm_logger *lg, unsigned vr, double 
 {
     (void)m; (void)vr; (void)value;
     return none(lg, "local variables");
+}
+
+/* ---- Clocks (fpm.h, issue 38): none. The generated fpm_vars.h defines these for a product
+ * model without clocks; the bench's header (a table of its own, no offers) does not, so the
+ * trivial model gives them as that header would: every value reference is no clock and every
+ * clock call is refused (fmi3.c checks fpm_model_n_clocks and fpm_model_clock_of first). */
+int fpm_model_n_clocks(void) { return 0; }
+int fpm_model_clock_of(unsigned vr)
+{
+    (void)vr;
+    return -1;
+}
+
+void fpm_model_use_clocks(fpm_model *m, int on)
+{
+    (void)m;
+    (void)on;
+}
+
+int fpm_model_clock_timing(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                           double *interval, double *shift)
+{
+    (void)m; (void)clock; (void)interval; (void)shift;
+    fpm_log(lg, FPM_ERROR, "%s: the trivial model has no clocks", fn);
+    return FPM_ERROR;
+}
+
+int fpm_model_set_clock(fpm_model *m, const fpm_logger *lg, const char *fn, int clock,
+                        int active, int apply)
+{
+    (void)m; (void)clock; (void)active; (void)apply;
+    fpm_log(lg, FPM_ERROR, "%s: the trivial model has no clocks", fn);
+    return FPM_ERROR;
+}
+
+int fpm_model_get_clock(const fpm_model *m, int clock)
+{
+    (void)m;
+    (void)clock;
+    return 0;
+}
+
+int fpm_model_clock_update(fpm_model *m, const fpm_logger *lg)
+{
+    (void)m;
+    (void)lg;
+    return FPM_OK;                            /* no clock is ever active */
+}
+
+int fpm_model_clocked_set(fpm_model *m, const fpm_logger *lg, const char *fn, int mode,
+                          const unsigned vr[], size_t n)
+{
+    (void)m; (void)lg; (void)fn; (void)mode; (void)vr; (void)n;
+    return FPM_OK;                            /* no variable is clocked */
 }
