@@ -14,7 +14,11 @@ fits them again, with BLAS on one thread:
 * **moves**: for each band and each of ``--pencils``, the largest move of the rate and of the
   frequency in units of the product's stated uncertainty (``rate_uncertainty``,
   ``frequency_uncertainty`` of the fit at ``fit.PENCIL``), and how many fits move by more than
-  one uncertainty.
+  one uncertainty;
+* **coverage**: for each band and pencil parameter, how many fits are further from the
+  linearised loop's root nearest in frequency (the run's ``linear_modes``, what the fits of the
+  linear range estimate) than their own stated uncertainty, in rate or frequency, and the
+  largest such distance in uncertainties.
 
 Prints a table and one JSON object (``--json`` writes it to a file too). The product's fit is
 not changed: the pencil parameter is set on the module for the comparison and restored.
@@ -40,14 +44,14 @@ from sweep_run_profile import design_plan  # noqa: E402
 BANDS = ("slow", "bending")
 
 
-def recorded_calls(runs: int) -> list:
+def recorded_calls(runs: int):
     """``[(args, kwargs), ...]`` of the summary's ``fit_mode`` calls on ``runs`` design
-    samples, in order (slow, bending per run)."""
+    samples, in order (slow, bending per run), and each run's linearised loop's roots."""
     import orchestration.studies.summary as summary
     import orchestration.sweeps.engine as engine
     from orchestration.sweeps.executor import file_name
 
-    calls, real = [], summary.fit_mode
+    calls, roots, real = [], [], summary.fit_mode
 
     def recording(*a, **k):
         calls.append((a, k))
@@ -60,6 +64,7 @@ def recorded_calls(runs: int) -> list:
         for i, p in enumerate(plan.points):
             files = {r: (file_name(x), str(x)) for r, x in fmus[p.scene.master.fmus].items()}
             row = engine.run_task((p.scene, False, files, engine.model_sources_digest()))
+            roots.append(summary.linear_modes(p.scene))
             if row["status"] not in ("ok", "failed"):
                 raise SystemExit(f"fit_pencil: run {i} ended {row['status']}: "
                                  f"{row.get('message')}")
@@ -67,7 +72,9 @@ def recorded_calls(runs: int) -> list:
     finally:
         summary.fit_mode = real
         print(file=sys.stderr)
-    return calls
+    if len(calls) != 2 * runs:
+        raise SystemExit(f"fit_pencil: {len(calls)} fits for {runs} runs; expected two a run")
+    return calls, roots
 
 
 def fits_at(calls, pencil: float, reps: int):
@@ -112,6 +119,28 @@ def moves(base, other) -> dict:
     return out
 
 
+def coverage(fits, roots) -> dict:
+    """Per band: how many of ``fits`` (slow, bending per run) are further from their run's
+    linear root nearest in frequency than their stated uncertainty (rate or frequency), of how
+    many, and the largest distance in uncertainties."""
+    out = {}
+    for b, band in enumerate(BANDS):
+        outside = compared = 0
+        worst = 0.0
+        for f, lam in zip(fits[b::2], roots):
+            if f is None or not f.rate_uncertainty or not f.frequency_uncertainty or \
+                    not len(lam):
+                continue
+            near = lam[abs(abs(lam.imag) - f.frequency).argmin()]
+            d = max(abs(f.rate - near.real) / f.rate_uncertainty,
+                    abs(f.frequency - abs(near.imag)) / f.frequency_uncertainty)
+            compared += 1
+            outside += d > 1
+            worst = max(worst, d)
+        out[band] = {"compared": compared, "outside": outside, "largest": worst}
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--runs", type=int, default=200)
@@ -135,17 +164,25 @@ def main(argv=None) -> int:
     from orchestration.studies import fit
 
     with threadpool_limits(limits=1, user_api="blas"):
-        calls = recorded_calls(args.runs)
+        calls, roots = recorded_calls(args.runs)
         base, base_ms = fits_at(calls, fit.PENCIL, args.reps)
+        cov = coverage(base, roots)
         result = {"runs": args.runs, "pencil": fit.PENCIL, "ms_per_run": base_ms,
-                  "compared": {}}
-        print(f"pencil {fit.PENCIL:.3g} (the product's): {base_ms:.2f} ms for a run's two fits")
+                  "coverage": cov, "compared": {}}
+
+        def show(c):
+            return ", ".join(f"{band} {c[band]['outside']}/{c[band]['compared']} (largest "
+                             f"{c[band]['largest']:.2f})" for band in BANDS)
+
+        print(f"pencil {fit.PENCIL:.3g} (the product's): {base_ms:.2f} ms for a run's two fits;"
+              f" fits further from the linear root than their uncertainty: {show(cov)}")
         for p in pencils:
             other, ms = fits_at(calls, p, args.reps)
-            m = moves(base, other)
-            result["compared"][f"{p:g}"] = {"ms_per_run": ms, **m}
-            print(f"pencil {p:.3g}: {ms:.2f} ms; moves in stated uncertainties (largest rate, "
-                  f"frequency; fits outside one):")
+            m, c = moves(base, other), coverage(other, roots)
+            result["compared"][f"{p:g}"] = {"ms_per_run": ms, "coverage": c, **m}
+            print(f"pencil {p:.3g}: {ms:.2f} ms; fits further from the linear root than their "
+                  f"uncertainty: {show(c)}; moves in the product's fits' uncertainties "
+                  f"(largest rate, frequency; fits outside one):")
             for band in BANDS:
                 v = m[band]
                 print(f"  {band:8s} {v['rate_moves_max']:6.2f} {v['frequency_moves_max']:6.2f}"

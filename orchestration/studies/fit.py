@@ -316,8 +316,8 @@ def fit_mode(t, y, band, *, max_order: int = 12, residual: float = 0.0,
     decimation rounds down: 320 to 420 for the slow band, about 100 for the bending band), so
     the Hankel matrix stays small while its ``PENCIL * N`` columns sit where Hua & Sarkar's
     pencil parameter gives the least variance (``N/3`` to ``N/2``; the slow fit moves within its
-    uncertainty across that range, the bending fit's rate in a few runs by several
-    uncertainties: ``bench/fit_pencil.py``). The matrix pencil of the lowest order that
+    uncertainty across that range; the bending fit's rate in a few runs by more, to a worse fit
+    with a larger uncertainty: ``bench/fit_pencil.py``). The matrix pencil of the lowest order that
     reproduces the decimated signal to a quarter of ``residual`` (relative RMS) is kept; by
     default (0) the best of them, the highest order the Hankel matrix's rank allows: the nonlinear corrections and harmonics a mode
     carries need poles of their own, or they bias its pole (on the paper's rigid scene, order 6
