@@ -133,6 +133,28 @@ def rk4_input(scene, h: float) -> str:
     return " ".join(repr(float(x)) if not isinstance(x, int) else str(x) for x in nums)
 
 
+# A point's ``_run`` is timed again later (side_by_side): each is made by a function of its own,
+# so that it keeps its own co-simulation or RK4 input (a closure in the loop would see the loop's
+# last one: the side-by-side rounds timed the last candidate and the finest RK4 step until
+# 2026-11-29).
+def _rk4_run(exe, stdin: str):
+    """``run() -> (seconds, tip angles)`` of the monolithic RK4 binary on ``stdin``."""
+    def run():
+        proc = subprocess.run([str(exe)], input=stdin, capture_output=True, text=True,
+                              check=True)
+        vals = [float(x) for x in proc.stdout.split()]
+        return vals[0], np.array(vals[1:])
+    return run
+
+
+def _cosim_run(cosim):
+    """``run() -> (seconds, results)`` of the co-simulation ``cosim``."""
+    def run():
+        res, stats = cosim.run()
+        return stats.wall_time, res
+    return run
+
+
 def rk4_points(runs, exe, scene, ref, log, max_error: float) -> list:
     """RK4 at the steps ``grid / k``, k = 1, 2, ..., until its error is at most ``max_error``
     (the last point is then the cheapest RK4 of that error: the error falls as h^4)."""
@@ -140,13 +162,7 @@ def rk4_points(runs, exe, scene, ref, log, max_error: float) -> list:
     grid = scene.output.output_interval
     for k in range(1, RK4_MAX_DIVISIONS + 1):
         h = grid / k
-        stdin = rk4_input(scene, h)
-
-        def run():
-            proc = subprocess.run([str(exe)], input=stdin, capture_output=True, text=True,
-                                  check=True)
-            vals = [float(x) for x in proc.stdout.split()]
-            return vals[0], np.array(vals[1:])
+        run = _rk4_run(exe, rk4_input(scene, h))
         med, times, phi = median_time(run, runs)
         err = float(np.max(np.abs(phi - ref["phi_o"]))) if phi.size == len(ref) else np.inf
         if not np.isfinite(err):
@@ -162,12 +178,7 @@ def rk4_points(runs, exe, scene, ref, log, max_error: float) -> list:
 def cosim_points(runs, fmus, ref, log, candidates) -> list:
     out = []
     for label, overrides in candidates.items():
-        scene = load_scene(SCENE, overrides)
-        cosim = CoSim(scene, fmus)
-
-        def run():
-            res, stats = cosim.run()
-            return stats.wall_time, res
+        run = _cosim_run(CoSim(load_scene(SCENE, overrides), fmus))
         med, times, res = median_time(run, runs)
         err = phi_error(res, ref)
         out.append({"family": "native co-simulation", "setting": label, "seconds": med,
