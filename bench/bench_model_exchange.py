@@ -6,7 +6,7 @@
   (``flexible_pd_lowpass``, 10 s): the error of ``phi_o`` against the monolithic reference
   (DOP853 at 1e-12) and the median time, for the co-simulation's default coupling over the
   communication step (the master's compiled loop), the same with the extrapolation built from
-  the FMUs' output derivatives (``master.output_derivatives``, the Python loop), and the
+  the FMUs' output derivatives (``master.output_derivatives``, also on the compiled loop), and the
   model-exchange master (Radau with the FMUs' directional derivatives) over ``master.rtol``.
   Then, per error target, the fastest point of each that meets it, and the ratios.
 * **fmpy's CVode on the ME plant against the CS plant** (the native FMI 2.0 FlexiblePendulum
@@ -23,14 +23,17 @@
   does.
 
 * **The compiled model-exchange master on the three paper scenes** (issue 39; ``--paper``
-  runs only this part): ``rigid_pd``, ``flexible_pd`` and ``flexible_pd_lowpass`` (10 s), the
+  runs only this part): ``rigid_pd`` and ``flexible_pd_lowpass`` (10 s) and ``flexible_pd``
+  (its 2.5 s), the
   model-exchange master's compiled loop (``orchestration/cosim/native/fm_me.c``) over
   ``master.rtol`` against the co-simulation's compiled default over the communication step,
   side by side, the error of ``phi_o`` against the monolithic reference; per error target the
   fastest point of each and their ratio (the issue's goal: at most 3).
 
-Times are medians of ``--runs`` runs after a warm-up, the compared settings alternated point by
-point so that the machine's load falls on both sides of each ratio. Results:
+Times are medians of ``--runs`` runs after a warm-up, the points of a scene timed in rounds
+that alternate them, so that the machine's load falls on both sides of each ratio (until
+2026-11-29 each point's runs came one after the other, a family after the other; fmpy's CVode
+part still does). Results:
 ``bench/results/model_exchange.json`` and ``.png`` (error against time).
 """
 from __future__ import annotations
@@ -38,6 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -100,8 +104,11 @@ def _overrides(ov, key, value, interval=2e-3):
 
 
 def scene_points(fmus, runs, quick, name=SCENE, families=SCENE_FAMILIES):
+    """Every family's points on the scene ``name``: each run once (untimed: the warm-up, and
+    the error), then ``runs`` rounds that time every point in turn, so that the machine's load
+    falls on all of them; medians."""
     refs = {}
-    points = []
+    todo = []
     interval = load_scene(name).output.output_interval
     for fam, (ov, key, values) in families.items():
         for value in values[quick]:
@@ -109,17 +116,23 @@ def scene_points(fmus, runs, quick, name=SCENE, families=SCENE_FAMILIES):
             grid = scene.output.output_interval
             if grid not in refs:
                 refs[grid] = reference(scene)
-            cosim = CoSim(scene, fmus)
-
-            def fn(cosim=cosim):
-                result, stats = cosim.run()
-                return stats.wall_time, result
-            med, times, result = median_time(fn, runs)
-            err = phi_error(result, refs[grid])
-            points.append(dict(scene=name, family=fam, key=key, value=value, error=err,
-                               median_s=med, times=times))
-            print(f"  {fam:42s} {key} = {value:<8g} error {err:9.3g} rad  {med * 1e3:9.2f} ms",
-                  flush=True)
+            todo.append((fam, key, value, grid, CoSim(scene, fmus)))
+    errors = []
+    for fam, key, value, grid, cosim in todo:
+        result, _ = cosim.run()
+        errors.append(phi_error(result, refs[grid]))
+    times = [[] for _ in todo]
+    for _ in range(runs):
+        for i, entry in enumerate(todo):
+            _, stats = entry[4].run()
+            times[i].append(stats.wall_time)
+    points = []
+    for (fam, key, value, _, _), err, t in zip(todo, errors, times):
+        med = statistics.median(t)
+        points.append(dict(scene=name, family=fam, key=key, value=value, error=err,
+                           median_s=med, times=t))
+        print(f"  {fam:42s} {key} = {value:<8g} error {err:9.3g} rad  {med * 1e3:9.2f} ms",
+              flush=True)
     return points
 
 
