@@ -35,7 +35,7 @@ def host_env(before: bool) -> dict:
     env = {"PATH": "/usr/bin:/bin", "HOME": os.environ.get("HOME", "/"), "OMP_NUM_THREADS": "1",
            **{k: v for k, v in os.environ.items() if k.startswith("OPENBLAS_")}}
     if before:
-        sys.path.insert(0, str(ROOT / "orchestration" / "export" / "loader"))
+        sys.path.insert(0, str(ROOT / "fmu_common" / "loader"))
         from flexpend_loader import libpython
         env.update(LD_PRELOAD=libpython(), PYTHONHOME=sys.base_prefix,
                    PYTHONPATH=sysconfig.get_paths()["purelib"])
@@ -55,7 +55,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--steps", type=int, default=2000)
     args = ap.parse_args(argv)
-    sys.path.insert(0, str(ROOT / "tests"))
+    sys.path.insert(0, str(ROOT / "tests" / "export"))
     from fmpy import extract
     from test_fmu_c_host import host_command, zoh_scene
 

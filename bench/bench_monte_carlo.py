@@ -76,8 +76,9 @@ def run(tree: Path, samples: int, executor: list) -> dict:
                            f"{err[-2000:]}")
     rows = [json.loads(line) for line in journal.read_text().splitlines()]
     shutil.rmtree(out, ignore_errors=True)
+    # the journal's first row is the first run finished (on workers not always run 0)
+    start = None if first is None or not rows else first - rows[0]["wall_time"]
     rows.sort(key=lambda r: r["run"])
-    start = None if first is None else first - rows[0]["wall_time"]
     return {"wall": wall, "first_row": first, "start_up": start, "rows": rows}
 
 

@@ -74,8 +74,11 @@ def split(runs: int, warmup: int) -> dict:
     from threadpoolctl import threadpool_limits
 
     import orchestration.job as job
-    import orchestration.studies.summary as summary
     import orchestration.sweeps.engine as engine
+    try:
+        import orchestration.studies.summary as summary
+    except ImportError:                      # before the studies package (bench_sweep's f884ad8)
+        import orchestration.report.summary as summary
     from orchestration.sweeps.executor import file_name
 
     clock = Clock()
