@@ -25,9 +25,11 @@
 * **C host.** The plain C host of the tests (``tests/native/fmi2_host.c``, Jacobi, held inputs)
   over the native pair: its time per macro step.
 
-Times are medians of ``--runs`` runs after a warm-up, alternating the compared loops so that the
-machine's load falls on both sides of each ratio; errors against the monolithic reference (DOP853
-at 1e-12). ``--quick`` tries fewer settings (what the README's figures used on a loaded machine
+Times are medians of ``--runs`` runs after a warm-up; T4's loops and T5's side-by-side points
+alternate, so that the machine's load falls on both sides of those ratios (T5's ratios against
+``solve_ivp`` and against the largest RK4 step divide medians taken one point after the other);
+errors against the monolithic reference (DOP853 at 1e-12). T5's co-simulation times include its
+initialisation (about 0.3 ms), the RK4's its stepping loop only. ``--quick`` tries fewer settings (what the README's figures used on a loaded machine
 is said there).
 """
 from __future__ import annotations

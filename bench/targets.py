@@ -13,8 +13,8 @@
 Errors are the largest |phi_o - reference| over the output grid, against DOP853 at 1e-12; times are
 medians of ``--runs`` runs after a warm-up (bench/common.py). Co-simulation times are the master's
 run (initialisation and stepping); the FMUs' loading (instantiate, ~10 ms) is reported apart.
-The real and trivial loops, and the co-simulation and ``solve_ivp`` runs, alternate in one process
-so that the machine's load falls on both sides of each ratio.
+T1's real and trivial loops alternate in one process so that the machine's load falls on both
+sides of its ratio; T2's and T3's points are timed one after the other.
 """
 from __future__ import annotations
 
