@@ -246,6 +246,17 @@ def same_counts(a, b):
         (b.steps, b.iterations, b.max_iterations, b.jacobian_steps)
 
 
+def evaluations_per_step(trace) -> dict:
+    """``{a step's start time: its evaluations}`` of an implicit run's FMI trace: the plant's
+    ``fmi2DoStep`` calls from that time (each evaluation of a step steps the plant once from the
+    step's start)."""
+    out = {}
+    for role, fn, args, _ in trace:
+        if role == "plant" and fn == "fmi2DoStep":
+            out[args[0]] = out.get(args[0], 0) + 1
+    return out
+
+
 #: the implicit master's schemes: every output iterated, or those fed back (either FMU first)
 SCHEMES = {"parallel": [], "serial, plant first": ["master.implicit_scheme=serial",
                                                    "master.first=plant"],
@@ -264,13 +275,24 @@ def test_the_implicit_master_agrees(pair, unzipped, name, update, scheme):
     carries its last bits (measured on 0.5 s runs: Newton bit for bit here, IQN-ILS within
     1.3e-8 absolute)."""
     py, c = both(implicit(name, update, *SCHEMES[scheme]), pair, unzipped)
-    same_counts(py[1], c[1])
     assert c[1].iterations > c[1].steps                 # it did iterate
     if update == "newton":
+        same_counts(py[1], c[1])
         assert [e[:2] for e in py[2]] == [e[:2] for e in c[2]]
-    # IQN-ILS: a step whose residual lands within rounding of the tolerance may take one
-    # iteration more in one loop and one less in a later step (seen on flexible_pd): the calls
-    # are not compared one by one
+    else:
+        # IQN-ILS: a step whose residual lands within rounding of the tolerance may take one
+        # iteration more in one loop than in the other, as the two least squares round (numpy's
+        # LAPACK picks its kernels by the CPU): on flexible_pd one machine gives the same
+        # counts, another 36 steps of 400 one iteration apart, one loop's extra iteration
+        # followed by one fewer (its better start) in a later step (1054 against 1052 in all).
+        # The same steps; a step's evaluations at most one apart; the totals within 1 %
+        assert (py[1].steps, py[1].jacobian_steps) == (c[1].steps, c[1].jacobian_steps)
+        a, b = evaluations_per_step(py[2]), evaluations_per_step(c[2])
+        assert a.keys() == b.keys() and len(a) == c[1].steps
+        apart = {t: (a[t], b[t]) for t in a if a[t] != b[t]}
+        assert all(abs(x - y) == 1 for x, y in apart.values()), apart
+        assert abs(py[1].iterations - c[1].iterations) <= max(2, py[1].iterations // 100)
+        assert abs(py[1].max_iterations - c[1].max_iterations) <= 1
     for col in py[0].dtype.names:
         size = max(1.0, float(np.max(np.abs(py[0][col]))))
         np.testing.assert_allclose(c[0][col], py[0][col], rtol=0, atol=1e-6 * size,
