@@ -370,7 +370,20 @@ class ProcessExecutor(Executor):
             while queue or flight:
                 while queue and len(flight) < PROCESS_AHEAD * self.workers:
                     c = queue.pop()
-                    flight[self._pool.submit(_run_batch, fn, [items[i] for i in chunks[c]])] = c
+                    try:
+                        flight[self._pool.submit(_run_batch, fn,
+                                                 [items[i] for i in chunks[c]])] = c
+                    except BrokenProcessPool:
+                        # a worker died since the last wait: this task was not sent, it goes
+                        # first to the next pool; those in flight fail with the pool (below)
+                        queue.append(c)
+                        if not flight:
+                            self._end(self._pool)
+                            self._pool = None
+                            self._pool = self._start(self.workers)
+                        break
+                if not flight:
+                    continue
                 done, _ = wait(flight, return_when=FIRST_COMPLETED)
                 broken = []
                 for fut in done:

@@ -70,6 +70,34 @@ def test_a_task_that_kills_its_process_is_lost_alone(two, batch):
     assert dict(two.map(_square, range(4))) == {0: 0, 1: 1, 2: 4, 3: 9}
 
 
+@pytest.mark.parametrize("nth", [1, 3])
+def test_a_worker_that_dies_between_two_submissions_loses_nothing(two, nth):
+    """A worker that dies after the map last waited (here: killed just before the ``nth``
+    submission, which then finds the pool broken; seen under load, where the map raised
+    BrokenProcessPool): the task not sent goes to the next pool, those in flight are run again
+    alone, and every task comes back once with its result."""
+    dict(two.map(_square, range(2)))           # the pool is up
+    pool = two._pool
+    real, calls = pool.submit, []
+
+    def submit(*a, **k):
+        calls.append(1)
+        if len(calls) == nth:
+            os.kill(next(iter(pool._processes.values())).pid, signal.SIGKILL)
+            deadline = time.monotonic() + 60
+            while not pool._broken and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert pool._broken
+        return real(*a, **k)
+
+    pool.submit = submit
+    out = list(two.map(_square, range(8)))
+    assert sorted(i for i, _ in out) == list(range(8))
+    assert dict(out) == {i: i * i for i in range(8)}
+    assert two._pool is not pool
+    assert dict(two.map(_square, range(4))) == {0: 0, 1: 1, 2: 4, 3: 9}
+
+
 def test_the_workers_leave_ctrl_c_to_the_client(two):
     pids = set()
     for _ in range(50):               # until both workers took a task (on a busy machine one
