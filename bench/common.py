@@ -133,8 +133,11 @@ def trivial_native_fmus(folder: Path | None = None) -> dict:
         gen = folder / f"gen_{name}"
         gen.mkdir(parents=True, exist_ok=True)
         token = "{00000000-0000-4000-8000-%012d}" % len(ins)
+        # a table of its own gets no offers and no clocks from generate_header: the clock hooks
+        # of a model without clocks come from the product's generator, as in its own FMUs
         (gen / "fpm_vars.h").write_text(
-            native_fmus.generate_header(name, token, table=table, mode_tables=False))
+            native_fmus.generate_header(name, token, table=table, mode_tables=False)
+            + "\n".join(native_fmus._clock_lines(name)) + "\n")
         lib = folder / f"{name}.so"
         # --no-undefined, as the product's build (native_fmus.compile_command): a model hook
         # that trivial_model.c lacks fails here, not when the FMU is loaded
