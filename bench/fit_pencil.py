@@ -39,7 +39,7 @@ from pathlib import Path  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from sweep_run_profile import design_plan  # noqa: E402
+from sweep_run_profile import design_tasks  # noqa: E402
 
 BANDS = ("slow", "bending")
 
@@ -49,7 +49,6 @@ def recorded_calls(runs: int):
     samples, in order (slow, bending per run), and each run's linearised loop's roots."""
     import orchestration.studies.summary as summary
     import orchestration.sweeps.engine as engine
-    from orchestration.sweeps.executor import file_name
 
     calls, roots, real = [], [], summary.fit_mode
 
@@ -57,14 +56,12 @@ def recorded_calls(runs: int):
         calls.append((a, k))
         return real(*a, **k)
 
-    plan = design_plan(runs)
-    fmus = engine.fmus_for(plan)
+    tasks = design_tasks(runs)
     summary.fit_mode = recording
     try:
-        for i, p in enumerate(plan.points):
-            files = {r: (file_name(x), str(x)) for r, x in fmus[p.scene.master.fmus].items()}
-            row = engine.run_task((p.scene, False, files, engine.model_sources_digest()))
-            roots.append(summary.linear_modes(p.scene))
+        for i, task in enumerate(tasks):
+            row = engine.run_task(task)
+            roots.append(summary.linear_modes(task[0]))
             if row["status"] not in ("ok", "failed"):
                 raise SystemExit(f"fit_pencil: run {i} ended {row['status']}: "
                                  f"{row.get('message')}")

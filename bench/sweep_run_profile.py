@@ -45,6 +45,20 @@ def design_plan(runs: int, seed: int = 0):
     return plan_sweep(SCENE, samples=["design"], n_samples=runs, seed=seed)
 
 
+def design_tasks(runs: int) -> list:
+    """The sweep's tasks (``engine.run_task``'s argument) of ``runs`` design samples: each
+    run's scene, its FMUs and the model sources' digest (hashed once)."""
+    import orchestration.sweeps.engine as engine
+    from orchestration.sweeps.executor import file_name
+
+    plan = design_plan(runs)
+    fmus = engine.fmus_for(plan)
+    digest = engine.model_sources_digest()
+    return [(p.scene, False, {r: (file_name(x), str(x))
+                              for r, x in fmus[p.scene.master.fmus].items()}, digest)
+            for p in plan.points]
+
+
 class Clock:
     """Time spent in wrapped functions, by part; a call inside a call of the same part counts
     once (a pool's ``acquire`` that makes a ``Slave``)."""
@@ -79,7 +93,6 @@ def split(runs: int, warmup: int) -> dict:
         import orchestration.studies.summary as summary
     except ImportError:                      # before the studies package (bench_sweep's f884ad8)
         import orchestration.report.summary as summary
-    from orchestration.sweeps.executor import file_name
 
     clock = Clock()
     clock.wrap(summary, "fit_mode", "fits")
@@ -93,11 +106,7 @@ def split(runs: int, warmup: int) -> dict:
         clock.wrap(SlavePool, "acquire", "load")
     except ImportError:                      # before the pool
         pass
-    plan = design_plan(runs + warmup)
-    fmus = engine.fmus_for(plan)
-    tasks = [(p.scene, False, {r: (file_name(x), str(x))
-                               for r, x in fmus[p.scene.master.fmus].items()},
-              engine.model_sources_digest()) for p in plan.points]
+    tasks = design_tasks(runs + warmup)
     rows = []
     with threadpool_limits(limits=1, user_api="blas"):
         for i, task in enumerate(tasks):
