@@ -652,7 +652,8 @@ def cmd_sweep(args) -> int:
     try:
         s = sweep(args.scene, grid=args.grid, values=args.values, sample=args.sample,
                   samples=args.samples, seed=args.seed, overrides=args.set,
-                  reference=args.reference, workers=workers, scheduler=scheduler,
+                  reference=args.reference, columns=args.columns, workers=workers,
+                  scheduler=scheduler,
                   serial=args.serial, batch=args.batch, retry_failed=args.retry_failed,
                   out=args.out, command="flexpend " + " ".join(argv), on_executor=on_executor,
                   stop=INTERRUPTS.requested, progress=not args.quiet)
@@ -886,6 +887,10 @@ def build_parser() -> argparse.ArgumentParser:
                          f"{_KEYS_HINT}")
     pw.add_argument("--reference", action="store_true",
                     help="also solve each run's monolithic reference and report the error")
+    pw.add_argument("--columns", default=None, metavar="COL,COL,...",
+                    help="only these result columns, each run computing only what they need "
+                         "(max_abs_x,max_abs_F_c: no mode fit, no verdict; the columns: "
+                         "docs/sweeps.md; default: all)")
     pw.add_argument("--workers", type=int, default=None, metavar="N",
                     help="worker processes here (default: one per core, only where they end "
                          "before the serial runs: 1 s + ceil(runs / cores) * (t + 0.004 s) < "

@@ -229,7 +229,8 @@ def check_plant_step(scene: Scene, rungs=None) -> str | None:
 
 def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress=True,
               connections_out=None, stop=None, snapshot_times=None,
-              unzipdirs: dict | None = None, pool=None, check_step: bool = True) -> Run:
+              unzipdirs: dict | None = None, pool=None, check_step: bool = True,
+              fits: bool = True) -> Run:
     """Co-simulate ``scene`` with the FMUs at ``fmus`` (``{"plant": path, "controller": path}``).
 
     ``stop``: a callable asked after every communication step; when it returns True the run
@@ -257,14 +258,16 @@ def run_scene(scene: Scene, fmus: dict, *, reference: bool = False, progress=Tru
     Before it runs, the plant's substep is checked against its integrator's stability limit on
     the rung, and on every rung the ladder may climb to (:func:`check_plant_step`: a ConfigError
     beyond it). ``check_step = False`` skips that check: the run then shows what the limit
-    predicts (the tests that observe the growth beyond it)."""
+    predicts (the tests that observe the growth beyond it). ``fits = False``: the summaries
+    fit no mode and state no verdict (:func:`~orchestration.studies.summary.summarize`; a
+    sweep that asks for no column of theirs)."""
     sink = sink_for(progress, scene.name)
     fmus = with_families(fmus)              # the other rungs' native FMUs beside its plant
     try:
         return _run_scene(scene, fmus, sink, reference=reference,
                           connections_out=connections_out, stop=stop,
                           snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool,
-                          check_step=check_step)
+                          check_step=check_step, fits=fits)
     finally:
         if sink is not None:
             sink.close()
@@ -283,7 +286,7 @@ def _work(scene: Scene, reference: bool) -> tuple:
 
 
 def _run_scene(scene: Scene, fmus: dict, sink, *, reference, connections_out, stop,
-               snapshot_times, unzipdirs, pool, check_step) -> Run:
+               snapshot_times, unzipdirs, pool, check_step, fits) -> Run:
     """:func:`run_scene`, its progress told to ``sink`` (:mod:`orchestration.report.progress`)
     in parts (:func:`_work`), each labelled with the rung or the model it is on."""
     name = scene.name
@@ -320,7 +323,7 @@ def _run_scene(scene: Scene, fmus: dict, sink, *, reference, connections_out, st
                      per_rung.get(sc.plant.fidelity, 1))
 
     kw = dict(connections_out=connections_out, stop=stop,
-              snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool)
+              snapshot_times=snapshot_times, unzipdirs=unzipdirs, pool=pool, fits=fits)
     parts = rung_steps(scene)
     out = _run_once(scene, fmus, progress=parts.part(1, rung_label(scene)), **kw)
     kw["connections_out"] = None                # the table once
@@ -470,9 +473,10 @@ def _exact_numerical_error(scene: Scene, fmus: dict, run: Run, kw: dict,
 
 
 def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snapshot_times,
-              unzipdirs, pool) -> Run:
+              unzipdirs, pool, fits=True) -> Run:
     """One co-simulation of a resolved scene (:func:`run_scene` without the model's choice and
-    the reference); ``progress``: called with the fraction of it done (or None)."""
+    the reference); ``progress``: called with the fraction of it done (or None); ``fits``: as
+    in :func:`run_scene`."""
     slaves = {}
     stopped, interrupted, stats, res = None, False, None, None
     reusable = False                # the instances may serve another run (pool)
@@ -522,7 +526,7 @@ def _run_once(scene: Scene, fmus: dict, *, progress, connections_out, stop, snap
         snapshot_times = np.linspace(0.0, res["time"][-1] if len(res) else 0.0, 8)
     frames = _frames(res, n_eta, snapshot_times)
     res = _reorder(res, n_eta)
-    summary = summarize(res, scene, stopped)
+    summary = summarize(res, scene, stopped, fits=fits)
     if stats is not None:
         summary.update(wall_time=stats.wall_time, steps=stats.steps, rejected_steps=stats.rejected,
                        master_loop=stats.loop, **iteration_counts(stats))

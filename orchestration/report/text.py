@@ -378,7 +378,7 @@ def verdict_lines(stats) -> list[str]:
     and undetermined apart, and, for the runs whose fits do not decide, what the linearised loop
     says instead."""
     finished = stats["ok"] + stats["failed"]
-    if not finished:
+    if not finished or "stable" not in stats:      # no verdict asked for (--columns)
         return []
     share = stats["stable_fraction"]
     why = "; ".join(f"{n} {text}" for n, text in ((stats["no_fit"], "whose fits do not decide"),
@@ -389,15 +389,16 @@ def verdict_lines(stats) -> list[str]:
            + f", {stats['unstable']} unstable, {stats['undetermined']} undetermined"
            + (f" ({why})" if why else "")
            + (f"; {stats['invalid']} left their rung's measured range" if stats["invalid"] else "")]
-    n, k = stats["no_fit"], stats["no_fit_linear_stable"]
+    n, k = stats["no_fit"], stats.get("no_fit_linear_stable")
     if n:
         runs = "the run" if n == 1 else f"the {n} runs"
         every = "" if n == 1 else " in both" if n == 2 else f" in all {n}"
-        linear = f"stable{every}" if k == n else f"unstable{every}" if k == 0 else \
-            f"stable in {k} of them, unstable in {n - k}"
+        linear = "" if k is None else "; the linearised loop is " + (
+            f"stable{every}" if k == n else f"unstable{every}" if k == 0 else
+            f"stable in {k} of them, unstable in {n - k}")
         out.append(f"  undetermined: {runs} whose fits do not decide (too short, too few "
                    f"periods in the linear range, or a rate within its uncertainty of zero: the "
-                   f"table's verdict_reason); the linearised loop is {linear}")
+                   f"table's verdict_reason){linear}")
     return out
 
 
@@ -422,6 +423,12 @@ def sweep_lines(plan, res, stats, executor) -> list[str]:
         out.append(f"  linearised loop over the same runs: worst decay rate "
                    f"{stats['worst_linear_decay_rate']:+.4g} 1/s (run "
                    f"{stats['worst_linear_run']})")
+    for c, r in (stats.get("columns_range") or {}).items():     # the columns asked for
+        def text(v):
+            return str(v) if isinstance(v, int) else num(v)
+        out.append(f"  {c}: smallest {text(r['min'])} (run {r['min_run']}), median "
+                   f"{text(r['median'])}, largest {text(r['max'])} (run {r['max_run']}) over "
+                   f"{r['runs']} runs")
     if "design_worst_case" in stats:
         w = stats["design_worst_case"]
         at = ", ".join(f"{k} = {num(v)}" for k, v in w["decay_rate_at"].items())

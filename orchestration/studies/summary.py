@@ -442,14 +442,23 @@ def _other_oscillations(v: dict, res: np.ndarray, scene, modes: dict) -> dict:
     return v
 
 
-def summarize(res: np.ndarray, scene=None, stopped: dict | None = None) -> dict:
+def summarize(res: np.ndarray, scene=None, stopped: dict | None = None,
+              fits: bool = True) -> dict:
     """Verdict, fitted modes beside the linear ones, validity, largest force and cart travel.
 
     ``stopped``: ``{"time": t, "reason": text}`` when the run ended early (with the FMU's own
-    message as ``fmu_message`` when an FMU stopped it, see :func:`stop_reason`)."""
+    message as ``fmu_message`` when an FMU stopped it, see :func:`stop_reason`). ``fits =
+    False``: no mode is fitted (a sweep that asks for no column of theirs): the modes, the
+    verdict and its reason are None."""
     out = {"completed": stopped is None, "stopped": stopped,
            "max_abs_F_c": float(np.max(np.abs(res["F_c"]))) if len(res) else None,
            "max_abs_x": float(np.max(np.abs(res["x"]))) if len(res) else None}
+    if not fits:
+        out.update({k: None for k in _SIGNALS}, verdict=None, verdict_reason=None,
+                   decide_by=None, verdict_modes=None, stable=None)
+        if scene is not None:
+            out["validity"] = validity(res, scene)
+        return out
     modes = fit_modes(res, scene) if len(res) else {k: None for k in _SIGNALS}
     out.update(modes)
     rigid = scene is not None and scene.plant.params.n_modes == 0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import os
 import sys
 import time
@@ -28,6 +29,7 @@ from ..scene.keys import parse_value
 from ..scene.records import Scene
 from ..studies.analysis import linearisation, max_real_part
 from .executor import Executor, TaskLost, file_name, scratch_dir, worker_file
+from .columns import needs_fits, needs_linear, project, serves
 from .plan import Point, SweepPlan
 from .plot import plot_sweep
 
@@ -194,11 +196,15 @@ def _pool() -> SlavePool:
 
 
 def run_task(task) -> dict:
-    """Run one point on a worker (or here): ``(scene, reference, fmus, sources)``;
+    """Run one point on a worker (or here): ``(scene, reference, fmus, sources[, columns])``;
     ``fmus`` maps ``plant``/``controller`` to ``(shipped name, client path)``, ``sources`` is the
-    client's :func:`model_sources_digest`. Never raises: a failure is a row with its message."""
+    client's :func:`model_sources_digest`, ``columns`` the sweep's
+    (:mod:`~orchestration.sweeps.columns`; None or absent: every column): the row has those
+    only, and their names in its ``columns`` field. Never raises: a failure is a row with its
+    message."""
 
-    scene, reference, fmus, sources = task
+    scene, reference, fmus, sources, *rest = task
+    columns = rest[0] if rest else None
     t0 = time.perf_counter()
     try:
         paths = {role: worker_file(ship, path) for role, (ship, path) in fmus.items()}
@@ -206,13 +212,17 @@ def run_task(task) -> dict:
             raise RuntimeError("this worker's flexpend model sources differ from the client's: "
                                "install the client's version on the workers")
         r = run_scene(scene, paths, reference=reference, progress=False,
-                      unzipdirs={role: _extracted(p) for role, p in paths.items()}, pool=_pool())
+                      unzipdirs={role: _extracted(p) for role, p in paths.items()}, pool=_pool(),
+                      fits=needs_fits(columns))
         row = summary_row(r.summary)
-        row["linear_decay_rate"] = linear_decay_rate(r.scene)
-        row["linear_stable"] = row["linear_decay_rate"] > 0
+        if needs_linear(columns):
+            row["linear_decay_rate"] = linear_decay_rate(r.scene)
+            row["linear_stable"] = row["linear_decay_rate"] > 0
     except Exception as exc:  # noqa: BLE001 - a failed run is a row, never the end of a sweep
         row = {"status": "failed", "verdict": verdict_of({}), "message": _one_line(exc)}
     row["wall_time"] = time.perf_counter() - t0
+    if columns is not None:
+        row = {**project(row, columns), "columns": list(columns)}
     return row
 
 
@@ -488,9 +498,13 @@ def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
     row.update({k: point.params.get(k) for k in plan.keys})
     if plan.samplers:
         row["sample"] = point.sample
+    if plan.columns is None:
+        result = {k: v for k, v in result.items() if k != "columns"}
+    else:                                       # the columns asked for, from any row
+        result = project(result, plan.columns)
     row.update((k, v) for k, v in result.items() if k not in row and k != "sample")
-    if row.get("status") in DONE:               # a journal of an older flexpend has no verdict
-        row.setdefault("verdict", verdict_of(row))
+    if row.get("status") in DONE and (plan.columns is None or "verdict" in plan.columns):
+        row["verdict"] = row.get("verdict") or verdict_of(row)  # an older journal has none
     return row
 
 
@@ -513,9 +527,26 @@ def pending(plan: SweepPlan, out_dir, retry_failed: bool = False) -> int:
     """How many runs of ``plan`` have no finished row in ``out_dir`` yet."""
     check_folder(out_dir)
     results = Journal(Path(out_dir)).read()
-    done_status = ("ok",) if retry_failed else DONE
     return len({p.key for p in plan.points
-                if results.get(p.key, {}).get("status") not in done_status})
+                if not _finished(results.get(p.key), plan, retry_failed)})
+
+
+def _task_columns(columns, row):
+    """The columns a run computes for a sweep asking for ``columns`` whose journal has ``row``
+    (or None) for it: those, and those the row was made for (a rerun for new columns keeps the
+    old ones: the journal's row then serves both sweeps)."""
+    made = (row or {}).get("columns")
+    if columns is None or not made:
+        return columns
+    return (*columns, *(c for c in made if c not in columns))
+
+
+def _finished(row, plan: SweepPlan, retry_failed: bool) -> bool:
+    """Whether a journal row (or None) finishes its run for ``plan``: ``ok`` (or ``failed``,
+    unless ``retry_failed``), with the columns the plan asks for
+    (:func:`~orchestration.sweeps.columns.serves`)."""
+    return (row is not None and row.get("status") in (("ok",) if retry_failed else DONE)
+            and serves(row, plan.columns))
 
 
 def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int = 1,
@@ -536,11 +567,10 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     journal = Journal(out_dir)
-    done_status = ("ok",) if retry_failed else DONE
     results = journal.read()
     # one task per key: points whose scenes resolve alike (repeated integer draws) run once
     todo = list({p.key: p for p in plan.points
-                 if results.get(p.key, {}).get("status") not in done_status}.values())
+                 if not _finished(results.get(p.key), plan, retry_failed)}.values())
     by_flavour = {None: fmus} if "plant" in fmus else fmus
     for fmu_pair in by_flavour.values():       # every FMU checked before any run loads one
         check_wiring(plan.scene, fmu_pair)
@@ -549,8 +579,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
 
     def pair(p):
         return shipped[None] if None in shipped else shipped[p.scene.master.fmus]
-    tasks = [(p.scene, plan.reference, pair(p), model_sources_digest())
-             for p in todo]
+    tasks = [(p.scene, plan.reference, pair(p), model_sources_digest(),
+              _task_columns(plan.columns, results.get(p.key))) for p in todo]
     if progress is True or hasattr(progress, "write"):
         bar = SweepProgress(len(todo), None if progress is True else progress)
     elif progress:
@@ -565,6 +595,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
             if isinstance(result, TaskLost):
                 result = {"status": "lost", "message": result.message}
             row = _row(todo[i], result, plan)
+            if "columns" in result:             # what the row was made for (columns.serves)
+                row["columns"] = result["columns"]
             journal.append(row)
             results[row["key"]] = row
             if bar is not None:
@@ -581,7 +613,7 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     return out
 
 
-def sweep_stats(rows) -> dict:
+def sweep_stats(rows, columns=None) -> dict:
     """Counts, the verdicts and the decay rates (worst, median, best) of the finished runs.
 
     ``stable``, ``unstable``, ``undetermined``: the finished runs' verdicts (:func:`verdict_of`;
@@ -589,25 +621,34 @@ def sweep_stats(rows) -> dict:
     ``no_fit``: the runs that completed without a reliable fit (the failed ones stopped early);
     ``stable_fraction``: stable among the runs with a verdict (None without any);
     ``linear_stable``, ``linear_unstable``: the linearised loops of the completed runs, and
-    ``no_fit_linear_stable``: those stable among the runs without a reliable fit."""
+    ``no_fit_linear_stable``: those stable among the runs without a reliable fit.
+
+    ``columns``: the sweep's (:mod:`~orchestration.sweeps.columns`; None: all). Without
+    ``verdict`` or ``stable`` among them there are no verdict counts; ``columns_range`` gives,
+    for each numeric column asked for, its smallest, median and largest value over the completed
+    runs and the runs of the extremes."""
     n = len(rows)
     ok = [r for r in rows if r["status"] == "ok"]
     decays = [r for r in ok if r.get("decay_rate") is not None]
     out = {"runs": n, "ok": len(ok), "failed": sum(r["status"] == "failed" for r in rows),
            "lost": sum(r["status"] == "lost" for r in rows),
-           "stable": sum(r.get("stable") is True for r in rows),
-           "unstable": sum(r.get("stable") is False for r in rows),
            "invalid": sum(r.get("valid") is False for r in rows)}
-    finished = out["ok"] + out["failed"]
-    out["undetermined"] = finished - out["stable"] - out["unstable"]
-    no_fit = [r for r in ok if r.get("stable") is None]
-    out["no_fit"] = len(no_fit)
-    judged = out["stable"] + out["unstable"]
-    out["stable_fraction"] = out["stable"] / judged if judged else None
     lin = [r for r in ok if r.get("linear_decay_rate") is not None]
     out["linear_stable"] = sum(r["linear_decay_rate"] > 0 for r in lin)
     out["linear_unstable"] = len(lin) - out["linear_stable"]
-    out["no_fit_linear_stable"] = sum((r.get("linear_decay_rate") or 0) > 0 for r in no_fit)
+    if columns is None or {"verdict", "stable"} & set(columns):
+        verdicts = [verdict_of(r) for r in rows]
+        out["stable"] = verdicts.count("stable")
+        out["unstable"] = verdicts.count("unstable")
+        finished = out["ok"] + out["failed"]
+        out["undetermined"] = finished - out["stable"] - out["unstable"]
+        no_fit = [r for r in ok if verdict_of(r) not in ("stable", "unstable")]
+        out["no_fit"] = len(no_fit)
+        judged = out["stable"] + out["unstable"]
+        out["stable_fraction"] = out["stable"] / judged if judged else None
+        if needs_linear(columns):
+            out["no_fit_linear_stable"] = sum((r.get("linear_decay_rate") or 0) > 0
+                                              for r in no_fit)
     if decays:
         worst = min(decays, key=lambda r: r["decay_rate"])
         vals = [r["decay_rate"] for r in decays]
@@ -617,4 +658,17 @@ def sweep_stats(rows) -> dict:
         worst = min(lin, key=lambda r: r["linear_decay_rate"])
         out.update(worst_linear_decay_rate=worst["linear_decay_rate"],
                    worst_linear_run=worst["run"])
+    if columns is not None:
+        ranges = {}
+        for c in columns:
+            if c in ("decay_rate", "linear_decay_rate"):
+                continue                        # their worst, median and best are above
+            have = [r for r in ok if isinstance(r.get(c), (int, float))
+                    and not isinstance(r.get(c), bool) and math.isfinite(r[c])]
+            if have:
+                lo, hi = min(have, key=lambda r: r[c]), max(have, key=lambda r: r[c])
+                ranges[c] = {"min": lo[c], "min_run": lo["run"],
+                             "median": float(np.median([r[c] for r in have])),
+                             "max": hi[c], "max_run": hi["run"], "runs": len(have)}
+        out["columns_range"] = ranges
     return out

@@ -50,7 +50,7 @@ class Sweep:
 
 
 def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
-          seed: int | None = None, overrides=(), reference: bool = False,
+          seed: int | None = None, overrides=(), reference: bool = False, columns=None,
           workers: int | None = None, scheduler: str | None = None, serial: bool = False,
           batch: int = 1, retry_failed: bool = False, out="out/sweep", progress=False,
           command: str | None = None, on_executor=None, stop=None) -> Sweep:
@@ -62,7 +62,9 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     (or ``sample="design"``). ``workers``: that many worker processes on this machine
     (:class:`~orchestration.sweeps.executor.ProcessExecutor`); ``scheduler``: the address of a
     dask scheduler (its cluster's workers run the runs); ``serial``: here, one run after the
-    other. Given none of them, one worker process per core where they win against the serial
+    other. ``columns``: the table's result columns, each run computing only what they need
+    (:mod:`~orchestration.sweeps.columns`; ``"max_abs_x,max_abs_F_c"`` or a list; None: all).
+    Given none of them, one worker process per core where they win against the serial
     runs, by the rule of :func:`~orchestration.sweeps.executor.local_workers` on the runs'
     expected length (:func:`~orchestration.sweeps.plan.expected_run_seconds`), else serial. A
     script that starts worker processes runs its code under ``if __name__ == "__main__":``
@@ -89,7 +91,8 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
     try:
         plan = plan_sweep(scene, grids=_items("grid", grid), values=_items("values", values),
                           samples=_items("sample", sample), n_samples=samples, seed=seed,
-                          overrides=_overrides(overrides), reference=reference)
+                          overrides=_overrides(overrides), reference=reference,
+                          columns=columns)
     except ConfigError as exc:
         raise _in_python(exc) from None
     out_dir = check_folder(out)
@@ -126,7 +129,7 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
                         progress=sink or progress, stop=stop)
     if sink is not None:
         sink.finish()
-    stats = sweep_stats(res.rows)
+    stats = sweep_stats(res.rows, plan.columns)
     design = design_worst_case(plan)
     if design is not None:
         stats["design_worst_case"] = design.to_json()
@@ -140,13 +143,14 @@ def sweep(scene, *, grid=(), values=(), sample=(), samples: int | None = None,
 
 #: The command line's options of a sweep and the arguments of :func:`sweep` that take them.
 _ARGUMENTS = {"--grid": "grid", "--values": "values", "--sample": "sample",
-              "--samples": "samples", "--seed": "seed", "--set": "overrides"}
+              "--samples": "samples", "--seed": "seed", "--set": "overrides",
+              "--columns": "columns", "--reference": "reference=True"}
 
 
 def _in_python(exc: ConfigError) -> ConfigError:
     """A plan's error (worded for the command line: ``--grid ...``) with the arguments of
     :func:`sweep` for the options; :attr:`ConfigError.cli` keeps the command line's words."""
-    text = re.sub(r"(?<![\w-])--(grid|values|samples|sample|seed|set)(?![\w-])",
+    text = re.sub(r"(?<![\w-])--(grid|values|samples|sample|seed|set|columns|reference)(?![\w-])",
                   lambda m: _ARGUMENTS[m[0]], str(exc))
     out = type(exc)(text, cli=exc.cli)
     return out

@@ -16,6 +16,7 @@ from ..scene.keys import DESIGN_LISTED, ConfigError, check_known, parse_override
 from ..scene.records import Scene
 from ..scene.schema import known_keys, load_scene, scene_from_config
 from ..studies.analysis import linearisation
+from .columns import parse_columns
 from ..studies.design import (
     DESIGN_DEFAULTS,
     UncertaintySet,
@@ -222,6 +223,7 @@ class SweepPlan:
     overrides: list = field(default_factory=list)
     uncertainty: object = None        # the design's set, when sampled
     check_levels: int = 5             # its check grid (design.check_levels)
+    columns: tuple | None = None      # the result columns asked for (None: all; .columns)
 
     @property
     def keys(self) -> list:
@@ -245,6 +247,8 @@ class SweepPlan:
             out["samples"], out["seed"] = self.n_samples, self.seed
         if self.uncertainty is not None:
             out["uncertainty_set"] = self.uncertainty.describe()
+        if self.columns is not None:
+            out["columns"] = list(self.columns)
         return out
 
 
@@ -256,9 +260,19 @@ def run_key(name: str, config: dict, reference: bool) -> str:
 
 
 def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | None = None,
-               seed: int | None = None, overrides=(), reference: bool = False) -> SweepPlan:
+               seed: int | None = None, overrides=(), reference: bool = False,
+               columns=None) -> SweepPlan:
     """Parse and validate a sweep: every point's scene is validated here (a
-    :class:`ConfigError` names the first bad one)."""
+    :class:`ConfigError` names the first bad one). ``columns``: the result columns to compute
+    (:func:`~orchestration.sweeps.columns.parse_columns`; None: all)."""
+    try:
+        columns = parse_columns(columns)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    needs = [c for c in columns or () if c.startswith("max_error_")]
+    if needs and not reference:
+        raise ConfigError(f"--columns: {needs[0]} is the error against the monolithic "
+                          f"reference: it needs --reference")
     axes = [parse_grid(g) for g in grids] + [parse_values(v) for v in values]
     samplers = [s for item in samples for s in parse_sample(item)]
     if not axes and not samplers:
@@ -322,7 +336,7 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
         points.append(Point(len(points), params, j, sc, run_key(base.name, sc.config, reference)))
     return SweepPlan(base, axes, samplers, n_samples or 0, seed, reference, points,
                      list(overrides), uncertainty,
-                     settings["design.check_levels"] if uncertainty is not None else 5)
+                     settings["design.check_levels"] if uncertainty is not None else 5, columns)
 
 
 # ---------------------------------------------------------------------------- run length

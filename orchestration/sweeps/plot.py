@@ -15,7 +15,7 @@ from ..report.figures import RATE_CONVENTION, new_figure
 from ..report.files import save_figure
 from .plan import SweepPlan, design_worst_case
 
-__all__ = ["plot_sweep", "sweep_figure", "verdict_text"]
+__all__ = ["plot_sweep", "sweep_figure", "column_figure", "verdict_text"]
 
 #: The verdict strip of a line plot: category -> (colour, marker), in the strip's order.
 _STRIP = {"stable": ("C2", "o"), "unstable": ("C3", "v"), "undetermined": ("0.5", "s"),
@@ -95,6 +95,8 @@ def sweep_figure(plan: SweepPlan, rows):
 
     title = f"flexpend sweep {plan.scene.name}" + (
         f" ({' '.join('--set ' + o for o in plan.overrides)})" if plan.overrides else "")
+    if plan.columns is not None and not {"decay_rate", "verdict"} <= set(plan.columns):
+        return column_figure(plan, rows, title)
     rates = f"rates: {RATE_CONVENTION}"
     if plan.samplers:
         fig = new_figure(8, 5)
@@ -206,6 +208,82 @@ def sweep_figure(plan: SweepPlan, rows):
                      label="largest growth rate σ = max(fitted rate), 1/s (red: grows)")
         ax.set_title(f"{title}\n{verdict_text(rows)}\ngrey: undetermined (no fit decides); "
                      f"x: stopped early\n{rates}", fontsize=9)
+    else:
+        return None
+    fig.tight_layout()
+    return fig
+
+
+def _numeric(rows, column) -> bool:
+    """Whether ``column`` holds a number (not a flag) in some completed run."""
+    return any(isinstance(r.get(column), (int, float)) and not isinstance(r.get(column), bool)
+               for r in rows if r["status"] == "ok")
+
+
+def column_figure(plan: SweepPlan, rows, title: str = ""):
+    """The figure of a sweep asked for some columns only (``--columns`` without both
+    ``decay_rate`` and ``verdict``): the first numeric column asked for, as a histogram (a
+    sample), a line (1 axis) or a heat map (2 axes) over the completed runs; None when no
+    column asked for holds a number."""
+    from .columns import RESULT_COLUMNS
+
+    column = next((c for c in plan.columns if _numeric(rows, c)), None)
+    if column is None:
+        return None
+    label = f"{column}: {RESULT_COLUMNS[column]}"
+    vals = np.array([_value(r, column) for r in rows], dtype=float)
+    finite = vals[np.isfinite(vals)]
+    missing = len(rows) - finite.size
+    counts = f"{len(rows)} runs" + (f", {missing} without a value (not completed)"
+                                    if missing else "")
+    if "verdict" in plan.columns:
+        counts += f"; {verdict_text(rows)}"
+    if plan.samplers:
+        fig = new_figure(8, 5)
+        ax = fig.subplots()
+        bins = max(10, min(60, int(np.sqrt(finite.size)) * 2))
+        ax.hist(finite, bins=bins, color="C0", edgecolor="white")
+        if finite.size:
+            worst = max(range(len(rows)), key=lambda i: vals[i] if np.isfinite(vals[i])
+                        else -math.inf)
+            ax.axvline(finite.max(), color="C3", lw=1.2, ls=":",
+                       label=f"largest: {finite.max():.4g} (run {rows[worst]['run']})")
+            ax.axvline(float(np.median(finite)), color="k", lw=1.2, ls="--",
+                       label=f"median: {float(np.median(finite)):.4g}")
+            ax.legend(fontsize=8)
+        ax.set_xlabel(label)
+        ax.set_ylabel("runs")
+        keys = ", ".join(s.key for s in plan.samplers)
+        ax.set_title(f"{title}\n{counts}; samples of {keys}, seed {plan.seed}", fontsize=9)
+    elif len(plan.axes) == 1:
+        axis = plan.axes[0]
+        fig = new_figure(8, 4.5)
+        ax = fig.subplots()
+        ax.plot(np.arange(len(vals)), vals, "C0-o", ms=4, lw=1.2)
+        ax.set_ylabel(label, fontsize=8)
+        ax.grid(alpha=0.3)
+        _ticks(ax, axis, axis.values, "x")
+        ax.set_title(f"{title}\n{counts}", fontsize=9)
+    elif len(plan.axes) == 2:
+        ax0, ax1 = plan.axes
+        grid = vals.reshape(len(ax0.values), len(ax1.values))
+        fig = new_figure(9, 6.5)
+        ax = fig.subplots()
+        from matplotlib import colormaps
+        im = ax.imshow(np.ma.masked_invalid(grid.T), origin="lower", aspect="auto",
+                       cmap=colormaps["viridis"].with_extremes(bad="0.8"))
+        if grid.size <= 150:
+            lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0, 1)
+            for (i, j), v in np.ndenumerate(grid):
+                if np.isfinite(v):           # dark on viridis' light end
+                    light = hi > lo and (v - lo) / (hi - lo) > 0.6
+                    ax.text(i, j, f"{v:.3g}", ha="center", va="center", fontsize=7,
+                            color="k" if light else "w")
+        _ticks(ax, ax0, ax0.values, "x")
+        _ticks(ax, ax1, ax1.values, "y")
+        fig.colorbar(im, ax=ax, label=label)
+        ax.set_title(f"{title}\n{counts}" + ("; grey: no value" if missing else ""),
+                     fontsize=9)
     else:
         return None
     fig.tight_layout()
