@@ -21,7 +21,9 @@ LocalCluster), measured side by side in one run.
   a sweep run's summary fits over its stepping, medians.
 * **The full Monte Carlo** (``--full N``, 0 to skip): one ``flexpend sweep ... --samples N`` of this
   checkout with the default executor (worker processes where they win), its wall time (target:
-  10,000 runs in at most 120 s on 2 cores).
+  10,000 runs in at most 120 s on 2 cores); then the same with ``--columns`` (default
+  ``max_abs_x,max_abs_F_c``: no mode fit; ``--columns ''`` skips it), whose split is measured
+  beside the full one's, run by run.
 
 Wall times carry the machine's load (the rounds alternate the commands so that it falls on all
 of them). Writes ``--json`` (default ``bench/results/monte_carlo.json``, git-ignored).
@@ -77,7 +79,8 @@ def run(tree: Path, samples: int, executor: list) -> dict:
     rows = [json.loads(line) for line in journal.read_text().splitlines()]
     shutil.rmtree(out, ignore_errors=True)
     # the journal's first row is the first run finished (on workers not always run 0)
-    start = None if first is None or not rows else first - rows[0]["wall_time"]
+    start = None if first is None or not rows or "wall_time" not in rows[0] else \
+        first - rows[0]["wall_time"]
     rows.sort(key=lambda r: r["run"])
     return {"wall": wall, "first_row": first, "start_up": start, "rows": rows}
 
@@ -95,6 +98,9 @@ def main(argv=None):
     ap.add_argument("--full", type=int, default=10000, help="runs of the full Monte Carlo (0: skip)")
     ap.add_argument("--quick", action="store_true", help="100 samples, one round, no full run")
     ap.add_argument("--json", default=str(RESULTS / "monte_carlo.json"))
+    ap.add_argument("--columns", default="max_abs_x,max_abs_F_c",
+                    help="the full Monte Carlo and the split again with flexpend sweep --columns "
+                         "(a table of these columns only, no mode fit; '': skip)")
     a = ap.parse_args(argv)
     if a.quick:
         a.samples, a.reps, a.full = 100, 1, 0
@@ -143,17 +149,28 @@ def main(argv=None):
         # the fits against the stepping
         res["split"] = {}
         for t, tree in trees.items():
-            m = measure(tree, "split", "--runs", 16 if not a.quick else 6, "--warmup", 3)
+            cols = ["--columns", a.columns] if a.columns and t == "this" else []
+            m = measure(tree, "split", "--runs", 16 if not a.quick else 6, "--warmup", 3, *cols)
             res["split"][t] = m["median_s"]
-            med = m["median_s"]
-            log(f"  {t:6s} a run: stepping {1e3 * med['stepping']:.2f} ms, fits "
-                f"{1e3 * med['fits']:.2f} ms ({med['fits'] / med['stepping']:.2f} of the "
-                f"stepping), total {1e3 * med['total']:.2f} ms")
+            for label, med in ((t, m["median_s"]), (f"{t} --columns {a.columns}",
+                                                    m.get("columns_median_s"))):
+                if med is None:
+                    continue
+                log(f"  {label}: a run: stepping {1e3 * med['stepping']:.2f} ms, fits "
+                    f"{1e3 * med['fits']:.2f} ms ({med['fits'] / med['stepping']:.2f} of the "
+                    f"stepping), total {1e3 * med['total']:.2f} ms")
+            if cols:
+                res["split"]["this --columns"] = m["columns_median_s"]
     if a.full:
         r = run(ROOT, a.full, [])
         res["full"] = {"runs": a.full, "wall": r["wall"], "start_up": r["start_up"]}
         log(f"\nflexpend sweep {SCENE} --sample design --samples {a.full}: {r['wall']:.1f} s "
             f"(start-up {r['start_up']:.2f} s)")
+        if a.columns:
+            r = run(ROOT, a.full, ["--columns", a.columns])
+            res["full_columns"] = {"runs": a.full, "columns": a.columns, "wall": r["wall"]}
+            log(f"flexpend sweep {SCENE} --sample design --samples {a.full} --columns "
+                f"{a.columns}: {r['wall']:.1f} s")
     res["machine"]["load_after"] = os.getloadavg()
     Path(a.json).parent.mkdir(parents=True, exist_ok=True)
     Path(a.json).write_text(json.dumps(res, indent=2))

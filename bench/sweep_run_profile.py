@@ -4,6 +4,7 @@ finds it first (the caller sets ``PYTHONPATH`` to the checkout measured) and not
 benchmarks, so that an older checkout is measured with its own code.
 
     PYTHONPATH=CHECKOUT python bench/sweep_run_profile.py split --runs 16 --warmup 3
+    PYTHONPATH=. python bench/sweep_run_profile.py split --runs 16 --columns max_abs_x,max_abs_F_c
     PYTHONPATH=CHECKOUT python bench/sweep_run_profile.py sweep --runs 64 --workers 2 --reps 3
 
 Prints one JSON object.
@@ -45,9 +46,10 @@ def design_plan(runs: int, seed: int = 0):
     return plan_sweep(SCENE, samples=["design"], n_samples=runs, seed=seed)
 
 
-def design_tasks(runs: int) -> list:
+def design_tasks(runs: int, columns=None) -> list:
     """The sweep's tasks (``engine.run_task``'s argument) of ``runs`` design samples: each
-    run's scene, its FMUs and the model sources' digest (hashed once)."""
+    run's scene, its FMUs and the model sources' digest (hashed once); with ``columns`` (a
+    tuple of the table's columns, ``flexpend sweep --columns``) those columns only."""
     import orchestration.sweeps.engine as engine
     from orchestration.sweeps.executor import file_name
 
@@ -55,7 +57,8 @@ def design_tasks(runs: int) -> list:
     fmus = engine.fmus_for(plan)
     digest = engine.model_sources_digest()
     return [(p.scene, False, {r: (file_name(x), str(x))
-                              for r, x in fmus[p.scene.master.fmus].items()}, digest)
+                              for r, x in fmus[p.scene.master.fmus].items()}, digest,
+             *([columns] if columns is not None else []))
             for p in plan.points]
 
 
@@ -84,7 +87,11 @@ class Clock:
         setattr(owner, name, timed)
 
 
-def split(runs: int, warmup: int) -> dict:
+def split(runs: int, warmup: int, columns=None) -> dict:
+    """The parts of each run's time (module docstring); with ``columns`` (``--columns``, a
+    comma-separated list), each design run twice, alternately: the sweep of every column
+    (``rows``, ``median_s``) and the sweep of those columns (``columns_rows``,
+    ``columns_median_s``; ``steps``, ``cosim_time``, ``wall_time`` are added for the split)."""
     from threadpoolctl import threadpool_limits
 
     import orchestration.job as job
@@ -106,19 +113,27 @@ def split(runs: int, warmup: int) -> dict:
         clock.wrap(SlavePool, "acquire", "load")
     except ImportError:                      # before the pool
         pass
-    tasks = design_tasks(runs + warmup)
-    rows = []
+    variants = [design_tasks(runs + warmup)]
+    if columns:
+        asked = tuple(dict.fromkeys([*columns.split(","), "steps", "cosim_time", "wall_time"]))
+        variants.append(design_tasks(runs + warmup, asked))
+    rows = [[] for _ in variants]
     with threadpool_limits(limits=1, user_api="blas"):
-        for i, task in enumerate(tasks):
-            clock.acc.clear()
-            row = engine.run_task(task)
-            assert row["status"] in ("ok", "failed"), row.get("message")
-            if i < warmup:
-                continue
-            part = {"total": row["wall_time"], "stepping": row["cosim_time"], **clock.acc}
-            part["other"] = part["total"] - sum(part.get(k, 0.0) for k in PARTS[:-1])
-            rows.append(part)
-    return {"runs": len(rows), "steps": row["steps"], "rows": rows, "median_s": medians(rows)}
+        for i in range(runs + warmup):
+            for v, tasks in enumerate(variants):     # side by side, run by run
+                clock.acc.clear()
+                row = engine.run_task(tasks[i])
+                assert row["status"] in ("ok", "failed"), row.get("message")
+                if i < warmup:
+                    continue
+                part = {"total": row["wall_time"], "stepping": row["cosim_time"], **clock.acc}
+                part["other"] = part["total"] - sum(part.get(k, 0.0) for k in PARTS[:-1])
+                rows[v].append(part)
+    out = {"runs": len(rows[0]), "steps": row["steps"], "rows": rows[0],
+           "median_s": medians(rows[0])}
+    if columns:
+        out.update(columns=columns, columns_rows=rows[1], columns_median_s=medians(rows[1]))
+    return out
 
 
 def medians(rows) -> dict:
@@ -168,10 +183,13 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=0, help="0: serial")
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--batch", type=int, default=1, help="runs per task (on dask)")
+    ap.add_argument("--columns", default=None,
+                    help="split: also the sweep of these columns only (flexpend sweep "
+                         "--columns), run by run beside the sweep of every column")
     args = ap.parse_args(argv)
     import orchestration
     where = os.path.dirname(os.path.dirname(os.path.abspath(orchestration.__file__)))
-    out = split(args.runs, args.warmup) if args.what == "split" else \
+    out = split(args.runs, args.warmup, args.columns) if args.what == "split" else \
         sweep(args.runs, args.workers, args.reps, args.batch)
     out["checkout"] = where
     print(json.dumps(out))
