@@ -491,19 +491,21 @@ class SweepResult:
                 f"finished; {self.seconds:.3g} s)")
 
 
-def _row(point: Point, result: dict, plan: SweepPlan) -> dict:
+def _row(point: Point, result: dict, plan: SweepPlan, journal: bool = False) -> dict:
     """The point's identity (run number, key, swept values, sample), then ``result``'s fields
-    (a journal row's identity fields are the point's own)."""
+    (a journal row's identity fields are the point's own): for the table, those of the
+    columns the plan asks for (:func:`~orchestration.sweeps.columns.project`); for the journal
+    (``journal``), every field the run computed, with the ``columns`` it was made for."""
     row = {"run": point.index, "key": point.key}
     row.update({k: point.params.get(k) for k in plan.keys})
     if plan.samplers:
         row["sample"] = point.sample
-    if plan.columns is None:
-        result = {k: v for k, v in result.items() if k != "columns"}
-    else:                                       # the columns asked for, from any row
-        result = project(result, plan.columns)
+    made = result.get("columns")
+    if not journal:
+        result = project({k: v for k, v in result.items() if k != "columns"}, plan.columns)
+        made = plan.columns
     row.update((k, v) for k, v in result.items() if k not in row and k != "sample")
-    if row.get("status") in DONE and (plan.columns is None or "verdict" in plan.columns):
+    if row.get("status") in DONE and (made is None or "verdict" in made):
         row["verdict"] = row.get("verdict") or verdict_of(row)  # an older journal has none
     return row
 
@@ -594,9 +596,7 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
         for i, result in executor.map(run_task, tasks, batch=batch):
             if isinstance(result, TaskLost):
                 result = {"status": "lost", "message": result.message}
-            row = _row(todo[i], result, plan)
-            if "columns" in result:             # what the row was made for (columns.serves)
-                row["columns"] = result["columns"]
+            row = _row(todo[i], result, plan, journal=True)
             journal.append(row)
             results[row["key"]] = row
             if bar is not None:

@@ -69,6 +69,15 @@ def test_the_columns_asked_for_fit_nothing_and_equal_those_of_every_column(
     assert (tmp_path / "sweep.png").stat().st_size > 10_000     # the column's line plot
 
 
+def test_worker_processes_give_the_serial_table(paths, tmp_path, full):
+    from orchestration.sweeps.executor import ProcessExecutor
+    with ProcessExecutor(2) as ex:
+        res = run_sweep(plan(NO_FIT), paths, tmp_path / "p", ex, progress=False)
+    serial = run_sweep(plan(NO_FIT), paths, tmp_path / "s", progress=False)
+    assert res.rows == serial.rows
+    assert [r["max_abs_x"] for r in res.rows] == [r["max_abs_x"] for r in full]
+
+
 def test_a_fit_column_fits_and_gives_the_verdicts_of_every_column(paths, tmp_path, full):
     res = run_sweep(plan("verdict,decay_rate"), paths, tmp_path, progress=False)
     assert [(r["verdict"], r["decay_rate"]) for r in res.rows] == \
@@ -79,7 +88,7 @@ def test_a_fit_column_fits_and_gives_the_verdicts_of_every_column(paths, tmp_pat
     assert sweep_figure(plan("verdict,decay_rate"), res.rows) is not None
 
 
-def test_the_journal_serves_the_sweeps_whose_columns_its_rows_have(paths, tmp_path):
+def test_the_journal_serves_the_sweeps_whose_columns_its_rows_have(paths, tmp_path, full):
     ex = Counting()
     run_sweep(plan("max_abs_x"), paths, tmp_path, ex, progress=False)
     assert ex.tasks == 3
@@ -89,8 +98,10 @@ def test_the_journal_serves_the_sweeps_whose_columns_its_rows_have(paths, tmp_pa
     assert ex.tasks == 6       # a new column: every run again, the failed one too
     rows = Journal(tmp_path).read()
     assert [set(r["columns"]) for r in rows.values()] == [{"steps", "max_abs_x"}] * 3
-    run_sweep(plan("max_abs_x,steps"), paths, tmp_path, ex, progress=False)
-    assert ex.tasks == 6                               # the rerun kept the old column
+    both = run_sweep(plan("max_abs_x,steps"), paths, tmp_path, ex, progress=False)
+    assert ex.tasks == 6                               # the rerun kept the old column...
+    assert [(r["max_abs_x"], r["steps"]) for r in both.rows] == \
+        [(r["max_abs_x"], r["steps"]) for r in full]  # ...and its values
     again = run_sweep(plan(), paths, tmp_path, ex, progress=False)
     assert ex.tasks == 9       # every column: a row of some columns serves no longer
     assert all("slow_rate" in r and "columns" not in r for r in again.rows)
