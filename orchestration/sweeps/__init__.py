@@ -3,7 +3,8 @@
 
     flexpend sweep SCENE [--grid KEY=START:STOP:NUM[:log] ...] [--values KEY=V1,V2,...]
                          [--sample KEY=DIST ... --samples N --seed S] [--set KEY=VALUE ...]
-                         [--reference] [--workers N | --scheduler ADDRESS | --serial]
+                         [--reference] [--columns COL,COL,...]
+                         [--workers N | --scheduler ADDRESS | --serial]
                          [--batch N] [--out DIR] [--retry-failed]
 
 * **What varies.** Every scene key (``flexpend scenes``, the keys of ``flexpend run``) can be
@@ -24,6 +25,8 @@
   the largest fitted rate), max |F_c|, the error against the monolithic reference with
   ``--reference``, the master's time ``cosim_time`` and the whole task's ``wall_time``; beside
   the fits, the linearised loop's rates (:func:`linear_decay_rate`).
+* **Only some columns** (``--columns``, :mod:`orchestration.sweeps.columns`): the table's result
+  columns asked for, each run computing only what they need (no mode fit without a fit column).
 * **Nothing finished is lost.** Each finished run is appended at once to ``DIR/runs.jsonl``;
   the table (``DIR/sweep.parquet`` with pyarrow, else ``DIR/sweep.csv``) is written from it at
   the end. A run is keyed by the digest of its whole resolved scene (and ``--reference``): a rerun
