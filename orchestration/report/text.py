@@ -388,7 +388,8 @@ def verdict_lines(stats) -> list[str]:
            + (f" ({100 * share:.1f} % of those with a verdict)" if share is not None else "")
            + f", {stats['unstable']} unstable, {stats['undetermined']} undetermined"
            + (f" ({why})" if why else "")
-           + (f"; {stats['invalid']} left their rung's measured range" if stats["invalid"] else "")]
+           + (f"; {stats['invalid']} left their rung's measured range" if stats.get("invalid")
+              else "")]
     n, k = stats["no_fit"], stats.get("no_fit_linear_stable")
     if n:
         runs = "the run" if n == 1 else f"the {n} runs"
@@ -396,9 +397,11 @@ def verdict_lines(stats) -> list[str]:
         linear = "" if k is None else "; the linearised loop is " + (
             f"stable{every}" if k == n else f"unstable{every}" if k == 0 else
             f"stable in {k} of them, unstable in {n - k}")
+        where = ": the table's verdict_reason" if "verdict_reason" in stats.get(
+            "columns", ["verdict_reason"]) else ""
         out.append(f"  undetermined: {runs} whose fits do not decide (too short, too few "
-                   f"periods in the linear range, or a rate within its uncertainty of zero: the "
-                   f"table's verdict_reason){linear}")
+                   f"periods in the linear range, or a rate within its uncertainty of zero"
+                   f"{where}){linear}")
     return out
 
 
@@ -429,6 +432,8 @@ def sweep_lines(plan, res, stats, executor) -> list[str]:
         out.append(f"  {c}: smallest {text(r['min'])} (run {r['min_run']}), median "
                    f"{text(r['median'])}, largest {text(r['max'])} (run {r['max_run']}) over "
                    f"{r['runs']} runs")
+    for c, f in (stats.get("columns_flags") or {}).items():
+        out.append(f"  {c}: true in {f['true']} runs, false in {f['false']}")
     if "design_worst_case" in stats:
         w = stats["design_worst_case"]
         at = ", ".join(f"{k} = {num(v)}" for k, v in w["decay_rate_at"].items())

@@ -8,7 +8,9 @@ eigenvalues are computed only for :data:`LINEAR_COLUMNS`. Without ``--columns`` 
 every column (the table of a sweep without it is unchanged).
 
 Every table has the run's identity (``run``, ``key``, the swept values, ``sample``),
-``status`` and ``message`` (why a run failed), whatever columns are asked for.
+``status`` and ``message`` (why a run failed), whatever columns are asked for. ``--reference``
+(the monolithic reference of every run) needs ``max_error_phi_o`` or ``max_error_eta_1`` among
+them.
 """
 from __future__ import annotations
 
@@ -52,8 +54,8 @@ FIT_COLUMNS = frozenset({"stable", "verdict", "verdict_reason", "decay_rate",
                            for q in ("rate", "frequency", "rate_linear", "note"))})
 #: The columns that need the linearised loop's eigenvalues.
 LINEAR_COLUMNS = frozenset({"linear_decay_rate", "linear_stable"})
-#: The columns of every table, asked for or not.
-ALWAYS = ("status", "message")
+#: The columns of every table, asked for or not (besides the swept keys).
+ALWAYS = ("run", "key", "sample", "status", "message")
 
 
 def parse_columns(spec) -> tuple | None:
@@ -70,17 +72,20 @@ def parse_columns(spec) -> tuple | None:
     else:
         raise TypeError(f"columns = {spec!r} is not allowed; allowed: a comma-separated string "
                         f"or a list of column names")
+    allowed = (f"allowed: {', '.join(RESULT_COLUMNS)} (run, key, the swept keys, sample, status "
+               f"and message are in every table)")
     out = []
     for name in names:
         if name in ALWAYS:
             continue                    # in every table anyway
         if name not in RESULT_COLUMNS:
             what = f"unknown column {name!r}" if name else "an empty column name"
-            raise ValueError(f"--columns: {what}; allowed: {', '.join(RESULT_COLUMNS)} "
-                             f"(status and message are in every table)")
+            raise ValueError(f"--columns: {what}; {allowed}")
         if name in out:
-            raise ValueError(f"--columns: {name} is named twice")
+            raise ValueError(f"--columns: {name} is named twice; name each column once")
         out.append(name)
+    if not out:
+        raise ValueError(f"--columns names no result column; {allowed}")
     return tuple(out)
 
 

@@ -501,12 +501,12 @@ def _row(point: Point, result: dict, plan: SweepPlan, journal: bool = False) -> 
     if plan.samplers:
         row["sample"] = point.sample
     made = result.get("columns")
+    if result.get("status") in DONE and (made is None or "verdict" in made):
+        # an older journal has no verdict: it follows from the row's ``stable``
+        result = {**result, "verdict": result.get("verdict") or verdict_of(result)}
     if not journal:
         result = project({k: v for k, v in result.items() if k != "columns"}, plan.columns)
-        made = plan.columns
     row.update((k, v) for k, v in result.items() if k not in row and k != "sample")
-    if row.get("status") in DONE and (made is None or "verdict" in made):
-        row["verdict"] = row.get("verdict") or verdict_of(row)  # an older journal has none
     return row
 
 
@@ -537,10 +537,18 @@ def _task_columns(columns, row):
     """The columns a run computes for a sweep asking for ``columns`` whose journal has ``row``
     (or None) for it: those, and those the row was made for (a rerun for new columns keeps the
     old ones: the journal's row then serves both sweeps)."""
-    made = (row or {}).get("columns")
-    if columns is None or not made:
+    if columns is None or row is None:
         return columns
+    made = row.get("columns")
+    if made is None:                # a row of every column (retried): keep it so
+        return None if row.get("status") in DONE else columns
     return (*columns, *(c for c in made if c not in columns))
+
+
+def _columns_item(columns) -> tuple:
+    """The task's columns item: none for every column (the task of an older flexpend, which a
+    worker of that version reads)."""
+    return () if columns is None else (columns,)
 
 
 def _finished(row, plan: SweepPlan, retry_failed: bool) -> bool:
@@ -582,7 +590,7 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     def pair(p):
         return shipped[None] if None in shipped else shipped[p.scene.master.fmus]
     tasks = [(p.scene, plan.reference, pair(p), model_sources_digest(),
-              _task_columns(plan.columns, results.get(p.key))) for p in todo]
+              *_columns_item(_task_columns(plan.columns, results.get(p.key)))) for p in todo]
     if progress is True or hasattr(progress, "write"):
         bar = SweepProgress(len(todo), None if progress is True else progress)
     elif progress:
@@ -610,6 +618,8 @@ def run_sweep(plan: SweepPlan, fmus: dict, out_dir, executor=None, *, batch: int
     out.table = write_table(ordered, out_dir)
     if plot:
         out.plot = plot_sweep(plan, ordered, out_dir / "sweep.png")
+        if out.plot is None:                    # no figure of this sweep: none of an earlier
+            (out_dir / "sweep.png").unlink(missing_ok=True)
     return out
 
 
@@ -631,11 +641,13 @@ def sweep_stats(rows, columns=None) -> dict:
     ok = [r for r in rows if r["status"] == "ok"]
     decays = [r for r in ok if r.get("decay_rate") is not None]
     out = {"runs": n, "ok": len(ok), "failed": sum(r["status"] == "failed" for r in rows),
-           "lost": sum(r["status"] == "lost" for r in rows),
-           "invalid": sum(r.get("valid") is False for r in rows)}
+           "lost": sum(r["status"] == "lost" for r in rows)}
+    if columns is None or "valid" in columns:
+        out["invalid"] = sum(r.get("valid") is False for r in rows)
     lin = [r for r in ok if r.get("linear_decay_rate") is not None]
-    out["linear_stable"] = sum(r["linear_decay_rate"] > 0 for r in lin)
-    out["linear_unstable"] = len(lin) - out["linear_stable"]
+    if needs_linear(columns):
+        out["linear_stable"] = sum(r["linear_decay_rate"] > 0 for r in lin)
+        out["linear_unstable"] = len(lin) - out["linear_stable"]
     if columns is None or {"verdict", "stable"} & set(columns):
         verdicts = [verdict_of(r) for r in rows]
         out["stable"] = verdicts.count("stable")
@@ -659,10 +671,16 @@ def sweep_stats(rows, columns=None) -> dict:
         out.update(worst_linear_decay_rate=worst["linear_decay_rate"],
                    worst_linear_run=worst["run"])
     if columns is not None:
-        ranges = {}
+        out["columns"] = list(columns)
+        ranges, flags = {}, {}
         for c in columns:
-            if c in ("decay_rate", "linear_decay_rate"):
-                continue                        # their worst, median and best are above
+            if c == "decay_rate":
+                continue                        # its worst, median and best are above
+            if all(isinstance(r.get(c), bool) or r.get(c) is None for r in ok) and \
+                    any(isinstance(r.get(c), bool) for r in ok):
+                flags[c] = {"true": sum(r.get(c) is True for r in ok),
+                            "false": sum(r.get(c) is False for r in ok)}
+                continue
             have = [r for r in ok if isinstance(r.get(c), (int, float))
                     and not isinstance(r.get(c), bool) and math.isfinite(r[c])]
             if have:
@@ -670,5 +688,5 @@ def sweep_stats(rows, columns=None) -> dict:
                 ranges[c] = {"min": lo[c], "min_run": lo["run"],
                              "median": float(np.median([r[c] for r in have])),
                              "max": hi[c], "max_run": hi["run"], "runs": len(have)}
-        out["columns_range"] = ranges
+        out["columns_range"], out["columns_flags"] = ranges, flags
     return out

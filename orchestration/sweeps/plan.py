@@ -273,6 +273,10 @@ def plan_sweep(scene: str, *, grids=(), values=(), samples=(), n_samples: int | 
     if needs and not reference:
         raise ConfigError(f"--columns: {needs[0]} is the error against the monolithic "
                           f"reference: it needs --reference")
+    if reference and columns is not None and not needs:
+        raise ConfigError("--reference solves every run's monolithic reference for the columns "
+                          "max_error_phi_o and max_error_eta_1: ask for one of them in --columns, "
+                          "or leave --reference out")
     axes = [parse_grid(g) for g in grids] + [parse_values(v) for v in values]
     samplers = [s for item in samples for s in parse_sample(item)]
     if not axes and not samplers:

@@ -253,13 +253,23 @@ def column_figure(plan: SweepPlan, rows, title: str = ""):
             ax.legend(fontsize=8)
         ax.set_xlabel(label)
         ax.set_ylabel("runs")
+        from matplotlib.ticker import MaxNLocator
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
         keys = ", ".join(s.key for s in plan.samplers)
-        ax.set_title(f"{title}\n{counts}; samples of {keys}, seed {plan.seed}", fontsize=9)
+        ax.set_title(f"{title}\n{counts} ({len(plan.points) // max(plan.n_samples, 1)} x "
+                     f"{plan.n_samples} samples of {keys}, seed {plan.seed})", fontsize=9)
     elif len(plan.axes) == 1:
         axis = plan.axes[0]
         fig = new_figure(8, 4.5)
         ax = fig.subplots()
         ax.plot(np.arange(len(vals)), vals, "C0-o", ms=4, lw=1.2)
+        stopped = [i for i, r in enumerate(rows) if r["status"] != "ok"]
+        if stopped:                     # on the axis' foot: the runs without a value
+            from matplotlib.transforms import blended_transform_factory
+            ax.plot(stopped, [0.03] * len(stopped), "x", color="C3", ms=7, mew=2,
+                    transform=blended_transform_factory(ax.transData, ax.transAxes),
+                    label="stopped early or lost (no value)")
+            ax.legend(fontsize=8)
         ax.set_ylabel(label, fontsize=8)
         ax.grid(alpha=0.3)
         _ticks(ax, axis, axis.values, "x")
@@ -279,11 +289,15 @@ def column_figure(plan: SweepPlan, rows, title: str = ""):
                     light = hi > lo and (v - lo) / (hi - lo) > 0.6
                     ax.text(i, j, f"{v:.3g}", ha="center", va="center", fontsize=7,
                             color="k" if light else "w")
+        for r in rows:
+            if r["status"] != "ok":
+                i, j = divmod(r["run"], len(ax1.values))
+                ax.plot(i, j, "kx", ms=9, mew=2)
         _ticks(ax, ax0, ax0.values, "x")
         _ticks(ax, ax1, ax1.values, "y")
         fig.colorbar(im, ax=ax, label=label)
-        ax.set_title(f"{title}\n{counts}" + ("; grey: no value" if missing else ""),
-                     fontsize=9)
+        ax.set_title(f"{title}\n{counts}" + ("; grey: no value; x: stopped early or lost"
+                                              if missing else ""), fontsize=9)
     else:
         return None
     fig.tight_layout()

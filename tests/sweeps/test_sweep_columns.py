@@ -23,13 +23,14 @@ def paths(fmus):
 
 
 class Counting(Executor):
-    """The serial executor, counting the tasks it runs."""
+    """The serial executor, counting the tasks it runs and keeping the last map's."""
 
     def __init__(self):
-        self.tasks = 0
+        self.tasks, self.items = 0, []
 
     def map(self, fn, items, batch=1):
-        for i, value in super().map(fn, items, batch):
+        self.items = list(items)
+        for i, value in super().map(fn, self.items, batch):
             self.tasks += 1
             yield i, value
 
@@ -126,7 +127,8 @@ def test_summarize_without_fits_has_the_other_fields_of_the_full_summary(paths):
 @pytest.mark.parametrize("spec,fragment", [
     ("bogus", "unknown column 'bogus'; allowed: stable, verdict"),
     ("max_abs_x,", "an empty column name"),
-    ("max_abs_x,max_abs_x", "max_abs_x is named twice"),
+    ("max_abs_x,max_abs_x", "max_abs_x is named twice; name each column once"),
+    ("status,run", "--columns names no result column; allowed: stable"),
 ])
 def test_a_bad_column_is_a_value_error_naming_it(spec, fragment):
     with pytest.raises(ValueError, match=fragment.replace("(", r"\(")):
@@ -140,6 +142,8 @@ def test_a_bad_column_is_a_value_error_naming_it(spec, fragment):
     (["--columns", "bogus"], "--columns: unknown column 'bogus'; allowed:"),
     (["--columns", "max_error_phi_o"], "max_error_phi_o is the error against the monolithic "
                                        "reference: it needs --reference"),
+    (["--columns", "max_abs_x", "--reference"], "ask for one of them in --columns, or leave "
+                                                "--reference out"),
 ])
 def test_cli_a_bad_column_is_one_line_exit_2(args, fragment, capsys, tmp_path):
     argv = ["sweep", "flexible_pd_lowpass", "--values", "controller.kp=500,600", "--out",
@@ -164,3 +168,41 @@ def test_cli_prints_the_range_of_each_column(fmus, tmp_path, capsys, no_fits):
                  "max_abs_x", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "verdicts" not in out and "max_abs_x: smallest " in out and " over 2 runs" in out
+
+
+def test_an_older_journal_row_without_a_verdict_has_the_verdict_of_its_stable(paths, tmp_path,
+                                                                             full):
+    import json
+    run_sweep(plan(), paths, tmp_path, progress=False)
+    journal = tmp_path / "runs.jsonl"
+    rows = [json.loads(line) for line in journal.read_text().splitlines()]
+    journal.write_text("".join(json.dumps({k: v for k, v in r.items() if k != "verdict"}) + "\n"
+                               for r in rows))       # as an older flexpend wrote it
+    ex = Counting()
+    res = run_sweep(plan("verdict,max_abs_x"), paths, tmp_path, ex, progress=False)
+    assert ex.tasks == 0
+    assert [r["verdict"] for r in res.rows] == ["stable", "undetermined", "stable"] == \
+        [r["verdict"] if r["status"] == "ok" else "undetermined" for r in full]
+
+
+def test_statistics_only_of_what_was_computed_and_no_stale_figure(paths, tmp_path):
+    run_sweep(plan("max_abs_x"), paths, tmp_path, progress=False)
+    assert (tmp_path / "sweep.png").exists()
+    res = run_sweep(plan("valid,stable"), paths, tmp_path, progress=False)
+    assert res.plot is None and not (tmp_path / "sweep.png").exists()   # no numeric column
+    stats = sweep_stats(res.rows, ("valid", "stable"))
+    assert "linear_stable" not in stats and "stable" in stats
+    assert stats["columns_flags"] == {"valid": {"true": 2, "false": 0},
+                                      "stable": {"true": 2, "false": 0}}
+    bare = sweep_stats(res.rows, ("max_abs_x",))
+    assert not {"invalid", "linear_stable", "stable", "no_fit"} & set(bare)
+
+
+def test_a_retried_row_of_every_column_stays_one(paths, tmp_path):
+    ex = Counting()
+    run_sweep(plan(), paths, tmp_path, ex, progress=False)
+    assert all(len(task) == 4 for task in ex.items)     # the task of every column as before
+    run_sweep(plan("max_abs_x"), paths, tmp_path, ex, progress=False, retry_failed=True)
+    assert ex.tasks == 4 and len(ex.items[0]) == 4      # the failed run, all columns again
+    run_sweep(plan(), paths, tmp_path, ex, progress=False)
+    assert ex.tasks == 4
