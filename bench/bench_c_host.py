@@ -13,8 +13,8 @@ inputs held: the coupling the C host implements):
   thread state; the host aborts at exit, which does not affect the timing);
 * **C host, after**: the same host on the FMU's binary (the loader), in a bare environment.
 
-The C host times its stepping loop only. Medians of ``runs`` after one warm-up run each, side by
-side in one invocation; BLAS threads limited to one. Writes ``bench/results/c_host.json``.
+The C host times its stepping loop only. Medians of ``runs`` rounds, each running the three in
+turn, after one warm-up run each; BLAS threads limited to one. Writes ``bench/results/c_host.json``.
 """
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ import sysconfig
 import tempfile
 from pathlib import Path
 
-from common import RESULTS, ROOT, CoSim, median_time, product_fmus
+from common import RESULTS, ROOT, CoSim, alternating_medians, product_fmus
 
 
 def host_env(before: bool) -> dict:
@@ -77,13 +77,12 @@ def main(argv=None) -> int:
         before = host_command(exe, dirs, scene, args.steps, args.steps,
                               binary="{model}_pythonfmu.so")
         env_after, env_before = host_env(False), host_env(True)
+        ways = {"fmpy master": fmpy_run,
+                "C host, before (pythonfmu + LD_PRELOAD)":
+                    lambda: (c_host_time(before, env_before), None),
+                "C host, after (the loader)": lambda: (c_host_time(after, env_after), None)}
         results = {}
-        for name, fn in (("fmpy master", fmpy_run),
-                         ("C host, before (pythonfmu + LD_PRELOAD)",
-                          lambda: (c_host_time(before, env_before), None)),
-                         ("C host, after (the loader)",
-                          lambda: (c_host_time(after, env_after), None))):
-            med, all_, _ = median_time(fn, args.runs)
+        for name, (med, all_) in alternating_medians(ways, args.runs).items():
             results[name] = {"median_us": med * 1e6, "runs_us": [t * 1e6 for t in all_]}
             print(f"{name:42s} {med * 1e6:8.1f} us per macro step", flush=True)
     base = results["fmpy master"]["median_us"]

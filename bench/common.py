@@ -269,3 +269,16 @@ def median_time(fn, runs: int, max_seconds: float | None = None):
         dt, value = fn()
         times.append(dt)
     return statistics.median(times), times, value
+
+
+def alternating_medians(fns: dict, runs: int) -> dict:
+    """``{name: (median seconds, all seconds)}`` of the ``fn() -> (seconds, value)`` of ``fns``,
+    side by side: one untimed warm-up call each, then ``runs`` rounds that call each in turn (a
+    load that changes during the benchmark falls on all of them alike)."""
+    for fn in fns.values():
+        fn()
+    times = {name: [] for name in fns}
+    for _ in range(runs):
+        for name, fn in fns.items():
+            times[name].append(fn()[0])
+    return {name: (statistics.median(t), t) for name, t in times.items()}
