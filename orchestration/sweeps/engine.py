@@ -28,8 +28,8 @@ from ..files import atomic_path, open_in_place, output_error
 from ..scene.keys import parse_value
 from ..scene.records import Scene
 from ..studies.analysis import linearisation, max_real_part
-from .executor import Executor, TaskLost, file_name, scratch_dir, worker_file
 from .columns import needs_fits, needs_linear, project, serves
+from .executor import Executor, TaskLost, file_name, scratch_dir, worker_file
 from .plan import Point, SweepPlan
 from .plot import plot_sweep
 

@@ -16,13 +16,13 @@ from ..scene.keys import DESIGN_LISTED, ConfigError, check_known, parse_override
 from ..scene.records import Scene
 from ..scene.schema import known_keys, load_scene, scene_from_config
 from ..studies.analysis import linearisation
-from .columns import parse_columns
 from ..studies.design import (
     DESIGN_DEFAULTS,
     UncertaintySet,
     design_settings,
     worst_cases,
 )
+from .columns import parse_columns
 
 __all__ = ["DESIGN_KEYS", "DISTRIBUTIONS", "Axis", "Sampler", "parse_grid", "parse_values",
            "parse_sample", "draw_samples", "Point", "SweepPlan", "run_key", "plan_sweep",
