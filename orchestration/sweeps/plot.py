@@ -234,8 +234,7 @@ def column_figure(plan: SweepPlan, rows, title: str = ""):
     vals = np.array([_value(r, column) for r in rows], dtype=float)
     finite = vals[np.isfinite(vals)]
     missing = len(rows) - finite.size
-    counts = f"{len(rows)} runs" + (f", {missing} without a value (not completed)"
-                                    if missing else "")
+    counts = f"{len(rows)} runs" + (f", {missing} without a value" if missing else "")
     if "verdict" in plan.columns:
         counts += f"; {verdict_text(rows)}"
     if plan.samplers:
@@ -296,7 +295,7 @@ def column_figure(plan: SweepPlan, rows, title: str = ""):
         _ticks(ax, ax0, ax0.values, "x")
         _ticks(ax, ax1, ax1.values, "y")
         fig.colorbar(im, ax=ax, label=label)
-        ax.set_title(f"{title}\n{counts}" + ("; grey: no value; x: stopped early or lost"
+        ax.set_title(f"{title}\n{counts}" + ("; grey: no value (x: stopped early or lost)"
                                               if missing else ""), fontsize=9)
     else:
         return None
