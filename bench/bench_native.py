@@ -47,8 +47,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import (RESULTS, ROOT, CoSim, load_scene, median_time, phi_error,  # noqa: E402
-                    reference, trivial_native_fmus)
+from common import (RESULTS, ROOT, CoSim, alternating_medians, load_scene,  # noqa: E402
+                    median_time, phi_error, reference, trivial_native_fmus)
 from targets import ivp_points  # noqa: E402
 
 from orchestration.export import build_fmus, fmu_pair  # noqa: E402
@@ -238,14 +238,9 @@ def bracket(points, error) -> list:
 
 def side_by_side(points, runs: int) -> list:
     """Median seconds of each of ``points`` timed again in ``runs`` rounds that alternate them
-    (one warm-up round first), so that the machine's load falls on all of them."""
-    times = [[] for _ in points]
-    for r in range(runs + 1):
-        for i, p in enumerate(points):
-            dt, _ = p["_run"]()
-            if r:
-                times[i].append(dt)
-    return [statistics.median(t) for t in times]
+    (one warm-up call each first), so that the machine's load falls on all of them."""
+    med = alternating_medians({i: p["_run"] for i, p in enumerate(points)}, runs)
+    return [med[i][0] for i in range(len(points))]
 
 
 def fastest(points, max_error=1e-5):
