@@ -654,7 +654,8 @@ def sweep_stats(rows, columns=None) -> dict:
         out["unstable"] = verdicts.count("unstable")
         finished = out["ok"] + out["failed"]
         out["undetermined"] = finished - out["stable"] - out["unstable"]
-        no_fit = [r for r in ok if verdict_of(r) not in ("stable", "unstable")]
+        no_fit = [r for r, v in zip(rows, verdicts)
+                  if r["status"] == "ok" and v not in ("stable", "unstable")]
         out["no_fit"] = len(no_fit)
         judged = out["stable"] + out["unstable"]
         out["stable_fraction"] = out["stable"] / judged if judged else None

@@ -243,8 +243,7 @@ def column_figure(plan: SweepPlan, rows, title: str = ""):
         bins = max(10, min(60, int(np.sqrt(finite.size)) * 2))
         ax.hist(finite, bins=bins, color="C0", edgecolor="white")
         if finite.size:
-            worst = max(range(len(rows)), key=lambda i: vals[i] if np.isfinite(vals[i])
-                        else -math.inf)
+            worst = int(np.nanargmax(vals))
             ax.axvline(finite.max(), color="C3", lw=1.2, ls=":",
                        label=f"largest: {finite.max():.4g} (run {rows[worst]['run']})")
             ax.axvline(float(np.median(finite)), color="k", lw=1.2, ls="--",
