@@ -23,8 +23,11 @@ __all__ = ["VARIABLES", "MODEL", "SENSORS", "STATES", "MAX_OUTPUT_DERIVATIVE_ORD
 #: xc_1 the filter's output, xc_2 its rate (order 2); states beyond the filter order stay 0 with
 #: derivative 0.
 STATES = ("xc_1", "xc_2")
-#: The highest order of the exact output derivatives of the native FMUs.
-MAX_OUTPUT_DERIVATIVE_ORDER = 2
+#: The highest order of the exact output derivatives of the native FMUs: F_c's first four, from
+#: the filter's equations differentiated with the error signal's value and first two derivatives
+#: (the inputs and input derivatives set now; the sensors' polynomial is of degree 2). The
+#: Hermite coupling (``master.coupling = "hermite"``) reads all four.
+MAX_OUTPUT_DERIVATIVE_ORDER = 4
 #: What the native PDLowPass offers at every parameter value (fmu_common.variables.Offers).
 OFFERS = Offers(output_derivative_order=MAX_OUTPUT_DERIVATIVE_ORDER)
 

@@ -148,14 +148,18 @@ class FilterKernel:
             raise ArithmeticError("linearize: the state or error signal is not finite")
         return A, B, C, D
 
-    def output_derivatives(self, xc, e0: float, e1: float = 0.0, e2: float = 0.0):
-        """``(dF_c/dt, d2F_c/dt2)`` at the state ``xc`` for the error signal ``e0`` with the
-        rates ``e1, e2`` (``fpf_output_derivatives``)."""
+    def output_derivatives(self, xc, e0: float, e1: float = 0.0, e2: float = 0.0,
+                           orders: int = 2):
+        """The first ``orders`` (1 to 4; default ``(dF_c/dt, d2F_c/dt2)``) time derivatives of
+        ``F_c`` at the state ``xc`` for the error signal ``e0`` with the rates ``e1, e2``
+        (``fpf_output_derivatives``; the error signal's higher derivatives are 0)."""
+        if orders not in (1, 2, 3, 4):
+            raise ValueError(f"orders = {orders!r}; allowed: 1, 2, 3, 4")
         x = (_D * 2)(*np.r_[np.asarray(xc, dtype=float).ravel(), 0.0, 0.0][:2])
-        d = (_D * 2)()
+        d = (_D * 4)()
         if self._lib.fpf_output_derivatives(self._f, x, _D3(e0, e1, e2), d) != FPF_OK:
             raise ArithmeticError("output_derivatives: a result is not finite")
-        return d[0], d[1]
+        return tuple(d[:orders])
 
     def step(self, prepared, e0: float, e1: float = 0.0, e2: float = 0.0):
         """``x <- Ad x + G [e0, e1, e2]`` with the discretisation ``prepared``; returns the

@@ -727,6 +727,11 @@ int fpm_model_set_input_derivative(fpm_model *m, const fpm_logger *lg, unsigned 
     for (k = 0; k < 3; k++)
         if (vr == SENSOR_VRS[k] && (order == 1 || order == 2)) {
             m->d[order - 1][k] = value;
+            if (m->stepped) {     /* the inputs set now replace the last step's polynomial */
+                m->stepped = 0;   /* (input_now): as after initialisation */
+                memset(m->step_y, 0, sizeof m->step_y);
+                m->step_h = 0.0;
+            }
             return FPM_OK;
         }
     fpm_log(lg, FPM_ERROR, "fmi2SetRealInputDerivatives: PDLowPass takes derivatives of order 1 "
@@ -753,10 +758,11 @@ int fpm_model_offers_jacobian(void) { return FPM_OFFERS_JACOBIAN; }
 /* The sensors' values and first and second derivatives now (sensors() layout: x_o, phi_o,
  * omega_o, then their rates, then their second derivatives): after a doStep, the polynomial that
  * step used (the inputs and input derivatives at its start) evaluated at its end; otherwise
- * (after initialisation, and always in Model Exchange, which takes no doStep) the inputs set now
- * with the input derivatives set now (0 in Model Exchange). "A step was taken" is the flag
- * stepped, set by a successful doStep, cleared by initialisation, saved with FMU states. 1 if
- * all are finite. */
+ * (after initialisation, after an input derivative was set since the last doStep, and always in
+ * Model Exchange, which takes no doStep) the inputs set now with the input derivatives set now
+ * (0 in Model Exchange). "A step was taken" is the flag stepped, set by a successful doStep,
+ * cleared by initialisation and by fmi2SetRealInputDerivatives, saved with FMU states. 1 if all
+ * are finite. */
 static int input_now(const fpm_model *m, double *y)
 {
     int k, ok = 1;
@@ -845,13 +851,14 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
 int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
                                 double *value)
 {
-    double e[3], d[2];
+    double e[3], d[4];
     if (vr != VR_F_c) {
         fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
         return FPM_ERROR;
     }
-    if (order < 1 || order > 2) {
-        fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c: orders 1 and 2 only", order);
+    if (order < 1 || order > FPM_OUTPUT_DERIVATIVE_ORDER) {
+        fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c: orders 1 to %d only", order,
+                FPM_OUTPUT_DERIVATIVE_ORDER);
         return FPM_ERROR;
     }
     if (!ready_now(m, lg, "the output derivatives", e)) return FPM_ERROR;

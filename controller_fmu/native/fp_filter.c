@@ -475,25 +475,31 @@ int fpf_linearize(const fpf_filter *f, const double *xc, double e, double *A, do
 int fpf_output_derivatives(const fpf_filter *f, const double *xc, const double *e, double *d)
 {
     const double wc = f->cutoff;
-    double v, v1, v2, sigma;
-    if (f->order == 0) {
-        v = e[0];
-        v1 = e[1];
-        v2 = e[2];
-    } else if (f->order == 1) {
-        v = xc[0];
-        v1 = wc * (e[0] - xc[0]);
-        v2 = wc * (e[1] - v1);
-    } else {
-        v = xc[0];
-        v1 = xc[1];
-        v2 = (wc * wc) * (e[0] - xc[0]) - (2.0 * f->damping * wc) * xc[1];
+    double v[5], sigma;
+    int k;
+    if (f->order == 0) {                 /* F_c = -sat(e): e's derivatives; e''', e'''' are 0 */
+        v[0] = e[0];
+        v[1] = e[1];
+        v[2] = e[2];
+        v[3] = 0.0;
+        v[4] = 0.0;
+    } else if (f->order == 1) {          /* v' = wc (e - v), differentiated */
+        v[0] = xc[0];
+        v[1] = wc * (e[0] - xc[0]);
+        v[2] = wc * (e[1] - v[1]);
+        v[3] = wc * (e[2] - v[2]);
+        v[4] = wc * (0.0 - v[3]);
+    } else {                             /* v'' = wc^2 (e - v) - 2 zeta wc v', differentiated */
+        v[0] = xc[0];
+        v[1] = xc[1];
+        v[2] = (wc * wc) * (e[0] - xc[0]) - (2.0 * f->damping * wc) * xc[1];
+        v[3] = (wc * wc) * (e[1] - v[1]) - (2.0 * f->damping * wc) * v[2];
+        v[4] = (wc * wc) * (e[2] - v[2]) - (2.0 * f->damping * wc) * v[3];
     }
-    if (!(isfinite(v) && isfinite(v1) && isfinite(v2) && isfinite(e[0]) && isfinite(e[1])
-          && isfinite(e[2])))
-        return FPF_NONFINITE;
-    sigma = sat_slope(-v, f->force_limit);
-    d[0] = -sigma * v1;
-    d[1] = -sigma * v2;
+    for (k = 0; k < 5; k++)
+        if (!isfinite(v[k])) return FPF_NONFINITE;
+    if (!(isfinite(e[0]) && isfinite(e[1]) && isfinite(e[2]))) return FPF_NONFINITE;
+    sigma = sat_slope(-v[0], f->force_limit);
+    for (k = 0; k < 4; k++) d[k] = -sigma * v[k + 1];
     return FPF_OK;
 }

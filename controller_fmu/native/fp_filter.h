@@ -120,9 +120,10 @@ FPF_API int fpf_rhs(const fpf_filter *f, const double *xc, double e, double *dxc
 FPF_API int fpf_linearize(const fpf_filter *f, const double *xc, double e, double *A, double *B,
                           double *C, double *D);
 
-/* d[0] = dF_c/dt, d[1] = d2F_c/dt2 at the state xc for the error signal given as its value and
- * time derivatives e = [e, e', e''] at that instant (fpf_error of the sensors' polynomial): exact
- * (the filter's own equations, and the saturation's slope as above). FPF_OK or FPF_NONFINITE. */
+/* d[k - 1] = the k-th time derivative of F_c, k = 1..4, at the state xc for the error signal
+ * given as its value and time derivatives e = [e, e', e''] at that instant (fpf_error of the
+ * sensors' polynomial, of degree 2: its third and fourth derivatives are 0): exact (the filter's
+ * own equations differentiated, and the saturation's slope as above). FPF_OK or FPF_NONFINITE. */
 FPF_API int fpf_output_derivatives(const fpf_filter *f, const double *xc, const double *e,
                                    double *d);
 

@@ -331,6 +331,33 @@ def test_filter_output_derivatives_against_the_exact_response(order, limit):
             assert abs(exact - fd_h) <= tol, (exact, fd_h, tol)
 
 
+@pytest.mark.parametrize("limit", [None, 40.0])
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_filter_output_derivatives_up_to_order_4_are_powers_of_the_augmented_system(order, limit):
+    """Orders 1 to 4 of ``fpf_output_derivatives`` against a second derivation: the filter and
+    its input polynomial as one linear system z' = M z, z = [xc, e, e', e''] (the third
+    derivative of e is 0: the sensors' polynomial is of degree 2), whose k-th derivative is
+    M^k z; F_c = -xc_1 (order 0: -e), times the saturation's slope (0 beyond the limit)."""
+    model, k = _controller(order, **({} if limit is None else {"force_limit": limit}))
+    n = model.nx
+    M = np.zeros((n + 3, n + 3))
+    if n:
+        M[:n, :n] = model.Af
+        M[:n, n] = model.Bf[:, 0]
+    M[n, n + 1] = M[n + 1, n + 2] = 1.0
+    rng = np.random.default_rng(40 + order)
+    for _ in range(8):
+        xc = rng.standard_normal(n) * 30.0
+        e = rng.standard_normal(3) * [30.0, 1e3, 1e5]
+        z = np.r_[xc, e]
+        slope = 1.0 if abs(z[0]) <= model.params.force_limit else 0.0
+        want = [-slope * (np.linalg.matrix_power(M, j) @ z)[0] for j in (1, 2, 3, 4)]
+        got = k.output_derivatives(xc, *e, orders=4)
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12 * max(map(abs, want)))
+        assert got[:2] == k.output_derivatives(xc, *e)
+    with pytest.raises(ValueError, match="orders = 5"):
+        k.output_derivatives(np.zeros(n), 0.0, orders=5)
+
 # ---------------------------------------------------------------------- the models' hooks
 HOOKS_C = Path(__file__).parents[1] / "native" / "jacobian_hooks.c"
 

@@ -889,6 +889,42 @@ def test_max_output_derivative_order_is_what_the_binary_gives(me, version):
         assert any("maxOutputDerivativeOrder" in msg for _, msg in m.logs[n:])
 
 
+def test_controller_output_derivatives_after_a_step_follow_the_input_derivatives_set_then(me):
+    """FMI 2.0 co-simulation: after a doStep, F_c's derivatives are those of the step's input
+    polynomial at its end, until input derivatives are set: then, orders 1 to 4, those of the
+    inputs and input derivatives set now (the Hermite coupling reads them so), equal to the
+    kernel's fpf_output_derivatives at the filter state read through F_c and its rate."""
+    from controller_fmu.kernel import FilterKernel
+    from controller_fmu.pd_lowpass import ControllerParams, PDLowPassModel
+    params = {"kx": 2.0, "cutoff": 50.0, "filter_damping": 0.5}
+    p = ControllerParams(**params)
+    model, kern = PDLowPassModel(p), FilterKernel(p)
+    m = me(2, CTRL, cs=True, **params)
+    m.initialize(event=False)
+    ins = ["x_o", "phi_o", "omega_o"]           # PDLowPassModel's sensor order
+    y0, y1, y2 = [0.01, 0.2, -1.5], [0.3, 2.0, 40.0], [-2.0, 50.0, 900.0]
+    m.set(**dict(zip(ins, y0)))
+    vrs = m.vr(*ins)
+    m.fmu.setRealInputDerivatives(vrs, [1] * 3, y1)
+    m.fmu.setRealInputDerivatives(vrs, [2] * 3, y2)
+    h = 2e-3
+    m.fmu.doStep(0.0, h)
+    F, dF = m.get("F_c")[0], _output_derivative(m, ["F_c"], 1)[0]
+    xc = np.array([-F, -dF])                    # F_c = -xc_1, its rate -xc_2 (unsaturated)
+    end = [[a + h * b + 0.5 * h * h * c for a, b, c in zip(y0, y1, y2)],
+           [b + h * c for b, c in zip(y1, y2)], y2]        # the step's polynomial at its end
+    e_end = [model.error_signal(v) for v in end]
+    assert _output_derivative(m, ["F_c"], 2)[0] == pytest.approx(
+        kern.output_derivatives(xc, *e_end)[1], rel=1e-12)
+    z0, z1, z2 = [0.02, 0.1, 3.0], [-0.4, 7.0, -80.0], [5.0, -300.0, 2e4]
+    m.set(**dict(zip(ins, z0)))
+    m.fmu.setRealInputDerivatives(vrs, [1] * 3, z1)
+    m.fmu.setRealInputDerivatives(vrs, [2] * 3, z2)
+    want = kern.output_derivatives(xc, *(model.error_signal(v) for v in (z0, z1, z2)), orders=4)
+    got = [_output_derivative(m, ["F_c"], k)[0] for k in (1, 2, 3, 4)]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert got[2] != 0.0 and got[3] != 0.0
+
 # ---------------------------------------------------------------------- the stiffened rung
 @pytest.mark.parametrize("version", [2, 3])
 def test_stiffened_derivatives_are_its_numpy_rhs_and_its_jacobians_are_refused(me, version):
