@@ -60,10 +60,10 @@ KERNELS = {
     "flexpend_plant": ("plant_fmu", ("fp_plant.c",), ("fp_plant.h",), "fp_plant_abi",
                        "fp_plant_source_digest", 5),
     "flexpend_filter": ("controller_fmu", ("fp_filter.c",), ("fp_filter.h",), "fpf_abi",
-                        "fpf_source_digest", 3),
+                        "fpf_source_digest", 4),
     # the master's compiled fixed-step loop (orchestration/cosim/compiled.py), for the host
     "flexpend_master": ("orchestration/cosim", ("fm_master.c",), ("fm_master.h",), "fm_abi",
-                        "fm_source_digest", 4),
+                        "fm_source_digest", 5),
     # the model-exchange master's integration loop (orchestration/cosim/compiled_me.py)
     "flexpend_me": ("orchestration/cosim", ("fm_me.c",), ("fm_me.h",), "fme_abi",
                     "fme_source_digest", 2),

@@ -34,7 +34,7 @@ extern "C" {
 #endif
 #endif
 
-#define FPF_ABI 3
+#define FPF_ABI 4
 
 #define FPF_OK 0
 #define FPF_BADARG 1      /* an argument is out of range (nothing was done) */

@@ -24,7 +24,7 @@ import numpy as np
 
 from fmu_common import kernels
 
-from .coupling import weight_table
+from .coupling import HERMITE_MAX_ORDER, hermite_rows, weight_table
 from .slave import CoSimulationError, RunInterrupted
 
 __all__ = ["unavailable", "load", "CompiledRun", "KERNEL"]
@@ -71,7 +71,8 @@ class _Master(ctypes.Structure):
                 ("fail_slave", ctypes.c_int), ("fail_call", ctypes.c_int),
                 ("fail_status", ctypes.c_int), ("fail_timed", ctypes.c_int),
                 ("fail_time", ctypes.c_double), ("dweights", ctypes.c_double * 54),
-                ("taylor", ctypes.c_double * 36)]
+                ("taylor", ctypes.c_double * 60), ("hermite", ctypes.c_int),
+                ("pad2_", ctypes.c_int), ("hweights", _P)]
 
 
 _GO_ON = ctypes.CFUNCTYPE(ctypes.c_int)
@@ -220,6 +221,14 @@ class CompiledRun:
         st.t0, st.h, st.total, st.m = t0, cp.h, total, m
         self.weights = weight_table()
         st.weights = self.weights.ctypes.data
+        st.hermite = int(cp.hermite)
+        if cp.hermite:                  # hermite_rows(q, two_point, h), as the Python loop's
+            hw = self.hweights = np.zeros((HERMITE_MAX_ORDER, 2, 4, 2 * HERMITE_MAX_ORDER + 2))
+            for q in range(1, HERMITE_MAX_ORDER + 1):
+                for two in (0, 1):
+                    W = hermite_rows(q, bool(two), cp.h)
+                    hw[q - 1, two, :, :W.shape[1]] = W
+            st.hweights = hw.ctypes.data
         st.n_cols = len(cols)
         st.col_slave, st.col_rec, st.col_index = buf(col_slave), buf(col_rec), buf(col_index)
         st.out = self.rows.ctypes.data

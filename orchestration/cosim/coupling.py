@@ -19,7 +19,11 @@ import numpy as np
 from ..scene.records import MasterSettings
 
 __all__ = ["Coupling", "extrapolation_weights", "weight_table", "derivative_name", "taylor_rows",
-           "checked_connections", "output_table"]
+           "hermite_rows", "HERMITE_MAX_ORDER", "checked_connections", "output_table"]
+
+#: The highest output derivative order the Hermite coupling reads from a source (the
+#: controller's four; the plant gives two).
+HERMITE_MAX_ORDER = 4
 
 
 def derivative_name(variable: str, order: int) -> str:
@@ -95,19 +99,29 @@ class Coupling:
                        for n in names}
         # input derivatives: FMI's (fmi2SetRealInputDerivatives) or as the input variables
         # d<u> and d2<u>; how many orders each slave takes, 0 to 2
+        #: the Hermite coupling (``master.coupling = "hermite"``, Gauss-Seidel): a source's
+        #: polynomial over a step is the Taylor polynomial of its newest sample (every output
+        #: derivative it gives, up to HERMITE_MAX_ORDER) at the step's start, or, when it
+        #: stepped earlier in the same step, the Hermite polynomial through its samples at the
+        #: step's start and end; an FMU takes the least-squares quadratic of it over the step
+        #: (hermite_rows), and after its step, when every source of its inputs has stepped, its
+        #: inputs' values and derivatives at the step's end (so that its output derivatives are
+        #: those of the sources' exact rates)
+        self.hermite = settings.coupling == "hermite"
+        hermite = self.hermite
         self.n_der = {n: 0 for n in names}
-        if settings.input_derivatives and self.p >= 1:
+        if settings.input_derivatives and (self.p >= 1 or hermite):
             for n in names:
                 dst_vars = [c.dst_var for c in self.inputs[n]]
                 if slaves[n].interpolates_inputs:
-                    self.n_der[n] = (2 if self.p >= 2 else 1) if dst_vars else 0
+                    self.n_der[n] = (2 if self.p >= 2 or hermite else 1) if dst_vars else 0
                     continue
                 var = slaves[n].variables
                 has = [all(derivative_name(v, k) in var
                            and var[derivative_name(v, k)].causality == "input"
                            for v in dst_vars) for k in (1, 2)]
                 self.n_der[n] = 0 if not (dst_vars and has[0]) else (
-                    2 if has[1] and self.p >= 2 else 1)
+                    2 if has[1] and (self.p >= 2 or hermite) else 1)
         #: whether an FMU takes its input derivatives through fmi2SetRealInputDerivatives
         self.interpolates = {n: slaves[n].interpolates_inputs for n in names}
         self.bound_inputs = {
@@ -127,6 +141,15 @@ class Coupling:
                                       and self.outputs[n]
                                       and slaves[n].output_derivative_order >= self.p) else 0
                         for n in names}
+        if hermite:
+            self.out_der = {n: min(slaves[n].output_derivative_order, HERMITE_MAX_ORDER)
+                            if self.outputs[n] else 0 for n in names}
+            lacking = [n for n in names if self.outputs[n] and not self.out_der[n]]
+            if lacking:
+                raise ValueError(f"master.coupling = 'hermite' needs the output derivatives "
+                                 f"of every FMU whose outputs are exchanged; "
+                                 f"{', '.join(lacking)} gives none (maxOutputDerivativeOrder "
+                                 "0); allowed here: master.coupling = 'polynomial'")
         lacking = [n for n in names if settings.output_derivatives and self.p >= 1
                    and self.outputs[n] and not self.out_der[n]]
         if lacking:
@@ -136,7 +159,7 @@ class Coupling:
                           "past samples", RuntimeWarning, stacklevel=3)
         # the first step needs no prediction when every source's polynomial is complete from
         # one sample (its derivatives)
-        self.correct_startup = self.p >= 1 and all(
+        self.correct_startup = not hermite and self.p >= 1 and all(
             s.md.coSimulation.canGetAndSetFMUstate for s in slaves.values()) and not all(
             self.out_der[n] for n in names if self.outputs[n])
 
@@ -222,6 +245,43 @@ def taylor_rows(delta: float, kinds: tuple, scale: float, order: int) -> np.ndar
                     math.factorial(j + 1) * scale)
             elif j >= kind:
                 W[i, j] = delta ** (j - kind) / math.factorial(j - kind)
+    return W
+
+
+@functools.lru_cache(maxsize=64)
+def hermite_rows(q: int, two_point: bool, scale: float) -> np.ndarray:
+    """The Hermite coupling's weights (:attr:`Coupling.hermite`): rows (the average over the step,
+    the value, the first and the second derivative at its start) of the least-squares quadratic
+    over a step of ``scale`` seconds of a source's polynomial, on its samples' values and
+    derivatives up to order ``q``: ``two_point`` False, the Taylor polynomial of the sample at
+    the step's start, on ``[y, y', ..., y^(q)]``; True, the Hermite polynomial (degree 2q + 1)
+    through the samples at the step's start (a) and end (b), on ``[y_a, ..., y_a^(q), y_b, ...,
+    y_b^(q)]``.
+
+    In the step's scaled time tau = s / scale the polynomial's coefficients are ``c = P y``
+    (Taylor: ``scale^m / m!``; Hermite: the inverse of its conditions' matrix, times
+    ``scale^j``); its least-squares quadratic over [0, 1] is ``a = G^-1 B c`` (``G_ik = 1 / (i +
+    k + 1)``, ``B_im = 1 / (i + m + 1)``), which keeps its average; the rows are ``a_0 + a_1 / 2 +
+    a_2 / 3``, ``a_0``, ``a_1 / scale`` and ``2 a_2 / scale^2``. A quadratic is its own
+    least-squares quadratic: for the Taylor polynomial of order q <= 2 these are
+    :func:`taylor_rows`'s rows."""
+    if two_point:
+        n = 2 * (q + 1)
+        V = np.zeros((n, n))
+        for j in range(q + 1):
+            V[j, j] = math.factorial(j)                         # d^j/dtau^j at tau = 0
+            for m in range(j, n):                               # ... at tau = 1
+                V[q + 1 + j, m] = math.factorial(m) / math.factorial(m - j)
+        D = np.array([scale ** j for j in range(q + 1)] * 2)
+        P = np.linalg.solve(V, np.diag(D))
+    else:
+        n = q + 1
+        P = np.diag([scale ** m / math.factorial(m) for m in range(n)])
+    G = np.array([[1.0 / (i + k + 1) for k in range(3)] for i in range(3)])
+    B = np.array([[1.0 / (i + m + 1) for m in range(n)] for i in range(3)])
+    a = np.linalg.solve(G, B @ P)                               # rows a_0, a_1, a_2
+    W = np.array([a[0] + a[1] / 2 + a[2] / 3, a[0], a[1] / scale, 2.0 * a[2] / scale ** 2])
+    W.flags.writeable = False
     return W
 
 

@@ -44,7 +44,7 @@ from fmu_common.kernels import KernelError
 from ..scene.records import MasterSettings
 from . import compiled as compiled_master
 from . import compiled_adaptive
-from .coupling import Coupling, _History, _weight_rows, output_table, taylor_rows
+from .coupling import Coupling, _History, _weight_rows, hermite_rows, output_table, taylor_rows
 from .slave import CoSimulationError, RunInterrupted
 
 __all__ = ["RunStats", "Master"]
@@ -194,7 +194,52 @@ class Master:
         """Input values for ``dst`` over ``[t0, t1]`` (on the history's clock): the polynomials'
         step averages, held; or, for a slave taking input derivatives, the polynomials at ``t0``
         and their derivatives (the FMU integrates the polynomial over its step)."""
+        if self.coupling.hermite:
+            return self._hermite_inputs(dst, hist, t0, t1)
         return self._fill(dst, hist, t0, t1 - t0, self.coupling.kinds[dst])
+
+    _KIND_ROW = {"average": 0, 0: 1, 1: 2, 2: 3}     # hermite_rows' rows
+
+    def _hermite_inputs(self, dst, hist, t0, t1):
+        """The Hermite coupling's inputs for ``dst`` over ``[t0, t1]``: per source, the
+        least-squares quadratic over the step of its Taylor polynomial at ``t0`` (its newest
+        sample), or, when it stepped earlier in this step (its newest sample at ``t1``), of the
+        Hermite polynomial through its samples at ``t0`` and ``t1`` (:func:`hermite_rows`);
+        summed left to right, as the compiled loop sums."""
+        buf = self._in_buf[dst]
+        kinds = self.coupling.kinds[dst]
+        rows = [self._KIND_ROW[k] for k in kinds]
+        scale = (t1 - t0) * self._unit
+        for src, pos, idx in self.coupling.gather[dst]:
+            h = hist[src]
+            q = h.derivatives
+            if h.t[-1] == t0:
+                ys = list(h.u[-1].reshape(q + 1, -1))
+                W = hermite_rows(q, False, scale)
+            else:
+                ys = [*h.u[-2].reshape(q + 1, -1), *h.u[-1].reshape(q + 1, -1)]
+                W = hermite_rows(q, True, scale)
+            W = W[rows]
+            acc = W[:, 0:1] * ys[0]
+            for j in range(1, len(ys)):
+                acc = acc + W[:, j:j + 1] * ys[j]
+            buf[self.coupling.targets[dst, src, len(kinds)]] = acc[:, idx]
+        return buf
+
+    def _sample_inputs(self, dst, samples: dict):
+        """The inputs of ``dst`` at an instant from its sources' ``samples`` (outputs, then their
+        derivatives): the values, and the derivatives of the orders ``dst`` takes (0 beyond the
+        source's)."""
+        c = self.coupling
+        nd = c.n_der[dst] if c.interpolates[dst] else 0
+        buf = np.zeros(len(c.inputs[dst]) * (1 + nd))
+        for src, pos, idx in c.gather[dst]:
+            q = c.out_der[src]
+            y = np.asarray(samples[src], dtype=float).reshape(q + 1, -1)
+            rows = np.zeros((1 + nd, y.shape[1]))
+            rows[:min(q, nd) + 1] = y[:min(q, nd) + 1]
+            buf[c.targets[dst, src, 1 + nd]] = rows[:, idx]
+        return buf
 
     def _point_inputs(self, dst, hist, t1):
         """Input values for ``dst`` at the instant ``t1`` (the sources' polynomials there; only
@@ -208,6 +253,13 @@ class Master:
         belongs to its time stamp."""
         s = self.slaves[n]
         t = self._time(t1)
+        c = self.coupling
+        if c.hermite and c.inputs[n] and all(hist[src].t[-1] == t1 for src, _, _ in c.gather[n]):
+            # every source has stepped: the inputs' values and derivatives at t1, so that the
+            # outputs' derivatives are those of the sources' exact rates
+            s.set_inputs(self._sample_inputs(n, {src: hist[src].u[-1]
+                                                 for src, _, _ in c.gather[n]}), t)
+            return s.get_outputs(t)
         if s.feedthrough and self.coupling.inputs[n]:
             s.set_inputs(self._point_inputs(n, hist, t1), t, n=len(self.coupling.inputs[n]))
         return s.get_outputs(t)
@@ -347,7 +399,11 @@ class Master:
         cur = {n: s.get_outputs(t0) for n, s in self.slaves.items()}
         for _ in range(2):
             for n in self.coupling.order:
-                if self.coupling.inputs[n]:
+                if self.coupling.inputs[n] and self.coupling.hermite:
+                    # the sources' output derivatives as the input derivatives
+                    self.slaves[n].set_inputs(self._sample_inputs(n, cur), t0)
+                    cur[n] = self.slaves[n].get_outputs(t0)
+                elif self.coupling.inputs[n]:
                     vals = np.zeros(self._in_buf[n].size)     # input derivatives 0
                     vals[:len(self.coupling.inputs[n])] = [cur[c.src][self.coupling.out_index[c.src][c.src_var]]
                                                   for c in self.coupling.inputs[n]]

@@ -59,6 +59,13 @@ IMPLICIT_SCHEMES = ("parallel", "serial")
 #: master.error_estimator: the adaptive master's local error estimate (orchestration.cosim.master)
 ESTIMATORS = ("extrapolation", "energy")
 FIRST = ("controller", "plant")
+#: ``master.coupling``: what an FMU's inputs are over a communication step
+#: (:mod:`orchestration.cosim.coupling`): the polynomials of ``master.extrapolation`` (through
+#: past samples, or the output derivatives' Taylor polynomial), or the Hermite coupling
+#: (Gauss-Seidel on every output derivative the FMUs give: the Taylor polynomial at the step's
+#: start, or the Hermite polynomial through the samples at both ends of the step when the source
+#: stepped first; each passed as its least-squares quadratic over the step).
+COUPLINGS = ("polynomial", "hermite")
 #: ``master.interface``: the FMUs stepped as co-simulation slaves, or their Model Exchange
 #: interfaces solved as one system (:mod:`orchestration.cosim.model_exchange`).
 INTERFACES = ("co-simulation", "model-exchange")
@@ -184,6 +191,12 @@ class MasterSettings:
         note="auto, true or false")})
     output_derivatives: bool = boolean(False, "extrapolate outputs by the FMUs' output "
                                        "derivatives", note="native FMUs, master.input_derivatives")
+    coupling: str = choice("polynomial", "the inputs over a step: polynomial (master."
+                           "extrapolation's) or hermite (the FMUs' output derivatives: Taylor at "
+                           "the step's start, or Hermite through both ends of the step for an "
+                           "FMU that stepped first; as least-squares quadratics)", COUPLINGS,
+                           note="hermite: gauss-seidel, native FMUs, a fixed step, "
+                           "master.input_derivatives")
     interface: str = choice("co-simulation", "the FMUs stepped as slaves, or their Model "
                             "Exchange interfaces solved as one system", INTERFACES)
     solver: str = choice("radau", "the model-exchange master's stiff solver", SOLVERS)
@@ -217,6 +230,17 @@ class MasterSettings:
                    if not self.input_derivatives else None)
             if why:
                 raise ConfigError(f"master.output_derivatives = true cannot be used here: {why}")
+        if self.coupling == "hermite":
+            why = ("the pythonfmu FMUs give no output derivatives" if self.fmus != "native" else
+                   f"it is a Gauss-Seidel coupling (master.algorithm = {self.algorithm!r})"
+                   if self.algorithm != "gauss-seidel" else
+                   "it takes a fixed step (master.adaptive = true)" if self.adaptive else
+                   "it passes its polynomials as input derivatives (master.input_derivatives = "
+                   "false)" if not self.input_derivatives else
+                   "it couples co-simulation FMUs (master.interface = 'model-exchange')"
+                   if self.interface != "co-simulation" else None)
+            if why:
+                raise ConfigError(f"master.coupling = 'hermite' cannot be used here: {why}")
         if self.interface == "model-exchange" and self.fmus != "native":
             raise ConfigError(f"master.interface = 'model-exchange' needs master.fmus = 'native' "
                               f"(the {self.fmus} FMUs are co-simulation only)")
@@ -481,7 +505,9 @@ class Scene:
                "master.interface = 'model-exchange': the exact beam steps implicitly inside the "
                "FMU (co-simulation only)" if m.interface == "model-exchange" else
                "master.output_derivatives = true: the exact rung gives no output derivatives"
-               if m.output_derivatives else None)
+               if m.output_derivatives else
+               "master.coupling = 'hermite': the exact rung gives no output derivatives"
+               if m.coupling == "hermite" else None)
         if why:
             raise ConfigError(f"plant.fidelity = 'exact' cannot be used with {why}")
 
@@ -517,14 +543,16 @@ class Scene:
 
     def _check_stiffened(self):
         """``plant.fidelity = "stiffened"`` gives no directional or output derivatives (its
-        kernel has no exact Jacobians), which the Model Exchange master and
-        ``master.output_derivatives`` need."""
+        kernel has no exact Jacobians), which the Model Exchange master,
+        ``master.output_derivatives`` and ``master.coupling = "hermite"`` need."""
         if self.plant.fidelity != "stiffened":
             return
         m = self.master
         why = ("master.interface = 'model-exchange': its master needs the FMUs' directional "
                "derivatives" if m.interface == "model-exchange" else
-               "master.output_derivatives = true" if m.output_derivatives else None)
+               "master.output_derivatives = true" if m.output_derivatives else
+               "master.coupling = 'hermite': its output derivatives" if m.coupling == "hermite"
+               else None)
         if why:
             raise ConfigError(f"plant.fidelity = 'stiffened' cannot be used with {why}, which "
                               "the stiffened rung does not give")

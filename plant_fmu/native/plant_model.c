@@ -149,6 +149,11 @@ struct fpm_model {
     double y_acc[NXMAX];        /* the last accepted state (the outputs) */
     double out[FP_OUT_ETA + NMAX];
     int out_fresh, energy_fresh;
+    /* fpm_model_output_derivative's last fp_output_derivatives (an importer reads every output
+     * and order in one call: one evaluation serves them all): valid while od_valid (cleared by
+     * prepare) for the state od_x and the input od_u, od_du, compared bit for bit */
+    int od_valid;
+    double od_u, od_du, od_x[NXMAX], od_d1[FP_OUT_ETA + NMAX], od_d2[FP_OUT_ETA + NMAX];
     /* the exponential method (its linear model and discretisations: in dv) */
     int ex_next;
     /* the exact rung (fidelity = "exact"; the block "the exact rung" below) */
@@ -365,6 +370,7 @@ static int sf_points(double *pts, int ne, int n, double L, double rhoA, double w
 /* Build the plant and the stepper from the parameters (fmu.py's _prepare). */
 static int prepare(fpm_model *m, const fpm_logger *lg)
 {
+    m->od_valid = 0;
     const double *r = m->v.real;
     double L = r[VR_L], EI = r[VR_EI], rho = r[VR_rho], EA = r[VR_EA], E = r[VR_E];
     double g = r[VR_g], zeta = r[VR_zeta], rhoA, w, sI3, sI5, slam, sslope, sKg;
@@ -1479,7 +1485,7 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
 int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
                                 double *value)
 {
-    double d1[FP_OUT_ETA + NMAX], d2[FP_OUT_ETA + NMAX], work[4 * NXMAX], u, du;
+    double work[4 * NXMAX], u, du;
     int row;
     if (m->exact || m->p.stiffened) return xb_refuse(m, lg, "output derivatives");
     if (vr >= FPM_MAX_VARS || (row = kernel_row(m, vr)) == -2) {
@@ -1496,12 +1502,22 @@ int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr,
         *value = 0.0;
         return FPM_OK;
     }
-    if (fp_output_derivatives(&m->p, m->y_acc, u, du, d1, d2, work) != FP_OK) {
-        fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s is not finite at t = %.17g "
-                "(F_c = %g, dF_c = %g)", order, fpm_vars[vr].name, fpm_model_time(m), u, du);
-        return FPM_ERROR;
+    if (!(m->od_valid && memcmp(&m->od_u, &u, sizeof u) == 0
+          && memcmp(&m->od_du, &du, sizeof du) == 0
+          && memcmp(m->od_x, m->y_acc, (size_t)m->nx * sizeof(double)) == 0)) {
+        m->od_valid = 0;
+        if (fp_output_derivatives(&m->p, m->y_acc, u, du, m->od_d1, m->od_d2, work) != FP_OK) {
+            fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s is not finite at t = %.17g "
+                    "(F_c = %g, dF_c = %g)", order, fpm_vars[vr].name, fpm_model_time(m), u,
+                    du);
+            return FPM_ERROR;
+        }
+        m->od_u = u;
+        m->od_du = du;
+        memcpy(m->od_x, m->y_acc, (size_t)m->nx * sizeof(double));
+        m->od_valid = 1;
     }
-    *value = order == 1 ? d1[row] : d2[row];
+    *value = order == 1 ? m->od_d1[row] : m->od_d2[row];
     return FPM_OK;
 }
 /* ================================================================== end of Jacobians and output

@@ -99,15 +99,16 @@ static double combine(const fm_slave *s, const double *w, int nodes, int idx)
     return acc;
 }
 
-/* taylor_rows, one row: the weights on [y, y', y''] of the Taylor polynomial at a sample
+/* taylor_rows, one row: the weights on [y, y', ..., y''''] of the Taylor polynomial at a sample
  * evaluated from `delta` seconds after it: its average over [delta, delta + scale] (K_AVERAGE)
  * or its value or derivative there (K_VALUE, K_D1, K_D2), with Python's float ** int (libm's
- * pow; the exponents are volatile so that pow(x, 2) stays pow) and its factorials. */
-static void taylor_row(double delta, double scale, int kind, double w[3])
+ * pow; the exponents are volatile so that pow(x, 2) stays pow) and its factorials. The first
+ * q + 1 weights are those of order q. */
+static void taylor_row(double delta, double scale, int kind, double w[5])
 {
-    static const double fact[4] = {1.0, 1.0, 2.0, 6.0};
+    static const double fact[6] = {1.0, 1.0, 2.0, 6.0, 24.0, 120.0};
     int j;
-    for (j = 0; j <= 2; j++) {
+    for (j = 0; j <= 4; j++) {
         volatile double e1 = (double)(j + 1), e0;
         if (kind == K_AVERAGE) {
             w[j] = (pow(delta + scale, e1) - pow(delta, e1)) / (fact[j + 1] * scale);
@@ -129,6 +130,33 @@ static double combine_taylor(const fm_slave *s, const double *w, int idx)
     int j;
     for (j = 1; j <= s->n_oder; j++) acc = acc + w[j] * y[j * s->n_out];
     return acc;
+}
+
+/* _hermite_inputs: the held inputs of slave `d` over the step from index `kt`: per source, the
+ * rows of hermite_rows on its newest sample (at kt: the Taylor polynomial) or on its samples at
+ * kt and kt + 1 (it stepped first in this step), summed left to right. */
+static int fill_hermite(const fm_master *m, fm_slave *d, long long kt)
+{
+    int i, r, rows = d->n_der ? d->n_der + 1 : 1;
+    for (i = 0; i < d->n_in; i++) {
+        const fm_slave *s = &m->slaves[d->in_src[i]];
+        const int q = s->n_oder, n = width(s), e = (int)(s->newest - kt);
+        const double *y;
+        if (q < 1 || q > 4 || e < 0 || e > 1 || s->count < 1 + e) return 0;
+        y = s->hist + (s->count - 1 - e) * n + d->in_idx[i];
+        for (r = 0; r < rows; r++) {
+            const double *w = m->hweights + (((q - 1) * 2 + e) * 4
+                                             + (d->n_der ? K_VALUE + r : K_AVERAGE)) * 10;
+            double acc = w[0] * y[0];
+            int j;
+            for (j = 1; j <= q; j++) acc = acc + w[j] * y[j * s->n_out];
+            if (e)
+                for (j = 0; j <= q; j++) acc = acc + w[q + 1 + j] * y[n + j * s->n_out];
+            if (r == 0) d->in_val[i] = acc;
+            else d->der_val[(r - 1) * d->n_in + i] = acc;
+        }
+    }
+    return 1;
 }
 
 /* _fill: the inputs of slave `d` from its sources' polynomials about step index `kt`: the held
@@ -178,7 +206,7 @@ static int set_held(fm_master *m, int n, long long k, double ta)
 {
     fm_slave *d = &m->slaves[n];
     int st;
-    if (!fill(m, d, k, 1)) return FM_BADARG;
+    if (!(m->hermite ? fill_hermite(m, d, k) : fill(m, d, k, 1))) return FM_BADARG;
     if (d->n_in) {
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
         if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, ta);
@@ -199,12 +227,30 @@ static int do_step(fm_master *m, int n, double ta)
     return FM_DONE;
 }
 
-/* _outputs_after_step: a feedthrough slave first gets its inputs' values at tb. */
+/* _outputs_after_step: a feedthrough slave first gets its inputs' values at tb; with hermite, a
+ * slave whose sources have all stepped gets their values and derivatives at tb
+ * (_sample_inputs). */
 static int outputs_after_step(fm_master *m, int n, long long k, double tb)
 {
     fm_slave *d = &m->slaves[n];
-    int st;
-    if (d->feedthrough && d->n_in) {
+    int st, i, r, all = m->hermite && d->n_in > 0;
+    for (i = 0; i < d->n_in && all; i++) all = m->slaves[d->in_src[i]].newest == k + 1;
+    if (all) {
+        for (i = 0; i < d->n_in; i++) {
+            const fm_slave *s = &m->slaves[d->in_src[i]];
+            const double *y = s->hist + (s->count - 1) * width(s) + d->in_idx[i];
+            d->in_val[i] = y[0];
+            for (r = 0; r < d->n_der; r++)
+                d->der_val[r * d->n_in + i] = r + 1 <= s->n_oder ? y[(r + 1) * s->n_out] : 0.0;
+        }
+        st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
+        if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, tb);
+        if (d->n_der) {
+            st = d->set_der(d->c, d->der_vr, (size_t)(d->n_in * d->n_der), d->der_order,
+                            d->der_val);
+            if (st > 1) return fail(m, n, FM_CALL_SET_DER, st, 1, tb);
+        }
+    } else if (d->feedthrough && d->n_in) {
         if (!fill(m, d, k + 1, 0)) return FM_BADARG;
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
         if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, tb);
@@ -369,6 +415,7 @@ static int check(const fm_master *m)
 {
     int i, j;
     if (!m || !m->slaves || !m->order || !m->weights || m->n_slaves < 1 || m->p < 0 ||
+        (m->hermite && (!m->hweights || !m->gauss_seidel || m->correct_startup)) ||
         m->p > 2 || m->m < 1 || m->total < 0 || m->k < 0 || (m->n_cols && !m->out) ||
         !(m->h > 0.0))
         return 0;
@@ -376,7 +423,8 @@ static int check(const fm_master *m)
         const fm_slave *s = &m->slaves[i];
         if (m->order[i] < 0 || m->order[i] >= m->n_slaves) return 0;
         if (!s->set_real || !s->get_real || !s->do_step || s->n_in < 0 || s->n_out < 0 ||
-            s->n_rec < 0 || s->n_der < 0 || s->n_der > 2 || s->n_oder < 0 || s->n_oder > 2 ||
+            s->n_rec < 0 || s->n_der < 0 || s->n_der > 2 || s->n_oder < 0 ||
+            s->n_oder > (m->hermite ? 4 : 2) ||
             s->count < 1 || s->count > FM_DEPTH)
             return 0;
         if (s->n_der && !s->set_der) return 0;

@@ -40,7 +40,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FM_ABI 4
+#define FM_ABI 5
 
 /* Results of fm_run(). */
 #define FM_DONE 0       /* the steps up to k_end are taken */
@@ -97,7 +97,8 @@ typedef struct fm_slave {
     int n_der;                        /* in: input derivative orders passed (0, 1, 2) */
     int n_out;                        /* in: real outputs feeding connections */
     int n_rec;                        /* in: real outputs only recorded */
-    int n_oder;                       /* in: output derivative orders read (0, 1, 2) */
+    int n_oder;                       /* in: output derivative orders read (0, 1, 2; up to 4
+                                       * with hermite) */
     int feedthrough;                  /* in: outputs may depend directly on inputs */
     int sampled;                      /* in: a sampled controller (Master: its outputs are read
                                        * with its inputs at the others' new outputs) */
@@ -151,9 +152,14 @@ typedef struct fm_master {
     double fail_time;                 /* out */
     double dweights[3][3][2][3];      /* work: the derivative rows of weights (nodes, newest
                                        * node -1, 0, 1; 1st, 2nd), divided by h, h^2 */
-    double taylor[3][4][3];           /* work: the Taylor rows from (newest node) h seconds
+    double taylor[3][4][5];           /* work: the Taylor rows from (newest node) h seconds
                                        * before the sample, per kind (average, value, 1st,
-                                       * 2nd derivative), on [y, y', y''] */
+                                       * 2nd derivative), on [y, y', ..., y''''] */
+    int hermite;                      /* in: the Hermite coupling (Coupling.hermite; Gauss-Seidel) */
+    int pad2_;
+    const double *hweights;           /* in (hermite): hermite_rows(q, two_point, h) as
+                                       * [q - 1: 0..3][two_point: 0, 1][4: average, value, 1st,
+                                       * 2nd derivative][10: its 2 (q + 1) or q + 1 weights] */
 } fm_master;
 
 FM_API int fm_abi(void);
