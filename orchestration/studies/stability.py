@@ -721,7 +721,8 @@ def scene_transition_matrix(scene, H: float | None = None, step_index=None, drif
 def scene_coupling(scene) -> dict:
     """The scene's coupling as :func:`transition_matrix`'s keywords (``algorithm``, ``first``,
     ``extrapolation``, ``input_derivatives``, ``output_derivatives``); a ValueError for a master
-    that has no transition matrix (adaptive, or Model Exchange)."""
+    that has no transition matrix (adaptive, Model Exchange, or the Hermite coupling, whose
+    matrix is not built)."""
     m = scene.master
     if m.adaptive:
         raise ValueError("master.adaptive = true: an adaptive master has no fixed transition "
@@ -730,6 +731,10 @@ def scene_coupling(scene) -> dict:
         raise ValueError(f"master.interface = {m.interface!r} integrates the plant and the "
                          "controller as one system: no communication step to predict; allowed: "
                          "'co-simulation'")
+    if m.coupling != "polynomial":
+        raise ValueError(f"master.coupling = {m.coupling!r}: its transition matrix is not "
+                         "built yet (its step reads the FMUs' output derivatives up to order 4); "
+                         "allowed: 'polynomial'")
     return {"algorithm": m.algorithm, "first": m.first, "extrapolation": m.extrapolation,
             "input_derivatives": m.input_derivatives and m.extrapolation >= 1,
             "output_derivatives": m.output_derivatives}
@@ -1047,8 +1052,7 @@ def first_unstable(intervals):
 def _scene_model(scene):
     """``(p, c, integrator, substep)`` of a scene whose co-simulation has a transition matrix;
     a ValueError saying why not."""
-    if scene.master.adaptive or scene.master.interface != "co-simulation":
-        scene_coupling(scene)                          # its ValueError
+    scene_coupling(scene)          # its ValueError: adaptive, Model Exchange, Hermite
     if not scene.plant.resolved:
         raise ValueError("plant.n_modes or plant.fidelity = 'auto': a run chooses the model; "
                          "set them to predict")

@@ -135,3 +135,15 @@ def test_an_fmu_without_output_derivatives_is_refused_with_a_message():
                                          "gives none"):
         Coupling(slaves, [parse_connection(c) for c in DEFAULT_CONNECTIONS], {},
                  MasterSettings(coupling="hermite"))
+
+
+def test_the_stability_prediction_refuses_it_and_a_run_still_checks_its_plant_step():
+    """No transition matrix is built for the Hermite coupling: the prediction says so (a
+    ValueError naming the key), and a run's step warning keeps the plant step's check alone."""
+    from orchestration.studies.stability import scene_coupling, step_warning
+    scene = load_scene("flexible_pd_lowpass", ["master.coupling=hermite", "master.first=plant"])
+    with pytest.raises(ValueError, match="master.coupling = 'hermite': its transition matrix"):
+        scene_coupling(scene)
+    assert step_warning(scene) is None
+    beyond = load_scene("flexible_pd_lowpass", ["master.coupling=hermite", "plant.step=2e-3"])
+    assert "plant.step" in step_warning(beyond)
