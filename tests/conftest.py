@@ -400,6 +400,15 @@ def hand_stepped(scene, n_rows):
     nx, nc, P = len(x0), ctrl.nx, m.extrapolation + 1
     y0 = plant.C @ x0
     F0 = (Dc @ y0)[0]                         # F_c(0): -e(0) without filter, else 0
+    if m.coupling == "hermite":
+        z = _hermite_start(m, plant, (Ac, Bc, Cc, Dc), x0)
+        iF = nx + nc + 9
+        rows = []
+        for k in range(n_rows):
+            x_o, phi_o, omega_o = plant.C @ z[:nx]
+            rows.append((phi_o, omega_o, x_o, z[iF]))
+            z = scene_transition_matrix(scene, drift_free=False) @ z
+        return np.array(rows)
     z = np.zeros(nx + nc + 3 * P + P)
     z[:nx] = x0
     iy, iF = nx + nc, nx + nc + 3 * P
@@ -417,6 +426,39 @@ def hand_stepped(scene, n_rows):
         rows.append((phi_o, omega_o, x_o, z[iF]))
         z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
     return np.array(rows)
+
+
+def _hermite_start(m, plant, ss, x0):
+    """The Hermite coupling's registers at t0 (``transition_matrix``'s layout: x, xc = 0, the
+    plant's outputs and two derivatives, F_c and four derivatives), as the master's consistent
+    initial outputs make them: each FMU's outputs at its start inputs, then, twice in the
+    coupling order, its inputs and input derivatives set from its source's sample and its sample
+    read again."""
+    Ac, Bc, Cc, Dc = ss
+    A, b, C = plant.A, plant.B[:, 0], plant.C
+    nc = Ac.shape[0]
+
+    def plant_sample(u, du):
+        d1 = A @ x0 + b * u
+        return [C @ x0, C @ d1, C @ (A @ d1 + b * du)]
+
+    def ctrl_sample(ys):                      # xc(0) = 0; sensors' derivatives beyond 2: 0
+        v, out = np.zeros(nc), []
+        for j in range(5):
+            yj = ys[j] if j < 3 else np.zeros(3)
+            out.append(float((Cc @ v)[0] + (Dc @ yj)[0]))
+            v = Ac @ v + Bc @ yj
+        return out
+
+    ys, Fs = plant_sample(0.0, 0.0), ctrl_sample([np.zeros(3)] * 3)
+    order = [m.first, "controller" if m.first == "plant" else "plant"]
+    for _ in range(2):
+        for n in order:
+            if n == "plant":
+                ys = plant_sample(Fs[0], Fs[1])
+            else:
+                Fs = ctrl_sample(ys)
+    return np.concatenate([x0, np.zeros(nc), *ys, Fs])
 
 
 def one_line_error(err: str, *fragments) -> None:

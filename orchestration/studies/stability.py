@@ -539,7 +539,7 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H, *,
                       output_derivatives: bool = False, integrator: str = "rk4",
                       substep: float = 2.5e-4, drift_free: bool = True,
                       step_index: int | None = None, plant_map=None, controller_map=None,
-                      _predictor: bool = False) -> np.ndarray:
+                      coupling: str = "polynomial", _predictor: bool = False) -> np.ndarray:
     """``Phi`` with ``z_{k+1} = Phi z_k`` for one communication step ``H`` of the master.
 
     ``z = [x, xc, y_k .. y_k-p, F_k .. F_k-p]`` (``x`` without the cart's position and velocity
@@ -560,11 +560,31 @@ def transition_matrix(p: PlantParams, c: ControllerParams, H, *,
     interpolated between ``t_0`` and the predicted samples at ``t_1``
     (:meth:`orchestration.cosim.master.Master._startup_step`); ``step_index = 0`` gives that
     corrected map.
+
+    ``coupling = "hermite"`` (Gauss-Seidel; ``extrapolation``, ``input_derivatives`` and
+    ``output_derivatives`` do not apply): the Hermite coupling of
+    :class:`~orchestration.cosim.coupling.Coupling`, whose registers are the newest samples with
+    every derivative the FMUs give, ``z = [x, xc, y_k and its first two derivatives, F_k
+    and its first four]``
+    (:func:`_hermite_matrix`); it has no start-up step: every step has the same map.
     """
     if not isinstance(c, ControllerParams):
         raise TypeError(f"c must be a ControllerParams, got {type(c).__name__}")
     _check_scheme(algorithm, first, extrapolation)
     Hs, scalar = _steps(H)
+    if coupling not in ("polynomial", "hermite"):
+        raise ValueError(f"coupling = {coupling!r}; allowed: polynomial, hermite")
+    if coupling == "hermite":
+        if algorithm != "gauss-seidel":
+            raise ValueError(f"coupling = 'hermite' is a Gauss-Seidel coupling; algorithm = "
+                             f"{algorithm!r} is not allowed with it")
+        if integrator not in FIXED_STEP_METHODS:
+            raise ValueError(f"integrator = {integrator!r}: the plant FMU's substeps are a fixed "
+                             f"linear map only for {', '.join(FIXED_STEP_METHODS)}")
+        maps = _step_maps(p, c, Hs, 2, True, integrator, substep, drift_free, None, plant_map,
+                          controller_map)
+        Phi = _hermite_matrix(c, Hs, maps, first, integrator)
+        return Phi[0] if scalar else Phi
     if algorithm == "implicit":
         if output_derivatives:
             raise ValueError("output_derivatives = True: the implicit master interpolates "
@@ -694,6 +714,92 @@ def _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_der
     return Phi
 
 
+#: the output derivative orders the Hermite coupling reads: the plant FMU's and the controller's
+#: (plant_fmu.interface and controller_fmu.interface's MAX_OUTPUT_DERIVATIVE_ORDER)
+HERMITE_ORDERS = {"plant": 2, "controller": 4}
+
+
+def _hermite_matrix(c, Hs, maps, first, integrator):
+    """:func:`transition_matrix` of the Hermite coupling (``Coupling.hermite``) for the steps
+    ``Hs`` and their maps (:func:`_step_maps` with input derivatives of order 2): the stack ``(K,
+    N, N)``. The FMU that steps first gets its source's Taylor polynomial at ``t_k`` (the
+    registers), the second the Hermite polynomial through its source's registers and new sample
+    at ``t_k+1``; each as its least-squares quadratic over the step
+    (:func:`~orchestration.cosim.coupling.hermite_rows`). The plant's new sample: its outputs and
+    their derivatives with its step polynomial's value and rate at the step's end (the plant FMU's
+    output derivatives after a step). The controller's: ``F`` and four derivatives of the filter
+    driven by the sensors' value and two rates at ``t_k+1`` (their third derivative 0): the
+    plant's new sample when the plant stepped first (the master sets them), else the controller's
+    own step polynomial at its end."""
+    from ..cosim.coupling import hermite_rows
+    plant, _, (Pp, Gp), (Ad, Gc) = maps
+    ctrl = controller_model(c)
+    Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
+    A, B, C = plant.A, plant.B, plant.C
+    qy, qF = HERMITE_ORDERS["plant"], HERMITE_ORDERS["controller"]
+    nx, nc, ny = Pp.shape[-1], ctrl.nx, C.shape[0]
+    K = Hs.size
+    H = Hs[:, None, None]
+    ix, ic = slice(0, nx), slice(nx, nx + nc)
+    iy = [slice(nx + nc + j * ny, nx + nc + (j + 1) * ny) for j in range(qy + 1)]
+    o = nx + nc + (qy + 1) * ny
+    iF = [slice(o + j, o + j + 1) for j in range(qF + 1)]
+    N = o + qF + 1
+    I = np.eye(N)
+    Y, F = [I[s] for s in iy], [I[s] for s in iF]
+    x, xc = I[ix], I[ic]
+    end = [1.0, H, H * H / 2]       # a quadratic's value at t_k+1 from its Taylor coefficients
+    avg = [1.0, H / 2, H * H / 6]
+
+    def held(q, rows):
+        """The least-squares quadratic over the step (value and two derivatives at t_k) of the
+        Taylor polynomial of ``rows`` (q + 1 blocks) or of the Hermite polynomial of ``rows``
+        (2 (q + 1) blocks: t_k's, then t_k+1's)."""
+        W = np.stack([hermite_rows(q, len(rows) > q + 1, float(h)) for h in Hs])
+        return [_dot([W[:, r, j][:, None, None] for j in range(len(rows))], rows)
+                for r in (1, 2, 3)]
+
+    def plant_step(u):
+        x1 = Pp @ x + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
+        if integrator not in POLYNOMIAL_METHODS:       # the FMU holds the average
+            u = [_dot(avg, u), 0 * u[0], 0 * u[0]]
+        ue, due = _dot(end, u), u[1] + H * u[2]         # the stepper's input at t_k+1
+        d1 = A @ x1 + B @ ue
+        return x1, [C @ x1, C @ d1, C @ (A @ d1 + B @ due)]
+
+    def ctrl_step(u):
+        return Ad @ xc + sum(Gc[..., 3 * j:3 * j + 3] @ u[j] for j in range(3))
+
+    def ctrl_sample(xc1, ys):
+        """F and its derivatives: v_j = xc^(j) = Ac v_j-1 + Bc y^(j-1), F^(j) = Cc v_j + Dc
+        y^(j), the sensors' derivatives beyond the second 0."""
+        v, out = xc1, []
+        for j in range(qF + 1):
+            yj = ys[j] if j < len(ys) else None
+            out.append(Cc @ v + (Dc @ yj if yj is not None else 0 * (Cc @ v)))
+            if j < qF:
+                v = Ac @ v + (Bc @ yj if yj is not None else 0 * v)
+        return out
+
+    if first == "plant":
+        x1, ys = plant_step(held(qF, F))
+        xc1 = ctrl_step(held(qy, Y + ys))
+        Fs = ctrl_sample(xc1, ys)
+    else:
+        u = held(qy, Y)
+        xc1 = ctrl_step(u)
+        Fs = ctrl_sample(xc1, [_dot(end, u), u[1] + H * u[2], u[2]])
+        x1, ys = plant_step(held(qF, F + Fs))
+    Phi = np.zeros((K, N, N))
+    Phi[:, ix] = x1
+    Phi[:, ic] = xc1
+    for j in range(qy + 1):
+        Phi[:, iy[j]] = ys[j]
+    for j in range(qF + 1):
+        Phi[:, iF[j]] = Fs[j]
+    return Phi
+
+
 def spectral_radius(M: np.ndarray) -> float:
     """``max |eig(M)|``."""
     return float(np.max(np.abs(np.linalg.eigvals(M)))) if M.size else 0.0
@@ -721,8 +827,8 @@ def scene_transition_matrix(scene, H: float | None = None, step_index=None, drif
 def scene_coupling(scene) -> dict:
     """The scene's coupling as :func:`transition_matrix`'s keywords (``algorithm``, ``first``,
     ``extrapolation``, ``input_derivatives``, ``output_derivatives``); a ValueError for a master
-    that has no transition matrix (adaptive, Model Exchange, or the Hermite coupling, whose
-    matrix is not built)."""
+    that has no transition matrix (adaptive, or Model Exchange); the Hermite coupling's are
+    ``algorithm``, ``first`` and ``coupling``."""
     m = scene.master
     if m.adaptive:
         raise ValueError("master.adaptive = true: an adaptive master has no fixed transition "
@@ -731,10 +837,8 @@ def scene_coupling(scene) -> dict:
         raise ValueError(f"master.interface = {m.interface!r} integrates the plant and the "
                          "controller as one system: no communication step to predict; allowed: "
                          "'co-simulation'")
-    if m.coupling != "polynomial":
-        raise ValueError(f"master.coupling = {m.coupling!r}: its transition matrix is not "
-                         "built yet (its step reads the FMUs' output derivatives up to order 4); "
-                         "allowed: 'polynomial'")
+    if m.coupling == "hermite":
+        return {"algorithm": m.algorithm, "first": m.first, "coupling": "hermite"}
     return {"algorithm": m.algorithm, "first": m.first, "extrapolation": m.extrapolation,
             "input_derivatives": m.input_derivatives and m.extrapolation >= 1,
             "output_derivatives": m.output_derivatives}
@@ -1052,7 +1156,7 @@ def first_unstable(intervals):
 def _scene_model(scene):
     """``(p, c, integrator, substep)`` of a scene whose co-simulation has a transition matrix;
     a ValueError saying why not."""
-    scene_coupling(scene)          # its ValueError: adaptive, Model Exchange, Hermite
+    scene_coupling(scene)          # its ValueError: adaptive, or Model Exchange
     if not scene.plant.resolved:
         raise ValueError("plant.n_modes or plant.fidelity = 'auto': a run chooses the model; "
                          "set them to predict")

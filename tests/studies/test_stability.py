@@ -254,6 +254,30 @@ def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, 
                                    err_msg=col)
 
 
+@pytest.mark.parametrize("filter_order", [2, 0])
+@pytest.mark.parametrize("first", ["plant", "controller"])
+@pytest.mark.parametrize("method", ["rk4", "exponential"])
+def test_hand_stepped_hermite_map_matches_the_master_step_for_step(paths, filter_order, first,
+                                                                   method):
+    """The Hermite coupling's map (``coupling = "hermite"``) stepped by hand from the master's
+    consistent initial outputs against the master with the real FMUs and the linear plant, as
+    above: either FMU first, a filter or none (feedthrough), a polynomial plant method and one
+    that holds its input's average."""
+    H = 1.1e-3
+    scene = _scene(**{"master.step": H, "master.algorithm": "gauss-seidel",
+                      "master.first": first, "master.coupling": "hermite",
+                      "master.input_derivatives": True, "plant.integrator": method,
+                      "plant.fidelity": "linear", "plant.n_modes": 2,
+                      "controller.filter_order": filter_order, "controller.kx": 3.0,
+                      "n_steps": 25})
+    res = run_scene(scene, paths, progress=False, check_step=False).result
+    hand = hand_stepped(scene, len(res))
+    for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
+        scale = np.abs(res[col]).max()
+        np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
+                                   err_msg=col)
+
+
 # ---------------------------------------------------------------------- co-simulation step limits
 #: (algorithm, first, extrapolation, plant fidelity): boundaries in H at the default cutoff
 STEP_LIMITS = [("jacobi", "controller", 0, "linear"),        # the rigid mode crosses, ~3.3 ms
@@ -335,6 +359,48 @@ def test_polynomial_coupling_step_limit(paths, polynomial_limits, alg, first, e,
     assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
         (predicted, observed)
 
+
+@pytest.fixture(scope="module")
+def hermite_limits():
+    """The first unstable interval of the Hermite coupling on the filtered scene, per first FMU:
+    a narrow tongue at 14.69-14.75 ms with the plant first (the second bending mode, 426 rad/s,
+    aliased to 0: 2 pi / 426.4 = 14.74 ms), 19.47-19.82 ms with the controller first."""
+    from orchestration.studies import stability_intervals as iv
+    from orchestration.studies.stability import STEP_RANGE, Spectra
+    sc = load_scene("flexible_pd_lowpass")
+    out = {}
+    for first in ("plant", "controller"):
+        found = iv.scan(Spectra(sc.plant.params, sc.controller,
+                                [{"algorithm": "gauss-seidel", "first": first,
+                                  "coupling": "hermite"}]), 0.05, min_step=STEP_RANGE[0])[0]
+        out[first] = next((lo, hi) for lo, hi, stable, _ in found if not stable)
+    return out
+
+
+#: the points of the Hermite coupling's test: below the interval (times its lower edge) and
+#: inside it (fractions of its width)
+HERMITE_POINTS = [("below", 0.9), ("below", 0.95), ("below", 0.98), ("inside", 0.25),
+                  ("inside", 0.5), ("inside", 0.75)]
+
+
+@pytest.mark.parametrize("where,at", HERMITE_POINTS)
+@pytest.mark.parametrize("first", ["plant", "controller"])
+def test_hermite_coupling_step_limit(paths, hermite_limits, first, where, at):
+    """The Hermite coupling on the filtered scene (``master.coupling = "hermite"``): at three
+    steps below its first unstable interval and three inside it the observed growth factor is
+    the predicted spectral radius, and the verdict is the predicted one."""
+    lo, hi = hermite_limits[first]
+    H = at * lo if where == "below" else lo + at * (hi - lo)
+    sets = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
+            "plant.fidelity": "linear", "master.step": H, "output_interval": H,
+            "stop_time": N_STEPS * H, "master.first": first, "master.coupling": "hermite"}
+    scene = load_scene("flexible_pd_lowpass", [f"{k}={v}" for k, v in sets.items()])
+    predicted = spectral_radius(scene_transition_matrix(scene))
+    assert (predicted < 1) == (where == "below"), predicted
+    observed = _observe(scene, paths)
+    assert (observed < 1) == (predicted < 1), (predicted, observed)
+    assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
+        (predicted, observed)
 
 # ---------------------------------------------------------------------- the plant's substep limit
 @pytest.fixture(scope="module")
