@@ -281,6 +281,8 @@ def run_lines(name: str, s: dict, written=()) -> list[str]:
 def coupling_text(k: dict) -> str:
     """A coupling (``transition_matrix``'s keywords) in words."""
     alg = k["algorithm"] + (f" ({k['first']} first)" if k["algorithm"] == "gauss-seidel" else "")
+    if k.get("coupling") == "hermite":
+        return f"{alg}, Hermite (output derivatives)"
     if not k["extrapolation"]:
         how = "zero-order hold"
     else:

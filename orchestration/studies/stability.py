@@ -826,9 +826,9 @@ def scene_transition_matrix(scene, H: float | None = None, step_index=None, drif
 
 def scene_coupling(scene) -> dict:
     """The scene's coupling as :func:`transition_matrix`'s keywords (``algorithm``, ``first``,
-    ``extrapolation``, ``input_derivatives``, ``output_derivatives``); a ValueError for a master
-    that has no transition matrix (adaptive, or Model Exchange); the Hermite coupling's are
-    ``algorithm``, ``first`` and ``coupling``."""
+    ``extrapolation``, ``input_derivatives``, ``output_derivatives``, ``coupling``); a ValueError
+    for a master that has no transition matrix (adaptive, or Model Exchange); the Hermite
+    coupling's are :func:`hermite_coupling`'s."""
     m = scene.master
     if m.adaptive:
         raise ValueError("master.adaptive = true: an adaptive master has no fixed transition "
@@ -838,10 +838,10 @@ def scene_coupling(scene) -> dict:
                          "controller as one system: no communication step to predict; allowed: "
                          "'co-simulation'")
     if m.coupling == "hermite":
-        return {"algorithm": m.algorithm, "first": m.first, "coupling": "hermite"}
+        return hermite_coupling(m.first)
     return {"algorithm": m.algorithm, "first": m.first, "extrapolation": m.extrapolation,
             "input_derivatives": m.input_derivatives and m.extrapolation >= 1,
-            "output_derivatives": m.output_derivatives}
+            "output_derivatives": m.output_derivatives, "coupling": "polynomial"}
 
 
 # ---------------------------------------------------------------------- boundaries
@@ -1107,11 +1107,20 @@ STEP_RANGE = (_iv.MIN_STEP, 1.0)
 GRID_PER_DECADE = _iv.GRID_PER_DECADE
 
 
+def hermite_coupling(first: str) -> dict:
+    """The Hermite coupling (``master.coupling = "hermite"``) as :func:`transition_matrix`'s
+    keywords: Gauss-Seidel, ``first`` first; the polynomial coupling's keys say what it reads
+    (the value and two derivatives it passes, the output derivatives)."""
+    return {"algorithm": "gauss-seidel", "first": first, "extrapolation": 2,
+            "input_derivatives": True, "output_derivatives": True, "coupling": "hermite"}
+
+
 def couplings(master) -> list[dict]:
     """Every coupling the master offers for ``master`` (a
     :class:`~orchestration.scene.records.MasterSettings`: its FMUs decide whether output
     derivatives are offered): :func:`transition_matrix`'s keywords, each allowed by
-    ``MasterSettings``' rules (input derivatives only with a polynomial, ``p >= 1``)."""
+    ``MasterSettings``' rules (input derivatives only with a polynomial, ``p >= 1``; the Hermite
+    coupling, :func:`hermite_coupling`, after the polynomial ones)."""
     from dataclasses import replace
     out = []
     for algorithm, firsts in COUPLING_ORDERS.items():
@@ -1125,7 +1134,15 @@ def couplings(master) -> list[dict]:
                         except ConfigError:
                             continue
                         out.append({"algorithm": algorithm, "first": first, "extrapolation": p,
-                                    "input_derivatives": ind, "output_derivatives": outd})
+                                    "input_derivatives": ind, "output_derivatives": outd,
+                                    "coupling": "polynomial"})
+    for first in COUPLING_ORDERS["gauss-seidel"]:
+        try:
+            replace(master, algorithm="gauss-seidel", first=first, coupling="hermite",
+                    input_derivatives=True, adaptive=False)
+        except ConfigError:
+            continue
+        out.append(hermite_coupling(first))
     return out
 
 
@@ -1205,7 +1222,7 @@ def stability_report(scene, max_step: float | None = None, progress=None) -> dic
          "scene": {"coupling": {..., "step"}, "critical_step", "intervals", "rho", "stable",
                    "substep_limit"},
          "couplings": [{"algorithm", "first", "extrapolation", "input_derivatives",
-                        "output_derivatives", "critical_step", "intervals"}, ...]}
+                        "output_derivatives", "coupling", "critical_step", "intervals"}, ...]}
 
     an interval being ``{"from", "to", "stable", "rho_max"}`` (seconds; ``rho_max``, of an
     unstable one: its largest spectral radius, the growth per step at worst; ``None`` for a

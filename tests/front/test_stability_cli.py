@@ -19,7 +19,7 @@ from orchestration.studies.stability import (scene_transition_matrix, spectral_r
 from orchestration.studies.stability_intervals import one_blas_thread
 
 KEYS = {"algorithm", "first", "extrapolation", "input_derivatives", "output_derivatives",
-        "critical_step", "intervals"}
+        "coupling", "critical_step", "intervals"}
 
 
 @pytest.fixture(scope="module")
@@ -63,7 +63,8 @@ def test_json_of_the_filtered_scene(capsys, cached):
                                "substep_limit"}
     assert r["scene"]["coupling"] == {"algorithm": "gauss-seidel", "first": "controller",
                                       "extrapolation": 2, "input_derivatives": True,
-                                      "output_derivatives": False, "step": 0.002}
+                                      "output_derivatives": False, "coupling": "polynomial",
+                                      "step": 0.002}
     scene = load_scene("flexible_pd_lowpass")
     Hc = r["scene"]["critical_step"]
     assert max(_rho(scene, H) for H in np.linspace(2e-3, 0.999 * Hc, 400)) < 1
@@ -80,7 +81,7 @@ def test_json_of_the_filtered_scene(capsys, cached):
     # every coupling: Jacobi (one order) and Gauss-Seidel (two), the zero-order hold, then
     # orders 1 and 2 held, with input derivatives, and with output derivatives (native FMUs);
     # the implicit master the same but output derivatives
-    assert len(r["couplings"]) == 3 * 7 + 5 and all(set(c) == KEYS for c in r["couplings"])
+    assert len(r["couplings"]) == 3 * 7 + 5 + 2 and all(set(c) == KEYS for c in r["couplings"])
     own = next(c for c in r["couplings"] if all(
         c[k] == v for k, v in r["scene"]["coupling"].items() if k != "step"))
     assert own["critical_step"] == pytest.approx(Hc, rel=1e-9)
@@ -127,7 +128,10 @@ def test_couplings_follow_the_masters_rules():
     """The pythonfmu FMUs give no output derivatives: those couplings are not offered."""
     ks = stability.couplings(MasterSettings(fmus="python"))
     assert len(ks) == 4 * 5 and not any(k["output_derivatives"] for k in ks)
-    assert len(stability.couplings(MasterSettings())) == 3 * 7 + 5
+    ks = stability.couplings(MasterSettings())
+    # and the Hermite coupling, Gauss-Seidel with either FMU first (native FMUs only)
+    assert len(ks) == 3 * 7 + 5 + 2
+    assert [k["first"] for k in ks if k.get("coupling") == "hermite"] == ["controller", "plant"]
 
 
 def test_text_says_which_intervals_are_stable(capsys, cached, filtered):

@@ -33,10 +33,13 @@ from orchestration.studies.stability import (couplings, observed_verdict, spectr
 from orchestration.studies.stability_intervals import MAX_STEP, probe_steps, step_intervals
 
 CHANNELS = ("phi_o", "omega_o", "F_c")
-KEYS = ("algorithm", "first", "extrapolation", "input_derivatives", "output_derivatives")
+KEYS = ("algorithm", "first", "extrapolation", "input_derivatives", "output_derivatives",
+        "coupling")
 
 
 def _label(k):
+    if k["coupling"] == "hermite":
+        return "-".join([k["algorithm"], k["first"], "hermite"])
     return "-".join([k["algorithm"], k["first"], f"p{k['extrapolation']}"]
                     + ["in"] * k["input_derivatives"] + ["out"] * k["output_derivatives"])
 
@@ -180,8 +183,8 @@ def test_implicit_master_is_stable_on_an_interval_beyond_the_explicit_limits(nat
     explicit = r["scene"]["intervals"]
     first = r["scene"]["critical_step"]
     top = max(i["to"] for i in explicit if i["stable"])
-    implicit = rows["implicit", "controller", 2, True, False]["intervals"]
-    held = rows["implicit", "controller", 0, False, False]["intervals"]
+    implicit = rows["implicit", "controller", 2, True, False, "polynomial"]["intervals"]
+    held = rows["implicit", "controller", 0, False, False, "polynomial"]["intervals"]
 
     def where(intervals, H):
         return next(i for i in intervals if i["from"] <= H <= i["to"])
@@ -189,13 +192,13 @@ def test_implicit_master_is_stable_on_an_interval_beyond_the_explicit_limits(nat
     assert island["stable"] and island["from"] < 2 * first < 2 * top < island["to"]
     assert not where(explicit, 2 * first)["stable"] and not where(explicit, 2 * top)["stable"]
     assert not where(held, 2 * first)["stable"]
-    k = dict(zip(KEYS, ("implicit", "controller", 2, True, False)))
+    k = dict(zip(KEYS, ("implicit", "controller", 2, True, False, "polynomial")))
     for H, stable in [(0.95 * island["from"], False), (1.05 * island["from"], True),
                       (2 * first, True), (2 * top, True), (0.95 * island["to"], True),
                       (1.05 * island["to"], False)]:
         rho = _predicted("flexible_pd_lowpass", k, H)
         assert (rho < 1) == stable, (H, rho)
         assert (_run("flexible_pd_lowpass", k, H, rho)[0] == "settles") == stable, H
-    hold = dict(zip(KEYS, ("implicit", "controller", 0, False, False)))
+    hold = dict(zip(KEYS, ("implicit", "controller", 0, False, False, "polynomial")))
     rho = _predicted("flexible_pd_lowpass", hold, 2 * first)
     assert rho > 1 and _run("flexible_pd_lowpass", hold, 2 * first, rho)[0] != "settles"
