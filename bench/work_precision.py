@@ -25,7 +25,8 @@ project can simulate a scene, side by side with scipy's solve_ivp and with the F
   - coupling: Gauss-Seidel and Jacobi, extrapolation 0, 1, 2, and quadratic extrapolation with
     ``master.input_derivatives`` (the polynomial passed to the FMUs), over ``master.step``;
   - Gauss-Seidel quadratic with the extrapolation built from the FMUs' output derivatives
-    (``master.output_derivatives``, with input derivatives), over ``master.step``;
+    (``master.output_derivatives``, with input derivatives), and the Hermite coupling
+    (``master.coupling = "hermite"``, the plant first), over ``master.step``;
   - the adaptive master over ``master.tolerance`` (linear held, and the scenes' own coupling);
   - the implicit master (``master.algorithm = implicit``, Newton and IQN-ILS; quadratic
     interpolation passed as input derivatives) over ``master.step``, up to steps where every
@@ -142,6 +143,11 @@ def output_derivative_families():
                    [("master.step", 1.0)], COMM_STEPS,
                    ["master.algorithm=gauss-seidel", "master.extrapolation=2",
                     "master.input_derivatives=true", "master.output_derivatives=true"],
+                   method="gauss-seidel"),
+            # the Hermite coupling (master.coupling = "hermite"), the plant first
+            Family("GS Hermite, plant first", "coupling", "cosim", [("master.step", 1.0)],
+                   COMM_STEPS, ["master.algorithm=gauss-seidel", "master.coupling=hermite",
+                                "master.first=plant", "master.input_derivatives=true"],
                    method="gauss-seidel")]
 
 
