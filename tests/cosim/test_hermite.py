@@ -137,13 +137,17 @@ def test_an_fmu_without_output_derivatives_is_refused_with_a_message():
                  MasterSettings(coupling="hermite"))
 
 
-def test_the_stability_prediction_refuses_it_and_a_run_still_checks_its_plant_step():
-    """No transition matrix is built for the Hermite coupling: the prediction says so (a
-    ValueError naming the key), and a run's step warning keeps the plant step's check alone."""
-    from orchestration.studies.stability import scene_coupling, step_warning
+def test_the_stability_prediction_has_its_map_and_a_run_checks_its_steps():
+    """The scene's coupling for the stability study is the Hermite one (its transition matrix:
+    tests/studies/test_stability.py), and a run's step warning judges it: none at 2 ms, the
+    coupling's predicted limit beyond its first crossing (14.69 ms with the plant first), the
+    plant step's limit first."""
+    from orchestration.studies.stability import hermite_coupling, scene_coupling, step_warning
     scene = load_scene("flexible_pd_lowpass", ["master.coupling=hermite", "master.first=plant"])
-    with pytest.raises(ValueError, match="master.coupling = 'hermite': its transition matrix"):
-        scene_coupling(scene)
+    assert scene_coupling(scene) == hermite_coupling("plant")
     assert step_warning(scene) is None
-    beyond = load_scene("flexible_pd_lowpass", ["master.coupling=hermite", "plant.step=2e-3"])
-    assert "plant.step" in step_warning(beyond)
+    beyond = load_scene("flexible_pd_lowpass", ["master.coupling=hermite", "master.first=plant",
+                                                "master.step=0.016", "output_interval=0.016"])
+    assert "master.step = 0.016 s is beyond the stability limit" in step_warning(beyond)
+    plant = load_scene("flexible_pd_lowpass", ["master.coupling=hermite", "plant.step=2e-3"])
+    assert "plant.step" in step_warning(plant)

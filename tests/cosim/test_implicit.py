@@ -216,7 +216,8 @@ def test_prediction_is_stable_at_twice_the_explicit_limit():
     scene = load_scene(SCENE)
     p, c = scene.plant.params, scene.controller
     own = dict(algorithm="gauss-seidel", extrapolation=2, input_derivatives=True)
-    assert scene_coupling(scene) == {**own, "first": "controller", "output_derivatives": False}
+    assert scene_coupling(scene) == {**own, "first": "controller", "output_derivatives": False,
+                                     "coupling": "polynomial"}
     rho = lambda H, **k: spectral_radius(transition_matrix(p, c, H, **k))  # noqa: E731
     assert rho(0.9999 * EXPLICIT_LIMIT, **own) < 1.0 < rho(1.0001 * EXPLICIT_LIMIT, **own)
     first = critical_step(p, c, **own)
