@@ -70,8 +70,10 @@ class Coupling:
     ``bound_inputs[n]`` (the input variables set on ``n``, derivative variables included),
     ``kinds[n]`` (what the inputs of ``n`` are over a step: ``("average",)`` held, or ``(0, 1[,
     2])`` values and derivatives at the step's start), ``out_der[n]`` (the time derivatives of its
-    outputs read from ``n`` with every sample: 0, or the extrapolation order), ``targets`` (where each source's rows go
-    in the input buffer) and ``correct_startup`` (the first step predicted and corrected)."""
+    outputs read from ``n`` with every sample: 0, or the extrapolation order; with ``hermite``, every
+    order it gives up to :data:`HERMITE_MAX_ORDER`), ``targets`` (where each source's rows go in
+    the input buffer), ``correct_startup`` (the first step predicted and corrected) and
+    ``hermite`` (``master.coupling = "hermite"``: :func:`hermite_rows`)."""
 
     def __init__(self, slaves: dict, connections, record: dict,
                  settings: MasterSettings | None = None):
@@ -97,8 +99,6 @@ class Coupling:
                                       for c in self.inputs[n] if c.src == src]))
                            for src in dict.fromkeys(c.src for c in self.inputs[n])]
                        for n in names}
-        # input derivatives: FMI's (fmi2SetRealInputDerivatives) or as the input variables
-        # d<u> and d2<u>; how many orders each slave takes, 0 to 2
         #: the Hermite coupling (``master.coupling = "hermite"``, Gauss-Seidel): a source's
         #: polynomial over a step is the Taylor polynomial of its newest sample (every output
         #: derivative it gives, up to HERMITE_MAX_ORDER) at the step's start, or, when it
@@ -109,6 +109,8 @@ class Coupling:
         #: those of the sources' exact rates)
         self.hermite = settings.coupling == "hermite"
         hermite = self.hermite
+        # input derivatives: FMI's (fmi2SetRealInputDerivatives) or as the input variables
+        # d<u> and d2<u>; how many orders each slave takes, 0 to 2
         self.n_der = {n: 0 for n in names}
         if settings.input_derivatives and (self.p >= 1 or hermite):
             for n in names:

@@ -11,6 +11,11 @@ Coupling (one communication step ``[t_k, t_k+1]``; an FMU's input is held over i
 * ``gauss-seidel``: the first FMU (``first``) steps on extrapolated inputs, the second on inputs
   interpolated between the first FMU's outputs at ``t_k`` and ``t_k+1``.
 
+* ``master.coupling = "hermite"`` (Gauss-Seidel): the FMUs' exact output derivatives instead of
+  past samples: the Taylor polynomial at the step's start, or the Hermite polynomial through both
+  ends of the step for an FMU that stepped first, each passed as its least-squares quadratic
+  (:attr:`Coupling.hermite <orchestration.cosim.coupling.Coupling>`, :meth:`_hermite_inputs`).
+
 With ``extrapolation`` order ``p`` the held value is the step average of the polynomial through
 the last ``p + 1`` samples (``p = 0``: the newest sample, a zero-order hold). Because the input is
 held constant over ``doStep`` (pythonfmu FMUs cannot interpolate inputs), the coupling error is of
