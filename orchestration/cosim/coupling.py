@@ -105,8 +105,9 @@ class Coupling:
         #: stepped earlier in the same step, the Hermite polynomial through its samples at the
         #: step's start and end; an FMU takes the least-squares quadratic of it over the step
         #: (hermite_rows), and after its step, when every source of its inputs has stepped, its
-        #: inputs' values and derivatives at the step's end (so that its output derivatives are
-        #: those of the sources' exact rates)
+        #: inputs' values and derivatives at the step's end (the controller FMU's output
+        #: derivatives then use them, so that its F_c's are those of the sensors' exact rates;
+        #: the plant FMU's keep its step's input polynomial at its end)
         self.hermite = settings.coupling == "hermite"
         hermite = self.hermite
         # input derivatives: FMI's (fmi2SetRealInputDerivatives) or as the input variables

@@ -260,8 +260,9 @@ class Master:
         t = self._time(t1)
         c = self.coupling
         if c.hermite and c.inputs[n] and all(hist[src].t[-1] == t1 for src, _, _ in c.gather[n]):
-            # every source has stepped: the inputs' values and derivatives at t1, so that the
-            # outputs' derivatives are those of the sources' exact rates
+            # every source has stepped: the inputs' values and derivatives at t1 (the controller
+            # FMU's output derivatives then use them: its F_c's are those of the sources' exact
+            # rates; the plant FMU's keep its step's input polynomial at its end)
             s.set_inputs(self._sample_inputs(n, {src: hist[src].u[-1]
                                                  for src, _, _ in c.gather[n]}), t)
             return s.get_outputs(t)

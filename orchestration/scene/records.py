@@ -485,7 +485,7 @@ class Scene:
             # at the largest step up to the scene's that lands on every tick, tick + delay and
             # output point
             m = replace(m, algorithm="jacobi", extrapolation=0, input_derivatives=False,
-                        output_derivatives=False,
+                        output_derivatives=False, coupling="polynomial",
                         step=tick_step(m.step, c.sample_period, c.delay,
                                        self.output.output_interval))
         return m

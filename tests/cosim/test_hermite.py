@@ -151,3 +151,12 @@ def test_the_stability_prediction_has_its_map_and_a_run_checks_its_steps():
     assert "master.step = 0.016 s is beyond the stability limit" in step_warning(beyond)
     plant = load_scene("flexible_pd_lowpass", ["master.coupling=hermite", "plant.step=2e-3"])
     assert "plant.step" in step_warning(plant)
+
+
+def test_a_sampled_controller_takes_its_own_coupling_whatever_master_coupling_says():
+    """A sampled controller couples exactly on its ticks (Jacobi, held inputs): the scene's
+    master.coupling does not apply to it, as its algorithm and extrapolation do not."""
+    scene = load_scene("flexible_pd_lowpass", ["master.coupling=hermite",
+                                               "controller.sample_period=0.002"])
+    m = scene.run_master
+    assert (m.algorithm, m.coupling, m.input_derivatives) == ("jacobi", "polynomial", False)
