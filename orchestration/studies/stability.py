@@ -616,7 +616,7 @@ def _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_der
     plant, n_der, (Pp, Gp), (Ad, Gc) = maps
     ctrl = controller_model(c)
     Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
-    A, B, C = plant.A, plant.B, plant.C
+    C = plant.C
     nx, nc, ny, P = Pp.shape[-1], ctrl.nx, C.shape[0], extrapolation + 1
     K = Hs.size
     H = Hs[:, None, None]           # the steps, broadcast against (K, rows, N) row blocks
@@ -655,13 +655,8 @@ def _explicit_matrix(p, c, Hs, maps, algorithm, first, extrapolation, output_der
         return [a[j] if j <= n_der else 0 * a[0] for j in range(3)]
 
     def plant_step(a):
-        u = fmu_input(a)
-        x1 = Pp @ x + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
-        if integrator not in POLYNOMIAL_METHODS:       # the FMU holds the average
-            u = [_dot(avg, u), 0 * u[0], 0 * u[0]]
-        ue, due = _dot(end, u), u[1] + H * u[2]         # the stepper's input at t_k+1
-        d1 = A @ x1 + B @ ue
-        return x1, [C @ x1, C @ d1, C @ (A @ d1 + B @ due)][:P if taylor else 1]
+        x1, ys = _plant_sample(plant, Pp, Gp, x, fmu_input(a), H, integrator)
+        return x1, ys[:P if taylor else 1]
 
     def ctrl_step(a):
         u = fmu_input(a)
@@ -735,7 +730,7 @@ def _hermite_matrix(c, Hs, maps, first, integrator):
     plant, _, (Pp, Gp), (Ad, Gc) = maps
     ctrl = controller_model(c)
     Ac, Bc, Cc, Dc = ctrl.state_space()                  # F = Cc xc + Dc y
-    A, B, C = plant.A, plant.B, plant.C
+    C = plant.C
     qy, qF = HERMITE_ORDERS["plant"], HERMITE_ORDERS["controller"]
     nx, nc, ny = Pp.shape[-1], ctrl.nx, C.shape[0]
     K = Hs.size
@@ -749,7 +744,6 @@ def _hermite_matrix(c, Hs, maps, first, integrator):
     Y, F = [I[s] for s in iy], [I[s] for s in iF]
     x, xc = I[ix], I[ic]
     end = [1.0, H, H * H / 2]       # a quadratic's value at t_k+1 from its Taylor coefficients
-    avg = [1.0, H / 2, H * H / 6]
 
     def held(q, rows):
         """The least-squares quadratic over the step (value and two derivatives at t_k) of the
@@ -760,12 +754,7 @@ def _hermite_matrix(c, Hs, maps, first, integrator):
                 for r in (1, 2, 3)]
 
     def plant_step(u):
-        x1 = Pp @ x + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
-        if integrator not in POLYNOMIAL_METHODS:       # the FMU holds the average
-            u = [_dot(avg, u), 0 * u[0], 0 * u[0]]
-        ue, due = _dot(end, u), u[1] + H * u[2]         # the stepper's input at t_k+1
-        d1 = A @ x1 + B @ ue
-        return x1, [C @ x1, C @ d1, C @ (A @ d1 + B @ due)]
+        return _plant_sample(plant, Pp, Gp, x, u, H, integrator)
 
     def ctrl_step(u):
         return Ad @ xc + sum(Gc[..., 3 * j:3 * j + 3] @ u[j] for j in range(3))
@@ -798,6 +787,20 @@ def _hermite_matrix(c, Hs, maps, first, integrator):
     for j in range(qF + 1):
         Phi[:, iF[j]] = Fs[j]
     return Phi
+
+
+def _plant_sample(plant, Pp, Gp, x, u, H, integrator):
+    """The plant FMU's step from the state rows ``x`` with the input polynomial ``u`` (its Taylor
+    coefficients at ``t_k``, three row blocks) and its new sample: ``(x1, [y, y', y''])``, the
+    outputs' derivatives with the stepper's input at ``t_k+1`` (the plant FMU's output
+    derivatives after a step); a method that holds its input's average holds it there too."""
+    A, B, C = plant.A, plant.B, plant.C
+    x1 = Pp @ x + sum(Gp[..., j:j + 1] @ u[j] for j in range(3))
+    if integrator not in POLYNOMIAL_METHODS:           # the FMU holds the average
+        u = [_dot([1.0, H / 2, H * H / 6], u), 0 * u[0], 0 * u[0]]
+    ue, due = _dot([1.0, H, H * H / 2], u), u[1] + H * u[2]   # the stepper's input at t_k+1
+    d1 = A @ x1 + B @ ue
+    return x1, [C @ x1, C @ d1, C @ (A @ d1 + B @ due)]
 
 
 def spectral_radius(M: np.ndarray) -> float:

@@ -201,22 +201,29 @@ static int fill(const fm_master *m, fm_slave *d, long long kt, int held)
 }
 
 /* ---------------------------------------------------------------------- one step */
-/* Slave.set_inputs with the held inputs (values, then derivatives), at ta. */
-static int set_held(fm_master *m, int n, long long k, double ta)
+/* Slave.set_inputs: slave n's in_val, then its der_val (when it takes input derivatives), at t. */
+static int send_inputs(fm_master *m, int n, double t)
 {
     fm_slave *d = &m->slaves[n];
     int st;
-    if (!(m->hermite ? fill_hermite(m, d, k) : fill(m, d, k, 1))) return FM_BADARG;
     if (d->n_in) {
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
-        if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, ta);
+        if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, t);
     }
     if (d->n_der && d->n_in) {
         st = d->set_der(d->c, d->der_vr, (size_t)(d->n_in * d->n_der), d->der_order,
                         d->der_val);
-        if (st > 1) return fail(m, n, FM_CALL_SET_DER, st, 1, ta);
+        if (st > 1) return fail(m, n, FM_CALL_SET_DER, st, 1, t);
     }
     return FM_DONE;
+}
+
+/* Slave.set_inputs with the held inputs (values, then derivatives), at ta. */
+static int set_held(fm_master *m, int n, long long k, double ta)
+{
+    fm_slave *d = &m->slaves[n];
+    if (!(m->hermite ? fill_hermite(m, d, k) : fill(m, d, k, 1))) return FM_BADARG;
+    return send_inputs(m, n, ta);
 }
 
 static int do_step(fm_master *m, int n, double ta)
@@ -243,13 +250,7 @@ static int outputs_after_step(fm_master *m, int n, long long k, double tb)
             for (r = 0; r < d->n_der; r++)
                 d->der_val[r * d->n_in + i] = r + 1 <= s->n_oder ? y[(r + 1) * s->n_out] : 0.0;
         }
-        st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
-        if (st > 1) return fail(m, n, FM_CALL_SET_REAL, st, 1, tb);
-        if (d->n_der) {
-            st = d->set_der(d->c, d->der_vr, (size_t)(d->n_in * d->n_der), d->der_order,
-                            d->der_val);
-            if (st > 1) return fail(m, n, FM_CALL_SET_DER, st, 1, tb);
-        }
+        if ((st = send_inputs(m, n, tb)) != FM_DONE) return st;
     } else if (d->feedthrough && d->n_in) {
         if (!fill(m, d, k + 1, 0)) return FM_BADARG;
         st = d->set_real(d->c, d->in_vr, (size_t)d->n_in, d->in_val);
