@@ -400,15 +400,24 @@ def hand_stepped(scene, n_rows):
     nx, nc, P = len(x0), ctrl.nx, m.extrapolation + 1
     y0 = plant.C @ x0
     F0 = (Dc @ y0)[0]                         # F_c(0): -e(0) without filter, else 0
-    if m.coupling == "hermite":
-        z = _hermite_start(m, plant, (Ac, Bc, Cc, Dc), x0)
-        iF = nx + nc + 9
-        rows = []
-        for k in range(n_rows):
-            x_o, phi_o, omega_o = plant.C @ z[:nx]
-            rows.append((phi_o, omega_o, x_o, z[iF]))
-            z = scene_transition_matrix(scene, drift_free=False) @ z
-        return np.array(rows)
+    if m.coupling == "hermite":               # its registers: y and two rates, F and four
+        z, iF = _hermite_start(m, plant, (Ac, Bc, Cc, Dc), x0), nx + nc + 9
+    else:
+        z, iF = _polynomial_start(m, plant, (Ac, Bc, Cc, Dc), x0, y0, F0), nx + nc + 3 * P
+    rows = []
+    for k in range(n_rows):
+        x_o, phi_o, omega_o = plant.C @ z[:nx]
+        rows.append((phi_o, omega_o, x_o, z[iF]))
+        z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
+    return np.array(rows)
+
+
+def _polynomial_start(m, plant, ss, x0, y0, F0):
+    """The polynomial couplings' registers at t0 (``transition_matrix``'s layout): the initial
+    samples (with output derivatives: the initial ones, the input derivatives 0), the older
+    ones 0."""
+    Ac, Bc, Cc, Dc = ss
+    nx, nc, P = len(x0), Ac.shape[0], m.extrapolation + 1
     z = np.zeros(nx + nc + 3 * P + P)
     z[:nx] = x0
     iy, iF = nx + nc, nx + nc + 3 * P
@@ -420,12 +429,7 @@ def hand_stepped(scene, n_rows):
         ders = [(plant.C @ d1, (Cc @ dc)[0]), (plant.C @ plant.A @ d1, (Cc @ Ac @ dc)[0])]
         for j in range(1, P):
             z[iy + 3 * j:iy + 3 * j + 3], z[iF + j] = ders[j - 1]
-    rows = []
-    for k in range(n_rows):
-        x_o, phi_o, omega_o = plant.C @ z[:nx]
-        rows.append((phi_o, omega_o, x_o, z[iF]))
-        z = scene_transition_matrix(scene, drift_free=False, step_index=k) @ z
-    return np.array(rows)
+    return z
 
 
 def _hermite_start(m, plant, ss, x0):

@@ -216,6 +216,18 @@ def test_gauss_seidel_orders_have_one_spectrum(p_extra):
 
 
 
+def _assert_hand_stepped(scene, paths):
+    """The master with the real FMUs on ``scene`` (its plant step's preflight skipped) against
+    its transition matrices stepped by hand (``hand_stepped``): every sample of phi_o, omega_o,
+    x and F_c, to 1e-10 of each column's largest value."""
+    res = run_scene(scene, paths, progress=False, check_step=False).result
+    hand = hand_stepped(scene, len(res))
+    for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
+        scale = np.abs(res[col]).max()
+        np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
+                                   err_msg=col)
+
+
 #: the couplings of the hand-stepped comparison: (extrapolation, input derivatives, output
 #: derivatives, plant integrator); the scenes' default is (2, True, False, "rk4")
 COUPLINGS = [(0, False, False, "rk4"), (1, False, False, "rk4"), (2, False, False, "rk4"),
@@ -246,12 +258,7 @@ def test_hand_stepped_map_matches_the_master_step_for_step(paths, filter_order, 
                       "n_steps": 25})
     # explicit Euler is beyond its limit on the damped modes (the plant step's preflight would
     # refuse it): the map is compared, stable or not
-    res = run_scene(scene, paths, progress=False, check_step=False).result
-    hand = hand_stepped(scene, len(res))
-    for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
-        scale = np.abs(res[col]).max()
-        np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
-                                   err_msg=col)
+    _assert_hand_stepped(scene, paths)
 
 
 @pytest.mark.parametrize("filter_order", [2, 0])
@@ -270,12 +277,7 @@ def test_hand_stepped_hermite_map_matches_the_master_step_for_step(paths, filter
                       "plant.fidelity": "linear", "plant.n_modes": 2,
                       "controller.filter_order": filter_order, "controller.kx": 3.0,
                       "n_steps": 25})
-    res = run_scene(scene, paths, progress=False, check_step=False).result
-    hand = hand_stepped(scene, len(res))
-    for j, col in enumerate(("phi_o", "omega_o", "x", "F_c")):
-        scale = np.abs(res[col]).max()
-        np.testing.assert_allclose(res[col], hand[:, j], rtol=0, atol=1e-10 * scale,
-                                   err_msg=col)
+    _assert_hand_stepped(scene, paths)
 
 
 # ---------------------------------------------------------------------- co-simulation step limits
@@ -324,13 +326,25 @@ POLYNOMIAL_LIMITS = [("gauss-seidel", "controller", 2, False),
                      ("gauss-seidel", "plant", 1, True)]
 
 
-def _filtered(H, alg, first, e, out_der):
+def _filtered(H, alg, first, e, out_der, coupling="polynomial"):
     sets = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
             "plant.fidelity": "linear", "master.step": H, "output_interval": H,
             "stop_time": N_STEPS * H, "master.algorithm": alg, "master.first": first,
             "master.extrapolation": e, "master.input_derivatives": "true",
-            "master.output_derivatives": str(out_der).lower()}
+            "master.output_derivatives": str(out_der).lower(), "master.coupling": coupling}
     return load_scene("flexible_pd_lowpass", [f"{k}={v}" for k, v in sets.items()])
+
+
+def _assert_growth_is_predicted(scene, paths, stable: bool):
+    """The scene's predicted spectral radius is on the ``stable`` side of 1, and the native
+    FMUs' observed growth factor per step is on the same side and equals it (to 1e-3 of its
+    distance from 1)."""
+    predicted = spectral_radius(scene_transition_matrix(scene))
+    assert (predicted < 1) == stable, predicted       # a clean boundary at this margin
+    observed = _observe(scene, paths)
+    assert (observed < 1) == (predicted < 1), (predicted, observed)
+    assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
+        (predicted, observed)
 
 
 @pytest.fixture(scope="module")
@@ -351,13 +365,8 @@ def test_polynomial_coupling_step_limit(paths, polynomial_limits, alg, first, e,
     step of a coupling with input (and output) derivatives: the observed growth factor is the
     predicted spectral radius, and the verdict flips at the boundary."""
     Hc = polynomial_limits[alg, first, e, out_der]
-    scene = _filtered(factor * Hc, alg, first, e, out_der)
-    predicted = spectral_radius(scene_transition_matrix(scene))
-    assert (predicted < 1) == (factor < 1), predicted      # a clean boundary at this margin
-    observed = _observe(scene, paths)
-    assert (observed < 1) == (predicted < 1), (predicted, observed)
-    assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
-        (predicted, observed)
+    _assert_growth_is_predicted(_filtered(factor * Hc, alg, first, e, out_der), paths,
+                                factor < 1)
 
 
 @pytest.fixture(scope="module")
@@ -391,16 +400,8 @@ def test_hermite_coupling_step_limit(paths, hermite_limits, first, where, at):
     the predicted spectral radius, and the verdict is the predicted one."""
     lo, hi = hermite_limits[first]
     H = at * lo if where == "below" else lo + at * (hi - lo)
-    sets = {"initial.phi": 1e-3, "plant.phi_limit": "inf", "plant.energy_limit": "inf",
-            "plant.fidelity": "linear", "master.step": H, "output_interval": H,
-            "stop_time": N_STEPS * H, "master.first": first, "master.coupling": "hermite"}
-    scene = load_scene("flexible_pd_lowpass", [f"{k}={v}" for k, v in sets.items()])
-    predicted = spectral_radius(scene_transition_matrix(scene))
-    assert (predicted < 1) == (where == "below"), predicted
-    observed = _observe(scene, paths)
-    assert (observed < 1) == (predicted < 1), (predicted, observed)
-    assert observed == pytest.approx(predicted, abs=1e-3 * abs(predicted - 1)), \
-        (predicted, observed)
+    _assert_growth_is_predicted(_filtered(H, "gauss-seidel", first, 2, False, "hermite"), paths,
+                                where == "below")
 
 # ---------------------------------------------------------------------- the plant's substep limit
 @pytest.fixture(scope="module")
