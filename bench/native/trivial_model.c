@@ -108,10 +108,10 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
     return none(lg, "Jacobian");
 }
 
-int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
-                                double *value)
+int fpm_model_output_derivatives(fpm_model *m, const fpm_logger *lg, size_t n,
+                                 const unsigned vr[], const int order[], double values[])
 {
-    (void)m; (void)vr; (void)order; (void)value;
+    (void)m; (void)n; (void)vr; (void)order; (void)values;
     return none(lg, "output derivatives");
 }
 

@@ -848,27 +848,34 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
     return FPM_OK;
 }
 
-int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
-                                double *value)
+int fpm_model_output_derivatives(fpm_model *m, const fpm_logger *lg, size_t n,
+                                 const unsigned vr[], const int order[], double values[])
 {
     double e[3], d[4];
-    if (vr != VR_F_c) {
-        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
-        return FPM_ERROR;
+    int have = 0;
+    size_t i;
+    for (i = 0; i < n; i++) {
+        if (vr[i] != VR_F_c) {
+            fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr[i]);
+            return FPM_ERROR;
+        }
+        if (order[i] < 1 || order[i] > FPM_OUTPUT_DERIVATIVE_ORDER) {
+            fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c: orders 1 to %d only",
+                    order[i], FPM_OUTPUT_DERIVATIVE_ORDER);
+            return FPM_ERROR;
+        }
+        if (!have) {                  /* every order at once, for the whole request */
+            if (!ready_now(m, lg, "the output derivatives", e)) return FPM_ERROR;
+            if (fpf_output_derivatives(&m->f, m->xc, e, d) != FPF_OK) {
+                fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c is not finite at t = "
+                        "%.17g (filter state %g, %g; error signal %g, rates %g, %g)", order[i],
+                        m->t, m->xc[0], m->xc[1], e[0], e[1], e[2]);
+                return FPM_ERROR;
+            }
+            have = 1;
+        }
+        values[i] = d[order[i] - 1];
     }
-    if (order < 1 || order > FPM_OUTPUT_DERIVATIVE_ORDER) {
-        fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c: orders 1 to %d only", order,
-                FPM_OUTPUT_DERIVATIVE_ORDER);
-        return FPM_ERROR;
-    }
-    if (!ready_now(m, lg, "the output derivatives", e)) return FPM_ERROR;
-    if (fpf_output_derivatives(&m->f, m->xc, e, d) != FPF_OK) {
-        fpm_log(lg, FPM_ERROR, "the derivative of order %d of F_c is not finite at t = %.17g "
-                "(filter state %g, %g; error signal %g, rates %g, %g)", order, m->t, m->xc[0],
-                m->xc[1], e[0], e[1], e[2]);
-        return FPM_ERROR;
-    }
-    *value = d[order - 1];
     return FPM_OK;
 }
 /* ================================================================== end of Jacobians and output

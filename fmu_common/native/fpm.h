@@ -277,12 +277,15 @@ size_t fpm_model_nx(void);
 int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B, double *C,
                        double *D);
 
-/* The order-th time derivative (1 .. fpm_model_max_output_derivative_order()) of output vr at
- * the model's current time: exact, for the inputs as their polynomial (value and input
- * derivatives) gives them at that time. FPM_OK, or FPM_ERROR with a message. */
-int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
-                                double *value);
-/* The highest order fpm_model_output_derivative gives exactly (the modelDescription's
+/* values[i] = the order[i]-th time derivative (1 .. fpm_model_max_output_derivative_order())
+ * of output vr[i] at the model's current time, i = 0 .. n - 1: exact, for the inputs as their
+ * polynomial (value and input derivatives) gives them at that time. One call for the whole
+ * request (fmi2GetRealOutputDerivatives'), so that a model evaluates its derivatives once for
+ * all entries; entries taken in order, the first bad one refused as it would be alone. FPM_OK,
+ * or FPM_ERROR with a message. */
+int fpm_model_output_derivatives(fpm_model *m, const fpm_logger *lg, size_t n,
+                                 const unsigned vr[], const int order[], double values[]);
+/* The highest order fpm_model_output_derivatives gives exactly (the modelDescription's
  * maxOutputDerivativeOrder; 0: none). */
 int fpm_model_max_output_derivative_order(void);
 /* What the FMU offers besides co-simulation, as its modelDescription declares it (generated

@@ -1107,9 +1107,11 @@ int fpm_output_derivatives(fpm_instance *c, const char *fn, int mask, const unsi
     }
     if (n > 0 && !fpm_model_initialized(c->m))
         return fpm_refuse(c, FPM_ERROR, fn, "the model is not initialised");
-    for (i = 0; i < n; i++) {
-        int rc = fpm_model_output_derivative(c->m, &c->lg, vr[i], order[i], &values[i]);
+    if (n > 0) {
+        int rc = fpm_model_output_derivatives(c->m, &c->lg, n, vr, order, values);
         if (rc > FPM_WARNING) return rc;
+    }
+    for (i = 0; i < n; i++) {
         if (!isfinite(values[i])) {
             fpm_log(&c->lg, FPM_ERROR, "%s: the derivative of order %d of %s is not finite", fn,
                     order[i], fpm_vars[vr[i]].name);

@@ -149,9 +149,10 @@ struct fpm_model {
     double y_acc[NXMAX];        /* the last accepted state (the outputs) */
     double out[FP_OUT_ETA + NMAX];
     int out_fresh, energy_fresh;
-    /* fpm_model_output_derivative's last fp_output_derivatives (an importer reads every output
-     * and order in one call: one evaluation serves them all): valid while od_valid (cleared by
-     * prepare) for the state od_x and the input od_u, od_du, compared bit for bit */
+    /* fpm_model_output_derivatives' last fp_output_derivatives (one evaluation serves every
+     * output and order of a request, and the requests that follow at the same point): valid
+     * while od_valid (cleared by prepare) for the state od_x and the input od_u, od_du, compared
+     * bit for bit */
     int od_valid;
     double od_u, od_du, od_x[NXMAX], od_d1[FP_OUT_ETA + NMAX], od_d2[FP_OUT_ETA + NMAX];
     /* the exponential method (its linear model and discretisations: in dv) */
@@ -1334,7 +1335,7 @@ int fpm_model_load(fpm_model *m, fpm_reader *r, int initialized, const fpm_model
 }
 
 /* ================================================================== Jacobians and output
- * derivatives (issue 24; fpm.h: fpm_model_nx, fpm_model_jacobian, fpm_model_output_derivative)
+ * derivatives (issue 24; fpm.h: fpm_model_nx, fpm_model_jacobian, fpm_model_output_derivatives)
  * on the kernel's fp_jacobian, fp_output_jacobian and fp_output_derivatives.
  *
  * States (Model Exchange's order): [x, phi, eta_1..eta_8, x_dot, phi_dot, eta_dot_1..eta_dot_8]
@@ -1482,42 +1483,58 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
     return FPM_OK;
 }
 
-int fpm_model_output_derivative(fpm_model *m, const fpm_logger *lg, unsigned vr, int order,
-                                double *value)
+/* The derivatives of every output at the state and input, in m->od_d1, m->od_d2: the last
+ * evaluation's when the state, the input and its rate are those it was made at (bit for bit). */
+static int od_ready(fpm_model *m, const fpm_logger *lg, double u, double du, unsigned vr,
+                    int order)
 {
-    double work[4 * NXMAX], u, du;
-    int row;
-    if (m->exact || m->p.stiffened) return xb_refuse(m, lg, "output derivatives");
-    if (vr >= FPM_MAX_VARS || (row = kernel_row(m, vr)) == -2) {
-        fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr);
-        return FPM_ERROR;
+    double work[4 * NXMAX];
+    if (m->od_valid && memcmp(&m->od_u, &u, sizeof u) == 0
+        && memcmp(&m->od_du, &du, sizeof du) == 0
+        && memcmp(m->od_x, m->y_acc, (size_t)m->nx * sizeof(double)) == 0)
+        return 1;
+    m->od_valid = 0;
+    if (fp_output_derivatives(&m->p, m->y_acc, u, du, m->od_d1, m->od_d2, work) != FP_OK) {
+        fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s is not finite at t = %.17g "
+                "(F_c = %g, dF_c = %g)", order, fpm_vars[vr].name, fpm_model_time(m), u, du);
+        return 0;
     }
-    if (order < 1 || order > 2) {
-        fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s: orders 1 and 2 only", order,
-                fpm_vars[vr].name);
-        return FPM_ERROR;
-    }
-    if (!jac_ready(m, lg, "the output derivatives", &u, &du)) return FPM_ERROR;
-    if (row == -1) {                          /* a mode beyond n_modes: identically 0 */
-        *value = 0.0;
-        return FPM_OK;
-    }
-    if (!(m->od_valid && memcmp(&m->od_u, &u, sizeof u) == 0
-          && memcmp(&m->od_du, &du, sizeof du) == 0
-          && memcmp(m->od_x, m->y_acc, (size_t)m->nx * sizeof(double)) == 0)) {
-        m->od_valid = 0;
-        if (fp_output_derivatives(&m->p, m->y_acc, u, du, m->od_d1, m->od_d2, work) != FP_OK) {
-            fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s is not finite at t = %.17g "
-                    "(F_c = %g, dF_c = %g)", order, fpm_vars[vr].name, fpm_model_time(m), u,
-                    du);
+    m->od_u = u;
+    m->od_du = du;
+    memcpy(m->od_x, m->y_acc, (size_t)m->nx * sizeof(double));
+    m->od_valid = 1;
+    return 1;
+}
+
+int fpm_model_output_derivatives(fpm_model *m, const fpm_logger *lg, size_t n,
+                                 const unsigned vr[], const int order[], double values[])
+{
+    double u = 0.0, du = 0.0;
+    int row, ready = 0, have = 0;
+    size_t i;
+    for (i = 0; i < n; i++) {
+        if (m->exact || m->p.stiffened) return xb_refuse(m, lg, "output derivatives");
+        if (vr[i] >= FPM_MAX_VARS || (row = kernel_row(m, vr[i])) == -2) {
+            fpm_log(lg, FPM_ERROR, "value reference %u is not an output", vr[i]);
             return FPM_ERROR;
         }
-        m->od_u = u;
-        m->od_du = du;
-        memcpy(m->od_x, m->y_acc, (size_t)m->nx * sizeof(double));
-        m->od_valid = 1;
+        if (order[i] < 1 || order[i] > 2) {
+            fpm_log(lg, FPM_ERROR, "the derivative of order %d of %s: orders 1 and 2 only",
+                    order[i], fpm_vars[vr[i]].name);
+            return FPM_ERROR;
+        }
+        if (!ready) {                         /* the input once for the request */
+            if (!jac_ready(m, lg, "the output derivatives", &u, &du)) return FPM_ERROR;
+            ready = 1;
+        }
+        if (row == -1) {                      /* a mode beyond n_modes: identically 0 */
+            values[i] = 0.0;
+            continue;
+        }
+        if (!have && !od_ready(m, lg, u, du, vr[i], order[i])) return FPM_ERROR;
+        have = 1;
+        values[i] = order[i] == 1 ? m->od_d1[row] : m->od_d2[row];
     }
-    *value = order == 1 ? m->od_d1[row] : m->od_d2[row];
     return FPM_OK;
 }
 /* ================================================================== end of Jacobians and output

@@ -411,7 +411,7 @@ def _me_map(n):
     ("linear", False, "exponential")])
 @pytest.mark.parametrize("n", [0, 3, 8])
 def test_plant_hooks_are_the_kernel_at_the_models_point(hooks, n, fidelity, preload, integrator):
-    """The plant's fpm_model_jacobian and fpm_model_output_derivative against the kernel at the
+    """The plant's fpm_model_jacobian and fpm_model_output_derivatives against the kernel at the
     state the model holds, with the force input_now gives: after initialisation F_c and dF_c set
     now; after doSteps the last step's polynomial at its end (the step average for the
     exponential method), also after new inputs are set and after a save and restore."""

@@ -1,6 +1,6 @@
 /*
  * jacobian_hooks.c - a test host of the models' issue-24 hooks (fpm.h: fpm_model_nx,
- * fpm_model_jacobian, fpm_model_output_derivative), before the FMI core calls them.
+ * fpm_model_jacobian, fpm_model_output_derivatives), before the FMI core calls them.
  *
  * Compiled by tests/common/test_jacobian.py with the model's source included (-DMODEL_C="...") so
  * that the host reads the model's state, with fpm_guard.c and the kernels, against the model's
@@ -52,8 +52,12 @@ static void report(fpm_model *m, const char *what)
     rc = fpm_model_jacobian(m, &LOG, A, B, C, D);
     for (vr = 0; vr < FPM_MAX_VARS; vr++)
         if (fpm_vars[vr].name && fpm_vars[vr].causality == FPM_OUTPUT) {
-            rc |= fpm_model_output_derivative(m, &LOG, (unsigned)vr, 1, &d[0][k]);
-            rc |= fpm_model_output_derivative(m, &LOG, (unsigned)vr, 2, &d[1][k]);
+            const unsigned v[2] = {(unsigned)vr, (unsigned)vr};
+            const int order[2] = {1, 2};
+            double both[2] = {0.0, 0.0};
+            rc |= fpm_model_output_derivatives(m, &LOG, 2, v, order, both);
+            d[0][k] = both[0];
+            d[1][k] = both[1];
             k++;
         }
     printf("{\"what\": \"%s\", \"rc\": %d, \"t\": %.17g, \"nx\": %d, \"nu\": %d, \"ny\": %d", what,
