@@ -520,6 +520,38 @@ static int check_tableau(const fp_tableau *tab)
  * stage is unused) with y unchanged. */
 #define SPARSE_STAGES 8
 
+/* ys = y + (0.0 + a_0 K_c0 + ... + a_{n-1} K_c{n-1}), the sum taken left to right as the loop
+ * over j does it, with its zero-, one-, two- and four-term cases (RK4's stages and its sum)
+ * written out so that the loop over the entries has no inner loop: the same operations in the
+ * same order, bit for bit. */
+static void stage_sum(const double *y, const double *K, int nx, const double *a, const int *c,
+                      int n, double *ys)
+{
+    int m, j;
+    if (n == 0) {
+        for (m = 0; m < nx; m++) ys[m] = y[m] + 0.0;
+    } else if (n == 1) {
+        const double a0 = a[0], *K0 = K + (size_t)c[0] * nx;
+        for (m = 0; m < nx; m++) ys[m] = y[m] + (0.0 + a0 * K0[m]);
+    } else if (n == 2) {
+        const double a0 = a[0], a1 = a[1];
+        const double *K0 = K + (size_t)c[0] * nx, *K1 = K + (size_t)c[1] * nx;
+        for (m = 0; m < nx; m++) ys[m] = y[m] + ((0.0 + a0 * K0[m]) + a1 * K1[m]);
+    } else if (n == 4) {
+        const double a0 = a[0], a1 = a[1], a2 = a[2], a3 = a[3];
+        const double *K0 = K + (size_t)c[0] * nx, *K1 = K + (size_t)c[1] * nx;
+        const double *K2 = K + (size_t)c[2] * nx, *K3 = K + (size_t)c[3] * nx;
+        for (m = 0; m < nx; m++)
+            ys[m] = y[m] + ((((0.0 + a0 * K0[m]) + a1 * K1[m]) + a2 * K2[m]) + a3 * K3[m]);
+    } else {
+        for (m = 0; m < nx; m++) {
+            double acc = 0.0;
+            for (j = 0; j < n; j++) acc += a[j] * K[(size_t)c[j] * nx + m];
+            ys[m] = y[m] + acc;
+        }
+    }
+}
+
 static int sparse_steps(const fp_plant *p, const fp_tableau *tab, const fp_input *u, double t,
                         double h, long n_steps, double *y, double *work, long *done)
 {
@@ -546,20 +578,10 @@ static int sparse_steps(const fp_plant *p, const fp_tableau *tab, const fp_input
     for (k = 0; k < n_steps; k++) {
         const double sk = s0 + k * h;
         for (i = 0; i < s; i++) {
-            const double *a = ha + i * SPARSE_STAGES;
-            const int *c = col + i * SPARSE_STAGES, n = n_a[i];
-            for (m = 0; m < nx; m++) {
-                double acc = 0.0;
-                for (j = 0; j < n; j++) acc += a[j] * K[(size_t)c[j] * nx + m];
-                ys[m] = y[m] + acc;
-            }
+            stage_sum(y, K, nx, ha + i * SPARSE_STAGES, col + i * SPARSE_STAGES, n_a[i], ys);
             fp_rhs(p, ys, input_at(u, sk + ch[i]), K + (size_t)i * nx);
         }
-        for (m = 0; m < nx; m++) {
-            double acc = 0.0;
-            for (j = 0; j < n_b; j++) acc += hb[j] * K[(size_t)colb[j] * nx + m];
-            ys[m] = y[m] + acc;
-        }
+        stage_sum(y, K, nx, hb, colb, n_b, ys);
         if (!all_finite(ys, nx)) return FP_NONFINITE;
         for (m = 0; m < nx; m++) y[m] = ys[m];
         *done = k + 1;
