@@ -200,7 +200,7 @@ def rk4_points(runs, exe, scene, ref, log, max_error: float) -> list:
         if not np.isfinite(err):
             err = np.inf
         out.append({"family": "monolithic RK4 (C)", "setting": f"h={h:.4g}", "seconds": med,
-                    "error": err, "all_seconds": times, "_run": run})
+                    "error": err, "all_seconds": times, "_run": run, "h": h})
         log(f"  monolithic RK4 (C) h={h:<8.4g} error {err:9.2e}  {med:8.4f} s")
         if err <= max_error:
             break
@@ -305,7 +305,36 @@ def rk4_ratio(runs, c, rk, log) -> dict:
         f"interpolated (log-log) to {c['error']:.2e} rad: {t_rk:.4f} s -> native "
         f"co-simulation / RK4 at equal error = {res['ratio_to_monolithic_rk4']:.2f} "
         f"(wanted <= 1.5)")
+    res.update(macro_step_cost(c, t_c, t_rk, dict(zip((p["setting"] for p in pair), pair)),
+                               dict(zip((p["setting"] for p in pair), t_pair)), log))
     return res
+
+
+def macro_step_cost(c, t_c, t_rk, pair, t_pair, log) -> dict:
+    """Where the co-simulation's time goes, per macro step, when the RK4 of one bracketing
+    point steps as the plant does (the same step): its plant substeps at that RK4's cost per
+    step, and the rest (the FMI calls, the coupling, the output derivatives, the FMUs' checks,
+    the initialisation); and how small the rest must be for 1.5 times the RK4 at equal error."""
+    sets = dict(o.split("=", 1) for o in T5_CANDIDATES.get(c["setting"], []))
+    try:
+        big, small = float(sets["master.step"]), float(sets["plant.step"])
+    except (KeyError, ValueError):
+        return {}
+    same = [k for k, p in pair.items() if abs(p["h"] - small) <= 1e-9 * small]
+    if not same:
+        return {}
+    stop = load_scene(SCENE).output.stop_time
+    n_macro = round(stop / big)
+    per_rk = t_pair[same[0]] / round(stop / small)
+    per_macro = t_c / n_macro
+    plant = round(big / small) * per_rk
+    rest, budget = per_macro - plant, 1.5 * t_rk / n_macro - plant
+    log(f"T5  per macro step: {per_macro * 1e6:.3f} us = {round(big / small)} plant substeps at "
+        f"the RK4's cost per step ({plant * 1e6:.3f} us) + the rest {rest * 1e6:.3f} us (FMI "
+        f"calls, coupling, output derivatives, checks, initialisation); 1.5x wants the rest at "
+        f"most {budget * 1e6:.3f} us")
+    return {"per_macro_step_us": per_macro * 1e6, "plant_substeps_us": plant * 1e6,
+            "rest_us": rest * 1e6, "rest_for_1_5x_us": budget * 1e6}
 
 
 # ---------------------------------------------------------------------- C host
