@@ -316,15 +316,18 @@ class _History:
         self.t, self.u = list(snap[0]), list(snap[1])
 
 
+@functools.lru_cache(maxsize=1)
 def weight_table() -> np.ndarray:
     """``W[e + 1, k - 1, kind, :k]``: the weights the Python master uses for the ``k`` nodes
     ``e - k + 1 .. e`` (``e`` the newest node, -1, 0 or 1, in communication steps from the point
     of evaluation), per kind: the average over [0, 1], the value, the first and the second
-    derivative at 0 (the derivatives unscaled: the loop divides them by ``scale ** kind``)."""
+    derivative at 0 (the derivatives unscaled: the loop divides them by ``scale ** kind``).
+    Computed once (read-only): every compiled run reads the same table."""
     W = np.zeros((3, 3, 4, 3))
     for e in (-1, 0, 1):
         for k in (1, 2, 3):
             tau = tuple(float(j) for j in range(e - k + 1, e + 1))
             for i, kind in enumerate(("average", 0, 1, 2)):
                 W[e + 1, k - 1, i, :k] = _weights(tau, kind)
+    W.flags.writeable = False
     return W
