@@ -57,6 +57,18 @@ static fp_fenv ftz_enter(void) { return 0; }
 static void ftz_leave(fp_fenv old) { (void)old; }
 #endif
 
+/* The compiler does not know that arithmetic depends on the floating-point mode: a stepper that
+ * runs flushed and the wrapper that switches the mode are never inlined (not even by link-time
+ * optimisation, into a caller in another file), so that no arithmetic of the caller moves into
+ * the flushed window and none of the stepper's out of it. */
+#if defined(__GNUC__)
+#define FP_NOINLINE __attribute__((noinline))
+#elif defined(_MSC_VER)
+#define FP_NOINLINE __declspec(noinline)
+#else
+#define FP_NOINLINE
+#endif
+
 /* Whether times x and y may be flushed: neither is itself subnormal (a step of 5e-324 s from
  * t = 0 is a legal step, which the flushed arithmetic would take as none). */
 static int flushable(double x, double y)
@@ -589,6 +601,7 @@ static int sparse_steps(const fp_plant *p, const fp_tableau *tab, const fp_input
     return FP_OK;
 }
 
+FP_NOINLINE
 static int fixed_steps_(const fp_plant *p, int method, const fp_tableau *tab, const fp_input *u,
                    double t, double h, long n_steps, double *y, double *work, long *done)
 {
@@ -655,6 +668,7 @@ static void fsal_step(const fp_plant *p, const fp_tableau *tab, const fp_input *
     }
 }
 
+FP_NOINLINE
 static int dopri_advance_(const fp_plant *p, const fp_tableau *tab, const fp_input *u, double *t,
                      double t_end, double *y, double *f, fp_adaptive *a, double *work)
 {
@@ -2097,6 +2111,7 @@ static int ex_step(const fp_exact *p, const fp_exact_force *F, double *s, double
     return FP_OK;
 }
 
+FP_NOINLINE
 static int exact_steps_(const fp_exact *p, const fp_exact_force *F, long n_steps, double *s,
                    double *work, long *done, long *iters)
 {
@@ -2370,6 +2385,7 @@ static int ex_force_row(const fp_exact *p, double *band, int stride, const doubl
     return outside;
 }
 
+FP_NOINLINE
 static int radau_step_(const fp_exact *p, const fp_radau_force *F, double *s, double *work,
                   long *iters, double *e_out)
 {
@@ -2654,6 +2670,7 @@ int fp_exact_outputs(const fp_exact *p, const double *s, int want_energy, double
 
 /* ---------------------------------------------------------------------- the steppers, with
  * subnormals flushed (see ftz_enter) */
+FP_NOINLINE
 int fp_fixed_steps(const fp_plant *p, int method, const fp_tableau *tab, const fp_input *u,
                    double t, double h, long n_steps, double *y, double *work, long *done)
 {
@@ -2667,6 +2684,7 @@ int fp_fixed_steps(const fp_plant *p, int method, const fp_tableau *tab, const f
     return rc;
 }
 
+FP_NOINLINE
 int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u, double *t,
                      double t_end, double *y, double *f, fp_adaptive *a, double *work)
 {
@@ -2680,6 +2698,7 @@ int fp_dopri_advance(const fp_plant *p, const fp_tableau *tab, const fp_input *u
     return rc;
 }
 
+FP_NOINLINE
 int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, double *s,
                    double *work, long *done, long *iters)
 {
@@ -2693,6 +2712,7 @@ int fp_exact_steps(const fp_exact *p, const fp_exact_force *F, long n_steps, dou
     return rc;
 }
 
+FP_NOINLINE
 int fp_radau_step(const fp_exact *p, const fp_radau_force *F, double *s, double *work,
                   long *iters, double *e_out)
 {
