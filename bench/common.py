@@ -139,9 +139,10 @@ def trivial_native_fmus(folder: Path | None = None) -> dict:
             native_fmus.generate_header(name, token, table=table, mode_tables=False)
             + "\n".join(native_fmus._clock_lines(name)) + "\n")
         lib = folder / f"{name}.so"
-        # --no-undefined, as the product's build (native_fmus.compile_command): a model hook
-        # that trivial_model.c lacks fails here, not when the FMU is loaded
-        cmd = [kernels.find_compiler(), *kernels.CFLAGS, f"-I{gen}",
+        # the product's flags (native_fmus.compile_command: link-time optimisation too) and
+        # --no-undefined: a model hook that trivial_model.c lacks fails here, not when the FMU
+        # is loaded
+        cmd = [kernels.find_compiler(), *kernels.CFLAGS, *native_fmus.FMU_CFLAGS, f"-I{gen}",
                f"-I{native_fmus.SRC}", f"-I{native_fmus.fmi_include_dir()}", "-fPIC", "-shared",
                "-Wl,--no-undefined", "-o", str(lib), str(native_fmus.SRC / "fmi2.c"),
                *(str(native_fmus.SRC / f) for f in native_fmus.CORE_SOURCES),

@@ -281,8 +281,9 @@ int fpm_model_jacobian(fpm_model *m, const fpm_logger *lg, double *A, double *B,
  * of output vr[i] at the model's current time, i = 0 .. n - 1: exact, for the inputs as their
  * polynomial (value and input derivatives) gives them at that time. One call for the whole
  * request (fmi2GetRealOutputDerivatives'), so that a model evaluates its derivatives once for
- * all entries; entries taken in order, the first bad one refused as it would be alone. FPM_OK,
- * or FPM_ERROR with a message. */
+ * all entries; entries taken in order, the first bad one refused as it would be alone. FPM_OK
+ * with every value finite, or FPM_ERROR with a message (the core checks the values finite only
+ * after the call, and names the first that is not). */
 int fpm_model_output_derivatives(fpm_model *m, const fpm_logger *lg, size_t n,
                                  const unsigned vr[], const int order[], double values[]);
 /* The highest order fpm_model_output_derivatives gives exactly (the modelDescription's
