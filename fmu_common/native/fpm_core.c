@@ -523,26 +523,34 @@ static void put_trailer(unsigned char *out, size_t n)
     put_u64_at(out + n - 8u, fpm_hash(out, n - 8u, 14695981039346656037ULL));
 }
 
-/* The checksum of an in-memory state's n bytes: four lanes of 8-byte words (an FNV-1a step on
- * the word, its high half folded down so that every bit reaches the next multiplication), the
- * tail byte-wise, the lanes and the length combined and mixed. Not portable across byte orders:
- * it never leaves the process. */
+/* The checksum of an in-memory state's n bytes: eight lanes of 8-byte words (an FNV-1a step on
+ * the word, its high half folded down so that every bit reaches the next multiplication; eight,
+ * so that the lanes' chains of multiplications overlap: an implicit master sums a state at
+ * every get and every set), then the last whole words one to a lane, the bytes left over
+ * byte-wise, the lanes and the length combined and mixed.
+ * Not portable across byte orders: it never leaves the process. */
+#define SUM_LANES 8
 static unsigned long long memory_sum(const unsigned char *p, size_t n)
 {
     const unsigned long long prime = 1099511628211ULL;
-    unsigned long long lane[4], w[4], h;
+    unsigned long long lane[SUM_LANES], w[SUM_LANES], h;
     size_t i = 0;
     int k;
-    for (k = 0; k < 4; k++) lane[k] = 14695981039346656037ULL + (unsigned long long)k;
+    for (k = 0; k < SUM_LANES; k++) lane[k] = 14695981039346656037ULL + (unsigned long long)k;
     for (; i + sizeof w <= n; i += sizeof w) {
         memcpy(w, p + i, sizeof w);
-        for (k = 0; k < 4; k++) {
+        for (k = 0; k < SUM_LANES; k++) {
             lane[k] = (lane[k] ^ w[k]) * prime;
             lane[k] ^= lane[k] >> 32;
         }
     }
+    for (k = 0; i + sizeof w[0] <= n; i += sizeof w[0], k++) {   /* the last whole words */
+        memcpy(&w[0], p + i, sizeof w[0]);
+        lane[k] = (lane[k] ^ w[0]) * prime;
+        lane[k] ^= lane[k] >> 32;
+    }
     h = fpm_hash(p + i, n - i, (unsigned long long)n);
-    for (k = 0; k < 4; k++) {
+    for (k = 0; k < SUM_LANES; k++) {
         h = (h ^ lane[k]) * prime;
         h ^= h >> 29;
     }
