@@ -273,14 +273,14 @@ def t5(runs, native, log, quick) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         exe = monolithic_rk4_binary(Path(tmp))
         rk = rk4_points(runs, exe, scene, ref, log, c["error"] if c else 1e-5)
-        res.update(rk4_ratio(runs, c, rk, log))
+        res.update(rk4_ratio(runs, c, rk, log, scene.output.stop_time))
     res["points"] = co + rk + ivp
     for p in res["points"]:
         p.pop("_run", None)
     return res
 
 
-def rk4_ratio(runs, c, rk, log) -> dict:
+def rk4_ratio(runs, c, rk, log, stop: float) -> dict:
     """The co-simulation point ``c`` against the RK4 points ``rk`` at equal error: the largest
     RK4 step of at most its error, and the RK4 curve interpolated to its error between the two
     points around it, timed again side by side with ``c``."""
@@ -307,12 +307,11 @@ def rk4_ratio(runs, c, rk, log) -> dict:
         f"interpolated (log-log) to {c['error']:.2e} rad: {t_rk:.4f} s -> native "
         f"co-simulation / RK4 at equal error = {res['ratio_to_monolithic_rk4']:.2f} "
         f"(wanted <= 1.5)")
-    res.update(macro_step_cost(c, t_c, t_rk, dict(zip((p["setting"] for p in pair), pair)),
-                               dict(zip((p["setting"] for p in pair), t_pair)), log))
+    res.update(macro_step_cost(c, t_c, t_rk, stop, pair, t_pair, log))
     return res
 
 
-def macro_step_cost(c, t_c, t_rk, pair, t_pair, log) -> dict:
+def macro_step_cost(c, t_c, t_rk, stop, pair, t_pair, log) -> dict:
     """Where the co-simulation's time goes, per macro step, when the RK4 of one bracketing
     point steps as the plant does (the same step): its plant substeps at that RK4's cost per
     step, and the rest (the FMI calls, the coupling, the output derivatives, the FMUs' checks,
@@ -322,12 +321,11 @@ def macro_step_cost(c, t_c, t_rk, pair, t_pair, log) -> dict:
         big, small = float(sets["master.step"]), float(sets["plant.step"])
     except (KeyError, ValueError):
         return {}
-    same = [k for k, p in pair.items() if abs(p["h"] - small) <= 1e-9 * small]
+    same = [t for p, t in zip(pair, t_pair) if abs(p["h"] - small) <= 1e-9 * small]
     if not same:
         return {}
-    stop = load_scene(SCENE).output.stop_time
     n_macro = round(stop / big)
-    per_rk = t_pair[same[0]] / round(stop / small)
+    per_rk = same[0] / round(stop / small)
     per_macro = t_c / n_macro
     plant = round(big / small) * per_rk
     rest, budget = per_macro - plant, 1.5 * t_rk / n_macro - plant
