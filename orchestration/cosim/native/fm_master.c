@@ -140,18 +140,46 @@ static int fill_hermite(const fm_master *m, fm_slave *d, long long kt)
     int i, r, rows = d->n_der ? d->n_der + 1 : 1;
     for (i = 0; i < d->n_in; i++) {
         const fm_slave *s = &m->slaves[d->in_src[i]];
-        const int q = s->n_oder, n = width(s), e = (int)(s->newest - kt);
-        const double *y;
+        const int q = s->n_oder, n = width(s), e = (int)(s->newest - kt), o = s->n_out;
+        const double *y, *w[3] = {NULL, NULL, NULL};
+        double a0, a1 = 0.0, a2 = 0.0;
+        int j;
         if (q < 1 || q > 4 || e < 0 || e > 1 || s->count < 1 + e) return 0;
         y = s->hist + (s->count - 1 - e) * n + d->in_idx[i];
-        for (r = 0; r < rows; r++) {
-            const double *w = m->hweights + (((q - 1) * 2 + e) * 4
-                                             + (d->n_der ? K_VALUE + r : K_AVERAGE)) * 10;
-            double acc = w[0] * y[0];
-            int j;
-            for (j = 1; j <= q; j++) acc = acc + w[j] * y[j * s->n_out];
+        for (r = 0; r < rows; r++)
+            w[r] = m->hweights + (((q - 1) * 2 + e) * 4 + (d->n_der ? K_VALUE + r : K_AVERAGE))
+                   * 10;
+        /* each row's sum left to right, the rows side by side in registers (independent
+         * chains: the same operations as one row after the other) */
+        if (rows == 3) {
+            const double *w0 = w[0], *w1 = w[1], *w2 = w[2];
+            a0 = w0[0] * y[0];
+            a1 = w1[0] * y[0];
+            a2 = w2[0] * y[0];
+            for (j = 1; j <= q; j++) {
+                const double yj = y[j * o];
+                a0 = a0 + w0[j] * yj;
+                a1 = a1 + w1[j] * yj;
+                a2 = a2 + w2[j] * yj;
+            }
             if (e)
-                for (j = 0; j <= q; j++) acc = acc + w[q + 1 + j] * y[n + j * s->n_out];
+                for (j = 0; j <= q; j++) {
+                    const double yj = y[n + j * o];
+                    a0 = a0 + w0[q + 1 + j] * yj;
+                    a1 = a1 + w1[q + 1 + j] * yj;
+                    a2 = a2 + w2[q + 1 + j] * yj;
+                }
+            d->in_val[i] = a0;
+            d->der_val[i] = a1;
+            d->der_val[d->n_in + i] = a2;
+            continue;
+        }
+        for (r = 0; r < rows; r++) {
+            const double *wr = w[r];
+            double acc = wr[0] * y[0];
+            for (j = 1; j <= q; j++) acc = acc + wr[j] * y[j * o];
+            if (e)
+                for (j = 0; j <= q; j++) acc = acc + wr[q + 1 + j] * y[n + j * o];
             if (r == 0) d->in_val[i] = acc;
             else d->der_val[(r - 1) * d->n_in + i] = acc;
         }
