@@ -17,6 +17,10 @@ __all__ = ["describe", "CoSimulationError", "RunInterrupted", "Slave"]
 
 
 _STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
+#: FMI 2.0 start values by type: fmpy's setter and the conversion (as :meth:`Slave._set_start`)
+_FMI2_SETTERS = {"Real": ("setReal", float), "Integer": ("setInteger", int),
+                 "Enumeration": ("setInteger", int), "Boolean": ("setBoolean", bool),
+                 "String": ("setString", str)}
 
 
 class CoSimulationError(RuntimeError):
@@ -226,6 +230,26 @@ class Slave:
         elif v.type == "String":
             self._call(f"setString({name})", self.fmu.setString, vr, [str(value)])
 
+    def _set_starts_fmi2(self):
+        """The start values of an FMI 2.0 FMU, one call per type (each type's values in the
+        order given). A call the FMU refuses is taken again one value at a time, so that the
+        error names the variable (:meth:`_set_start`), as it would have been set alone."""
+        groups = {}
+        for name, value in self._start_values.items():
+            v = self.variables.get(name)
+            if v is None or v.type not in _FMI2_SETTERS:
+                self._set_start(name, value)          # its own error
+                continue
+            groups.setdefault(v.type, []).append((name, v.valueReference, value))
+        for type_, items in groups.items():
+            method, conv = _FMI2_SETTERS[type_]
+            try:
+                getattr(self.fmu, method)([vr for _, vr, _ in items],
+                                          [conv(value) for _, _, value in items])
+            except FMICallException:
+                for name, _, value in items:
+                    self._set_start(name, value)
+
     def initialize(self, t0: float, stop_time: float | None = None):
         if self.fmi3:
             for name, value in self._start_values.items():
@@ -235,8 +259,7 @@ class Slave:
             self._call("exitInitializationMode", self.fmu.exitInitializationMode)
             return
         self._call("setupExperiment", self.fmu.setupExperiment, None, t0, stop_time)
-        for name, value in self._start_values.items():
-            self._set_start(name, value)
+        self._set_starts_fmi2()
         self._call("enterInitializationMode", self.fmu.enterInitializationMode)
         self._call("exitInitializationMode", self.fmu.exitInitializationMode)
 

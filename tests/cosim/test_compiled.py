@@ -479,3 +479,50 @@ def test_a_library_that_does_not_load_leaves_auto_on_the_python_loop(pair, unzip
                                           "not load: flexpend_master: no library"):
         run_scene(load_scene("flexible_pd_lowpass", ["stop_time=0.02", "master.compiled=true"]),
                   pair, progress=False, unzipdirs=unzipped)
+
+
+def test_start_values_are_set_in_one_call_per_type_and_a_refused_one_is_named(pair, unzipped):
+    """Slave.initialize sets an FMI 2.0 FMU's start values one call per type; when the FMU
+    refuses a call (here an output among the Reals: the native core refuses the whole call and
+    sets none of it), each value of that type is set alone, and the error names the one refused,
+    as when every value was set alone."""
+    scene = load_scene("flexible_pd_lowpass")
+    starts = {**plant_start_values(scene), "phi_o": 0.1}
+    calls = []
+    s = Slave(pair["plant"], "plant", starts, unzipdir=unzipped["plant"])
+    try:
+        real = s.fmu.setReal
+
+        def traced(vr, values):
+            calls.append(len(vr))
+            return real(vr, values)
+        s.fmu.setReal = traced
+        with pytest.raises(CoSimulationError, match=r"setReal\(phi_o\) returned error"):
+            s.initialize(0.0, 1.0)
+        reals = [n for n in starts if s.variables[n].type == "Real"]
+        # the batch, then one by one up to phi_o (the last)
+        assert calls == [len(reals)] + [1] * len(reals)
+    finally:
+        s.close()
+    # the same start values without phi_o: one call for the Reals, and the run is the one whose
+    # start values are set one by one (the Python loop's reference run of this module)
+    ok = Slave(pair["plant"], "plant", plant_start_values(scene), unzipdir=unzipped["plant"])
+    try:
+        one = Slave(pair["plant"], "plant", plant_start_values(scene),
+                    unzipdir=unzipped["plant"])
+        try:
+            ok.initialize(0.0, 1.0)
+            one.fmu.setupExperiment(None, 0.0, 1.0)
+            for name, value in plant_start_values(scene).items():
+                one._set_start(name, value)
+            one.fmu.enterInitializationMode()
+            one.fmu.exitInitializationMode()
+            a, b = ok.fmu.getFMUstate(), one.fmu.getFMUstate()
+            sa, sb = ok.fmu.serializeFMUstate(a), one.fmu.serializeFMUstate(b)
+            ok.fmu.freeFMUstate(a)
+            one.fmu.freeFMUstate(b)
+        finally:
+            one.close()
+    finally:
+        ok.close()
+    assert bytes(sa) == bytes(sb)
