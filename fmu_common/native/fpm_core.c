@@ -529,31 +529,48 @@ static void put_trailer(unsigned char *out, size_t n)
  * every get and every set), then the last whole words one to a lane, the bytes left over
  * byte-wise, the lanes and the length combined and mixed.
  * Not portable across byte orders: it never leaves the process. */
-#define SUM_LANES 8
+#define SUM_MIX(l, x, shift)                                                                  \
+    do {                                                                                      \
+        (l) = ((l) ^ (x)) * 1099511628211ULL;                                                 \
+        (l) ^= (l) >> (shift);                                                                \
+    } while (0)
 static unsigned long long memory_sum(const unsigned char *p, size_t n)
 {
-    const unsigned long long prime = 1099511628211ULL;
-    unsigned long long lane[SUM_LANES], w[SUM_LANES], h;
-    size_t i = 0;
-    int k;
-    for (k = 0; k < SUM_LANES; k++) lane[k] = 14695981039346656037ULL + (unsigned long long)k;
+    /* the eight lanes are eight variables, not an array: they stay in registers (an array's
+     * lanes went through memory, and each multiplication waited for a store to be read back) */
+    unsigned long long l0 = 14695981039346656037ULL, l1 = l0 + 1u, l2 = l0 + 2u, l3 = l0 + 3u;
+    unsigned long long l4 = l0 + 4u, l5 = l0 + 5u, l6 = l0 + 6u, l7 = l0 + 7u, w[8], h;
+    size_t i = 0, r;
     for (; i + sizeof w <= n; i += sizeof w) {
         memcpy(w, p + i, sizeof w);
-        for (k = 0; k < SUM_LANES; k++) {
-            lane[k] = (lane[k] ^ w[k]) * prime;
-            lane[k] ^= lane[k] >> 32;
-        }
+        SUM_MIX(l0, w[0], 32);
+        SUM_MIX(l1, w[1], 32);
+        SUM_MIX(l2, w[2], 32);
+        SUM_MIX(l3, w[3], 32);
+        SUM_MIX(l4, w[4], 32);
+        SUM_MIX(l5, w[5], 32);
+        SUM_MIX(l6, w[6], 32);
+        SUM_MIX(l7, w[7], 32);
     }
-    for (k = 0; i + sizeof w[0] <= n; i += sizeof w[0], k++) {   /* the last whole words */
-        memcpy(&w[0], p + i, sizeof w[0]);
-        lane[k] = (lane[k] ^ w[0]) * prime;
-        lane[k] ^= lane[k] >> 32;
-    }
+    r = (n - i) / sizeof w[0];                   /* the last whole words, one to a lane */
+    memcpy(w, p + i, r * sizeof w[0]);
+    if (r > 0) SUM_MIX(l0, w[0], 32);
+    if (r > 1) SUM_MIX(l1, w[1], 32);
+    if (r > 2) SUM_MIX(l2, w[2], 32);
+    if (r > 3) SUM_MIX(l3, w[3], 32);
+    if (r > 4) SUM_MIX(l4, w[4], 32);
+    if (r > 5) SUM_MIX(l5, w[5], 32);
+    if (r > 6) SUM_MIX(l6, w[6], 32);
+    i += r * sizeof w[0];
     h = fpm_hash(p + i, n - i, (unsigned long long)n);
-    for (k = 0; k < SUM_LANES; k++) {
-        h = (h ^ lane[k]) * prime;
-        h ^= h >> 29;
-    }
+    SUM_MIX(h, l0, 29);
+    SUM_MIX(h, l1, 29);
+    SUM_MIX(h, l2, 29);
+    SUM_MIX(h, l3, 29);
+    SUM_MIX(h, l4, 29);
+    SUM_MIX(h, l5, 29);
+    SUM_MIX(h, l6, 29);
+    SUM_MIX(h, l7, 29);
     return h;
 }
 
