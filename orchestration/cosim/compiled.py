@@ -18,6 +18,8 @@ about every 20 ms of wall time, to report progress and let Python's signal handl
 from __future__ import annotations
 
 import ctypes
+import functools
+import itertools
 import time
 
 import numpy as np
@@ -98,7 +100,9 @@ def load():
 
 
 def _address(fun) -> int | None:
-    return ctypes.cast(fun, _P).value if fun is not None else None
+    """The address of the C function of the ctypes function ``fun`` (what its buffer holds;
+    ``ctypes.cast(fun, c_void_p).value``, at a third of the cost), or None."""
+    return _P.from_buffer(fun).value if fun is not None else None
 
 
 def unavailable(coupling, slaves: dict, adaptive: bool) -> str | None:
@@ -139,6 +143,20 @@ def _ints(values, ctype=ctypes.c_int):
     return (ctype * max(1, len(values)))(*values)
 
 
+@functools.lru_cache(maxsize=16)
+def hermite_table(h: float) -> np.ndarray:
+    """The Hermite coupling's weights for the compiled loop at the step ``h`` (fm_master.h's
+    ``hweights``): ``hermite_rows(q, two_point, h)`` for q = 1 .. HERMITE_MAX_ORDER, zero-padded
+    to 2 HERMITE_MAX_ORDER + 2 columns; computed once per step, read-only."""
+    hw = np.zeros((HERMITE_MAX_ORDER, 2, 4, 2 * HERMITE_MAX_ORDER + 2))
+    for q in range(1, HERMITE_MAX_ORDER + 1):
+        for two in (0, 1):
+            W = hermite_rows(q, bool(two), h)
+            hw[q - 1, two, :, :W.shape[1]] = W
+    hw.flags.writeable = False
+    return hw
+
+
 class CompiledRun:
     """One fixed-step run in C of ``coupling`` over ``slaves``, from the signals' history ``hist``
     after the initial outputs, writing the rows of ``out`` (row 0 written).
@@ -156,21 +174,25 @@ class CompiledRun:
         self.steps, self.rows_written = 0, 1
         names = list(slaves)
         index = {n: i for i, n in enumerate(names)}
-        keep = self._keep = []                   # every buffer the structs point to
+        cp = coupling
+        # The structs' arrays in two blocks: one of 32-bit unsigned integers (value references,
+        # and indices and orders, all >= 0 and small: the C side's ints read the same bits) and
+        # one of doubles (the work arrays and the histories). Each array's place is noted as it
+        # is laid out; its field gets its address once the block exists.
+        ints, at_int, sizes, at_dbl = [], [], [], []
 
-        def buf(values, ctype=ctypes.c_int):
-            a = _ints(list(values), ctype)
-            keep.append(a)
-            return ctypes.addressof(a)
+        def ibuf(owner, field, values):
+            at_int.append((owner, field, len(ints)))
+            ints.extend(values)
+            ints.append(0)                       # every array at least one entry long
 
-        def work(n):
-            a = np.zeros(max(1, n))
-            keep.append(a)
-            return a
+        def dbuf(owner, field, size):            # the index of the array
+            at_dbl.append((owner, field))
+            sizes.append(max(1, size))
+            return len(sizes) - 1
 
         self.slaves = (_Slave * len(names))()
-        self.hist = {}
-        cp = coupling
+        widths, hists = {}, {}
         for i, n in enumerate(names):
             s, c = slaves[n], self.slaves[i]
             fun = s.raw_functions()
@@ -182,31 +204,27 @@ class CompiledRun:
             c.n_in, c.n_der = len(ins), n_der
             c.n_out, c.n_rec = len(cp.outputs[n]), len(cp.recorded[n])
             c.n_oder = q = cp.out_der[n]
-            width = c.n_out * (1 + q)            # a sample: the outputs, then derivatives
+            width = widths[n] = c.n_out * (1 + q)   # a sample: the outputs, then derivatives
             c.feedthrough = int(bool(s.feedthrough))
             c.sampled = int(bool(s.sampled))
-            c.in_vr = buf([s.vr(x.dst_var) for x in ins], ctypes.c_uint)
-            c.in_src = buf([index[x.src] for x in ins])
-            c.in_idx = buf([cp.out_index[x.src][x.src_var] for x in ins])
-            c.der_vr = buf([s.vr(x.dst_var) for x in ins] * n_der, ctypes.c_uint)
-            c.der_order = buf([k for k in range(1, n_der + 1) for _ in ins])
-            c.out_vr = buf([s.vr(v) for v in cp.outputs[n]], ctypes.c_uint)
-            c.rec_vr = buf([s.vr(v) for v in cp.recorded[n]], ctypes.c_uint)
-            c.oder_vr = buf([s.vr(v) for v in cp.outputs[n]] * q, ctypes.c_uint)
-            c.oder_order = buf([k for k in range(1, q + 1) for _ in cp.outputs[n]])
+            in_vr = [s.vr(x.dst_var) for x in ins]
+            out_vr = [s.vr(v) for v in cp.outputs[n]]
+            ibuf(c, "in_vr", in_vr)
+            ibuf(c, "in_src", [index[x.src] for x in ins])
+            ibuf(c, "in_idx", [cp.out_index[x.src][x.src_var] for x in ins])
+            ibuf(c, "der_vr", in_vr * n_der)
+            ibuf(c, "der_order", [k for k in range(1, n_der + 1) for _ in ins])
+            ibuf(c, "out_vr", out_vr)
+            ibuf(c, "rec_vr", [s.vr(v) for v in cp.recorded[n]])
+            ibuf(c, "oder_vr", out_vr * q)
+            ibuf(c, "oder_order", [k for k in range(1, q + 1) for _ in cp.outputs[n]])
             for field, size in (("in_val", c.n_in), ("der_val", c.n_in * n_der),
                                 ("new_val", width), ("rec_val", c.n_rec), ("saved", width)):
-                setattr(c, field, work(size).ctypes.data)
-            h = np.zeros((4, max(1, width)))
-            keep.append(h)
-            self.hist[n] = h
-            c.hist = h.ctypes.data
+                dbuf(c, field, size)
+            hists[n] = dbuf(c, "hist", 4 * max(1, width))
             # the history after the initial outputs: one sample at t0 (step 0)
-            samples = hist[n].u
-            c.count = len(samples)
-            c.newest = len(samples) - 1
-            for j, u in enumerate(samples):
-                h[j, :width] = u
+            c.count = len(hist[n].u)
+            c.newest = len(hist[n].u) - 1
         cols = list(cp.record.items())
         col_slave = [index[s] for _, (s, _v) in cols]
         col_rec = [int(v not in cp.out_index[s]) for _, (s, v) in cols]
@@ -217,22 +235,36 @@ class CompiledRun:
         st.n_slaves, st.gauss_seidel = len(names), int(cp.algorithm == "gauss-seidel")
         st.p, st.correct_startup = cp.p, int(cp.correct_startup)
         st.slaves = ctypes.addressof(self.slaves)
-        st.order = buf([index[n] for n in cp.order])
+        ibuf(st, "order", [index[n] for n in cp.order])
         st.t0, st.h, st.total, st.m = t0, cp.h, total, m
         self.weights = weight_table()
         st.weights = self.weights.ctypes.data
         st.hermite = int(cp.hermite)
         if cp.hermite:                  # hermite_rows(q, two_point, h), as the Python loop's
-            hw = self.hweights = np.zeros((HERMITE_MAX_ORDER, 2, 4, 2 * HERMITE_MAX_ORDER + 2))
-            for q in range(1, HERMITE_MAX_ORDER + 1):
-                for two in (0, 1):
-                    W = hermite_rows(q, bool(two), cp.h)
-                    hw[q - 1, two, :, :W.shape[1]] = W
-            st.hweights = hw.ctypes.data
+            self.hweights = hermite_table(cp.h)
+            st.hweights = self.hweights.ctypes.data
         st.n_cols = len(cols)
-        st.col_slave, st.col_rec, st.col_index = buf(col_slave), buf(col_rec), buf(col_index)
+        ibuf(st, "col_slave", col_slave)
+        ibuf(st, "col_rec", col_rec)
+        ibuf(st, "col_index", col_index)
         st.out = self.rows.ctypes.data
         st.k, st.rows = 0, 1
+        # the blocks (kept with the run: the structs point into them)
+        self._ints = np.array(ints, dtype=np.uint32)
+        base = self._ints.ctypes.data
+        for owner, field, offset in at_int:
+            setattr(owner, field, base + 4 * offset)
+        offsets = [0, *itertools.accumulate(sizes)]
+        self._doubles = np.zeros(offsets[-1])
+        base = self._doubles.ctypes.data
+        for (owner, field), offset in zip(at_dbl, offsets):
+            setattr(owner, field, base + 8 * offset)
+        self.hist = {}
+        for n, j in hists.items():
+            h = self._doubles[offsets[j]:offsets[j + 1]].reshape(4, -1)
+            self.hist[n] = h
+            for k, u in enumerate(hist[n].u):
+                h[k, :widths[n]] = u
 
     def run(self, stats, progress=None, stop=None) -> int:
         """Take the steps; their number (``total``)."""
