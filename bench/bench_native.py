@@ -21,7 +21,13 @@
   RK4 curve (time against error, log-log) is interpolated to the co-simulation's error between
   the two RK4 points that bracket it, those two and the co-simulation timed again side by side
   in alternated rounds; the largest RK4 step whose error is at most the co-simulation's is
-  given too (a bound: its error is lower).
+  given too (a bound: its error is lower). Then every co-simulation point of at most 1e-5 rad
+  against the RK4 at its own error, all timed again side by side: the ratio depends on the
+  error (below the fastest point, more plant substeps per macro step share the macro step's
+  own cost), and it is given twice: with the co-simulation's initialisation, and stepping
+  against stepping (less a run of one output interval, scaled to the horizon: the RK4's clock
+  starts after its setup). The Hermite points' times per macro step, a line over their plant
+  substeps, split what a substep costs from the rest.
 * **C host.** The plain C host of the tests (``tests/native/fmi2_host.c``, Jacobi, held inputs)
   over the native pair: its time per macro step.
 
@@ -61,6 +67,11 @@ T5_CANDIDATES = {          # the output grid (2 ms) must be a multiple of the st
         "master.step=2e-3", "plant.step=5e-4", "master.coupling=hermite", "master.first=plant"],
     "H=2ms, plant step 6.67e-4, Hermite, plant first": [
         "master.step=2e-3", f"plant.step={2e-3 / 3!r}", "master.coupling=hermite",
+        "master.first=plant"],
+    "H=2ms, plant step 4e-4, Hermite, plant first": [
+        "master.step=2e-3", "plant.step=4e-4", "master.coupling=hermite", "master.first=plant"],
+    "H=2ms, plant step 3.33e-4, Hermite, plant first": [
+        "master.step=2e-3", f"plant.step={2e-3 / 6!r}", "master.coupling=hermite",
         "master.first=plant"],
     "H=1ms, plant step 5e-4, output derivatives": ["master.step=1e-3", "plant.step=5e-4",
                                                    "master.output_derivatives=true"],
@@ -214,7 +225,7 @@ def cosim_points(runs, fmus, ref, log, candidates) -> list:
         med, times, res = median_time(run, runs)
         err = phi_error(res, ref)
         out.append({"family": "native co-simulation", "setting": label, "seconds": med,
-                    "error": err, "all_seconds": times, "_run": run})
+                    "error": err, "all_seconds": times, "_run": run, "_fmus": fmus})
         log(f"  native co-simulation {label:52s} error {err:9.2e}  {med:7.3f} s")
     return out
 
@@ -259,7 +270,7 @@ def fastest(points, max_error=1e-5):
 def t5(runs, native, log, quick) -> dict:
     scene = load_scene(SCENE)
     ref = reference(scene)
-    cands = dict(list(T5_CANDIDATES.items())[:5]) if quick else T5_CANDIDATES
+    cands = dict(list(T5_CANDIDATES.items())[:7]) if quick else T5_CANDIDATES
     co = cosim_points(runs, native, ref, log, cands)
     c = fastest(co)
     ivp = ivp_points(max(1, runs // 2) if quick else runs, scene, ref, log)
@@ -270,17 +281,21 @@ def t5(runs, native, log, quick) -> dict:
         log(f"T5  native {c['setting']}: {c['error']:.2e} rad in {c['seconds']:.4f} s; fastest "
             f"solve_ivp {i['setting']}: {i['error']:.2e} in {i['seconds']:.4f} s -> "
             f"{res['speedup_vs_solve_ivp']:.1f}x (target >= 5)")
+    ok = [p for p in co if p["error"] <= 1e-5]
     with tempfile.TemporaryDirectory() as tmp:
         exe = monolithic_rk4_binary(Path(tmp))
-        rk = rk4_points(runs, exe, scene, ref, log, c["error"] if c else 1e-5)
-        res.update(rk4_ratio(runs, c, rk, log, scene.output.stop_time))
+        rk = rk4_points(runs, exe, scene, ref, log,
+                        min(p["error"] for p in ok) if ok else 1e-5)
+        res.update(rk4_ratio(runs, c, rk, log))
+        res.update(rk4_ratios(runs, c, ok, rk, log, scene.output.stop_time))
     res["points"] = co + rk + ivp
     for p in res["points"]:
         p.pop("_run", None)
+        p.pop("_fmus", None)
     return res
 
 
-def rk4_ratio(runs, c, rk, log, stop: float) -> dict:
+def rk4_ratio(runs, c, rk, log) -> dict:
     """The co-simulation point ``c`` against the RK4 points ``rk`` at equal error: the largest
     RK4 step of at most its error, and the RK4 curve interpolated to its error between the two
     points around it, timed again side by side with ``c``."""
@@ -307,34 +322,88 @@ def rk4_ratio(runs, c, rk, log, stop: float) -> dict:
         f"interpolated (log-log) to {c['error']:.2e} rad: {t_rk:.4f} s -> native "
         f"co-simulation / RK4 at equal error = {res['ratio_to_monolithic_rk4']:.2f} "
         f"(wanted <= 1.5)")
-    res.update(macro_step_cost(c, t_c, t_rk, stop, pair, t_pair, log))
     return res
 
 
-def macro_step_cost(c, t_c, t_rk, stop, pair, t_pair, log) -> dict:
-    """Where the co-simulation's time goes, per macro step, when the RK4 of one bracketing
-    point steps as the plant does (the same step): its plant substeps at that RK4's cost per
-    step, and the rest (the FMI calls, the coupling, the output derivatives, the FMUs' checks,
-    the initialisation); and how small the rest must be for 1.5 times the RK4 at equal error."""
-    sets = dict(o.split("=", 1) for o in T5_CANDIDATES.get(c["setting"], []))
-    try:
+def rk4_ratios(runs, c, ok, rk, log, stop: float) -> dict:
+    """Every co-simulation point ``ok`` (error at most 1e-5 rad) against the RK4 curve ``rk`` at
+    its error: all of them and the RK4 points timed again side by side in alternated rounds, the
+    RK4 curve interpolated (log-log) between the two RK4 points that bracket each error. The
+    ratio of T5 is a function of the error: the fastest point (``c``) is the one a user after
+    1e-5 would run; below it, more plant substeps per macro step spread the macro step's own
+    cost over more of the RK4's work."""
+    pts = [p for p in ok if bracket(rk, p["error"])]
+    if not pts:
+        return {}
+    # each point's run of one output interval (its initialisation, as its full run's, and the
+    # steps of that interval): the difference to the full run is the rest of the stepping, and
+    # scaled to the whole horizon, the stepping alone, as the RK4's clock measures it (its setup
+    # is outside it)
+    grid = load_scene(SCENE).output.output_interval
+    ones = [{"_run": _cosim_run(CoSim(load_scene(SCENE, [*T5_CANDIDATES[p["setting"]],
+                                                         f"stop_time={grid!r}"]),
+                                      p["_fmus"]))} for p in pts]
+    steps = stop / grid
+    times = side_by_side([*pts, *ones, *rk], runs)
+    t_pts, t_one = times[:len(pts)], times[len(pts):2 * len(pts)]
+    rk_timed = [{**p, "seconds": t} for p, t in zip(rk, times[2 * len(pts):])]
+    rows = []
+    log(f"T5  every co-simulation point of at most 1e-5 rad against the RK4 at its error "
+        f"({runs} alternated rounds of all of them; 'stepping': the co-simulation less its "
+        f"initialisation, as the RK4's clock, which starts after its setup):")
+    for p, t, t1 in sorted(zip(pts, t_pts, t_one), key=lambda pt: -pt[0]["error"]):
+        t_eq = time_at_error(rk_timed, p["error"])
+        row = {"setting": p["setting"], "error": p["error"], "seconds": t,
+               "initialisation_seconds": t1, "monolithic_rk4_at_equal_error": t_eq,
+               "ratio": t / t_eq, "ratio_stepping": (t - t1) * steps / (steps - 1) / t_eq,
+               "fastest": p is c}
+        rows.append(row)
+        log(f"  {p['setting']:52s} {p['error']:9.2e} rad {t:8.4f} s (one output "
+            f"interval {t1 * 1e3:.2f} ms); RK4 {t_eq:8.4f} s -> {row['ratio']:.2f}, stepping {row['ratio_stepping']:.2f}"
+            f"{'  (the fastest of at most 1e-5)' if row['fastest'] else ''}")
+    for key, what in (("ratio", "with the co-simulation's initialisation"),
+                      ("ratio_stepping", "stepping against stepping")):
+        best = min(rows, key=lambda r: r[key])
+        met = [r for r in rows if r[key] <= 1.5]
+        where = ", ".join(f"{r['error']:.2e}" for r in met)
+        log(f"T5  at most 1.5x the RK4 at equal error, {what}: "
+            f"{'met at ' + where + ' rad' if met else 'met at no error of at most 1e-5'}; the "
+            f"best ratio {best[key]:.2f} ({best['setting']}, {best['error']:.2e} rad)")
+    best = min(rows, key=lambda r: r["ratio"])
+    return {"ratios_at_equal_error": rows, "best_ratio_to_monolithic_rk4": best,
+            **substep_split(rows, stop, log)}
+
+
+def substep_split(rows, stop: float, log) -> dict:
+    """The co-simulation's time per macro step split by a straight line over the Hermite points
+    ``rows`` (one macro step H, plant steps H / k for several k; least squares of the time per
+    macro step against k): what one more plant substep costs, and the rest (the FMI calls, the
+    coupling, the output derivatives, the FMUs' checks, the initialisation spread over the
+    run); and, at each k, the rest that 1.5x the RK4 at that point's error allows."""
+    pts = []
+    for r in rows:
+        sets = dict(o.split("=", 1) for o in T5_CANDIDATES.get(r["setting"], []))
+        if sets.get("master.coupling") != "hermite":
+            continue
         big, small = float(sets["master.step"]), float(sets["plant.step"])
-    except (KeyError, ValueError):
+        n_macro = round(stop / big)
+        pts.append((round(big / small), r["seconds"] / n_macro, r["monolithic_rk4_at_equal_error"]
+                    / n_macro, r["setting"], r["initialisation_seconds"] / n_macro))
+    if len({k for k, *_ in pts}) < 2:
         return {}
-    same = [t for p, t in zip(pair, t_pair) if abs(p["h"] - small) <= 1e-9 * small]
-    if not same:
-        return {}
-    n_macro = round(stop / big)
-    per_rk = same[0] / round(stop / small)
-    per_macro = t_c / n_macro
-    plant = round(big / small) * per_rk
-    rest, budget = per_macro - plant, 1.5 * t_rk / n_macro - plant
-    log(f"T5  per macro step: {per_macro * 1e6:.3f} us = {round(big / small)} plant substeps at "
-        f"the RK4's cost per step ({plant * 1e6:.3f} us) + the rest {rest * 1e6:.3f} us (FMI "
-        f"calls, coupling, output derivatives, checks, initialisation); 1.5x wants the rest at "
-        f"most {budget * 1e6:.3f} us")
-    return {"per_macro_step_us": per_macro * 1e6, "plant_substeps_us": plant * 1e6,
-            "rest_us": rest * 1e6, "rest_for_1_5x_us": budget * 1e6}
+    k = np.array([p[0] for p in pts], float)
+    per = np.array([p[1] for p in pts])
+    sub, rest = np.polyfit(k, per, 1)
+    init = statistics.median(p[4] for p in pts)
+    log(f"T5  per macro step (Hermite, H = 2 ms; a line over {len(pts)} plant steps): "
+        f"{rest * 1e9:.0f} ns + k x {sub * 1e9:.0f} ns for k plant substeps (the RK4: "
+        f"{statistics.median(p[2] / p[0] for p in pts) * 1e9:.0f} ns a step); of the "
+        f"{rest * 1e9:.0f} ns, the initialisation spread over the run's steps: {init * 1e9:.0f} ns")
+    for kk, _, rk_per, *_ in sorted(pts):
+        log(f"    k = {kk}: 1.5x wants the rest at most {(1.5 * rk_per - kk * sub) * 1e9:.0f} ns")
+    return {"substep_ns": sub * 1e9, "rest_ns": rest * 1e9, "initialisation_ns": init * 1e9,
+            "rest_for_1_5x_ns": {str(kk): (1.5 * rk_per - kk * sub) * 1e9
+                                 for kk, _, rk_per, *_ in pts}}
 
 
 # ---------------------------------------------------------------------- C host
@@ -394,9 +463,12 @@ def main(argv=None) -> int:
     if args.only in (None, "T5"):
         r5 = t5(args.runs, native, log, args.quick)
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"T4": r4, "T5": r5, "c_host": host}, indent=2,
-                                              default=float))
+        out = Path(args.json)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(out.name + ".part")      # complete or absent
+        tmp.write_text(json.dumps({"T4": r4, "T5": r5, "c_host": host}, indent=2,
+                                  default=float))
+        tmp.replace(out)
     return 0
 
 
