@@ -69,7 +69,7 @@ KERNELS = {
                     "fme_source_digest", 2),
     # the master's compiled adaptive loop (orchestration/cosim/compiled_adaptive.py)
     "flexpend_adaptive": ("orchestration/cosim", ("fm_adaptive.c",), ("fm_adaptive.h",),
-                          "fa_abi", "fa_source_digest", 4),
+                          "fa_abi", "fa_source_digest", 5),
 }
 
 

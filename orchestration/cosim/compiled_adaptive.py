@@ -91,7 +91,7 @@ class _Master(ctypes.Structure):
                 ("max_iterations", _I), ("fail_kind", _I), ("jacobian_steps", _LL),
                 ("fail_residual", _D), ("fail_iterations", _I), ("pad_", _I),
                 ("fail_slave", _I), ("fail_call", _I), ("fail_status", _I), ("fail_timed", _I),
-                ("fail_time", _D)]
+                ("fail_time", _D), ("pow_arg", _D), ("pow1", _D), ("pow2", _D)]
 
 
 _GO_ON = ctypes.CFUNCTYPE(ctypes.c_int)

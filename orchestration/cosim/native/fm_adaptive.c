@@ -222,14 +222,20 @@ static double combine(const fa_slave *s, const double *w, int nodes, int idx)
 
 /* _fill: the inputs of `d` from its sources' polynomials about `t` (seconds): held over
  * [t, t + scale] (the step averages, or the values and derivatives at t), or the values at t. */
-static int fill(const fa_master *m, fa_slave *d, double t, double scale, int held)
+static int fill(fa_master *m, fa_slave *d, double t, double scale, int held)
 {
     double w[3][3], pw[2] = {0.0, 0.0};
     int i, r, j, last = -1, nodes = 0;
     int rows = held && d->n_der ? d->n_der : 0;
-    if (rows) {
-        pw[0] = py_pow(scale * unit_of(m), 1.0);
-        if (rows > 1) pw[1] = py_pow(scale * unit_of(m), 2.0);
+    if (rows) {                           /* the powers once per scale (a fixed step: per run) */
+        const double x = scale * unit_of(m);
+        if (!(x == m->pow_arg && x > 0.0)) {
+            m->pow1 = py_pow(x, 1.0);
+            m->pow2 = py_pow(x, 2.0);
+            m->pow_arg = x;
+        }
+        pw[0] = m->pow1;
+        if (rows > 1) pw[1] = m->pow2;
     }
     for (i = 0; i < d->n_in; i++) {
         const fa_slave *s = &m->slaves[d->in_src[i]];

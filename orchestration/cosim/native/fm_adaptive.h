@@ -44,7 +44,7 @@ extern "C" {
 #endif
 
 /* Version of the binary interface below (structs, codes). Bump on any change. */
-#define FA_ABI 4
+#define FA_ABI 5
 
 /* Results of fa_run(). */
 #define FA_DONE 0       /* the output points up to j_end are reached */
@@ -201,6 +201,9 @@ typedef struct fa_master {
     int fail_status;                  /* out: the fmi2Status */
     int fail_timed;                   /* out: 1 if fail_time applies */
     double fail_time;                 /* out */
+    double pow_arg, pow1, pow2;       /* work: the held inputs' scale and its powers 1 and 2
+                                       * (libm's pow, as Python's **), for the next fill at the
+                                       * same scale; 0 before the first (set 0 by the caller) */
 } fa_master;
 
 FA_API int fa_abi(void);
