@@ -359,7 +359,8 @@ def rk4_ratios(runs, c, ok, rk, log, stop: float) -> dict:
                "fastest": p is c}
         rows.append(row)
         log(f"  {p['setting']:52s} {p['error']:9.2e} rad {t:8.4f} s (one output "
-            f"interval {t1 * 1e3:.2f} ms); RK4 {t_eq:8.4f} s -> {row['ratio']:.2f}, stepping {row['ratio_stepping']:.2f}"
+            f"interval {t1 * 1e3:.2f} ms); RK4 {t_eq:8.4f} s -> {row['ratio']:.2f}, "
+            f"stepping {row['ratio_stepping']:.2f}"
             f"{'  (the fastest of at most 1e-5)' if row['fastest'] else ''}")
     for key, what in (("ratio", "with the co-simulation's initialisation"),
                       ("ratio_stepping", "stepping against stepping")):
